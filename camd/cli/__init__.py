@@ -1,0 +1,1 @@
+"""Command-line entry points: ``camd`` (server side) and ``camctl`` (client)."""

@@ -1,0 +1,423 @@
+"""``camd demo``: the main job in one command, on the simulated camera.
+
+Starts ``camd serve --sim`` on a lossy line (bit errors and dropped frames), then, through
+``CamdClient`` exactly as any script would: shows the status, pings the device, compares the
+host's and the device's link counters (every command executed at most once although frames were
+lost and retried), shows telemetry being archived, switches area -> tdi -> area, lists the
+events, stops the daemon and writes everything to ``OUT/demo-summary.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import sys
+import time
+from collections.abc import Mapping
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from rich.console import Console
+
+    from camd.client import CamdClient
+
+DEFAULT_OUT = "camd-demo"
+DEFAULT_PINGS = 1000
+# The demo's line: enough faults that retries happen in every run, few enough that none fails.
+DEMO_INJECT = "ber=1e-4,drop=0.01"
+TELEMETRY_WAIT_S = 3.0
+TELEMETRY_GRACE_S = 5.0  # extra wait if no new sample arrived in TELEMETRY_WAIT_S
+# Commands that may fall between the two link snapshots on one side and not the other: the
+# snapshot's own GET_LINK_STATS / SIM_GET_INJECTED and a housekeeping poll in flight, at each
+# of the two snapshots. A command executed twice per lost acknowledge would show as a
+# difference of about `replayed`, far above this.
+AT_MOST_ONCE_SLACK = 4
+
+
+def add_parser(sub: Any) -> None:
+    """Register ``camd demo`` (called by camd.cli.camd_main)."""
+    p: argparse.ArgumentParser = sub.add_parser(
+        "demo",
+        help="run the main job on the simulated camera and write a summary",
+        description="Start the daemon on the simulated camera with a lossy line "
+        f"(--inject {DEMO_INJECT}), ping it, compare link counters, show telemetry, switch "
+        "modes, list events, stop it, and write OUT/demo-summary.json.",
+    )
+    p.add_argument(
+        "--out",
+        default=DEFAULT_OUT,
+        metavar="DIR",
+        help=f"directory for the summary, the daemon's data and its log (default ./{DEFAULT_OUT})",
+    )
+    p.add_argument(
+        "--pings",
+        type=_pings_arg,
+        default=DEFAULT_PINGS,
+        metavar="N",
+        help=f"number of pings, 1..100000 (default {DEFAULT_PINGS})",
+    )
+
+
+def _pings_arg(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if not 1 <= value <= 100_000:
+        raise argparse.ArgumentTypeError(f"must be from 1 to 100000, got {value}")
+    return value
+
+
+class DemoFailed(Exception):
+    """A demo check failed; the message says which and where to look."""
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the demo; 0 if every step passed, 1 otherwise (the reason on stderr)."""
+    return run_demo(args.out, args.pings)
+
+
+def run_demo(out: str | os.PathLike[str], pings: int = DEFAULT_PINGS) -> int:
+    """Run the whole demo with its output in ``out``; returns the exit status."""
+    # Imported here, not at the top: camd_main imports this module to build its parser for
+    # every subcommand, and `camd serve` should not pay for rich and the client.
+    from rich.console import Console
+
+    import camd
+    from camd.cli._daemon_proc import DaemonProcess, DaemonStartError
+    from camd.client import CamdClient, CamdError
+
+    out_dir = Path(out)
+    summary_path = out_dir / "demo-summary.json"
+    # Not a terminal (CI, a pipe): a fixed, wide page instead of rich's 80 columns.
+    console = Console(highlight=False, width=None if sys.stdout.isatty() else 120)
+    started = time.monotonic()
+    summary: dict[str, Any] = {
+        "ok": False,
+        "error": None,
+        "camd_version": camd.__version__,
+        "out_dir": str(out_dir.resolve()),
+        "pings_requested": pings,
+        "inject": DEMO_INJECT,
+        "daemon": {},
+    }
+    daemon = DaemonProcess(out_dir, inject=DEMO_INJECT)
+    error: str | None = None
+    interrupted = False
+
+    console.rule("[bold]camd demo[/bold]: simulated camera, lossy RS-422 line")
+    try:
+        with console.status(f"starting camd serve --sim --inject {DEMO_INJECT} ..."):
+            daemon.start()
+        summary["daemon"] = {"url": daemon.url, "pid": daemon.pid, "log": str(daemon.log_path)}
+        console.print(
+            f"daemon pid {daemon.pid} serving {daemon.url}, data in {out_dir}, "
+            f"line faults {DEMO_INJECT}"
+        )
+        with CamdClient(daemon.url) as client:
+            _Demo(console, client, summary, pings).run()
+    except DaemonStartError as exc:
+        error = f"the daemon did not start: {exc}"
+    except CamdError as exc:
+        error = f"{exc.message} (API code {exc.code}); the daemon's log is {daemon.log_path}"
+    except DemoFailed as exc:
+        error = str(exc)
+    except OSError as exc:
+        error = f"cannot use {out_dir} ({exc}); choose another directory with --out"
+    except KeyboardInterrupt:
+        error = "interrupted"
+        interrupted = True
+    finally:
+        exit_code = daemon.stop()
+
+    if exit_code is not None:
+        summary["daemon"].update(exit_code=exit_code, killed=daemon.killed)
+        # uvicorn re-raises the SIGTERM it handled after a graceful shutdown, so -SIGTERM is as
+        # clean as 0 (systemd agrees); a kill after the stop timeout is not.
+        if error is None and (exit_code not in (0, -signal.SIGTERM) or daemon.killed):
+            how = " (it ignored SIGTERM and was killed)" if daemon.killed else ""
+            error = (
+                f"the daemon did not stop cleanly: exit status {exit_code}{how}; "
+                f"see {daemon.log_path}"
+            )
+        elif error is None:
+            how = "on SIGTERM" if exit_code else "with exit status 0"
+            console.print(f"daemon stopped cleanly {how}")
+    summary["ok"] = error is None
+    summary["error"] = error
+    summary["duration_s"] = round(time.monotonic() - started, 3)
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        summary_path.write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+    except OSError as exc:
+        error = error or f"cannot write {summary_path} ({exc}); choose another directory with --out"
+
+    if error is not None:
+        print(f"camd demo: error: {error}", file=sys.stderr)
+        return 130 if interrupted else 1
+    ping = summary["ping"]
+    check = summary["at_most_once"]
+    tel = summary["telemetry"]
+    # Plain print, never wrapped: scripts and the README quote this line.
+    print(
+        f"demo OK: {ping['count']} pings, {ping['retries']} retries, {ping['failed']} failed, "
+        f"rtt p50/p99 {_ms(ping['rtt_ms']['p50'])}/{_ms(ping['rtt_ms']['p99'])} ms, "
+        f"at most once: {check['device_executed']} executed for {check['host_answered']} "
+        f"answered ({check['device_replayed']} replayed), "
+        f"{tel['samples_after']} telemetry samples archived; summary in {summary_path}",
+        flush=True,
+    )
+    return 0
+
+
+class _Demo:
+    """The demo's steps against a running daemon; each records its results in ``summary``."""
+
+    def __init__(self, console: Console, client: CamdClient, summary: dict[str, Any], pings: int):
+        self.console = console
+        self.client = client
+        self.summary = summary
+        self.pings = pings
+
+    def run(self) -> None:
+        self.status()
+        self.ping_and_link()
+        self.telemetry()
+        self.modes()
+        self.events()
+
+    def step(self, title: str) -> None:
+        self.console.print()
+        self.console.rule(f"[bold]{title}", align="left")
+
+    # -- steps ------------------------------------------------------------------------------------
+
+    def status(self) -> None:
+        from rich.table import Table
+
+        from camd.cli.camctl import fmt_firmware, fmt_value, state_text
+
+        self.step("1. status")
+        doc = _plain(self.client.wait_ready(10.0))
+        self.summary["status"] = doc
+        device = doc.get("device") or {}
+        daemon = doc.get("daemon") or {}
+        table = Table(show_header=True, box=None, pad_edge=False)
+        for name in ("state", "mode", "firmware", "device uptime", "daemon", "link"):
+            table.add_column(name)
+        link = doc.get("link") or {}
+        table.add_row(
+            state_text(doc.get("state")),
+            fmt_value(doc.get("mode")),
+            fmt_firmware(device.get("fw_version")),
+            _seconds(device.get("uptime_s")),
+            f"{daemon.get('version', '?')}, up {_seconds(daemon.get('uptime_s'))}",
+            f"{link.get('port', '?')} ({'connected' if link.get('connected') else 'not connected'})",
+        )
+        self.console.print(table)
+        if doc.get("state") != "idle":
+            raise DemoFailed(
+                f"the daemon is {doc.get('state')!r}, not 'idle' ({doc.get('reason')}); "
+                f"see its log {self.summary['daemon'].get('log')}"
+            )
+
+    def ping_and_link(self) -> None:
+        from camd.cli.camctl import link_table, ping_table
+
+        self.step(f"2. {self.pings} pings over the lossy line")
+        before = _plain(self.client.link())
+        with self.console.status(f"pinging the device {self.pings} times ..."):
+            ping = _plain(self.client.ping(count=self.pings))
+        after = _plain(self.client.link())
+        self.summary["ping"] = ping
+        self.summary["link"] = {"before": before, "after": after}
+        self.console.print(ping_table(ping, title=None))
+        for reason in ping.get("errors") or []:
+            self.console.print(f"  [red]error:[/red] {reason}")
+        if ping.get("failed") or ping.get("ok") != ping.get("count"):
+            raise DemoFailed(
+                f"{ping.get('failed')} of {ping.get('count')} pings failed "
+                f"({'; '.join(ping.get('errors') or []) or 'no reason given'}); "
+                "the link should recover every frame lost on this line"
+            )
+
+        self.step("3. link counters: host vs device")
+        self.console.print(link_table(after, title=None))
+        check = at_most_once(before, after)
+        self.summary["at_most_once"] = check
+        self.console.print(
+            f"during the pings: host sent {check['host_sent']} frames with "
+            f"{check['host_retries']} retries ({check['host_timeouts']} timeouts) and got "
+            f"{check['host_answered']} answers; the device executed {check['device_executed']} "
+            f"commands and answered {check['device_replayed']} retries from its record "
+            "instead of executing them again."
+        )
+        if check["held"]:
+            self.console.print(
+                f"[green]at-most-once holds[/green]: executed - answered = "
+                f"{check['difference']} (commands straddling the two snapshots, "
+                f"|difference| <= {check['tolerance']})"
+            )
+        else:
+            raise DemoFailed(
+                f"at-most-once violated: the device executed {check['device_executed']} "
+                f"commands for {check['host_answered']} answered by the host "
+                f"(difference {check['difference']}, tolerance {check['tolerance']}); "
+                "a retried command was executed again"
+            )
+
+    def telemetry(self) -> None:
+        from camd.cli.camctl import telemetry_table
+
+        self.step("4. telemetry")
+        first = _plain(self.client.telemetry())
+        with self.console.status(f"collecting housekeeping for {TELEMETRY_WAIT_S:g} s ..."):
+            time.sleep(TELEMETRY_WAIT_S)
+            last = _plain(self.client.telemetry())
+            deadline = time.monotonic() + TELEMETRY_GRACE_S
+            while last.get("samples", 0) <= first.get("samples", 0) and (
+                time.monotonic() < deadline
+            ):
+                time.sleep(0.25)
+                last = _plain(self.client.telemetry())
+        self.console.print(telemetry_table(last, title=None))
+        archive = str(last.get("archive"))
+        record: dict[str, Any] = {
+            "first": first,
+            "last": last,
+            "samples_before": first.get("samples"),
+            "samples_after": last.get("samples"),
+            "archive": archive,
+            "archive_exists": Path(archive).exists(),
+        }
+        self.summary["telemetry"] = record
+        latest = last.get("latest") or {}
+        if not latest:
+            raise DemoFailed(
+                "the daemon reports no telemetry; housekeeping should arrive every second or so"
+            )
+        channel = "fpga_temp_degc" if "fpga_temp_degc" in latest else next(iter(latest))
+        history = self.client.history(channel)
+        record["history"] = {
+            "channel": channel,
+            "unit": history.get("unit"),
+            "samples": len(history.get("value") or []),
+        }
+        self.console.print(
+            f"samples archived: {record['samples_before']} -> {record['samples_after']} in "
+            f"{TELEMETRY_WAIT_S:g} s; archive {archive} "
+            f"({'exists' if record['archive_exists'] else '[red]missing[/red]'}); "
+            f"{record['history']['samples']} samples of {channel} read back from it"
+        )
+        if not last.get("samples", 0) > first.get("samples", 0):
+            raise DemoFailed(
+                f"no telemetry sample was archived in {TELEMETRY_WAIT_S + TELEMETRY_GRACE_S:g} s "
+                f"(count stayed at {last.get('samples')}); check the housekeeping poll"
+            )
+        if not record["archive_exists"]:
+            raise DemoFailed(f"the telemetry archive {archive} does not exist")
+
+    def modes(self) -> None:
+        from rich.table import Table
+
+        from camd.cli.camctl import fmt_value, state_text
+
+        self.step("5. imaging mode: area -> tdi -> area")
+        table = Table(box=None, pad_edge=False)
+        for name in ("step", "state", "mode", "device mode"):
+            table.add_column(name)
+        steps: list[dict[str, Any]] = []
+        initial = _plain(self.client.status())
+        steps.append({"requested": None, "status": initial})
+        for mode in ("tdi", "area"):
+            answer = _plain(self.client.set_mode(mode))
+            status = _plain(self.client.status())
+            steps.append({"requested": mode, "answer": answer, "status": status})
+        for entry in steps:
+            status = entry["status"]
+            device = status.get("device") or {}
+            table.add_row(
+                "initial" if entry["requested"] is None else f"mode {entry['requested']}",
+                state_text(status.get("state")),
+                fmt_value(status.get("mode")),
+                fmt_value(device.get("mode")),
+            )
+        self.console.print(table)
+        self.summary["modes"] = steps
+        for entry in steps[1:]:
+            if entry["status"].get("mode") != entry["requested"]:
+                raise DemoFailed(
+                    f"after `mode {entry['requested']}` the status says mode "
+                    f"{entry['status'].get('mode')!r}"
+                )
+
+    def events(self) -> None:
+        from camd.cli.camctl import events_table
+
+        self.step("6. recent events")
+        doc = _plain(self.client.events(limit=10))
+        self.summary["events"] = doc.get("events", [])
+        self.console.print(events_table(doc, title=None))
+
+
+def at_most_once(before: dict[str, Any], after: dict[str, Any]) -> dict[str, Any]:
+    """Compare host and device link counters between two ``/link`` snapshots.
+
+    Without a failed command, every command the device executed was answered once on the host
+    (ACK or NAK); a retry after a lost acknowledge is answered from the device's record
+    (``replayed``), not executed again. So ``executed`` and ``acked + nacked`` grow alike, up to
+    the few commands in flight at the snapshots.
+    """
+
+    def delta(side: str, key: str) -> int:
+        if after.get(side) is None or before.get(side) is None:
+            raise DemoFailed(
+                f"the daemon could not read the {side}'s link counters; "
+                "is the simulated camera still connected? (see the daemon's log)"
+            )
+        new = (after.get(side) or {}).get(key)
+        old = (before.get(side) or {}).get(key)
+        if not isinstance(new, int) or not isinstance(old, int):
+            raise DemoFailed(
+                f"the /link document lacks {side}.{key}; the daemon and this client disagree "
+                "on the API (docs/api.md)"
+            )
+        return new - old
+
+    answered = delta("host", "acked") + delta("host", "nacked")
+    executed = delta("device", "executed")
+    difference = executed - answered
+    failed = delta("host", "failed")
+    return {
+        "host_sent": delta("host", "sent"),
+        "host_acked": delta("host", "acked"),
+        "host_nacked": delta("host", "nacked"),
+        "host_answered": answered,
+        "host_retries": delta("host", "retries"),
+        "host_timeouts": delta("host", "timeouts"),
+        "host_failed": failed,
+        "device_executed": executed,
+        "device_replayed": delta("device", "replayed"),
+        "difference": difference,
+        "tolerance": AT_MOST_ONCE_SLACK,
+        # A failed command may have executed without an answer: the check needs none failed.
+        "held": failed == 0 and abs(difference) <= AT_MOST_ONCE_SLACK,
+    }
+
+
+def _plain(doc: Mapping[str, Any]) -> dict[str, Any]:
+    """A TypedDict document as a plain dict (the summary holds them as such)."""
+    return dict(doc)
+
+
+def _ms(value: Any) -> str:
+    return f"{value:.2f}" if isinstance(value, int | float) else "-"
+
+
+def _seconds(value: Any) -> str:
+    if not isinstance(value, int | float):
+        return "-"
+    return f"{value:.1f} s"

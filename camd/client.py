@@ -1,0 +1,421 @@
+"""A small typed client of the camd HTTP API (docs/api.md), for camctl and for any script.
+
+Every method returns the API's JSON document as a plain dict (typed with TypedDicts below, which
+name the documented keys; the daemon may add more and they are passed through untouched).
+Failures raise ``CamdError`` built from the API's ``{"error", "code"}`` body, or
+``DaemonUnreachable`` when nothing answers at the URL::
+
+    from camd.client import CamdClient, CamdError
+
+    with CamdClient() as cam:                   # $CAMD_URL or http://127.0.0.1:8422
+        print(cam.status()["state"])
+        result = cam.ping(count=100)
+        print(result["rtt_ms"]["p99"])
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from typing import Any, Literal, NotRequired, TypedDict, cast
+
+import httpx
+
+__all__ = [
+    "DEFAULT_URL",
+    "CamdClient",
+    "CamdError",
+    "DaemonUnreachable",
+    "DeviceLinkStats",
+    "EventsDoc",
+    "HistoryDoc",
+    "LinkDoc",
+    "ModeDoc",
+    "PingResult",
+    "StatusDoc",
+    "TelemetryDoc",
+]
+
+DEFAULT_URL = "http://127.0.0.1:8422"
+API = "/api/v1"
+
+# Upper bound on one ping's wall time used to size the HTTP timeout of a ping run: the daemon
+# pings strictly one at a time and a lost frame costs at most a few link timeouts of ~0.1 s, so
+# a long run must not be cut off by the client's ordinary per-request timeout.
+_PING_ALLOWANCE_S = 0.05
+
+LimitState = Literal["ok", "yellow", "red"]
+
+
+# -- documents (docs/api.md); total=False where the API leaves room for more -------------------
+
+
+class LinkPort(TypedDict):
+    """``status.link``: the serial port and whether it is open."""
+
+    port: str
+    connected: bool
+    last_error: NotRequired[str | None]  # why the port is not open
+    sim_pid: NotRequired[int | None]  # the simulator the daemon spawned, if any
+
+
+class DaemonInfo(TypedDict):
+    """``status.daemon``."""
+
+    version: str
+    pid: int
+    uptime_s: float
+
+
+class StatusDoc(TypedDict):
+    """GET /api/v1/status (also what POST /api/v1/reset returns)."""
+
+    state: str
+    reason: str | None
+    mode: str | None
+    link: LinkPort
+    device: dict[str, Any] | None  # the GET_STATUS fields, or None while disconnected
+    daemon: DaemonInfo
+
+
+class RttMs(TypedDict):
+    """Round-trip time percentiles of the successful pings, milliseconds (None if none)."""
+
+    p50: float | None
+    p99: float | None
+    max: float | None
+
+
+class PingResult(TypedDict):
+    """POST /api/v1/ping."""
+
+    count: int
+    ok: int
+    failed: int
+    retries: int
+    rtt_ms: RttMs
+    errors: list[str]  # up to 5 distinct failure reasons
+
+
+class DeviceLinkStats(TypedDict):
+    """``link.device``: the GET_LINK_STATS counters, plus the simulator's injected faults
+    (``injected`` is None on hardware)."""
+
+    rx_frames: int
+    crc_errors: int
+    resyncs: int
+    bytes_dropped: int
+    executed: int
+    replayed: int
+    nacked: int
+    tx_frames: int
+    injected: dict[str, int] | None
+
+
+class LinkDoc(TypedDict):
+    """GET /api/v1/link: host counters (sent, acked, nacked, retries, timeouts, crc_errors,
+    failed, ...) and the device's (None while it cannot be asked)."""
+
+    host: dict[str, int]
+    device: DeviceLinkStats | None
+
+
+class ChannelValue(TypedDict):
+    """One telemetry channel's latest sample."""
+
+    value: float
+    unit: str
+    t_s: float  # Unix time of the sample
+    limit: LimitState
+
+
+class TelemetryDoc(TypedDict):
+    """GET /api/v1/telemetry."""
+
+    latest: dict[str, ChannelValue]
+    samples: int
+    archive: str
+
+
+class HistoryDoc(TypedDict):
+    """GET /api/v1/telemetry/history."""
+
+    channel: str
+    unit: str
+    t_s: list[float]
+    value: list[float]
+
+
+class Event(TypedDict):
+    """One entry of the event log."""
+
+    t_s: float
+    level: str
+    source: str
+    message: str
+
+
+class EventsDoc(TypedDict):
+    """GET /api/v1/events (newest last)."""
+
+    events: list[Event]
+
+
+class ModeDoc(TypedDict):
+    """POST /api/v1/mode."""
+
+    mode: str
+
+
+# -- errors ---------------------------------------------------------------------------------------
+
+
+class CamdError(Exception):
+    """The daemon refused or failed a request.
+
+    ``message`` is the API's ``error`` text (it says what to change), ``code`` its ``code``
+    (``bad_request``, ``illegal_state``, ``device_nak``, ...; see docs/api.md) and
+    ``http_status`` the HTTP status, or None when no HTTP answer was received.
+    """
+
+    def __init__(self, message: str, code: str = "error", http_status: int | None = None) -> None:
+        super().__init__(message)
+        self.message = message
+        self.code = code
+        self.http_status = http_status
+
+    def __repr__(self) -> str:
+        return (
+            f"{type(self).__name__}({self.message!r}, code={self.code!r}, "
+            f"http_status={self.http_status!r})"
+        )
+
+
+class DaemonUnreachable(CamdError):
+    """Nothing answers at the daemon's URL (not running, wrong URL or port)."""
+
+    def __init__(self, url: str, detail: str) -> None:
+        super().__init__(
+            f"no camd daemon answers at {url} ({detail}); is `camd serve` running? "
+            "start it with `camd serve --sim`, or point --url / $CAMD_URL at it",
+            code="unreachable",
+            http_status=None,
+        )
+        self.url = url
+
+
+# -- the client -----------------------------------------------------------------------------------
+
+
+def normalise_url(url: str) -> str:
+    """Return ``url`` with a scheme (``localhost:8422`` -> ``http://localhost:8422``), no trailing
+    slash. Raises ValueError naming the URL if it cannot be an HTTP URL."""
+    text = url.strip()
+    if "://" not in text:
+        text = "http://" + text
+    try:
+        parsed = httpx.URL(text)
+    except httpx.InvalidURL as exc:
+        raise ValueError(f"bad daemon URL {url!r} ({exc}); write e.g. {DEFAULT_URL}") from None
+    if parsed.scheme not in ("http", "https") or not parsed.host:
+        raise ValueError(f"bad daemon URL {url!r}; write e.g. {DEFAULT_URL}")
+    return text.rstrip("/")
+
+
+class CamdClient:
+    """Client of one camd daemon.
+
+    ``url`` defaults to ``$CAMD_URL``, else ``http://127.0.0.1:8422``; ``token`` to
+    ``$CAMD_TOKEN`` (sent as ``Authorization: Bearer``). ``timeout_s`` bounds each request,
+    except that ``ping`` extends it with the number of pings.
+    """
+
+    def __init__(
+        self,
+        url: str | None = None,
+        *,
+        token: str | None = None,
+        timeout_s: float = 30.0,
+    ) -> None:
+        if timeout_s <= 0:
+            raise ValueError(f"timeout_s must be > 0 seconds, got {timeout_s}")
+        self.url = normalise_url(url or os.environ.get("CAMD_URL") or DEFAULT_URL)
+        self.timeout_s = timeout_s
+        token = token if token is not None else os.environ.get("CAMD_TOKEN")
+        headers = {"Accept": "application/json"}
+        if token:
+            headers["Authorization"] = f"Bearer {token}"
+        self._http = httpx.Client(base_url=self.url, headers=headers, timeout=timeout_s)
+
+    def close(self) -> None:
+        """Close the connection pool."""
+        self._http.close()
+
+    def __enter__(self) -> CamdClient:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        return f"CamdClient({self.url!r})"
+
+    # -- endpoints ------------------------------------------------------------------------------
+
+    def status(self) -> StatusDoc:
+        """The daemon's state, mode, link, device status and identity."""
+        return cast(StatusDoc, self._json("GET", f"{API}/status"))
+
+    def ping(self, count: int = 10, size: int = 16) -> PingResult:
+        """Have the daemon ping the device ``count`` times with ``size``-byte payloads."""
+        timeout = self.timeout_s + _PING_ALLOWANCE_S * max(count, 0)
+        body = {"count": count, "size": size}
+        return cast(PingResult, self._json("POST", f"{API}/ping", json=body, timeout=timeout))
+
+    def link(self) -> LinkDoc:
+        """Host and device counters of the command link."""
+        return cast(LinkDoc, self._json("GET", f"{API}/link"))
+
+    def telemetry(self) -> TelemetryDoc:
+        """Latest value of every telemetry channel, sample count and archive path."""
+        return cast(TelemetryDoc, self._json("GET", f"{API}/telemetry"))
+
+    def history(
+        self, channel: str, since_s: float | None = None, limit: int | None = None
+    ) -> HistoryDoc:
+        """Archived samples of one telemetry channel. ``since_s`` is a Unix time, or a negative
+        number of seconds before now; ``limit`` caps the number of samples."""
+        params: dict[str, str | int | float] = {"channel": channel}
+        if since_s is not None:
+            params["since_s"] = since_s
+        if limit is not None:
+            params["limit"] = limit
+        return cast(HistoryDoc, self._json("GET", f"{API}/telemetry/history", params=params))
+
+    def events(self, limit: int | None = None) -> EventsDoc:
+        """Recent events, newest last."""
+        params: dict[str, int] = {} if limit is None else {"limit": limit}
+        return cast(EventsDoc, self._json("GET", f"{API}/events", params=params))
+
+    def set_mode(self, mode: str) -> ModeDoc:
+        """Select the imaging mode, ``area`` or ``tdi`` (the daemon checks the value)."""
+        return cast(ModeDoc, self._json("POST", f"{API}/mode", json={"mode": mode}))
+
+    def reset(self) -> StatusDoc:
+        """Soft-reset the device; returns the status afterwards."""
+        return cast(StatusDoc, self._json("POST", f"{API}/reset"))
+
+    def metrics(self) -> str:
+        """The Prometheus text exposition."""
+        return self._request("GET", "/metrics").text
+
+    def wait_ready(self, timeout_s: float = 10.0, *, poll_s: float = 0.1) -> StatusDoc:
+        """Wait until the daemon answers and its camera is connected (state not
+        ``disconnected``); return that status.
+
+        Raises DaemonUnreachable if nothing answered within ``timeout_s``, CamdError (code
+        ``timeout``) if the daemon answered but stayed disconnected, with its reason.
+        """
+        deadline = time.monotonic() + timeout_s
+        last: CamdError | StatusDoc | None = None
+        while True:
+            try:
+                doc = self.status()
+                if doc.get("state") != "disconnected":
+                    return doc
+                last = doc
+            except DaemonUnreachable as exc:
+                last = exc
+            if time.monotonic() >= deadline:
+                break
+            time.sleep(poll_s)
+        if isinstance(last, CamdError):
+            raise last
+        reason = last.get("reason") if last is not None else None
+        raise CamdError(
+            f"the daemon at {self.url} is up but no camera connected within {timeout_s:g} s"
+            f" ({reason or 'no reason given'}); check the camera link or start it with --sim",
+            code="timeout",
+        )
+
+    # -- plumbing -------------------------------------------------------------------------------
+
+    def _json(self, method: str, path: str, **kwargs: Any) -> dict[str, Any]:
+        response = self._request(method, path, **kwargs)
+        try:
+            doc = response.json()
+        except ValueError:
+            raise CamdError(
+                f"{method} {path}: the answer from {self.url} is not JSON "
+                f"({_snippet(response.text)}); is this URL a camd daemon?",
+                code="bad_response",
+                http_status=response.status_code,
+            ) from None
+        if not isinstance(doc, dict):
+            raise CamdError(
+                f"{method} {path}: expected a JSON object from {self.url}, got {_snippet(doc)}",
+                code="bad_response",
+                http_status=response.status_code,
+            )
+        return doc
+
+    def _request(self, method: str, path: str, **kwargs: Any) -> httpx.Response:
+        try:
+            response = self._http.request(method, path, **kwargs)
+        except (httpx.ConnectError, httpx.ConnectTimeout) as exc:
+            raise DaemonUnreachable(self.url, _reason(exc)) from None
+        except httpx.TimeoutException:
+            timeout = kwargs.get("timeout", self.timeout_s)
+            raise CamdError(
+                f"{method} {path}: the daemon at {self.url} did not answer within "
+                f"{timeout:g} s; raise the timeout (camctl --timeout) or check the daemon's log",
+                code="timeout",
+            ) from None
+        except httpx.TransportError as exc:
+            # Connected but the exchange broke (daemon died mid-request, not an HTTP server).
+            raise CamdError(
+                f"{method} {path}: the connection to {self.url} failed ({_reason(exc)}); "
+                "check that the daemon is still running and that the URL is camd's",
+                code="transport",
+            ) from None
+        if response.is_success:
+            return response
+        raise _api_error(method, path, response)
+
+
+def _api_error(method: str, path: str, response: httpx.Response) -> CamdError:
+    """Build the CamdError of a non-2xx answer from its {"error", "code"} body."""
+    try:
+        body = response.json()
+    except ValueError:
+        body = None
+    if isinstance(body, dict) and isinstance(body.get("error"), str):
+        return CamdError(body["error"], str(body.get("code", "error")), response.status_code)
+    if isinstance(body, dict) and "detail" in body:
+        # A framework answer that bypassed camd's error handler (e.g. 404 for an unknown path).
+        detail = body["detail"]
+        text = detail if isinstance(detail, str) else json.dumps(detail)
+        return CamdError(
+            f"{method} {path}: HTTP {response.status_code}: {text}; is the daemon at "
+            f"{response.url.copy_with(path='/')} a compatible camd version?",
+            code="http_error",
+            http_status=response.status_code,
+        )
+    return CamdError(
+        f"{method} {path}: unexpected HTTP {response.status_code} "
+        f"({_snippet(response.text) or 'empty body'}); is this URL a camd daemon?",
+        code="http_error",
+        http_status=response.status_code,
+    )
+
+
+def _reason(exc: Exception) -> str:
+    text = str(exc).strip()
+    return text or type(exc).__name__
+
+
+def _snippet(value: object, limit: int = 120) -> str:
+    text = value if isinstance(value, str) else repr(value)
+    text = " ".join(text.split())
+    return text if len(text) <= limit else text[: limit - 3] + "..."

@@ -1,0 +1,288 @@
+"""The HTTP API (docs/api.md) as a FastAPI app over a DeviceSession.
+
+Endpoints are plain ``def``: they block on the serial link, so FastAPI runs them on its worker
+threads and the event loop stays free. Every error leaves as ``{"error", "code"}`` with the status
+docs/api.md gives; FastAPI's 422 validation errors are reshaped into 400s whose message names the
+parameter and its allowed values.
+"""
+
+from __future__ import annotations
+
+import hmac
+import logging
+from collections.abc import Awaitable, Callable, Iterable
+from typing import Any
+
+from fastapi import FastAPI, Query, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse, Response
+from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
+from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metric
+from prometheus_client.registry import Collector, CollectorRegistry
+from starlette.exceptions import HTTPException as StarletteHTTPException
+
+import camd
+from camd.daemon.models import (
+    ALLOWED,
+    EVENTS_LIMIT_MAX,
+    HISTORY_LIMIT_MAX,
+    ErrorResponse,
+    EventsResponse,
+    HistoryResponse,
+    LinkResponse,
+    ModeRequest,
+    ModeResponse,
+    PingRequest,
+    PingResponse,
+    StatusResponse,
+    TelemetryResponse,
+)
+from camd.daemon.session import (
+    BadRequest,
+    DeviceRejected,
+    DeviceSession,
+    DeviceTimeout,
+    Disconnected,
+    SessionError,
+)
+from camd.daemon.state import IllegalState, State
+from camd.daemon.telemetry import Level, classify
+
+log = logging.getLogger(__name__)
+
+API = "/api/v1"
+
+# exception type -> (HTTP status, error code), as docs/api.md lists them
+ERROR_MAP: list[tuple[type[Exception], int, str]] = [
+    (BadRequest, 400, "bad_request"),
+    (IllegalState, 409, "illegal_state"),
+    (DeviceRejected, 502, "device_nak"),
+    (Disconnected, 503, "disconnected"),
+    (DeviceTimeout, 504, "timeout"),
+]
+
+_ERROR_RESPONSES: dict[int | str, dict[str, Any]] = {
+    401: {"model": ErrorResponse, "description": "unauthorized"}
+}
+for _kind, _status, _code in ERROR_MAP:
+    _ERROR_RESPONSES[_status] = {"model": ErrorResponse, "description": _code}
+
+
+def error_response(status: int, code: str, message: str) -> JSONResponse:
+    """The documented error body."""
+    return JSONResponse(status_code=status, content={"error": message, "code": code})
+
+
+def _validation_message(exc: RequestValidationError) -> str:
+    """``"mode: 'foo' is not valid; use area or tdi"`` for each invalid parameter."""
+    parts = []
+    for err in exc.errors():
+        loc = [str(p) for p in err.get("loc", ()) if p not in ("body", "query", "path")]
+        name = ".".join(loc)
+        kind = str(err.get("type", ""))
+        value = err.get("input")
+        allowed = ALLOWED.get(loc[-1] if loc else "", "")
+        use = f"; use {allowed}" if allowed else ""
+        if kind == "json_invalid":
+            parts.append('the request body is not valid JSON; send e.g. {"count": 10}')
+        elif kind == "missing":
+            parts.append(f"{name}: is required{use}")
+        elif kind == "extra_forbidden":
+            parts.append(f"{name}: unknown parameter; remove it (check the spelling)")
+        elif kind in ("model_attributes_type", "dict_type"):
+            shown = value.decode(errors="replace") if isinstance(value, bytes) else repr(value)
+            parts.append(
+                f"the request body must be a JSON object (Content-Type: application/json), "
+                f"not {shown}"
+            )
+        elif kind in ("greater_than_equal", "less_than_equal", "greater_than", "less_than"):
+            parts.append(f"{name}: {value!r} is out of range{use}")
+        else:
+            parts.append(f"{name}: {value!r} is not valid{use}")
+    return "; ".join(parts) or "invalid request"
+
+
+class _SessionCollector(Collector):
+    """Prometheus metrics read from the session at scrape time (no device traffic)."""
+
+    def __init__(self, session: DeviceSession) -> None:
+        self.session = session
+
+    def collect(self) -> Iterable[Metric]:
+        """The metric families, built fresh at each scrape."""
+        session = self.session
+        state = GaugeMetricFamily(
+            "camd_state", "1 for the daemon's current state, 0 for the others", labels=["state"]
+        )
+        current = session.state
+        for s in State:
+            state.add_metric([s.value], 1.0 if s == current else 0.0)
+        yield state
+        link = session.link
+        yield GaugeMetricFamily(
+            "camd_link_connected",
+            "1 while the command link's port is open",
+            value=1.0 if link is not None and link.connected else 0.0,
+        )
+        for name, count in session.host_counters().items():
+            yield CounterMetricFamily(
+                f"camd_link_{name}", f"command link host counter: {name}", value=count
+            )
+        values = GaugeMetricFamily(
+            "camd_telemetry_value",
+            "latest housekeeping value per channel, in the channel's unit",
+            labels=["channel", "unit"],
+        )
+        levels = GaugeMetricFamily(
+            "camd_telemetry_limit_level",
+            "limit level of the latest value: 0 ok, 1 yellow, 2 red",
+            labels=["channel"],
+        )
+        level_number = {Level.OK: 0.0, Level.YELLOW: 1.0, Level.RED: 2.0}
+        for channel, value in sorted(session.latest_values().items()):
+            values.add_metric([channel, session.channels.get(channel, "")], value)
+            limits = session.config.telemetry.limits.get(channel)
+            if limits is not None:
+                levels.add_metric([channel], level_number[classify(value, limits)])
+        yield values
+        yield levels
+        archive = session.archive
+        if archive is not None:
+            yield GaugeMetricFamily(
+                "camd_telemetry_archived_samples",
+                "samples in the SQLite archive",
+                value=archive.count(),
+            )
+        yield GaugeMetricFamily(
+            "camd_uptime_seconds", "time since the daemon started", value=session.uptime_s
+        )
+        info = GaugeMetricFamily("camd_info", "daemon version", labels=["version"])
+        info.add_metric([camd.__version__], 1.0)
+        yield info
+
+
+def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
+    """The FastAPI app serving ``session``; with ``token``, every request needs it."""
+    app = FastAPI(
+        title="camd",
+        version=camd.__version__,
+        description="Control daemon of a digital-TDI push-broom camera (docs/api.md).",
+        responses=_ERROR_RESPONSES,
+    )
+    registry = CollectorRegistry(auto_describe=False)
+    registry.register(_SessionCollector(session))
+
+    @app.middleware("http")
+    async def check_token(
+        request: Request, call_next: Callable[[Request], Awaitable[Response]]
+    ) -> Response:
+        if token:
+            header = request.headers.get("authorization", "")
+            scheme, _, given = header.partition(" ")
+            # compare_digest: the time taken must not reveal how much of a guess was right.
+            if scheme.lower() != "bearer" or not hmac.compare_digest(
+                given.strip().encode(), token.encode()
+            ):
+                what = "wrong token" if header else "no token"
+                response = error_response(
+                    401,
+                    "unauthorized",
+                    f"{what}: send 'Authorization: Bearer <token>' with the daemon's api.token "
+                    "(camctl --token or $CAMD_TOKEN)",
+                )
+                response.headers["WWW-Authenticate"] = "Bearer"
+                return response
+        return await call_next(request)
+
+    @app.exception_handler(RequestValidationError)
+    async def on_validation_error(request: Request, exc: RequestValidationError) -> JSONResponse:
+        return error_response(400, "bad_request", _validation_message(exc))
+
+    @app.exception_handler(StarletteHTTPException)
+    async def on_http_error(request: Request, exc: StarletteHTTPException) -> JSONResponse:
+        code = {404: "not_found", 405: "method_not_allowed"}.get(exc.status_code, "http_error")
+        message = str(exc.detail)
+        if exc.status_code == 404:
+            message = f"no such endpoint {request.url.path}; see /docs or docs/api.md"
+        elif exc.status_code == 405:
+            message = f"{request.method} is not allowed on {request.url.path}; see /docs"
+        return error_response(exc.status_code, code, message)
+
+    @app.exception_handler(SessionError)
+    async def on_session_error(request: Request, exc: SessionError) -> JSONResponse:
+        return _map_error(exc)
+
+    @app.exception_handler(IllegalState)
+    async def on_illegal_state(request: Request, exc: IllegalState) -> JSONResponse:
+        return _map_error(exc)
+
+    @app.exception_handler(Exception)
+    async def on_unexpected(request: Request, exc: Exception) -> JSONResponse:
+        log.exception("unhandled error in %s %s", request.method, request.url.path)
+        return error_response(
+            500, "internal", f"internal error in camd: {type(exc).__name__}: {exc}; see its log"
+        )
+
+    @app.get(f"{API}/status", response_model=StatusResponse, tags=["status"])
+    def get_status() -> StatusResponse:
+        """State, reason, mode, link, the device's status and the daemon's identity."""
+        return session.status()
+
+    @app.post(f"{API}/ping", response_model=PingResponse, tags=["link"])
+    def post_ping(body: PingRequest | None = None) -> PingResponse:
+        """PING the device ``count`` times with ``size`` random bytes; round-trip statistics."""
+        body = body or PingRequest()
+        return session.ping(body.count, body.size)
+
+    @app.get(f"{API}/link", response_model=LinkResponse, tags=["link"])
+    def get_link() -> LinkResponse:
+        """Host and device counters of the command link."""
+        return session.link_stats()
+
+    @app.get(f"{API}/telemetry", response_model=TelemetryResponse, tags=["telemetry"])
+    def get_telemetry() -> TelemetryResponse:
+        """Latest value of every housekeeping channel, with its limit level."""
+        return session.telemetry()
+
+    @app.get(f"{API}/telemetry/history", response_model=HistoryResponse, tags=["telemetry"])
+    def get_history(
+        channel: str = Query(description="telemetry channel, e.g. fpga_temp_degc"),
+        since_s: float = Query(
+            default=0.0,
+            description="Unix time in seconds (the t_s clock); negative = seconds before now",
+        ),
+        limit: int = Query(default=1000, ge=1, le=HISTORY_LIMIT_MAX, description="newest N"),
+    ) -> HistoryResponse:
+        """Archived samples of one channel, oldest first."""
+        return session.history(channel, since_s, limit)
+
+    @app.get(f"{API}/events", response_model=EventsResponse, tags=["telemetry"])
+    def get_events(
+        limit: int = Query(default=100, ge=1, le=EVENTS_LIMIT_MAX, description="newest N"),
+    ) -> EventsResponse:
+        """Recent events (link, device, limits, state changes), newest last."""
+        return session.events(limit)
+
+    @app.post(f"{API}/mode", response_model=ModeResponse, tags=["control"])
+    def post_mode(body: ModeRequest) -> ModeResponse:
+        """Select area (staring) or tdi (push-broom) imaging mode; legal only when idle."""
+        return session.set_mode(body.mode)
+
+    @app.post(f"{API}/reset", response_model=StatusResponse, tags=["control"])
+    def post_reset() -> StatusResponse:
+        """Soft-reset the camera; clears a fault. Returns the status afterwards."""
+        return session.reset()
+
+    @app.get("/metrics", tags=["status"], response_class=Response)
+    def get_metrics() -> Response:
+        """Prometheus text exposition: link counters, telemetry, state."""
+        return Response(generate_latest(registry), media_type=CONTENT_TYPE_LATEST)
+
+    return app
+
+
+def _map_error(exc: Exception) -> JSONResponse:
+    for kind, status, code in ERROR_MAP:
+        if isinstance(exc, kind):
+            return error_response(status, code, str(exc))
+    return error_response(500, "internal", str(exc))

@@ -1,0 +1,350 @@
+"""The daemon's configuration: one TOML file, validated by pydantic.
+
+Every section forbids unknown keys, so a typo is an error rather than a silently ignored setting.
+The defaults give a working simulated camera on 127.0.0.1:8422. ``load_config`` reports errors
+with the file, the dotted key path and what is allowed; docs/config.md lists every key.
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import math
+import os
+import tomllib
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any, Literal
+
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
+
+from camd.paths import config_dir
+from camd.protocol import load_dictionary
+
+TOKEN_ENV = "CAMD_TOKEN"
+"""Environment variable that supplies ``api.token`` (it wins over the file)."""
+
+HOUSEKEEPING_PACKET = "HOUSEKEEPING"
+"""The telemetry packet whose channels the limits apply to."""
+
+LogLevel = Literal["debug", "info", "warning", "error", "critical"]
+
+
+class ConfigError(ValueError):
+    """The configuration is invalid; the message names the file, the key and what is allowed."""
+
+
+def is_loopback(host: str) -> bool:
+    """True if ``host`` only accepts connections from this machine."""
+    if host.lower() == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host.strip("[]")).is_loopback
+    except ValueError:
+        return False  # a host name other than localhost may resolve to anything
+
+
+class _Section(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True, validate_default=True)
+
+
+class DaemonSection(_Section):
+    """[daemon]: where the daemon keeps its files and how much it logs."""
+
+    data_dir: Path = Field(
+        default=Path("~/.local/share/camd"),
+        description="directory for the telemetry archive and the simulator's link (~ is expanded)",
+    )
+    log_level: LogLevel = Field(default="info", description="logging threshold")
+
+    @field_validator("data_dir", mode="after")
+    @classmethod
+    def _expand(cls, value: Path) -> Path:
+        # Expanded here so that every user of the config sees one absolute path.
+        return Path(os.path.expandvars(os.path.expanduser(str(value)))).absolute()
+
+
+class ApiSection(_Section):
+    """[api]: the HTTP server."""
+
+    host: str = Field(default="127.0.0.1", min_length=1, description="address to bind")
+    port: int = Field(default=8422, ge=0, le=65535, description="TCP port; 0 picks a free one")
+    token: str = Field(
+        default="", description="bearer token required from clients; empty = none (loopback only)"
+    )
+
+    @model_validator(mode="after")
+    def _token_for_remote(self) -> ApiSection:
+        # Anyone on the network could drive the camera otherwise.
+        if not is_loopback(self.host) and not self.token:
+            raise ValueError(
+                f"host = {self.host!r} is not a loopback address and no token is set; "
+                f"set api.token (or ${TOKEN_ENV}) or bind 127.0.0.1"
+            )
+        return self
+
+
+class LinkSection(_Section):
+    """[link]: the RS-422 command link."""
+
+    device: str = Field(
+        default="sim",
+        min_length=1,
+        description="'sim' (spawn the simulated camera) or a serial device path / pyserial URL",
+    )
+    baudrate: int = Field(default=921_600, gt=0, le=20_000_000, description="line rate, bit/s")
+    timeout_s: float = Field(default=0.1, gt=0, le=60, description="wait for each attempt")
+    retries: int = Field(default=5, ge=0, le=100, description="re-sends after a timeout")
+    reconnect_min_s: float = Field(default=0.1, gt=0, le=60, description="first reopen backoff")
+    reconnect_max_s: float = Field(default=2.0, gt=0, le=600, description="longest reopen backoff")
+
+    @model_validator(mode="after")
+    def _backoff_order(self) -> LinkSection:
+        if self.reconnect_min_s > self.reconnect_max_s:
+            raise ValueError(
+                f"reconnect_min_s ({self.reconnect_min_s}) is above reconnect_max_s "
+                f"({self.reconnect_max_s}); make reconnect_min_s <= reconnect_max_s"
+            )
+        return self
+
+
+class SimSection(_Section):
+    """[sim]: the simulated camera spawned when ``link.device = "sim"``."""
+
+    inject: str = Field(
+        default="", description="line faults, e.g. 'ber=1e-4,drop=0.01'; empty = perfect line"
+    )
+    hk_period_s: float = Field(
+        default=1.0, gt=0, le=3600, description="period of unsolicited housekeeping"
+    )
+    seed: int = Field(default=0, ge=0, description="random seed of the simulator (noise, faults)")
+    profile: str = Field(
+        default="hr400", pattern=r"^[a-z0-9_]+$", description="camera profile to simulate"
+    )
+
+
+class ChannelLimits(_Section):
+    """Yellow (warning) and red (alarm) ranges of one telemetry channel; inside = ok."""
+
+    yellow: tuple[float, float]
+    red: tuple[float, float]
+
+    @model_validator(mode="after")
+    def _ranges(self) -> ChannelLimits:
+        for name, (lo, hi) in (("yellow", self.yellow), ("red", self.red)):
+            if not (math.isfinite(lo) and math.isfinite(hi)):
+                raise ValueError(f"{name} = [{lo}, {hi}] must be finite numbers")
+            if lo > hi:
+                raise ValueError(f"{name} = [{lo}, {hi}] has lo > hi; write [lo, hi]")
+        if not (self.red[0] <= self.yellow[0] and self.yellow[1] <= self.red[1]):
+            raise ValueError(
+                f"red = [{self.red[0]}, {self.red[1]}] must contain yellow = "
+                f"[{self.yellow[0]}, {self.yellow[1]}] (red lo <= yellow lo, yellow hi <= red hi)"
+            )
+        return self
+
+
+DEFAULT_LIMITS: dict[str, ChannelLimits] = {
+    # Commercial-grade FPGA die: rated 0..85 degC junction; warn well before the rating.
+    "fpga_temp_degc": ChannelLimits(yellow=(0.0, 70.0), red=(-20.0, 85.0)),
+    # sCMOS dark current doubles every ~7 K: image quality, not survival, sets these.
+    "sensor_temp_degc": ChannelLimits(yellow=(0.0, 45.0), red=(-20.0, 60.0)),
+    # Supplies: yellow at +-3 %, red at +-5 % of nominal (1.0 V core, 3.3 V I/O and sensor).
+    "vcc_core_v": ChannelLimits(yellow=(0.97, 1.03), red=(0.95, 1.05)),
+    "vcc_io_v": ChannelLimits(yellow=(3.2, 3.4), red=(3.135, 3.465)),
+    "vcc_sensor_v": ChannelLimits(yellow=(3.2, 3.4), red=(3.135, 3.465)),
+    # Input current: too little means a dead board, too much a short or latch-up.
+    "supply_current_a": ChannelLimits(yellow=(0.2, 1.5), red=(0.05, 2.0)),
+}
+
+
+def telemetry_channels() -> dict[str, str]:
+    """The numeric channels of the HOUSEKEEPING packet, name -> unit, from the dictionary."""
+    packet = load_dictionary().telemetry_packet(HOUSEKEEPING_PACKET)
+    return {f.name: f.unit for f in packet.fields if f.type not in ("bytes", "str")}
+
+
+class TelemetrySection(_Section):
+    """[telemetry]: housekeeping polling and limits."""
+
+    poll_period_s: float = Field(
+        default=1.0, gt=0, le=3600, description="period of GET_HOUSEKEEPING polls"
+    )
+    red_is_fault: bool = Field(default=True, description="a red limit puts the daemon in fault")
+    limits: dict[str, ChannelLimits] = Field(
+        default_factory=lambda: dict(DEFAULT_LIMITS),
+        description="per-channel yellow/red ranges; merged over the defaults",
+    )
+
+    @field_validator("limits", mode="before")
+    @classmethod
+    def _merge_defaults(cls, value: Any) -> Any:
+        # A file that sets one channel keeps the defaults of the others.
+        if isinstance(value, Mapping):
+            return {**DEFAULT_LIMITS, **value}
+        return value
+
+    @field_validator("limits", mode="after")
+    @classmethod
+    def _known_channels(cls, value: dict[str, ChannelLimits]) -> dict[str, ChannelLimits]:
+        channels = telemetry_channels()
+        unknown = sorted(set(value) - set(channels))
+        if unknown:
+            raise ValueError(
+                f"unknown channel(s) {', '.join(unknown)}; the {HOUSEKEEPING_PACKET} packet has: "
+                + ", ".join(channels)
+            )
+        return value
+
+
+class Config(_Section):
+    """The whole daemon configuration."""
+
+    daemon: DaemonSection = Field(default_factory=DaemonSection)
+    api: ApiSection = Field(default_factory=ApiSection)
+    link: LinkSection = Field(default_factory=LinkSection)
+    sim: SimSection = Field(default_factory=SimSection)
+    telemetry: TelemetrySection = Field(default_factory=TelemetrySection)
+
+    @property
+    def sim_link_path(self) -> Path:
+        """Where the spawned simulator puts its pty symlink."""
+        return self.daemon.data_dir / "sim" / "camera.tty"
+
+    @property
+    def archive_path(self) -> Path:
+        """The SQLite telemetry archive."""
+        return self.daemon.data_dir / "telemetry.sqlite"
+
+
+def default_config_path() -> Path:
+    """The shipped config/camd.toml."""
+    return config_dir() / "camd.toml"
+
+
+def load_config(path: Path | None = None, *, env: Mapping[str, str] | None = None) -> Config:
+    """Read and validate a config file (None = the shipped config/camd.toml).
+
+    ``$CAMD_TOKEN`` (from ``env``, default os.environ) replaces ``api.token`` when set.
+    Raises ConfigError naming the file, the key path and what is allowed.
+    """
+    path = default_config_path() if path is None else Path(path)
+    try:
+        data = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: config file not found; give an existing --config") from None
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read the config file: {exc.strerror}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: not valid TOML: {exc}") from None
+    return config_from_dict(data, source=str(path), env=env)
+
+
+def config_from_dict(
+    data: Mapping[str, Any], *, source: str = "config", env: Mapping[str, str] | None = None
+) -> Config:
+    """Validate a config given as nested dicts (as read from TOML); see ``load_config``."""
+    env = os.environ if env is None else env
+    merged: dict[str, Any] = {k: dict(v) if isinstance(v, Mapping) else v for k, v in data.items()}
+    token = env.get(TOKEN_ENV, "")
+    if token:
+        api = merged.get("api", {})
+        if isinstance(api, dict):
+            merged["api"] = {**api, "token": token}
+    try:
+        return Config.model_validate(merged)
+    except ValidationError as exc:
+        raise ConfigError(format_errors(exc, source)) from None
+
+
+def with_overrides(
+    config: Config, changes: Mapping[str, Any], *, source: str = "command line"
+) -> Config:
+    """A copy of ``config`` with dotted keys replaced (``{"api.port": 0}``), re-validated.
+
+    Values of None are skipped, so unset command-line flags leave the file's values alone.
+    """
+    data = config.model_dump()
+    for dotted, value in changes.items():
+        if value is None:
+            continue
+        section, _, key = dotted.replace("__", ".").partition(".")
+        data[section][key] = value
+    try:
+        return Config.model_validate(data)
+    except ValidationError as exc:
+        raise ConfigError(format_errors(exc, source)) from None
+
+
+def _model_at(loc: tuple[int | str, ...]) -> type[BaseModel] | None:
+    """The model class that validates the table at ``loc`` (None if it is not a table)."""
+    model: type[BaseModel] = Config
+    parts = [str(p) for p in loc]
+    while parts:
+        part = parts.pop(0)
+        if model is TelemetrySection and part == "limits":
+            if not parts:
+                return None  # the limits table itself takes channel names, not fixed keys
+            parts.pop(0)  # the channel name
+            model = ChannelLimits
+            continue
+        field = model.model_fields.get(part)
+        annotation = None if field is None else field.annotation
+        if not (isinstance(annotation, type) and issubclass(annotation, BaseModel)):
+            return None
+        model = annotation
+    return model
+
+
+_BOUND_ERRORS = frozenset({"greater_than", "greater_than_equal", "less_than", "less_than_equal"})
+
+
+def _allowed_range(loc: tuple[int | str, ...]) -> str:
+    """``"0 <= x <= 65535"``-style text from the field's constraints at ``loc``."""
+    parent = _model_at(loc[:-1])
+    field = None if parent is None else parent.model_fields.get(str(loc[-1]))
+    if field is None:
+        return ""
+    lo = hi = ""
+    for meta in field.metadata:
+        if getattr(meta, "ge", None) is not None:
+            lo = f"{meta.ge} <= "
+        if getattr(meta, "gt", None) is not None:
+            lo = f"{meta.gt} < "
+        if getattr(meta, "le", None) is not None:
+            hi = f" <= {meta.le}"
+        if getattr(meta, "lt", None) is not None:
+            hi = f" < {meta.lt}"
+    return f"{lo}{loc[-1]}{hi}" if lo or hi else ""
+
+
+def format_errors(exc: ValidationError, source: str) -> str:
+    """One line per error: ``source: key.path: what is wrong; what is allowed``."""
+    lines = []
+    for err in exc.errors():
+        loc = tuple(err["loc"])
+        key = ".".join(str(p) for p in loc) or "(top level)"
+        kind = err["type"]
+        if kind == "extra_forbidden":
+            parent = _model_at(loc[:-1])
+            allowed = list(parent.model_fields) if parent is not None else []
+            hint = f"; allowed keys here: {', '.join(allowed)}" if allowed else ""
+            lines.append(f"{source}: {key}: unknown key (a typo?){hint}")
+            continue
+        msg = str(err["msg"]).removeprefix("Value error, ")
+        ctx = err.get("ctx", {})
+        if kind == "literal_error" and "expected" in ctx:
+            msg = f"{err['input']!r} is not allowed; use {ctx['expected']}"
+        elif kind in _BOUND_ERRORS:
+            bounds = _allowed_range(loc)
+            msg = f"{err['input']!r} is out of range; allowed: {bounds or msg}"
+        elif kind not in ("value_error", "missing"):
+            msg = f"{msg} (got {err['input']!r})"
+        lines.append(f"{source}: {key}: {msg}")
+    return "\n".join(lines)

@@ -1,0 +1,216 @@
+"""``camd serve``: run the daemon in the foreground (under systemd, Type=notify).
+
+Order of events: validate the config (exit 2 on error), bind the listening socket (so a port in
+use fails before anything is spawned), start the device session (the simulator too with
+``--sim``), serve HTTP with uvicorn, and once listening print exactly one line on stdout,
+``camd serving http://HOST:PORT`` with the actual port, and send READY=1. SIGTERM or SIGINT:
+STOPPING=1, finish the open requests, stop the session (terminating the simulator), exit 0.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import socket
+import sqlite3
+import sys
+from pathlib import Path
+from types import FrameType
+from typing import Any
+
+import uvicorn
+
+from camd.daemon import notify
+from camd.daemon.api import create_app
+from camd.daemon.config import Config, ConfigError, load_config, with_overrides
+from camd.daemon.session import DeviceSession, SimulatorError
+
+log = logging.getLogger("camd.serve")
+
+EXIT_OK = 0
+EXIT_RUNTIME = 1  # could not listen, could not start the camera session
+EXIT_CONFIG = 2  # the config or the command line is invalid
+GRACEFUL_SHUTDOWN_S = 5  # open HTTP requests get this long to finish after SIGTERM
+
+
+def add_parser(sub: Any) -> None:
+    """Register ``camd serve`` and its options."""
+    p: argparse.ArgumentParser = sub.add_parser(
+        "serve",
+        help="run the daemon in the foreground",
+        description="Run the camd daemon in the foreground: own the camera's command link, "
+        "archive telemetry and serve the HTTP API. Flags override the config file.",
+    )
+    p.add_argument(
+        "--config",
+        type=Path,
+        metavar="FILE",
+        help="TOML config file (default: the shipped config/camd.toml; see docs/config.md)",
+    )
+    p.add_argument("--host", help="address to bind (api.host); non-loopback needs api.token")
+    p.add_argument(
+        "--port", type=int, metavar="P", help="TCP port (api.port); 0 picks any free port"
+    )
+    p.add_argument("--data-dir", type=Path, metavar="DIR", help="data directory (daemon.data_dir)")
+    device = p.add_mutually_exclusive_group()
+    device.add_argument(
+        "--sim", action="store_true", help="spawn and use the simulated camera (link.device=sim)"
+    )
+    device.add_argument(
+        "--serial", metavar="PORT", help="use the camera on this serial port or pyserial URL"
+    )
+    p.add_argument(
+        "--inject",
+        metavar="SPEC",
+        help="simulator line faults, e.g. 'ber=1e-4,drop=0.01' (sim.inject)",
+    )
+
+
+def build_config(args: argparse.Namespace) -> Config:
+    """The config file with the command line's overrides applied; ConfigError if invalid."""
+    config = load_config(args.config)
+    device = "sim" if args.sim else args.serial
+    return with_overrides(
+        config,
+        {
+            "api.host": args.host,
+            "api.port": args.port,
+            "daemon.data_dir": args.data_dir,
+            "link.device": device,
+            "sim.inject": args.inject,
+        },
+    )
+
+
+def _bind(host: str, port: int) -> socket.socket:
+    """A listening TCP socket on host:port (IPv4 or IPv6, as the host resolves)."""
+    candidates = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
+    # "localhost" may resolve to ::1 first; clients mostly try 127.0.0.1, so prefer IPv4.
+    candidates.sort(key=lambda info: info[0] != socket.AF_INET)
+    family, type_, proto, _, address = candidates[0]
+    sock = socket.socket(family, type_, proto)
+    try:
+        # A restarted daemon must not wait for the old connections' TIME_WAIT to expire.
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        sock.bind(address)
+        sock.listen(128)
+        sock.set_inheritable(False)  # the simulator child must not hold our port
+    except OSError:
+        sock.close()
+        raise
+    return sock
+
+
+def url_host(host: str) -> str:
+    """``host`` as written in a URL (IPv6 literals in brackets)."""
+    return f"[{host}]" if ":" in host and not host.startswith("[") else host
+
+
+class _Server(uvicorn.Server):
+    """uvicorn's server, telling us when it listens and when a stop signal arrives."""
+
+    def __init__(self, config: uvicorn.Config, session: DeviceSession, url: str) -> None:
+        super().__init__(config)
+        self.session = session
+        self.url = url
+        self.stopping_sent = False
+
+    async def startup(self, sockets: list[socket.socket] | None = None) -> None:
+        await super().startup(sockets=sockets)
+        if not self.started:
+            return
+        # The one line on stdout that scripts and tests wait for.
+        print(f"camd serving {self.url}", flush=True)
+        notify.ready(f"serving {self.url}; camera {self.session.state.value}")
+
+    def handle_exit(self, sig: int, frame: FrameType | None) -> None:
+        """SIGTERM/SIGINT: uvicorn's graceful stop, plus STOPPING=1 and the session's abort."""
+        super().handle_exit(sig, frame)
+        if not self.stopping_sent:
+            self.stopping_sent = True
+            notify.stopping(f"stopping on signal {signal.Signals(sig).name}")
+        self.session.abort()  # a long ping run must not hold the shutdown
+
+
+def _setup_logging(level: str) -> None:
+    # Everything on stderr: stdout carries only the `camd serving` line.
+    logging.basicConfig(
+        level=level.upper(),
+        stream=sys.stderr,
+        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the daemon until SIGTERM/SIGINT; return the exit status."""
+    try:
+        config = build_config(args)
+    except ConfigError as exc:
+        print(f"camd serve: invalid configuration:\n{exc}", file=sys.stderr)
+        return EXIT_CONFIG
+    _setup_logging(config.daemon.log_level)
+
+    # Until uvicorn takes the signals over, a stop request just ends the start-up early; and
+    # after it hands them back it re-raises what it caught, which must then be harmless.
+    stop_requested: list[int] = []
+
+    def early_stop(sig: int, frame: FrameType | None) -> None:
+        """Remember the signal; run() then skips serving and exits 0."""
+        stop_requested.append(sig)
+
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, early_stop)
+
+    host, port = config.api.host, config.api.port
+    try:
+        sock = _bind(host, port)
+    except OSError as exc:
+        print(
+            f"camd serve: cannot listen on {host}:{port}: {exc.strerror or exc}; stop the other "
+            "process using the port or choose another with --port (0 = any free port)",
+            file=sys.stderr,
+        )
+        return EXIT_RUNTIME
+    url = f"http://{url_host(host)}:{sock.getsockname()[1]}"
+
+    session = DeviceSession(config)
+    try:
+        session.start()
+    except SimulatorError as exc:
+        print(f"camd serve: cannot start the simulated camera: {exc}", file=sys.stderr)
+        session.stop()
+        sock.close()
+        return EXIT_CONFIG if exc.usage else EXIT_RUNTIME
+    except (OSError, sqlite3.Error) as exc:
+        print(
+            f"camd serve: cannot use the data directory {config.daemon.data_dir}: {exc}; "
+            "make it writable or choose another with --data-dir",
+            file=sys.stderr,
+        )
+        session.stop()
+        sock.close()
+        return EXIT_RUNTIME
+
+    server = _Server(
+        uvicorn.Config(
+            create_app(session, token=config.api.token),
+            log_config=None,  # keep our logging setup (uvicorn's would print access logs to stdout)
+            log_level=config.daemon.log_level,
+            access_log=config.daemon.log_level == "debug",
+            lifespan="off",
+            timeout_graceful_shutdown=GRACEFUL_SHUTDOWN_S,
+        ),
+        session,
+        url,
+    )
+    try:
+        if not stop_requested:
+            server.run(sockets=[sock])
+    finally:
+        if not server.stopping_sent:
+            notify.stopping("stopping")
+        session.stop()
+        sock.close()
+    log.info("camd stopped")
+    return EXIT_OK

@@ -1,0 +1,849 @@
+"""The device session: the one owner of the command link, the state machine and telemetry.
+
+``DeviceSession(config)`` spawns the simulated camera when ``link.device = "sim"`` (and only
+then: camd names firmware_models nowhere else), opens the CommandLink, follows its connection
+changes, telemetry and events, and runs a service loop that polls housekeeping and pets the
+systemd watchdog. The API calls its operations (``status``, ``ping``, ``link_stats``,
+``telemetry``, ``history``, ``events``, ``set_mode``, ``reset``); each checks the state machine
+first, so an illegal request never reaches the device.
+
+Threads: the link's reader thread calls ``_on_message`` (quick work only: archive, limits,
+state); the service loop thread does everything that waits for the device outside requests
+(probing after a connect, polling); API requests run on the HTTP server's worker threads. Device
+requests go through one FIFO lock so that a long ping run cannot starve the poll (and with it
+the watchdog).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import json
+import logging
+import os
+import queue
+import random
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator, Mapping
+from pathlib import Path
+from typing import Any, cast
+
+import numpy as np
+
+import camd
+from camd.daemon import notify
+from camd.daemon.config import HOUSEKEEPING_PACKET, Config, telemetry_channels
+from camd.daemon.models import (
+    ChannelLatest,
+    DaemonInfo,
+    DeviceLinkStats,
+    DeviceStatus,
+    EventItem,
+    EventsResponse,
+    HistoryResponse,
+    LinkInfo,
+    LinkResponse,
+    ModeResponse,
+    PingResponse,
+    RttMs,
+    StatusResponse,
+    TelemetryResponse,
+)
+from camd.daemon.state import (
+    HOW_TO_LEAVE,
+    IllegalState,
+    Request,
+    State,
+    StateMachine,
+    Trigger,
+    is_legal,
+)
+from camd.daemon.telemetry import LimitChecker, TelemetryArchive, classify
+from camd.link import (
+    CommandLink,
+    CommandRejected,
+    CommandTimeout,
+    ConnectionChange,
+    LinkDown,
+    LinkError,
+    Message,
+    Response,
+    Unsolicited,
+)
+from camd.protocol import Dictionary, EncodeError, FrameType, load_dictionary
+from camd.protocol.dictionary import FieldValue
+
+log = logging.getLogger(__name__)
+
+SIM_DEVICE = "sim"
+SIM_START_TIMEOUT_S = 20.0  # the simulator imports numpy and the dictionary before its line
+SIM_STOP_TIMEOUT_S = 5.0
+PROBE_RETRY_S = 1.0  # after a GET_STATUS probe went unanswered
+MAX_LOOP_SLEEP_S = 0.25  # the service loop wakes at least this often (stop, sim exit, probes)
+PING_ERRORS_MAX = 5
+
+
+# -- errors the API maps to HTTP statuses -------------------------------------------------------
+
+
+class SessionError(Exception):
+    """Base of the errors a session operation raises; str() says what to change."""
+
+
+class Disconnected(SessionError):
+    """No camera on the link (HTTP 503)."""
+
+
+class DeviceTimeout(SessionError):
+    """The device did not answer after every retry (HTTP 504)."""
+
+
+class DeviceRejected(SessionError):
+    """The device refused the command (NAK) or answered something undecodable (HTTP 502)."""
+
+    def __init__(self, message: str, name: str = "") -> None:
+        super().__init__(message)
+        self.name = name
+
+
+class BadRequest(SessionError, ValueError):
+    """A parameter is invalid (HTTP 400)."""
+
+
+class SimulatorError(SessionError):
+    """The simulated camera could not be started; ``usage`` is True for bad arguments."""
+
+    def __init__(self, message: str, usage: bool = False) -> None:
+        super().__init__(message)
+        self.usage = usage
+
+
+# -- helpers -------------------------------------------------------------------------------------
+
+
+class _FairLock:
+    """A FIFO lock: waiters get it in arrival order.
+
+    threading.Lock lets a thread that releases and re-acquires in a loop (a 100000-PING run)
+    win every time; the service loop's poll, and so the watchdog, would then starve.
+    """
+
+    def __init__(self) -> None:
+        self._cond = threading.Condition(threading.Lock())
+        self._next_ticket = 0
+        self._serving = 0
+
+    @contextlib.contextmanager
+    def hold(self) -> Iterator[None]:
+        """Hold the lock for a ``with`` block, after every earlier waiter."""
+        with self._cond:
+            ticket = self._next_ticket
+            self._next_ticket += 1
+            while ticket != self._serving:
+                self._cond.wait()
+        try:
+            yield
+        finally:
+            with self._cond:
+                self._serving += 1
+                self._cond.notify_all()
+
+
+def _set_parent_death_signal() -> None:
+    """In the simulator child: receive SIGTERM when the daemon dies, even by SIGKILL."""
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        pr_set_pdeathsig = 1
+        libc.prctl(pr_set_pdeathsig, signal.SIGTERM)
+    except (OSError, AttributeError):
+        pass  # not Linux: the simulator then outlives a killed daemon, as any child would
+
+
+class SimulatorProcess:
+    """The simulated camera as a child process: ``python -m firmware_models --json --link``."""
+
+    def __init__(
+        self,
+        link_path: Path,
+        *,
+        inject: str = "",
+        hk_period_s: float = 1.0,
+        seed: int = 0,
+        profile: str = "hr400",
+    ) -> None:
+        self.link_path = link_path
+        self.command = [
+            sys.executable,
+            "-m",
+            "firmware_models",
+            "--json",
+            "--link",
+            str(link_path),
+            "--hk-period-s",
+            f"{hk_period_s:g}",
+            "--seed",
+            str(seed),
+            "--profile",
+            profile,
+        ]
+        if inject:
+            self.command += ["--inject", inject]
+        self.info: dict[str, Any] = {}
+        self._proc: subprocess.Popen[str] | None = None
+        self._exit_reported = False
+
+    @property
+    def pid(self) -> int | None:
+        """The child's pid while it runs, else None."""
+        return self._proc.pid if self._proc is not None and self._proc.poll() is None else None
+
+    def returncode(self) -> int | None:
+        """The exit status once the child has exited (reaping it), else None."""
+        return None if self._proc is None else self._proc.poll()
+
+    def start(self, timeout_s: float = SIM_START_TIMEOUT_S) -> dict[str, Any]:
+        """Spawn the simulator and return its JSON start line as a dict.
+
+        Raises SimulatorError if it exits or stays silent for ``timeout_s`` (it is then killed).
+        """
+        self.link_path.parent.mkdir(parents=True, exist_ok=True)
+        env = dict(os.environ)
+        # The child is not the service: it must not talk to systemd in our name.
+        for key in ("NOTIFY_SOCKET", "WATCHDOG_USEC", "WATCHDOG_PID"):
+            env.pop(key, None)
+        # Run the same checkout as this daemon even when camd is not installed.
+        root = str(Path(camd.__file__).resolve().parent.parent)
+        paths = [root, *[p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p]]
+        env["PYTHONPATH"] = os.pathsep.join(dict.fromkeys(paths))
+        env["PYTHONUNBUFFERED"] = "1"
+        log.info("starting the simulated camera: %s", " ".join(self.command))
+        self._proc = subprocess.Popen(
+            self.command,
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.PIPE,
+            stderr=None,  # its messages go where ours go (the journal under systemd)
+            text=True,
+            env=env,
+            preexec_fn=_set_parent_death_signal if sys.platform == "linux" else None,
+        )
+        assert self._proc.stdout is not None
+        lines: queue.Queue[str] = queue.Queue()
+        reader = threading.Thread(
+            target=self._drain, args=(self._proc.stdout, lines), name="sim-stdout", daemon=True
+        )
+        reader.start()
+        try:
+            line = lines.get(timeout=timeout_s)
+        except queue.Empty:
+            self.stop()
+            raise SimulatorError(
+                f"the simulated camera printed nothing within {timeout_s:g} s "
+                f"({' '.join(self.command)}); see its messages above"
+            ) from None
+        if not line:
+            code = self._proc.wait()
+            raise SimulatorError(
+                f"the simulated camera exited with status {code} before it was ready "
+                f"({' '.join(self.command)}); its messages above say why (check [sim] in the "
+                "config, e.g. the inject spec)",
+                usage=code == 2,
+            )
+        try:
+            self.info = json.loads(line)
+        except json.JSONDecodeError:
+            self.stop()
+            raise SimulatorError(
+                f"the simulated camera's start line is not JSON: {line.strip()!r}"
+            ) from None
+        return self.info
+
+    @staticmethod
+    def _drain(stream: Any, lines: queue.Queue[str]) -> None:
+        # The first line is the start line; later output is discarded so the pipe never fills.
+        first = True
+        for line in stream:
+            if first:
+                lines.put(line)
+                first = False
+            else:
+                log.debug("sim: %s", line.rstrip())
+        if first:
+            lines.put("")  # EOF before the start line: the child exited
+
+    def exit_report(self) -> str | None:
+        """Once, after the child exited on its own: a message saying so; else None."""
+        code = self.returncode()
+        if code is None or self._exit_reported:
+            return None
+        self._exit_reported = True
+        how = f"killed by signal {-code}" if code < 0 else f"exited with status {code}"
+        return (
+            f"the simulated camera (pid {self._proc.pid if self._proc else '?'}) {how}; "
+            f"it is not restarted: run `camd sim --link {self.link_path}` to reconnect"
+        )
+
+    def stop(self, timeout_s: float = SIM_STOP_TIMEOUT_S) -> None:
+        """Terminate the child (SIGTERM, then SIGKILL) and reap it."""
+        proc = self._proc
+        if proc is None or proc.poll() is not None:
+            return
+        self._exit_reported = True  # our own doing, not worth an error event
+        proc.terminate()
+        try:
+            proc.wait(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            log.warning("the simulated camera ignored SIGTERM for %g s; killing it", timeout_s)
+            proc.kill()
+            proc.wait()
+
+
+def _describe_fault(dictionary: Dictionary, code: int) -> str:
+    try:
+        spec = dictionary.error(code)
+        return f"{spec.name} ({code}): {spec.message}"
+    except KeyError:
+        return f"error code {code}"
+
+
+# -- the session ---------------------------------------------------------------------------------
+
+
+class DeviceSession:
+    """The daemon's view of one camera; see the module docstring."""
+
+    def __init__(self, config: Config, *, dictionary: Dictionary | None = None) -> None:
+        self.config = config
+        self.dictionary = dictionary or load_dictionary()
+        self.channels: dict[str, str] = telemetry_channels()  # name -> unit
+        self.machine = StateMachine(State.DISCONNECTED, "not connected yet")
+        self.checker = LimitChecker(config.telemetry.limits)
+        self.sim: SimulatorProcess | None = None
+        self.archive: TelemetryArchive | None = None
+        self.link: CommandLink | None = None
+
+        self._device_lock = _FairLock()
+        self._stop = threading.Event()
+        self._wake = threading.Event()
+        self._probe_needed = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._unsubscribe: Any = None
+        self._started_mono = time.monotonic()
+        self._mode: str | None = None
+        self._probe_error: str | None = None
+        self._poll_error: str | None = None
+        self._last_values: dict[str, float] = {}
+        self._red_lock = threading.Lock()
+        self._red_acknowledged: set[str] = set()
+
+    # -- lifecycle ------------------------------------------------------------------------------
+
+    @property
+    def port(self) -> str:
+        """What the link opens: the simulator's pty symlink or the configured device."""
+        if self.config.link.device == SIM_DEVICE:
+            return str(self.config.sim_link_path)
+        return self.config.link.device
+
+    def start(self) -> None:
+        """Open the archive, spawn the simulator if configured, open the link, start the loop.
+
+        Raises SimulatorError if the simulator does not start, OSError or sqlite3.Error if the
+        data directory or the archive cannot be written.
+        """
+        self.config.daemon.data_dir.mkdir(parents=True, exist_ok=True)
+        self.archive = TelemetryArchive(self.config.archive_path)
+        self._event("info", "daemon", f"camd {camd.__version__} started (pid {os.getpid()})")
+        if self.config.link.device == SIM_DEVICE:
+            sim_cfg = self.config.sim
+            self.sim = SimulatorProcess(
+                self.config.sim_link_path,
+                inject=sim_cfg.inject,
+                hk_period_s=sim_cfg.hk_period_s,
+                seed=sim_cfg.seed,
+                profile=sim_cfg.profile,
+            )
+            info = self.sim.start()
+            self._event("info", "daemon", f"simulated camera started: pid {info.get('pid')}, "
+                        f"tty {info.get('tty')}, link {self.port}")  # fmt: skip
+        cfg = self.config.link
+        self.link = CommandLink(
+            self.port,
+            dictionary=self.dictionary,
+            baudrate=cfg.baudrate,
+            timeout_s=cfg.timeout_s,
+            retries=cfg.retries,
+            reconnect_min_s=cfg.reconnect_min_s,
+            reconnect_max_s=cfg.reconnect_max_s,
+        )
+        self._unsubscribe = self.link.subscribe(self._on_message)
+        self.link.open()
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._service_loop, name="camd-service", daemon=True)
+        self._thread.start()
+
+    def abort(self) -> None:
+        """Ask long operations (a ping run) to end early; called when shutdown begins."""
+        self._stop.set()
+        self._wake.set()
+
+    def stop(self) -> None:
+        """Stop the loop, close the link, terminate the simulator, close the archive."""
+        self.abort()
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+            self._thread = None
+        if self._unsubscribe is not None:
+            self._unsubscribe()  # no "link lost" for our own close
+            self._unsubscribe = None
+        if self.link is not None:
+            self.link.close()
+        if self.sim is not None:
+            self.sim.stop()
+        if self.archive is not None:
+            with contextlib.suppress(Exception):
+                self._event("info", "daemon", "camd stopped")
+            self.archive.close()
+            self.archive = None
+
+    def __enter__(self) -> DeviceSession:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    # -- what the API reads cheaply (no device traffic) -------------------------------------------
+
+    @property
+    def state(self) -> State:
+        """The daemon's current state."""
+        return self.machine.state
+
+    @property
+    def uptime_s(self) -> float:
+        """Seconds since this session was created."""
+        return time.monotonic() - self._started_mono
+
+    def host_counters(self) -> dict[str, int]:
+        """The link's host-side counters."""
+        return self.link.counters() if self.link is not None else {}
+
+    def latest_values(self) -> dict[str, float]:
+        """The last value seen on each telemetry channel (this run only)."""
+        return dict(self._last_values)
+
+    # -- operations for the API -----------------------------------------------------------------
+
+    def status(self) -> StatusResponse:
+        """State, reason, mode, link, the device's GET_STATUS (if it answers) and the daemon."""
+        device: DeviceStatus | None = None
+        if self.machine.state != State.DISCONNECTED:
+            try:
+                values = self._request("GET_STATUS").values
+                device = DeviceStatus.model_validate(values)
+                self._mode = device.mode
+                if device.device_state == "fault":
+                    # A FAULT event lost on a noisy line must not leave us believing idle.
+                    self._fire(
+                        Trigger.DEVICE_FAULT,
+                        "device reports fault "
+                        + _describe_fault(self.dictionary, device.fault_code),
+                    )
+            except SessionError as exc:
+                log.info("status: GET_STATUS failed: %s", exc)
+        snap = self.machine.snapshot
+        link = self.link
+        return StatusResponse(
+            state=snap.state.value,
+            reason=self._reason(snap.state, snap.reason),
+            mode=cast(Any, self._mode),
+            link=LinkInfo(
+                port=self.port,
+                connected=link is not None and link.connected,
+                last_error=link.last_error if link is not None else "not opened",
+                sim_pid=self.sim.pid if self.sim is not None else None,
+            ),
+            device=device,
+            daemon=DaemonInfo(version=camd.__version__, pid=os.getpid(), uptime_s=self.uptime_s),
+        )
+
+    def ping(self, count: int = 10, size: int = 16) -> PingResponse:
+        """Send ``count`` PINGs of ``size`` random bytes; a differing echo is a failure."""
+        self._require(Request.PING)
+        rtts_s: list[float] = []
+        errors: dict[str, None] = {}  # distinct reasons, in order of first appearance
+        ok = failed = retries = 0
+        for i in range(count):
+            if self._stop.is_set():
+                failed += count - i
+                errors.setdefault("the daemon is shutting down; ping run cut short")
+                break
+            payload = random.randbytes(size)
+            try:
+                response = self._request("PING", data=payload)
+            except Disconnected as exc:
+                if i == 0:
+                    raise
+                failed += count - i
+                errors.setdefault(str(exc))
+                break
+            except DeviceTimeout as exc:
+                failed += 1
+                retries += self.config.link.retries  # every re-send went unanswered too
+                errors.setdefault(str(exc))
+                continue
+            except DeviceRejected as exc:
+                failed += 1
+                errors.setdefault(str(exc))
+                continue
+            retries += response.attempts - 1
+            echo = response.values.get("data")
+            if echo != payload:
+                failed += 1
+                errors.setdefault(
+                    f"PING echo differs from the {size} bytes sent: the line corrupted it "
+                    "undetected; check the link quality (GET /api/v1/link)"
+                )
+                continue
+            ok += 1
+            rtts_s.append(response.rtt_s)
+        if rtts_s:
+            rtt_ms = np.asarray(rtts_s) * 1e3
+            p50, p99 = (float(v) for v in np.percentile(rtt_ms, [50, 99]))
+            rtt = RttMs(p50=p50, p99=p99, max=float(rtt_ms.max()))
+        else:
+            rtt = RttMs(p50=None, p99=None, max=None)
+        return PingResponse(
+            count=count,
+            ok=ok,
+            failed=failed,
+            retries=retries,
+            rtt_ms=rtt,
+            errors=list(errors)[:PING_ERRORS_MAX],
+        )
+
+    def link_stats(self) -> LinkResponse:
+        """Host counters, and the device's (null when it cannot be asked)."""
+        host = self.host_counters()
+        device: DeviceLinkStats | None = None
+        if self.machine.state != State.DISCONNECTED:
+            try:
+                stats: dict[str, Any] = dict(self._request("GET_LINK_STATS").values)
+                injected: dict[str, Any] | None
+                try:
+                    injected = dict(self._request("SIM_GET_INJECTED").values)
+                except DeviceRejected as exc:
+                    if exc.name != "UNKNOWN_OPCODE":
+                        raise
+                    injected = None  # real hardware: no fault injector
+                device = DeviceLinkStats.model_validate({**stats, "injected": injected})
+            except SessionError as exc:
+                log.info("link: device counters unavailable: %s", exc)
+        return LinkResponse(host=host, device=device)
+
+    def telemetry(self) -> TelemetryResponse:
+        """Latest archived value of every channel with its limit level, and the archive size."""
+        archive = self._archive()
+        latest = {}
+        for channel, sample in archive.latest(self.channels).items():
+            limits = self.config.telemetry.limits.get(channel)
+            level = classify(sample.value, limits).value if limits is not None else "ok"
+            latest[channel] = ChannelLatest(
+                value=sample.value,
+                unit=self.channels.get(channel, sample.unit),
+                t_s=sample.t_s,
+                limit=cast(Any, level),
+            )
+        return TelemetryResponse(latest=latest, samples=archive.count(), archive=str(archive.path))
+
+    def history(self, channel: str, since_s: float = 0.0, limit: int = 1000) -> HistoryResponse:
+        """Archived samples of ``channel``, oldest first; ``since_s`` < 0 means "seconds ago"."""
+        if channel not in self.channels:
+            raise BadRequest(
+                f"channel: {channel!r} is not a telemetry channel; use one of "
+                + ", ".join(self.channels)
+            )
+        if since_s < 0:
+            since_s = time.time() + since_s
+        t_s, values = self._archive().history(channel, since_s, limit)
+        return HistoryResponse(channel=channel, unit=self.channels[channel], t_s=t_s, value=values)
+
+    def events(self, limit: int = 100) -> EventsResponse:
+        """The newest ``limit`` events, newest last."""
+        items = [
+            EventItem(t_s=e.t_s, level=cast(Any, e.level), source=e.source, message=e.message)
+            for e in self._archive().events(limit)
+        ]
+        return EventsResponse(events=items)
+
+    def set_mode(self, mode: str) -> ModeResponse:
+        """Select the imaging mode (area or tdi)."""
+        self._require(Request.MODE)
+        response = self._request("SET_MODE", mode=mode)
+        self._mode = str(response.values["mode"])
+        self._event("info", "api", f"mode set to {self._mode}")
+        return ModeResponse(mode=cast(Any, self._mode))
+
+    def reset(self) -> StatusResponse:
+        """Soft-reset the device; on success the daemon is idle. Returns the status after."""
+        self._require(Request.RESET)
+        self._request("RESET")
+        self._mode = "area"  # RESET puts the device back in area mode
+        with self._red_lock:
+            # The operator has seen the red channels; they trip again only after recovering.
+            self._red_acknowledged = set(self.checker.red_channels())
+            still_red = sorted(self._red_acknowledged)
+        self._fire(Trigger.RESET_OK, "reset")
+        note = f"; still red: {', '.join(still_red)}" if still_red else ""
+        self._event("info", "api", f"camera reset{note}")
+        return self.status()
+
+    # -- internals: requests and state ----------------------------------------------------------
+
+    def _archive(self) -> TelemetryArchive:
+        if self.archive is None:
+            raise RuntimeError("the session is not started")
+        return self.archive
+
+    def _require(self, request: Request) -> None:
+        snap = self.machine.snapshot
+        if is_legal(request, snap.state):
+            return
+        if snap.state == State.DISCONNECTED:
+            raise Disconnected(self._disconnected_message())
+        raise IllegalState(request, snap.state, snap.reason)
+
+    def _disconnected_message(self) -> str:
+        why = self._reason(State.DISCONNECTED, self.machine.snapshot.reason)
+        hint = HOW_TO_LEAVE[State.DISCONNECTED]
+        if self.config.link.device == SIM_DEVICE:
+            hint += f"; to attach a new simulator: `camd sim --link {self.port}`"
+        return f"no camera on {self.port} ({why}); {hint}"
+
+    def _reason(self, state: State, reason: str | None) -> str | None:
+        if state != State.DISCONNECTED:
+            return reason
+        link = self.link
+        if link is not None and link.connected:
+            return self._probe_error or "link open; waiting for the device to answer GET_STATUS"
+        if link is not None and link.last_error:
+            return f"last link error: {link.last_error}"
+        return reason
+
+    def _request(self, command: str, **fields: Any) -> Response:
+        """One device request through the FIFO lock, link errors mapped to SessionErrors."""
+        link = self.link
+        if link is None:
+            raise Disconnected(self._disconnected_message())
+        with self._device_lock.hold():
+            try:
+                return link.request(command, **fields)
+            except LinkDown as exc:
+                if not link.connected:  # else the link came back meanwhile; keep its state
+                    self._fire(Trigger.LINK_LOST, f"link lost: {link.last_error}")
+                raise Disconnected(str(exc)) from None
+            except CommandTimeout as exc:
+                raise DeviceTimeout(str(exc)) from None
+            except CommandRejected as exc:
+                if exc.name == "DEVICE_FAULT":
+                    self._fire(Trigger.DEVICE_FAULT, str(exc))
+                raise DeviceRejected(str(exc), exc.name) from None
+            except EncodeError as exc:
+                raise BadRequest(str(exc)) from None
+            except LinkError as exc:
+                raise DeviceRejected(str(exc), "UNDECODABLE") from None
+
+    def _fire(self, trigger: Trigger, reason: str | None) -> None:
+        change = self.machine.fire(trigger, reason)
+        if change is None:
+            return
+        level = {State.FAULT: "error", State.DISCONNECTED: "warning"}.get(change.new, "info")
+        why = f": {change.reason}" if change.reason else ""
+        self._event(level, "daemon", f"state {change.old.value} -> {change.new.value}{why}")
+        notify.status(f"camera {change.new.value}{why}")
+
+    def _event(self, level: str, source: str, message: str, t_s: float | None = None) -> None:
+        getattr(log, "error" if level == "error" else level)("%s: %s", source, message)
+        archive = self.archive
+        if archive is not None:
+            try:
+                archive.add_event(level, source, message, t_s)
+            except Exception:  # a full disk must not take the link thread down
+                log.exception("cannot archive event %r", message)
+
+    # -- internals: link messages (reader thread) -----------------------------------------------
+
+    def _on_message(self, message: Message) -> None:
+        if isinstance(message, ConnectionChange):
+            if message.connected:
+                self._event("info", "link", f"link open on {self.port}")
+                self.checker.clear()  # maybe another camera: start its limits afresh
+                with self._red_lock:
+                    self._red_acknowledged.clear()
+                self._probe_error = None
+                self._probe_needed.set()
+                self._wake.set()
+            else:
+                self._event("warning", "link", f"link on {self.port} lost: {message.reason}")
+                self._fire(Trigger.LINK_LOST, f"link lost: {message.reason}")
+            return
+        if message.kind == FrameType.TELEMETRY:
+            if message.name == HOUSEKEEPING_PACKET:
+                self._record_sample(message.values, message.t_s, "tlm")
+            return
+        self._on_device_event(message)
+
+    def _on_device_event(self, message: Unsolicited) -> None:
+        values = message.values
+        if message.name == "FAULT":
+            text = _describe_fault(self.dictionary, int(values.get("fault_code", 0)))
+            self._event("error", "device", f"FAULT {text}", message.t_s)
+            self._fire(Trigger.DEVICE_FAULT, f"device fault {text}")
+        elif message.name == "MODE_CHANGED":
+            self._mode = str(values.get("mode"))
+            self._event("info", "device", f"mode changed to {self._mode}", message.t_s)
+        elif message.name == "BOOT":
+            self._mode = "area"
+            self._event(
+                "info", "device", f"BOOT (boot count {values.get('boot_count', 0)!s})", message.t_s
+            )
+            self._probe_needed.set()  # learn its state afresh
+            self._wake.set()
+        else:
+            self._event("info", "device", f"{message.name} {dict(values)}", message.t_s)
+
+    def _record_sample(self, values: Mapping[str, FieldValue], t_s: float, source: str) -> None:
+        numeric = {
+            k: float(v)
+            for k, v in values.items()
+            if isinstance(v, int | float) and k in self.channels
+        }
+        self._last_values.update(numeric)
+        self._archive().add_samples(t_s, numeric, source, self.channels)
+        for change in self.checker.check(numeric, t_s):
+            limits = self.config.telemetry.limits[change.channel]
+            unit = self.channels.get(change.channel, "")
+            self._event(change.level, "limits", change.message(limits, unit), t_s)
+        self._check_red()
+
+    def _check_red(self) -> None:
+        """Trip to fault on a red channel that the operator has not acknowledged with a reset."""
+        if not self.config.telemetry.red_is_fault:
+            return
+        with self._red_lock:
+            red = set(self.checker.red_channels())
+            self._red_acknowledged &= red  # a channel that recovered may trip again
+            fresh = sorted(red - self._red_acknowledged)
+        if not fresh or self.machine.state != State.IDLE:
+            return
+        parts = []
+        for ch in fresh:
+            limits = self.config.telemetry.limits[ch]
+            unit = self.channels.get(ch, "")
+            value = self._last_values.get(ch, float("nan"))
+            parts.append(
+                f"{ch} = {value:.6g} {unit} outside [{limits.red[0]:g}, {limits.red[1]:g}]"
+            )
+        self._fire(Trigger.RED_LIMIT, "red limit: " + "; ".join(parts))
+
+    # -- internals: the service loop --------------------------------------------------------------
+
+    def _service_loop(self) -> None:
+        watchdog_s = notify.watchdog_interval_s()
+        pet_every_s = watchdog_s / 2 if watchdog_s else None
+        next_pet = next_poll = next_probe = time.monotonic()
+        while not self._stop.is_set():
+            now = time.monotonic()
+            if pet_every_s is not None and now >= next_pet:
+                # Petted from this loop, not a timer: if the loop wedges, systemd restarts us.
+                notify.watchdog()
+                next_pet = now + pet_every_s
+            try:
+                self._check_sim()
+                if self._wants_probe() and now >= next_probe:
+                    if self._probe():
+                        next_poll = now  # a first sample right away, not a period later
+                    else:
+                        next_probe = time.monotonic() + PROBE_RETRY_S
+                if now >= next_poll:
+                    # Skip missed periods instead of bursting to catch up.
+                    next_poll = max(next_poll + self.config.telemetry.poll_period_s, now)
+                    self._poll()
+            except Exception:
+                log.exception("service loop iteration failed; continuing")
+            deadlines = [next_poll, now + MAX_LOOP_SLEEP_S]
+            if pet_every_s is not None:
+                deadlines.append(next_pet)
+            if self._wants_probe():
+                deadlines.append(next_probe)
+            self._wake.wait(max(0.0, min(deadlines) - time.monotonic()))
+            self._wake.clear()
+
+    def _wants_probe(self) -> bool:
+        link = self.link
+        if link is None or not link.connected:
+            return False
+        # Also re-probe if we believe we are disconnected while the port is open: a LinkDown
+        # seen by a request can race with the reconnect that followed it.
+        return self._probe_needed.is_set() or self.machine.state == State.DISCONNECTED
+
+    def _check_sim(self) -> None:
+        if self.sim is not None:
+            report = self.sim.exit_report()
+            if report is not None:
+                self._event("error", "daemon", report)
+
+    def _probe(self) -> bool:
+        """GET_STATUS after a (re)connect or a BOOT; sets idle or fault. True if answered."""
+        self._probe_needed.clear()
+        try:
+            values = self._request("GET_STATUS").values
+        except (DeviceTimeout, DeviceRejected) as exc:
+            self._probe_error = f"link open but the device did not answer GET_STATUS: {exc}"
+            self._probe_needed.set()
+            log.warning("%s", self._probe_error)
+            return False
+        except Disconnected:
+            return False  # the reconnect will set _probe_needed again
+        self._probe_error = None
+        device = DeviceStatus.model_validate(values)
+        self._mode = device.mode
+        fw = f"{device.fw_version >> 8}.{device.fw_version & 0xFF}"
+        was = self.machine.state
+        if device.device_state == "fault":
+            self._fire(
+                Trigger.PROBE_FAULT,
+                "device reports fault " + _describe_fault(self.dictionary, device.fault_code),
+            )
+        else:
+            self._fire(Trigger.PROBE_IDLE, None)
+        if was == State.DISCONNECTED:
+            self._event(
+                "info",
+                "device",
+                f"camera answered: firmware {fw}, mode {device.mode}, state "
+                f"{device.device_state}, boot count {device.boot_count}",
+            )
+        self._check_red()  # a red sample that arrived before the probe counts now
+        return True
+
+    def _poll(self) -> None:
+        if self.machine.state == State.DISCONNECTED:
+            return
+        try:
+            response = self._request("GET_HOUSEKEEPING")
+        except (DeviceTimeout, DeviceRejected) as exc:
+            if self._poll_error is None:
+                self._event("warning", "daemon", f"housekeeping poll failing: {exc}")
+            self._poll_error = str(exc)
+            return
+        except Disconnected:
+            return
+        if self._poll_error is not None:
+            self._event("info", "daemon", "housekeeping poll answered again")
+            self._poll_error = None
+        self._record_sample(response.values, time.time(), "poll")

@@ -1,0 +1,191 @@
+"""The daemon's state machine, declared as data.
+
+``LEGAL`` says which API request is allowed in which state; ``TRANSITIONS`` says where each trigger
+leads from each state. Adding a state (staring, scanning) means adding it to ``State``, to the
+requests it permits in ``LEGAL``, to ``HOW_TO_LEAVE`` and to the transitions that enter and leave
+it; nothing else changes. An illegal request is refused by ``check`` before the device is touched.
+
+Legal requests per state:
+
+==========  ============  ====  =====
+request     disconnected  idle  fault
+==========  ============  ====  =====
+status      yes           yes   yes
+link        yes           yes   yes
+telemetry   yes           yes   yes
+events      yes           yes   yes
+ping                      yes   yes
+mode                      yes
+reset                     yes   yes
+==========  ============  ====  =====
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass
+from enum import StrEnum
+
+
+class State(StrEnum):
+    """What the daemon knows about the camera."""
+
+    DISCONNECTED = "disconnected"  # no port, or the device does not answer
+    IDLE = "idle"  # connected, ready for commands
+    FAULT = "fault"  # the device reported a fault or a red limit tripped; RESET clears it
+
+
+class Request(StrEnum):
+    """API requests whose legality depends on the state."""
+
+    STATUS = "status"
+    LINK = "link"
+    TELEMETRY = "telemetry"
+    EVENTS = "events"
+    PING = "ping"
+    MODE = "mode"
+    RESET = "reset"
+
+
+class Trigger(StrEnum):
+    """What moves the state machine."""
+
+    PROBE_IDLE = "probe_idle"  # GET_STATUS answered after (re)connecting: device idle/busy
+    PROBE_FAULT = "probe_fault"  # GET_STATUS answered with device_state = fault
+    LINK_LOST = "link_lost"  # the port closed or a request failed with LinkDown
+    DEVICE_FAULT = "device_fault"  # FAULT event, or the device says it is in fault
+    RED_LIMIT = "red_limit"  # a telemetry channel went red (with telemetry.red_is_fault)
+    RESET_OK = "reset_ok"  # RESET acknowledged
+
+
+_ALWAYS = frozenset(State)
+
+LEGAL: dict[Request, frozenset[State]] = {
+    Request.STATUS: _ALWAYS,
+    Request.LINK: _ALWAYS,
+    Request.TELEMETRY: _ALWAYS,
+    Request.EVENTS: _ALWAYS,
+    Request.PING: frozenset({State.IDLE, State.FAULT}),
+    Request.MODE: frozenset({State.IDLE}),
+    Request.RESET: frozenset({State.IDLE, State.FAULT}),
+}
+
+HOW_TO_LEAVE: dict[State, str] = {
+    State.DISCONNECTED: "start the camera (or `camd sim`) or check the cable and the port name",
+    State.IDLE: "wait until the current operation ends",
+    State.FAULT: "send `camctl reset` (and fix the cause first)",
+}
+
+_WHAT: dict[Request, str] = {
+    Request.STATUS: "read the status",
+    Request.LINK: "read the link counters",
+    Request.TELEMETRY: "read telemetry",
+    Request.EVENTS: "read events",
+    Request.PING: "ping the camera",
+    Request.MODE: "change the imaging mode",
+    Request.RESET: "reset the camera",
+}
+
+# (state, trigger) -> next state. A pair not listed leaves the state unchanged: e.g. a red limit
+# while disconnected cannot happen, and a probe result while in fault must not clear the fault.
+TRANSITIONS: dict[tuple[State, Trigger], State] = {
+    (State.DISCONNECTED, Trigger.PROBE_IDLE): State.IDLE,
+    (State.DISCONNECTED, Trigger.PROBE_FAULT): State.FAULT,
+    (State.IDLE, Trigger.PROBE_FAULT): State.FAULT,
+    (State.IDLE, Trigger.LINK_LOST): State.DISCONNECTED,
+    (State.FAULT, Trigger.LINK_LOST): State.DISCONNECTED,
+    (State.IDLE, Trigger.DEVICE_FAULT): State.FAULT,
+    (State.IDLE, Trigger.RED_LIMIT): State.FAULT,
+    (State.IDLE, Trigger.RESET_OK): State.IDLE,
+    (State.FAULT, Trigger.RESET_OK): State.IDLE,
+}
+
+
+class IllegalState(Exception):
+    """A request is not allowed in the current state; str() says which, why and how to leave."""
+
+    def __init__(self, request: Request, state: State, reason: str | None) -> None:
+        why = f" ({reason})" if reason else ""
+        super().__init__(
+            f"cannot {_WHAT[request]} while the daemon is {state.value}{why}; "
+            f"to leave {state.value}: {HOW_TO_LEAVE[state]}"
+        )
+        self.request = request
+        self.state = state
+        self.reason = reason
+
+
+def is_legal(request: Request, state: State) -> bool:
+    """True if ``request`` is allowed in ``state``."""
+    return state in LEGAL[request]
+
+
+def check(request: Request, state: State, reason: str | None = None) -> None:
+    """Raise IllegalState unless ``request`` is allowed in ``state``; ``reason`` says why the
+    daemon is in that state (e.g. the fault) and goes into the message."""
+    if not is_legal(request, state):
+        raise IllegalState(request, state, reason)
+
+
+def next_state(state: State, trigger: Trigger) -> State:
+    """The state ``trigger`` leads to from ``state`` (unchanged if the table has no entry)."""
+    return TRANSITIONS.get((state, trigger), state)
+
+
+@dataclass(frozen=True, slots=True)
+class Snapshot:
+    """The state at one moment, with why it is so."""
+
+    state: State
+    reason: str | None  # why: the fault or the link error; None when idle
+    since_t_s: float  # wall-clock time of the last change
+
+
+@dataclass(frozen=True, slots=True)
+class Change:
+    """A transition that happened."""
+
+    old: State
+    new: State
+    trigger: Trigger
+    reason: str | None
+
+
+class StateMachine:
+    """The current state, changed only through ``fire``; safe to use from several threads."""
+
+    def __init__(self, initial: State = State.DISCONNECTED, reason: str | None = None) -> None:
+        self._lock = threading.Lock()
+        self._snapshot = Snapshot(initial, reason, time.time())
+
+    @property
+    def snapshot(self) -> Snapshot:
+        """State, reason and since when, read together."""
+        with self._lock:
+            return self._snapshot
+
+    @property
+    def state(self) -> State:
+        """The current state."""
+        return self.snapshot.state
+
+    def fire(self, trigger: Trigger, reason: str | None = None) -> Change | None:
+        """Apply ``trigger``; return the Change, or None if the state stayed the same.
+
+        ``reason`` (why: the fault, the link error) is kept with the new state; entering idle
+        clears it. A trigger that keeps the state (a second fault) leaves the first reason.
+        """
+        with self._lock:
+            old = self._snapshot.state
+            new = next_state(old, trigger)
+            if new == old:
+                return None
+            self._snapshot = Snapshot(new, None if new == State.IDLE else reason, time.time())
+            return Change(old, new, trigger, self._snapshot.reason)
+
+    def check(self, request: Request) -> Snapshot:
+        """Raise IllegalState unless ``request`` is legal now; return the snapshot checked."""
+        snap = self.snapshot
+        check(request, snap.state, snap.reason)
+        return snap

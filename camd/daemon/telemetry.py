@@ -1,0 +1,287 @@
+"""Telemetry: the SQLite archive of housekeeping samples and events, and the limit checker.
+
+The archive is one SQLite file in WAL mode (readers, e.g. ``sqlite3`` on the command line, never
+block the writer), in long format: ``samples(t_s, channel, value, source)`` indexed by
+(channel, t_s), and ``events(t_s, level, source, message)``. One connection is shared by the
+daemon's threads behind a lock: writes are a few rows per second, far below SQLite's limits.
+
+``LimitChecker`` classifies each value as ok / yellow / red against the configured ranges and
+reports a ``LimitEvent`` only when a channel's level changes, not on every sample.
+"""
+
+from __future__ import annotations
+
+import math
+import sqlite3
+import threading
+import time
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from enum import StrEnum
+from pathlib import Path
+
+from camd.daemon.config import ChannelLimits
+
+SCHEMA = """
+CREATE TABLE IF NOT EXISTS samples (
+    t_s     REAL NOT NULL,  -- Unix time of the sample, seconds
+    channel TEXT NOT NULL,
+    value   REAL NOT NULL,
+    source  TEXT NOT NULL   -- 'tlm' (unsolicited packet) or 'poll' (GET_HOUSEKEEPING)
+);
+CREATE INDEX IF NOT EXISTS samples_by_channel_time ON samples (channel, t_s);
+CREATE TABLE IF NOT EXISTS channels (
+    name TEXT PRIMARY KEY,
+    unit TEXT NOT NULL DEFAULT ''
+);
+CREATE TABLE IF NOT EXISTS events (
+    id      INTEGER PRIMARY KEY,
+    t_s     REAL NOT NULL,
+    level   TEXT NOT NULL,  -- info, warning, error
+    source  TEXT NOT NULL,  -- link, device, limits, daemon, api
+    message TEXT NOT NULL
+);
+"""
+
+
+class Level(StrEnum):
+    """A channel's limit level."""
+
+    OK = "ok"
+    YELLOW = "yellow"
+    RED = "red"
+
+
+_EVENT_LEVEL = {Level.OK: "info", Level.YELLOW: "warning", Level.RED: "error"}
+
+
+@dataclass(frozen=True, slots=True)
+class Sample:
+    """The latest value of one channel."""
+
+    t_s: float
+    value: float
+    source: str
+    unit: str
+
+
+@dataclass(frozen=True, slots=True)
+class Event:
+    """One archived event."""
+
+    t_s: float
+    level: str
+    source: str
+    message: str
+
+
+class TelemetryArchive:
+    """The SQLite archive at ``path`` (created with its directory if absent)."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._lock = threading.Lock()
+        # check_same_thread=False: the lock serialises use across the daemon's threads.
+        self._db = sqlite3.connect(self.path, check_same_thread=False, isolation_level=None)
+        self._db.execute("PRAGMA journal_mode=WAL")
+        # NORMAL in WAL mode: a power cut can lose the last transactions, never corrupt the file.
+        self._db.execute("PRAGMA synchronous=NORMAL")
+        self._db.executescript(SCHEMA)
+        self._units: dict[str, str] = dict(self._db.execute("SELECT name, unit FROM channels"))
+        # count(*) scans the table; keep a running count instead (one writer per archive).
+        (self._count,) = self._db.execute("SELECT count(*) FROM samples").fetchone()
+
+    def close(self) -> None:
+        """Close the database (the WAL is checkpointed into the main file)."""
+        with self._lock:
+            self._db.close()
+
+    def __enter__(self) -> TelemetryArchive:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # -- writing --------------------------------------------------------------------------------
+
+    def add_samples(
+        self,
+        t_s: float,
+        values: Mapping[str, float],
+        source: str,
+        units: Mapping[str, str] | None = None,
+    ) -> int:
+        """Archive one sample per channel at ``t_s``; return how many rows were written.
+
+        Non-finite values are skipped (SQLite would store NaN as NULL, which the schema forbids).
+        """
+        rows = [(t_s, ch, float(v), source) for ch, v in values.items() if math.isfinite(float(v))]
+        new_units = [(ch, (units or {}).get(ch, "")) for ch in values if ch not in self._units]
+        with self._lock:
+            with self._db:  # one transaction: a sample's channels land together
+                self._db.execute("BEGIN")
+                self._db.executemany("INSERT INTO samples VALUES (?, ?, ?, ?)", rows)
+                if new_units:
+                    self._db.executemany(
+                        "INSERT OR IGNORE INTO channels (name, unit) VALUES (?, ?)", new_units
+                    )
+            self._units.update(new_units)
+            self._count += len(rows)
+        return len(rows)
+
+    def add_event(self, level: str, source: str, message: str, t_s: float | None = None) -> Event:
+        """Archive an event (``t_s`` defaults to now) and return it."""
+        event = Event(time.time() if t_s is None else t_s, level, source, message)
+        with self._lock:
+            self._db.execute(
+                "INSERT INTO events (t_s, level, source, message) VALUES (?, ?, ?, ?)",
+                (event.t_s, event.level, event.source, event.message),
+            )
+        return event
+
+    # -- queries --------------------------------------------------------------------------------
+
+    def channels(self) -> dict[str, str]:
+        """Every channel ever archived, name -> unit."""
+        with self._lock:
+            return dict(self._units)
+
+    def latest(self, channels: Iterable[str] | None = None) -> dict[str, Sample]:
+        """The newest sample of each channel (default: all channels archived)."""
+        names = list(self.channels() if channels is None else channels)
+        out: dict[str, Sample] = {}
+        with self._lock:
+            for name in names:
+                # One index probe per channel: stays fast however long the archive grows.
+                row = self._db.execute(
+                    "SELECT t_s, value, source FROM samples WHERE channel = ? "
+                    "ORDER BY t_s DESC LIMIT 1",
+                    (name,),
+                ).fetchone()
+                if row is not None:
+                    out[name] = Sample(row[0], row[1], row[2], self._units.get(name, ""))
+        return out
+
+    def history(
+        self, channel: str, since_s: float = 0.0, limit: int = 1000
+    ) -> tuple[list[float], list[float]]:
+        """(times, values) of ``channel`` with t_s >= ``since_s``, oldest first; at most the
+        newest ``limit`` samples."""
+        with self._lock:
+            rows = self._db.execute(
+                "SELECT t_s, value FROM samples WHERE channel = ? AND t_s >= ? "
+                "ORDER BY t_s DESC LIMIT ?",
+                (channel, since_s, limit),
+            ).fetchall()
+        rows.reverse()
+        return [r[0] for r in rows], [r[1] for r in rows]
+
+    def count(self, channel: str | None = None) -> int:
+        """Number of archived samples (of one channel, or of all)."""
+        with self._lock:
+            if channel is None:
+                return int(self._count)
+            (n,) = self._db.execute(
+                "SELECT count(*) FROM samples WHERE channel = ?", (channel,)
+            ).fetchone()
+            return int(n)
+
+    def events(self, limit: int = 100) -> list[Event]:
+        """The newest ``limit`` events, newest last."""
+        with self._lock:
+            rows = self._db.execute(
+                "SELECT t_s, level, source, message FROM events ORDER BY id DESC LIMIT ?", (limit,)
+            ).fetchall()
+        rows.reverse()
+        return [Event(*row) for row in rows]
+
+
+def classify(value: float, limits: ChannelLimits) -> Level:
+    """ok inside the yellow range, yellow inside the red range, red outside (bounds inclusive).
+
+    NaN is red: a channel that cannot be read is as alarming as one out of range."""
+    if math.isnan(value):
+        return Level.RED
+    if limits.yellow[0] <= value <= limits.yellow[1]:
+        return Level.OK
+    if limits.red[0] <= value <= limits.red[1]:
+        return Level.YELLOW
+    return Level.RED
+
+
+@dataclass(frozen=True, slots=True)
+class LimitEvent:
+    """A channel changed limit level."""
+
+    t_s: float
+    channel: str
+    value: float
+    old: Level
+    new: Level
+
+    @property
+    def level(self) -> str:
+        """Event severity: error entering red, warning entering yellow, info back to ok."""
+        return _EVENT_LEVEL[self.new]
+
+    def message(self, limits: ChannelLimits, unit: str = "") -> str:
+        """The event in words, with the value and the range it left or entered."""
+        u = f" {unit}" if unit else ""
+        if self.new == Level.OK:
+            return (
+                f"{self.channel} back to ok: {self.value:.6g}{u} within "
+                f"[{limits.yellow[0]:g}, {limits.yellow[1]:g}]{u}"
+            )
+        rng = limits.yellow if self.new == Level.YELLOW else limits.red
+        return (
+            f"{self.channel} {self.old.value} -> {self.new.value}: {self.value:.6g}{u} outside "
+            f"the {self.new.value} range [{rng[0]:g}, {rng[1]:g}]{u}"
+        )
+
+
+class LimitChecker:
+    """Applies yellow/red limits and reports level changes only.
+
+    Every channel starts ok, so a first sample already out of range is reported.
+    """
+
+    def __init__(self, limits: Mapping[str, ChannelLimits]) -> None:
+        self.limits = dict(limits)
+        self._levels: dict[str, Level] = {}
+        self._lock = threading.Lock()
+
+    def check(self, values: Mapping[str, float], t_s: float) -> list[LimitEvent]:
+        """Classify the limited channels among ``values``; return the level changes."""
+        events = []
+        with self._lock:
+            for channel, limits in self.limits.items():
+                if channel not in values:
+                    continue
+                value = float(values[channel])
+                new = classify(value, limits)
+                old = self._levels.get(channel, Level.OK)
+                self._levels[channel] = new
+                if new != old:
+                    events.append(LimitEvent(t_s, channel, value, old, new))
+        return events
+
+    def level(self, channel: str) -> Level:
+        """The channel's level after the last check (ok if never checked)."""
+        with self._lock:
+            return self._levels.get(channel, Level.OK)
+
+    def levels(self) -> dict[str, Level]:
+        """Every checked channel's level."""
+        with self._lock:
+            return dict(self._levels)
+
+    def red_channels(self) -> list[str]:
+        """Channels now red."""
+        with self._lock:
+            return [ch for ch, lvl in self._levels.items() if lvl == Level.RED]
+
+    def clear(self) -> None:
+        """Forget the levels (a new device session starts from ok)."""
+        with self._lock:
+            self._levels.clear()

@@ -1,0 +1,166 @@
+"""Command line of the simulated camera: ``python -m firmware_models`` (and ``camd sim``).
+
+Prints exactly one line saying where the camera listens (JSON with ``--json``), then serves
+until SIGTERM or SIGINT, and exits 0. ``main(argv)`` returns the exit status instead of exiting
+so that ``camd sim`` can call it in-process.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import signal
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from types import FrameType
+
+from camd.protocol import load_dictionary
+from firmware_models.fpga import FpgaModel
+from firmware_models.inject import FaultInjector, InjectSpec
+from firmware_models.pty_server import PtyServer
+
+DEFAULT_PROFILE = "hr400"
+_PROFILE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
+_STOP_SIGNALS = (signal.SIGTERM, signal.SIGINT)
+
+
+def _inject_arg(text: str) -> InjectSpec:
+    try:
+        return InjectSpec.parse(text)
+    except ValueError as exc:
+        # ArgumentTypeError, unlike ValueError, makes argparse print our message verbatim.
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _period_arg(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = -1.0
+    if not value >= 0.0:
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is not a period in seconds; give a number >= 0 (0 disables telemetry)"
+        )
+    return value
+
+
+def _profile_arg(text: str) -> str:
+    if not _PROFILE_NAME.match(text):
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is not a profile name; use letters, digits, '_', '-' or '.' (e.g. hr400)"
+        )
+    return text
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of ``python -m firmware_models``."""
+    parser = argparse.ArgumentParser(
+        prog="python -m firmware_models",
+        description="Run the simulated camera FPGA on a pseudo-terminal (RS-422 command link).",
+    )
+    parser.add_argument(
+        "--profile",
+        type=_profile_arg,
+        default=DEFAULT_PROFILE,
+        help=f"camera profile name (default {DEFAULT_PROFILE})",
+    )
+    parser.add_argument(
+        "--inject",
+        type=_inject_arg,
+        default=InjectSpec(),
+        metavar="SPEC",
+        help="line faults, e.g. 'ber=1e-4,drop=0.01,garbage=0.001,delay_ms=2' (default: none)",
+    )
+    parser.add_argument(
+        "--link",
+        type=Path,
+        default=None,
+        metavar="PATH",
+        help="also make PATH a symlink to the pty, so a host can reconnect to a new simulator",
+    )
+    parser.add_argument(
+        "--hk-period-s",
+        type=_period_arg,
+        default=1.0,
+        metavar="S",
+        help="period of unsolicited HOUSEKEEPING telemetry in seconds; 0 disables (default 1.0)",
+    )
+    parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    parser.add_argument("--json", action="store_true", help="print the start line as JSON")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the simulator until SIGTERM/SIGINT; return the exit status (2 for bad arguments)."""
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # --help, or a usage error already printed to stderr
+        return exc.code if isinstance(exc.code, int) else 2
+
+    inject: InjectSpec = args.inject
+    link: Path | None = Path(os.path.abspath(args.link)) if args.link is not None else None
+    model = FpgaModel(
+        load_dictionary(),
+        seed=args.seed,
+        power_on_s=time.monotonic(),
+        injector=FaultInjector(inject, seed=args.seed),
+    )
+    server = PtyServer(model, link=link, hk_period_s=args.hk_period_s)
+    with _stop_on_signals(server):
+        try:
+            tty_path = server.open()
+        except OSError as exc:
+            print(f"python -m firmware_models: cannot start: {exc}", file=sys.stderr)
+            server.close()
+            return 1
+        try:
+            print(_start_line(args.json, tty_path, link, args.profile, inject), flush=True)
+            server.serve()
+        finally:
+            server.close()
+    return 0
+
+
+def _start_line(
+    as_json: bool, tty_path: str, link: Path | None, profile: str, inject: InjectSpec
+) -> str:
+    if as_json:
+        return json.dumps(
+            {
+                "tty": tty_path,
+                "link": str(link) if link is not None else None,
+                "pid": os.getpid(),
+                "profile": profile,
+                "inject": inject.model_dump(),
+            }
+        )
+    where = f"{tty_path} (link {link})" if link is not None else tty_path
+    return (
+        f"simulated camera (profile {profile}) listening on {where}; "
+        f"inject {inject.describe()}; Ctrl-C to stop"
+    )
+
+
+@contextmanager
+def _stop_on_signals(server: PtyServer) -> Iterator[None]:
+    """SIGTERM/SIGINT stop the server cleanly; the previous handlers come back afterwards."""
+    if threading.current_thread() is not threading.main_thread():
+        yield  # only the main thread may set handlers; the caller stops the server itself
+        return
+
+    def handler(signum: int, frame: FrameType | None) -> None:
+        server.stop()
+
+    previous = {sig: signal.signal(sig, handler) for sig in _STOP_SIGNALS}
+    try:
+        yield
+    finally:
+        for sig, old in previous.items():
+            signal.signal(sig, old)

@@ -1,0 +1,375 @@
+"""The simulated camera FPGA's command processor (sans-I/O: frames in, frames out).
+
+``FpgaModel.handle(frame, now_s)`` executes one received command frame against the command
+dictionary of ``config/protocol.toml`` and returns the frames the device sends back: an ACK or
+NAK, then any unsolicited EVENT frames the command caused. Time is passed in, never read, so
+the model is deterministic for a given seed and sequence of calls; ``firmware_models.pty_server``
+puts it behind a real pseudo-terminal.
+
+At-most-once execution
+----------------------
+The host runs strict stop-and-wait: it sends one command, waits for its answer and, if the
+answer is lost, re-sends the *identical* frame (same sequence number, same bytes). The device
+keeps a record of the last command it executed and the ACK/NAK it produced. A command frame
+equal to the recorded one is answered by re-sending the recorded ACK/NAK without executing it
+again; any other command frame executes and replaces the record.
+
+One entry is enough because a stop-and-wait host never re-sends an older command after it has
+sent a newer one: the only command that can legitimately arrive again is the last one. Comparing
+the whole frame (not just the sequence number) means a new command that happens to reuse the
+sequence number after the 8-bit counter wrapped, or after the host restarted, still executes.
+The record survives RESET, so a retried RESET is not executed twice. Events are not part of the
+record: they reported a state change that happened once.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+from collections import Counter
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, fields
+from typing import Any
+
+from camd.protocol import (
+    CommandSpec,
+    Decoder,
+    Dictionary,
+    FieldSpec,
+    Frame,
+    FrameType,
+    PayloadError,
+    ProtocolError,
+    load_dictionary,
+)
+from camd.protocol.dictionary import FieldValue
+from firmware_models.housekeeping import HousekeepingModel
+from firmware_models.inject import FaultInjector, InjectSpec
+
+FW_VERSION = 0x0100  # 1.0, major * 256 + minor as GET_STATUS reports it
+_U32_WRAP = 2**32
+_SEQ_WRAP = 256
+_F32_SIGNIFICANT_DIGITS = 7  # what an f32 carries; used to undo f32 rounding of rates
+
+
+class _Nak(Exception):
+    """Raised by a command handler to answer with a NAK."""
+
+    def __init__(self, error: str, detail: str) -> None:
+        super().__init__(detail)
+        self.error = error
+        self.detail = detail
+
+
+@dataclass(slots=True)
+class LinkCounters:
+    """The device side of the command link, as GET_LINK_STATS reports it (plus ``ignored``)."""
+
+    rx_frames: int = 0  # frames handed to the model after the receiver (and any line loss)
+    executed: int = 0
+    replayed: int = 0
+    nacked: int = 0
+    tx_frames: int = 0
+    ignored: int = 0  # received frames of a type other than COMMAND
+
+    def as_dict(self) -> dict[str, int]:
+        """The counters by name."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+@dataclass(frozen=True, slots=True)
+class _Record:
+    """The last executed command and its ACK/NAK (see the module docstring)."""
+
+    command: Frame
+    response: Frame
+
+
+@dataclass(frozen=True, slots=True)
+class _Outcome:
+    """What a successful handler produced: the ACK payload and any events."""
+
+    payload: bytes
+    events: tuple[Frame, ...] = ()
+
+
+_Handler = Callable[[CommandSpec, dict[str, FieldValue], float], _Outcome]
+
+
+class FpgaModel:
+    """The simulated FPGA: mode, fault state, boot count, link counters, at-most-once record.
+
+    ``receiver`` is the device's frame decoder: a transport feeds received bytes to it and hands
+    the frames to ``handle``; GET_LINK_STATS reports its CRC errors, resyncs and dropped bytes.
+    ``injector`` is the line's fault injector, which the SIM_* commands read and reconfigure
+    (the transport applies it); a fault-free one is created if none is given.
+    """
+
+    def __init__(
+        self,
+        dictionary: Dictionary | None = None,
+        *,
+        seed: int | None = 0,
+        power_on_s: float = 0.0,
+        injector: FaultInjector | None = None,
+    ) -> None:
+        self.dictionary = dictionary if dictionary is not None else load_dictionary()
+        self.injector = injector if injector is not None else FaultInjector(seed=seed)
+        self.receiver = Decoder()
+        self.housekeeping = HousekeepingModel(seed=seed, power_on_s=power_on_s)
+        self.mode = "area"
+        self.fault_code = 0
+        self.boot_count = 1
+        self.counters = LinkCounters()
+        self.executions: Counter[int] = Counter()  # opcode -> commands executed (not replayed)
+        self._record: _Record | None = None
+        self._unsolicited_seq = 0
+        self._handlers: dict[str, _Handler] = {
+            "PING": self._ping,
+            "GET_STATUS": self._get_status,
+            "GET_HOUSEKEEPING": self._get_housekeeping,
+            "RESET": self._reset,
+            "SET_MODE": self._set_mode,
+            "GET_LINK_STATS": self._get_link_stats,
+            "SIM_GET_INJECTED": self._sim_get_injected,
+            "SIM_SET_INJECT": self._sim_set_inject,
+            "SIM_SET_FAULT": self._sim_set_fault,
+        }
+
+    # -- frames in, frames out ------------------------------------------------------------
+
+    def handle(self, frame: Frame, now_s: float) -> list[Frame]:
+        """Execute (or replay) one received frame; return the frames to send, in order."""
+        self.counters.rx_frames += 1
+        if frame.type != FrameType.COMMAND:
+            self.counters.ignored += 1
+            return []
+        record = self._record
+        if record is not None and record.command == frame:
+            self.counters.replayed += 1
+            return self._sent([record.response])
+        self.counters.executed += 1
+        self.executions[frame.opcode] += 1
+        response, events = self._execute(frame, now_s)
+        if response.type == FrameType.NAK:
+            self.counters.nacked += 1
+        self._record = _Record(frame, response)
+        return self._sent([response, *events])
+
+    def boot_frames(self, now_s: float) -> list[Frame]:
+        """The frames the device sends when it starts: a BOOT event."""
+        return self._sent([self._event("BOOT", boot_count=self.boot_count)])
+
+    def housekeeping_frame(self, now_s: float) -> Frame:
+        """One periodic HOUSEKEEPING telemetry frame sampled at ``now_s``."""
+        packet = self.dictionary.telemetry_packet("HOUSEKEEPING")
+        payload = packet.encode(**self._housekeeping_values(now_s))
+        return self._sent([self._unsolicited(FrameType.TELEMETRY, packet.opcode, payload)])[0]
+
+    def execution_count(self, command: str | int) -> int:
+        """How many times a command (by name or opcode) was executed, replays not counted."""
+        opcode = command if isinstance(command, int) else self.dictionary.command(command).opcode
+        return self.executions[opcode]
+
+    @property
+    def device_state(self) -> str:
+        """The GET_STATUS device_state: ``fault`` while a fault is active, else ``idle``."""
+        return "fault" if self.fault_code else "idle"
+
+    # -- execution ------------------------------------------------------------------------
+
+    def _execute(self, frame: Frame, now_s: float) -> tuple[Frame, tuple[Frame, ...]]:
+        spec = self.dictionary.command_for_opcode(frame.opcode)
+        handler = self._handlers.get(spec.name) if spec is not None else None
+        try:
+            if spec is None or handler is None:
+                raise _Nak(
+                    "UNKNOWN_OPCODE",
+                    f"opcode 0x{frame.opcode:02X} is not implemented by this device",
+                )
+            request = self._decode_request(spec, frame.payload)
+            outcome = handler(spec, request, now_s)
+        except _Nak as nak:
+            payload = self.dictionary.encode_nak(nak.error, nak.detail)
+            return Frame(FrameType.NAK, frame.seq, frame.opcode, payload), ()
+        except ProtocolError as exc:
+            # A response that cannot be encoded is a model bug; answer like firmware would.
+            payload = self.dictionary.encode_nak("INTERNAL", str(exc))
+            return Frame(FrameType.NAK, frame.seq, frame.opcode, payload), ()
+        return Frame(FrameType.ACK, frame.seq, frame.opcode, outcome.payload), outcome.events
+
+    def _decode_request(self, spec: CommandSpec, payload: bytes) -> dict[str, FieldValue]:
+        try:
+            values = spec.decode_request(payload)
+        except PayloadError as exc:
+            # The codec raises PayloadError for a wrong size and for an undefined enum value
+            # alike; the host needs to know which, so tell them apart by the length.
+            if _length_fits(spec.request, len(payload)):
+                raise _Nak("OUT_OF_RANGE", str(exc)) from None
+            expected = _expected_length(spec.request)
+            raise _Nak("BAD_LENGTH", f"{exc}; {spec.name} takes {expected}") from None
+        _check_ranges(spec, values)
+        return values
+
+    def _sent(self, frames: list[Frame]) -> list[Frame]:
+        self.counters.tx_frames += len(frames)
+        return frames
+
+    def _unsolicited(self, type_: FrameType, opcode: int, payload: bytes) -> Frame:
+        # Telemetry and events answer no command, so they number themselves.
+        seq = self._unsolicited_seq
+        self._unsolicited_seq = (seq + 1) % _SEQ_WRAP
+        return Frame(type_, seq, opcode, payload)
+
+    def _event(self, name: str, **values: Any) -> Frame:
+        packet = self.dictionary.event(name)
+        return self._unsolicited(FrameType.EVENT, packet.opcode, packet.encode(**values))
+
+    def _housekeeping_values(self, now_s: float) -> dict[str, float | int]:
+        values: dict[str, float | int] = dict(self.housekeeping.sample(now_s))
+        values["executed"] = self.counters.executed % _U32_WRAP
+        return values
+
+    def _require_no_fault(self, spec: CommandSpec) -> None:
+        if self.fault_code:
+            try:
+                fault = f"{self.dictionary.error(self.fault_code).name} ({self.fault_code})"
+            except KeyError:
+                fault = f"code {self.fault_code}"
+            raise _Nak("DEVICE_FAULT", f"{spec.name} refused in fault {fault}; RESET clears it")
+
+    # -- command handlers -----------------------------------------------------------------
+
+    def _ping(self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float) -> _Outcome:
+        return _Outcome(spec.encode_response(data=request["data"]))
+
+    def _get_status(
+        self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float
+    ) -> _Outcome:
+        return _Outcome(
+            spec.encode_response(
+                mode=self.mode,
+                device_state=self.device_state,
+                fault_code=self.fault_code,
+                uptime_s=self.housekeeping.uptime_s(now_s),
+                fw_version=FW_VERSION,
+                boot_count=self.boot_count,
+            )
+        )
+
+    def _get_housekeeping(
+        self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float
+    ) -> _Outcome:
+        return _Outcome(spec.encode_response(**self._housekeeping_values(now_s)))
+
+    def _reset(self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float) -> _Outcome:
+        # Link counters and the at-most-once record deliberately survive: see the module doc.
+        self.mode = "area"
+        self.fault_code = 0
+        self.boot_count = (self.boot_count + 1) % 0x10000
+        self.housekeeping.restart_uptime(now_s)
+        return _Outcome(spec.encode_response(), (self._event("BOOT", boot_count=self.boot_count),))
+
+    def _set_mode(
+        self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float
+    ) -> _Outcome:
+        self._require_no_fault(spec)
+        mode = str(request["mode"])
+        events: tuple[Frame, ...] = ()
+        if mode != self.mode:
+            self.mode = mode
+            events = (self._event("MODE_CHANGED", mode=mode),)
+        return _Outcome(spec.encode_response(mode=self.mode), events)
+
+    def _get_link_stats(
+        self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float
+    ) -> _Outcome:
+        rx = self.receiver.stats
+        values = {
+            "rx_frames": self.counters.rx_frames,
+            "crc_errors": rx.crc_errors,
+            "resyncs": rx.resyncs,
+            "bytes_dropped": rx.bytes_dropped,
+            "executed": self.counters.executed,
+            "replayed": self.counters.replayed,
+            "nacked": self.counters.nacked,
+            "tx_frames": self.counters.tx_frames,
+        }
+        return _Outcome(spec.encode_response(**_wrap_u32(values)))
+
+    def _sim_get_injected(
+        self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float
+    ) -> _Outcome:
+        return _Outcome(spec.encode_response(**_wrap_u32(self.injector.counters())))
+
+    def _sim_set_inject(
+        self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float
+    ) -> _Outcome:
+        rates = {name: _undo_f32_rounding(float(value)) for name, value in request.items()}
+        # Keys the command does not carry (added to InjectSpec later) keep their value.
+        merged = {**self.injector.spec.model_dump(), **rates}
+        try:
+            self.injector.set(InjectSpec.checked(**merged))
+        except ValueError as exc:
+            raise _Nak("OUT_OF_RANGE", str(exc)) from None
+        return _Outcome(spec.encode_response())
+
+    def _sim_set_fault(
+        self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float
+    ) -> _Outcome:
+        code = int(request["fault_code"])
+        self.fault_code = code
+        return _Outcome(spec.encode_response(), (self._event("FAULT", fault_code=code),))
+
+
+# -- payload checks the codec leaves to the device -------------------------------------------
+
+
+def _length_bounds(fields_: list[FieldSpec]) -> tuple[int, int]:
+    """(shortest, longest) payload laid out as ``fields_``, in bytes."""
+    fixed = sum(f.size for f in fields_ if f.size is not None)
+    variable = sum(f.max_size for f in fields_ if f.size is None)
+    return fixed, fixed + variable
+
+
+def _length_fits(fields_: list[FieldSpec], length: int) -> bool:
+    shortest, longest = _length_bounds(fields_)
+    return shortest <= length <= longest
+
+
+def _expected_length(fields_: list[FieldSpec]) -> str:
+    shortest, longest = _length_bounds(fields_)
+    if shortest != longest:
+        return f"{shortest} to {longest} payload bytes"
+    return f"{shortest} payload byte{'' if shortest == 1 else 's'}"
+
+
+def _check_ranges(spec: CommandSpec, values: Mapping[str, FieldValue]) -> None:
+    """NAK OUT_OF_RANGE for a decoded value outside its field's min/max (decode does not check)."""
+    for f in spec.request:
+        value = values[f.name]
+        if f.enum is not None or not isinstance(value, int | float):
+            continue
+        lo = -math.inf if f.min is None else _as_sent(f, f.min)
+        hi = math.inf if f.max is None else _as_sent(f, f.max)
+        if not lo <= value <= hi:  # NaN fails too
+            raise _Nak(
+                "OUT_OF_RANGE",
+                f"{spec.name}.{f.name}: {value:g} is out of range (valid: {f.valid_range()})",
+            )
+
+
+def _as_sent(f: FieldSpec, bound: float) -> float:
+    """A bound as it looks after the trip through the wire type (f32 rounds 0.01 up or down)."""
+    if f.type == "f32":
+        return float(struct.unpack(">f", struct.pack(">f", bound))[0])
+    return bound
+
+
+def _undo_f32_rounding(value: float) -> float:
+    return float(f"{value:.{_F32_SIGNIFICANT_DIGITS}g}")
+
+
+def _wrap_u32(values: Mapping[str, int]) -> dict[str, int]:
+    # Device counters are u32 registers: they wrap rather than refuse to be reported.
+    return {name: value % _U32_WRAP for name, value in values.items()}

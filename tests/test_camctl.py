@@ -1,0 +1,206 @@
+"""camctl as a user runs it: a subprocess talking real HTTP on loopback to a live daemon.
+
+The daemon runs the simulated camera (``camd serve --sim``); the lossy-line test adds bit errors
+and dropped frames and checks that 1000 pings all succeed through retries.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+import camd
+from camd.cli._daemon_proc import DaemonProcess
+
+HOST_KEYS = {"sent", "acked", "nacked", "retries", "timeouts", "crc_errors", "failed"}
+DEVICE_KEYS = {"executed", "replayed", "crc_errors", "injected"}
+NO_TOKEN = {"CAMD_TOKEN": ""}
+REPO_ROOT = str(Path(camd.__file__).resolve().parent.parent)
+
+
+def camctl_env() -> dict[str, str]:
+    """Our environment without the client's variables, with this checkout importable."""
+    env = {k: v for k, v in os.environ.items() if k not in ("CAMD_URL", "CAMD_TOKEN")}
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (REPO_ROOT, env.get("PYTHONPATH")) if p)
+    return env
+
+
+def camctl(url: str, *args: str, timeout_s: float = 120) -> subprocess.CompletedProcess[str]:
+    """Run ``camctl --url URL ARGS...`` and return the finished process."""
+    return subprocess.run(
+        [sys.executable, "-m", "camd.cli.camctl", "--url", url, *args],
+        capture_output=True,
+        text=True,
+        timeout=timeout_s,
+        env=camctl_env(),
+        check=False,
+    )
+
+
+def camctl_json(url: str, *args: str) -> Any:
+    """Run a camctl command with --json; it must succeed and print exactly one JSON document."""
+    proc = camctl(url, *args, "--json")
+    assert proc.returncode == 0, proc.stderr
+    assert "Traceback" not in proc.stderr
+    return json.loads(proc.stdout)  # json.loads rejects anything after the one document
+
+
+def free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+@pytest.fixture(scope="module")
+def url(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+    # The daemon takes $CAMD_TOKEN as its api.token: clear it so that no token is required.
+    with DaemonProcess(tmp_path_factory.mktemp("camd-camctl"), env=NO_TOKEN) as daemon:
+        yield daemon.url
+    assert daemon.exit_code in (0, -15), daemon.log_path.read_text()
+
+
+def test_status_json_is_one_document_with_state_idle(url: str) -> None:
+    doc = camctl_json(url, "status")
+    assert doc["state"] == "idle"
+    assert {"state", "reason", "mode", "link", "device", "daemon"} <= set(doc)
+    # --json is accepted before the command too
+    proc = subprocess.run(
+        [sys.executable, "-m", "camd.cli.camctl", "--json", "--url", url, "status"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env=camctl_env(),
+        check=False,
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout)["state"] == "idle"
+
+
+def test_ping_200(url: str) -> None:
+    doc = camctl_json(url, "ping", "--count", "200")
+    assert (doc["count"], doc["ok"], doc["failed"]) == (200, 200, 0)
+    rtt = doc["rtt_ms"]
+    assert 0 < rtt["p50"] <= rtt["p99"] <= rtt["max"]
+    assert "retries" in doc
+
+
+def test_link_has_host_and_device_counters(url: str) -> None:
+    camctl_json(url, "ping", "--count", "200", "--size", "8")
+    doc = camctl_json(url, "link")
+    assert set(doc["host"]) >= HOST_KEYS
+    assert set(doc["device"]) >= DEVICE_KEYS
+    assert doc["device"]["executed"] >= 200
+    assert doc["host"]["acked"] >= 200
+
+
+def test_telemetry_values_change_over_time(url: str) -> None:
+    first = camctl_json(url, "telemetry")
+    assert first["latest"], "no telemetry yet"
+    for name, sample in first["latest"].items():
+        assert isinstance(sample["value"], int | float), name
+        assert isinstance(sample["unit"], str), name
+        assert sample["limit"] in ("ok", "yellow", "red"), name
+    assert first["archive"].endswith((".sqlite", ".db", ".sqlite3"))
+    # Housekeeping arrives about every second: within a few seconds there is a newer sample.
+    deadline = time.monotonic() + 8
+    while True:
+        time.sleep(1.0)
+        second = camctl_json(url, "telemetry")
+        newer = [
+            name
+            for name, sample in second["latest"].items()
+            if sample["t_s"] > first["latest"].get(name, {"t_s": float("inf")})["t_s"]
+        ]
+        if newer and second["samples"] > first["samples"]:
+            break
+        assert time.monotonic() < deadline, f"telemetry did not change: {first} -> {second}"
+    assert any(second["latest"][n]["value"] != first["latest"][n]["value"] for n in newer)
+
+    channel = newer[0]
+    hist = camctl_json(url, "telemetry", "--history", channel, "--limit", "3")
+    assert hist["channel"] == channel
+    assert 0 < len(hist["value"]) == len(hist["t_s"]) <= 3
+
+
+def test_mode_tdi_then_status_shows_it(url: str) -> None:
+    assert camctl_json(url, "mode", "tdi") == {"mode": "tdi"}
+    assert camctl_json(url, "status")["mode"] == "tdi"
+    assert camctl_json(url, "mode", "area") == {"mode": "area"}
+    events = camctl_json(url, "events", "--limit", "5")["events"]
+    assert 0 < len(events) <= 5
+
+
+def test_mode_foo_is_a_usage_error_naming_the_modes(url: str) -> None:
+    proc = camctl(url, "mode", "foo")
+    assert proc.returncode == 2
+    assert "area" in proc.stderr and "tdi" in proc.stderr
+    assert proc.stdout == ""
+
+
+def test_api_error_exits_1_with_the_daemons_message(url: str) -> None:
+    proc = camctl(url, "telemetry", "--history", "no_such_channel", "--json")
+    assert proc.returncode == 1
+    assert proc.stderr.startswith("camctl: error: ")
+    assert "no_such_channel" in proc.stderr and "Traceback" not in proc.stderr
+    assert proc.stdout == ""
+
+
+def test_human_output(url: str) -> None:
+    proc = camctl(url, "status")
+    assert proc.returncode == 0, proc.stderr
+    assert "idle" in proc.stdout and "state" in proc.stdout
+    for command in (["ping", "--count", "5"], ["link"], ["telemetry"], ["events"], ["reset"]):
+        proc = camctl(url, *command)
+        assert proc.returncode == 0, (command, proc.stderr)
+        assert proc.stdout.strip(), command
+    assert "p99" in camctl(url, "ping", "--count", "5").stdout
+
+
+def test_unreachable_daemon_exits_3_with_the_hint() -> None:
+    url = f"http://127.0.0.1:{free_port()}"
+    for args in (["status"], ["ping", "--count", "3", "--json"]):
+        proc = camctl(url, *args)
+        assert proc.returncode == 3
+        assert proc.stderr.startswith("camctl: error: ")
+        assert "camd serve --sim" in proc.stderr and "Traceback" not in proc.stderr
+        assert proc.stdout == ""
+
+
+def test_lossy_line_1000_pings_all_succeed_through_retries(tmp_path: Path) -> None:
+    with DaemonProcess(tmp_path, inject="ber=1e-4,drop=0.01", env=NO_TOKEN) as daemon:
+        doc = camctl_json(daemon.url, "ping", "--count", "1000")
+        link = camctl_json(daemon.url, "link")
+    assert (doc["count"], doc["ok"], doc["failed"]) == (1000, 1000, 0), doc.get("errors")
+    assert doc["retries"] > 0
+    assert link["host"]["retries"] >= doc["retries"]
+    injected = link["device"]["injected"]
+    assert injected is not None and sum(injected.values()) > 0
+
+
+def test_token_is_required_and_accepted(tmp_path: Path) -> None:
+    with DaemonProcess(tmp_path, env={"CAMD_TOKEN": "s3cret"}) as daemon:
+        refused = camctl(daemon.url, "status", "--json")
+        with_option = camctl(daemon.url, "status", "--json", "--token", "s3cret")
+        env = camctl_env() | {"CAMD_TOKEN": "s3cret"}
+        with_env = subprocess.run(
+            [sys.executable, "-m", "camd.cli.camctl", "--url", daemon.url, "status", "--json"],
+            capture_output=True,
+            text=True,
+            timeout=60,
+            env=env,
+            check=False,
+        )
+    assert refused.returncode == 1 and refused.stdout == ""
+    assert refused.stderr.startswith("camctl: error: ") and "token" in refused.stderr.lower()
+    assert with_option.returncode == 0, with_option.stderr
+    assert json.loads(with_option.stdout)["state"] in ("idle", "disconnected")
+    assert with_env.returncode == 0, with_env.stderr

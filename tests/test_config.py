@@ -1,0 +1,212 @@
+"""The daemon's config: defaults, validation messages, overrides, and the docs listing every key."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Any
+
+import pytest
+from pydantic import BaseModel
+
+from camd.daemon.config import (
+    DEFAULT_LIMITS,
+    ChannelLimits,
+    Config,
+    ConfigError,
+    TelemetrySection,
+    config_from_dict,
+    default_config_path,
+    is_loopback,
+    load_config,
+    with_overrides,
+)
+
+DOCS = Path(__file__).resolve().parent.parent / "docs" / "config.md"
+NO_ENV: dict[str, str] = {}
+
+
+def write(tmp_path: Path, text: str) -> Path:
+    path = tmp_path / "camd.toml"
+    path.write_text(text)
+    return path
+
+
+def error_of(tmp_path: Path, text: str) -> str:
+    with pytest.raises(ConfigError) as info:
+        load_config(write(tmp_path, text), env=NO_ENV)
+    return str(info.value)
+
+
+def test_shipped_file_equals_the_model_defaults() -> None:
+    # The shipped camd.toml documents the defaults; it must not drift from the code.
+    assert load_config(None, env=NO_ENV) == config_from_dict({}, env=NO_ENV)
+    assert default_config_path().name == "camd.toml"
+
+
+def test_defaults_give_a_simulated_camera_on_loopback() -> None:
+    cfg = config_from_dict({}, env=NO_ENV)
+    assert cfg.link.device == "sim"
+    assert (cfg.api.host, cfg.api.port, cfg.api.token) == ("127.0.0.1", 8422, "")
+    assert (cfg.link.baudrate, cfg.link.timeout_s, cfg.link.retries) == (921_600, 0.1, 5)
+    assert cfg.telemetry.poll_period_s == 1.0 and cfg.telemetry.red_is_fault
+    assert set(cfg.telemetry.limits) == set(DEFAULT_LIMITS)
+    assert cfg.sim.profile == "hr400"
+
+
+def test_data_dir_is_expanded_and_derived_paths_follow(tmp_path: Path) -> None:
+    cfg = config_from_dict({"daemon": {"data_dir": "~/x/camd"}}, env=NO_ENV)
+    assert cfg.daemon.data_dir == Path.home() / "x" / "camd"
+    cfg = config_from_dict({"daemon": {"data_dir": str(tmp_path)}}, env=NO_ENV)
+    assert cfg.archive_path == tmp_path / "telemetry.sqlite"
+    assert cfg.sim_link_path == tmp_path / "sim" / "camera.tty"
+
+
+def test_unknown_key_names_file_key_path_and_allowed_keys(tmp_path: Path) -> None:
+    msg = error_of(tmp_path, "[api]\nprot = 1\n")
+    assert str(tmp_path / "camd.toml") in msg
+    assert "api.prot" in msg and "unknown key" in msg
+    assert "host, port, token" in msg
+
+
+def test_unknown_section_lists_the_sections(tmp_path: Path) -> None:
+    msg = error_of(tmp_path, "[deamon]\nlog_level = 'info'\n")
+    assert "deamon" in msg and "daemon, api, link, sim, telemetry" in msg
+
+
+def test_unknown_key_inside_a_channel_limit(tmp_path: Path) -> None:
+    msg = error_of(
+        tmp_path, "[telemetry.limits.vcc_io_v]\nyellow = [3.2, 3.4]\nred = [3, 4]\ngreen = 1\n"
+    )
+    assert "telemetry.limits.vcc_io_v.green" in msg and "yellow, red" in msg
+
+
+def test_out_of_range_names_the_range(tmp_path: Path) -> None:
+    msg = error_of(tmp_path, "[api]\nport = 70000\n")
+    assert "api.port" in msg and "70000" in msg and "0 <= port <= 65535" in msg
+    msg = error_of(tmp_path, "[link]\ntimeout_s = 0\n")
+    assert "link.timeout_s" in msg and "0 < timeout_s <= 60" in msg
+
+
+def test_bad_enum_lists_the_choices(tmp_path: Path) -> None:
+    msg = error_of(tmp_path, "[daemon]\nlog_level = 'loud'\n")
+    assert "daemon.log_level" in msg and "'loud'" in msg and "'debug'" in msg
+
+
+def test_wrong_type(tmp_path: Path) -> None:
+    msg = error_of(tmp_path, "[link]\nretries = 'many'\n")
+    assert "link.retries" in msg and "'many'" in msg
+
+
+def test_invalid_toml_and_missing_file(tmp_path: Path) -> None:
+    msg = error_of(tmp_path, "[api\n")
+    assert "camd.toml" in msg and "not valid TOML" in msg
+    with pytest.raises(ConfigError, match="not found"):
+        load_config(tmp_path / "absent.toml")
+
+
+def test_backoff_order(tmp_path: Path) -> None:
+    msg = error_of(tmp_path, "[link]\nreconnect_min_s = 5\nreconnect_max_s = 1\n")
+    assert "reconnect_min_s" in msg and "reconnect_max_s" in msg
+
+
+@pytest.mark.parametrize("host", ["127.0.0.1", "127.3.2.1", "::1", "localhost", "[::1]"])
+def test_loopback_hosts_need_no_token(host: str) -> None:
+    assert is_loopback(host)
+    assert config_from_dict({"api": {"host": host}}, env=NO_ENV).api.host == host
+
+
+@pytest.mark.parametrize("host", ["0.0.0.0", "::", "192.168.1.20", "camera-pc.example"])
+def test_remote_bind_without_token_is_refused(host: str) -> None:
+    assert not is_loopback(host)
+    with pytest.raises(ConfigError) as info:
+        config_from_dict({"api": {"host": host}}, env=NO_ENV)
+    msg = str(info.value)
+    assert host in msg and "api.token" in msg and "CAMD_TOKEN" in msg
+
+
+def test_remote_bind_with_a_token_from_file_or_environment() -> None:
+    cfg = config_from_dict({"api": {"host": "0.0.0.0", "token": "abc"}}, env=NO_ENV)
+    assert cfg.api.token == "abc"
+    cfg = config_from_dict({"api": {"host": "0.0.0.0"}}, env={"CAMD_TOKEN": "xyz"})
+    assert cfg.api.token == "xyz"
+    # The environment wins over the file (the secret stays out of the file).
+    cfg = config_from_dict({"api": {"token": "file"}}, env={"CAMD_TOKEN": "env"})
+    assert cfg.api.token == "env"
+
+
+def test_limits_merge_over_defaults() -> None:
+    cfg = config_from_dict(
+        {"telemetry": {"limits": {"fpga_temp_degc": {"yellow": [10, 60], "red": [0, 80]}}}},
+        env=NO_ENV,
+    )
+    assert cfg.telemetry.limits["fpga_temp_degc"] == ChannelLimits(yellow=(10, 60), red=(0, 80))
+    assert cfg.telemetry.limits["vcc_io_v"] == DEFAULT_LIMITS["vcc_io_v"]
+
+
+def test_limit_channel_must_exist_in_housekeeping(tmp_path: Path) -> None:
+    msg = error_of(tmp_path, "[telemetry.limits.cpu_temp]\nyellow = [0, 1]\nred = [0, 2]\n")
+    assert "cpu_temp" in msg and "fpga_temp_degc" in msg and "HOUSEKEEPING" in msg
+
+
+@pytest.mark.parametrize(
+    ("yellow", "red", "words"),
+    [
+        ([0, 5], [1, 6], "must contain yellow"),
+        ([0, 5], [-1, 4], "must contain yellow"),
+        ([5, 0], [-1, 6], "lo > hi"),
+        ([0, 5], [6, -1], "lo > hi"),
+    ],
+)
+def test_red_must_contain_yellow(
+    tmp_path: Path, yellow: list[float], red: list[float], words: str
+) -> None:
+    msg = error_of(tmp_path, f"[telemetry.limits.vcc_io_v]\nyellow = {yellow}\nred = {red}\n")
+    assert "telemetry.limits.vcc_io_v" in msg and words in msg
+
+
+def test_equal_ranges_are_allowed() -> None:
+    assert ChannelLimits(yellow=(1, 2), red=(1, 2)).red == (1, 2)
+
+
+def test_overrides_are_revalidated() -> None:
+    cfg = config_from_dict({}, env=NO_ENV)
+    changed = with_overrides(cfg, {"api.port": 0, "link.device": "/dev/ttyUSB0"})
+    assert changed.api.port == 0 and changed.link.device == "/dev/ttyUSB0"
+    assert with_overrides(cfg, {"api.port": None}) == cfg  # unset flags change nothing
+    with pytest.raises(ConfigError, match=r"0\.0\.0\.0.*api\.token"):
+        with_overrides(cfg, {"api.host": "0.0.0.0"})
+    with pytest.raises(ConfigError, match=r"api\.port"):
+        with_overrides(cfg, {"api.port": -1})
+
+
+def _keys(model: type[BaseModel], prefix: str) -> list[str]:
+    """Every documented key path of ``model`` (channel limits as ``<channel>``)."""
+    out = []
+    for name, field in model.model_fields.items():
+        path = f"{prefix}{name}"
+        annotation: Any = field.annotation
+        if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+            out += _keys(annotation, path + ".")
+        else:
+            out.append(path)
+            if model is TelemetrySection and name == "limits":
+                out += _keys(ChannelLimits, path + ".<channel>.")
+    return out
+
+
+def test_every_key_is_documented() -> None:
+    docs = DOCS.read_text()
+    keys = _keys(Config, "")
+    assert len(keys) >= 20
+    missing = [k for k in keys if f"`{k}`" not in docs]
+    assert not missing, f"docs/config.md does not document: {missing}"
+
+
+def test_every_key_is_in_the_shipped_file() -> None:
+    shipped = default_config_path().read_text()
+    for key in _keys(Config, ""):
+        leaf = key.rsplit(".", 1)[-1]
+        if "<channel>" in key or key == "telemetry.limits":
+            continue
+        assert re.search(rf"^{leaf} = ", shipped, re.M), f"config/camd.toml lacks {key}"

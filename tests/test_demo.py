@@ -1,0 +1,66 @@
+"""``camd demo`` end to end, as a subprocess: exit 0, the final line, and the summary file."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import camd
+
+REPO_ROOT = str(Path(camd.__file__).resolve().parent.parent)
+
+
+def test_demo_runs_and_writes_its_summary(tmp_path: Path) -> None:
+    out = tmp_path / "demo"
+    # The demo's daemon and client would both take $CAMD_TOKEN; run it as a user without one.
+    env = {k: v for k, v in os.environ.items() if k not in ("CAMD_URL", "CAMD_TOKEN")}
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (REPO_ROOT, env.get("PYTHONPATH")) if p)
+    proc = subprocess.run(
+        [sys.executable, "-m", "camd", "demo", "--out", str(out), "--pings", "200"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env=env,
+        check=False,
+    )
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "Traceback" not in proc.stderr
+    summary_path = out / "demo-summary.json"
+    final = proc.stdout.strip().splitlines()[-1]
+    assert final.startswith("demo OK: 200 pings, ")
+    assert " 0 failed" in final and final.endswith(f"summary in {summary_path}")
+
+    summary = json.loads(summary_path.read_text())
+    assert summary["ok"] is True and summary["error"] is None
+    assert summary["inject"] == "ber=1e-4,drop=0.01"
+
+    assert summary["status"]["state"] == "idle"
+    assert summary["status"]["device"]["fw_version"] > 0
+
+    ping = summary["ping"]
+    assert (ping["count"], ping["ok"], ping["failed"]) == (200, 200, 0)
+    assert ping["rtt_ms"]["p50"] <= ping["rtt_ms"]["p99"] <= ping["rtt_ms"]["max"]
+
+    assert {"before", "after"} <= set(summary["link"])
+    check = summary["at_most_once"]
+    assert check["held"] is True
+    assert check["device_executed"] >= 200 and check["host_answered"] >= 200
+    assert abs(check["device_executed"] - check["host_answered"]) <= check["tolerance"]
+
+    tel = summary["telemetry"]
+    assert tel["samples_after"] > tel["samples_before"]
+    assert tel["archive_exists"] is True and Path(tel["archive"]).is_file()
+    assert tel["last"]["latest"]
+    assert tel["history"]["samples"] > 0
+
+    assert [m["status"]["mode"] for m in summary["modes"]] == ["area", "tdi", "area"]
+    assert [m["requested"] for m in summary["modes"]] == [None, "tdi", "area"]
+    assert summary["events"]
+
+    daemon = summary["daemon"]
+    assert daemon["exit_code"] in (0, -15) and daemon["killed"] is False
+    assert Path(daemon["log"]).is_file()
+    assert "camd serving http://" in Path(daemon["log"]).read_text()

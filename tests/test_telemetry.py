@@ -1,0 +1,180 @@
+"""The telemetry archive (real SQLite files) and the limit checker, against hand-computed values."""
+
+from __future__ import annotations
+
+import math
+import sqlite3
+import threading
+from pathlib import Path
+
+import pytest
+
+from camd.daemon.config import ChannelLimits
+from camd.daemon.telemetry import Level, LimitChecker, TelemetryArchive, classify
+
+TEMP = ChannelLimits(yellow=(0.0, 70.0), red=(-20.0, 85.0))
+VOLT = ChannelLimits(yellow=(3.2, 3.4), red=(3.1, 3.5))
+
+
+@pytest.fixture
+def archive(tmp_path: Path) -> TelemetryArchive:
+    return TelemetryArchive(tmp_path / "data" / "telemetry.sqlite")
+
+
+def test_creates_directory_and_uses_wal(tmp_path: Path) -> None:
+    path = tmp_path / "a" / "b" / "telemetry.sqlite"
+    with TelemetryArchive(path):
+        assert path.is_file()
+        other = sqlite3.connect(path)
+        try:
+            (mode,) = other.execute("PRAGMA journal_mode").fetchone()
+        finally:
+            other.close()
+        assert mode == "wal"
+
+
+def test_samples_are_stored_in_long_format(archive: TelemetryArchive) -> None:
+    archive.add_samples(100.0, {"a": 1.0, "b": 2.0}, "tlm", {"a": "V", "b": "A"})
+    archive.add_samples(101.0, {"a": 1.5}, "poll")
+    db = sqlite3.connect(archive.path)
+    try:
+        rows = db.execute(
+            "SELECT t_s, channel, value, source FROM samples ORDER BY rowid"
+        ).fetchall()
+        indexes = [r[1] for r in db.execute("PRAGMA index_list(samples)")]
+    finally:
+        db.close()
+    assert rows == [(100.0, "a", 1.0, "tlm"), (100.0, "b", 2.0, "tlm"), (101.0, "a", 1.5, "poll")]
+    assert "samples_by_channel_time" in indexes
+    assert archive.channels() == {"a": "V", "b": "A"}
+
+
+def test_latest_per_channel(archive: TelemetryArchive) -> None:
+    archive.add_samples(10.0, {"a": 1.0, "b": 5.0}, "tlm", {"a": "V", "b": "A"})
+    archive.add_samples(12.0, {"a": 3.0}, "poll")
+    archive.add_samples(11.0, {"a": 2.0}, "tlm")  # arrived late: not the newest
+    latest = archive.latest()
+    assert (latest["a"].t_s, latest["a"].value, latest["a"].source) == (12.0, 3.0, "poll")
+    assert (latest["b"].t_s, latest["b"].value, latest["b"].unit) == (10.0, 5.0, "A")
+    assert archive.latest(["b", "nope"]).keys() == {"b"}
+
+
+def test_history_since_and_limit(archive: TelemetryArchive) -> None:
+    for i in range(10):
+        archive.add_samples(100.0 + i, {"x": float(i * i), "y": -1.0}, "tlm")
+    t, v = archive.history("x")
+    assert t == [100.0 + i for i in range(10)] and v == [float(i * i) for i in range(10)]
+    t, v = archive.history("x", since_s=105.0)
+    assert t == [105.0, 106.0, 107.0, 108.0, 109.0] and v == [25.0, 36.0, 49.0, 64.0, 81.0]
+    t, v = archive.history("x", limit=3)  # the newest 3, oldest first
+    assert t == [107.0, 108.0, 109.0] and v == [49.0, 64.0, 81.0]
+    t, v = archive.history("x", since_s=108.5, limit=3)
+    assert t == [109.0]
+    assert archive.history("absent") == ([], [])
+
+
+def test_count_total_and_per_channel_survives_reopen(tmp_path: Path) -> None:
+    path = tmp_path / "t.sqlite"
+    with TelemetryArchive(path) as a:
+        assert a.count() == 0
+        a.add_samples(1.0, {"x": 1.0, "y": 2.0, "z": 3.0}, "tlm")
+        a.add_samples(2.0, {"x": 1.0}, "poll")
+        assert (a.count(), a.count("x"), a.count("y"), a.count("q")) == (4, 2, 1, 0)
+    with TelemetryArchive(path) as a:
+        assert a.count() == 4
+        assert a.channels().keys() == {"x", "y", "z"}
+        a.add_samples(3.0, {"y": 0.0}, "tlm")
+        assert a.count() == 5
+
+
+def test_non_finite_values_are_skipped(archive: TelemetryArchive) -> None:
+    n = archive.add_samples(1.0, {"a": math.nan, "b": math.inf, "c": 1.0}, "tlm")
+    assert n == 1 and archive.count() == 1 and archive.latest().keys() == {"c"}
+
+
+def test_events_newest_last_and_limited(archive: TelemetryArchive) -> None:
+    for i in range(5):
+        archive.add_event("info", "test", f"event {i}", t_s=50.0 + i)
+    ev = archive.add_event("error", "limits", "boom")
+    assert ev.level == "error" and ev.t_s > 1e9  # defaulted to now
+    events = archive.events(3)
+    assert [e.message for e in events] == ["event 3", "event 4", "boom"]
+    assert archive.events(100)[0].message == "event 0"
+
+
+def test_threads_share_the_archive(archive: TelemetryArchive) -> None:
+    def writer(k: int) -> None:
+        for i in range(200):
+            archive.add_samples(float(i), {f"c{k}": float(i)}, "tlm")
+            if i % 50 == 0:
+                archive.latest()
+
+    threads = [threading.Thread(target=writer, args=(k,)) for k in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert archive.count() == 800
+    assert all(archive.count(f"c{k}") == 200 for k in range(4))
+
+
+@pytest.mark.parametrize(
+    ("value", "level"),
+    [
+        (3.3, Level.OK),
+        (3.2, Level.OK),  # bounds are inclusive
+        (3.4, Level.OK),
+        (3.19, Level.YELLOW),
+        (3.41, Level.YELLOW),
+        (3.1, Level.YELLOW),
+        (3.5, Level.YELLOW),
+        (3.09, Level.RED),
+        (3.51, Level.RED),
+        (0.0, Level.RED),
+        (math.nan, Level.RED),
+    ],
+)
+def test_classify(value: float, level: Level) -> None:
+    assert classify(value, VOLT) == level
+
+
+def test_limit_events_on_transitions_only() -> None:
+    checker = LimitChecker({"t": TEMP})
+    temps = [20, 30, 71, 72, 80, 86, 90, 84, 60, 50, -25, 10]
+    seen = []
+    for i, temp in enumerate(temps):
+        for ev in checker.check({"t": float(temp), "other": 1.0}, float(i)):
+            seen.append((ev.t_s, ev.old.value, ev.new.value, ev.level))
+    assert seen == [
+        (2.0, "ok", "yellow", "warning"),  # 71 > 70
+        (5.0, "yellow", "red", "error"),  # 86 > 85
+        (7.0, "red", "yellow", "warning"),  # 84
+        (8.0, "yellow", "ok", "info"),  # 60
+        (10.0, "ok", "red", "error"),  # -25 < -20: straight to red
+        (11.0, "red", "ok", "info"),
+    ]
+    assert checker.level("t") == Level.OK
+
+
+def test_limit_event_messages_name_value_and_range() -> None:
+    checker = LimitChecker({"vcc_io_v": VOLT})
+    (ev,) = checker.check({"vcc_io_v": 3.05}, 1.0)
+    assert ev.new == Level.RED and checker.red_channels() == ["vcc_io_v"]
+    assert ev.message(VOLT, "V") == "vcc_io_v ok -> red: 3.05 V outside the red range [3.1, 3.5] V"
+    (ev,) = checker.check({"vcc_io_v": 3.3}, 2.0)
+    assert ev.message(VOLT, "V") == "vcc_io_v back to ok: 3.3 V within [3.2, 3.4] V"
+
+
+def test_first_sample_out_of_range_is_reported_and_clear_forgets() -> None:
+    checker = LimitChecker({"t": TEMP})
+    assert [e.new for e in checker.check({"t": 100.0}, 0.0)] == [Level.RED]
+    assert checker.check({"t": 101.0}, 1.0) == []
+    checker.clear()
+    assert checker.levels() == {}
+    assert [e.new for e in checker.check({"t": 100.0}, 2.0)] == [Level.RED]
+
+
+def test_channels_without_limits_are_ignored() -> None:
+    checker = LimitChecker({"t": TEMP})
+    assert checker.check({"uptime_s": 1e9}, 0.0) == []
+    assert checker.levels() == {}
