@@ -7,7 +7,7 @@ it opens a USB-RS-422 adapter. One thread runs a select loop on the master side:
          -> schedule after delay_ms -> garbage burst, drop? (tx), corrupt (tx bit errors)
          -> outgoing buffer -> write when the master is writable
 
-plus periodic HOUSEKEEPING telemetry and an inter-byte idle flush of the receiver.
+plus periodic HOUSEKEEPING telemetry and the expiry of stalled candidate frames in the receiver.
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ from firmware_models.fpga import FpgaModel
 from firmware_models.inject import FaultInjector
 
 READ_CHUNK_BYTES = 4096
-IDLE_FLUSH_S = 0.02
+FRAME_TIMEOUT_S = 0.02  # a maximum-size frame takes ~11 ms at 921600 Bd
 TX_BUFFER_LIMIT_BYTES = 64 * 1024
 _IDLE_WAIT_S = 1.0  # select timeout when nothing is scheduled; a stop() wakes it anyway
 
@@ -47,7 +47,7 @@ class ServerCounters:
     """What the transport did besides passing frames through."""
 
     tx_overflow_dropped: int = 0  # frames (or garbage bursts) discarded: the host was not reading
-    idle_flushes: int = 0  # times a stalled partial frame was given up
+    stale_flushes: int = 0  # stalled candidate frames given up (corrupted length fields)
 
 
 class PtyServer:
@@ -66,7 +66,7 @@ class PtyServer:
         *,
         link: Path | str | None = None,
         hk_period_s: float = 1.0,
-        idle_flush_s: float = IDLE_FLUSH_S,
+        frame_timeout_s: float = FRAME_TIMEOUT_S,
         tx_buffer_limit_bytes: int = TX_BUFFER_LIMIT_BYTES,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
@@ -76,7 +76,7 @@ class PtyServer:
         self.injector: FaultInjector = model.injector
         self.link = Path(link) if link is not None else None
         self.hk_period_s = hk_period_s
-        self.idle_flush_s = idle_flush_s
+        self.frame_timeout_s = frame_timeout_s
         self.tx_buffer_limit_bytes = tx_buffer_limit_bytes
         self.counters = ServerCounters()
         self._clock = clock
@@ -92,7 +92,6 @@ class PtyServer:
         self._head_sent = 0  # bytes of _out[0] already written
         self._scheduled: list[tuple[float, int, Frame]] = []  # heap of (due_s, order, frame)
         self._order = itertools.count()
-        self._last_rx_s = 0.0
         self._next_hk_s = 0.0
 
     # -- lifecycle ------------------------------------------------------------------------
@@ -113,7 +112,6 @@ class PtyServer:
         if self.link is not None:
             self._point_link()
         now_s = self._clock()
-        self._last_rx_s = now_s
         self._next_hk_s = now_s + self.hk_period_s
         for frame in self.model.boot_frames(now_s):
             self._transmit(frame)
@@ -194,7 +192,7 @@ class PtyServer:
         if self._master in readable:
             self._receive()
         now_s = self._clock()
-        self._maybe_flush_idle(now_s)
+        self._expire_stale(now_s)
         self._release_due(now_s)
         self._maybe_send_housekeeping(now_s)
         if self._out:
@@ -206,8 +204,9 @@ class PtyServer:
         deadlines = []
         if self._scheduled:
             deadlines.append(self._scheduled[0][0])
-        if self.model.receiver.pending:
-            deadlines.append(self._last_rx_s + self.idle_flush_s)
+        head_since_s = self.model.receiver.head_since_s
+        if head_since_s is not None:
+            deadlines.append(head_since_s + self.frame_timeout_s)
         if self.hk_period_s > 0:
             deadlines.append(self._next_hk_s)
         if not deadlines:
@@ -221,8 +220,7 @@ class PtyServer:
         except BlockingIOError:
             return
         now_s = self._clock()
-        self._last_rx_s = now_s
-        self._dispatch(self.model.receiver.feed(self.injector.corrupt(data)), now_s)
+        self._dispatch(self.model.receiver.feed(self.injector.corrupt(data), now_s), now_s)
 
     def _dispatch(self, frames: list[Frame], now_s: float) -> None:
         for frame in frames:
@@ -237,15 +235,14 @@ class PtyServer:
             _, _, frame = heapq.heappop(self._scheduled)
             self._transmit(frame)
 
-    def _maybe_flush_idle(self, now_s: float) -> None:
-        # A bit error in a length field leaves the receiver waiting for bytes that never come.
-        # The line has been idle, so every byte held belongs to a frame that stopped arriving.
+    def _expire_stale(self, now_s: float) -> None:
+        # A bit error in a length field leaves the receiver waiting for bytes of later frames.
+        # The host's retries keep the line busy, so an idle-line timeout would never fire: the
+        # candidate's age at the head of the buffer decides (Decoder.expire).
         receiver = self.model.receiver
-        if not receiver.pending or now_s - self._last_rx_s < self.idle_flush_s:
-            return
-        self.counters.idle_flushes += 1
-        while receiver.pending:
-            self._dispatch(receiver.flush_partial(), now_s)
+        before = receiver.stats.partial_flushes
+        self._dispatch(receiver.expire(now_s, self.frame_timeout_s), now_s)
+        self.counters.stale_flushes += receiver.stats.partial_flushes - before
 
     def _maybe_send_housekeeping(self, now_s: float) -> None:
         if self.hk_period_s <= 0 or now_s < self._next_hk_s:

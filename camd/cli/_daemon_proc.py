@@ -128,20 +128,11 @@ class DaemonProcess:
         self._write_log(
             f"--- {time.strftime('%Y-%m-%d %H:%M:%S')} start: {' '.join(self.command)}\n"
         )
-        self._proc = subprocess.Popen(
-            self.command,
-            stdin=subprocess.DEVNULL,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-            encoding="utf-8",
-            errors="replace",
-            bufsize=1,
-            env=self._env,
-            # Own process group: a Ctrl-C in the terminal reaches the demo, which then stops the
-            # daemon in order, instead of both dying at once.
-            start_new_session=True,
-        )
+        try:
+            self._proc = self._spawn()
+        except OSError as exc:
+            self.stop()
+            raise DaemonStartError(f"cannot run {' '.join(self.command)}: {exc}") from None
         assert self._proc.stdout is not None and self._proc.stderr is not None
         self._threads = [
             threading.Thread(
@@ -178,6 +169,7 @@ class DaemonProcess:
         code (negative: killed by that signal). Safe to call more than once."""
         proc = self._proc
         if proc is None:
+            self._close_log()
             return None
         if proc.poll() is None:
             proc.terminate()
@@ -187,16 +179,19 @@ class DaemonProcess:
                 self.killed = True
                 proc.kill()
                 proc.wait()
+            except KeyboardInterrupt:
+                # A second Ctrl-C while waiting: do not leave the daemon behind.
+                self.killed = True
+                proc.kill()
+                proc.wait()
+                raise
         for thread in self._threads:
             thread.join(timeout=2.0)
         if self.exit_code is None:
             self.exit_code = proc.returncode
             how = " (killed after ignoring SIGTERM)" if self.killed else ""
             self._write_log(f"--- camd serve exited with status {self.exit_code}{how}\n")
-        with self._log_lock:
-            if self._log is not None:
-                self._log.close()
-                self._log = None
+        self._close_log()
         return self.exit_code
 
     def __enter__(self) -> DaemonProcess:
@@ -212,6 +207,22 @@ class DaemonProcess:
 
     # -- internals --------------------------------------------------------------------------------
 
+    def _spawn(self) -> subprocess.Popen[str]:
+        return subprocess.Popen(
+            self.command,
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            encoding="utf-8",
+            errors="replace",
+            bufsize=1,
+            env=self._env,
+            # Own process group: a Ctrl-C in the terminal reaches the demo, which then stops the
+            # daemon in order, instead of both dying at once.
+            start_new_session=True,
+        )
+
     def _drain(self, stream: IO[str], is_stderr: bool) -> None:
         # Runs until the daemon closes the pipe (it exits): every line goes to the log.
         for line in stream:
@@ -225,6 +236,12 @@ class DaemonProcess:
                     self._ready.set()
             self._write_log(line)
         stream.close()
+
+    def _close_log(self) -> None:
+        with self._log_lock:
+            if self._log is not None:
+                self._log.close()
+                self._log = None
 
     def _write_log(self, text: str) -> None:
         with self._log_lock:

@@ -350,6 +350,8 @@ def status_table(doc: dict[str, Any], title: str | None = "camd status") -> Tabl
             ("connected", "green") if connected else ("not connected", "yellow"),
         ),
     )
+    if link.get("last_error"):
+        table.add_row("link error", Text(str(link["last_error"]), style="yellow"))
     device = doc.get("device")
     if isinstance(device, dict):
         for key, value in device.items():

@@ -135,8 +135,8 @@ def run_demo(out: str | os.PathLike[str], pings: int = DEFAULT_PINGS) -> int:
 
     if exit_code is not None:
         summary["daemon"].update(exit_code=exit_code, killed=daemon.killed)
-        # uvicorn re-raises the SIGTERM it handled after a graceful shutdown, so -SIGTERM is as
-        # clean as 0 (systemd agrees); a kill after the stop timeout is not.
+        # Ending by SIGTERM's default action (-15) is stopping as asked, as systemd sees it too;
+        # needing SIGKILL after the stop timeout is not.
         if error is None and (exit_code not in (0, -signal.SIGTERM) or daemon.killed):
             how = " (it ignored SIGTERM and was killed)" if daemon.killed else ""
             error = (

@@ -54,7 +54,7 @@ _COUNTER_DOCS: dict[str, str] = {
     "oversize": "candidates rejected for a length above the maximum payload",
     "resyncs": "times bytes were skipped to reach the next sync word",
     "bytes_dropped": "bytes discarded (rejected candidates and skipped garbage)",
-    "partial_flushes": "stalled partial frames given up at an inter-byte timeout",
+    "partial_flushes": "stalled candidate frames given up (`expire()` / `flush_partial()`)",
 }
 
 
@@ -310,11 +310,11 @@ def _receiving() -> list[str]:
         "so a genuine frame hidden inside the bytes of a false candidate (garbage that happened "
         "to contain the sync word) is still found.",
         "5. Stalled candidates: a corrupted length field can leave the decoder waiting for bytes "
-        "that never come, or that belong to later frames. The transport gives up on such a "
-        "candidate when the line has gone idle with bytes pending (inter-byte timeout, "
-        "`flush_partial()`), or when the same candidate has waited at the head of the buffer "
-        "longer than a maximum-size frame takes on the line, however many bytes arrived since "
-        "(`expire()`). Its first byte is dropped and the bytes after it are scanned again, "
+        "that never come, or that belong to later frames. Both ends give up on a candidate "
+        "that has waited at the head of the buffer longer than a maximum-size frame takes on "
+        "the line, however many bytes arrived since (`expire()`; an idle-line timeout alone "
+        "would never fire while retries keep the line busy). Its first byte is dropped and the "
+        "bytes after it are scanned again, "
         "releasing any complete frames they hold.",
         "6. A rejected frame is never answered: none of its fields can be trusted. The sender's "
         "timeout and retry recover from it (section 4).",

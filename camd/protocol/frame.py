@@ -115,6 +115,11 @@ class Decoder:
         """Bytes held waiting for the rest of a frame."""
         return len(self._buf)
 
+    @property
+    def head_since_s(self) -> float | None:
+        """When the candidate frame now waiting at the head got there (None if none waits)."""
+        return self._head_since_s if self._buf else None
+
     def feed(self, data: bytes, now_s: float = 0.0) -> list[Frame]:
         """Consume a chunk of the byte stream; return the frames it completed.
 
