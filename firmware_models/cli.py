@@ -58,10 +58,10 @@ def _profile_arg(text: str) -> str:
     return text
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(prog: str = "python -m firmware_models") -> argparse.ArgumentParser:
     """The argument parser of ``python -m firmware_models``."""
     parser = argparse.ArgumentParser(
-        prog="python -m firmware_models",
+        prog=prog,
         description="Run the simulated camera FPGA on a pseudo-terminal (RS-422 command link).",
     )
     parser.add_argument(
@@ -96,9 +96,9 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(argv: list[str] | None = None, *, prog: str = "python -m firmware_models") -> int:
     """Run the simulator until SIGTERM/SIGINT; return the exit status (2 for bad arguments)."""
-    parser = build_parser()
+    parser = build_parser(prog)
     try:
         args = parser.parse_args(argv)
     except SystemExit as exc:  # --help, or a usage error already printed to stderr

@@ -168,3 +168,32 @@ def test_token_from_argument_or_environment(
         monkeypatch.setenv("CAMD_TOKEN", "s3cret")
         with CamdClient(daemon.url) as cam:
             assert cam.status()["state"] == "idle"
+
+
+# The client declares the API's documents as TypedDicts so that scripts need not import the
+# daemon; this pins each one to the daemon's pydantic model, so the two cannot drift apart.
+_CLIENT_VS_DAEMON = [
+    ("LinkPort", "LinkInfo"),
+    ("DaemonInfo", "DaemonInfo"),
+    ("StatusDoc", "StatusResponse"),
+    ("RttMs", "RttMs"),
+    ("PingResult", "PingResponse"),
+    ("DeviceLinkStats", "DeviceLinkStats"),
+    ("LinkDoc", "LinkResponse"),
+    ("ChannelValue", "ChannelLatest"),
+    ("TelemetryDoc", "TelemetryResponse"),
+    ("HistoryDoc", "HistoryResponse"),
+    ("Event", "EventItem"),
+    ("EventsDoc", "EventsResponse"),
+    ("ModeDoc", "ModeResponse"),
+]
+
+
+@pytest.mark.parametrize(("client_name", "model_name"), _CLIENT_VS_DAEMON)
+def test_client_documents_match_the_daemon_models(client_name: str, model_name: str) -> None:
+    import camd.client as client_module
+    import camd.daemon.models as models
+
+    typed = getattr(client_module, client_name)
+    model = getattr(models, model_name)
+    assert set(typed.__annotations__) == set(model.model_fields), (client_name, model_name)

@@ -178,3 +178,19 @@ def test_channels_without_limits_are_ignored() -> None:
     checker = LimitChecker({"t": TEMP})
     assert checker.check({"uptime_s": 1e9}, 0.0) == []
     assert checker.levels() == {}
+
+
+def test_prune_deletes_only_samples_older_than_the_cutoff(tmp_path: Path) -> None:
+    path = tmp_path / "t.sqlite"
+    with TelemetryArchive(path) as arch:
+        for t in range(100):
+            arch.add_samples(float(t), {"a": float(t), "b": -float(t)}, "tlm")
+        arch.add_event("info", "test", "kept")
+        # t = 0 .. 49 go, for both channels: 100 rows; t = 50 itself stays.
+        assert arch.prune(50.0) == 100
+        assert arch.count() == 100 and arch.count("a") == 50
+        assert arch.prune(50.0) == 0
+    with TelemetryArchive(path) as arch:  # the running count agrees with the file
+        assert arch.count() == 100
+        assert min(t for (t,) in sqlite3.connect(path).execute("SELECT t_s FROM samples")) == 50.0
+        assert [e.message for e in arch.events()] == ["kept"]

@@ -29,4 +29,4 @@ def run_passthrough(sim_argv: list[str]) -> int:
     """Run the simulator with its own command-line arguments."""
     from firmware_models.cli import main as sim_main
 
-    return sim_main(sim_argv)
+    return sim_main(sim_argv, prog="camd sim")

@@ -177,6 +177,11 @@ class TelemetrySection(_Section):
         default=1.0, gt=0, le=3600, description="period of GET_HOUSEKEEPING polls"
     )
     red_is_fault: bool = Field(default=True, description="a red limit puts the daemon in fault")
+    retention_days: float = Field(
+        default=30.0,
+        ge=0,
+        description="archived samples older than this are deleted (checked hourly); 0 keeps all",
+    )
     limits: dict[str, ChannelLimits] = Field(
         default_factory=lambda: dict(DEFAULT_LIMITS),
         description="per-channel yellow/red ranges; merged over the defaults",

@@ -85,6 +85,7 @@ SIM_STOP_TIMEOUT_S = 5.0
 PROBE_RETRY_S = 1.0  # after a GET_STATUS probe went unanswered
 MAX_LOOP_SLEEP_S = 0.25  # the service loop wakes at least this often (stop, sim exit, probes)
 PING_ERRORS_MAX = 5
+PRUNE_PERIOD_S = 3600.0  # how often old telemetry samples are deleted
 
 
 # -- errors the API maps to HTTP statuses -------------------------------------------------------
@@ -755,7 +756,7 @@ class DeviceSession:
     def _service_loop(self) -> None:
         watchdog_s = notify.watchdog_interval_s()
         pet_every_s = watchdog_s / 2 if watchdog_s else None
-        next_pet = next_poll = next_probe = time.monotonic()
+        next_pet = next_poll = next_probe = next_prune = time.monotonic()
         while not self._stop.is_set():
             now = time.monotonic()
             if pet_every_s is not None and now >= next_pet:
@@ -769,6 +770,9 @@ class DeviceSession:
                         next_poll = now  # a first sample right away, not a period later
                     else:
                         next_probe = time.monotonic() + PROBE_RETRY_S
+                if now >= next_prune:
+                    next_prune = now + PRUNE_PERIOD_S
+                    self._prune()
                 if now >= next_poll:
                     # Skip missed periods instead of bursting to catch up.
                     next_poll = max(next_poll + self.config.telemetry.poll_period_s, now)
@@ -782,6 +786,14 @@ class DeviceSession:
                 deadlines.append(next_probe)
             self._wake.wait(max(0.0, min(deadlines) - time.monotonic()))
             self._wake.clear()
+
+    def _prune(self) -> None:
+        days = self.config.telemetry.retention_days
+        if days <= 0 or self.archive is None:
+            return
+        removed = self.archive.prune(time.time() - days * 86400.0)
+        if removed:
+            log.info("telemetry archive: deleted %d samples older than %g days", removed, days)
 
     def _wants_probe(self) -> bool:
         link = self.link

@@ -177,6 +177,22 @@ class TelemetryArchive:
         rows.reverse()
         return [r[0] for r in rows], [r[1] for r in rows]
 
+    def prune(self, before_t_s: float) -> int:
+        """Delete samples older than ``before_t_s``; return how many rows went.
+
+        Deleted channel by channel so that each DELETE walks the (channel, t_s) index instead
+        of scanning the whole table while the writers wait."""
+        removed = 0
+        with self._lock:
+            channels = [row[0] for row in self._db.execute("SELECT DISTINCT channel FROM samples")]
+            for channel in channels:
+                cur = self._db.execute(
+                    "DELETE FROM samples WHERE channel = ? AND t_s < ?", (channel, before_t_s)
+                )
+                removed += cur.rowcount
+            self._count -= removed
+        return removed
+
     def count(self, channel: str | None = None) -> int:
         """Number of archived samples (of one channel, or of all)."""
         with self._lock:
