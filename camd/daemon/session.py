@@ -302,14 +302,6 @@ class SimulatorProcess:
             proc.wait()
 
 
-def _describe_fault(dictionary: Dictionary, code: int) -> str:
-    try:
-        spec = dictionary.error(code)
-        return f"{spec.name} ({code}): {spec.message}"
-    except KeyError:
-        return f"error code {code}"
-
-
 # -- the session ---------------------------------------------------------------------------------
 
 
@@ -451,8 +443,7 @@ class DeviceSession:
                     # A FAULT event lost on a noisy line must not leave us believing idle.
                     self._fire(
                         Trigger.DEVICE_FAULT,
-                        "device reports fault "
-                        + _describe_fault(self.dictionary, device.fault_code),
+                        "device reports fault " + self.dictionary.describe_error(device.fault_code),
                     )
             except SessionError as exc:
                 log.info("status: GET_STATUS failed: %s", exc)
@@ -701,7 +692,7 @@ class DeviceSession:
     def _on_device_event(self, message: Unsolicited) -> None:
         values = message.values
         if message.name == "FAULT":
-            text = _describe_fault(self.dictionary, int(values.get("fault_code", 0)))
+            text = self.dictionary.describe_error(int(values.get("fault_code", 0)))
             self._event("error", "device", f"FAULT {text}", message.t_s)
             self._fire(Trigger.DEVICE_FAULT, f"device fault {text}")
         elif message.name == "MODE_CHANGED":
@@ -829,7 +820,7 @@ class DeviceSession:
         if device.device_state == "fault":
             self._fire(
                 Trigger.PROBE_FAULT,
-                "device reports fault " + _describe_fault(self.dictionary, device.fault_code),
+                "device reports fault " + self.dictionary.describe_error(device.fault_code),
             )
         else:
             self._fire(Trigger.PROBE_IDLE, None)
