@@ -47,7 +47,6 @@ class ServerCounters:
     """What the transport did besides passing frames through."""
 
     tx_overflow_dropped: int = 0  # frames (or garbage bursts) discarded: the host was not reading
-    stale_flushes: int = 0  # stalled candidate frames given up (corrupted length fields)
 
 
 class PtyServer:
@@ -239,10 +238,8 @@ class PtyServer:
         # A bit error in a length field leaves the receiver waiting for bytes of later frames.
         # The host's retries keep the line busy, so an idle-line timeout would never fire: the
         # candidate's age at the head of the buffer decides (Decoder.expire).
-        receiver = self.model.receiver
-        before = receiver.stats.partial_flushes
-        self._dispatch(receiver.expire(now_s, self.frame_timeout_s), now_s)
-        self.counters.stale_flushes += receiver.stats.partial_flushes - before
+        # (The receiver's stats.partial_flushes counts them.)
+        self._dispatch(self.model.receiver.expire(now_s, self.frame_timeout_s), now_s)
 
     def _maybe_send_housekeeping(self, now_s: float) -> None:
         if self.hk_period_s <= 0 or now_s < self._next_hk_s:

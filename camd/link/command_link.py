@@ -99,7 +99,8 @@ Subscriber = Callable[[Message], None]
 
 @dataclass(slots=True)
 class LinkCounters:
-    """Host-side counters of the command link."""
+    """Host-side counters of the command link (the decoder keeps its own; ``counters()``
+    reports both)."""
 
     sent: int = 0  # command frames written, retries included
     acked: int = 0
@@ -107,9 +108,6 @@ class LinkCounters:
     retries: int = 0
     timeouts: int = 0  # attempts that got no answer in time
     failed: int = 0  # commands that got no answer at all (timeouts exhausted or link down)
-    crc_errors: int = 0
-    resyncs: int = 0
-    bytes_dropped: int = 0
     stale: int = 0  # answers to an earlier attempt that came too late
     undecodable: int = 0  # valid frames whose payload did not match the dictionary
     telemetry: int = 0
@@ -233,10 +231,12 @@ class CommandLink:
     def counters(self) -> dict[str, int]:
         """A snapshot of the host-side counters (decoder errors included)."""
         stats = self._decoder.stats
-        self._counters.crc_errors = stats.crc_errors
-        self._counters.resyncs = stats.resyncs
-        self._counters.bytes_dropped = stats.bytes_dropped
-        return asdict(self._counters)
+        return {
+            **asdict(self._counters),
+            "crc_errors": stats.crc_errors,
+            "resyncs": stats.resyncs,
+            "bytes_dropped": stats.bytes_dropped,
+        }
 
     # -- requests -------------------------------------------------------------------------------
 
