@@ -168,6 +168,103 @@ class ModeDoc(TypedDict):
     mode: str
 
 
+class RegisterDoc(TypedDict):
+    """One register as read: raw value and fields (enum fields by name)."""
+
+    name: str
+    address: int
+    value: int
+    fields: dict[str, int | str]
+
+
+class RegistersDoc(TypedDict):
+    """GET /api/v1/registers."""
+
+    sensor: str
+    bridge: str
+    registers: list[RegisterDoc]
+
+
+class RegisterWriteDoc(TypedDict):
+    """POST /api/v1/registers and PUT /api/v1/registers/config: registers as read back."""
+
+    sensor: str
+    written: list[RegisterDoc]
+
+
+class RegisterDifferenceDoc(TypedDict):
+    name: str
+    address: int
+    expected: int
+    actual: int
+
+
+class RegisterDiffDoc(TypedDict):
+    """POST /api/v1/registers/diff."""
+
+    sensor: str
+    against: str
+    differences: list[RegisterDifferenceDoc]
+
+
+class RegisterConfigDoc(TypedDict):
+    """GET/PUT /api/v1/registers/config: a whole configuration."""
+
+    sensor: str
+    registers: dict[str, int]
+
+
+class TimingDoc(TypedDict):
+    """GET /api/v1/timing (SI units)."""
+
+    sensor: str
+    line_period_s: float
+    window_start_row: int
+    window_rows: int
+    exposure_lines: int
+    exposure_s: float
+    frame_time_s: float
+    frame_period_s: float
+    back_path_s: float
+    tdi_line_period_s: float
+    max_stages: int
+    gain: int | str | None
+    offset: int | str | None
+    readout_mode: int | str | None
+    test_pattern: int | str | None
+
+
+class LaneDoc(TypedDict):
+    lane: int
+    tap: int
+    eye_width: int
+    slips: int
+    shift: int
+    locked: bool
+
+
+class TrainDoc(TypedDict):
+    """POST/GET /api/v1/train."""
+
+    sensor: str
+    interface: str
+    trained: bool
+    lanes: int
+    locked_lanes: int
+    locked: bool
+    bit_errors: int
+    verified_bits: int
+    lane_results: list[LaneDoc]
+    t_s: float | None
+
+
+class ImagingDoc(TypedDict):
+    """POST /api/v1/imaging/start and /stop."""
+
+    imaging: bool
+    frames: int
+
+
 # -- errors ---------------------------------------------------------------------------------------
 
 
@@ -305,6 +402,59 @@ class CamdClient:
     def reset(self) -> StatusDoc:
         """Soft-reset the device; returns the status afterwards."""
         return cast(StatusDoc, self._json("POST", f"{API}/reset"))
+
+    # -- sensor -----------------------------------------------------------------------------------
+
+    def registers(self) -> RegistersDoc:
+        """Every sensor register, in address order."""
+        return cast(RegistersDoc, self._json("GET", f"{API}/registers"))
+
+    def read_register(self, key: str | int) -> RegisterDoc:
+        """One register by name or address."""
+        return cast(RegisterDoc, self._json("GET", f"{API}/registers/{key}"))
+
+    def write_registers(self, values: dict[str, int | str]) -> RegisterWriteDoc:
+        """Write registers by name (REG, REG.field, GROUP); all or nothing, verified."""
+        return cast(
+            RegisterWriteDoc, self._json("POST", f"{API}/registers", json={"values": values})
+        )
+
+    def diff_registers(self, values: dict[str, int] | None = None) -> RegisterDiffDoc:
+        """Registers differing from their reset values, or from ``values`` when given."""
+        body: dict[str, Any] = (
+            {"against": "reset"} if values is None else {"against": "values", "values": values}
+        )
+        return cast(RegisterDiffDoc, self._json("POST", f"{API}/registers/diff", json=body))
+
+    def register_config(self) -> RegisterConfigDoc:
+        """The whole configuration (RW and WO non-volatile registers)."""
+        return cast(RegisterConfigDoc, self._json("GET", f"{API}/registers/config"))
+
+    def load_register_config(self, config: RegisterConfigDoc) -> RegisterWriteDoc:
+        """Write a whole configuration (refused whole if invalid or for another sensor)."""
+        return cast(
+            RegisterWriteDoc, self._json("PUT", f"{API}/registers/config", json=dict(config))
+        )
+
+    def timing(self) -> TimingDoc:
+        """The timing the sensor's registers set."""
+        return cast(TimingDoc, self._json("GET", f"{API}/timing"))
+
+    def train(self) -> TrainDoc:
+        """Train the sensor's LVDS link now."""
+        return cast(TrainDoc, self._json("POST", f"{API}/train"))
+
+    def last_training(self) -> TrainDoc:
+        """The last training result."""
+        return cast(TrainDoc, self._json("GET", f"{API}/train"))
+
+    def start_imaging(self, frames: int = 0) -> ImagingDoc:
+        """Start the sensor's sequencer (0 frames = continuous)."""
+        return cast(ImagingDoc, self._json("POST", f"{API}/imaging/start", json={"frames": frames}))
+
+    def stop_imaging(self) -> ImagingDoc:
+        """Stop the sensor's sequencer."""
+        return cast(ImagingDoc, self._json("POST", f"{API}/imaging/stop"))
 
     def metrics(self) -> str:
         """The Prometheus text exposition."""

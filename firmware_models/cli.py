@@ -21,9 +21,11 @@ from pathlib import Path
 from types import FrameType
 
 from camd.protocol import load_dictionary
+from camd.sensor.regmap import list_sensors
 from firmware_models.fpga import FpgaModel
 from firmware_models.inject import FaultInjector, InjectSpec
 from firmware_models.pty_server import PtyServer
+from firmware_models.usb_spi import SpiSocketServer
 
 DEFAULT_PROFILE = "hr400"
 _PROFILE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
@@ -54,6 +56,12 @@ def _profile_arg(text: str) -> str:
     if not _PROFILE_NAME.match(text):
         raise argparse.ArgumentTypeError(
             f"{text!r} is not a profile name; use letters, digits, '_', '-' or '.' (e.g. hr400)"
+        )
+    known = list_sensors()
+    if text not in known:
+        # The profile names the sensor whose register map the simulated camera carries.
+        raise argparse.ArgumentTypeError(
+            f"no simulated camera profile {text!r}; known: {', '.join(known)}"
         )
     return text
 
@@ -91,6 +99,14 @@ def build_parser(prog: str = "python -m firmware_models") -> argparse.ArgumentPa
         metavar="S",
         help="period of unsolicited HOUSEKEEPING telemetry in seconds; 0 disables (default 1.0)",
     )
+    parser.add_argument(
+        "--spi-socket",
+        type=Path,
+        default=None,
+        metavar="PATH",
+        help="also serve the sensor's SPI bus on a Unix socket at PATH, for a host driving a "
+        "simulated USB-SPI bridge (firmware_models.usb_spi.SocketSpiTarget)",
+    )
     parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     parser.add_argument("--json", action="store_true", help="print the start line as JSON")
     return parser
@@ -106,30 +122,48 @@ def main(argv: list[str] | None = None, *, prog: str = "python -m firmware_model
 
     inject: InjectSpec = args.inject
     link: Path | None = Path(os.path.abspath(args.link)) if args.link is not None else None
+    spi_path: Path | None = (
+        Path(os.path.abspath(args.spi_socket)) if args.spi_socket is not None else None
+    )
     model = FpgaModel(
         load_dictionary(),
         seed=args.seed,
         power_on_s=time.monotonic(),
         injector=FaultInjector(inject, seed=args.seed),
+        sensor=args.profile,
     )
     server = PtyServer(model, link=link, hk_period_s=args.hk_period_s)
     with _stop_on_signals(server):
+        spi_server = (
+            SpiSocketServer(spi_path, model.spi_slave, model.lock) if spi_path is not None else None
+        )
         try:
             tty_path = server.open()
+            if spi_server is not None:
+                spi_server.start()
         except OSError as exc:
             print(f"python -m firmware_models: cannot start: {exc}", file=sys.stderr)
             server.close()
             return 1
         try:
-            print(_start_line(args.json, tty_path, link, args.profile, inject), flush=True)
+            print(
+                _start_line(args.json, tty_path, link, args.profile, inject, spi_path), flush=True
+            )
             server.serve()
         finally:
+            if spi_server is not None:
+                spi_server.stop()
             server.close()
     return 0
 
 
 def _start_line(
-    as_json: bool, tty_path: str, link: Path | None, profile: str, inject: InjectSpec
+    as_json: bool,
+    tty_path: str,
+    link: Path | None,
+    profile: str,
+    inject: InjectSpec,
+    spi_socket: Path | None = None,
 ) -> str:
     if as_json:
         return json.dumps(
@@ -139,11 +173,13 @@ def _start_line(
                 "pid": os.getpid(),
                 "profile": profile,
                 "inject": inject.model_dump(),
+                "spi_socket": str(spi_socket) if spi_socket is not None else None,
             }
         )
     where = f"{tty_path} (link {link})" if link is not None else tty_path
+    spi = f"; sensor SPI on {spi_socket}" if spi_socket is not None else ""
     return (
-        f"simulated camera (profile {profile}) listening on {where}; "
+        f"simulated camera (profile {profile}) listening on {where}{spi}; "
         f"inject {inject.describe()}; Ctrl-C to stop"
     )
 

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import math
 import struct
+import threading
 from collections import Counter
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, fields
@@ -43,8 +44,12 @@ from camd.protocol import (
     load_dictionary,
 )
 from camd.protocol.dictionary import FieldValue
+from camd.sensor.regmap import RegisterMap, load_register_map
 from firmware_models.housekeeping import HousekeepingModel
 from firmware_models.inject import FaultInjector, InjectSpec
+from firmware_models.sensor import SensorModel
+from firmware_models.sensor_link import SensorLink
+from firmware_models.spi import SpiMaster, SpiSlave
 
 FW_VERSION = 0x0100  # 1.0, major * 256 + minor as GET_STATUS reports it
 _U32_WRAP = 2**32
@@ -112,8 +117,18 @@ class FpgaModel:
         seed: int | None = 0,
         power_on_s: float = 0.0,
         injector: FaultInjector | None = None,
+        sensor: str | RegisterMap = "hr400",
     ) -> None:
         self.dictionary = dictionary if dictionary is not None else load_dictionary()
+        # Commands (pty thread) and the USB-SPI socket (its own thread) share the sensor.
+        self.lock = threading.RLock()
+        self.regmap = sensor if isinstance(sensor, RegisterMap) else load_register_map(sensor)
+        self.sensor = SensorModel(self.regmap, seed=seed or 0)
+        self.spi_slave = SpiSlave(self.regmap.spi, self.sensor)
+        self.spi = SpiMaster(self.regmap.spi, self.spi_slave)
+        self.sensor_link = SensorLink(self.regmap, self.spi, seed=seed or 0)
+        self.imaging = False
+        self.frames_requested = 0
         self.injector = injector if injector is not None else FaultInjector(seed=seed)
         self.receiver = Decoder()
         self.housekeeping = HousekeepingModel(seed=seed, power_on_s=power_on_s)
@@ -134,12 +149,26 @@ class FpgaModel:
             "SIM_GET_INJECTED": self._sim_get_injected,
             "SIM_SET_INJECT": self._sim_set_inject,
             "SIM_SET_FAULT": self._sim_set_fault,
+            "REG_READ": self._reg_read,
+            "REG_WRITE": self._reg_write,
+            "REG_WRITE_BURST": self._reg_write_burst,
+            "GET_SENSOR": self._get_sensor,
+            "TRAIN": self._train,
+            "GET_LANE": self._get_lane,
+            "START_IMAGING": self._start_imaging,
+            "STOP_IMAGING": self._stop_imaging,
+            "SIM_GET_SPI_STATS": self._sim_get_spi_stats,
+            "SIM_RESKEW": self._sim_reskew,
         }
 
     # -- frames in, frames out ------------------------------------------------------------
 
     def handle(self, frame: Frame, now_s: float) -> list[Frame]:
         """Execute (or replay) one received frame; return the frames to send, in order."""
+        with self.lock:
+            return self._handle(frame, now_s)
+
+    def _handle(self, frame: Frame, now_s: float) -> list[Frame]:
         self.counters.rx_frames += 1
         if frame.type != FrameType.COMMAND:
             self.counters.ignored += 1
@@ -264,8 +293,12 @@ class FpgaModel:
 
     def _reset(self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float) -> _Outcome:
         # Link counters and the at-most-once record deliberately survive: see the module doc.
+        # The FPGA's deserializer restarts too: the sensor link must be trained again. The
+        # sensor's registers are the sensor's and survive an FPGA reset.
         self.mode = "area"
         self.fault_code = 0
+        self.imaging = False
+        self.sensor_link.untrain()
         self.boot_count = (self.boot_count + 1) % 0x10000
         self.housekeeping.restart_uptime(now_s)
         return _Outcome(spec.encode_response(), (self._event("BOOT", boot_count=self.boot_count),))
@@ -320,6 +353,163 @@ class FpgaModel:
         code = int(request["fault_code"])
         self.fault_code = code
         return _Outcome(spec.encode_response(), (self._event("FAULT", fault_code=code),))
+
+    # -- sensor registers over the SPI master ---------------------------------------------------
+
+    def _register(self, spec: CommandSpec, address: int) -> Any:
+        if not self.regmap.has_register(address):
+            raise _Nak(
+                "REG_UNKNOWN",
+                f"{spec.name}: {self.regmap.sensor} has no register at address 0x{address:02X}",
+            )
+        return self.regmap.register(address)
+
+    def _check_write(self, spec: CommandSpec, address: int, value: int) -> None:
+        reg = self._register(spec, address)
+        if not reg.writable:
+            raise _Nak(
+                "REG_READ_ONLY", f"{spec.name}: register {reg.name} (0x{address:02X}) is read-only"
+            )
+        if value > reg.mask:
+            raise _Nak(
+                "OUT_OF_RANGE",
+                f"{spec.name}: 0x{value:X} does not fit register {reg.name}'s {reg.width} bits",
+            )
+
+    def _reg_read(
+        self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float
+    ) -> _Outcome:
+        address = int(request["address"])
+        reg = self._register(spec, address)
+        if not reg.readable:
+            raise _Nak(
+                "REG_WRITE_ONLY", f"REG_READ: register {reg.name} (0x{address:02X}) is write-only"
+            )
+        return _Outcome(spec.encode_response(address=address, value=self.spi.read(address)))
+
+    def _reg_write(
+        self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float
+    ) -> _Outcome:
+        address, value = int(request["address"]), int(request["value"])
+        self._check_write(spec, address, value)
+        self.spi.write(address, value)
+        return _Outcome(spec.encode_response(address=address, value=value))
+
+    def _reg_write_burst(
+        self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float
+    ) -> _Outcome:
+        data = request["pairs"]
+        assert isinstance(data, bytes)
+        if not data or len(data) % 4:
+            raise _Nak(
+                "BAD_LENGTH",
+                f"REG_WRITE_BURST: {len(data)} bytes of pairs; send 1 to 255 (address u16, "
+                "value u16) pairs, 4 bytes each",
+            )
+        pairs = list(struct.iter_unpack(">HH", data))
+        for address, value in pairs:  # all checked before the first is written
+            self._check_write(spec, address, value)
+        for address, value in pairs:
+            self.spi.write(address, value)
+        return _Outcome(spec.encode_response(count=len(pairs)))
+
+    def _get_sensor(
+        self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float
+    ) -> _Outcome:
+        link = self.sensor_link
+        return _Outcome(
+            spec.encode_response(
+                interface=self.regmap.output.interface,
+                lanes=link.lanes,
+                trained="yes" if link.trained else "no",
+                imaging="yes" if self.imaging else "no",
+                sensor=self.regmap.sensor,
+            )
+        )
+
+    def _train(self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float) -> _Outcome:
+        self._require_no_fault(spec)
+        if self.imaging:
+            raise _Nak("ILLEGAL_STATE", "TRAIN refused while imaging; send STOP_IMAGING first")
+        report = self.sensor_link.train()
+        locked = "yes" if report.locked else "no"
+        event = self._event("LINK_TRAINED", locked=locked, bit_errors=report.bit_errors)
+        return _Outcome(
+            spec.encode_response(
+                lanes=report.lanes,
+                locked_lanes=report.locked_lanes,
+                locked=locked,
+                bit_errors=report.bit_errors,
+                verified_bits=report.verified_bits,
+            ),
+            (event,),
+        )
+
+    def _get_lane(
+        self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float
+    ) -> _Outcome:
+        lane = int(request["lane"])
+        link = self.sensor_link
+        if lane >= link.lanes:
+            raise _Nak(
+                "OUT_OF_RANGE",
+                f"GET_LANE: lane {lane} does not exist; the link has {link.lanes} lanes "
+                f"(0..{link.lanes - 1})"
+                if link.lanes
+                else "GET_LANE: the sensor has no LVDS lanes",
+            )
+        result = link.lane(lane)
+        return _Outcome(
+            spec.encode_response(
+                lane=lane,
+                tap=result.tap,
+                eye_width=result.eye_width_taps,
+                slips=result.slips,
+                shift=result.shift,
+                locked="yes" if result.locked else "no",
+            )
+        )
+
+    def _start_imaging(
+        self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float
+    ) -> _Outcome:
+        self._require_no_fault(spec)
+        if not self.sensor_link.trained:
+            raise _Nak(
+                "LINK_UNTRAINED",
+                "START_IMAGING refused: the sensor's LVDS link is not trained; send TRAIN first",
+            )
+        self.imaging = True
+        self.frames_requested = int(request["frames"])
+        return _Outcome(spec.encode_response())
+
+    def _stop_imaging(
+        self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float
+    ) -> _Outcome:
+        self.imaging = False
+        return _Outcome(spec.encode_response())
+
+    def _sim_get_spi_stats(
+        self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float
+    ) -> _Outcome:
+        values = {
+            "transactions": self.spi_slave.transactions,
+            "reads": sum(self.sensor.reads.values()),
+            "writes": sum(self.sensor.writes.values()),
+            "errors": self.spi_slave.errors,
+        }
+        return _Outcome(spec.encode_response(**_wrap_u32(values)))
+
+    def _sim_reskew(
+        self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float
+    ) -> _Outcome:
+        was_trained = self.sensor_link.trained
+        self.sensor_link.reskew(int(request["seed"]))
+        events: tuple[Frame, ...] = ()
+        if was_trained and not self.sensor_link.trained:
+            self.imaging = False
+            events = (self._event("LINK_LOST"),)
+        return _Outcome(spec.encode_response(), events)
 
 
 # -- payload checks the codec leaves to the device -------------------------------------------

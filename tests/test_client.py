@@ -186,6 +186,16 @@ _CLIENT_VS_DAEMON = [
     ("Event", "EventItem"),
     ("EventsDoc", "EventsResponse"),
     ("ModeDoc", "ModeResponse"),
+    ("RegisterDoc", "RegisterReading"),
+    ("RegistersDoc", "RegistersResponse"),
+    ("RegisterWriteDoc", "RegisterWriteResponse"),
+    ("RegisterDifferenceDoc", "RegisterDifference"),
+    ("RegisterDiffDoc", "RegisterDiffResponse"),
+    ("RegisterConfigDoc", "RegisterConfig"),
+    ("TimingDoc", "TimingResponse"),
+    ("LaneDoc", "LaneResult"),
+    ("TrainDoc", "TrainResponse"),
+    ("ImagingDoc", "ImagingResponse"),
 ]
 
 

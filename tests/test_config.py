@@ -71,7 +71,27 @@ def test_unknown_key_names_file_key_path_and_allowed_keys(tmp_path: Path) -> Non
 
 def test_unknown_section_lists_the_sections(tmp_path: Path) -> None:
     msg = error_of(tmp_path, "[deamon]\nlog_level = 'info'\n")
-    assert "deamon" in msg and "daemon, api, link, sim, telemetry" in msg
+    assert "deamon" in msg and "daemon, api, link, sim, sensor, telemetry" in msg
+
+
+def test_sensor_section_defaults_and_checks(tmp_path: Path) -> None:
+    cfg = load_config(None)
+    assert (cfg.sensor.name, cfg.sensor.bridge, cfg.sensor.train_on_connect) == (
+        "hr400",
+        "fpga",
+        True,
+    )
+    assert (cfg.sensor.usb_spi.vendor_id, cfg.sensor.usb_spi.product_id) == (0x04D8, 0x00DE)
+    msg = error_of(tmp_path, "[sensor]\nname = 'cmv4000'\n")
+    assert "sensor.name: no register map for sensor 'cmv4000'; known: hr400, ibis5, mt9m001" in msg
+    msg = error_of(tmp_path, "[sensor]\nbridge = 'i2c'\n")
+    assert "sensor.bridge: 'i2c' is not allowed; use 'fpga' or 'usb-spi'" in msg
+    # The simulated camera must carry the sensor the register map describes.
+    msg = error_of(tmp_path, "[sensor]\nname = 'ibis5'\n")
+    assert "sim.profile = 'hr400' but sensor.name = 'ibis5'" in msg
+    ok = tmp_path / "ok.toml"
+    ok.write_text("[sim]\nprofile = 'ibis5'\n[sensor]\nname = 'ibis5'\n")
+    assert load_config(ok).sensor.name == "ibis5"
 
 
 def test_unknown_key_inside_a_channel_limit(tmp_path: Path) -> None:

@@ -273,6 +273,8 @@ def test_lookups_and_simulator_range() -> None:
     assert {c.name for c in DICT.commands if c.simulator_only} == {
         "SIM_GET_INJECTED",
         "SIM_SET_INJECT",
+        "SIM_GET_SPI_STATS",
+        "SIM_RESKEW",
         "SIM_SET_FAULT",
     }
     assert all(c.name.startswith("SIM_") == (c.opcode >= 0xF0) for c in DICT.commands)
@@ -454,6 +456,10 @@ def test_error_codes_are_as_shipped() -> None:
         "BUSY": 5,
         "DEVICE_FAULT": 6,
         "INTERNAL": 7,
+        "REG_UNKNOWN": 8,
+        "REG_READ_ONLY": 9,
+        "REG_WRITE_ONLY": 10,
+        "LINK_UNTRAINED": 11,
     }
 
 

@@ -157,7 +157,7 @@ def host(sim: Sim, dictionary: Dictionary) -> Iterator[Host]:
 
 def test_json_start_line(sim: Sim) -> None:
     info = sim.info
-    assert set(info) == {"tty", "link", "pid", "profile", "inject"}
+    assert set(info) == {"tty", "link", "pid", "profile", "inject", "spi_socket"}
     assert re.fullmatch(r"/dev/pts/\d+", info["tty"])
     assert info["link"].endswith("cam.tty") and os.path.isabs(info["link"])
     assert os.readlink(info["link"]) == info["tty"]

@@ -21,16 +21,21 @@ from camd.daemon.state import (
     next_state,
 )
 
-DIS, IDLE, FLT = State.DISCONNECTED, State.IDLE, State.FAULT
+DIS, IDLE, IMG, FLT = State.DISCONNECTED, State.IDLE, State.IMAGING, State.FAULT
 
 EXPECTED_LEGAL = {
-    Request.STATUS: {DIS, IDLE, FLT},
-    Request.LINK: {DIS, IDLE, FLT},
-    Request.TELEMETRY: {DIS, IDLE, FLT},
-    Request.EVENTS: {DIS, IDLE, FLT},
-    Request.PING: {IDLE, FLT},
+    Request.STATUS: {DIS, IDLE, IMG, FLT},
+    Request.LINK: {DIS, IDLE, IMG, FLT},
+    Request.TELEMETRY: {DIS, IDLE, IMG, FLT},
+    Request.EVENTS: {DIS, IDLE, IMG, FLT},
+    Request.PING: {IDLE, IMG, FLT},
     Request.MODE: {IDLE},
-    Request.RESET: {IDLE, FLT},
+    Request.RESET: {IDLE, IMG, FLT},
+    Request.REGISTERS_READ: {IDLE, IMG, FLT},
+    Request.REGISTERS_WRITE: {IDLE},
+    Request.TRAIN: {IDLE},
+    Request.IMAGING_START: {IDLE},
+    Request.IMAGING_STOP: {IDLE, IMG, FLT},
 }
 
 
@@ -45,14 +50,16 @@ def test_every_request_and_state_is_covered() -> None:
 
 def test_docstring_table_matches_the_data() -> None:
     # The module docstring lists legality for readers; it must say what the code does.
-    # Its columns are fixed-width: request (12 chars), disconnected (14), idle (6), fault.
+    # Its columns are fixed-width: request (18 chars), disconnected (14), idle (6),
+    # imaging (9), fault.
     table = {}
     for line in (state_module.__doc__ or "").splitlines():
         name = line.split(" ", 1)[0]
         if name in {r.value for r in Request}:
-            cols = [line[12:26].strip(), line[26:32].strip(), line[32:].strip()]
+            cols = [line[18:32].strip(), line[32:38].strip(), line[38:47].strip(),
+                    line[47:].strip()]  # fmt: skip
             table[Request(name)] = {
-                s for s, c in zip((DIS, IDLE, FLT), cols, strict=True) if c == "yes"
+                s for s, c in zip((DIS, IDLE, IMG, FLT), cols, strict=True) if c == "yes"
             }
     assert table == EXPECTED_LEGAL
 
@@ -100,6 +107,14 @@ def test_transition_table() -> None:
     assert next_state(DIS, Trigger.RESET_OK) == DIS
     assert next_state(FLT, Trigger.PROBE_IDLE) == FLT  # only RESET clears a fault
     assert next_state(DIS, Trigger.LINK_LOST) == DIS
+    # Imaging: entered and left by START/STOP; a fault, a reset or a reboot ends it.
+    assert next_state(IDLE, Trigger.IMAGING_STARTED) == IMG
+    assert next_state(IMG, Trigger.IMAGING_STOPPED) == IDLE
+    assert next_state(IMG, Trigger.DEVICE_FAULT) == FLT
+    assert next_state(IMG, Trigger.RED_LIMIT) == FLT
+    assert next_state(IMG, Trigger.RESET_OK) == IDLE
+    assert next_state(IMG, Trigger.PROBE_IDLE) == IDLE
+    assert next_state(FLT, Trigger.IMAGING_STARTED) == FLT
 
 
 def test_link_loss_leads_to_disconnected_from_everywhere() -> None:

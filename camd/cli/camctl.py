@@ -25,6 +25,8 @@ from rich.table import Table
 from rich.text import Text
 
 import camd
+from camd.cli import camctl_sensor
+from camd.cli.camctl_sensor import CommandFailed, UsageError
 from camd.client import DEFAULT_URL, CamdClient, CamdError, DaemonUnreachable
 
 EXIT_OK = 0
@@ -38,6 +40,7 @@ STATE_STYLE = {
     "idle": "bold green",
     "staring": "bold cyan",
     "scanning": "bold cyan",
+    "imaging": "bold cyan",
     "disconnected": "bold yellow",
     "fault": "bold red",
 }
@@ -183,6 +186,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("mode", choices=MODES, help="area or tdi")
 
     command("reset", "soft-reset the device (mode back to area, fault cleared)")
+    camctl_sensor.add_parsers(command)
     return parser
 
 
@@ -208,12 +212,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     out = Console(highlight=False, soft_wrap=False)
     try:
         with client:
-            doc = _COMMANDS[args.command](client, args)
-            if args.json:
-                # One document, plain print: no rich markup or wrapping may touch it.
-                sys.stdout.write(json.dumps(doc, indent=2, sort_keys=False) + "\n")
-            else:
-                _RENDER[args.command](out, doc, args)
+            try:
+                doc = _COMMANDS[args.command](client, args)
+            except CommandFailed as failed:
+                _show(out, failed.doc, args)
+                _error(failed.message)
+                return EXIT_API_ERROR
+            _show(out, doc, args)
+    except UsageError as exc:
+        _error(str(exc))
+        return EXIT_USAGE
     except DaemonUnreachable as exc:
         _error(exc.message)
         return EXIT_UNREACHABLE
@@ -228,6 +236,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         _silence_stdout()
         return EXIT_OK
     return EXIT_OK
+
+
+def _show(out: Console, doc: Any, args: argparse.Namespace) -> None:
+    if args.json:
+        # One document, plain print: no rich markup or wrapping may touch it.
+        sys.stdout.write(json.dumps(doc, indent=2, sort_keys=False) + "\n")
+    else:
+        _RENDER[args.command](out, doc, args)
 
 
 def _error(message: str) -> None:
@@ -280,6 +296,7 @@ _COMMANDS: dict[str, Callable[[CamdClient, argparse.Namespace], Any]] = {
     "events": _cmd_events,
     "mode": _cmd_mode,
     "reset": _cmd_reset,
+    **camctl_sensor.COMMANDS,
 }
 
 
@@ -513,6 +530,7 @@ _RENDER: dict[str, Callable[[Console, Any, argparse.Namespace], None]] = {
     "events": _render_events,
     "mode": _render_mode,
     "reset": _render_reset,
+    **camctl_sensor.RENDER,
 }
 
 

@@ -29,13 +29,24 @@ from camd.daemon.models import (
     ErrorResponse,
     EventsResponse,
     HistoryResponse,
+    ImagingRequest,
+    ImagingResponse,
     LinkResponse,
     ModeRequest,
     ModeResponse,
     PingRequest,
     PingResponse,
+    RegisterConfig,
+    RegisterDiffRequest,
+    RegisterDiffResponse,
+    RegisterReading,
+    RegistersResponse,
+    RegisterWriteRequest,
+    RegisterWriteResponse,
     StatusResponse,
     TelemetryResponse,
+    TimingResponse,
+    TrainResponse,
 )
 from camd.daemon.session import (
     BadRequest,
@@ -43,6 +54,7 @@ from camd.daemon.session import (
     DeviceSession,
     DeviceTimeout,
     Disconnected,
+    LinkUntrained,
     SessionError,
 )
 from camd.daemon.state import IllegalState, State
@@ -56,6 +68,7 @@ API = "/api/v1"
 ERROR_MAP: list[tuple[type[Exception], int, str]] = [
     (BadRequest, 400, "bad_request"),
     (IllegalState, 409, "illegal_state"),
+    (LinkUntrained, 409, "link_untrained"),
     (DeviceRejected, 502, "device_nak"),
     (Disconnected, 503, "disconnected"),
     (DeviceTimeout, 504, "timeout"),
@@ -272,6 +285,63 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
     def post_reset() -> StatusResponse:
         """Soft-reset the camera; clears a fault. Returns the status afterwards."""
         return session.reset()
+
+    @app.get(f"{API}/registers", response_model=RegistersResponse, tags=["sensor"])
+    def get_registers() -> RegistersResponse:
+        """Every sensor register, read from the device (write-only ones from the host's copy)."""
+        return session.sensor.dump()
+
+    @app.post(f"{API}/registers", response_model=RegisterWriteResponse, tags=["sensor"])
+    def post_registers(body: RegisterWriteRequest) -> RegisterWriteResponse:
+        """Write registers by name: all validated first (nothing written if one is invalid),
+        sent in one burst, read back and verified."""
+        return session.sensor.write(dict(body.values))
+
+    @app.post(f"{API}/registers/diff", response_model=RegisterDiffResponse, tags=["sensor"])
+    def post_registers_diff(body: RegisterDiffRequest | None = None) -> RegisterDiffResponse:
+        """Registers that differ from their reset values or from the given values."""
+        body = body or RegisterDiffRequest()
+        return session.sensor.diff(body.against, body.values)
+
+    @app.get(f"{API}/registers/config", response_model=RegisterConfig, tags=["sensor"])
+    def get_register_config() -> RegisterConfig:
+        """The whole configuration (RW and WO non-volatile registers), for `camctl reg save`."""
+        return session.sensor.configuration()
+
+    @app.put(f"{API}/registers/config", response_model=RegisterWriteResponse, tags=["sensor"])
+    def put_register_config(body: RegisterConfig) -> RegisterWriteResponse:
+        """Load a whole configuration: refused whole if invalid or for another sensor."""
+        return session.sensor.load_configuration(body)
+
+    @app.get(f"{API}/registers/{{key}}", response_model=RegisterReading, tags=["sensor"])
+    def get_register(key: str) -> RegisterReading:
+        """One register by name (case-insensitive) or address (0x10 or 16)."""
+        return session.sensor.read(key)
+
+    @app.get(f"{API}/timing", response_model=TimingResponse, tags=["sensor"])
+    def get_timing() -> TimingResponse:
+        """Line period, exposure, frame time and window, from the sensor's registers."""
+        return session.sensor.timing()
+
+    @app.post(f"{API}/train", response_model=TrainResponse, tags=["sensor"])
+    def post_train() -> TrainResponse:
+        """Train the sensor's LVDS link now; ``trained`` says whether it locked error-free."""
+        return session.sensor.train()
+
+    @app.get(f"{API}/train", response_model=TrainResponse, tags=["sensor"])
+    def get_train() -> TrainResponse:
+        """The last training result (no device traffic)."""
+        return session.sensor.last_training()
+
+    @app.post(f"{API}/imaging/start", response_model=ImagingResponse, tags=["control"])
+    def post_imaging_start(body: ImagingRequest | None = None) -> ImagingResponse:
+        """Start the sensor's sequencer; refused (409 link_untrained) on an untrained link."""
+        return session.sensor.start_imaging((body or ImagingRequest()).frames)
+
+    @app.post(f"{API}/imaging/stop", response_model=ImagingResponse, tags=["control"])
+    def post_imaging_stop() -> ImagingResponse:
+        """Stop the sensor's sequencer."""
+        return session.sensor.stop_imaging()
 
     @app.get("/metrics", tags=["status"], response_class=Response)
     def get_metrics() -> Response:

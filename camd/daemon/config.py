@@ -129,6 +129,50 @@ class SimSection(_Section):
     )
 
 
+class UsbSpiSection(_Section):
+    """[sensor.usb_spi]: the USB-SPI bridge chip (MCP2210) used with ``sensor.bridge = "usb-spi"``."""
+
+    backend: Literal["sim", "libusb"] = Field(
+        default="sim",
+        description="'sim': the simulated chip wired to the simulated camera's SPI bus; "
+        "'libusb': real hardware through pyusb's default backend",
+    )
+    vendor_id: int = Field(default=0x04D8, ge=0, le=0xFFFF, description="USB vendor id")
+    product_id: int = Field(default=0x00DE, ge=0, le=0xFFFF, description="USB product id")
+    serial: str = Field(default="", description="USB serial number to pick one of several chips")
+    cs_pin: int = Field(
+        default=0, ge=0, le=8, description="MCP2210 GP pin wired to the sensor's CS"
+    )
+
+
+class SensorSection(_Section):
+    """[sensor]: the image sensor behind the FPGA and how its registers are reached."""
+
+    name: str = Field(
+        default="hr400",
+        pattern=r"^[a-z0-9_]+$",
+        description="register map config/sensors/<name>.toml; must match the camera's sensor",
+    )
+    bridge: Literal["fpga", "usb-spi"] = Field(
+        default="fpga",
+        description="'fpga': REG_* commands over the RS-422 link; 'usb-spi': a USB-SPI bridge",
+    )
+    train_on_connect: bool = Field(
+        default=True, description="train the sensor's LVDS link whenever the camera (re)connects"
+    )
+    usb_spi: UsbSpiSection = Field(default_factory=UsbSpiSection)
+
+    @field_validator("name", mode="after")
+    @classmethod
+    def _known_sensor(cls, value: str) -> str:
+        from camd.sensor.regmap import list_sensors
+
+        known = list_sensors()
+        if value not in known:
+            raise ValueError(f"no register map for sensor {value!r}; known: {', '.join(known)}")
+        return value
+
+
 class ChannelLimits(_Section):
     """Yellow (warning) and red (alarm) ranges of one telemetry channel; inside = ok."""
 
@@ -215,7 +259,24 @@ class Config(_Section):
     api: ApiSection = Field(default_factory=ApiSection)
     link: LinkSection = Field(default_factory=LinkSection)
     sim: SimSection = Field(default_factory=SimSection)
+    sensor: SensorSection = Field(default_factory=SensorSection)
     telemetry: TelemetrySection = Field(default_factory=TelemetrySection)
+
+    @model_validator(mode="after")
+    def _sim_matches_sensor(self) -> Config:
+        # The simulator models one sensor; a map for another would program the wrong registers.
+        if self.link.device == "sim" and self.sim.profile != self.sensor.name:
+            raise ValueError(
+                f"sim.profile = {self.sim.profile!r} but sensor.name = {self.sensor.name!r}; "
+                "the simulated camera's sensor must be the one the register map describes: "
+                "set both to the same name"
+            )
+        return self
+
+    @property
+    def sim_spi_socket(self) -> Path:
+        """Where the spawned simulator serves its SPI bus for the simulated USB-SPI bridge."""
+        return self.daemon.data_dir / "sim" / "spi.sock"
 
     @property
     def sim_link_path(self) -> Path:

@@ -53,6 +53,7 @@ from camd.daemon.models import (
     StatusResponse,
     TelemetryResponse,
 )
+from camd.daemon.sensor_service import SensorService
 from camd.daemon.state import (
     HOW_TO_LEAVE,
     IllegalState,
@@ -76,6 +77,8 @@ from camd.link import (
 )
 from camd.protocol import Dictionary, EncodeError, FrameType, load_dictionary
 from camd.protocol.dictionary import FieldValue
+from camd.sensor.bridge import BridgeError
+from camd.sensor.regmap import RegisterAccessError, RegisterValueError
 
 log = logging.getLogger(__name__)
 
@@ -113,6 +116,10 @@ class DeviceRejected(SessionError):
 
 class BadRequest(SessionError, ValueError):
     """A parameter is invalid (HTTP 400)."""
+
+
+class LinkUntrained(SessionError):
+    """Imaging refused: the sensor's LVDS link is not trained (HTTP 409)."""
 
 
 class SimulatorError(SessionError):
@@ -175,6 +182,7 @@ class SimulatorProcess:
         hk_period_s: float = 1.0,
         seed: int = 0,
         profile: str = "hr400",
+        spi_socket: Path | None = None,
     ) -> None:
         self.link_path = link_path
         self.command = [
@@ -193,6 +201,8 @@ class SimulatorProcess:
         ]
         if inject:
             self.command += ["--inject", inject]
+        if spi_socket is not None:
+            self.command += ["--spi-socket", str(spi_socket)]
         self.info: dict[str, Any] = {}
         self._proc: subprocess.Popen[str] | None = None
         self._exit_reported = False
@@ -331,6 +341,7 @@ class DeviceSession:
         self._last_values: dict[str, float] = {}
         self._red_lock = threading.Lock()
         self._red_acknowledged: set[str] = set()
+        self.sensor = SensorService(self)
 
     # -- lifecycle ------------------------------------------------------------------------------
 
@@ -358,6 +369,7 @@ class DeviceSession:
                 hk_period_s=sim_cfg.hk_period_s,
                 seed=sim_cfg.seed,
                 profile=sim_cfg.profile,
+                spi_socket=self.config.sim_spi_socket,
             )
             info = self.sim.start()
             self._event("info", "daemon", f"simulated camera started: pid {info.get('pid')}, "
@@ -392,6 +404,7 @@ class DeviceSession:
         if self._unsubscribe is not None:
             self._unsubscribe()  # no "link lost" for our own close
             self._unsubscribe = None
+        self.sensor.close()
         if self.link is not None:
             self.link.close()
         if self.sim is not None:
@@ -585,6 +598,7 @@ class DeviceSession:
         self._require(Request.RESET)
         self._request("RESET")
         self._mode = "area"  # RESET puts the device back in area mode
+        self.sensor.imaging = False  # and stops the sequencer; BOOT leads to a retrain
         with self._red_lock:
             # The operator has seen the red channels; they trip again only after recovering.
             self._red_acknowledged = set(self.checker.red_channels())
@@ -626,14 +640,16 @@ class DeviceSession:
             return f"last link error: {link.last_error}"
         return reason
 
-    def _request(self, command: str, **fields: Any) -> Response:
-        """One device request through the FIFO lock, link errors mapped to SessionErrors."""
+    @contextlib.contextmanager
+    def device_op(self) -> Iterator[CommandLink]:
+        """Hold the device (FIFO) for one operation; link and register errors become
+        SessionErrors. Several requests inside one ``device_op`` run back to back."""
         link = self.link
         if link is None:
             raise Disconnected(self._disconnected_message())
         with self._device_lock.hold():
             try:
-                return link.request(command, **fields)
+                yield link
             except LinkDown as exc:
                 if not link.connected:  # else the link came back meanwhile; keep its state
                     self._fire(Trigger.LINK_LOST, f"link lost: {link.last_error}")
@@ -644,10 +660,31 @@ class DeviceSession:
                 if exc.name == "DEVICE_FAULT":
                     self._fire(Trigger.DEVICE_FAULT, str(exc))
                 raise DeviceRejected(str(exc), exc.name) from None
-            except EncodeError as exc:
+            except (EncodeError, RegisterAccessError, RegisterValueError) as exc:
                 raise BadRequest(str(exc)) from None
             except LinkError as exc:
                 raise DeviceRejected(str(exc), "UNDECODABLE") from None
+            except BridgeError as exc:
+                raise DeviceRejected(str(exc), type(exc).__name__) from None
+
+    def request(self, command: str, **fields: Any) -> Response:
+        """One device request through the FIFO lock, errors mapped to SessionErrors."""
+        with self.device_op() as link:
+            return link.request(command, **fields)
+
+    _request = request
+
+    def require(self, request: Request) -> None:
+        """Raise Disconnected or IllegalState unless ``request`` is legal now."""
+        self._require(request)
+
+    def fire(self, trigger: Trigger, reason: str | None) -> None:
+        """Move the state machine (and log the change as an event)."""
+        self._fire(trigger, reason)
+
+    def log_event(self, level: str, source: str, message: str) -> None:
+        """Log and archive an event."""
+        self._event(level, source, message)
 
     def _fire(self, trigger: Trigger, reason: str | None) -> None:
         change = self.machine.fire(trigger, reason)
@@ -691,6 +728,8 @@ class DeviceSession:
 
     def _on_device_event(self, message: Unsolicited) -> None:
         values = message.values
+        if self.sensor.on_event(message.name, dict(values)):
+            return
         if message.name == "FAULT":
             text = self.dictionary.describe_error(int(values.get("fault_code", 0)))
             self._event("error", "device", f"FAULT {text}", message.t_s)
@@ -730,7 +769,7 @@ class DeviceSession:
             red = set(self.checker.red_channels())
             self._red_acknowledged &= red  # a channel that recovered may trip again
             fresh = sorted(red - self._red_acknowledged)
-        if not fresh or self.machine.state != State.IDLE:
+        if not fresh or self.machine.state not in (State.IDLE, State.IMAGING):
             return
         parts = []
         for ch in fresh:
@@ -823,7 +862,16 @@ class DeviceSession:
                 "device reports fault " + self.dictionary.describe_error(device.fault_code),
             )
         else:
+            # Identify the sensor and train its link before announcing idle, so that a client
+            # that waits for idle finds the camera ready to image.
+            imaging = False
+            try:
+                imaging = self.sensor.on_connect()
+            except SessionError as exc:
+                self._event("warning", "sensor", f"sensor check after connect failed: {exc}")
             self._fire(Trigger.PROBE_IDLE, None)
+            if imaging:
+                self._fire(Trigger.IMAGING_STARTED, "the camera was imaging when we connected")
         if was == State.DISCONNECTED:
             self._event(
                 "info",

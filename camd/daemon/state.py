@@ -7,17 +7,25 @@ it; nothing else changes. An illegal request is refused by ``check`` before the 
 
 Legal requests per state:
 
-==========  ============  ====  =====
-request     disconnected  idle  fault
-==========  ============  ====  =====
-status      yes           yes   yes
-link        yes           yes   yes
-telemetry   yes           yes   yes
-events      yes           yes   yes
-ping                      yes   yes
-mode                      yes
-reset                     yes   yes
-==========  ============  ====  =====
+================  ============  ====  =======  =====
+request           disconnected  idle  imaging  fault
+================  ============  ====  =======  =====
+status            yes           yes   yes      yes
+link              yes           yes   yes      yes
+telemetry         yes           yes   yes      yes
+events            yes           yes   yes      yes
+ping                            yes   yes      yes
+mode                            yes
+reset                           yes   yes      yes
+registers_read                  yes   yes      yes
+registers_write                 yes
+train                           yes
+imaging_start                   yes
+imaging_stop                    yes   yes      yes
+================  ============  ====  =======  =====
+
+Register reads are harmless at any time the camera answers; writes and training change what the
+sensor sends, so they wait until imaging stops.
 """
 
 from __future__ import annotations
@@ -33,6 +41,7 @@ class State(StrEnum):
 
     DISCONNECTED = "disconnected"  # no port, or the device does not answer
     IDLE = "idle"  # connected, ready for commands
+    IMAGING = "imaging"  # the sensor's sequencer is running (START_IMAGING)
     FAULT = "fault"  # the device reported a fault or a red limit tripped; RESET clears it
 
 
@@ -46,6 +55,11 @@ class Request(StrEnum):
     PING = "ping"
     MODE = "mode"
     RESET = "reset"
+    REGISTERS_READ = "registers_read"
+    REGISTERS_WRITE = "registers_write"
+    TRAIN = "train"
+    IMAGING_START = "imaging_start"
+    IMAGING_STOP = "imaging_stop"
 
 
 class Trigger(StrEnum):
@@ -57,6 +71,8 @@ class Trigger(StrEnum):
     DEVICE_FAULT = "device_fault"  # FAULT event, or the device says it is in fault
     RED_LIMIT = "red_limit"  # a telemetry channel went red (with telemetry.red_is_fault)
     RESET_OK = "reset_ok"  # RESET acknowledged
+    IMAGING_STARTED = "imaging_started"  # START_IMAGING acknowledged, or found imaging on connect
+    IMAGING_STOPPED = "imaging_stopped"  # STOP_IMAGING acknowledged, or the link lost training
 
 
 _ALWAYS = frozenset(State)
@@ -66,14 +82,20 @@ LEGAL: dict[Request, frozenset[State]] = {
     Request.LINK: _ALWAYS,
     Request.TELEMETRY: _ALWAYS,
     Request.EVENTS: _ALWAYS,
-    Request.PING: frozenset({State.IDLE, State.FAULT}),
+    Request.PING: frozenset({State.IDLE, State.IMAGING, State.FAULT}),
     Request.MODE: frozenset({State.IDLE}),
-    Request.RESET: frozenset({State.IDLE, State.FAULT}),
+    Request.RESET: frozenset({State.IDLE, State.IMAGING, State.FAULT}),
+    Request.REGISTERS_READ: frozenset({State.IDLE, State.IMAGING, State.FAULT}),
+    Request.REGISTERS_WRITE: frozenset({State.IDLE}),
+    Request.TRAIN: frozenset({State.IDLE}),
+    Request.IMAGING_START: frozenset({State.IDLE}),
+    Request.IMAGING_STOP: frozenset({State.IDLE, State.IMAGING, State.FAULT}),
 }
 
 HOW_TO_LEAVE: dict[State, str] = {
     State.DISCONNECTED: "start the camera (or `camd sim`) or check the cable and the port name",
     State.IDLE: "wait until the current operation ends",
+    State.IMAGING: "stop imaging first (`camctl image stop`)",
     State.FAULT: "send `camctl reset` (and fix the cause first)",
 }
 
@@ -85,6 +107,11 @@ _WHAT: dict[Request, str] = {
     Request.PING: "ping the camera",
     Request.MODE: "change the imaging mode",
     Request.RESET: "reset the camera",
+    Request.REGISTERS_READ: "read sensor registers",
+    Request.REGISTERS_WRITE: "write sensor registers",
+    Request.TRAIN: "train the sensor link",
+    Request.IMAGING_START: "start imaging",
+    Request.IMAGING_STOP: "stop imaging",
 }
 
 # (state, trigger) -> next state. A pair not listed leaves the state unchanged: e.g. a red limit
@@ -99,6 +126,14 @@ TRANSITIONS: dict[tuple[State, Trigger], State] = {
     (State.IDLE, Trigger.RED_LIMIT): State.FAULT,
     (State.IDLE, Trigger.RESET_OK): State.IDLE,
     (State.FAULT, Trigger.RESET_OK): State.IDLE,
+    (State.IDLE, Trigger.IMAGING_STARTED): State.IMAGING,
+    (State.IMAGING, Trigger.IMAGING_STOPPED): State.IDLE,
+    (State.IMAGING, Trigger.PROBE_IDLE): State.IDLE,  # a BOOT stops the sequencer
+    (State.IMAGING, Trigger.PROBE_FAULT): State.FAULT,
+    (State.IMAGING, Trigger.LINK_LOST): State.DISCONNECTED,
+    (State.IMAGING, Trigger.DEVICE_FAULT): State.FAULT,
+    (State.IMAGING, Trigger.RED_LIMIT): State.FAULT,
+    (State.IMAGING, Trigger.RESET_OK): State.IDLE,
 }
 
 

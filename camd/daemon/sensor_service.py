@@ -1,0 +1,354 @@
+"""The daemon's sensor side: register access, timing, LVDS link training and imaging.
+
+``SensorService`` belongs to a DeviceSession. It builds the register bridge the config names
+(the FPGA's REG_* commands, or a USB-SPI bridge), checks on every (re)connect that the camera
+reports the sensor the register map describes, trains the LVDS link when the config asks, and
+refuses to image on an untrained link. Every device access runs inside the session's
+``device_op()``: one at a time, with link and register errors mapped to the API's errors.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from typing import TYPE_CHECKING, Any, cast
+
+from camd.daemon.models import (
+    ImagingResponse,
+    LaneResult,
+    RegisterConfig,
+    RegisterDifference,
+    RegisterDiffResponse,
+    RegisterReading,
+    RegistersResponse,
+    RegisterWriteResponse,
+    TimingResponse,
+    TrainResponse,
+)
+from camd.daemon.state import Request, Trigger
+from camd.sensor.bridge import RegisterBridge
+from camd.sensor.fpga_bridge import FpgaBridge
+from camd.sensor.registers import SensorRegisters
+from camd.sensor.regmap import RegisterMap, load_register_map
+
+if TYPE_CHECKING:
+    from camd.daemon.session import DeviceSession
+
+log = logging.getLogger(__name__)
+
+
+class SensorService:
+    """Registers, timing, training and imaging of the session's camera."""
+
+    def __init__(self, session: DeviceSession) -> None:
+        self.session = session
+        self.config = session.config.sensor
+        self.regmap: RegisterMap = load_register_map(self.config.name)
+        self.device_sensor: str | None = None  # what GET_SENSOR reported at the last connect
+        self.interface = self.regmap.output.interface
+        self.trained = False
+        self.imaging = False
+        self.frames = 0
+        self._training: TrainResponse | None = None
+        self._bridge: RegisterBridge | None = None
+        self._registers: SensorRegisters | None = None
+
+    # -- lifecycle (called by the session) --------------------------------------------------------
+
+    def on_connect(self) -> bool:
+        """After a (re)connect or BOOT: identify the sensor, sync the shadow, train if asked.
+
+        Returns True if the camera is imaging (the session then enters ``imaging``).
+        """
+        from camd.daemon.session import SessionError
+
+        values = self.session.request("GET_SENSOR").values
+        self.device_sensor = str(values["sensor"])
+        self.trained = values["trained"] == "yes"
+        self.imaging = values["imaging"] == "yes"
+        if self.device_sensor != self.regmap.sensor:
+            self.session.log_event(
+                "error",
+                "sensor",
+                f"the camera reports sensor {self.device_sensor!r} but sensor.name is "
+                f"{self.regmap.sensor!r}; register access is refused until they match",
+            )
+            return self.imaging
+        try:
+            with self.session.device_op():
+                self._sensor_registers().sync()
+        except SessionError as exc:
+            self.session.log_event("warning", "sensor", f"could not read the registers: {exc}")
+        if not self.imaging and self.config.train_on_connect and not self.trained:
+            try:
+                self.train(require=False)
+            except SessionError as exc:
+                self.session.log_event("error", "sensor", f"training on connect failed: {exc}")
+        return self.imaging
+
+    def on_event(self, name: str, values: dict[str, Any]) -> bool:
+        """Handle a sensor-related device event; True if it was one."""
+        if name == "LINK_LOST":
+            self.trained = False
+            self.session.log_event("warning", "device", "LVDS link lost its training")
+            if self.imaging:
+                self.imaging = False
+                self.session.fire(Trigger.IMAGING_STOPPED, "LVDS link lost")
+            return True
+        if name == "LINK_TRAINED":
+            self.session.log_event(
+                "info", "device", f"LINK_TRAINED locked={values.get('locked')} "
+                f"bit_errors={values.get('bit_errors')}"
+            )  # fmt: skip
+            return True
+        return False
+
+    def close(self) -> None:
+        if self._bridge is not None:
+            self._bridge.close()
+            self._bridge = None
+            self._registers = None
+
+    # -- registers ---------------------------------------------------------------------------------
+
+    def read(self, key: str) -> RegisterReading:
+        """One register by name or address."""
+        registers = self._checked(Request.REGISTERS_READ)
+        with self.session.device_op():
+            reading = registers.read(_key(key))
+        return RegisterReading.model_validate(reading.as_dict())
+
+    def dump(self) -> RegistersResponse:
+        """Every register, in address order."""
+        registers = self._checked(Request.REGISTERS_READ)
+        with self.session.device_op():
+            readings = registers.dump()
+        return RegistersResponse(
+            sensor=self.regmap.sensor,
+            bridge=self.config.bridge,
+            registers=[RegisterReading.model_validate(r.as_dict()) for r in readings],
+        )
+
+    def write(self, values: dict[str, int | str]) -> RegisterWriteResponse:
+        """Validate everything, write in one burst, verify; nothing is written if invalid."""
+        registers = self._checked(Request.REGISTERS_WRITE)
+        with self.session.device_op():
+            written = registers.write(values)
+        names = ", ".join(f"{k}={v}" for k, v in values.items())
+        self.session.log_event("info", "api", f"registers written: {names}")
+        return RegisterWriteResponse(
+            sensor=self.regmap.sensor,
+            written=[RegisterReading.model_validate(r.as_dict()) for r in written],
+        )
+
+    def diff(self, against: str, values: dict[str, int] | None) -> RegisterDiffResponse:
+        """Registers that differ from their reset values or from ``values``."""
+        registers = self._checked(Request.REGISTERS_READ)
+        target: Any = "reset" if against == "reset" else dict(values or {})
+        with self.session.device_op():
+            diffs = registers.diff(target)
+        return RegisterDiffResponse(
+            sensor=self.regmap.sensor,
+            against=against,
+            differences=[
+                RegisterDifference(
+                    name=d.name, address=d.address, expected=d.expected, actual=d.actual
+                )
+                for d in diffs
+            ],
+        )
+
+    def configuration(self) -> RegisterConfig:
+        """The configurable registers as they are now (what `camctl reg save` writes)."""
+        registers = self._checked(Request.REGISTERS_READ)
+        with self.session.device_op():
+            readings = registers.dump()
+        return RegisterConfig(
+            sensor=self.regmap.sensor,
+            registers={
+                r.name: r.value for r in readings if self.regmap.register(r.name).configurable
+            },
+        )
+
+    def load_configuration(self, config: RegisterConfig) -> RegisterWriteResponse:
+        """Write a saved configuration: refused whole if it is for another sensor or invalid."""
+        from camd.daemon.session import BadRequest
+
+        if config.sensor != self.regmap.sensor:
+            raise BadRequest(
+                f"the configuration is for sensor {config.sensor!r} but the camera's sensor is "
+                f"{self.regmap.sensor!r}; load a configuration saved from a {self.regmap.sensor}"
+            )
+        for name in config.registers:
+            reg = self.regmap.register(name) if self.regmap.has_register(name) else None
+            if reg is None or not reg.configurable:
+                what = "no such register" if reg is None else f"{reg.access} register"
+                raise BadRequest(
+                    f"configuration register {name!r}: {what}; a configuration holds only the "
+                    "RW and WO non-volatile registers (`camctl reg save` writes one)"
+                )
+        return self.write(cast(dict[str, int | str], dict(config.registers)))
+
+    def timing(self) -> TimingResponse:
+        """The timing the sensor's registers set now."""
+        registers = self._checked(Request.REGISTERS_READ)
+        with self.session.device_op():
+            timing = registers.timing()
+        return TimingResponse.model_validate(timing.as_dict())
+
+    # -- training and imaging ------------------------------------------------------------------
+
+    def train(self, *, require: bool = True) -> TrainResponse:
+        """TRAIN the LVDS link and read every lane's result."""
+        if require:
+            self.session.require(Request.TRAIN)
+        values = self.session.request("TRAIN").values
+        lanes = int(values["lanes"])
+        results = []
+        for lane in range(lanes):
+            lane_values = self.session.request("GET_LANE", lane=lane).values
+            results.append(
+                LaneResult(
+                    lane=lane,
+                    tap=int(lane_values["tap"]),
+                    eye_width=int(lane_values["eye_width"]),
+                    slips=int(lane_values["slips"]),
+                    shift=int(lane_values["shift"]),
+                    locked=lane_values["locked"] == "yes",
+                )
+            )
+        locked = values["locked"] == "yes"
+        bit_errors = int(values["bit_errors"])
+        self.trained = locked and bit_errors == 0
+        self._training = TrainResponse(
+            sensor=self.regmap.sensor,
+            interface=self.interface,
+            trained=self.trained,
+            lanes=lanes,
+            locked_lanes=int(values["locked_lanes"]),
+            locked=locked,
+            bit_errors=bit_errors,
+            verified_bits=int(values["verified_bits"]),
+            lane_results=results,
+            t_s=time.time(),
+        )
+        level = "info" if self.trained else "error"
+        self.session.log_event(level, "sensor", self.training_summary())
+        return self._training
+
+    def last_training(self) -> TrainResponse:
+        """The last training (``t_s`` None if the daemon has not trained since it started)."""
+        if self._training is not None:
+            return self._training
+        return TrainResponse(
+            sensor=self.regmap.sensor,
+            interface=self.interface,
+            trained=self.trained,
+            lanes=self.regmap.output.lanes if self.interface == "lvds" else 0,
+            locked_lanes=0,
+            locked=self.trained,
+            bit_errors=0,
+            verified_bits=0,
+            lane_results=[],
+            t_s=None,
+        )
+
+    def training_summary(self) -> str:
+        """One line on the link's training, for events and refusals."""
+        t = self._training
+        if self.interface != "lvds":
+            return f"{self.interface} interface: no training needed"
+        if t is None:
+            return "LVDS link trained" if self.trained else "LVDS link not trained yet"
+        unlocked = [str(lane.lane) for lane in t.lane_results if not lane.locked]
+        if self.trained:
+            return (
+                f"LVDS link trained: {t.locked_lanes}/{t.lanes} lanes locked, "
+                f"{t.bit_errors} bit errors in {t.verified_bits} PRBS bits"
+            )
+        if unlocked:
+            return (
+                f"LVDS training failed: lane(s) {', '.join(unlocked)} did not lock "
+                f"({t.locked_lanes}/{t.lanes} locked)"
+            )
+        if t.bit_errors:
+            return f"LVDS training failed: {t.bit_errors} bit errors in the PRBS check"
+        return "LVDS link not trained (lost since the last training)"
+
+    def start_imaging(self, frames: int) -> ImagingResponse:
+        """START_IMAGING, refused while the link is untrained."""
+        from camd.daemon.session import LinkUntrained
+
+        self.session.require(Request.IMAGING_START)
+        if not self.trained:
+            raise LinkUntrained(
+                f"cannot start imaging: {self.training_summary()}; run `camctl train` "
+                "(and check the sensor's supply and cabling if it does not lock)"
+            )
+        self.session.request("START_IMAGING", frames=frames)
+        self.imaging = True
+        self.frames = frames
+        what = "continuous" if frames == 0 else f"{frames} frames"
+        self.session.fire(Trigger.IMAGING_STARTED, f"imaging ({what})")
+        return ImagingResponse(imaging=True, frames=frames)
+
+    def stop_imaging(self) -> ImagingResponse:
+        """STOP_IMAGING (harmless when not imaging)."""
+        self.session.require(Request.IMAGING_STOP)
+        self.session.request("STOP_IMAGING")
+        self.imaging = False
+        self.session.fire(Trigger.IMAGING_STOPPED, None)
+        return ImagingResponse(imaging=False, frames=self.frames)
+
+    # -- internals -------------------------------------------------------------------------------
+
+    def _checked(self, request: Request) -> SensorRegisters:
+        from camd.daemon.session import DeviceRejected
+
+        self.session.require(request)
+        if self.device_sensor is not None and self.device_sensor != self.regmap.sensor:
+            raise DeviceRejected(
+                f"the camera reports sensor {self.device_sensor!r} but the daemon's register map "
+                f"is {self.regmap.sensor!r}; set [sensor] name = {self.device_sensor!r} in the "
+                "config (or connect the right camera) and restart camd",
+                "SENSOR_MISMATCH",
+            )
+        return self._sensor_registers()
+
+    def _sensor_registers(self) -> SensorRegisters:
+        if self._registers is None:
+            self._bridge = self._make_bridge()
+            self._registers = SensorRegisters(self.regmap, self._bridge)
+        return self._registers
+
+    def _make_bridge(self) -> RegisterBridge:
+        if self.config.bridge == "fpga":
+            link = self.session.link
+            if link is None:
+                raise RuntimeError("the session has no command link")
+            return FpgaBridge(link)
+        from camd.sensor.mcp2210 import Mcp2210Bridge
+
+        usb = self.config.usb_spi
+        backend: Any = None
+        if usb.backend == "sim":
+            # The simulated chip is wired to the spawned simulator's SPI bus.
+            from firmware_models.usb_spi import SocketSpiTarget, get_backend
+
+            backend = get_backend(SocketSpiTarget(self.session.config.sim_spi_socket))
+        return Mcp2210Bridge(
+            self.regmap.spi,
+            backend=backend,
+            vendor_id=usb.vendor_id,
+            product_id=usb.product_id,
+            serial=usb.serial or None,
+            cs_pin=usb.cs_pin,
+        )
+
+
+def _key(text: str) -> str | int:
+    """A register key from the CLI: an address ("0x10", "16") or a name."""
+    try:
+        return int(text, 0)
+    except ValueError:
+        return text

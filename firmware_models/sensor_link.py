@@ -1,0 +1,117 @@
+"""The FPGA's side of the sensor's pixel output link: training it and capturing through it.
+
+For an LVDS sensor (HR400: 8 lanes) the FPGA must align every lane before imaging
+(physics.md §3): it switches the sensor to its training pattern over SPI, lets
+``firmware_models.lvds.train`` scan the delay taps, bit-slip and shift the lanes, then switches
+the sensor to a PRBS test image and counts bit errors in a captured frame to prove the result.
+The sensor's test-pattern register is restored afterwards. A parallel-interface sensor needs no
+training and is always ready.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from camd.sensor.regmap import FieldSpec, RegisterMap, RegisterSpec
+from firmware_models.lvds import Alignment, LaneTraining, LvdsLink, train, verify
+from firmware_models.spi import SpiMaster
+
+VERIFY_ROWS = 16  # rows of the PRBS frame captured to check a training
+
+
+@dataclass(frozen=True, slots=True)
+class TrainingReport:
+    """What TRAIN answers."""
+
+    lanes: int
+    locked_lanes: int
+    locked: bool
+    bit_errors: int
+    verified_bits: int
+
+
+class SensorLink:
+    """Training state and capture path of the sensor's output link."""
+
+    def __init__(self, regmap: RegisterMap, spi: SpiMaster, *, seed: int = 0) -> None:
+        self.regmap = regmap
+        self.spi = spi
+        output = regmap.output
+        self.lvds: LvdsLink | None = None
+        self.lanes = 0
+        if output.needs_training:
+            self.lvds = LvdsLink(lanes=output.lanes, word_bits=output.word_bits, seed=seed)
+            self.lanes = output.lanes
+        self.alignment = Alignment.untrained(max(self.lanes, 1))
+        self.results: list[LaneTraining] = []
+        self.trained = self.lvds is None
+        self._seed = seed
+
+    # -- training ---------------------------------------------------------------------------
+
+    def train(self) -> TrainingReport:
+        """Train the link as the FPGA does; the link is trained only if it locked error-free."""
+        if self.lvds is None:
+            return TrainingReport(0, 0, True, 0, 0)
+        pattern_reg, pattern_field = self._role("test_pattern")
+        word_reg, word_field = self._role("training_word")
+        saved = self.spi.read(pattern_reg.address)
+        try:
+            self._set_pattern(pattern_reg, pattern_field, saved, "training")
+            word = word_field.extract(self.spi.read(word_reg.address))
+            self._seed += 1
+            result = train(self.lvds, word, rng_seed=self._seed)
+            self.alignment = result.alignment
+            self.results = list(result.lanes)
+            self._set_pattern(pattern_reg, pattern_field, saved, "prbs")
+            bit_errors = verify(
+                self.lvds, self.alignment, rows=VERIFY_ROWS, cols=self.regmap.columns
+            )
+        finally:
+            self.spi.write(pattern_reg.address, saved)
+        verified_bits = VERIFY_ROWS * self.regmap.columns * self.regmap.output.word_bits
+        locked_lanes = sum(1 for lane in self.results if lane.locked)
+        self.trained = result.locked and bit_errors == 0
+        return TrainingReport(self.lanes, locked_lanes, result.locked, bit_errors, verified_bits)
+
+    def lane(self, index: int) -> LaneTraining:
+        """The last training result of one lane (an unlocked placeholder before any training)."""
+        if index < len(self.results):
+            return self.results[index]
+        return LaneTraining(lane=index, tap=0, eye_width_taps=0, slips=0, shift=0, locked=False)
+
+    def untrain(self) -> None:
+        """Forget the alignment (FPGA reset)."""
+        if self.lvds is not None:
+            self.alignment = Alignment.untrained(self.lanes)
+            self.results = []
+            self.trained = False
+
+    def reskew(self, seed: int) -> None:
+        """New random lane skews (sensor power cycle): the link needs training again."""
+        if self.lvds is not None:
+            self.lvds.reskew(seed)
+            self.untrain()
+
+    def capture(self, frame: np.ndarray) -> np.ndarray:
+        """The window frame as the FPGA receives it through the link's current alignment."""
+        if self.lvds is None:
+            return frame
+        return self.lvds.receive(frame, self.alignment)
+
+    # -- helpers ------------------------------------------------------------------------------
+
+    def _role(self, role: str) -> tuple[RegisterSpec, FieldSpec]:
+        name = self.regmap.role(role)
+        if name is None:
+            raise RuntimeError(f"sensor {self.regmap.sensor}'s register map has no {role} role")
+        target, field = self.regmap.resolve(name)
+        assert isinstance(target, RegisterSpec)
+        return target, field if field is not None else target.all_fields()[0]
+
+    def _set_pattern(self, reg: RegisterSpec, field: FieldSpec, base: int, mode: str) -> None:
+        if field.enum is None or mode not in field.enum:
+            raise RuntimeError(f"{reg.name}.{field.name} has no {mode!r} pattern")
+        self.spi.write(reg.address, field.insert(base, field.enum[mode]))

@@ -1,0 +1,1134 @@
+"""A simulated Microchip MCP2210 USB-to-SPI bridge, as a pyusb backend, and its SPI transports.
+
+The host (``camd.sensor.mcp2210.Mcp2210Bridge``) finds and drives this device through
+``usb.core.find(..., backend=...)`` and interrupt transfers exactly as it drives the real chip:
+
+- ``Mcp2210Chip``: the chip's HID command processor (sans-I/O): 64-byte command report in,
+  64-byte response report out, with the chip's volatile settings and its SPI transfer engine
+  (report sequencing, busy while clocking, cancel), in front of an ``SpiTarget``;
+- ``Mcp2210Backend``: a ``usb.backend.IBackend`` that enumerates one MCP2210 with its
+  descriptors, string descriptors, an attached kernel HID driver that must be detached before
+  the interface can be claimed, and the interrupt endpoints 0x01 (OUT) / 0x81 (IN);
+- ``SpiSocketServer`` / ``SocketSpiTarget``: the SPI bus between processes. The simulated
+  camera (``python -m firmware_models --spi-socket PATH``) serves its sensor's SPI slave on a
+  Unix socket; the daemon's backend reaches it with ``get_backend(SocketSpiTarget(PATH))``.
+
+The command set follows the MCP2210 datasheet (DS22288A, section 3); docs/usb-spi.md lists
+what is modelled and where the model departs from the chip. The chip's constants are written
+out here again rather than imported from camd, so that the model checks the host instead of
+sharing its mistakes.
+"""
+
+from __future__ import annotations
+
+import array
+import contextlib
+import errno
+import os
+import select
+import selectors
+import socket
+import stat
+import struct
+import threading
+import time
+from collections import Counter
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import TracebackType
+from typing import Any, ClassVar, Protocol
+
+import usb.backend
+import usb.core
+
+# -- the chip ---------------------------------------------------------------------------------
+
+VENDOR_ID = 0x04D8
+PRODUCT_ID = 0x00DE
+REPORT_BYTES = 64
+MAX_DATA_PER_REPORT = 60
+EP_OUT = 0x01
+EP_IN = 0x81
+INTERFACE = 0
+CONFIGURATION = 1
+GP_PINS = 9
+MIN_BIT_RATE = 1500
+MAX_BIT_RATE = 12_000_000
+DELAY_QUANTUM_S = 100e-6  # the chip's delays count in 100 us steps
+
+CMD_GET_STATUS = 0x10
+CMD_CANCEL_TRANSFER = 0x11
+CMD_GET_CHIP_SETTINGS = 0x20
+CMD_SET_CHIP_SETTINGS = 0x21
+CMD_SET_SPI_SETTINGS = 0x40
+CMD_GET_SPI_SETTINGS = 0x41
+CMD_TRANSFER = 0x42
+
+STATUS_OK = 0x00
+STATUS_BUS_NOT_AVAILABLE = 0xF7
+STATUS_BUSY = 0xF8
+STATUS_UNKNOWN_COMMAND = 0xF9
+
+ENGINE_FINISHED = 0x10
+ENGINE_STARTED = 0x20
+ENGINE_NOT_FINISHED = 0x30
+
+PIN_GPIO = 0x00
+PIN_CHIP_SELECT = 0x01
+PIN_DEDICATED = 0x02
+
+SPI_SETTINGS_BYTES = 17
+
+# MISO with no slave selected: nobody drives the line, which reads 0 (pulled down, as in
+# firmware_models.spi).
+UNDRIVEN_MISO = 0x00
+
+
+class SpiTarget(Protocol):
+    """Whatever sits on the SPI bus behind the bridge's chip-select pin."""
+
+    def transfer(self, mosi: bytes, *, mode: int) -> bytes:
+        """One chip-select-low transaction: clock out ``mosi`` in SPI ``mode``, return MISO."""
+        ...
+
+
+@dataclass(slots=True)
+class SpiTransferSettings:
+    """The chip's volatile SPI transfer settings (commands 0x40 / 0x41)."""
+
+    bit_rate: int = MAX_BIT_RATE
+    idle_cs: int = 0x1FF
+    active_cs: int = 0x000
+    cs_to_data_delay: int = 0
+    data_to_cs_delay: int = 0
+    inter_byte_delay: int = 0
+    bytes_per_transaction: int = 4
+    mode: int = 0
+
+    def pack(self) -> bytes:
+        """The 17-byte wire layout (report bytes 4..20), little-endian."""
+        return struct.pack(
+            "<IHHHHHHB",
+            self.bit_rate,
+            self.idle_cs,
+            self.active_cs,
+            self.cs_to_data_delay,
+            self.data_to_cs_delay,
+            self.inter_byte_delay,
+            self.bytes_per_transaction,
+            self.mode,
+        )
+
+    @classmethod
+    def unpack(cls, data: bytes) -> SpiTransferSettings:
+        """Settings from report bytes 4..20."""
+        fields = struct.unpack("<IHHHHHHB", data[:SPI_SETTINGS_BYTES])
+        return cls(*fields)
+
+
+@dataclass(slots=True)
+class ChipSettings:
+    """The chip's volatile chip settings (commands 0x20 / 0x21)."""
+
+    pins: list[int] = field(default_factory=lambda: [PIN_GPIO] * GP_PINS)
+    gpio_default_output: int = 0x1FF
+    gpio_default_direction: int = 0x1FF  # 1 = input
+    other: int = 0x00  # remote wake-up, interrupt mode, SPI bus release
+    nvram_access_control: int = 0x00
+
+    def pack(self) -> bytes:
+        """Report bytes 4..18."""
+        return bytes(self.pins) + struct.pack(
+            "<HHBB",
+            self.gpio_default_output,
+            self.gpio_default_direction,
+            self.other,
+            self.nvram_access_control,
+        )
+
+    @classmethod
+    def unpack(cls, data: bytes) -> ChipSettings:
+        """Settings from report bytes 4..18."""
+        output, direction, other, access = struct.unpack("<HHBB", data[GP_PINS : GP_PINS + 6])
+        return cls(list(data[:GP_PINS]), output, direction, other, access)
+
+
+@dataclass(slots=True)
+class _Transaction:
+    """One chip-select-low SPI transaction in progress in the transfer engine."""
+
+    expected: int
+    mode: int
+    selected: bool
+    mosi: bytearray = field(default_factory=bytearray)
+    miso: bytes | None = None  # known once the whole transaction has been clocked
+    delivered: int = 0
+
+    @property
+    def complete(self) -> bool:
+        return len(self.mosi) == self.expected
+
+
+@dataclass(slots=True)
+class ChipCounters:
+    """What the chip did, for tests and diagnostics."""
+
+    commands: Counter[int] = field(default_factory=Counter)
+    busy_replies: int = 0
+    transactions: int = 0
+    cancelled: int = 0
+    ignored_bytes: int = 0  # data beyond the configured bytes per transaction
+
+
+class Mcp2210Chip:
+    """The MCP2210's command processor and SPI transfer engine, without USB.
+
+    ``handle(report)`` takes one 64-byte command report and returns the 64-byte response. The
+    SPI engine clocks at the configured bit rate with the configured delays, measured on
+    ``clock``; while it clocks, TRANSFER SPI DATA and the setting commands answer 0xF8 (busy),
+    as on the chip. The target sees a transaction once its last MOSI byte has arrived, with the
+    chip select wired to GP``cs_pin``: it is selected only if that pin is designated a chip
+    select and the transfer settings drive it high when idle and low when active.
+    """
+
+    def __init__(
+        self,
+        target: SpiTarget,
+        *,
+        cs_pin: int = 0,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        if not 0 <= cs_pin < GP_PINS:
+            raise ValueError(f"cs_pin {cs_pin} is not a GP pin (0 .. {GP_PINS - 1})")
+        self.target = target
+        self.cs_pin = cs_pin
+        self.clock = clock
+        self.counters = ChipCounters()
+        self.chip_settings = ChipSettings()
+        self.spi_settings = SpiTransferSettings()
+        self._tx: _Transaction | None = None
+        self._busy_until = 0.0
+
+    def power_up(self) -> None:
+        """Back to the power-up settings (the chip copies them from its NVRAM), engine idle."""
+        self.chip_settings = ChipSettings()
+        self.spi_settings = SpiTransferSettings()
+        self._tx = None
+        self._busy_until = 0.0
+
+    @property
+    def transfer_in_progress(self) -> bool:
+        """A transaction has started and has not finished or been cancelled."""
+        return self._tx is not None
+
+    def handle(self, report: bytes) -> bytes:
+        """Execute one command report; return the response report."""
+        if len(report) != REPORT_BYTES:
+            raise ValueError(f"an MCP2210 report is {REPORT_BYTES} bytes, got {len(report)}")
+        code = report[0]
+        self.counters.commands[code] += 1
+        handler = self._handlers.get(code)
+        if handler is None:
+            return _reply(code, STATUS_UNKNOWN_COMMAND)
+        reply = handler(self, report)
+        if reply[1] == STATUS_BUSY:
+            self.counters.busy_replies += 1
+        return reply
+
+    # -- commands ---------------------------------------------------------------------------
+
+    def _get_status(self, report: bytes) -> bytes:
+        return _reply(report[0], STATUS_OK, self._status_bytes())
+
+    def _cancel(self, report: bytes) -> bytes:
+        tx = self._tx
+        if tx is not None:
+            self.counters.cancelled += 1
+            if not tx.complete and tx.mosi and tx.selected:
+                # The bytes already clocked were a (short) chip-select-low transaction to the
+                # slave; chip select goes high now.
+                self.target.transfer(bytes(tx.mosi), mode=tx.mode)
+        self._tx = None
+        self._busy_until = 0.0
+        return _reply(report[0], STATUS_OK, self._status_bytes())
+
+    def _get_chip_settings(self, report: bytes) -> bytes:
+        return _reply(report[0], STATUS_OK, b"\x00\x00" + self.chip_settings.pack())
+
+    def _set_chip_settings(self, report: bytes) -> bytes:
+        if self._engine_busy():
+            return _reply(report[0], STATUS_BUSY)
+        self.chip_settings = ChipSettings.unpack(report[4:])
+        return _reply(report[0], STATUS_OK, b"\x00\x00" + self.chip_settings.pack())
+
+    def _set_spi_settings(self, report: bytes) -> bytes:
+        if self._engine_busy():
+            return _reply(report[0], STATUS_BUSY)
+        self.spi_settings = SpiTransferSettings.unpack(report[4:])
+        return _reply(report[0], STATUS_OK, b"\x00\x00" + self.spi_settings.pack())
+
+    def _get_spi_settings(self, report: bytes) -> bytes:
+        return _reply(
+            report[0], STATUS_OK, bytes([SPI_SETTINGS_BYTES, 0]) + self.spi_settings.pack()
+        )
+
+    def _transfer(self, report: bytes) -> bytes:
+        code = report[0]
+        now = self.clock()
+        if now < self._busy_until:
+            return _reply(code, STATUS_BUSY)
+        data = report[4 : 4 + min(report[1], MAX_DATA_PER_REPORT)]
+        tx = self._tx
+        if tx is None:
+            expected = self.spi_settings.bytes_per_transaction
+            if not data or expected == 0:
+                return _reply(code, STATUS_OK, bytes([0, ENGINE_FINISHED]))
+            tx = _Transaction(expected, self.spi_settings.mode, self._selected())
+            self._tx = tx
+            self.counters.transactions += 1
+            self._accept(tx, data, now, first=True)
+            # The first report only starts the engine: its bytes are still being clocked.
+            return _reply(code, STATUS_OK, bytes([0, ENGINE_STARTED]))
+        clocked = len(tx.mosi)  # the engine is idle, so everything accepted so far is clocked
+        self._accept(tx, data, now, first=False)
+        received = b""
+        if tx.miso is not None:
+            end = min(clocked, tx.delivered + MAX_DATA_PER_REPORT)
+            received = tx.miso[tx.delivered : end]
+            tx.delivered = end
+        if tx.complete and tx.delivered == tx.expected:
+            self._tx = None
+            return _reply(code, STATUS_OK, bytes([len(received), ENGINE_FINISHED]) + received)
+        return _reply(code, STATUS_OK, bytes([len(received), ENGINE_NOT_FINISHED]) + received)
+
+    _handlers: ClassVar[dict[int, Callable[[Mcp2210Chip, bytes], bytes]]] = {
+        CMD_GET_STATUS: _get_status,
+        CMD_CANCEL_TRANSFER: _cancel,
+        CMD_GET_CHIP_SETTINGS: _get_chip_settings,
+        CMD_SET_CHIP_SETTINGS: _set_chip_settings,
+        CMD_SET_SPI_SETTINGS: _set_spi_settings,
+        CMD_GET_SPI_SETTINGS: _get_spi_settings,
+        CMD_TRANSFER: _transfer,
+    }
+
+    # -- the SPI engine ---------------------------------------------------------------------
+
+    def _engine_busy(self) -> bool:
+        # "USB transfer in progress": settings cannot change under a running transaction.
+        return self._tx is not None or self.clock() < self._busy_until
+
+    def _selected(self) -> bool:
+        pin = 1 << self.cs_pin
+        s = self.spi_settings
+        return (
+            self.chip_settings.pins[self.cs_pin] == PIN_CHIP_SELECT
+            and bool(s.idle_cs & pin)
+            and not s.active_cs & pin
+        )
+
+    def _accept(self, tx: _Transaction, data: bytes, now: float, *, first: bool) -> None:
+        take = data[: tx.expected - len(tx.mosi)]
+        self.counters.ignored_bytes += len(data) - len(take)
+        if not take:
+            return
+        tx.mosi += take
+        s = self.spi_settings
+        rate = min(max(s.bit_rate, MIN_BIT_RATE), MAX_BIT_RATE)
+        quanta = (s.cs_to_data_delay if first else 0) + s.inter_byte_delay * (len(take) - 1)
+        if tx.complete:
+            quanta += s.data_to_cs_delay
+        self._busy_until = now + len(take) * 8 / rate + quanta * DELAY_QUANTUM_S
+        if tx.complete:
+            tx.miso = self._clock_out(tx)
+
+    def _clock_out(self, tx: _Transaction) -> bytes:
+        if not tx.selected:
+            return bytes([UNDRIVEN_MISO]) * tx.expected
+        miso = self.target.transfer(bytes(tx.mosi), mode=tx.mode)
+        if len(miso) != tx.expected:
+            raise RuntimeError(
+                f"SPI target returned {len(miso)} MISO bytes for a {tx.expected}-byte transaction"
+            )
+        return bytes(miso)
+
+    def _status_bytes(self) -> bytes:
+        owner = 0x01 if self._tx is not None else 0x00  # 0x01: the USB bridge owns the bus
+        # no external bus-release request, no password attempts, password not guessed
+        return bytes([0x01, owner, 0x00, 0x00])
+
+
+def _reply(code: int, status: int, body: bytes = b"") -> bytes:
+    """A response report: command echo, status, then ``body`` from byte 2, zero padded."""
+    out = bytes([code, status]) + body
+    return out + bytes(REPORT_BYTES - len(out))
+
+
+# -- USB descriptors --------------------------------------------------------------------------
+
+MANUFACTURER = "Microchip Technology Inc."
+PRODUCT = "MCP2210 USB to SPI Master"
+DEFAULT_SERIAL = "0000000001"
+LANGID_EN_US = 0x0409
+
+# A vendor-defined HID report descriptor: 64-byte input and output reports, no report ID.
+HID_REPORT_DESCRIPTOR = bytes.fromhex(
+    "0600ff 0901 a101 1901 2940 1500 26ff00 7508 9540 8100 1901 2940 9100 c0".replace(" ", "")
+)
+
+
+@dataclass(slots=True)
+class _DeviceDescriptor:
+    idVendor: int
+    idProduct: int
+    bus: int
+    address: int
+    port_number: int
+    bLength: int = 18
+    bDescriptorType: int = 0x01
+    bcdUSB: int = 0x0200
+    bDeviceClass: int = 0x00  # defined at interface level (HID)
+    bDeviceSubClass: int = 0x00
+    bDeviceProtocol: int = 0x00
+    bMaxPacketSize0: int = 8
+    bcdDevice: int = 0x0002
+    iManufacturer: int = 1
+    iProduct: int = 2
+    iSerialNumber: int = 3
+    bNumConfigurations: int = 1
+    port_numbers: tuple[int, ...] | None = None
+    speed: int = 2  # usb.util.SPEED_FULL
+
+    def to_bytes(self) -> bytes:
+        return struct.pack(
+            "<BBHBBBBHHHBBBB",
+            self.bLength,
+            self.bDescriptorType,
+            self.bcdUSB,
+            self.bDeviceClass,
+            self.bDeviceSubClass,
+            self.bDeviceProtocol,
+            self.bMaxPacketSize0,
+            self.idVendor,
+            self.idProduct,
+            self.bcdDevice,
+            self.iManufacturer,
+            self.iProduct,
+            self.iSerialNumber,
+            self.bNumConfigurations,
+        )
+
+
+_HID_DESCRIPTOR = struct.pack("<BBHBBBH", 9, 0x21, 0x0111, 0, 1, 0x22, len(HID_REPORT_DESCRIPTOR))
+
+
+@dataclass(slots=True)
+class _ConfigurationDescriptor:
+    bLength: int = 9
+    bDescriptorType: int = 0x02
+    wTotalLength: int = 9 + 9 + len(_HID_DESCRIPTOR) + 7 + 7
+    bNumInterfaces: int = 1
+    bConfigurationValue: int = CONFIGURATION
+    iConfiguration: int = 0
+    bmAttributes: int = 0x80  # bus powered
+    bMaxPower: int = 50  # 100 mA in 2 mA units
+    extra_descriptors: list[int] = field(default_factory=list)
+
+    def to_bytes(self) -> bytes:
+        return struct.pack(
+            "<BBHBBBBB",
+            self.bLength,
+            self.bDescriptorType,
+            self.wTotalLength,
+            self.bNumInterfaces,
+            self.bConfigurationValue,
+            self.iConfiguration,
+            self.bmAttributes,
+            self.bMaxPower,
+        )
+
+
+@dataclass(slots=True)
+class _InterfaceDescriptor:
+    bLength: int = 9
+    bDescriptorType: int = 0x04
+    bInterfaceNumber: int = INTERFACE
+    bAlternateSetting: int = 0
+    bNumEndpoints: int = 2
+    bInterfaceClass: int = 0x03  # HID
+    bInterfaceSubClass: int = 0x00
+    bInterfaceProtocol: int = 0x00
+    iInterface: int = 0
+    extra_descriptors: list[int] = field(default_factory=lambda: list(_HID_DESCRIPTOR))
+
+    def to_bytes(self) -> bytes:
+        return struct.pack(
+            "<BBBBBBBBB",
+            self.bLength,
+            self.bDescriptorType,
+            self.bInterfaceNumber,
+            self.bAlternateSetting,
+            self.bNumEndpoints,
+            self.bInterfaceClass,
+            self.bInterfaceSubClass,
+            self.bInterfaceProtocol,
+            self.iInterface,
+        )
+
+
+@dataclass(slots=True)
+class _EndpointDescriptor:
+    bEndpointAddress: int
+    bLength: int = 7
+    bDescriptorType: int = 0x05
+    bmAttributes: int = 0x03  # interrupt
+    wMaxPacketSize: int = REPORT_BYTES
+    bInterval: int = 1
+    bRefresh: int = 0
+    bSynchAddress: int = 0
+    extra_descriptors: list[int] = field(default_factory=list)
+
+    def to_bytes(self) -> bytes:
+        return struct.pack(
+            "<BBBBHB",
+            self.bLength,
+            self.bDescriptorType,
+            self.bEndpointAddress,
+            self.bmAttributes,
+            self.wMaxPacketSize,
+            self.bInterval,
+        )
+
+
+# -- the pyusb backend ------------------------------------------------------------------------
+
+# libusb error codes, as pyusb's libusb1 backend reports them
+_LIBUSB_ERRORS: dict[str, tuple[int, int, str]] = {
+    "io": (-1, errno.EIO, "Input/output error"),
+    "invalid": (-2, errno.EINVAL, "Invalid parameter"),
+    "no_device": (-4, errno.ENODEV, "No such device (it may have been disconnected)"),
+    "not_found": (-5, errno.ENOENT, "Entity not found"),
+    "busy": (-6, errno.EBUSY, "Resource busy"),
+    "timeout": (-7, errno.ETIMEDOUT, "Operation timed out"),
+    "overflow": (-8, errno.EOVERFLOW, "Overflow"),
+    "pipe": (-9, errno.EPIPE, "Pipe error"),
+}
+
+
+def _usb_error(kind: str, detail: str = "") -> Exception:
+    code, err, text = _LIBUSB_ERRORS[kind]
+    message = f"{text} ({detail})" if detail else text
+    if kind == "timeout":
+        return usb.core.USBTimeoutError(message, code, err)  # type: ignore[no-any-return]
+    return usb.core.USBError(message, code, err)  # type: ignore[no-any-return]
+
+
+class _DeviceId:
+    """The backend's identification of its one device (opaque to pyusb)."""
+
+
+@dataclass(eq=False, slots=True)
+class _Handle:
+    """An open device handle."""
+
+    open: bool = True
+    claimed: set[int] = field(default_factory=set)
+
+
+class Mcp2210Backend(usb.backend.IBackend):  # type: ignore[misc]
+    """A pyusb backend with one simulated MCP2210 on it, driving ``target`` over SPI.
+
+    ``vendor_id`` / ``product_id`` / ``serial`` are what the chip enumerates with (the real
+    chip's are programmable in its NVRAM). The interface starts with the kernel's HID driver
+    bound to it, as on Linux: claiming it (which pyusb does on the first read or write) fails
+    with EBUSY until ``detach_kernel_driver`` is called. ``unplug()`` makes every later call
+    fail as for a disconnected device and hides it from enumeration.
+    """
+
+    def __init__(
+        self,
+        target: SpiTarget,
+        *,
+        vendor_id: int = VENDOR_ID,
+        product_id: int = PRODUCT_ID,
+        serial: str = DEFAULT_SERIAL,
+        cs_pin: int = 0,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        super().__init__()
+        self.chip = Mcp2210Chip(target, cs_pin=cs_pin, clock=clock)
+        self.serial = serial
+        self.kernel_driver_attached = True
+        self.plugged = True
+        self._lock = threading.RLock()
+        self._id = _DeviceId()
+        self._device = _DeviceDescriptor(vendor_id, product_id, bus=1, address=7, port_number=2)
+        self._configuration = _ConfigurationDescriptor()
+        self._interface = _InterfaceDescriptor()
+        self._endpoints = (_EndpointDescriptor(EP_IN), _EndpointDescriptor(EP_OUT))
+        self._active_configuration = CONFIGURATION  # the OS configured it at enumeration
+        self._handles: list[_Handle] = []
+        self._response: bytes | None = None
+
+    # -- hot-plug -----------------------------------------------------------------------------
+
+    def unplug(self) -> None:
+        """Disconnect the simulated device: later calls fail with ENODEV."""
+        with self._lock:
+            self.plugged = False
+            self._response = None
+
+    def plug(self) -> None:
+        """Reconnect: the device enumerates again, powered up, with the HID driver bound."""
+        with self._lock:
+            self.plugged = True
+            self.kernel_driver_attached = True
+            self._active_configuration = CONFIGURATION
+            self._handles = []
+            self.chip.power_up()
+
+    # -- enumeration and descriptors -------------------------------------------------------------
+
+    def enumerate_devices(self) -> Iterator[_DeviceId]:
+        with self._lock:
+            devices = [self._id] if self.plugged else []
+        yield from devices
+
+    def get_parent(self, dev: _DeviceId) -> None:
+        return None
+
+    def get_device_descriptor(self, dev: _DeviceId) -> _DeviceDescriptor:
+        self._check_device(dev)
+        return self._device
+
+    def get_configuration_descriptor(self, dev: _DeviceId, config: int) -> _ConfigurationDescriptor:
+        self._check_device(dev)
+        if config != 0:
+            raise IndexError(f"the MCP2210 has one configuration, not index {config}")
+        return self._configuration
+
+    def get_interface_descriptor(
+        self, dev: _DeviceId, intf: int, alt: int, config: int
+    ) -> _InterfaceDescriptor:
+        self._check_device(dev)
+        if (intf, alt, config) != (0, 0, 0):
+            raise IndexError(f"the MCP2210 has one interface, not {intf}/{alt}/{config}")
+        return self._interface
+
+    def get_endpoint_descriptor(
+        self, dev: _DeviceId, ep: int, intf: int, alt: int, config: int
+    ) -> _EndpointDescriptor:
+        self.get_interface_descriptor(dev, intf, alt, config)
+        if not 0 <= ep < len(self._endpoints):
+            raise IndexError(f"the MCP2210 interface has two endpoints, not index {ep}")
+        return self._endpoints[ep]
+
+    # -- handles, configuration, interfaces ----------------------------------------------------
+
+    def open_device(self, dev: _DeviceId) -> _Handle:
+        with self._lock:
+            self._check_device(dev)
+            self._check_plugged()
+            handle = _Handle()
+            self._handles.append(handle)
+            return handle
+
+    def close_device(self, dev_handle: _Handle) -> None:
+        with self._lock:
+            dev_handle.open = False
+            dev_handle.claimed.clear()
+            if dev_handle in self._handles:
+                self._handles.remove(dev_handle)
+
+    def set_configuration(self, dev_handle: _Handle, config_value: int) -> None:
+        with self._lock:
+            self._check_handle(dev_handle)
+            if config_value not in (0, CONFIGURATION):
+                raise _usb_error("not_found", f"no configuration {config_value}")
+            if self.kernel_driver_attached or self._claimed_by_anyone():
+                # Linux refuses to (re)configure while a driver holds an interface.
+                raise _usb_error("busy", "an interface is in use; detach the kernel driver first")
+            self._active_configuration = config_value
+
+    def get_configuration(self, dev_handle: _Handle) -> int:
+        with self._lock:
+            self._check_handle(dev_handle)
+            return self._active_configuration
+
+    def set_interface_altsetting(self, dev_handle: _Handle, intf: int, altsetting: int) -> None:
+        with self._lock:
+            self._check_handle(dev_handle)
+            if (intf, altsetting) != (INTERFACE, 0):
+                raise _usb_error("not_found", f"no interface {intf} alternate {altsetting}")
+
+    def claim_interface(self, dev_handle: _Handle, intf: int) -> None:
+        with self._lock:
+            self._check_handle(dev_handle)
+            self._check_interface(intf)
+            if self.kernel_driver_attached:
+                raise _usb_error("busy", "the kernel HID driver is bound to the interface")
+            if any(intf in h.claimed for h in self._handles if h is not dev_handle):
+                raise _usb_error("busy", "another handle has claimed the interface")
+            if self._active_configuration != CONFIGURATION:
+                raise _usb_error("not_found", "the device is not configured")
+            dev_handle.claimed.add(intf)
+
+    def release_interface(self, dev_handle: _Handle, intf: int) -> None:
+        with self._lock:
+            self._check_handle(dev_handle)
+            if intf not in dev_handle.claimed:
+                raise _usb_error("not_found", f"interface {intf} is not claimed")
+            dev_handle.claimed.discard(intf)
+
+    def is_kernel_driver_active(self, dev_handle: _Handle, intf: int) -> bool:
+        with self._lock:
+            self._check_handle(dev_handle)
+            self._check_interface(intf)
+            return self.kernel_driver_attached
+
+    def detach_kernel_driver(self, dev_handle: _Handle, intf: int) -> None:
+        with self._lock:
+            self._check_handle(dev_handle)
+            self._check_interface(intf)
+            if not self.kernel_driver_attached:
+                raise _usb_error("not_found", "no kernel driver is bound")
+            self.kernel_driver_attached = False
+
+    def attach_kernel_driver(self, dev_handle: _Handle, intf: int) -> None:
+        with self._lock:
+            self._check_handle(dev_handle)
+            self._check_interface(intf)
+            if self.kernel_driver_attached or self._claimed_by_anyone():
+                raise _usb_error("busy", "the interface is claimed or already has a driver")
+            self.kernel_driver_attached = True
+
+    def clear_halt(self, dev_handle: _Handle, ep: int) -> None:
+        with self._lock:
+            self._check_handle(dev_handle)
+
+    def reset_device(self, dev_handle: _Handle) -> None:
+        with self._lock:
+            self._check_handle(dev_handle)
+            self._response = None
+            self.chip.power_up()
+
+    # -- transfers ------------------------------------------------------------------------------
+
+    def intr_write(
+        self, dev_handle: _Handle, ep: int, intf: int, data: array.array[int], timeout: int
+    ) -> int:
+        with self._lock:
+            self._check_claimed(dev_handle, intf)
+            if ep != EP_OUT:
+                raise _usb_error("pipe", f"endpoint 0x{ep:02X} is not the OUT endpoint")
+            report = bytes(data)
+            if len(report) > REPORT_BYTES:
+                raise _usb_error("invalid", f"a report is at most {REPORT_BYTES} bytes")
+            if self._response is not None:
+                # The chip answers one command at a time: until the host has read the
+                # response, the OUT endpoint NAKs and the write times out.
+                raise _usb_error("timeout", "the previous response has not been read")
+            try:
+                self._response = self.chip.handle(report.ljust(REPORT_BYTES, b"\x00"))
+            except OSError as exc:
+                # The SPI bus behind the simulated chip is gone (the simulator stopped): to the
+                # host this is a device that vanished.
+                raise _usb_error("no_device", f"simulated SPI bus: {exc}") from exc
+            return len(report)
+
+    def intr_read(
+        self, dev_handle: _Handle, ep: int, intf: int, buff: array.array[int], timeout: int
+    ) -> int:
+        with self._lock:
+            self._check_claimed(dev_handle, intf)
+            if ep != EP_IN:
+                raise _usb_error("pipe", f"endpoint 0x{ep:02X} is not the IN endpoint")
+            if self._response is None:
+                # Nothing can arrive later: the simulated chip answers during the write.
+                raise _usb_error("timeout", "no response pending; send a command first")
+            if len(buff) < REPORT_BYTES:
+                raise _usb_error("overflow", f"the report is {REPORT_BYTES} bytes")
+            buff[:REPORT_BYTES] = array.array("B", self._response)
+            self._response = None
+            return REPORT_BYTES
+
+    def ctrl_transfer(
+        self,
+        dev_handle: _Handle,
+        bmRequestType: int,
+        bRequest: int,
+        wValue: int,
+        wIndex: int,
+        data: array.array[int],
+        timeout: int,
+    ) -> int:
+        with self._lock:
+            self._check_handle(dev_handle)
+            device_to_host = bool(bmRequestType & 0x80)
+            kind = (bmRequestType >> 5) & 0x03
+            recipient = bmRequestType & 0x1F
+            if not (device_to_host and kind == 0 and bRequest == 0x06):
+                if device_to_host and kind == 0 and bRequest == 0x08:  # GET_CONFIGURATION
+                    return _fill(data, bytes([self._active_configuration]))
+                raise _usb_error("pipe", f"request 0x{bRequest:02X} not supported (stall)")
+            desc_type, index = wValue >> 8, wValue & 0xFF
+            if recipient == 0x01 and desc_type == 0x22 and wIndex == INTERFACE:
+                return _fill(data, HID_REPORT_DESCRIPTOR)
+            return _fill(data, self._descriptor(desc_type, index))
+
+    def _descriptor(self, desc_type: int, index: int) -> bytes:
+        if desc_type == 0x01:
+            return self._device.to_bytes()
+        if desc_type == 0x02 and index == 0:
+            return (
+                self._configuration.to_bytes()
+                + self._interface.to_bytes()
+                + _HID_DESCRIPTOR
+                + b"".join(ep.to_bytes() for ep in self._endpoints)
+            )
+        if desc_type == 0x03:
+            if index == 0:
+                return struct.pack("<BBH", 4, 0x03, LANGID_EN_US)
+            strings = {1: MANUFACTURER, 2: PRODUCT, 3: self.serial}
+            if index in strings:
+                text = strings[index].encode("utf-16-le")
+                return bytes([2 + len(text), 0x03]) + text
+        raise _usb_error("pipe", f"no descriptor type 0x{desc_type:02X} index {index} (stall)")
+
+    # -- checks -----------------------------------------------------------------------------------
+
+    def _check_device(self, dev: _DeviceId) -> None:
+        if dev is not self._id:
+            raise ValueError("not a device of this backend")
+
+    def _check_plugged(self) -> None:
+        if not self.plugged:
+            raise _usb_error("no_device")
+
+    def _check_handle(self, dev_handle: _Handle) -> None:
+        self._check_plugged()
+        if not dev_handle.open or dev_handle not in self._handles:
+            raise _usb_error("no_device", "the handle is closed or from before a reconnect")
+
+    def _check_interface(self, intf: int) -> None:
+        if intf != INTERFACE:
+            raise _usb_error("not_found", f"no interface {intf}")
+
+    def _check_claimed(self, dev_handle: _Handle, intf: int) -> None:
+        self._check_handle(dev_handle)
+        if intf not in dev_handle.claimed:
+            raise _usb_error("io", f"interface {intf} is not claimed")
+
+    def _claimed_by_anyone(self) -> bool:
+        return any(h.claimed for h in self._handles)
+
+
+def _fill(buff: array.array[int], payload: bytes) -> int:
+    """Copy a control-IN payload into pyusb's buffer, truncated to wLength as on the bus."""
+    n = min(len(buff), len(payload))
+    buff[:n] = array.array("B", payload[:n])
+    return n
+
+
+def get_backend(target: SpiTarget, **kwargs: Any) -> Mcp2210Backend:
+    """A backend with one simulated MCP2210 whose SPI bus leads to ``target``.
+
+    The pyusb convention for backend modules; keyword arguments go to ``Mcp2210Backend``.
+    """
+    return Mcp2210Backend(target, **kwargs)
+
+
+# -- the SPI bus between processes --------------------------------------------------------------
+#
+# Request:  u32 big-endian length n, then n bytes: SPI mode (0..3), MOSI bytes.
+# Response: u32 big-endian length n, then n bytes: status (0 ok, 1 error), then the MISO bytes
+#           (ok) or a UTF-8 message (error).
+
+_HEADER = struct.Struct(">I")
+MAX_SPI_MESSAGE = 1 + 0xFFFF  # mode byte + the chip's longest transaction
+_OK = 0
+_ERROR = 1
+
+
+class SpiLinkError(ConnectionError):
+    """The SPI socket to the simulated camera is unreachable or broke; the message says why."""
+
+
+class SpiTargetError(RuntimeError):
+    """The remote SPI target refused a transaction (the message is the simulator's)."""
+
+
+def _recv_exact(sock: socket.socket, n: int) -> bytes | None:
+    """``n`` bytes, or None if the peer closed the connection before the first byte."""
+    chunks = bytearray()
+    while len(chunks) < n:
+        chunk = sock.recv(n - len(chunks))
+        if not chunk:
+            if chunks:
+                raise ConnectionResetError("connection closed in the middle of a message")
+            return None
+        chunks += chunk
+    return bytes(chunks)
+
+
+def _send_message(sock: socket.socket, payload: bytes) -> None:
+    sock.sendall(_HEADER.pack(len(payload)) + payload)
+
+
+class SpiSocketServer:
+    """Serve ``target`` on a Unix socket at ``path``, one thread per connection.
+
+    ``lock`` is held around every transaction, so the SPI socket and the command link never
+    touch the model at the same time. A stale socket file (from a simulator that died) is
+    replaced; a live one (another simulator listening) is an error. ``stop()`` closes every
+    connection and removes the socket file if it is still this server's.
+    """
+
+    def __init__(
+        self,
+        path: str | Path,
+        target: SpiTarget,
+        lock: threading.Lock | threading.RLock,
+    ) -> None:
+        self.path = Path(path)
+        self.target = target
+        self.lock = lock
+        self._listener: socket.socket | None = None
+        self._inode: int | None = None
+        self._wake_r: socket.socket | None = None
+        self._wake_w: socket.socket | None = None
+        self._stopping = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._conns: dict[socket.socket, threading.Thread] = {}
+        self._conns_lock = threading.Lock()
+
+    def __enter__(self) -> SpiSocketServer:
+        self.start()
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.stop()
+
+    def start(self) -> None:
+        """Bind, listen and start the accept thread."""
+        if self._thread is not None:
+            raise RuntimeError("the SPI socket server is already running")
+        self._remove_stale_socket()
+        listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        try:
+            listener.bind(str(self.path))
+            listener.listen(8)
+        except OSError:
+            listener.close()
+            raise
+        self._listener = listener
+        self._stopping.clear()
+        self._wake_r, self._wake_w = socket.socketpair()
+        self._inode = os.stat(self.path).st_ino
+        self._thread = threading.Thread(
+            target=self._accept_loop, name=f"spi-socket {self.path}", daemon=True
+        )
+        self._thread.start()
+
+    def stop(self) -> None:
+        """Close the listener and every connection, join the threads, remove the socket file."""
+        if self._thread is None:
+            return
+        self._stopping.set()
+        assert self._wake_w is not None
+        self._wake_w.send(b"x")
+        self._thread.join()
+        self._thread = None
+        with self._conns_lock:
+            conns = dict(self._conns)
+        for conn in conns:
+            with contextlib.suppress(OSError):
+                conn.shutdown(socket.SHUT_RDWR)
+        for thread in conns.values():
+            thread.join(timeout=5.0)
+        if self._listener is not None:
+            self._listener.close()
+            self._listener = None
+        self._unlink_own_socket()
+        for sock in (self._wake_r, self._wake_w):
+            if sock is not None:
+                sock.close()
+        self._wake_r = self._wake_w = None
+
+    @property
+    def connections(self) -> int:
+        """Connections currently open."""
+        with self._conns_lock:
+            return len(self._conns)
+
+    def _remove_stale_socket(self) -> None:
+        try:
+            mode = os.lstat(self.path).st_mode
+        except FileNotFoundError:
+            return
+        if not stat.S_ISSOCK(mode):
+            raise FileExistsError(f"{self.path} exists and is not a socket; choose another path")
+        probe = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        try:
+            probe.connect(str(self.path))
+        except OSError:
+            os.unlink(self.path)  # nobody listens: left behind by a simulator that died
+            return
+        finally:
+            probe.close()
+        raise OSError(errno.EADDRINUSE, f"another simulator already serves SPI on {self.path}")
+
+    def _unlink_own_socket(self) -> None:
+        with contextlib.suppress(FileNotFoundError):
+            if os.lstat(self.path).st_ino == self._inode:
+                os.unlink(self.path)
+
+    def _accept_loop(self) -> None:
+        assert self._listener is not None and self._wake_r is not None
+        with selectors.DefaultSelector() as sel:
+            sel.register(self._listener, selectors.EVENT_READ)
+            sel.register(self._wake_r, selectors.EVENT_READ)
+            while not self._stopping.is_set():
+                for key, _ in sel.select():
+                    if key.fileobj is self._listener and not self._stopping.is_set():
+                        self._accept()
+
+    def _accept(self) -> None:
+        assert self._listener is not None
+        try:
+            conn, _ = self._listener.accept()
+        except OSError:
+            return
+        thread = threading.Thread(target=self._serve, args=(conn,), daemon=True)
+        with self._conns_lock:
+            self._conns[conn] = thread
+        thread.start()
+
+    def _serve(self, conn: socket.socket) -> None:
+        try:
+            while not self._stopping.is_set():
+                header = _recv_exact(conn, _HEADER.size)
+                if header is None:
+                    return
+                (length,) = _HEADER.unpack(header)
+                if not 1 <= length <= MAX_SPI_MESSAGE:
+                    # The stream cannot be resynchronised: say why and hang up.
+                    message = f"message length {length} outside 1 .. {MAX_SPI_MESSAGE}"
+                    _send_message(conn, bytes([_ERROR]) + message.encode())
+                    return
+                body = _recv_exact(conn, length)
+                if body is None:
+                    return
+                _send_message(conn, self._execute(body[0], body[1:]))
+        except OSError:
+            return  # the client went away, or stop() shut the connection down
+        finally:
+            with self._conns_lock:
+                self._conns.pop(conn, None)
+            conn.close()
+
+    def _execute(self, mode: int, mosi: bytes) -> bytes:
+        if mode > 3:
+            return bytes([_ERROR]) + f"SPI mode {mode} is not 0 .. 3".encode()
+        try:
+            with self.lock:
+                miso = self.target.transfer(mosi, mode=mode)
+        except Exception as exc:  # the client reports it; the server keeps serving
+            return bytes([_ERROR]) + f"{type(exc).__name__}: {exc}".encode()
+        return bytes([_OK]) + bytes(miso)
+
+
+class SocketSpiTarget:
+    """The client end of an ``SpiSocketServer``: an ``SpiTarget`` in another process.
+
+    Connects on first use and again after the simulator restarted (a connection found closed
+    before a request is sent is replaced, once). A connection lost after a request was sent
+    is an error, not retried: the transaction may have reached the sensor.
+    """
+
+    def __init__(self, path: str | Path, *, timeout_s: float = 2.0) -> None:
+        if timeout_s <= 0:
+            raise ValueError(f"timeout_s={timeout_s} must be positive")
+        self.path = Path(path)
+        self.timeout_s = timeout_s
+        self._sock: socket.socket | None = None
+        self._lock = threading.Lock()
+
+    def transfer(self, mosi: bytes, *, mode: int) -> bytes:
+        """One chip-select-low transaction on the simulator's SPI bus."""
+        if not 0 <= mode <= 3:
+            raise ValueError(f"SPI mode {mode} is not 0 .. 3")
+        if len(mosi) + 1 > MAX_SPI_MESSAGE:
+            raise ValueError(f"an SPI transaction is at most {MAX_SPI_MESSAGE - 1} bytes")
+        request = _HEADER.pack(len(mosi) + 1) + bytes([mode]) + bytes(mosi)
+        with self._lock:
+            sock = self._send(request)
+            try:
+                header = _recv_exact(sock, _HEADER.size)
+                if header is None:
+                    raise ConnectionResetError("the simulator closed the connection")
+                (length,) = _HEADER.unpack(header)
+                body = _recv_exact(sock, length) if length else None
+                if body is None:
+                    raise ConnectionResetError("empty response")
+            except OSError as exc:
+                self._drop()
+                raise SpiLinkError(
+                    f"SPI socket {self.path}: connection lost during a transaction ({exc}); "
+                    "it may or may not have reached the sensor: read the register back"
+                ) from exc
+        if body[0] != _OK:
+            raise SpiTargetError(f"simulated SPI target: {body[1:].decode(errors='replace')}")
+        return body[1:]
+
+    def close(self) -> None:
+        """Close the connection (a later transfer reconnects)."""
+        with self._lock:
+            self._drop()
+
+    def _send(self, request: bytes) -> socket.socket:
+        for attempt in range(2):
+            sock = self._connection()  # SpiLinkError, with the fix, if nothing listens
+            try:
+                if self._peer_closed(sock):
+                    raise ConnectionResetError("the simulator closed the connection")
+                sock.sendall(request)
+                return sock
+            except OSError as exc:
+                self._drop()
+                if attempt:
+                    raise SpiLinkError(f"SPI socket {self.path}: cannot send ({exc})") from exc
+        raise AssertionError("unreachable")
+
+    def _connection(self) -> socket.socket:
+        if self._sock is not None:
+            return self._sock
+        sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        sock.settimeout(self.timeout_s)
+        try:
+            sock.connect(str(self.path))
+        except OSError as exc:
+            sock.close()
+            raise SpiLinkError(
+                f"no simulated camera serves SPI on {self.path} ({exc.strerror or exc}); start "
+                f"it with `python -m firmware_models --spi-socket {self.path}` or check the path"
+            ) from exc
+        self._sock = sock
+        return sock
+
+    @staticmethod
+    def _peer_closed(sock: socket.socket) -> bool:
+        # Between transactions the server sends nothing: readable now means it hung up (or the
+        # stream is out of step); either way the connection is unusable.
+        ready, _, _ = select.select([sock], [], [], 0)
+        return bool(ready)
+
+    def _drop(self) -> None:
+        if self._sock is not None:
+            self._sock.close()
+            self._sock = None
