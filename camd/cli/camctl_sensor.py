@@ -179,7 +179,7 @@ def _fields(fields: dict[str, Any]) -> str:
     return ", ".join(f"{k}={v}" for k, v in fields.items())
 
 
-def _register_table(title: str, registers: list[dict[str, Any]]) -> Table:
+def register_table(title: str, registers: list[dict[str, Any]]) -> Table:
     table = Table(title=title, box=box.SIMPLE_HEAD)
     for column in ("address", "name", "value", "fields"):
         table.add_column(column, justify="right" if column in ("address", "value") else "left")
@@ -194,12 +194,12 @@ def _register_table(title: str, registers: list[dict[str, Any]]) -> Table:
 def render_reg(out: Console, doc: Any, args: argparse.Namespace) -> None:
     action = args.reg_command
     if action == "read":
-        out.print(_register_table(doc["name"], [doc]))
+        out.print(register_table(doc["name"], [doc]))
     elif action == "write":
-        out.print(_register_table(f"written to {doc['sensor']} (read back)", doc["written"]))
+        out.print(register_table(f"written to {doc['sensor']} (read back)", doc["written"]))
     elif action == "dump":
         out.print(
-            _register_table(f"{doc['sensor']} registers (via {doc['bridge']})", doc["registers"])
+            register_table(f"{doc['sensor']} registers (via {doc['bridge']})", doc["registers"])
         )
     elif action == "diff":
         if not doc["differences"]:
@@ -215,7 +215,7 @@ def render_reg(out: Console, doc: Any, args: argparse.Namespace) -> None:
     elif action == "save":
         out.print(f"saved {len(doc['registers'])} {doc['sensor']} registers to {doc['file']}")
     elif action == "load":
-        out.print(_register_table(f"loaded into {doc['sensor']} (read back)", doc["written"]))
+        out.print(register_table(f"loaded into {doc['sensor']} (read back)", doc["written"]))
 
 
 def render_timing(out: Console, doc: Any, args: argparse.Namespace) -> None:

@@ -187,6 +187,7 @@ class _Demo:
         self.ping_and_link()
         self.telemetry()
         self.modes()
+        self.sensor()
         self.events()
 
     def step(self, title: str) -> None:
@@ -354,10 +355,32 @@ class _Demo:
                     f"{entry['status'].get('mode')!r}"
                 )
 
+    def sensor(self) -> None:
+        from camd.cli.camctl_sensor import register_table, render_timing, render_train
+
+        self.step("6. sensor: LVDS training, registers over SPI, timing")
+        train = _plain(self.client.train())
+        render_train(self.console, train, argparse.Namespace())
+        window = {"WIN_START": 757, "WIN_ROWS": 534, "EXPOSURE": 2}  # YE23's mission window
+        written = _plain(self.client.write_registers(dict(window)))
+        self.console.print(register_table("written and verified", written["written"]))
+        timing = _plain(self.client.timing())
+        render_timing(self.console, timing, argparse.Namespace())
+        image = _plain(self.client.start_imaging(0))
+        stop = _plain(self.client.stop_imaging())
+        self.summary["sensor"] = {
+            "train": train, "written": written, "timing": timing, "imaging": [image, stop]
+        }  # fmt: skip
+        if not train.get("trained"):
+            raise DemoFailed(f"LVDS training did not lock: {train}")
+        expected_frame_s = (534 + 2 + 1) * timing["line_period_s"]  # (n + k + 1) T_line
+        if abs(timing["frame_time_s"] - expected_frame_s) > 1e-12:
+            raise DemoFailed(f"frame time {timing['frame_time_s']} != (n+k+1) T_line")
+
     def events(self) -> None:
         from camd.cli.camctl import events_table
 
-        self.step("6. recent events")
+        self.step("7. recent events")
         doc = _plain(self.client.events(limit=10))
         self.summary["events"] = doc.get("events", [])
         self.console.print(events_table(doc, title=None))

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import logging
 import time
-from typing import TYPE_CHECKING, Any, cast
+from typing import TYPE_CHECKING, Any
 
 from camd.daemon.models import (
     ImagingResponse,
@@ -162,32 +162,23 @@ class SensorService:
         """The configurable registers as they are now (what `camctl reg save` writes)."""
         registers = self._checked(Request.REGISTERS_READ)
         with self.session.device_op():
-            readings = registers.dump()
-        return RegisterConfig(
-            sensor=self.regmap.sensor,
-            registers={
-                r.name: r.value for r in readings if self.regmap.register(r.name).configurable
-            },
-        )
+            values = registers.configuration()
+        return RegisterConfig(sensor=self.regmap.sensor, registers=values)
 
     def load_configuration(self, config: RegisterConfig) -> RegisterWriteResponse:
         """Write a saved configuration: refused whole if it is for another sensor or invalid."""
-        from camd.daemon.session import BadRequest
-
-        if config.sensor != self.regmap.sensor:
-            raise BadRequest(
-                f"the configuration is for sensor {config.sensor!r} but the camera's sensor is "
-                f"{self.regmap.sensor!r}; load a configuration saved from a {self.regmap.sensor}"
+        registers = self._checked(Request.REGISTERS_WRITE)
+        with self.session.device_op():
+            written = registers.load_configuration(
+                config.sensor, config.registers, source="the configuration"
             )
-        for name in config.registers:
-            reg = self.regmap.register(name) if self.regmap.has_register(name) else None
-            if reg is None or not reg.configurable:
-                what = "no such register" if reg is None else f"{reg.access} register"
-                raise BadRequest(
-                    f"configuration register {name!r}: {what}; a configuration holds only the "
-                    "RW and WO non-volatile registers (`camctl reg save` writes one)"
-                )
-        return self.write(cast(dict[str, int | str], dict(config.registers)))
+        self.session.log_event(
+            "info", "api", f"configuration of {len(config.registers)} registers loaded"
+        )
+        return RegisterWriteResponse(
+            sensor=self.regmap.sensor,
+            written=[RegisterReading.model_validate(r.as_dict()) for r in written],
+        )
 
     def timing(self) -> TimingResponse:
         """The timing the sensor's registers set now."""

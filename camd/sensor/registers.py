@@ -312,18 +312,28 @@ class SensorRegisters:
         return values
 
     def load(self, path: str | Path, *, verify: bool = True) -> list[RegisterReading]:
-        """Validate a saved configuration whole, then write it in one burst and verify.
+        """Validate a saved configuration file whole, then write it in one burst and verify.
 
         A file for another sensor, unknown or non-configurable names and invalid values are
         refused before anything is written.
         """
-        values = self._read_configuration(path)
+        sensor, values = self._read_configuration_file(path)
+        return self.load_configuration(sensor, values, source=str(path), verify=verify)
+
+    def load_configuration(
+        self, sensor: str, values: Mapping[str, int], *, source: str, verify: bool = True
+    ) -> list[RegisterReading]:
+        """Write a configuration (``sensor`` and register values) checked whole first.
+
+        ``source`` (a file name, "request") prefixes the error messages.
+        """
+        self.check_configuration(sensor, values, source=source)
         try:
             return self.write(dict(values), verify=verify)
         except RegisterAccessError as exc:
-            raise RegisterAccessError(f"{path}: {exc}; nothing was written") from None
+            raise RegisterAccessError(f"{source}: {exc}; nothing was written") from None
         except RegisterValueError as exc:
-            raise RegisterValueError(f"{path}: {exc}; nothing was written") from None
+            raise RegisterValueError(f"{source}: {exc}; nothing was written") from None
 
     def diff(self, against: str | Path | Mapping[str, Value]) -> list[RegisterDiff]:
         """Registers (or the fields/groups named) whose device value differs from ``against``.
@@ -339,7 +349,8 @@ class SensorRegisters:
                 if not reg.volatile and reg.access != "w1c"
             ]
         elif isinstance(against, str | Path):
-            values = self._read_configuration(against)
+            sensor, values = self._read_configuration_file(against)
+            self.check_configuration(sensor, values, source=str(against))
             expected = [(self._target(name), value) for name, value in values.items()]
         else:
             expected = [self._expectation(key, value) for key, value in against.items()]
@@ -621,8 +632,30 @@ class SensorRegisters:
             burst.append((hold_reg, clear))
         return burst
 
-    def _read_configuration(self, path: str | Path) -> dict[str, int]:
-        """A saved configuration's values, checked against the map (names, access, sensor)."""
+    def check_configuration(self, sensor: str, values: Mapping[str, int], *, source: str) -> None:
+        """Refuse a configuration for another sensor or with non-configurable registers."""
+        mine = self.regmap.sensor
+        if sensor != mine:
+            raise RegisterValueError(
+                f"{source} is a configuration for sensor {sensor!r}, but this camera's sensor is "
+                f"{mine!r}; load a configuration saved from a {mine} (`camctl reg save FILE`)"
+            )
+        for name in values:
+            if not self.regmap.has_register(name):
+                raise RegisterAccessError(
+                    f"{source}: registers.{name}: {mine} has no register named {name!r}; "
+                    "remove it (`camctl reg dump` lists the registers)"
+                )
+            reg = self.regmap.register(name)
+            if not reg.configurable:
+                kind = f"{'volatile ' if reg.volatile else ''}{reg.access.upper()}"
+                raise RegisterAccessError(
+                    f"{source}: registers.{name}: a {kind} register is not part of a "
+                    "configuration (only RW and WO non-volatile registers are); remove it"
+                )
+
+    @staticmethod
+    def _read_configuration_file(path: str | Path) -> tuple[str, dict[str, int]]:
         try:
             text = Path(path).read_text(encoding="utf-8")
         except OSError as exc:
@@ -630,26 +663,6 @@ class SensorRegisters:
                 f"{path}: cannot read the configuration: {exc.strerror or exc}"
             ) from None
         try:
-            sensor, values = parse_configuration(text, source=str(path))
+            return parse_configuration(text, source=str(path))
         except ConfigFileError as exc:
             raise RegisterValueError(str(exc)) from None
-        mine = self.regmap.sensor
-        if sensor != mine:
-            raise RegisterValueError(
-                f"{path} is a configuration for sensor {sensor!r}, but this camera's sensor is "
-                f"{mine!r}; load a configuration saved from a {mine} (`camctl reg save FILE`)"
-            )
-        for name in values:
-            if not self.regmap.has_register(name):
-                raise RegisterAccessError(
-                    f"{path}: registers.{name}: {mine} has no register named {name!r}; "
-                    "remove it (`camctl reg dump` lists the registers)"
-                )
-            reg = self.regmap.register(name)
-            if not reg.configurable:
-                kind = f"{'volatile ' if reg.volatile else ''}{reg.access.upper()}"
-                raise RegisterAccessError(
-                    f"{path}: registers.{name}: a {kind} register is not part of a "
-                    "configuration (only RW and WO non-volatile registers are); remove it"
-                )
-        return values
