@@ -23,12 +23,12 @@ import pytest
 import usb.control
 import usb.core
 import usb.util
-from firmware_models.sensor import SensorModel
 
 from camd.sensor.bridge import BridgeError
 from camd.sensor.mcp2210 import Mcp2210Bridge
 from camd.sensor.regmap import RegisterMap, RegisterSpec, load_register_map
 from camd.sensor.spi_frame import encode_spi_frame
+from firmware_models.sensor import SensorModel
 from firmware_models.spi import SpiSlave
 from firmware_models.usb_spi import (
     PRODUCT_ID,
