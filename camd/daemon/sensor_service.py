@@ -113,15 +113,17 @@ class SensorService:
 
     def read(self, key: str) -> RegisterReading:
         """One register by name or address."""
-        registers = self._checked(Request.REGISTERS_READ)
+        self._checked(Request.REGISTERS_READ)
         with self.session.device_op():
+            registers = self._sensor_registers()
             reading = registers.read(_key(key))
         return RegisterReading.model_validate(reading.as_dict())
 
     def dump(self) -> RegistersResponse:
         """Every register, in address order."""
-        registers = self._checked(Request.REGISTERS_READ)
+        self._checked(Request.REGISTERS_READ)
         with self.session.device_op():
+            registers = self._sensor_registers()
             readings = registers.dump()
         return RegistersResponse(
             sensor=self.regmap.sensor,
@@ -131,8 +133,9 @@ class SensorService:
 
     def write(self, values: dict[str, int | str]) -> RegisterWriteResponse:
         """Validate everything, write in one burst, verify; nothing is written if invalid."""
-        registers = self._checked(Request.REGISTERS_WRITE)
+        self._checked(Request.REGISTERS_WRITE)
         with self.session.device_op():
+            registers = self._sensor_registers()
             written = registers.write(values)
         names = ", ".join(f"{k}={v}" for k, v in values.items())
         self.session.log_event("info", "api", f"registers written: {names}")
@@ -143,9 +146,10 @@ class SensorService:
 
     def diff(self, against: str, values: dict[str, int] | None) -> RegisterDiffResponse:
         """Registers that differ from their reset values or from ``values``."""
-        registers = self._checked(Request.REGISTERS_READ)
+        self._checked(Request.REGISTERS_READ)
         target: Any = "reset" if against == "reset" else dict(values or {})
         with self.session.device_op():
+            registers = self._sensor_registers()
             diffs = registers.diff(target)
         return RegisterDiffResponse(
             sensor=self.regmap.sensor,
@@ -160,15 +164,17 @@ class SensorService:
 
     def configuration(self) -> RegisterConfig:
         """The configurable registers as they are now (what `camctl reg save` writes)."""
-        registers = self._checked(Request.REGISTERS_READ)
+        self._checked(Request.REGISTERS_READ)
         with self.session.device_op():
+            registers = self._sensor_registers()
             values = registers.configuration()
         return RegisterConfig(sensor=self.regmap.sensor, registers=values)
 
     def load_configuration(self, config: RegisterConfig) -> RegisterWriteResponse:
         """Write a saved configuration: refused whole if it is for another sensor or invalid."""
-        registers = self._checked(Request.REGISTERS_WRITE)
+        self._checked(Request.REGISTERS_WRITE)
         with self.session.device_op():
+            registers = self._sensor_registers()
             written = registers.load_configuration(
                 config.sensor, config.registers, source="the configuration"
             )
@@ -182,8 +188,9 @@ class SensorService:
 
     def timing(self) -> TimingResponse:
         """The timing the sensor's registers set now."""
-        registers = self._checked(Request.REGISTERS_READ)
+        self._checked(Request.REGISTERS_READ)
         with self.session.device_op():
+            registers = self._sensor_registers()
             timing = registers.timing()
         return TimingResponse.model_validate(timing.as_dict())
 
@@ -293,7 +300,7 @@ class SensorService:
 
     # -- internals -------------------------------------------------------------------------------
 
-    def _checked(self, request: Request) -> SensorRegisters:
+    def _checked(self, request: Request) -> None:
         from camd.daemon.session import DeviceRejected
 
         self.session.require(request)
@@ -304,9 +311,10 @@ class SensorService:
                 "config (or connect the right camera) and restart camd",
                 "SENSOR_MISMATCH",
             )
-        return self._sensor_registers()
 
     def _sensor_registers(self) -> SensorRegisters:
+        """The register layer, its bridge opened on first use. Call inside ``device_op()``:
+        opening a USB-SPI bridge can fail, and its errors must reach the client mapped."""
         if self._registers is None:
             self._bridge = self._make_bridge()
             self._registers = SensorRegisters(self.regmap, self._bridge)
