@@ -44,7 +44,7 @@ from camd.protocol import (
     load_dictionary,
 )
 from camd.protocol.dictionary import FieldValue
-from camd.sensor.regmap import RegisterMap, load_register_map
+from camd.sensor.regmap import RegisterMap, RegisterSpec, load_register_map
 from firmware_models.housekeeping import HousekeepingModel
 from firmware_models.inject import FaultInjector, InjectSpec
 from firmware_models.sensor import SensorModel
@@ -356,7 +356,7 @@ class FpgaModel:
 
     # -- sensor registers over the SPI master ---------------------------------------------------
 
-    def _register(self, spec: CommandSpec, address: int) -> Any:
+    def _register(self, spec: CommandSpec, address: int) -> RegisterSpec:
         if not self.regmap.has_register(address):
             raise _Nak(
                 "REG_UNKNOWN",
