@@ -207,3 +207,13 @@ def test_client_documents_match_the_daemon_models(client_name: str, model_name: 
     typed = getattr(client_module, client_name)
     model = getattr(models, model_name)
     assert set(typed.__annotations__) == set(model.model_fields), (client_name, model_name)
+
+
+def test_timing_response_carries_every_sensor_timing_field() -> None:
+    # GET /api/v1/timing is SensorTiming.as_dict(); the model must not drop or invent a field.
+    import dataclasses
+
+    from camd.daemon.models import TimingResponse
+    from camd.sensor.timing_view import SensorTiming
+
+    assert {f.name for f in dataclasses.fields(SensorTiming)} == set(TimingResponse.model_fields)

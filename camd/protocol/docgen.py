@@ -520,17 +520,23 @@ def main(argv: Sequence[str] | None = None) -> int:
     except DictionaryError as exc:
         print(f"docgen: {exc}", file=sys.stderr)
         return 2
-    if args.check:
+    return write_or_check(output, text, check=args.check, command="python -m camd.protocol.docgen")
+
+
+def write_or_check(output: Path, text: str, *, check: bool, command: str) -> int:
+    """Write a generated doc, or with ``check`` say whether ``output`` already holds ``text``.
+
+    Returns the exit status: 0 written or up to date, 1 missing or stale (the message says to
+    run ``command``).
+    """
+    if check:
         try:
             current: str | None = output.read_text(encoding="utf-8")
         except FileNotFoundError:
             current = None
         if current != text:
             state = "missing" if current is None else "stale"
-            print(
-                f"{output} is {state}: run `python -m camd.protocol.docgen` and commit the result",
-                file=sys.stderr,
-            )
+            print(f"{output} is {state}: run `{command}` and commit the result", file=sys.stderr)
             return 1
         print(f"{output} is up to date")
         return 0

@@ -21,6 +21,7 @@ from typing import Any
 from pydantic import BaseModel
 from pydantic_core import PydanticUndefined
 
+from camd.protocol.docgen import write_or_check
 from camd.sensor.regmap import (
     ROLE_DOCS,
     ROLES,
@@ -509,24 +510,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (RegisterMapError, FileNotFoundError) as exc:
         print(f"docgen: {exc}", file=sys.stderr)
         return 2
-    if args.check:
-        try:
-            current: str | None = output.read_text(encoding="utf-8")
-        except FileNotFoundError:
-            current = None
-        if current != text:
-            state = "missing" if current is None else "stale"
-            print(
-                f"{output} is {state}: run `python -m camd.sensor.docgen` and commit the result",
-                file=sys.stderr,
-            )
-            return 1
-        print(f"{output} is up to date")
-        return 0
-    output.parent.mkdir(parents=True, exist_ok=True)
-    output.write_text(text, encoding="utf-8", newline="\n")
-    print(f"wrote {output}")
-    return 0
+    return write_or_check(output, text, check=args.check, command="python -m camd.sensor.docgen")
 
 
 if __name__ == "__main__":

@@ -245,14 +245,7 @@ class SensorRegisters:
 
     def timing(self) -> SensorTiming:
         """The timing the device's registers set now (camd.sensor.timing_view)."""
-        cache: dict[str, int] = {}
-
-        def raw(reg: RegisterSpec) -> int:
-            if not reg.readable:
-                return self._shadow[reg.name]
-            if reg.name not in cache:
-                cache[reg.name] = self.bridge.read(reg.address)
-            return cache[reg.name]
+        raw = self._cached_reader()
 
         return sensor_timing(self.regmap, lambda name: self.regmap.value_of(name, raw))
 
@@ -268,14 +261,7 @@ class SensorRegisters:
         error nothing is written. Returns the registers the assignments named, as read back
         (or as written, for registers that are not verified).
         """
-        cache: dict[str, int] = {}
-
-        def current(reg: RegisterSpec) -> int:
-            if not reg.readable:
-                return self._shadow[reg.name]
-            if reg.name not in cache:
-                cache[reg.name] = self.bridge.read(reg.address)
-            return cache[reg.name]
+        current = self._cached_reader()
 
         plan = self._plan(assignments, current, staging=False)
         burst = self._burst(plan, current)
@@ -354,14 +340,7 @@ class SensorRegisters:
             expected = [(self._target(name), value) for name, value in values.items()]
         else:
             expected = [self._expectation(key, value) for key, value in against.items()]
-        cache: dict[str, int] = {}
-
-        def raw(reg: RegisterSpec) -> int:
-            if not reg.readable:
-                return self._shadow[reg.name]
-            if reg.name not in cache:
-                cache[reg.name] = self.bridge.read(reg.address)
-            return cache[reg.name]
+        raw = self._cached_reader()
 
         diffs = []
         for target, want in expected:
@@ -371,6 +350,20 @@ class SensorRegisters:
         return sorted(diffs, key=lambda d: (d.address, d.name))
 
     # -- resolution -------------------------------------------------------------------------------
+
+    def _cached_reader(self) -> Callable[[RegisterSpec], int]:
+        """Register values for one operation: each readable register read from the device at
+        most once, write-only ones from the shadow copy."""
+        cache: dict[str, int] = {}
+
+        def raw(reg: RegisterSpec) -> int:
+            if not reg.readable:
+                return self._shadow[reg.name]
+            if reg.name not in cache:
+                cache[reg.name] = self.bridge.read(reg.address)
+            return cache[reg.name]
+
+        return raw
 
     def _register(self, key: str | int) -> RegisterSpec:
         target = self._target(key)
