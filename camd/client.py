@@ -258,11 +258,59 @@ class TrainDoc(TypedDict):
     t_s: float | None
 
 
-class ImagingDoc(TypedDict):
-    """POST /api/v1/imaging/start and /stop."""
+class StreamStatsDoc(TypedDict):
+    """The host's ingest counters of a stream."""
 
-    imaging: bool
     frames: int
+    bytes: int
+    lost: int
+    corrupt: int
+    short: int
+    overruns: int
+    stalls: int
+    timeouts: int
+    out_of_order: int
+    elapsed_s: float
+    mpix_per_s: float
+    mbyte_per_s: float
+
+
+class StreamDoc(TypedDict):
+    """GET /api/v1/stream and POST /stream/start, /stream/acquire, /stream/stop."""
+
+    streaming: bool
+    mode: str | None
+    rows: int
+    cols: int
+    bits: int
+    stages: int
+    binning: str
+    frame_period_s: float
+    frames_requested: int
+    first_counter: int
+    frames_sent: int | None
+    recording: str | None
+    stats: StreamStatsDoc
+
+
+class StageDoc(TypedDict):
+    """PUT /api/v1/sim/stage."""
+
+    speed_m_s: float
+    sync_speed_m_s: float
+    track: bool
+
+
+class SimStreamDoc(TypedDict):
+    """GET /api/v1/sim/stream."""
+
+    produced: int
+    sent: int
+    dropped: int
+    corrupted: int
+    shortened: int
+    stalls: int
+    undelivered: int
 
 
 # -- errors ---------------------------------------------------------------------------------------
@@ -448,13 +496,64 @@ class CamdClient:
         """The last training result."""
         return cast(TrainDoc, self._json("GET", f"{API}/train"))
 
-    def start_imaging(self, frames: int = 0) -> ImagingDoc:
-        """Start the sensor's sequencer (0 frames = continuous)."""
-        return cast(ImagingDoc, self._json("POST", f"{API}/imaging/start", json={"frames": frames}))
+    # -- the frame stream --------------------------------------------------------------------
 
-    def stop_imaging(self) -> ImagingDoc:
-        """Stop the sensor's sequencer."""
-        return cast(ImagingDoc, self._json("POST", f"{API}/imaging/stop"))
+    def stream(self) -> StreamDoc:
+        """The current or last stream and the host's ingest counters."""
+        return cast(StreamDoc, self._json("GET", f"{API}/stream"))
+
+    def start_stream(
+        self,
+        frames: int = 0,
+        *,
+        mode: str | None = None,
+        stages: int | None = None,
+        binning: str = "off",
+        record: str | None = None,
+    ) -> StreamDoc:
+        """Start streaming and return at once (0 frames = until ``stop_stream``)."""
+        body = _stream_body(frames, mode, stages, binning, record, None)
+        return cast(StreamDoc, self._json("POST", f"{API}/stream/start", json=body))
+
+    def acquire(
+        self,
+        frames: int,
+        *,
+        mode: str | None = None,
+        stages: int | None = None,
+        binning: str = "off",
+        record: str | None = None,
+        timeout_s: float | None = None,
+    ) -> StreamDoc:
+        """Take ``frames`` frames (recording them to the HDF5 file ``record``, an absolute path
+        on the daemon's host, if given) and return the counters when the stream has ended."""
+        body = _stream_body(frames, mode, stages, binning, record, timeout_s)
+        # The daemon bounds the acquisition (by timeout_s, or twice the expected time); the
+        # answer may take that long, so only connecting is bounded by the client's timeout.
+        read_s = None if timeout_s is None else timeout_s + 30.0
+        timeout = httpx.Timeout(self.timeout_s, read=read_s)
+        return cast(
+            StreamDoc, self._json("POST", f"{API}/stream/acquire", json=body, timeout=timeout)
+        )
+
+    def stop_stream(self) -> StreamDoc:
+        """Stop the stream (harmless when not streaming)."""
+        return cast(StreamDoc, self._json("POST", f"{API}/stream/stop"))
+
+    # -- the simulated camera -----------------------------------------------------------------
+
+    def set_scene(self, spec: str) -> None:
+        """Simulated camera only: the scene in front of it, e.g. ``"bars:lux=3"``."""
+        self._request("PUT", f"{API}/sim/scene", json={"spec": spec})
+
+    def set_stage(self, *, track: bool = True, speed_m_s: float = 0.0) -> StageDoc:
+        """Simulated camera only: track the synchronous speed, or run at ``speed_m_s``."""
+        body = {"track": track, "speed_m_s": speed_m_s}
+        return cast(StageDoc, self._json("PUT", f"{API}/sim/stage", json=body))
+
+    def sim_stream_stats(self) -> SimStreamDoc:
+        """Simulated camera only: what its stream engine made, sent and injected."""
+        return cast(SimStreamDoc, self._json("GET", f"{API}/sim/stream"))
 
     def metrics(self) -> str:
         """The Prometheus text exposition."""
@@ -569,3 +668,17 @@ def _snippet(value: object, limit: int = 120) -> str:
     text = value if isinstance(value, str) else repr(value)
     text = " ".join(text.split())
     return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _stream_body(
+    frames: int,
+    mode: str | None,
+    stages: int | None,
+    binning: str,
+    record: str | None,
+    timeout_s: float | None,
+) -> dict[str, Any]:
+    body: dict[str, Any] = {"frames": frames, "binning": binning}
+    optional = {"mode": mode, "stages": stages, "record": record, "timeout_s": timeout_s}
+    body.update({k: v for k, v in optional.items() if v is not None})
+    return body

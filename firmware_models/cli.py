@@ -21,10 +21,12 @@ from pathlib import Path
 from types import FrameType
 
 from camd.protocol import load_dictionary
-from camd.sensor.regmap import list_sensors
+from camd.sensor.profile import list_profiles
 from firmware_models.fpga import FpgaModel
+from firmware_models.fx3 import StreamSocketServer
 from firmware_models.inject import FaultInjector, InjectSpec
 from firmware_models.pty_server import PtyServer
+from firmware_models.scene import SceneSpec
 from firmware_models.usb_spi import SpiSocketServer
 
 DEFAULT_PROFILE = "hr400"
@@ -37,6 +39,13 @@ def _inject_arg(text: str) -> InjectSpec:
         return InjectSpec.parse(text)
     except ValueError as exc:
         # ArgumentTypeError, unlike ValueError, makes argparse print our message verbatim.
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _scene_arg(text: str) -> SceneSpec:
+    try:
+        return SceneSpec.parse(text)
+    except ValueError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
@@ -57,9 +66,9 @@ def _profile_arg(text: str) -> str:
         raise argparse.ArgumentTypeError(
             f"{text!r} is not a profile name; use letters, digits, '_', '-' or '.' (e.g. hr400)"
         )
-    known = list_sensors()
+    known = list_profiles()
     if text not in known:
-        # The profile names the sensor whose register map the simulated camera carries.
+        # The profile (config/profiles/) names the camera physics and the register map.
         raise argparse.ArgumentTypeError(
             f"no simulated camera profile {text!r}; known: {', '.join(known)}"
         )
@@ -107,6 +116,22 @@ def build_parser(prog: str = "python -m firmware_models") -> argparse.ArgumentPa
         help="also serve the sensor's SPI bus on a Unix socket at PATH, for a host driving a "
         "simulated USB-SPI bridge (firmware_models.usb_spi.SocketSpiTarget)",
     )
+    parser.add_argument(
+        "--usb-socket",
+        type=Path,
+        default=None,
+        metavar="PATH",
+        help="serve the USB bulk frame stream on a Unix socket at PATH, for a host using the "
+        "simulated FX3 backend (firmware_models.fx3.get_backend)",
+    )
+    parser.add_argument(
+        "--scene",
+        type=_scene_arg,
+        default=None,
+        metavar="SPEC",
+        help="scene in front of the camera, e.g. 'bars:lux=3' or 'flat:photons=2e4' "
+        "(default: a flat field; docs/simulator.md lists the scenes)",
+    )
     parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     parser.add_argument("--json", action="store_true", help="print the start line as JSON")
     return parser
@@ -125,6 +150,9 @@ def main(argv: list[str] | None = None, *, prog: str = "python -m firmware_model
     spi_path: Path | None = (
         Path(os.path.abspath(args.spi_socket)) if args.spi_socket is not None else None
     )
+    usb_path: Path | None = (
+        Path(os.path.abspath(args.usb_socket)) if args.usb_socket is not None else None
+    )
     model = FpgaModel(
         load_dictionary(),
         seed=args.seed,
@@ -132,25 +160,35 @@ def main(argv: list[str] | None = None, *, prog: str = "python -m firmware_model
         injector=FaultInjector(inject, seed=args.seed),
         sensor=args.profile,
     )
+    if args.scene is not None:
+        model.camera.set_scene(args.scene)
     server = PtyServer(model, link=link, hk_period_s=args.hk_period_s)
     with _stop_on_signals(server):
         spi_server = (
             SpiSocketServer(spi_path, model.spi_slave, model.lock) if spi_path is not None else None
         )
+        usb_server = StreamSocketServer(usb_path) if usb_path is not None else None
         try:
             tty_path = server.open()
             if spi_server is not None:
                 spi_server.start()
+            if usb_server is not None:
+                usb_server.start()
+                model.attach_stream_server(usb_server)
         except OSError as exc:
             print(f"python -m firmware_models: cannot start: {exc}", file=sys.stderr)
             server.close()
             return 1
         try:
             print(
-                _start_line(args.json, tty_path, link, args.profile, inject, spi_path), flush=True
+                _start_line(args.json, tty_path, link, args.profile, inject, spi_path, usb_path),
+                flush=True,
             )
             server.serve()
         finally:
+            model.close()
+            if usb_server is not None:
+                usb_server.stop()
             if spi_server is not None:
                 spi_server.stop()
             server.close()
@@ -164,6 +202,7 @@ def _start_line(
     profile: str,
     inject: InjectSpec,
     spi_socket: Path | None = None,
+    usb_socket: Path | None = None,
 ) -> str:
     if as_json:
         return json.dumps(
@@ -174,10 +213,12 @@ def _start_line(
                 "profile": profile,
                 "inject": inject.model_dump(),
                 "spi_socket": str(spi_socket) if spi_socket is not None else None,
+                "usb_socket": str(usb_socket) if usb_socket is not None else None,
             }
         )
     where = f"{tty_path} (link {link})" if link is not None else tty_path
     spi = f"; sensor SPI on {spi_socket}" if spi_socket is not None else ""
+    spi += f"; USB stream on {usb_socket}" if usb_socket is not None else ""
     return (
         f"simulated camera (profile {profile}) listening on {where}{spi}; "
         f"inject {inject.describe()}; Ctrl-C to stop"

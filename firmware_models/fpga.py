@@ -27,6 +27,7 @@ from __future__ import annotations
 import math
 import struct
 import threading
+import time
 from collections import Counter
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, fields
@@ -44,8 +45,12 @@ from camd.protocol import (
     load_dictionary,
 )
 from camd.protocol.dictionary import FieldValue
+from camd.sensor.profile import load_profile
 from camd.sensor.regmap import RegisterMap, RegisterSpec, load_register_map
+from firmware_models.camera import CameraModel
+from firmware_models.fx3 import StreamEngine, StreamSocketServer
 from firmware_models.housekeeping import HousekeepingModel
+from firmware_models.imaging import ImagingPipeline, StreamRefused
 from firmware_models.inject import FaultInjector, InjectSpec
 from firmware_models.sensor import SensorModel
 from firmware_models.sensor_link import SensorLink
@@ -127,9 +132,26 @@ class FpgaModel:
         self.spi_slave = SpiSlave(self.regmap.spi, self.sensor)
         self.spi = SpiMaster(self.regmap.spi, self.spi_slave)
         self.sensor_link = SensorLink(self.regmap, self.spi, seed=seed or 0)
-        self.imaging = False
-        self.frames_requested = 0
         self.injector = injector if injector is not None else FaultInjector(seed=seed)
+        self.power_on_s = power_on_s
+        # The camera profile has the sensor's name (config/profiles/<name>.toml).
+        self.camera = CameraModel(load_profile(self.regmap.sensor), self.sensor, seed=seed or 0)
+        self.stream = StreamEngine(
+            inject=self.injector.spec, seed=seed or 0, on_done=self._stream_done
+        )
+        self.imaging_path = ImagingPipeline(
+            self.camera,
+            self.sensor,
+            self.sensor_link,
+            self.stream,
+            lock=self.lock,
+            clock_s=lambda: time.monotonic() - self.power_on_s,
+        )
+        self.stream.source = self.imaging_path.frame
+        # Events that no command caused (STREAM_DONE from the stream thread) wait here until
+        # the transport collects them; ``wake`` tells it there are some.
+        self._unsent_events: list[Frame] = []
+        self.wake: Callable[[], None] | None = None
         self.receiver = Decoder()
         self.housekeeping = HousekeepingModel(seed=seed, power_on_s=power_on_s)
         self.mode = "area"
@@ -155,8 +177,12 @@ class FpgaModel:
             "GET_SENSOR": self._get_sensor,
             "TRAIN": self._train,
             "GET_LANE": self._get_lane,
-            "START_IMAGING": self._start_imaging,
-            "STOP_IMAGING": self._stop_imaging,
+            "START_STREAM": self._start_stream,
+            "STOP_STREAM": self._stop_stream,
+            "GET_STREAM": self._get_stream,
+            "SIM_GET_STREAM_STATS": self._sim_get_stream_stats,
+            "SIM_SET_SCENE": self._sim_set_scene,
+            "SIM_SET_STAGE": self._sim_set_stage,
             "SIM_GET_SPI_STATS": self._sim_get_spi_stats,
             "SIM_RESKEW": self._sim_reskew,
         }
@@ -184,6 +210,26 @@ class FpgaModel:
             self.counters.nacked += 1
         self._record = _Record(frame, response)
         return self._sent([response, *events])
+
+    @property
+    def imaging(self) -> bool:
+        """The sensor's sequencer runs and frames stream (START_STREAM)."""
+        return self.imaging_path.streaming
+
+    def close(self) -> None:
+        """Stop any stream and end the stream engine's thread."""
+        self.imaging_path.stop()
+        self.stream.close()
+
+    def attach_stream_server(self, server: StreamSocketServer) -> None:
+        """Send the stream to a host over ``server`` (``--usb-socket``)."""
+        self.stream.server = server
+
+    def take_unsolicited(self) -> list[Frame]:
+        """Events raised outside any command since the last call, in order."""
+        with self.lock:
+            frames, self._unsent_events = self._unsent_events, []
+        return self._sent(frames)
 
     def boot_frames(self, now_s: float) -> list[Frame]:
         """The frames the device sends when it starts: a BOOT event."""
@@ -297,7 +343,7 @@ class FpgaModel:
         # sensor's registers are the sensor's and survive an FPGA reset.
         self.mode = "area"
         self.fault_code = 0
-        self.imaging = False
+        self.imaging_path.stop()  # the reset stops the sequencer: no STREAM_DONE
         self.sensor_link.untrain()
         self.boot_count = (self.boot_count + 1) % 0x10000
         self.housekeeping.restart_uptime(now_s)
@@ -470,24 +516,100 @@ class FpgaModel:
             )
         )
 
-    def _start_imaging(
+    def _start_stream(
         self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float
     ) -> _Outcome:
         self._require_no_fault(spec)
+        if self.imaging:
+            raise _Nak(
+                "ILLEGAL_STATE", "START_STREAM refused: already streaming; STOP_STREAM first"
+            )
         if not self.sensor_link.trained:
             raise _Nak(
                 "LINK_UNTRAINED",
-                "START_IMAGING refused: the sensor's LVDS link is not trained; send TRAIN first",
+                "START_STREAM refused: the sensor's LVDS link is not trained; send TRAIN first",
             )
-        self.imaging = True
-        self.frames_requested = int(request["frames"])
-        return _Outcome(spec.encode_response())
+        try:
+            geometry = self.imaging_path.start(
+                mode=self.mode,
+                frames=int(request["frames"]),
+                stages=int(request["stages"]),
+                binning=request["binning"] == "2x2",
+            )
+        except StreamRefused as exc:
+            raise _Nak("OUT_OF_RANGE", f"START_STREAM refused: {exc}") from None
+        return _Outcome(
+            spec.encode_response(
+                mode=geometry.mode,
+                rows=geometry.rows,
+                cols=geometry.cols,
+                bits=geometry.bits,
+                frame_period_s=geometry.frame_period_s,
+                first_counter=geometry.first_counter,
+            )
+        )
 
-    def _stop_imaging(
+    def _stop_stream(
         self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float
     ) -> _Outcome:
-        self.imaging = False
+        produced, next_counter = self.imaging_path.stop()
+        return _Outcome(spec.encode_response(frames_sent=produced, next_counter=next_counter))
+
+    def _get_stream(
+        self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float
+    ) -> _Outcome:
+        server = self.stream.server
+        return _Outcome(
+            spec.encode_response(
+                streaming="yes" if self.imaging else "no",
+                frames_sent=self.stream.frames_produced % _U32_WRAP,
+                next_counter=self.imaging_path.next_counter,
+                host_connected="yes" if server is not None and server.connected else "no",
+            )
+        )
+
+    def _sim_get_stream_stats(
+        self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float
+    ) -> _Outcome:
+        counters = self.stream.counters.as_dict()
+        names = [f.name for f in spec.response]
+        return _Outcome(spec.encode_response(**_wrap_u32({k: counters[k] for k in names})))
+
+    def _sim_set_scene(
+        self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float
+    ) -> _Outcome:
+        try:
+            self.camera.set_scene(str(request["spec"]))
+        except (ValueError, OSError) as exc:
+            raise _Nak("OUT_OF_RANGE", f"SIM_SET_SCENE: {exc}") from None
         return _Outcome(spec.encode_response())
+
+    def _sim_set_stage(
+        self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float
+    ) -> _Outcome:
+        track = request["track"] == "yes"
+        speed = _undo_f32_rounding(float(request["speed_m_s"]))
+        if not track and speed <= 0.0:
+            raise _Nak("OUT_OF_RANGE", "SIM_SET_STAGE: a fixed speed must be > 0 m/s")
+        self.camera.stage_speed_m_s = None if track else speed
+        sync = self.camera.synchronous_speed_m_s()
+        now = sync if track else speed
+        return _Outcome(spec.encode_response(speed_m_s=now, sync_speed_m_s=sync))
+
+    def _stream_done(self, frames_sent: int, next_counter: int) -> None:
+        """A counted stream ended by itself (stream thread): tell the host with STREAM_DONE.
+
+        A stream stopped by a command (STOP_STREAM, RESET, SIM_RESKEW) is reported by that
+        command, not here (``ImagingPipeline.stop``)."""
+        with self.lock:
+            self._unsent_events.append(
+                self._event(
+                    "STREAM_DONE", frames_sent=frames_sent % _U32_WRAP, next_counter=next_counter
+                )
+            )
+        wake = self.wake
+        if wake is not None:
+            wake()
 
     def _sim_get_spi_stats(
         self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float
@@ -507,8 +629,13 @@ class FpgaModel:
         self.sensor_link.reskew(int(request["seed"]))
         events: tuple[Frame, ...] = ()
         if was_trained and not self.sensor_link.trained:
-            self.imaging = False
             events = (self._event("LINK_LOST"),)
+            if self.imaging:
+                # Garbled frames are no frames: the FPGA stops the stream and says so.
+                produced, next_counter = self.imaging_path.stop()
+                events += (
+                    self._event("STREAM_DONE", frames_sent=produced, next_counter=next_counter),
+                )
         return _Outcome(spec.encode_response(), events)
 
 

@@ -46,6 +46,32 @@ class InjectSpec(BaseModel):
     delay_ms: float = Field(
         default=0.0, ge=0.0, le=1000.0, description="latency added to every response, milliseconds"
     )
+    # The USB frame stream (firmware_models.fx3.StreamEngine), rates per frame.
+    frame_drop: float = Field(
+        default=0.0,
+        ge=0.0,
+        le=0.5,
+        description="probability a stream frame is not sent (its counter is used up)",
+    )
+    frame_corrupt: float = Field(
+        default=0.0,
+        ge=0.0,
+        le=0.5,
+        description="probability a stream frame is sent with one payload bit flipped after its CRC",
+    )
+    frame_short: float = Field(
+        default=0.0,
+        ge=0.0,
+        le=0.5,
+        description="probability a stream frame's USB transfer ends early (a truncated frame)",
+    )
+    frame_stall: float = Field(
+        default=0.0,
+        ge=0.0,
+        le=0.5,
+        description="probability the bulk endpoint halts instead of sending a frame "
+        "(the frame is lost; nothing is sent until the host clears the halt)",
+    )
 
     @classmethod
     def known_keys(cls) -> list[str]:

@@ -112,6 +112,7 @@ class PtyServer:
             self._point_link()
         now_s = self._clock()
         self._next_hk_s = now_s + self.hk_period_s
+        self.model.wake = self._wake_up
         for frame in self.model.boot_frames(now_s):
             self._transmit(frame)
         return self.tty_path
@@ -126,8 +127,12 @@ class PtyServer:
     def stop(self) -> None:
         """Make ``serve()`` return soon; safe to call from a signal handler."""
         self._stop_requested = True
+        self._wake_up()
+
+    def _wake_up(self) -> None:
+        """Make the loop run a step now (from any thread): the model has events to send."""
         if self._wake_w >= 0:
-            with contextlib.suppress(BlockingIOError):
+            with contextlib.suppress(BlockingIOError, OSError):
                 os.write(self._wake_w, b"\0")
 
     def close(self) -> None:
@@ -193,6 +198,8 @@ class PtyServer:
         now_s = self._clock()
         self._expire_stale(now_s)
         self._release_due(now_s)
+        for frame in self.model.take_unsolicited():
+            self._transmit(frame)
         self._maybe_send_housekeeping(now_s)
         if self._out:
             # Non-blocking, so trying also when select did not report writable costs nothing

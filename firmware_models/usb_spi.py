@@ -23,24 +23,33 @@ from __future__ import annotations
 
 import array
 import contextlib
-import errno
 import os
 import select
 import selectors
 import socket
-import stat
 import struct
 import threading
 import time
 from collections import Counter
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
 from typing import Any, ClassVar, Protocol
 
-import usb.backend
-import usb.core
+from firmware_models.usb_device import (
+    LIBUSB_ERRORS,
+    SPEED_FULL,
+    ConfigurationDescriptor,
+    DeviceDescriptor,
+    EndpointDescriptor,
+    Handle,
+    InterfaceDescriptor,
+    SimulatedUsbDevice,
+    claim_socket_path,
+    release_socket_path,
+    usb_error,
+)
 
 # -- the chip ---------------------------------------------------------------------------------
 
@@ -376,166 +385,50 @@ HID_REPORT_DESCRIPTOR = bytes.fromhex(
     "0600ff 0901 a101 1901 2940 1500 26ff00 7508 9540 8100 1901 2940 9100 c0".replace(" ", "")
 )
 
-
-@dataclass(slots=True)
-class _DeviceDescriptor:
-    idVendor: int
-    idProduct: int
-    bus: int
-    address: int
-    port_number: int
-    bLength: int = 18
-    bDescriptorType: int = 0x01
-    bcdUSB: int = 0x0200
-    bDeviceClass: int = 0x00  # defined at interface level (HID)
-    bDeviceSubClass: int = 0x00
-    bDeviceProtocol: int = 0x00
-    bMaxPacketSize0: int = 8
-    bcdDevice: int = 0x0002
-    iManufacturer: int = 1
-    iProduct: int = 2
-    iSerialNumber: int = 3
-    bNumConfigurations: int = 1
-    port_numbers: tuple[int, ...] | None = None
-    speed: int = 2  # usb.util.SPEED_FULL
-
-    def to_bytes(self) -> bytes:
-        return struct.pack(
-            "<BBHBBBBHHHBBBB",
-            self.bLength,
-            self.bDescriptorType,
-            self.bcdUSB,
-            self.bDeviceClass,
-            self.bDeviceSubClass,
-            self.bDeviceProtocol,
-            self.bMaxPacketSize0,
-            self.idVendor,
-            self.idProduct,
-            self.bcdDevice,
-            self.iManufacturer,
-            self.iProduct,
-            self.iSerialNumber,
-            self.bNumConfigurations,
-        )
-
-
 _HID_DESCRIPTOR = struct.pack("<BBHBBBH", 9, 0x21, 0x0111, 0, 1, 0x22, len(HID_REPORT_DESCRIPTOR))
 
-
-@dataclass(slots=True)
-class _ConfigurationDescriptor:
-    bLength: int = 9
-    bDescriptorType: int = 0x02
-    wTotalLength: int = 9 + 9 + len(_HID_DESCRIPTOR) + 7 + 7
-    bNumInterfaces: int = 1
-    bConfigurationValue: int = CONFIGURATION
-    iConfiguration: int = 0
-    bmAttributes: int = 0x80  # bus powered
-    bMaxPower: int = 50  # 100 mA in 2 mA units
-    extra_descriptors: list[int] = field(default_factory=list)
-
-    def to_bytes(self) -> bytes:
-        return struct.pack(
-            "<BBHBBBBB",
-            self.bLength,
-            self.bDescriptorType,
-            self.wTotalLength,
-            self.bNumInterfaces,
-            self.bConfigurationValue,
-            self.iConfiguration,
-            self.bmAttributes,
-            self.bMaxPower,
-        )
+# Kept under their old names for code that imported them from here.
+_usb_error = usb_error
+_LIBUSB_ERRORS = LIBUSB_ERRORS
 
 
-@dataclass(slots=True)
-class _InterfaceDescriptor:
-    bLength: int = 9
-    bDescriptorType: int = 0x04
-    bInterfaceNumber: int = INTERFACE
-    bAlternateSetting: int = 0
-    bNumEndpoints: int = 2
-    bInterfaceClass: int = 0x03  # HID
-    bInterfaceSubClass: int = 0x00
-    bInterfaceProtocol: int = 0x00
-    iInterface: int = 0
-    extra_descriptors: list[int] = field(default_factory=lambda: list(_HID_DESCRIPTOR))
-
-    def to_bytes(self) -> bytes:
-        return struct.pack(
-            "<BBBBBBBBB",
-            self.bLength,
-            self.bDescriptorType,
-            self.bInterfaceNumber,
-            self.bAlternateSetting,
-            self.bNumEndpoints,
-            self.bInterfaceClass,
-            self.bInterfaceSubClass,
-            self.bInterfaceProtocol,
-            self.iInterface,
-        )
-
-
-@dataclass(slots=True)
-class _EndpointDescriptor:
-    bEndpointAddress: int
-    bLength: int = 7
-    bDescriptorType: int = 0x05
-    bmAttributes: int = 0x03  # interrupt
-    wMaxPacketSize: int = REPORT_BYTES
-    bInterval: int = 1
-    bRefresh: int = 0
-    bSynchAddress: int = 0
-    extra_descriptors: list[int] = field(default_factory=list)
-
-    def to_bytes(self) -> bytes:
-        return struct.pack(
-            "<BBBBHB",
-            self.bLength,
-            self.bDescriptorType,
-            self.bEndpointAddress,
-            self.bmAttributes,
-            self.wMaxPacketSize,
-            self.bInterval,
-        )
+def _descriptors(
+    vendor_id: int, product_id: int
+) -> tuple[
+    DeviceDescriptor, ConfigurationDescriptor, InterfaceDescriptor, list[EndpointDescriptor]
+]:
+    device = DeviceDescriptor(
+        vendor_id,
+        product_id,
+        bus=1,
+        address=7,
+        port_number=2,
+        bcdUSB=0x0200,
+        bMaxPacketSize0=8,
+        bcdDevice=0x0002,
+        speed=SPEED_FULL,
+    )
+    configuration = ConfigurationDescriptor(
+        bConfigurationValue=CONFIGURATION,
+        bmAttributes=0x80,  # bus powered
+        bMaxPower=50,  # 100 mA in 2 mA units
+    )
+    interface = InterfaceDescriptor(
+        bInterfaceNumber=INTERFACE,
+        bInterfaceClass=0x03,  # HID
+        extra_descriptors=list(_HID_DESCRIPTOR),
+    )
+    endpoints = [
+        EndpointDescriptor(EP_IN, bmAttributes=0x03, wMaxPacketSize=REPORT_BYTES, bInterval=1),
+        EndpointDescriptor(EP_OUT, bmAttributes=0x03, wMaxPacketSize=REPORT_BYTES, bInterval=1),
+    ]
+    return device, configuration, interface, endpoints
 
 
 # -- the pyusb backend ------------------------------------------------------------------------
 
-# libusb error codes, as pyusb's libusb1 backend reports them
-_LIBUSB_ERRORS: dict[str, tuple[int, int, str]] = {
-    "io": (-1, errno.EIO, "Input/output error"),
-    "invalid": (-2, errno.EINVAL, "Invalid parameter"),
-    "no_device": (-4, errno.ENODEV, "No such device (it may have been disconnected)"),
-    "not_found": (-5, errno.ENOENT, "Entity not found"),
-    "busy": (-6, errno.EBUSY, "Resource busy"),
-    "timeout": (-7, errno.ETIMEDOUT, "Operation timed out"),
-    "overflow": (-8, errno.EOVERFLOW, "Overflow"),
-    "pipe": (-9, errno.EPIPE, "Pipe error"),
-}
 
-
-def _usb_error(kind: str, detail: str = "") -> Exception:
-    code, err, text = _LIBUSB_ERRORS[kind]
-    message = f"{text} ({detail})" if detail else text
-    if kind == "timeout":
-        return usb.core.USBTimeoutError(message, code, err)  # type: ignore[no-any-return]
-    return usb.core.USBError(message, code, err)  # type: ignore[no-any-return]
-
-
-class _DeviceId:
-    """The backend's identification of its one device (opaque to pyusb)."""
-
-
-@dataclass(eq=False, slots=True)
-class _Handle:
-    """An open device handle."""
-
-    open: bool = True
-    claimed: set[int] = field(default_factory=set)
-
-
-class Mcp2210Backend(usb.backend.IBackend):  # type: ignore[misc]
+class Mcp2210Backend(SimulatedUsbDevice):
     """A pyusb backend with one simulated MCP2210 on it, driving ``target`` over SPI.
 
     ``vendor_id`` / ``product_id`` / ``serial`` are what the chip enumerates with (the real
@@ -555,279 +448,78 @@ class Mcp2210Backend(usb.backend.IBackend):  # type: ignore[misc]
         cs_pin: int = 0,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
-        super().__init__()
         self.chip = Mcp2210Chip(target, cs_pin=cs_pin, clock=clock)
         self.serial = serial
-        self.kernel_driver_attached = True
-        self.plugged = True
-        self._lock = threading.RLock()
-        self._id = _DeviceId()
-        self._device = _DeviceDescriptor(vendor_id, product_id, bus=1, address=7, port_number=2)
-        self._configuration = _ConfigurationDescriptor()
-        self._interface = _InterfaceDescriptor()
-        self._endpoints = (_EndpointDescriptor(EP_IN), _EndpointDescriptor(EP_OUT))
-        self._active_configuration = CONFIGURATION  # the OS configured it at enumeration
-        self._handles: list[_Handle] = []
+        device, configuration, interface, endpoints = _descriptors(vendor_id, product_id)
+        super().__init__(
+            name="MCP2210",
+            device=device,
+            configuration=configuration,
+            interface=interface,
+            endpoints=endpoints,
+            strings={1: MANUFACTURER, 2: PRODUCT, 3: serial},
+            kernel_driver="HID",
+        )
         self._response: bytes | None = None
 
-    # -- hot-plug -----------------------------------------------------------------------------
+    # -- hot-plug and reset ---------------------------------------------------------------------
 
-    def unplug(self) -> None:
-        """Disconnect the simulated device: later calls fail with ENODEV."""
-        with self._lock:
-            self.plugged = False
-            self._response = None
+    def _on_unplug(self) -> None:
+        self._response = None
 
-    def plug(self) -> None:
-        """Reconnect: the device enumerates again, powered up, with the HID driver bound."""
-        with self._lock:
-            self.plugged = True
-            self.kernel_driver_attached = True
-            self._active_configuration = CONFIGURATION
-            self._handles = []
-            self.chip.power_up()
+    def _on_plug(self) -> None:
+        self.chip.power_up()
 
-    # -- enumeration and descriptors -------------------------------------------------------------
+    def _on_reset(self) -> None:
+        self._response = None
+        self.chip.power_up()
 
-    def enumerate_devices(self) -> Iterator[_DeviceId]:
-        with self._lock:
-            devices = [self._id] if self.plugged else []
-        yield from devices
-
-    def get_parent(self, dev: _DeviceId) -> None:
+    def _class_descriptor(
+        self, recipient: int, desc_type: int, index: int, w_index: int
+    ) -> bytes | None:
+        if recipient == 0x01 and desc_type == 0x22 and w_index == INTERFACE:
+            return HID_REPORT_DESCRIPTOR
         return None
-
-    def get_device_descriptor(self, dev: _DeviceId) -> _DeviceDescriptor:
-        self._check_device(dev)
-        return self._device
-
-    def get_configuration_descriptor(self, dev: _DeviceId, config: int) -> _ConfigurationDescriptor:
-        self._check_device(dev)
-        if config != 0:
-            raise IndexError(f"the MCP2210 has one configuration, not index {config}")
-        return self._configuration
-
-    def get_interface_descriptor(
-        self, dev: _DeviceId, intf: int, alt: int, config: int
-    ) -> _InterfaceDescriptor:
-        self._check_device(dev)
-        if (intf, alt, config) != (0, 0, 0):
-            raise IndexError(f"the MCP2210 has one interface, not {intf}/{alt}/{config}")
-        return self._interface
-
-    def get_endpoint_descriptor(
-        self, dev: _DeviceId, ep: int, intf: int, alt: int, config: int
-    ) -> _EndpointDescriptor:
-        self.get_interface_descriptor(dev, intf, alt, config)
-        if not 0 <= ep < len(self._endpoints):
-            raise IndexError(f"the MCP2210 interface has two endpoints, not index {ep}")
-        return self._endpoints[ep]
-
-    # -- handles, configuration, interfaces ----------------------------------------------------
-
-    def open_device(self, dev: _DeviceId) -> _Handle:
-        with self._lock:
-            self._check_device(dev)
-            self._check_plugged()
-            handle = _Handle()
-            self._handles.append(handle)
-            return handle
-
-    def close_device(self, dev_handle: _Handle) -> None:
-        with self._lock:
-            dev_handle.open = False
-            dev_handle.claimed.clear()
-            if dev_handle in self._handles:
-                self._handles.remove(dev_handle)
-
-    def set_configuration(self, dev_handle: _Handle, config_value: int) -> None:
-        with self._lock:
-            self._check_handle(dev_handle)
-            if config_value not in (0, CONFIGURATION):
-                raise _usb_error("not_found", f"no configuration {config_value}")
-            if self.kernel_driver_attached or self._claimed_by_anyone():
-                # Linux refuses to (re)configure while a driver holds an interface.
-                raise _usb_error("busy", "an interface is in use; detach the kernel driver first")
-            self._active_configuration = config_value
-
-    def get_configuration(self, dev_handle: _Handle) -> int:
-        with self._lock:
-            self._check_handle(dev_handle)
-            return self._active_configuration
-
-    def set_interface_altsetting(self, dev_handle: _Handle, intf: int, altsetting: int) -> None:
-        with self._lock:
-            self._check_handle(dev_handle)
-            if (intf, altsetting) != (INTERFACE, 0):
-                raise _usb_error("not_found", f"no interface {intf} alternate {altsetting}")
-
-    def claim_interface(self, dev_handle: _Handle, intf: int) -> None:
-        with self._lock:
-            self._check_handle(dev_handle)
-            self._check_interface(intf)
-            if self.kernel_driver_attached:
-                raise _usb_error("busy", "the kernel HID driver is bound to the interface")
-            if any(intf in h.claimed for h in self._handles if h is not dev_handle):
-                raise _usb_error("busy", "another handle has claimed the interface")
-            if self._active_configuration != CONFIGURATION:
-                raise _usb_error("not_found", "the device is not configured")
-            dev_handle.claimed.add(intf)
-
-    def release_interface(self, dev_handle: _Handle, intf: int) -> None:
-        with self._lock:
-            self._check_handle(dev_handle)
-            if intf not in dev_handle.claimed:
-                raise _usb_error("not_found", f"interface {intf} is not claimed")
-            dev_handle.claimed.discard(intf)
-
-    def is_kernel_driver_active(self, dev_handle: _Handle, intf: int) -> bool:
-        with self._lock:
-            self._check_handle(dev_handle)
-            self._check_interface(intf)
-            return self.kernel_driver_attached
-
-    def detach_kernel_driver(self, dev_handle: _Handle, intf: int) -> None:
-        with self._lock:
-            self._check_handle(dev_handle)
-            self._check_interface(intf)
-            if not self.kernel_driver_attached:
-                raise _usb_error("not_found", "no kernel driver is bound")
-            self.kernel_driver_attached = False
-
-    def attach_kernel_driver(self, dev_handle: _Handle, intf: int) -> None:
-        with self._lock:
-            self._check_handle(dev_handle)
-            self._check_interface(intf)
-            if self.kernel_driver_attached or self._claimed_by_anyone():
-                raise _usb_error("busy", "the interface is claimed or already has a driver")
-            self.kernel_driver_attached = True
-
-    def clear_halt(self, dev_handle: _Handle, ep: int) -> None:
-        with self._lock:
-            self._check_handle(dev_handle)
-
-    def reset_device(self, dev_handle: _Handle) -> None:
-        with self._lock:
-            self._check_handle(dev_handle)
-            self._response = None
-            self.chip.power_up()
 
     # -- transfers ------------------------------------------------------------------------------
 
     def intr_write(
-        self, dev_handle: _Handle, ep: int, intf: int, data: array.array[int], timeout: int
+        self, dev_handle: Handle, ep: int, intf: int, data: array.array[int], timeout: int
     ) -> int:
         with self._lock:
             self._check_claimed(dev_handle, intf)
             if ep != EP_OUT:
-                raise _usb_error("pipe", f"endpoint 0x{ep:02X} is not the OUT endpoint")
+                raise usb_error("pipe", f"endpoint 0x{ep:02X} is not the OUT endpoint")
             report = bytes(data)
             if len(report) > REPORT_BYTES:
-                raise _usb_error("invalid", f"a report is at most {REPORT_BYTES} bytes")
+                raise usb_error("invalid", f"a report is at most {REPORT_BYTES} bytes")
             if self._response is not None:
                 # The chip answers one command at a time: until the host has read the
                 # response, the OUT endpoint NAKs and the write times out.
-                raise _usb_error("timeout", "the previous response has not been read")
+                raise usb_error("timeout", "the previous response has not been read")
             try:
                 self._response = self.chip.handle(report.ljust(REPORT_BYTES, b"\x00"))
             except OSError as exc:
                 # The SPI bus behind the simulated chip is gone (the simulator stopped): to the
                 # host this is a device that vanished.
-                raise _usb_error("no_device", f"simulated SPI bus: {exc}") from exc
+                raise usb_error("no_device", f"simulated SPI bus: {exc}") from exc
             return len(report)
 
     def intr_read(
-        self, dev_handle: _Handle, ep: int, intf: int, buff: array.array[int], timeout: int
+        self, dev_handle: Handle, ep: int, intf: int, buff: array.array[int], timeout: int
     ) -> int:
         with self._lock:
             self._check_claimed(dev_handle, intf)
             if ep != EP_IN:
-                raise _usb_error("pipe", f"endpoint 0x{ep:02X} is not the IN endpoint")
+                raise usb_error("pipe", f"endpoint 0x{ep:02X} is not the IN endpoint")
             if self._response is None:
                 # Nothing can arrive later: the simulated chip answers during the write.
-                raise _usb_error("timeout", "no response pending; send a command first")
+                raise usb_error("timeout", "no response pending; send a command first")
             if len(buff) < REPORT_BYTES:
-                raise _usb_error("overflow", f"the report is {REPORT_BYTES} bytes")
+                raise usb_error("overflow", f"the report is {REPORT_BYTES} bytes")
             buff[:REPORT_BYTES] = array.array("B", self._response)
             self._response = None
             return REPORT_BYTES
-
-    def ctrl_transfer(
-        self,
-        dev_handle: _Handle,
-        bmRequestType: int,
-        bRequest: int,
-        wValue: int,
-        wIndex: int,
-        data: array.array[int],
-        timeout: int,
-    ) -> int:
-        with self._lock:
-            self._check_handle(dev_handle)
-            device_to_host = bool(bmRequestType & 0x80)
-            kind = (bmRequestType >> 5) & 0x03
-            recipient = bmRequestType & 0x1F
-            if not (device_to_host and kind == 0 and bRequest == 0x06):
-                if device_to_host and kind == 0 and bRequest == 0x08:  # GET_CONFIGURATION
-                    return _fill(data, bytes([self._active_configuration]))
-                raise _usb_error("pipe", f"request 0x{bRequest:02X} not supported (stall)")
-            desc_type, index = wValue >> 8, wValue & 0xFF
-            if recipient == 0x01 and desc_type == 0x22 and wIndex == INTERFACE:
-                return _fill(data, HID_REPORT_DESCRIPTOR)
-            return _fill(data, self._descriptor(desc_type, index))
-
-    def _descriptor(self, desc_type: int, index: int) -> bytes:
-        if desc_type == 0x01:
-            return self._device.to_bytes()
-        if desc_type == 0x02 and index == 0:
-            return (
-                self._configuration.to_bytes()
-                + self._interface.to_bytes()
-                + _HID_DESCRIPTOR
-                + b"".join(ep.to_bytes() for ep in self._endpoints)
-            )
-        if desc_type == 0x03:
-            if index == 0:
-                return struct.pack("<BBH", 4, 0x03, LANGID_EN_US)
-            strings = {1: MANUFACTURER, 2: PRODUCT, 3: self.serial}
-            if index in strings:
-                text = strings[index].encode("utf-16-le")
-                return bytes([2 + len(text), 0x03]) + text
-        raise _usb_error("pipe", f"no descriptor type 0x{desc_type:02X} index {index} (stall)")
-
-    # -- checks -----------------------------------------------------------------------------------
-
-    def _check_device(self, dev: _DeviceId) -> None:
-        if dev is not self._id:
-            raise ValueError("not a device of this backend")
-
-    def _check_plugged(self) -> None:
-        if not self.plugged:
-            raise _usb_error("no_device")
-
-    def _check_handle(self, dev_handle: _Handle) -> None:
-        self._check_plugged()
-        if not dev_handle.open or dev_handle not in self._handles:
-            raise _usb_error("no_device", "the handle is closed or from before a reconnect")
-
-    def _check_interface(self, intf: int) -> None:
-        if intf != INTERFACE:
-            raise _usb_error("not_found", f"no interface {intf}")
-
-    def _check_claimed(self, dev_handle: _Handle, intf: int) -> None:
-        self._check_handle(dev_handle)
-        if intf not in dev_handle.claimed:
-            raise _usb_error("io", f"interface {intf} is not claimed")
-
-    def _claimed_by_anyone(self) -> bool:
-        return any(h.claimed for h in self._handles)
-
-
-def _fill(buff: array.array[int], payload: bytes) -> int:
-    """Copy a control-IN payload into pyusb's buffer, truncated to wLength as on the bus."""
-    n = min(len(buff), len(payload))
-    buff[:n] = array.array("B", payload[:n])
-    return n
 
 
 def get_backend(target: SpiTarget, **kwargs: Any) -> Mcp2210Backend:
@@ -918,7 +610,7 @@ class SpiSocketServer:
         """Bind, listen and start the accept thread."""
         if self._thread is not None:
             raise RuntimeError("the SPI socket server is already running")
-        self._remove_stale_socket()
+        claim_socket_path(self.path, "SPI")
         listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
         try:
             listener.bind(str(self.path))
@@ -954,7 +646,7 @@ class SpiSocketServer:
         if self._listener is not None:
             self._listener.close()
             self._listener = None
-        self._unlink_own_socket()
+        release_socket_path(self.path, self._inode)
         for sock in (self._wake_r, self._wake_w):
             if sock is not None:
                 sock.close()
@@ -965,28 +657,6 @@ class SpiSocketServer:
         """Connections currently open."""
         with self._conns_lock:
             return len(self._conns)
-
-    def _remove_stale_socket(self) -> None:
-        try:
-            mode = os.lstat(self.path).st_mode
-        except FileNotFoundError:
-            return
-        if not stat.S_ISSOCK(mode):
-            raise FileExistsError(f"{self.path} exists and is not a socket; choose another path")
-        probe = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-        try:
-            probe.connect(str(self.path))
-        except OSError:
-            os.unlink(self.path)  # nobody listens: left behind by a simulator that died
-            return
-        finally:
-            probe.close()
-        raise OSError(errno.EADDRINUSE, f"another simulator already serves SPI on {self.path}")
-
-    def _unlink_own_socket(self) -> None:
-        with contextlib.suppress(FileNotFoundError):
-            if os.lstat(self.path).st_ino == self._inode:
-                os.unlink(self.path)
 
     def _accept_loop(self) -> None:
         assert self._listener is not None and self._wake_r is not None

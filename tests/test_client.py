@@ -195,7 +195,10 @@ _CLIENT_VS_DAEMON = [
     ("TimingDoc", "TimingResponse"),
     ("LaneDoc", "LaneResult"),
     ("TrainDoc", "TrainResponse"),
-    ("ImagingDoc", "ImagingResponse"),
+    ("StreamStatsDoc", "StreamStats"),
+    ("StreamDoc", "StreamResponse"),
+    ("StageDoc", "StageResponse"),
+    ("SimStreamDoc", "SimStreamStats"),
 ]
 
 

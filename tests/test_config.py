@@ -71,7 +71,7 @@ def test_unknown_key_names_file_key_path_and_allowed_keys(tmp_path: Path) -> Non
 
 def test_unknown_section_lists_the_sections(tmp_path: Path) -> None:
     msg = error_of(tmp_path, "[deamon]\nlog_level = 'info'\n")
-    assert "deamon" in msg and "daemon, api, link, sim, sensor, telemetry" in msg
+    assert "deamon" in msg and "daemon, api, link, sim, sensor, stream, telemetry" in msg
 
 
 def test_sensor_section_defaults_and_checks(tmp_path: Path) -> None:

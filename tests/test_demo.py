@@ -35,7 +35,9 @@ def test_demo_runs_and_writes_its_summary(tmp_path: Path) -> None:
 
     summary = json.loads(summary_path.read_text())
     assert summary["ok"] is True and summary["error"] is None
-    assert summary["inject"] == "ber=1e-4,drop=0.01"
+    assert summary["inject"] == (
+        "ber=1e-4,drop=0.01,frame_drop=0.02,frame_corrupt=0.01,frame_short=0.01"
+    )
 
     assert summary["status"]["state"] == "idle"
     assert summary["status"]["device"]["fw_version"] > 0
@@ -59,6 +61,18 @@ def test_demo_runs_and_writes_its_summary(tmp_path: Path) -> None:
     assert [m["status"]["mode"] for m in summary["modes"]] == ["area", "tdi", "area"]
     assert [m["requested"] for m in summary["modes"]] == [None, "tdi", "area"]
     assert summary["events"]
+
+    stream = summary["stream"]
+    tdi, injected = stream["tdi"], stream["injected"]
+    assert (tdi["mode"], tdi["stages"], tdi["rows"], tdi["cols"]) == ("tdi", 32, 534, 2048)
+    # Every frame the simulator sent is accounted for, and exactly as it was damaged.
+    assert tdi["lost"] == injected["dropped"] + injected["stalls"] + injected["undelivered"]
+    assert tdi["corrupt"] + tdi["short"] == injected["corrupted"] + injected["shortened"]
+    assert tdi["frames"] + tdi["lost"] + tdi["corrupt"] + tdi["short"] == 200
+    assert tdi["overruns"] == 0 and tdi["frames_sent"] == 200
+    recording = stream["recording"]
+    assert recording["frames"] == stream["stare"]["frames"] > 0
+    assert recording["crc_mismatches"] == 0 and Path(recording["path"]).is_file()
 
     daemon = summary["daemon"]
     assert daemon["exit_code"] in (0, -15) and daemon["killed"] is False

@@ -1,4 +1,4 @@
-"""The simulated FPGA's sensor commands driven with frames: REG_*, TRAIN, GET_LANE, imaging.
+"""The simulated FPGA's sensor commands driven with frames: REG_*, TRAIN, GET_LANE, streaming.
 
 The FPGA model drives the sensor's register file through its SPI master model, and the LVDS
 link through the training model; these tests check what the device answers and what the
@@ -8,6 +8,7 @@ sensor ends up holding.
 from __future__ import annotations
 
 import struct
+from collections.abc import Iterator
 from typing import Any
 
 import pytest
@@ -26,8 +27,10 @@ def dictionary() -> Dictionary:
 
 
 @pytest.fixture
-def model(dictionary: Dictionary) -> FpgaModel:
-    return FpgaModel(dictionary, seed=3)
+def model(dictionary: Dictionary) -> Iterator[FpgaModel]:
+    fpga = FpgaModel(dictionary, seed=3)
+    yield fpga
+    fpga.close()
 
 
 def call(model: FpgaModel, name: str, seq: int = 1, **values: Any) -> list[Frame]:
@@ -148,8 +151,8 @@ def test_get_sensor_identifies_the_sensor_and_link(model: FpgaModel) -> None:
     }
 
 
-def test_imaging_is_refused_until_trained(model: FpgaModel) -> None:
-    name, detail = nak(model, "START_IMAGING", frames=0)
+def test_streaming_is_refused_until_trained(model: FpgaModel) -> None:
+    name, detail = nak(model, "START_STREAM", frames=0, stages=0, binning="off")
     assert name == "LINK_UNTRAINED" and "send TRAIN" in detail
     frames = call(model, "TRAIN", seq=2)
     values = model.dictionary.command("TRAIN").decode_response(frames[0].payload)
@@ -157,11 +160,16 @@ def test_imaging_is_refused_until_trained(model: FpgaModel) -> None:
     assert values["bit_errors"] == 0
     assert values["verified_bits"] == 16 * 2048 * 12
     assert event_names(model, frames) == ["LINK_TRAINED"]
-    ack(model, "START_IMAGING", seq=3, frames=10)
+    started = ack(model, "START_STREAM", seq=3, frames=0, stages=0, binning="off")
+    assert started["rows"] == 534 and started["cols"] == 2048 and started["bits"] == 12
+    assert started["mode"] == "area" and started["first_counter"] == 0
     assert ack(model, "GET_SENSOR", seq=4)["imaging"] == "yes"
-    assert nak(model, "TRAIN", seq=5)[0] == "ILLEGAL_STATE"  # not while imaging
-    ack(model, "STOP_IMAGING", seq=6)
-    assert ack(model, "GET_SENSOR", seq=7)["imaging"] == "no"
+    assert nak(model, "TRAIN", seq=5)[0] == "ILLEGAL_STATE"  # not while streaming
+    name, detail = nak(model, "START_STREAM", seq=6, frames=0, stages=0, binning="off")
+    assert name == "ILLEGAL_STATE" and "already streaming" in detail
+    stopped = ack(model, "STOP_STREAM", seq=7)
+    assert stopped["next_counter"] == stopped["frames_sent"]
+    assert ack(model, "GET_SENSOR", seq=8)["imaging"] == "no"
 
 
 def test_training_restores_the_test_pattern_register(model: FpgaModel) -> None:

@@ -276,6 +276,9 @@ def test_lookups_and_simulator_range() -> None:
         "SIM_GET_SPI_STATS",
         "SIM_RESKEW",
         "SIM_SET_FAULT",
+        "SIM_GET_STREAM_STATS",
+        "SIM_SET_SCENE",
+        "SIM_SET_STAGE",
     }
     assert all(c.name.startswith("SIM_") == (c.opcode >= 0xF0) for c in DICT.commands)
 

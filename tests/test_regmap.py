@@ -31,11 +31,11 @@ REQUIRED_ROLES = (
 )
 
 
-def test_the_three_profiles_are_shipped() -> None:
-    assert {"hr400", "ibis5", "mt9m001"} <= set(list_sensors())
+def test_the_four_sensor_maps_are_shipped() -> None:
+    assert {"hr400", "ibis5", "mt9m001", "uvccd"} <= set(list_sensors())
 
 
-@pytest.mark.parametrize("sensor", ["hr400", "ibis5", "mt9m001"])
+@pytest.mark.parametrize("sensor", ["hr400", "ibis5", "mt9m001", "uvccd"])
 def test_every_shipped_map_loads_with_the_roles_the_timing_needs(sensor: str) -> None:
     regmap = load_register_map(sensor)
     assert regmap.sensor == sensor
@@ -55,6 +55,8 @@ def test_modelled_flags_and_clock_roles() -> None:
     assert load_register_map("ibis5").role("row_blanking") == "ROW_BLANK.clocks"
     assert load_register_map("ibis5").role("back_path") == "BACK_PATH.clocks"
     assert load_register_map("mt9m001").role("row_blanking") == "HBLANK.clocks"
+    assert load_register_map("uvccd").modelled is True  # a CCD has no register file of its own
+    assert load_register_map("uvccd").role("row_blanking") == "ROW_BLANK.clocks"
 
 
 def test_mt9m001_follows_the_datasheet() -> None:

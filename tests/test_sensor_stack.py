@@ -202,21 +202,23 @@ def test_train_reports_every_lane_locked(url: str) -> None:
     assert all(lane["locked"] and lane["eye_width"] > 0 for lane in doc["lane_results"])
 
 
-def test_untrained_daemon_refuses_to_image(tmp_path: Path) -> None:
+def test_untrained_daemon_refuses_to_stream(tmp_path: Path) -> None:
     with serve(tmp_path, "fpga", train_on_connect=False) as daemon:
-        proc = camctl(daemon.url, "image", "start")
+        proc = camctl(daemon.url, "stream", "--frames", "3")
         assert proc.returncode == 1
-        assert "cannot start imaging: LVDS link not trained yet; run `camctl train`" in proc.stderr
+        assert "cannot start a stream: LVDS link not trained yet; run `camctl train`" in proc.stderr
         assert camctl_json(daemon.url, "status")["state"] == "idle"
         assert camctl_json(daemon.url, "train")["trained"] is True
-        assert camctl_json(daemon.url, "image", "start", "--frames", "5") == {
-            "imaging": True,
-            "frames": 5,
-        }
-        assert camctl_json(daemon.url, "status")["state"] == "imaging"
+        camctl_json(daemon.url, "reg", "write", "WIN_ROWS=16")
+        started = camctl_json(daemon.url, "stream", "--start", "--frames", "0")
+        assert started["streaming"] is True and started["frames_requested"] == 0
+        assert camctl_json(daemon.url, "status")["state"] == "streaming"
         proc = camctl(daemon.url, "reg", "write", "OFFSET=2")
-        assert proc.returncode == 1 and "stop imaging first" in proc.stderr
-        assert camctl_json(daemon.url, "image", "stop")["imaging"] is False
+        assert proc.returncode == 1 and "stop the stream first" in proc.stderr
+        stopped = camctl_json(daemon.url, "stream", "--stop")
+        assert stopped["streaming"] is False
+        # Stopping drains: every frame the camera made was delivered, none lost.
+        assert stopped["frames"] == stopped["frames_sent"] > 0 and stopped["lost"] == 0
         assert camctl_json(daemon.url, "status")["state"] == "idle"
 
 
@@ -224,8 +226,9 @@ def test_daemon_trains_on_connect(tmp_path: Path) -> None:
     with serve(tmp_path, "fpga") as daemon:
         doc = camctl_json(daemon.url, "status")
         assert doc["state"] == "idle"
-        last = json.loads(camctl(daemon.url, "--json", "image", "start").stdout)
-        assert last == {"imaging": True, "frames": 0}
+        camctl_json(daemon.url, "reg", "write", "WIN_ROWS=16")
+        last = json.loads(camctl(daemon.url, "--json", "stream", "--frames", "4").stdout)
+        assert (last["frames"], last["lost"], last["rows"]) == (4, 0, 16)
 
 
 def test_writes_survive_a_lossy_line(tmp_path: Path) -> None:

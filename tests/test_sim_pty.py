@@ -157,13 +157,23 @@ def host(sim: Sim, dictionary: Dictionary) -> Iterator[Host]:
 
 def test_json_start_line(sim: Sim) -> None:
     info = sim.info
-    assert set(info) == {"tty", "link", "pid", "profile", "inject", "spi_socket"}
+    assert set(info) == {"tty", "link", "pid", "profile", "inject", "spi_socket", "usb_socket"}
     assert re.fullmatch(r"/dev/pts/\d+", info["tty"])
     assert info["link"].endswith("cam.tty") and os.path.isabs(info["link"])
     assert os.readlink(info["link"]) == info["tty"]
     assert info["pid"] == sim.proc.pid
     assert info["profile"] == "hr400"
-    assert info["inject"] == {"ber": 0.0, "drop": 0.0, "garbage": 0.0, "delay_ms": 5.0}
+    assert info["inject"] == {
+        "ber": 0.0,
+        "drop": 0.0,
+        "garbage": 0.0,
+        "delay_ms": 5.0,
+        "frame_drop": 0.0,
+        "frame_corrupt": 0.0,
+        "frame_short": 0.0,
+        "frame_stall": 0.0,
+    }
+    assert info["usb_socket"] is None and info["spi_socket"] is None
 
 
 def test_ping_round_trip(host: Host) -> None:

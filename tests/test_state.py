@@ -21,21 +21,23 @@ from camd.daemon.state import (
     next_state,
 )
 
-DIS, IDLE, IMG, FLT = State.DISCONNECTED, State.IDLE, State.IMAGING, State.FAULT
+DIS, IDLE, STR, FLT = State.DISCONNECTED, State.IDLE, State.STREAMING, State.FAULT
 
 EXPECTED_LEGAL = {
-    Request.STATUS: {DIS, IDLE, IMG, FLT},
-    Request.LINK: {DIS, IDLE, IMG, FLT},
-    Request.TELEMETRY: {DIS, IDLE, IMG, FLT},
-    Request.EVENTS: {DIS, IDLE, IMG, FLT},
-    Request.PING: {IDLE, IMG, FLT},
+    Request.STATUS: {DIS, IDLE, STR, FLT},
+    Request.LINK: {DIS, IDLE, STR, FLT},
+    Request.TELEMETRY: {DIS, IDLE, STR, FLT},
+    Request.EVENTS: {DIS, IDLE, STR, FLT},
+    Request.PING: {IDLE, STR, FLT},
     Request.MODE: {IDLE},
-    Request.RESET: {IDLE, IMG, FLT},
-    Request.REGISTERS_READ: {IDLE, IMG, FLT},
+    Request.RESET: {IDLE, STR, FLT},
+    Request.REGISTERS_READ: {IDLE, STR, FLT},
     Request.REGISTERS_WRITE: {IDLE},
     Request.TRAIN: {IDLE},
-    Request.IMAGING_START: {IDLE},
-    Request.IMAGING_STOP: {IDLE, IMG, FLT},
+    Request.STREAM_START: {IDLE},
+    Request.STREAM_STOP: {IDLE, STR, FLT},
+    Request.STREAM_READ: {DIS, IDLE, STR, FLT},
+    Request.SIM: {IDLE, STR, FLT},
 }
 
 
@@ -51,15 +53,15 @@ def test_every_request_and_state_is_covered() -> None:
 def test_docstring_table_matches_the_data() -> None:
     # The module docstring lists legality for readers; it must say what the code does.
     # Its columns are fixed-width: request (18 chars), disconnected (14), idle (6),
-    # imaging (9), fault.
+    # streaming (11), fault.
     table = {}
     for line in (state_module.__doc__ or "").splitlines():
         name = line.split(" ", 1)[0]
         if name in {r.value for r in Request}:
-            cols = [line[18:32].strip(), line[32:38].strip(), line[38:47].strip(),
-                    line[47:].strip()]  # fmt: skip
+            cols = [line[18:32].strip(), line[32:38].strip(), line[38:49].strip(),
+                    line[49:].strip()]  # fmt: skip
             table[Request(name)] = {
-                s for s, c in zip((DIS, IDLE, IMG, FLT), cols, strict=True) if c == "yes"
+                s for s, c in zip((DIS, IDLE, STR, FLT), cols, strict=True) if c == "yes"
             }
     assert table == EXPECTED_LEGAL
 
@@ -107,14 +109,14 @@ def test_transition_table() -> None:
     assert next_state(DIS, Trigger.RESET_OK) == DIS
     assert next_state(FLT, Trigger.PROBE_IDLE) == FLT  # only RESET clears a fault
     assert next_state(DIS, Trigger.LINK_LOST) == DIS
-    # Imaging: entered and left by START/STOP; a fault, a reset or a reboot ends it.
-    assert next_state(IDLE, Trigger.IMAGING_STARTED) == IMG
-    assert next_state(IMG, Trigger.IMAGING_STOPPED) == IDLE
-    assert next_state(IMG, Trigger.DEVICE_FAULT) == FLT
-    assert next_state(IMG, Trigger.RED_LIMIT) == FLT
-    assert next_state(IMG, Trigger.RESET_OK) == IDLE
-    assert next_state(IMG, Trigger.PROBE_IDLE) == IDLE
-    assert next_state(FLT, Trigger.IMAGING_STARTED) == FLT
+    # Streaming: entered and left by START/STOP; a fault, a reset or a reboot ends it.
+    assert next_state(IDLE, Trigger.STREAM_STARTED) == STR
+    assert next_state(STR, Trigger.STREAM_STOPPED) == IDLE
+    assert next_state(STR, Trigger.DEVICE_FAULT) == FLT
+    assert next_state(STR, Trigger.RED_LIMIT) == FLT
+    assert next_state(STR, Trigger.RESET_OK) == IDLE
+    assert next_state(STR, Trigger.PROBE_IDLE) == IDLE
+    assert next_state(FLT, Trigger.STREAM_STARTED) == FLT
 
 
 def test_link_loss_leads_to_disconnected_from_everywhere() -> None:

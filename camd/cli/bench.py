@@ -6,11 +6,18 @@ a baseline doing the same bare work in the same run and reports the ratio.
 ``camd bench ping``: the command round trip through the whole stack (daemon -> CommandLink ->
 pyserial -> pty -> simulated FPGA -> back), as `camctl ping` reports it, against a bare pty echo
 of the same frame bytes by a separate process (the floor any pty transport can reach).
+
+``camd bench stream``: frame ingest (``camd.link.frame_stream.FrameStream``: pyusb bulk reads
+into its slots, reassembly, header and payload CRC checks, queue, dispatch to a no-op
+consumer) against bare bulk reads of the same stream into one buffer through the same pyusb
+backend and socket, with no parsing. The simulated FX3 runs in its own process
+(``python -m firmware_models.fx3``), unpaced, replaying a bank of random 12-bit frames.
 """
 
 from __future__ import annotations
 
 import argparse
+import array
 import json
 import os
 import subprocess
@@ -57,9 +64,24 @@ def add_parser(sub: Any) -> None:
     ping.add_argument("--count", type=int, default=2000, help="round trips per side (default 2000)")
     ping.add_argument("--size", type=int, default=16, help="PING payload bytes (default 16)")
     ping.add_argument("--json", action="store_true", help="print one JSON document")
+    stream = which.add_parser(
+        "stream",
+        help="frame ingest vs bare bulk reads of the same stream",
+        description="Frame ingest (FrameStream with a no-op consumer) against bare bulk reads of "
+        "the same USB stream into one buffer, from a simulated FX3 in its own process.",
+    )
+    stream.add_argument("--rows", type=int, default=534, help="window rows (default 534, hr400)")
+    stream.add_argument("--cols", type=int, default=2048, help="window columns (default 2048)")
+    stream.add_argument(
+        "--seconds", type=float, default=2.5, help="measuring time per side (default 2.5)"
+    )
+    stream.add_argument("--queue-frames", type=int, default=8, help="FrameStream queue (default 8)")
+    stream.add_argument("--json", action="store_true", help="print one JSON document")
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.bench == "stream":
+        return _run_stream(args)
     if args.count < 10:
         print("camd bench ping: --count must be at least 10", file=sys.stderr)
         return 2
@@ -135,4 +157,172 @@ def bench_ping(*, count: int, size: int) -> dict[str, Any]:
         "baseline": baseline,
         "ratio_p50": camd_rtt["p50_ms"] / baseline["p50_ms"],
         "ratio_p99": camd_rtt["p99_ms"] / baseline["p99_ms"],
+    }
+
+
+# -- camd bench stream --------------------------------------------------------------------------
+
+
+def _run_stream(args: argparse.Namespace) -> int:
+    if args.rows < 1 or args.cols < 1 or not args.seconds > 0 or args.queue_frames < 1:
+        print(
+            "camd bench stream: --rows, --cols and --queue-frames must be >= 1, --seconds > 0",
+            file=sys.stderr,
+        )
+        return 2
+    result = bench_stream(
+        rows=args.rows, cols=args.cols, seconds=args.seconds, queue_frames=args.queue_frames
+    )
+    if args.json:
+        print(json.dumps(result))
+    else:
+        print(
+            f"frame stream, {args.rows} x {args.cols} uint16 frames "
+            f"({result['frame_bytes'] / 1e6:.2f} MB), {args.seconds:g} s per side"
+        )
+        print(f"  bare bulk reads : {result['baseline_mbyte_s']:8.1f} MB/s")
+        print(
+            f"  FrameStream     : {result['ingest_mbyte_s']:8.1f} MB/s "
+            f"({result['mpix_per_s']:.1f} Mpix/s, {result['frames']} frames, "
+            f"{result['lost']} lost, {result['overruns']} overruns)"
+        )
+        print(f"  ratio ingest/bare: {result['ratio']:.2f}")
+    return 0
+
+
+class _Streamer:
+    """``python -m firmware_models.fx3`` in its own process, as the simulator is in production."""
+
+    def __init__(self, socket_path: Path, rows: int, cols: int) -> None:
+        self.proc = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "firmware_models.fx3",
+                "--socket",
+                str(socket_path),
+                "--rows",
+                str(rows),
+                "--cols",
+                str(cols),
+            ],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            text=True,
+        )
+        assert self.proc.stdout is not None
+        line = self.proc.stdout.readline()
+        if not line:
+            self.proc.wait(timeout=5)
+            raise RuntimeError(f"the simulated FX3 exited with status {self.proc.returncode}")
+        self.ready: dict[str, Any] = json.loads(line)
+
+    def close(self) -> dict[str, Any]:
+        """End the process (closing its stdin); its engine counters."""
+        assert self.proc.stdin is not None and self.proc.stdout is not None
+        self.proc.stdin.close()
+        out = self.proc.stdout.read()
+        self.proc.wait(timeout=10)
+        lines = out.strip().splitlines()
+        return json.loads(lines[-1]) if lines else {}
+
+
+def bare_bulk_mbyte_s(socket_path: Path, frame_bytes: int, seconds: float) -> dict[str, Any]:
+    """Bulk reads of whole transfers into one buffer, no parsing: the transport's floor."""
+    import usb.core
+    import usb.util
+
+    from firmware_models.fx3 import PRODUCT_ID, VENDOR_ID, get_backend
+
+    backend = get_backend(socket_path)
+    dev = usb.core.find(idVendor=VENDOR_ID, idProduct=PRODUCT_ID, backend=backend)
+    try:
+        dev.set_configuration()
+        usb.util.claim_interface(dev, 0)
+        # The same read size as FrameStream's: one frame plus a byte, in whole packets.
+        size = (frame_bytes + 1 + 1023) // 1024 * 1024
+        buf = array.array("B", [0]) * size
+        dev.read(0x81, buf, 5000)  # the first transfer: the stream is flowing
+        total = transfers = 0
+        t0 = time.perf_counter()
+        end = t0 + seconds
+        while True:
+            total += dev.read(0x81, buf, 5000)
+            transfers += 1
+            now = time.perf_counter()
+            if now >= end:
+                break
+        return {"mbyte_s": total / (now - t0) / 1e6, "transfers": transfers}
+    finally:
+        usb.util.dispose_resources(dev)
+        backend.close()
+
+
+def ingest_mbyte_s(
+    socket_path: Path, frame_bytes: int, seconds: float, queue_frames: int
+) -> dict[str, Any]:
+    """FrameStream with a no-op consumer: delivered bytes per second after the first frame."""
+    from camd.link.frame_stream import FrameStream
+    from firmware_models.fx3 import get_backend
+
+    backend = get_backend(socket_path)
+    with FrameStream(backend=backend, queue_frames=queue_frames) as stream:
+        stream.add_consumer(lambda frame: None)
+        stream.start(max_frame_bytes=frame_bytes)
+        if not stream.wait_frames(1, 10.0):
+            raise RuntimeError(f"FrameStream delivered no frame: {stream.error or stream.problem}")
+        before, t0 = stream.stats(), time.perf_counter()
+        time.sleep(seconds)
+        after, t1 = stream.stats(), time.perf_counter()
+        stream.stop()
+    backend.close()
+    frames = after.frames - before.frames
+    return {
+        "mbyte_s": (after.bytes - before.bytes) / (t1 - t0) / 1e6,
+        "mpix_per_s": frames * (frame_bytes - 64) / 2 / (t1 - t0) / 1e6,
+        "stats": after.as_dict(),
+        "frames": frames,
+    }
+
+
+def bench_stream(
+    *, rows: int, cols: int, seconds: float, queue_frames: int, rounds: int = 3
+) -> dict[str, Any]:
+    """Both sides against one simulated FX3 process, alternating in ``rounds`` rounds (so a
+    slow spell of this shared machine hits both); the median MB/s of each and their ratio."""
+    frame_bytes = 64 + 2 * rows * cols
+    bases: list[dict[str, Any]] = []
+    ingests: list[dict[str, Any]] = []
+    with tempfile.TemporaryDirectory(prefix="camd-bench-") as tmp:
+        sock = Path(tmp) / "fx3.sock"
+        streamer = _Streamer(sock, rows, cols)
+        try:
+            for _ in range(rounds):
+                bases.append(bare_bulk_mbyte_s(sock, frame_bytes, seconds / rounds))
+                ingests.append(ingest_mbyte_s(sock, frame_bytes, seconds / rounds, queue_frames))
+        finally:
+            device = streamer.close()
+    base = sorted(bases, key=lambda r: r["mbyte_s"])[len(bases) // 2]
+    ingest = sorted(ingests, key=lambda r: r["mbyte_s"])[len(ingests) // 2]
+    stats = ingest["stats"]
+    return {
+        "ingest_mbyte_s": ingest["mbyte_s"],
+        "baseline_mbyte_s": base["mbyte_s"],
+        "ratio": ingest["mbyte_s"] / base["mbyte_s"],
+        "mpix_per_s": ingest["mpix_per_s"],
+        "rows": rows,
+        "cols": cols,
+        "frame_bytes": frame_bytes,
+        "seconds": seconds,
+        "rounds": rounds,
+        "ingest_rounds_mbyte_s": [round(r["mbyte_s"], 1) for r in ingests],
+        "baseline_rounds_mbyte_s": [round(r["mbyte_s"], 1) for r in bases],
+        "frames": ingest["frames"],
+        "baseline_transfers": base["transfers"],
+        "lost": stats["lost"],
+        "corrupt": stats["corrupt"],
+        "short": stats["short"],
+        "overruns": stats["overruns"],
+        "out_of_order": stats["out_of_order"],
+        "device": device,
     }

@@ -25,7 +25,7 @@ from rich.table import Table
 from rich.text import Text
 
 import camd
-from camd.cli import camctl_sensor
+from camd.cli import camctl_sensor, camctl_stream
 from camd.cli.camctl_sensor import CommandFailed, UsageError
 from camd.client import DEFAULT_URL, CamdClient, CamdError, DaemonUnreachable
 
@@ -187,6 +187,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     command("reset", "soft-reset the device (mode back to area, fault cleared)")
     camctl_sensor.add_parsers(command)
+    camctl_stream.add_parsers(command)
     return parser
 
 
@@ -297,6 +298,7 @@ _COMMANDS: dict[str, Callable[[CamdClient, argparse.Namespace], Any]] = {
     "mode": _cmd_mode,
     "reset": _cmd_reset,
     **camctl_sensor.COMMANDS,
+    **camctl_stream.COMMANDS,
 }
 
 
@@ -531,6 +533,7 @@ _RENDER: dict[str, Callable[[Console, Any, argparse.Namespace], None]] = {
     "mode": _render_mode,
     "reset": _render_reset,
     **camctl_sensor.RENDER,
+    **camctl_stream.RENDER,
 }
 
 

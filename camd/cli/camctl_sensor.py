@@ -1,4 +1,4 @@
-"""camctl's sensor commands: ``reg``, ``timing``, ``train`` and ``image``.
+"""camctl's sensor commands: ``reg``, ``timing`` and ``train``.
 
     camctl reg read NAME|ADDR          one register and its fields
     camctl reg write NAME=VALUE ...    validate all, write in one burst, verify
@@ -8,7 +8,6 @@
     camctl reg load FILE               write a saved configuration
     camctl timing                      line period, exposure, frame time from the registers
     camctl train                       train the LVDS link (exit 1 if it does not lock)
-    camctl image start [--frames N] | stop
 
 Saved configurations are files on the client's machine: the daemon sends and receives the
 register values, camctl reads and writes the file.
@@ -86,9 +85,6 @@ def add_parsers(command: Callable[[str, str], argparse.ArgumentParser]) -> None:
 
     command("timing", "line period, exposure and frame time set by the sensor's registers")
     command("train", "train the sensor's LVDS link now and show each lane")
-    p = command("image", "start or stop the sensor's sequencer (refused until trained)")
-    p.add_argument("image_command", choices=("start", "stop"), metavar="start|stop")
-    p.add_argument("--frames", type=int, default=0, metavar="N", help="frames, 0 = continuous")
 
 
 # -- commands --------------------------------------------------------------------------------------
@@ -158,17 +154,10 @@ def cmd_train(client: CamdClient, args: argparse.Namespace) -> Any:
     return doc
 
 
-def cmd_image(client: CamdClient, args: argparse.Namespace) -> Any:
-    if args.image_command == "start":
-        return client.start_imaging(args.frames)
-    return client.stop_imaging()
-
-
 COMMANDS: dict[str, Callable[[CamdClient, argparse.Namespace], Any]] = {
     "reg": cmd_reg,
     "timing": cmd_timing,
     "train": cmd_train,
-    "image": cmd_image,
 }
 
 
@@ -257,17 +246,8 @@ def render_train(out: Console, doc: Any, args: argparse.Namespace) -> None:
         out.print(table)
 
 
-def render_image(out: Console, doc: Any, args: argparse.Namespace) -> None:
-    if doc["imaging"]:
-        what = "continuous" if doc["frames"] == 0 else f"{doc['frames']} frames"
-        out.print(f"imaging started ({what})")
-    else:
-        out.print("imaging stopped")
-
-
 RENDER: dict[str, Callable[[Console, Any, argparse.Namespace], None]] = {
     "reg": render_reg,
     "timing": render_timing,
     "train": render_train,
-    "image": render_image,
 }

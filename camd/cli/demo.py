@@ -27,7 +27,9 @@ if TYPE_CHECKING:
 DEFAULT_OUT = "camd-demo"
 DEFAULT_PINGS = 1000
 # The demo's line: enough faults that retries happen in every run, few enough that none fails.
-DEMO_INJECT = "ber=1e-4,drop=0.01"
+DEMO_INJECT = "ber=1e-4,drop=0.01,frame_drop=0.02,frame_corrupt=0.01,frame_short=0.01"
+DEMO_FRAMES = 200
+DEMO_STARE_FRAMES = 10
 TELEMETRY_WAIT_S = 3.0
 TELEMETRY_GRACE_S = 5.0  # extra wait if no new sample arrived in TELEMETRY_WAIT_S
 # Commands that may fall between the two link snapshots on one side and not the other: the
@@ -188,6 +190,7 @@ class _Demo:
         self.telemetry()
         self.modes()
         self.sensor()
+        self.stream()
         self.events()
 
     def step(self, title: str) -> None:
@@ -366,21 +369,63 @@ class _Demo:
         self.console.print(register_table("written and verified", written["written"]))
         timing = _plain(self.client.timing())
         render_timing(self.console, timing, argparse.Namespace())
-        image = _plain(self.client.start_imaging(0))
-        stop = _plain(self.client.stop_imaging())
-        self.summary["sensor"] = {
-            "train": train, "written": written, "timing": timing, "imaging": [image, stop]
-        }  # fmt: skip
+        self.summary["sensor"] = {"train": train, "written": written, "timing": timing}
         if not train.get("trained"):
             raise DemoFailed(f"LVDS training did not lock: {train}")
         expected_frame_s = (534 + 2 + 1) * timing["line_period_s"]  # (n + k + 1) T_line
         if abs(timing["frame_time_s"] - expected_frame_s) > 1e-12:
             raise DemoFailed(f"frame time {timing['frame_time_s']} != (n+k+1) T_line")
 
+    def stream(self) -> None:
+        from camd.cli.camctl_stream import flat, render_stream
+        from camd.store import read_recording
+
+        self.step(
+            f"7. frame stream over USB bulk (pyusb), {DEMO_FRAMES} TDI frames of a bar target"
+        )
+        self.client.set_scene("bars:lux=20")
+        before = _plain(self.client.sim_stream_stats())
+        doc = flat(self.client.acquire(DEMO_FRAMES, mode="tdi", stages=32))
+        after = _plain(self.client.sim_stream_stats())
+        render_stream(self.console, doc, argparse.Namespace())
+        kinds = ("dropped", "corrupted", "shortened", "stalls", "undelivered")
+        injected = {k: after[k] - before[k] for k in kinds}
+        self.console.print(
+            f"the simulator dropped {injected['dropped']}, corrupted {injected['corrupted']} and "
+            f"cut short {injected['shortened']} frames on purpose ({DEMO_INJECT})"
+        )
+        out = Path(self.summary["out_dir"]) / "stare.h5"
+        out.unlink(missing_ok=True)
+        stare = flat(self.client.acquire(DEMO_STARE_FRAMES, mode="area", record=str(out)))
+        recording = read_recording(out)
+        mismatches = recording.crc_mismatches()
+        self.console.print(
+            f"stare: {stare['frames']} area frames recorded to {out} "
+            f"({recording.frames.shape[1]} x {recording.frames.shape[2]}); read back: "
+            f"{len(recording.frames)} frames, {len(mismatches)} differing from the device's CRC"
+        )
+        self.summary["stream"] = {
+            "tdi": doc, "injected": injected, "stare": stare,
+            "recording": {"path": str(out), "frames": len(recording.frames),
+                          "crc_mismatches": len(mismatches)},
+        }  # fmt: skip
+        # Never received: dropped, lost in a stall, or made while the endpoint was halted.
+        missing = injected["dropped"] + injected["stalls"] + injected["undelivered"]
+        if doc["lost"] != missing:
+            raise DemoFailed(
+                f"the daemon counted {doc['lost']} lost frames, the simulator lost {missing}"
+            )
+        if doc["corrupt"] + doc["short"] != injected["corrupted"] + injected["shortened"]:
+            raise DemoFailed("damaged frames counted by the daemon differ from those injected")
+        if doc["frames"] + doc["lost"] + doc["corrupt"] + doc["short"] != DEMO_FRAMES:
+            raise DemoFailed(f"{DEMO_FRAMES} frames sent but the counts do not add up: {doc}")
+        if mismatches or len(recording.frames) != stare["frames"]:
+            raise DemoFailed(f"the recording {out} does not read back as streamed")
+
     def events(self) -> None:
         from camd.cli.camctl import events_table
 
-        self.step("7. recent events")
+        self.step("8. recent events")
         doc = _plain(self.client.events(limit=10))
         self.summary["events"] = doc.get("events", [])
         self.console.print(events_table(doc, title=None))

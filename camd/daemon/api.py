@@ -29,8 +29,6 @@ from camd.daemon.models import (
     ErrorResponse,
     EventsResponse,
     HistoryResponse,
-    ImagingRequest,
-    ImagingResponse,
     LinkResponse,
     ModeRequest,
     ModeResponse,
@@ -43,7 +41,13 @@ from camd.daemon.models import (
     RegistersResponse,
     RegisterWriteRequest,
     RegisterWriteResponse,
+    SceneRequest,
+    SimStreamStats,
+    StageRequest,
+    StageResponse,
     StatusResponse,
+    StreamResponse,
+    StreamStartRequest,
     TelemetryResponse,
     TimingResponse,
     TrainResponse,
@@ -333,15 +337,43 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
         """The last training result (no device traffic)."""
         return session.sensor.last_training()
 
-    @app.post(f"{API}/imaging/start", response_model=ImagingResponse, tags=["control"])
-    def post_imaging_start(body: ImagingRequest | None = None) -> ImagingResponse:
-        """Start the sensor's sequencer; refused (409 link_untrained) on an untrained link."""
-        return session.sensor.start_imaging((body or ImagingRequest()).frames)
+    @app.get(f"{API}/stream", response_model=StreamResponse, tags=["stream"])
+    def get_stream() -> StreamResponse:
+        """The current or last stream: geometry, mode and the host's ingest counters."""
+        return session.stream.status()
 
-    @app.post(f"{API}/imaging/stop", response_model=ImagingResponse, tags=["control"])
-    def post_imaging_stop() -> ImagingResponse:
-        """Stop the sensor's sequencer."""
-        return session.sensor.stop_imaging()
+    @app.post(f"{API}/stream/start", response_model=StreamResponse, tags=["stream"])
+    def post_stream_start(body: StreamStartRequest | None = None) -> StreamResponse:
+        """Start streaming and return at once; refused (409 link_untrained) on an untrained
+        link. ``frames = 0`` streams until /stream/stop."""
+        return session.stream.start(body or StreamStartRequest())
+
+    @app.post(f"{API}/stream/acquire", response_model=StreamResponse, tags=["stream"])
+    def post_stream_acquire(body: StreamStartRequest) -> StreamResponse:
+        """Take ``frames`` frames (optionally recording them to HDF5) and return when done."""
+        return session.stream.acquire(body)
+
+    @app.post(f"{API}/stream/stop", response_model=StreamResponse, tags=["stream"])
+    def post_stream_stop() -> StreamResponse:
+        """Stop the stream; frames the device sent are drained first. Harmless when idle."""
+        return session.stream.stop()
+
+    @app.put(f"{API}/sim/scene", status_code=204, tags=["simulator"])
+    def put_sim_scene(body: SceneRequest) -> Response:
+        """Simulated camera only: the scene in front of it (docs/simulator.md)."""
+        session.stream.set_scene(body.spec)
+        return Response(status_code=204)
+
+    @app.put(f"{API}/sim/stage", response_model=StageResponse, tags=["simulator"])
+    def put_sim_stage(body: StageRequest) -> StageResponse:
+        """Simulated camera only: the scan stage tracks the synchronous speed or runs at a set
+        speed (any difference from synchronous is velocity mismatch)."""
+        return session.stream.set_stage(track=body.track, speed_m_s=body.speed_m_s)
+
+    @app.get(f"{API}/sim/stream", response_model=SimStreamStats, tags=["simulator"])
+    def get_sim_stream() -> SimStreamStats:
+        """Simulated camera only: frames its stream engine made, sent and damaged on purpose."""
+        return session.stream.sim_stats()
 
     @app.get("/metrics", tags=["status"], response_class=Response)
     def get_metrics() -> Response:

@@ -127,6 +127,11 @@ class SimSection(_Section):
     profile: str = Field(
         default="hr400", pattern=r"^[a-z0-9_]+$", description="camera profile to simulate"
     )
+    scene: str = Field(
+        default="",
+        description="scene in front of the simulated camera, e.g. 'bars:lux=3'; empty = the "
+        "simulator's default flat field (docs/simulator.md lists the scene specs)",
+    )
 
 
 class UsbSpiSection(_Section):
@@ -171,6 +176,38 @@ class SensorSection(_Section):
         if value not in known:
             raise ValueError(f"no register map for sensor {value!r}; known: {', '.join(known)}")
         return value
+
+
+class StreamSection(_Section):
+    """[stream]: the USB bulk frame stream (docs/stream.md)."""
+
+    backend: Literal["sim", "libusb"] = Field(
+        default="sim",
+        description="'sim': the simulated FX3 wired to the simulated camera's stream socket; "
+        "'libusb': real hardware through pyusb's default backend",
+    )
+    vendor_id: int = Field(default=0x04B4, ge=0, le=0xFFFF, description="USB vendor id")
+    product_id: int = Field(default=0x00F1, ge=0, le=0xFFFF, description="USB product id")
+    queue_frames: int = Field(
+        default=32, ge=2, le=4096, description="frames buffered between the reader and consumers"
+    )
+    overflow: Literal["drop_newest", "drop_oldest"] = Field(
+        default="drop_newest",
+        description="when the queue is full: drop the arriving frame or the oldest queued one",
+    )
+    read_bytes: int = Field(
+        default=0,
+        ge=0,
+        le=1 << 30,
+        description="bytes per bulk read; 0 = one whole frame per read",
+    )
+    timeout_s: float = Field(
+        default=0.2,
+        gt=0,
+        le=60,
+        description="bulk read timeout; the reader counts it and reads again. It bounds how "
+        "long stopping a stream waits for the reader",
+    )
 
 
 class ChannelLimits(_Section):
@@ -260,6 +297,7 @@ class Config(_Section):
     link: LinkSection = Field(default_factory=LinkSection)
     sim: SimSection = Field(default_factory=SimSection)
     sensor: SensorSection = Field(default_factory=SensorSection)
+    stream: StreamSection = Field(default_factory=StreamSection)
     telemetry: TelemetrySection = Field(default_factory=TelemetrySection)
 
     @model_validator(mode="after")
@@ -277,6 +315,11 @@ class Config(_Section):
     def sim_spi_socket(self) -> Path:
         """Where the spawned simulator serves its SPI bus for the simulated USB-SPI bridge."""
         return self.daemon.data_dir / "sim" / "spi.sock"
+
+    @property
+    def sim_usb_socket(self) -> Path:
+        """Where the spawned simulator serves its USB bulk stream for the simulated FX3."""
+        return self.daemon.data_dir / "sim" / "usb.sock"
 
     @property
     def sim_link_path(self) -> Path:

@@ -12,7 +12,7 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 Mode = Literal["area", "tdi"]
-StateName = Literal["disconnected", "idle", "imaging", "fault"]
+StateName = Literal["disconnected", "idle", "streaming", "fault"]
 LimitLevel = Literal["ok", "yellow", "red"]
 
 PING_COUNT_MAX = 100_000
@@ -302,12 +302,103 @@ class TrainResponse(BaseModel):
     t_s: float | None = Field(description="Unix time of the training; None if never trained")
 
 
-class ImagingRequest(_Request):
-    """POST /api/v1/imaging/start."""
+# -- the frame stream ---------------------------------------------------------------------------
 
-    frames: int = Field(default=0, ge=0, le=0xFFFF_FFFF, description="0 = continuous")
+Binning = Literal["off", "2x2"]
 
 
-class ImagingResponse(BaseModel):
-    imaging: bool
-    frames: int
+class StreamStartRequest(_Request):
+    """POST /api/v1/stream/start (returns at once) and /stream/acquire (returns when done)."""
+
+    frames: int = Field(
+        default=0, ge=0, le=0xFFFF_FFFF, description="frames to take; 0 = until stopped (start)"
+    )
+    mode: Mode | None = Field(
+        default=None, description="set this imaging mode first; null keeps the current one"
+    )
+    stages: int | None = Field(
+        default=None,
+        ge=0,
+        le=4096,
+        description="TDI stage count recorded with the frames (tdi mode: 1..window rows; "
+        "null = all window rows); ignored in area mode",
+    )
+    binning: Binning = Field(default="off", description="FPGA-side 2x2 binning")
+    record: str | None = Field(
+        default=None,
+        description="absolute path of a new HDF5 file to record the frames to (on the daemon's "
+        "host); null records nothing",
+    )
+    timeout_s: float | None = Field(
+        default=None,
+        gt=0,
+        le=86_400,
+        description="acquire only: give up after this long (default: twice the expected time "
+        "plus 10 s)",
+    )
+
+
+class StreamStats(BaseModel):
+    """The host side of the stream: what the reader received and delivered."""
+
+    frames: int = Field(description="frames delivered to consumers, valid and in order")
+    bytes: int = Field(description="bytes of delivered frames, headers included")
+    lost: int = Field(description="frames never received (gaps in the frame counter)")
+    corrupt: int = Field(description="frames with a bad header or payload CRC, discarded")
+    short: int = Field(description="frames cut short by the device, discarded")
+    overruns: int = Field(description="frames dropped because the queue to consumers was full")
+    stalls: int = Field(description="endpoint stalls cleared")
+    timeouts: int = Field(description="bulk reads that timed out")
+    out_of_order: int = Field(description="frames whose counter went backwards, discarded")
+    elapsed_s: float = Field(description="from the first to the last frame received")
+    mpix_per_s: float = Field(description="delivered pixel rate")
+    mbyte_per_s: float = Field(description="delivered byte rate, 1 MB = 1e6 bytes")
+
+
+class StreamResponse(BaseModel):
+    """GET /api/v1/stream, and the answer of /stream/start, /stop and /acquire."""
+
+    streaming: bool
+    mode: Mode | None = Field(description="mode of the current or last stream")
+    rows: int = Field(description="rows per frame (after binning)")
+    cols: int = Field(description="columns per frame (after binning)")
+    bits: int = Field(description="significant bits per pixel")
+    stages: int = Field(description="TDI stage count in the frame headers (0 in area mode)")
+    binning: Binning
+    frame_period_s: float = Field(description="frame period = TDI line period")
+    frames_requested: int = Field(description="0 = until stopped")
+    first_counter: int
+    frames_sent: int | None = Field(description="frames the device says it produced, once ended")
+    recording: str | None = Field(description="HDF5 file being (or last) recorded")
+    stats: StreamStats
+
+
+class SceneRequest(_Request):
+    """PUT /api/v1/sim/scene."""
+
+    spec: str = Field(min_length=1, max_length=240, description="scene spec, e.g. 'bars:lux=3'")
+
+
+class StageRequest(_Request):
+    """PUT /api/v1/sim/stage."""
+
+    track: bool = Field(default=True, description="follow the synchronous speed")
+    speed_m_s: float = Field(default=0.0, ge=0.0, le=10.0, description="speed when not tracking")
+
+
+class StageResponse(BaseModel):
+    speed_m_s: float
+    sync_speed_m_s: float
+    track: bool
+
+
+class SimStreamStats(BaseModel):
+    """GET /api/v1/sim/stream: what the simulated camera's stream engine did and injected."""
+
+    produced: int
+    sent: int
+    dropped: int
+    corrupted: int
+    shortened: int
+    stalls: int
+    undelivered: int

@@ -1,9 +1,9 @@
-"""The daemon's sensor side: register access, timing, LVDS link training and imaging.
+"""The daemon's sensor side: register access, timing and LVDS link training.
 
 ``SensorService`` belongs to a DeviceSession. It builds the register bridge the config names
 (the FPGA's REG_* commands, or a USB-SPI bridge), checks on every (re)connect that the camera
 reports the sensor the register map describes, trains the LVDS link when the config asks, and
-refuses to image on an untrained link. Every device access runs inside the session's
+tells the stream service whether the link is trained (``require_trained``). Every device access runs inside the session's
 ``device_op()``: one at a time, with link and register errors mapped to the API's errors.
 """
 
@@ -14,7 +14,6 @@ import time
 from typing import TYPE_CHECKING, Any
 
 from camd.daemon.models import (
-    ImagingResponse,
     LaneResult,
     RegisterConfig,
     RegisterDifference,
@@ -25,7 +24,7 @@ from camd.daemon.models import (
     TimingResponse,
     TrainResponse,
 )
-from camd.daemon.state import Request, Trigger
+from camd.daemon.state import Request
 from camd.sensor.bridge import RegisterBridge
 from camd.sensor.fpga_bridge import FpgaBridge
 from camd.sensor.registers import SensorRegisters
@@ -38,7 +37,7 @@ log = logging.getLogger(__name__)
 
 
 class SensorService:
-    """Registers, timing, training and imaging of the session's camera."""
+    """Registers, timing and link training of the session's camera."""
 
     def __init__(self, session: DeviceSession) -> None:
         self.session = session
@@ -47,8 +46,7 @@ class SensorService:
         self.device_sensor: str | None = None  # what GET_SENSOR reported at the last connect
         self.interface = self.regmap.output.interface
         self.trained = False
-        self.imaging = False
-        self.frames = 0
+        self.streaming = False  # what GET_SENSOR said at the last connect
         self._training: TrainResponse | None = None
         self._bridge: RegisterBridge | None = None
         self._registers: SensorRegisters | None = None
@@ -58,14 +56,14 @@ class SensorService:
     def on_connect(self) -> bool:
         """After a (re)connect or BOOT: identify the sensor, sync the shadow, train if asked.
 
-        Returns True if the camera is imaging (the session then enters ``imaging``).
+        Returns True if the camera is streaming (the session then stops the stream).
         """
         from camd.daemon.session import SessionError
 
         values = self.session.request("GET_SENSOR").values
         self.device_sensor = str(values["sensor"])
         self.trained = values["trained"] == "yes"
-        self.imaging = values["imaging"] == "yes"
+        self.streaming = values["imaging"] == "yes"
         if self.device_sensor != self.regmap.sensor:
             self.session.log_event(
                 "error",
@@ -73,27 +71,25 @@ class SensorService:
                 f"the camera reports sensor {self.device_sensor!r} but sensor.name is "
                 f"{self.regmap.sensor!r}; register access is refused until they match",
             )
-            return self.imaging
+            return self.streaming
         try:
             with self.session.device_op():
                 self._sensor_registers().sync()
         except SessionError as exc:
             self.session.log_event("warning", "sensor", f"could not read the registers: {exc}")
-        if not self.imaging and self.config.train_on_connect and not self.trained:
+        if not self.streaming and self.config.train_on_connect and not self.trained:
             try:
                 self.train(require=False)
             except SessionError as exc:
                 self.session.log_event("error", "sensor", f"training on connect failed: {exc}")
-        return self.imaging
+        return self.streaming
 
     def on_event(self, name: str, values: dict[str, Any]) -> bool:
         """Handle a sensor-related device event; True if it was one."""
         if name == "LINK_LOST":
             self.trained = False
             self.session.log_event("warning", "device", "LVDS link lost its training")
-            if self.imaging:
-                self.imaging = False
-                self.session.fire(Trigger.IMAGING_STOPPED, "LVDS link lost")
+            self.session.stream.on_link_lost_training()
             return True
         if name == "LINK_TRAINED":
             self.session.log_event(
@@ -194,7 +190,7 @@ class SensorService:
             timing = registers.timing()
         return TimingResponse.model_validate(timing.as_dict())
 
-    # -- training and imaging ------------------------------------------------------------------
+    # -- training ------------------------------------------------------------------
 
     def train(self, *, require: bool = True) -> TrainResponse:
         """TRAIN the LVDS link and read every lane's result."""
@@ -273,30 +269,36 @@ class SensorService:
             return f"LVDS training failed: {t.bit_errors} bit errors in the PRBS check"
         return "LVDS link not trained (lost since the last training)"
 
-    def start_imaging(self, frames: int) -> ImagingResponse:
-        """START_IMAGING, refused while the link is untrained."""
+    def require_trained(self, what: str) -> None:
+        """Raise LinkUntrained unless the sensor's output link is trained."""
         from camd.daemon.session import LinkUntrained
 
-        self.session.require(Request.IMAGING_START)
         if not self.trained:
             raise LinkUntrained(
-                f"cannot start imaging: {self.training_summary()}; run `camctl train` "
+                f"cannot {what}: {self.training_summary()}; run `camctl train` "
                 "(and check the sensor's supply and cabling if it does not lock)"
             )
-        self.session.request("START_IMAGING", frames=frames)
-        self.imaging = True
-        self.frames = frames
-        what = "continuous" if frames == 0 else f"{frames} frames"
-        self.session.fire(Trigger.IMAGING_STARTED, f"imaging ({what})")
-        return ImagingResponse(imaging=True, frames=frames)
 
-    def stop_imaging(self) -> ImagingResponse:
-        """STOP_IMAGING (harmless when not imaging)."""
-        self.session.require(Request.IMAGING_STOP)
-        self.session.request("STOP_IMAGING")
-        self.imaging = False
-        self.session.fire(Trigger.IMAGING_STOPPED, None)
-        return ImagingResponse(imaging=False, frames=self.frames)
+    def window_columns(self) -> int:
+        """Columns per window row: the window-columns role if the map has one, else all."""
+        with self.session.device_op():
+            registers = self._sensor_registers()
+            count = self.regmap.role_count("window_columns", registers.read_value)
+        return self.regmap.columns if count is None else count
+
+    def register_values(self) -> dict[str, int]:
+        """The configurable registers' values now (for recordings' metadata)."""
+        self._checked(Request.REGISTERS_READ)
+        with self.session.device_op():
+            return dict(self._sensor_registers().configuration())
+
+    def profile_metadata(self) -> dict[str, Any]:
+        """The camera profile of this sensor as plain values, for recordings (empty if none)."""
+        from camd.sensor.profile import list_profiles, load_profile
+
+        if self.regmap.sensor not in list_profiles():
+            return {"sensor": self.regmap.sensor}
+        return load_profile(self.regmap.sensor).model_dump(mode="json")
 
     # -- internals -------------------------------------------------------------------------------
 

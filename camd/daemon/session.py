@@ -63,6 +63,7 @@ from camd.daemon.state import (
     Trigger,
     is_legal,
 )
+from camd.daemon.stream_service import StreamService
 from camd.daemon.telemetry import LimitChecker, TelemetryArchive, classify
 from camd.link import (
     CommandLink,
@@ -183,6 +184,8 @@ class SimulatorProcess:
         seed: int = 0,
         profile: str = "hr400",
         spi_socket: Path | None = None,
+        usb_socket: Path | None = None,
+        scene: str = "",
     ) -> None:
         self.link_path = link_path
         self.command = [
@@ -203,6 +206,10 @@ class SimulatorProcess:
             self.command += ["--inject", inject]
         if spi_socket is not None:
             self.command += ["--spi-socket", str(spi_socket)]
+        if usb_socket is not None:
+            self.command += ["--usb-socket", str(usb_socket)]
+        if scene:
+            self.command += ["--scene", scene]
         self.info: dict[str, Any] = {}
         self._proc: subprocess.Popen[str] | None = None
         self._exit_reported = False
@@ -342,6 +349,7 @@ class DeviceSession:
         self._red_lock = threading.Lock()
         self._red_acknowledged: set[str] = set()
         self.sensor = SensorService(self)
+        self.stream = StreamService(self)
 
     # -- lifecycle ------------------------------------------------------------------------------
 
@@ -370,6 +378,8 @@ class DeviceSession:
                 seed=sim_cfg.seed,
                 profile=sim_cfg.profile,
                 spi_socket=self.config.sim_spi_socket,
+                usb_socket=self.config.sim_usb_socket,
+                scene=sim_cfg.scene,
             )
             info = self.sim.start()
             self._event("info", "daemon", f"simulated camera started: pid {info.get('pid')}, "
@@ -404,6 +414,7 @@ class DeviceSession:
         if self._unsubscribe is not None:
             self._unsubscribe()  # no "link lost" for our own close
             self._unsubscribe = None
+        self.stream.close()
         self.sensor.close()
         if self.link is not None:
             self.link.close()
@@ -585,6 +596,11 @@ class DeviceSession:
         ]
         return EventsResponse(events=items)
 
+    @property
+    def mode(self) -> str | None:
+        """The imaging mode last known (None before first contact)."""
+        return self._mode
+
     def set_mode(self, mode: str) -> ModeResponse:
         """Select the imaging mode (area or tdi)."""
         self._require(Request.MODE)
@@ -598,7 +614,7 @@ class DeviceSession:
         self._require(Request.RESET)
         self._request("RESET")
         self._mode = "area"  # RESET puts the device back in area mode
-        self.sensor.imaging = False  # and stops the sequencer; BOOT leads to a retrain
+        self.stream.on_reset()  # and stops the sequencer; BOOT leads to a retrain
         with self._red_lock:
             # The operator has seen the red channels; they trip again only after recovering.
             self._red_acknowledged = set(self.checker.red_channels())
@@ -730,6 +746,8 @@ class DeviceSession:
         values = message.values
         if self.sensor.on_event(message.name, dict(values)):
             return
+        if self.stream.on_event(message.name, dict(values)):
+            return
         if message.name == "FAULT":
             text = self.dictionary.describe_error(int(values.get("fault_code", 0)))
             self._event("error", "device", f"FAULT {text}", message.t_s)
@@ -769,7 +787,7 @@ class DeviceSession:
             red = set(self.checker.red_channels())
             self._red_acknowledged &= red  # a channel that recovered may trip again
             fresh = sorted(red - self._red_acknowledged)
-        if not fresh or self.machine.state not in (State.IDLE, State.IMAGING):
+        if not fresh or self.machine.state not in (State.IDLE, State.STREAMING):
             return
         parts = []
         for ch in fresh:
@@ -864,14 +882,11 @@ class DeviceSession:
         else:
             # Identify the sensor and train its link before announcing idle, so that a client
             # that waits for idle finds the camera ready to image.
-            imaging = False
             try:
-                imaging = self.sensor.on_connect()
+                self.stream.on_connect(self.sensor.on_connect())
             except SessionError as exc:
                 self._event("warning", "sensor", f"sensor check after connect failed: {exc}")
             self._fire(Trigger.PROBE_IDLE, None)
-            if imaging:
-                self._fire(Trigger.IMAGING_STARTED, "the camera was imaging when we connected")
         if was == State.DISCONNECTED:
             self._event(
                 "info",

@@ -1,31 +1,35 @@
 """The daemon's state machine, declared as data.
 
 ``LEGAL`` says which API request is allowed in which state; ``TRANSITIONS`` says where each trigger
-leads from each state. Adding a state (staring, scanning) means adding it to ``State``, to the
+leads from each state. Adding a state (e.g. scanning) means adding it to ``State``, to the
 requests it permits in ``LEGAL``, to ``HOW_TO_LEAVE`` and to the transitions that enter and leave
 it; nothing else changes. An illegal request is refused by ``check`` before the device is touched.
 
 Legal requests per state:
 
-================  ============  ====  =======  =====
-request           disconnected  idle  imaging  fault
-================  ============  ====  =======  =====
-status            yes           yes   yes      yes
-link              yes           yes   yes      yes
-telemetry         yes           yes   yes      yes
-events            yes           yes   yes      yes
-ping                            yes   yes      yes
+================  ============  ====  =========  =====
+request           disconnected  idle  streaming  fault
+================  ============  ====  =========  =====
+status            yes           yes   yes        yes
+link              yes           yes   yes        yes
+telemetry         yes           yes   yes        yes
+events            yes           yes   yes        yes
+ping                            yes   yes        yes
 mode                            yes
-reset                           yes   yes      yes
-registers_read                  yes   yes      yes
+reset                           yes   yes        yes
+registers_read                  yes   yes        yes
 registers_write                 yes
 train                           yes
-imaging_start                   yes
-imaging_stop                    yes   yes      yes
-================  ============  ====  =======  =====
+stream_start                    yes
+stream_stop                     yes   yes        yes
+stream_read       yes           yes   yes        yes
+sim                             yes   yes        yes
+================  ============  ====  =========  =====
 
 Register reads are harmless at any time the camera answers; writes and training change what the
-sensor sends, so they wait until imaging stops.
+sensor sends, so they wait until the stream stops. ``stream_read`` (the ingest counters) needs no
+device; ``sim`` (scene, stage, fault injection of the simulated camera) changes only the world
+in front of the camera, so it is legal while streaming.
 """
 
 from __future__ import annotations
@@ -41,7 +45,7 @@ class State(StrEnum):
 
     DISCONNECTED = "disconnected"  # no port, or the device does not answer
     IDLE = "idle"  # connected, ready for commands
-    IMAGING = "imaging"  # the sensor's sequencer is running (START_IMAGING)
+    STREAMING = "streaming"  # the sequencer runs and frames stream over USB (START_STREAM)
     FAULT = "fault"  # the device reported a fault or a red limit tripped; RESET clears it
 
 
@@ -58,8 +62,10 @@ class Request(StrEnum):
     REGISTERS_READ = "registers_read"
     REGISTERS_WRITE = "registers_write"
     TRAIN = "train"
-    IMAGING_START = "imaging_start"
-    IMAGING_STOP = "imaging_stop"
+    STREAM_START = "stream_start"
+    STREAM_STOP = "stream_stop"
+    STREAM_READ = "stream_read"
+    SIM = "sim"
 
 
 class Trigger(StrEnum):
@@ -71,8 +77,8 @@ class Trigger(StrEnum):
     DEVICE_FAULT = "device_fault"  # FAULT event, or the device says it is in fault
     RED_LIMIT = "red_limit"  # a telemetry channel went red (with telemetry.red_is_fault)
     RESET_OK = "reset_ok"  # RESET acknowledged
-    IMAGING_STARTED = "imaging_started"  # START_IMAGING acknowledged, or found imaging on connect
-    IMAGING_STOPPED = "imaging_stopped"  # STOP_IMAGING acknowledged, or the link lost training
+    STREAM_STARTED = "stream_started"  # START_STREAM acknowledged, or found streaming on connect
+    STREAM_STOPPED = "stream_stopped"  # STOP_STREAM acknowledged, STREAM_DONE, or link lost
 
 
 _ALWAYS = frozenset(State)
@@ -82,20 +88,22 @@ LEGAL: dict[Request, frozenset[State]] = {
     Request.LINK: _ALWAYS,
     Request.TELEMETRY: _ALWAYS,
     Request.EVENTS: _ALWAYS,
-    Request.PING: frozenset({State.IDLE, State.IMAGING, State.FAULT}),
+    Request.PING: frozenset({State.IDLE, State.STREAMING, State.FAULT}),
     Request.MODE: frozenset({State.IDLE}),
-    Request.RESET: frozenset({State.IDLE, State.IMAGING, State.FAULT}),
-    Request.REGISTERS_READ: frozenset({State.IDLE, State.IMAGING, State.FAULT}),
+    Request.RESET: frozenset({State.IDLE, State.STREAMING, State.FAULT}),
+    Request.REGISTERS_READ: frozenset({State.IDLE, State.STREAMING, State.FAULT}),
     Request.REGISTERS_WRITE: frozenset({State.IDLE}),
     Request.TRAIN: frozenset({State.IDLE}),
-    Request.IMAGING_START: frozenset({State.IDLE}),
-    Request.IMAGING_STOP: frozenset({State.IDLE, State.IMAGING, State.FAULT}),
+    Request.STREAM_START: frozenset({State.IDLE}),
+    Request.STREAM_STOP: frozenset({State.IDLE, State.STREAMING, State.FAULT}),
+    Request.STREAM_READ: _ALWAYS,
+    Request.SIM: frozenset({State.IDLE, State.STREAMING, State.FAULT}),
 }
 
 HOW_TO_LEAVE: dict[State, str] = {
     State.DISCONNECTED: "start the camera (or `camd sim`) or check the cable and the port name",
     State.IDLE: "wait until the current operation ends",
-    State.IMAGING: "stop imaging first (`camctl image stop`)",
+    State.STREAMING: "stop the stream first (`camctl stream --stop`)",
     State.FAULT: "send `camctl reset` (and fix the cause first)",
 }
 
@@ -110,8 +118,10 @@ _WHAT: dict[Request, str] = {
     Request.REGISTERS_READ: "read sensor registers",
     Request.REGISTERS_WRITE: "write sensor registers",
     Request.TRAIN: "train the sensor link",
-    Request.IMAGING_START: "start imaging",
-    Request.IMAGING_STOP: "stop imaging",
+    Request.STREAM_START: "start a stream",
+    Request.STREAM_STOP: "stop the stream",
+    Request.STREAM_READ: "read the stream counters",
+    Request.SIM: "change the simulated world",
 }
 
 # (state, trigger) -> next state. A pair not listed leaves the state unchanged: e.g. a red limit
@@ -126,14 +136,14 @@ TRANSITIONS: dict[tuple[State, Trigger], State] = {
     (State.IDLE, Trigger.RED_LIMIT): State.FAULT,
     (State.IDLE, Trigger.RESET_OK): State.IDLE,
     (State.FAULT, Trigger.RESET_OK): State.IDLE,
-    (State.IDLE, Trigger.IMAGING_STARTED): State.IMAGING,
-    (State.IMAGING, Trigger.IMAGING_STOPPED): State.IDLE,
-    (State.IMAGING, Trigger.PROBE_IDLE): State.IDLE,  # a BOOT stops the sequencer
-    (State.IMAGING, Trigger.PROBE_FAULT): State.FAULT,
-    (State.IMAGING, Trigger.LINK_LOST): State.DISCONNECTED,
-    (State.IMAGING, Trigger.DEVICE_FAULT): State.FAULT,
-    (State.IMAGING, Trigger.RED_LIMIT): State.FAULT,
-    (State.IMAGING, Trigger.RESET_OK): State.IDLE,
+    (State.IDLE, Trigger.STREAM_STARTED): State.STREAMING,
+    (State.STREAMING, Trigger.STREAM_STOPPED): State.IDLE,
+    (State.STREAMING, Trigger.PROBE_IDLE): State.IDLE,  # a BOOT stops the sequencer
+    (State.STREAMING, Trigger.PROBE_FAULT): State.FAULT,
+    (State.STREAMING, Trigger.LINK_LOST): State.DISCONNECTED,
+    (State.STREAMING, Trigger.DEVICE_FAULT): State.FAULT,
+    (State.STREAMING, Trigger.RED_LIMIT): State.FAULT,
+    (State.STREAMING, Trigger.RESET_OK): State.IDLE,
 }
 
 

@@ -1,4 +1,4 @@
-"""Transports: the RS-422 command link over pyserial (frames over USB bulk arrive in a later issue)."""
+"""Transports: the RS-422 command link over pyserial, the frame stream over USB bulk (pyusb)."""
 
 from camd.link.command_link import (
     CommandLink,
@@ -12,16 +12,26 @@ from camd.link.command_link import (
     Response,
     Unsolicited,
 )
+from camd.link.frame_stream import (
+    FrameStream,
+    ReceivedFrame,
+    StreamError,
+    StreamStats,
+)
 
 __all__ = [
     "CommandLink",
     "CommandRejected",
     "CommandTimeout",
     "ConnectionChange",
+    "FrameStream",
     "LinkCounters",
     "LinkDown",
     "LinkError",
     "Message",
+    "ReceivedFrame",
     "Response",
+    "StreamError",
+    "StreamStats",
     "Unsolicited",
 ]

@@ -1,0 +1,216 @@
+"""camctl's stream commands: ``stream``, ``stare`` and ``sim``.
+
+    camctl stream [--frames N] [--mode area|tdi] [--stages M] [--binning]
+                                        take N frames, print the ingest counters
+    camctl stream --start [--frames N] | --stop | --status
+    camctl stare --frames N --out FILE  record N area-mode frames to HDF5
+    camctl sim scene SPEC               the simulated camera's scene (e.g. bars:lux=3)
+    camctl sim stage --track | --speed-m-s V
+    camctl sim stream                   what the simulator's stream engine did and injected
+
+``stream`` and ``stare`` print one flat document: the counters (frames, lost, corrupt,
+overruns, mpix_per_s, mbyte_per_s, ...) and the stream's geometry. A recording is written by the
+daemon: FILE is made absolute on this machine, so camctl and camd must share the file system.
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from rich.console import Console
+
+from camd.cli.camctl_sensor import CommandFailed, UsageError
+from camd.client import CamdClient, StreamDoc
+
+DEFAULT_FRAMES = 100
+_HEADLINE = ("frames", "lost", "corrupt", "overruns", "mpix_per_s", "mbyte_per_s")
+
+
+def _positive(text: str) -> int:
+    try:
+        value = int(text, 0)
+    except ValueError:
+        value = -1
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a frame count >= 0")
+    return value
+
+
+def _speed(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = -1.0
+    if not 0.0 <= value <= 10.0:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a speed in m/s between 0 and 10")
+    return value
+
+
+def add_parsers(command: Callable[[str, str], argparse.ArgumentParser]) -> None:
+    """Add the stream commands through camctl's ``command(name, help)`` factory."""
+    p = command("stream", "take frames over the USB stream and show the ingest counters")
+    what = p.add_mutually_exclusive_group()
+    what.add_argument("--start", action="store_true", help="start streaming and return at once")
+    what.add_argument("--stop", action="store_true", help="stop the stream")
+    what.add_argument("--status", action="store_true", help="show the current or last stream")
+    p.add_argument(
+        "--frames",
+        type=_positive,
+        default=None,
+        metavar="N",
+        help=f"frames to take (default {DEFAULT_FRAMES}; with --start, 0 = until --stop)",
+    )
+    _stream_options(p)
+    p.add_argument(
+        "--strict",
+        action="store_true",
+        help="exit 1 if any frame was lost, corrupt or overrun",
+    )
+
+    p = command("stare", "record area-mode (staring) frames to an HDF5 file")
+    p.add_argument("--frames", type=_positive, required=True, metavar="N", help="frames, >= 1")
+    p.add_argument("--out", type=Path, required=True, metavar="FILE", help="new HDF5 file")
+    p.add_argument("--binning", action="store_true", help="FPGA-side 2x2 binning")
+
+    p = command("sim", "the simulated camera's world: scene, stage, stream faults")
+    sim = p.add_subparsers(dest="sim_command", metavar="ACTION", required=True)
+
+    def action(name: str, help_text: str) -> argparse.ArgumentParser:
+        sp = sim.add_parser(name, help=help_text, description=help_text)
+        sp.add_argument("--json", action="store_true", default=argparse.SUPPRESS,
+                        help="print exactly one JSON document on stdout")  # fmt: skip
+        return sp
+
+    sp = action("scene", "set the scene, e.g. 'flat:photons=2e4', 'bars:lux=3', 'edge:angle_deg=5'")
+    sp.add_argument("spec", metavar="SPEC")
+    sp = action("stage", "the scan stage: track the synchronous speed or run at a set speed")
+    how = sp.add_mutually_exclusive_group(required=True)
+    how.add_argument("--track", action="store_true", help="follow the synchronous speed")
+    how.add_argument("--speed-m-s", type=_speed, metavar="V", help="run at V m/s (0..10)")
+    action("stream", "frames the simulator made, sent, and damaged on purpose (--inject)")
+
+
+def _stream_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--mode", choices=("area", "tdi"), help="set this mode first")
+    p.add_argument(
+        "--stages",
+        type=_positive,
+        metavar="M",
+        help="TDI stages recorded with the frames (tdi mode; default: all window rows)",
+    )
+    p.add_argument("--binning", action="store_true", help="FPGA-side 2x2 binning")
+
+
+def flat(doc: StreamDoc) -> dict[str, Any]:
+    """The headline counters first, then the rest of the stream's counters and geometry."""
+    stats = dict(doc["stats"])
+    out: dict[str, Any] = {key: stats.pop(key) for key in _HEADLINE}
+    out.update(stats)
+    out.update({k: v for k, v in doc.items() if k != "stats"})
+    return out
+
+
+def cmd_stream(client: CamdClient, args: argparse.Namespace) -> Any:
+    if args.stop:
+        return flat(client.stop_stream())
+    if args.status:
+        return flat(client.stream())
+    options = {
+        "mode": args.mode,
+        "stages": args.stages,
+        "binning": "2x2" if args.binning else "off",
+    }
+    if args.start:
+        return flat(client.start_stream(args.frames or 0, **options))
+    frames = DEFAULT_FRAMES if args.frames is None else args.frames
+    if frames < 1:
+        raise UsageError("--frames must be at least 1 (use --start --frames 0 to stream on)")
+    doc = flat(client.acquire(frames, **options))
+    bad = doc["lost"] + doc["corrupt"] + doc["overruns"]
+    if args.strict and bad:
+        raise CommandFailed(
+            doc,
+            f"{doc['lost']} lost, {doc['corrupt']} corrupt, {doc['overruns']} overrun frames; "
+            "check `camctl events` and the USB cabling, or raise [stream] queue_frames",
+        )
+    return doc
+
+
+def cmd_stare(client: CamdClient, args: argparse.Namespace) -> Any:
+    if args.frames < 1:
+        raise UsageError("--frames must be at least 1")
+    out = args.out.expanduser().absolute()
+    if out.exists():
+        raise UsageError(f"{out} already exists; choose another --out or remove it")
+    doc = flat(
+        client.acquire(
+            args.frames, mode="area", binning="2x2" if args.binning else "off", record=str(out)
+        )
+    )
+    doc["out"] = str(out)
+    return doc
+
+
+def cmd_sim(client: CamdClient, args: argparse.Namespace) -> Any:
+    if args.sim_command == "scene":
+        client.set_scene(args.spec)
+        return {"scene": args.spec}
+    if args.sim_command == "stage":
+        if args.track:
+            return client.set_stage(track=True)
+        return client.set_stage(track=False, speed_m_s=args.speed_m_s)
+    return client.sim_stream_stats()
+
+
+COMMANDS: dict[str, Callable[[CamdClient, argparse.Namespace], Any]] = {
+    "stream": cmd_stream,
+    "stare": cmd_stare,
+    "sim": cmd_sim,
+}
+
+
+# -- rendering ---------------------------------------------------------------------------------
+
+
+def render_stream(out: Console, doc: Any, args: argparse.Namespace) -> None:
+    state = "streaming" if doc["streaming"] else "stopped"
+    binned = ", 2x2 binned" if doc["binning"] == "2x2" else ""
+    stages = f", M = {doc['stages']}" if doc["stages"] else ""
+    geometry = (
+        f"{doc['mode'] or '-'} mode, {doc['rows']} x {doc['cols']} x {doc['bits']} bit"
+        f"{binned}{stages}, frame period {doc['frame_period_s'] * 1e3:.4g} ms"
+    )
+    out.print(f"stream {state}: {geometry}")
+    bad = doc["lost"] + doc["corrupt"] + doc["overruns"]
+    colour = "red" if bad else "green"
+    out.print(
+        f"[{colour}]{doc['frames']} frames delivered[/], {doc['lost']} lost, "
+        f"{doc['corrupt']} corrupt, {doc['short']} short, {doc['overruns']} overruns, "
+        f"{doc['stalls']} stalls; {doc['mpix_per_s']:.1f} Mpix/s, {doc['mbyte_per_s']:.1f} MB/s"
+    )
+    if doc.get("out") or doc.get("recording"):
+        out.print(f"recorded to {doc.get('out') or doc.get('recording')}")
+
+
+def render_sim(out: Console, doc: Any, args: argparse.Namespace) -> None:
+    if args.sim_command == "scene":
+        out.print(f"scene set: {doc['scene']}")
+    elif args.sim_command == "stage":
+        sync = doc["sync_speed_m_s"]
+        dv = (doc["speed_m_s"] - sync) / sync if sync else 0.0
+        out.print(
+            f"stage {'tracking' if doc['track'] else 'fixed'}: {doc['speed_m_s'] * 1e3:.6g} mm/s "
+            f"(synchronous {sync * 1e3:.6g} mm/s, speed/sync - 1 = {dv:+.4g})"
+        )
+    else:
+        out.print(", ".join(f"{k} {v}" for k, v in doc.items()))
+
+
+RENDER: dict[str, Callable[[Console, Any, argparse.Namespace], None]] = {
+    "stream": render_stream,
+    "stare": render_stream,
+    "sim": render_sim,
+}

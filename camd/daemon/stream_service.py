@@ -1,0 +1,412 @@
+"""The daemon's frame stream: START_STREAM / STOP_STREAM and the USB ingest behind them.
+
+``StreamService`` belongs to a DeviceSession. It opens the camera's USB bulk endpoint
+(``camd.link.frame_stream.FrameStream``; the simulated FX3 or libusb, per ``[stream]``), starts
+the reader before it asks the camera to stream so that no frame is missed, and ends a stream
+in one place (``_finish``) whether the client stopped it, a counted stream ran out (STREAM_DONE)
+or the link lost its training: the device's ``next_counter`` tells the reader which frames it
+never got, the reader drains, a recording is closed with the counters, and the state machine
+goes back to idle.
+
+Consumers (the HDF5 recorder here; the TDI engine next) get every frame through
+``add_consumer``: called on the stream's dispatcher thread, in order, with ``gap_before`` set
+when frames are missing.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections.abc import Callable
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, cast
+
+from camd.daemon.models import (
+    SimStreamStats,
+    StageResponse,
+    StreamResponse,
+    StreamStartRequest,
+    StreamStats,
+)
+from camd.daemon.state import Request, Trigger
+from camd.link.frame_stream import FrameStream, ReceivedFrame
+from camd.protocol.stream import HEADER_BYTES
+from camd.store.recording import FrameRecorder, RecordingError
+
+if TYPE_CHECKING:
+    from camd.daemon.session import DeviceSession
+
+log = logging.getLogger(__name__)
+
+DRAIN_TIMEOUT_S = 5.0
+SETTLE_TIMEOUT_S = 30.0  # longest a START_STREAM exchange can take (with all its retries)  # after the device's last frame: how long the reader may take to catch up
+Consumer = Callable[[ReceivedFrame], None]
+
+
+class StreamService:
+    """Start, stop and watch the camera's frame stream; record it on request."""
+
+    def __init__(self, session: DeviceSession) -> None:
+        self.session = session
+        self.config = session.config.stream
+        self.streaming = False
+        self._lock = threading.RLock()  # guards the stream's bookkeeping, not the device
+        self._finished = threading.Event()
+        self._finished.set()
+        # Clear while a START_STREAM is in flight: a short stream's STREAM_DONE can overtake
+        # the bookkeeping of its own start, and must wait for it.
+        self._settled = threading.Event()
+        self._settled.set()
+        self._reader: FrameStream | None = None
+        self._recording_to: tuple[FrameRecorder, Consumer] | None = None
+        self._recording: str | None = None
+        self._consumers: list[Consumer] = []
+        self._info: dict[str, Any] = {
+            "mode": None,
+            "rows": 0,
+            "cols": 0,
+            "bits": 0,
+            "stages": 0,
+            "binning": "off",
+            "frame_period_s": 0.0,
+            "frames_requested": 0,
+            "first_counter": 0,
+            "frames_sent": None,
+        }
+
+    # -- consumers (the TDI engine plugs in here) ---------------------------------------------
+
+    def add_consumer(self, consumer: Consumer) -> None:
+        """Call ``consumer(frame)`` for every delivered frame of every stream, in order."""
+        with self._lock:
+            self._consumers.append(consumer)
+            if self._reader is not None:
+                self._reader.add_consumer(consumer)
+
+    def remove_consumer(self, consumer: Consumer) -> None:
+        with self._lock:
+            if consumer in self._consumers:
+                self._consumers.remove(consumer)
+            if self._reader is not None:
+                self._reader.remove_consumer(consumer)
+
+    # -- lifecycle (called by the session) ---------------------------------------------------------
+
+    def on_connect(self, device_streaming: bool) -> None:
+        """After a (re)connect: a stream nobody reads is stopped (its frames would be lost)."""
+        if not device_streaming or self.streaming:
+            return
+        self.session.log_event(
+            "warning",
+            "stream",
+            "the camera was streaming when camd connected; stopping it (nobody was reading "
+            "its frames). Start it again with `camctl stream`.",
+        )
+        self.session.request("STOP_STREAM")
+
+    def on_event(self, name: str, values: dict[str, Any]) -> bool:
+        """Handle a stream event (link reader thread); True if it was one."""
+        if name != "STREAM_DONE":
+            return False
+        next_counter = int(values.get("next_counter", 0))
+        frames_sent = int(values.get("frames_sent", 0))
+        self.session.log_event(
+            "info", "device", f"STREAM_DONE: {frames_sent} frames, next counter {next_counter}"
+        )
+        # Draining waits for the reader: not on the link's reader thread.
+        threading.Thread(
+            target=self._finish,
+            args=(next_counter, frames_sent, "the stream ended"),
+            name="camd-stream-finish",
+            daemon=True,
+        ).start()
+        return True
+
+    def on_link_lost_training(self) -> None:
+        """The LVDS link lost its training: the device stopped streaming."""
+        if self.streaming:
+            threading.Thread(
+                target=self._finish, args=(None, None, "LVDS link lost"), daemon=True
+            ).start()
+
+    def on_reset(self) -> None:
+        """RESET stopped the sequencer: end the stream on our side too."""
+        if self.streaming:
+            self._finish(None, None, "reset")
+
+    def close(self) -> None:
+        """Daemon shutdown: stop reading, close any recording, release the USB device."""
+        with self._lock:
+            reader, self._reader = self._reader, None
+            self.streaming = False
+            self._finished.set()
+            if reader is not None:
+                reader.stop()
+                self._detach_recorder(reader, reader.stats().as_dict())
+                reader.close()
+
+    # -- requests ---------------------------------------------------------------------------------
+
+    def status(self) -> StreamResponse:
+        """The current or last stream and its counters."""
+        self.session.require(Request.STREAM_READ)
+        return self._response()
+
+    def start(self, request: StreamStartRequest) -> StreamResponse:
+        """Start a stream and return at once (``frames = 0``: until ``stop``)."""
+        self._start(request)
+        return self._response()
+
+    def acquire(self, request: StreamStartRequest) -> StreamResponse:
+        """Take ``frames`` frames and return when the stream has ended (or on timeout)."""
+        from camd.daemon.session import BadRequest, DeviceTimeout
+
+        if request.frames < 1:
+            raise BadRequest("frames must be at least 1 for an acquisition; use start for 0")
+        self._start(request)
+        period_s = float(self._info["frame_period_s"])
+        timeout_s = request.timeout_s or 2 * request.frames * period_s + 10.0
+        if not self._finished.wait(timeout_s):
+            self.stop()
+            raise DeviceTimeout(
+                f"the camera did not finish {request.frames} frames within {timeout_s:.1f} s "
+                f"(frame period {period_s * 1e3:.3f} ms); the stream was stopped. Check "
+                "`camctl stream --status` and `camctl events`"
+            )
+        return self._response()
+
+    def stop(self) -> StreamResponse:
+        """STOP_STREAM, then drain the reader; harmless when not streaming."""
+        self.session.require(Request.STREAM_STOP)
+        values = self.session.request("STOP_STREAM").values
+        self._finish(int(values["next_counter"]), int(values["frames_sent"]), "stopped")
+        return self._response()
+
+    # -- the simulated world ------------------------------------------------------------------
+
+    def set_scene(self, spec: str) -> None:
+        self.session.require(Request.SIM)
+        self.session.request("SIM_SET_SCENE", spec=spec)
+        self.session.log_event("info", "api", f"simulated scene: {spec}")
+
+    def set_stage(self, *, track: bool, speed_m_s: float) -> StageResponse:
+        self.session.require(Request.SIM)
+        values = self.session.request(
+            "SIM_SET_STAGE", track="yes" if track else "no", speed_m_s=speed_m_s
+        ).values
+        return StageResponse(
+            speed_m_s=float(values["speed_m_s"]),
+            sync_speed_m_s=float(values["sync_speed_m_s"]),
+            track=track,
+        )
+
+    def sim_stats(self) -> SimStreamStats:
+        self.session.require(Request.SIM)
+        return SimStreamStats.model_validate(self.session.request("SIM_GET_STREAM_STATS").values)
+
+    # -- internals --------------------------------------------------------------------------------
+
+    def _start(self, request: StreamStartRequest) -> None:
+        from camd.daemon.session import BadRequest
+
+        session = self.session
+        session.require(Request.STREAM_START)
+        session.sensor.require_trained("start a stream")
+        if request.mode is not None:
+            session.set_mode(request.mode)
+        mode = session.mode or "area"
+        timing = session.sensor.timing()
+        stages = 0
+        if mode == "tdi":
+            stages = timing.window_rows if request.stages is None else request.stages
+            if not 1 <= stages <= timing.window_rows:
+                raise BadRequest(
+                    f"stages = {stages} does not fit the window of {timing.window_rows} rows "
+                    f"(physics.md §2 eq 13: 1 <= M <= M0 = n_lines); choose 1..{timing.window_rows}"
+                    " or make the window taller"
+                )
+        cols = session.sensor.window_columns()
+        max_frame_bytes = HEADER_BYTES + 2 * timing.window_rows * cols
+        recorder_path = self._record_path(request.record)
+        self._settled.clear()
+        try:
+            self._start_stream(request, stages, max_frame_bytes, recorder_path)
+        finally:
+            self._settled.set()
+
+    def _start_stream(
+        self,
+        request: StreamStartRequest,
+        stages: int,
+        max_frame_bytes: int,
+        recorder_path: Path | None,
+    ) -> None:
+        session = self.session
+        recorder = None
+        if recorder_path is not None:
+            recorder = self._new_recorder(recorder_path, request, stages)
+        with self._lock:
+            self._finished.clear()
+            self._recording = None
+            reader = self._open_reader()
+            if recorder is not None:
+                self._attach_recorder(recorder, reader)
+            reader.start(max_frame_bytes=max_frame_bytes)
+        try:
+            values = session.request(
+                "START_STREAM", frames=request.frames, stages=stages, binning=request.binning
+            ).values
+        except Exception:
+            with self._lock:
+                reader.stop()
+                self._detach_recorder(reader)
+                self._finished.set()
+            if recorder_path is not None:
+                recorder_path.unlink(missing_ok=True)  # nothing was recorded: leave no file
+            raise
+        info = {
+            "mode": str(values["mode"]),
+            "rows": int(values["rows"]),
+            "cols": int(values["cols"]),
+            "bits": int(values["bits"]),
+            "stages": stages,
+            "binning": request.binning,
+            "frame_period_s": float(values["frame_period_s"]),
+            "frames_requested": request.frames,
+            "first_counter": int(values["first_counter"]),
+            "frames_sent": None,
+        }
+        with self._lock:
+            self._info = info
+            self.streaming = True
+        what = "until stopped" if request.frames == 0 else f"{request.frames} frames"
+        session.fire(Trigger.STREAM_STARTED, f"{info['mode']} stream, {what}")
+
+    def _record_path(self, record: str | None) -> Path | None:
+        from camd.daemon.session import BadRequest
+
+        if record is None:
+            return None
+        path = Path(record)
+        if not path.is_absolute():
+            raise BadRequest(
+                f"record path {record!r} is relative; give an absolute path (camctl does this)"
+            )
+        if path.exists():
+            raise BadRequest(f"{path} already exists; choose another file or remove it")
+        return path
+
+    def _new_recorder(self, path: Path, request: StreamStartRequest, stages: int) -> FrameRecorder:
+        """A new recording with the camera's metadata, made before the stream starts so that
+        its first frame is recorded too; the frames set its geometry."""
+        from camd.daemon.session import BadRequest
+
+        sensor = self.session.sensor
+        try:
+            return FrameRecorder(
+                path,
+                frames_expected=request.frames,
+                metadata={
+                    "profile": sensor.profile_metadata(),
+                    "registers": sensor.register_values(),
+                    "timing": sensor.timing().model_dump(),
+                    "stream": {
+                        "frames_requested": request.frames,
+                        "stages": stages,
+                        "binning": request.binning,
+                    },
+                },
+            )
+        except RecordingError as exc:
+            raise BadRequest(str(exc)) from None
+
+    def _attach_recorder(self, recorder: FrameRecorder, reader: FrameStream) -> None:
+        def record(frame: ReceivedFrame) -> None:
+            recorder.add(
+                frame.header, frame.pixels, received_ns=frame.received_ns,
+                gap_before=frame.gap_before,
+            )  # fmt: skip
+
+        self._recording_to = (recorder, record)
+        self._recording = str(recorder.path)
+        reader.add_consumer(record)
+
+    def _detach_recorder(self, reader: FrameStream, stats: dict[str, Any] | None = None) -> None:
+        if self._recording_to is None:
+            return
+        recorder, record = self._recording_to
+        self._recording_to = None
+        reader.remove_consumer(record)
+        recorder.close(stats)
+
+    def _open_reader(self) -> FrameStream:
+        if self._reader is None:
+            backend: Any = None
+            if self.config.backend == "sim":
+                from firmware_models.fx3 import get_backend
+
+                backend = get_backend(self.session.config.sim_usb_socket)
+            reader = FrameStream(
+                vendor_id=self.config.vendor_id,
+                product_id=self.config.product_id,
+                backend=backend,
+                queue_frames=self.config.queue_frames,
+                overflow=self.config.overflow,
+                read_bytes=self.config.read_bytes,
+                timeout_s=self.config.timeout_s,
+            )
+            reader.open()
+            for consumer in self._consumers:
+                reader.add_consumer(consumer)
+            self._reader = reader
+        return self._reader
+
+    def _finish(
+        self, next_counter: int | None, frames_sent: int | None, why: str, *, settle: bool = True
+    ) -> None:
+        """End the stream on the host side: account for, drain, stop, close; then idle.
+
+        ``settle``: first wait for a START_STREAM in flight to be booked (not from inside it)."""
+        if settle:
+            self._settled.wait(SETTLE_TIMEOUT_S)
+        with self._lock:
+            if not self.streaming:
+                return
+            reader = self._reader
+            if reader is not None:
+                if next_counter is not None:
+                    reader.expect_end(next_counter)
+                    reader.wait_drained(DRAIN_TIMEOUT_S)
+                reader.stop()
+                self._detach_recorder(reader, reader.stats().as_dict())
+            self._info["frames_sent"] = frames_sent
+            self.streaming = False
+            self._finished.set()
+        stats = self._stats()
+        self.session.log_event(
+            "info" if stats.lost == stats.corrupt == stats.overruns == 0 else "warning",
+            "stream",
+            f"stream ended ({why}): {stats.frames} frames delivered, {stats.lost} lost, "
+            f"{stats.corrupt} corrupt, {stats.overruns} overruns, {stats.mbyte_per_s:.1f} MB/s",
+        )
+        self.session.fire(Trigger.STREAM_STOPPED, None)
+
+    def _stats(self) -> StreamStats:
+        reader = self._reader
+        if reader is None:
+            return StreamStats(
+                frames=0, bytes=0, lost=0, corrupt=0, short=0, overruns=0, stalls=0,
+                timeouts=0, out_of_order=0, elapsed_s=0.0, mpix_per_s=0.0, mbyte_per_s=0.0,
+            )  # fmt: skip
+        values = reader.stats().as_dict()
+        return StreamStats.model_validate({k: values[k] for k in StreamStats.model_fields})
+
+    def _response(self) -> StreamResponse:
+        with self._lock:
+            info = dict(self._info)
+            return StreamResponse(
+                streaming=self.streaming,
+                recording=self._recording,
+                stats=self._stats(),
+                **cast(Any, info),
+            )

@@ -1,0 +1,754 @@
+"""The frame stream's host side: USB bulk reads in, checked window frames out to consumers.
+
+``FrameStream`` finds the camera's FX3-class streamer with pyusb (``backend=None``: libusb,
+the hardware; or the simulator's ``firmware_models.fx3.get_backend(path)``), claims its
+interface and runs two threads:
+
+- the reader: bulk reads of whole frames straight into preallocated slots (no copy, no
+  allocation per frame), reassembly of frames that span several reads, header checks
+  (``camd.protocol.stream.decode_header``), counter bookkeeping (lost, out of order), then a
+  bounded queue with an explicit overflow policy: the reader never waits for consumers;
+- the dispatcher: the payload CRC (zlib-ng's crc32, ~50 GB/s, while the reader does the next read),
+  then every consumer callback, in counter order, with a zero-copy read-only view of the
+  pixels; the slot is reused once every callback has returned: **consumers must copy what
+  they keep**.
+
+Reassembly rules (docs/stream.md): the device ends each frame's transfer with a short packet,
+so a read that returns fewer bytes than asked ends a transfer; a transfer is one frame. A
+transfer shorter than its header says is ``short``; one whose header fails its checks, or
+longer than its header says, or that overflows the slot, is ``corrupt``; after a broken
+transfer the reader discards data up to the next transfer boundary. Each broken transfer
+stands for one frame, so a gap in the counters after it counts one less as ``lost``.
+"""
+
+from __future__ import annotations
+
+import array
+import contextlib
+import dataclasses
+import errno
+import logging
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+from types import TracebackType
+from typing import Any, Literal
+
+import numpy as np
+import usb.core
+import usb.util
+
+from camd.protocol.stream import (
+    HEADER_BYTES,
+    U32_WRAP,
+    FrameFlags,
+    FrameHeader,
+    StreamFormatError,
+    crc32,
+    decode_header,
+)
+
+log = logging.getLogger(__name__)
+
+VENDOR_ID = 0x04B4  # Cypress FX3
+PRODUCT_ID = 0x00F1  # the FX3 SDK's streamer example
+ENDPOINT_IN = 0x81
+INTERFACE = 0
+NO_DATA_WARNING_S = 5.0
+OVERFLOW_WAIT_S = 0.01
+_MAX_CONSECUTIVE_ERRORS = 10
+
+Overflow = Literal["drop_newest", "drop_oldest"]
+OVERFLOW_POLICIES: tuple[Overflow, ...] = ("drop_newest", "drop_oldest")
+
+
+class StreamError(RuntimeError):
+    """The frame stream cannot be opened or read; the message says what to check."""
+
+
+@dataclass(frozen=True, slots=True)
+class ReceivedFrame:
+    """One delivered frame.
+
+    ``pixels`` is a read-only (rows, cols) uint16 view into the reader's slot, valid only
+    during the callback: copy what you keep. ``gap_before`` is the number of frames missing
+    between the previously delivered frame and this one, whatever the cause (lost on the
+    link, corrupt, dropped by the queue); ``index`` counts delivered frames from 0.
+    """
+
+    header: FrameHeader
+    pixels: np.ndarray
+    received_ns: int  # time.monotonic_ns() when the reader had the whole frame
+    gap_before: int
+    index: int
+
+
+@dataclass(slots=True)
+class StreamStats:
+    """The stream's counters since ``start()``.
+
+    ``lost``: counters never received; ``corrupt``: bad header or payload CRC (or a
+    malformed transfer); ``short``: truncated transfers; ``overruns``: dropped by the queue's
+    overflow policy; ``stalls``: endpoint halts cleared; ``timeouts``: bulk reads that
+    timed out (each ``timeout_s`` without data); ``out_of_order``: counters going backwards or
+    repeated (dropped). ``frames``/``bytes``: delivered (header + payload bytes).
+    """
+
+    frames: int = 0
+    bytes: int = 0
+    lost: int = 0
+    corrupt: int = 0
+    short: int = 0
+    overruns: int = 0
+    stalls: int = 0
+    timeouts: int = 0
+    out_of_order: int = 0
+    reads: int = 0
+    consumer_errors: int = 0
+    first_counter: int | None = None
+    last_counter: int | None = None
+    elapsed_s: float = 0.0
+    mpix_per_s: float = 0.0
+    mbyte_per_s: float = 0.0
+
+    def as_dict(self) -> dict[str, int | float | None]:
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+
+
+class _Slot:
+    """A preallocated frame buffer: pyusb reads into ``buf``; numpy views alias it."""
+
+    __slots__ = ("buf", "pixels", "view")
+
+    def __init__(self, nbytes: int) -> None:
+        self.buf = array.array("B", [0]) * nbytes
+        self.view = memoryview(self.buf)
+        pixels = np.frombuffer(self.buf, dtype="<u2", offset=HEADER_BYTES)
+        pixels.flags.writeable = False  # consumers get read-only views
+        self.pixels = pixels
+
+
+Consumer = Callable[[ReceivedFrame], None]
+
+
+class FrameStream:
+    """Reads window frames from the camera's bulk IN endpoint and hands them to consumers.
+
+    ``queue_frames``: frames buffered between reader and dispatcher; when it is full, the
+    reader waits up to ``overflow_wait_s`` for a place, then ``overflow`` says which frame goes:
+    "drop_newest" (the arriving one) or "drop_oldest" (counted as ``overruns``).
+    ``read_bytes``: bytes per bulk read; 0 (default) reads a whole frame per read (zero copy);
+    a positive value, a multiple of the endpoint's packet size, makes frames span several
+    reads (each read is then copied into the slot). ``timeout_s``: each bulk read's timeout;
+    ``stop()`` may take that long. Use: ``open()``, ``add_consumer``, ``start(max_frame_bytes=)``,
+    ... ``expect_end(n)``, ``wait_drained()``, ``stop()``, ``close()``; ``start`` and ``stop``
+    may repeat on one open stream.
+    """
+
+    def __init__(
+        self,
+        *,
+        vendor_id: int = VENDOR_ID,
+        product_id: int = PRODUCT_ID,
+        backend: Any = None,
+        queue_frames: int = 32,
+        overflow: Overflow = "drop_newest",
+        read_bytes: int = 0,
+        timeout_s: float = 1.0,
+        overflow_wait_s: float = OVERFLOW_WAIT_S,
+        no_data_warning_s: float = NO_DATA_WARNING_S,
+    ) -> None:
+        if queue_frames < 1:
+            raise ValueError(f"queue_frames = {queue_frames} must be at least 1")
+        if overflow not in OVERFLOW_POLICIES:
+            raise ValueError(f"overflow = {overflow!r}: use one of {', '.join(OVERFLOW_POLICIES)}")
+        if read_bytes < 0:
+            raise ValueError(f"read_bytes = {read_bytes} must be >= 0 (0: whole frames)")
+        if not timeout_s > 0:
+            raise ValueError(f"timeout_s = {timeout_s} must be positive")
+        self.vendor_id = vendor_id
+        self.product_id = product_id
+        self.backend = backend
+        self.queue_frames = queue_frames
+        self.overflow = overflow
+        self.read_bytes = read_bytes
+        self.timeout_s = timeout_s
+        self.overflow_wait_s = overflow_wait_s
+        self.no_data_warning_s = no_data_warning_s
+        self.ident = f"{vendor_id:04x}:{product_id:04x}"
+        self._dev: Any = None
+        self._detached = False
+        self._packet_bytes = 0
+        self._slot_bytes = 0
+        self._max_frame_bytes = 0
+        self._slots: list[_Slot] = []
+        self._free: list[_Slot] = []
+        self._consumers: tuple[Consumer, ...] = ()
+        # One lock for the counters, the queue and the counter bookkeeping; held briefly.
+        self._lock = threading.Lock()
+        self._cond = threading.Condition(self._lock)
+        self._queue: deque[tuple[_Slot, FrameHeader, int]] = deque()
+        self._dispatching = False
+        self._stats = StreamStats()
+        self._pixels = 0
+        self._t_start = 0.0
+        self._t_stop: float | None = None
+        self._t_last_frame: float | None = None  # when the last frame was delivered
+        self._last_seen: int | None = None  # counter of the last good header, in order
+        self._first_seen: int | None = None  # the stream's first good header
+        self._unattributed = 0  # broken transfers since then, each one frame of a gap
+        self._last_delivered: int | None = None
+        self._end: int | None = None  # expect_end's counter, until accounted
+        self._stopping = threading.Event()
+        self._reader: threading.Thread | None = None
+        self._dispatcher: threading.Thread | None = None
+        self._reader_done = True
+        self.error: StreamError | None = None
+        self.problem: str | None = None
+
+    # -- context manager --------------------------------------------------------------------------
+
+    def __enter__(self) -> FrameStream:
+        self.open()
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+    # -- opening ----------------------------------------------------------------------------------
+
+    def open(self) -> None:
+        """Find the device, set its configuration, claim its interface."""
+        if self._dev is not None:
+            return
+        try:
+            dev = usb.core.find(
+                idVendor=self.vendor_id, idProduct=self.product_id, backend=self.backend
+            )
+        except usb.core.NoBackendError:
+            raise StreamError(
+                "pyusb found no USB library: install libusb-1.0 (Debian/Ubuntu: "
+                "`apt install libusb-1.0-0`)"
+            ) from None
+        except usb.core.USBError as exc:
+            raise StreamError(f"cannot list USB devices ({exc}); {self._hint()}") from exc
+        if dev is None:
+            raise StreamError(f"no frame-stream device {self.ident} found; {self._hint()}")
+        try:
+            self._claim(dev)
+            ep = self._endpoint(dev)
+        except BaseException:
+            with contextlib.suppress(Exception):
+                usb.util.dispose_resources(dev)
+            raise
+        self._packet_bytes = int(ep.wMaxPacketSize)
+        if self.read_bytes % self._packet_bytes:
+            usb.util.dispose_resources(dev)
+            raise ValueError(
+                f"read_bytes = {self.read_bytes} is not a multiple of the endpoint's "
+                f"{self._packet_bytes}-byte packets (a read must end on a packet boundary); "
+                "use 0 for whole frames"
+            )
+        self._dev = dev
+
+    def _hint(self) -> str:
+        vid_pid = f"{self.vendor_id:04x}:{self.product_id:04x}"
+        return (
+            f"check the camera's power and USB 3 cable, that `lsusb -d {vid_pid}` lists it "
+            "(an FX3 without its firmware shows as 04b4:00f3), and that this user may open it "
+            "(udev rule in systemd/, group plugdev); with the simulator, that it runs with "
+            "--usb-socket"
+        )
+
+    def _claim(self, dev: Any) -> None:
+        try:
+            active = bool(dev.is_kernel_driver_active(INTERFACE))
+        except NotImplementedError:
+            active = False
+        except usb.core.USBError as exc:
+            raise StreamError(f"cannot open {self.ident}: {exc}; {self._hint()}") from exc
+        if active:
+            try:
+                dev.detach_kernel_driver(INTERFACE)
+            except usb.core.USBError as exc:
+                raise StreamError(
+                    f"cannot detach the kernel driver of {self.ident}: {exc}"
+                ) from exc
+            self._detached = True
+        try:
+            dev.get_active_configuration()
+        except usb.core.USBError:
+            try:
+                dev.set_configuration()
+            except usb.core.USBError as exc:
+                raise StreamError(f"cannot configure {self.ident}: {exc}") from exc
+        try:
+            usb.util.claim_interface(dev, INTERFACE)
+        except usb.core.USBError as exc:
+            raise StreamError(
+                f"cannot claim interface {INTERFACE} of {self.ident}: {exc}; is another "
+                "program (another camd) reading the camera?"
+            ) from exc
+
+    def _endpoint(self, dev: Any) -> Any:
+        intf = dev.get_active_configuration()[(INTERFACE, 0)]
+        for ep in intf:
+            if ep.bEndpointAddress == ENDPOINT_IN:
+                if usb.util.endpoint_type(ep.bmAttributes) != usb.util.ENDPOINT_TYPE_BULK:
+                    raise StreamError(f"endpoint 0x{ENDPOINT_IN:02X} of {self.ident} is not bulk")
+                return ep
+        raise StreamError(
+            f"{self.ident} has no bulk IN endpoint 0x{ENDPOINT_IN:02X}; is its streamer "
+            "firmware loaded?"
+        )
+
+    def close(self) -> None:
+        """Stop, release the interface and the device (a closed stream may be opened again)."""
+        self.stop()
+        dev, self._dev = self._dev, None
+        if dev is None:
+            return
+        with contextlib.suppress(usb.core.USBError):
+            usb.util.release_interface(dev, INTERFACE)
+        if self._detached:
+            with contextlib.suppress(usb.core.USBError, NotImplementedError):
+                dev.attach_kernel_driver(INTERFACE)
+            self._detached = False
+        usb.util.dispose_resources(dev)
+
+    # -- consumers --------------------------------------------------------------------------------
+
+    def add_consumer(self, cb: Consumer) -> None:
+        """Call ``cb(frame)`` on the dispatcher thread for every delivered frame, in order."""
+        with self._lock:
+            self._consumers = (*self._consumers, cb)
+
+    def remove_consumer(self, cb: Consumer) -> None:
+        """Stop calling ``cb`` (from the next frame on); unknown callbacks are ignored."""
+        with self._lock:
+            consumers = list(self._consumers)
+            if cb in consumers:
+                consumers.remove(cb)
+            self._consumers = tuple(consumers)
+
+    # -- running ----------------------------------------------------------------------------------
+
+    @property
+    def running(self) -> bool:
+        return self._reader is not None
+
+    def start(self, *, max_frame_bytes: int) -> None:
+        """Reset the counters and start reading frames of up to ``max_frame_bytes`` (header
+        included)."""
+        if self._dev is None:
+            raise StreamError("the frame stream is not open; call open() first")
+        if self._reader is not None:
+            raise StreamError("the frame stream is already running; stop() it first")
+        if max_frame_bytes <= HEADER_BYTES:
+            raise ValueError(f"max_frame_bytes = {max_frame_bytes} must exceed the header")
+        # One byte over the largest frame, rounded up to whole packets: every frame then
+        # ends in a short read, and a longer transfer shows as a full one.
+        self._max_frame_bytes = max_frame_bytes
+        p = self._packet_bytes
+        slot_bytes = (max_frame_bytes + 1 + p - 1) // p * p
+        slots = self.queue_frames + 2  # queued + the reader's + the dispatcher's
+        if slot_bytes != self._slot_bytes or len(self._slots) != slots:
+            self._slots = [_Slot(slot_bytes) for _ in range(slots)]
+            self._slot_bytes = slot_bytes
+        self._free = list(self._slots)
+        with self._lock:
+            self._queue.clear()
+            self._stats = StreamStats()
+            self._pixels = 0
+            self._last_seen = None
+            self._first_seen = None
+            self._unattributed = 0
+            self._last_delivered = None
+            self._end = None
+            self._t_start = time.monotonic()
+            self._t_stop = None
+            self._t_last_frame = None
+            self._reader_done = False
+        self.error = None
+        self.problem = None
+        self._stopping.clear()
+        self._dispatcher = threading.Thread(
+            target=self._dispatch_loop, name="camd-frame-dispatch", daemon=True
+        )
+        self._reader = threading.Thread(target=self._read_loop, name="camd-frame-read", daemon=True)
+        self._dispatcher.start()
+        self._reader.start()
+
+    def stop(self) -> None:
+        """Stop reading (within ``timeout_s``), deliver what is queued, join the threads."""
+        reader, dispatcher = self._reader, self._dispatcher
+        if reader is None or dispatcher is None:
+            return
+        self._stopping.set()
+        reader.join()
+        dispatcher.join()
+        self._reader = self._dispatcher = None
+        with self._lock:
+            self._t_stop = time.monotonic()
+
+    def expect_end(self, next_counter: int) -> None:
+        """The device says the stream ended before ``next_counter``: frames after the last one
+        received, up to ``next_counter - 1``, count as lost once they cannot arrive any more
+        (at once if the last frame is in; else after a read times out). If no frame arrives
+        at all, nothing is known to be missing."""
+        with self._cond:
+            self._end = next_counter % U32_WRAP
+            self._settle_end(idle=False)
+            self._cond.notify_all()
+
+    def wait_drained(self, timeout_s: float) -> bool:
+        """Wait until the stream's end (``expect_end``) is accounted and every queued frame is
+        delivered; False on timeout."""
+        with self._cond:
+            return self._cond.wait_for(
+                lambda: self._end is None and not self._queue and not self._dispatching,
+                timeout_s,
+            )
+
+    def wait_frames(self, n: int, timeout_s: float) -> bool:
+        """Wait until ``n`` frames were delivered since ``start``; False on timeout or if the
+        reader failed (see ``error``)."""
+        with self._cond:
+            return self._cond.wait_for(
+                lambda: (
+                    self._stats.frames >= n
+                    or (self._reader_done and not self._queue and not self._dispatching)
+                ),
+                timeout_s,
+            ) and (self._stats.frames >= n)
+
+    def stats(self) -> StreamStats:
+        """A snapshot of the counters, with rates over the time since ``start``."""
+        with self._lock:
+            s = dataclasses.replace(self._stats)
+            # Rates over the time frames were flowing: from start() to the last delivery (not
+            # to stop(), which may come much later, e.g. after an idle read timeout).
+            if self._t_last_frame is not None:
+                end = self._t_last_frame
+            else:
+                end = self._t_stop if self._t_stop is not None else time.monotonic()
+            pixels = self._pixels
+        s.elapsed_s = max(0.0, end - self._t_start) if self._t_start else 0.0
+        if s.elapsed_s > 0:
+            s.mpix_per_s = pixels / s.elapsed_s / 1e6
+            s.mbyte_per_s = s.bytes / s.elapsed_s / 1e6
+        return s
+
+    # -- the reader thread --------------------------------------------------------------------
+
+    def _read_loop(self) -> None:
+        try:
+            self._read_frames()
+        except Exception as exc:  # never die silently: say why the stream stopped
+            log.exception("frame stream %s: the reader failed", self.ident)
+            self.error = StreamError(f"the frame reader of {self.ident} failed: {exc}")
+        finally:
+            with self._cond:
+                self._reader_done = True
+                self._cond.notify_all()
+
+    def _read_frames(self) -> None:
+        dev = self._dev
+        timeout_ms = max(1, round(self.timeout_s * 1000))
+        whole = self.read_bytes == 0 or self.read_bytes >= self._slot_bytes
+        staging = None if whole else array.array("B", [0]) * self.read_bytes
+        slot = self._free.pop()
+        filled = 0  # bytes of the current transfer in the slot (several reads per frame)
+        discarding = False  # skipping the rest of a broken transfer
+        errors = 0
+        last_data = time.monotonic()
+        while not self._stopping.is_set():
+            target = slot.buf if whole or staging is None else staging
+            try:
+                n = int(dev.read(ENDPOINT_IN, target, timeout_ms))
+            except usb.core.USBTimeoutError:
+                self._count("timeouts")
+                if filled:
+                    # The read that timed out may have swallowed part of this transfer: give
+                    # up the frame and skip whatever of it still comes.
+                    self._broken("short", filled, self._counter_in(slot, filled))
+                    filled, discarding = 0, True
+                idle_s = time.monotonic() - last_data
+                with self._cond:
+                    self._settle_end(idle=True)
+                    self._cond.notify_all()
+                self._warn_idle(idle_s)
+                continue
+            except usb.core.USBError as exc:
+                if self._stopping.is_set():
+                    return
+                if exc.errno == errno.EPIPE:
+                    self._count("stalls")
+                    if filled:
+                        self._broken("short", filled, self._counter_in(slot, filled))
+                    filled, discarding = 0, False
+                    self._clear_halt(dev)
+                    continue
+                if exc.errno == errno.ENODEV:
+                    self.error = StreamError(
+                        f"the frame-stream device {self.ident} disconnected ({exc}); check the "
+                        "cable and the camera's power, then open the stream again"
+                    )
+                    log.error("%s", self.error)
+                    return
+                errors += 1
+                log.warning("frame stream %s: bulk read failed: %s", self.ident, exc)
+                if errors >= _MAX_CONSECUTIVE_ERRORS:
+                    raise StreamError(
+                        f"{errors} bulk reads in a row failed, the last: {exc}"
+                    ) from exc
+                time.sleep(0.01)
+                continue
+            errors = 0
+            last_data = time.monotonic()
+            self._count("reads")
+            short_read = n < len(target)
+            if discarding:
+                discarding = not short_read  # a short read (even of 0 bytes) ends the transfer
+                continue
+            if n == 0 and filled == 0:
+                continue  # a zero-length packet after a transfer that filled the read
+            if not whole:
+                if filled + n > self._slot_bytes:
+                    self._broken("corrupt", filled + n, None, why="the transfer overflows the slot")
+                    filled, discarding = 0, not short_read
+                    continue
+                slot.view[filled : filled + n] = memoryview(target)[:n]
+            filled += n
+            if not short_read:
+                if whole:
+                    self._broken(
+                        "corrupt",
+                        n,
+                        None,
+                        why=f"a transfer longer than max_frame_bytes={self._max_frame_bytes}",
+                    )
+                    filled, discarding = 0, True
+                    continue
+                complete = self._complete_size(slot, filled)
+                if complete is None:
+                    continue  # more of this transfer to read
+                if complete < 0:
+                    filled, discarding = 0, True  # a bad header: skip to the transfer's end
+                    continue
+            slot = self._frame(slot, filled)
+            filled = 0
+
+    def _complete_size(self, slot: _Slot, filled: int) -> int | None:
+        """With a frame spanning reads and no short read yet: ``filled`` if the header says the
+        frame is complete, None if more is to come, -1 if the header is bad (counted)."""
+        if filled < HEADER_BYTES:
+            return None
+        try:
+            header = decode_header(slot.view[:HEADER_BYTES])
+        except StreamFormatError as exc:
+            self._broken("corrupt", filled, None, why=str(exc))
+            return -1
+        return filled if filled >= header.frame_bytes else None
+
+    def _frame(self, slot: _Slot, nbytes: int) -> _Slot:
+        """A whole transfer of ``nbytes`` is in ``slot``: check it, queue it; the slot to fill
+        next (the same one if the frame was rejected)."""
+        received_ns = time.monotonic_ns()
+        if nbytes < HEADER_BYTES:
+            self._broken("short", nbytes, None)
+            return slot
+        try:
+            header = decode_header(slot.view[:HEADER_BYTES])
+        except StreamFormatError as exc:
+            self._broken("corrupt", nbytes, None, why=str(exc))
+            return slot
+        if nbytes != header.frame_bytes:
+            kind = "short" if nbytes < header.frame_bytes else "corrupt"
+            why = f"frame {header.counter}: transfer of {nbytes} bytes, header says {header.frame_bytes}"
+            self._broken(kind, nbytes, header.counter, why=why)
+            return slot
+        with self._cond:
+            if not self._in_sequence(header.counter):
+                self._stats.out_of_order += 1
+                return slot
+            if header.flags & FrameFlags.LAST:
+                self._end = (header.counter + 1) % U32_WRAP
+            self._settle_end(idle=False)
+            return self._enqueue(slot, header, received_ns)
+
+    def _enqueue(self, slot: _Slot, header: FrameHeader, received_ns: int) -> _Slot:
+        """Queue the frame (lock held); the overflow policy decides when the queue is full."""
+        q = self._queue
+        if len(q) >= self.queue_frames and self.overflow_wait_s > 0:
+            # A short, bounded wait: it also hands the dispatcher the GIL, which a reader
+            # working through a backlog (reads that never block) would otherwise keep.
+            self._cond.wait_for(
+                lambda: len(q) < self.queue_frames or self._stopping.is_set(),
+                self.overflow_wait_s,
+            )
+        if len(q) >= self.queue_frames:
+            self._stats.overruns += 1
+            if self.overflow == "drop_newest":
+                return slot  # this frame is dropped: the slot is reused
+            old_slot, _, _ = q.popleft()
+            self._free.append(old_slot)
+        q.append((slot, header, received_ns))
+        self._cond.notify_all()
+        return self._free.pop()  # never empty: see the slot count in start()
+
+    def _in_sequence(self, counter: int) -> bool:
+        """Account for ``counter`` (lock held): lost frames before it; False if it goes back."""
+        if self._last_seen is None:
+            self._last_seen = self._first_seen = counter
+            self._unattributed = 0
+            return True
+        step = (counter - self._last_seen) % U32_WRAP
+        if step == 0 or step >= U32_WRAP // 2:
+            return False
+        self._stats.lost += max(0, step - 1 - self._unattributed)
+        self._unattributed = 0
+        self._last_seen = counter
+        return True
+
+    def _settle_end(self, *, idle: bool) -> None:
+        """Account the end of the stream if it is due (lock held)."""
+        end = self._end
+        if end is None:
+            return
+        last = self._last_seen
+        missing = 0 if last is None else (end - 1 - last) % U32_WRAP
+        if missing >= U32_WRAP // 2:
+            missing = 0  # frames past the end arrived: nothing more is missing
+        if (missing or last is None) and not idle:
+            return  # frames may still be on their way: wait for the line to go quiet
+        self._stats.lost += max(0, missing - self._unattributed)
+        self._unattributed = 0
+        if last is not None:
+            self._last_seen = (end - 1) % U32_WRAP  # late frames count as out of order
+        self._end = None
+
+    def _broken(self, kind: str, nbytes: int, counter: int | None, *, why: str = "") -> None:
+        """Count a broken transfer; it stands for one frame in the counter bookkeeping."""
+        with self._cond:
+            if kind == "short":
+                self._stats.short += 1
+            else:
+                self._stats.corrupt += 1
+            if counter is None:
+                self._unattributed += 1  # the next counter gap has one frame less lost
+            else:
+                self._in_sequence(counter)  # known: this frame is accounted, not lost
+        detail = why or f"a {kind} transfer of {nbytes} bytes"
+        self.problem = detail
+        log.debug("frame stream %s: %s", self.ident, detail)
+
+    @staticmethod
+    def _counter_in(slot: _Slot, filled: int) -> int | None:
+        """The counter of a partial frame whose header arrived intact, else None."""
+        if filled < HEADER_BYTES:
+            return None
+        try:
+            return decode_header(slot.view[:HEADER_BYTES]).counter
+        except StreamFormatError:
+            return None
+
+    def _clear_halt(self, dev: Any) -> None:
+        try:
+            dev.clear_halt(ENDPOINT_IN)
+        except usb.core.USBError as exc:
+            raise StreamError(
+                f"cannot clear the halt of endpoint 0x{ENDPOINT_IN:02X} on {self.ident}: {exc}; "
+                "reset the camera"
+            ) from exc
+
+    def _warn_idle(self, idle_s: float) -> None:
+        if idle_s < self.no_data_warning_s:
+            return
+        message = (
+            f"no data from {self.ident} for {idle_s:.0f} s; check that the camera is "
+            "streaming (`camctl stream --status`), its trigger and line rate, and the USB link"
+        )
+        if self.problem != message:
+            log.warning("frame stream: %s", message)
+        self.problem = message
+
+    def _count(self, name: str) -> None:
+        with self._lock:
+            setattr(self._stats, name, getattr(self._stats, name) + 1)
+
+    # -- the dispatcher thread --------------------------------------------------------------------
+
+    def _dispatch_loop(self) -> None:
+        cond = self._cond
+        while True:
+            with cond:
+                cond.wait_for(lambda: bool(self._queue) or self._reader_done)
+                if not self._queue:
+                    return  # the reader has stopped and everything was delivered
+                slot, header, received_ns = self._queue.popleft()
+                self._dispatching = True
+                consumers = self._consumers
+                cond.notify_all()  # a reader waiting for a queue place may go on
+            try:
+                self._deliver(slot, header, received_ns, consumers)
+            finally:
+                with cond:
+                    self._free.append(slot)
+                    self._dispatching = False
+                    cond.notify_all()
+
+    def _deliver(
+        self,
+        slot: _Slot,
+        header: FrameHeader,
+        received_ns: int,
+        consumers: tuple[Consumer, ...],
+    ) -> None:
+        payload = slot.view[HEADER_BYTES : HEADER_BYTES + header.payload_bytes]
+        if crc32(payload) != header.payload_crc32:
+            with self._lock:
+                self._stats.corrupt += 1
+            self.problem = f"frame {header.counter}: payload CRC mismatch"
+            return
+        last = self._last_delivered
+        if last is None:
+            # Before the first delivery, count from the first frame the reader saw (set before
+            # this frame was queued): a rejected first frame is a gap too.
+            first = self._first_seen if self._first_seen is not None else header.counter
+            last = (first - 1) % U32_WRAP
+        gap = (header.counter - last - 1) % U32_WRAP
+        npix = header.rows * header.cols
+        with self._lock:
+            index = self._stats.frames
+        frame = ReceivedFrame(
+            header=header,
+            pixels=slot.pixels[:npix].reshape(header.rows, header.cols),
+            received_ns=received_ns,
+            gap_before=gap,
+            index=index,
+        )
+        for cb in consumers:
+            try:
+                cb(frame)
+            except Exception:
+                with self._lock:
+                    self._stats.consumer_errors += 1
+                log.exception("frame stream: consumer %r failed on frame %d", cb, header.counter)
+        self._last_delivered = header.counter
+        with self._lock:
+            self._t_last_frame = time.monotonic()
+            s = self._stats
+            s.frames += 1
+            s.bytes += header.frame_bytes
+            self._pixels += npix
+            if s.first_counter is None:
+                s.first_counter = header.counter
+            s.last_counter = header.counter

@@ -1,0 +1,365 @@
+"""The simulated camera's physics: scene, stage, optics and sensor make window frames.
+
+``CameraModel(profile, sensor)`` renders what the sensor whose registers ``sensor`` holds
+(``firmware_models.sensor.SensorModel``) would read out, for the camera ``profile`` describes
+(``camd.sensor.profile``). It reads the window, exposure, gain, offset, test pattern and timing
+from the registers on every render, so register writes take effect on the next frame.
+
+One frame (``render(t_s)``; window row 0 ends its exposure at ``t_s``):
+
+1. Timing (physics.md §2 eq 4, §3): a rolling shutter ends row ``i``'s exposure at
+   ``t_s + i T_line``; global and frame-transfer shutters end every row at ``t_s``. Each row
+   starts its exposure ``T_exp`` before it ends. ``T_line``, ``T_exp`` and the TDI line period
+   come from ``sensor.timing()``.
+2. Motion: the stage's position at each row's exposure start and end, in image rows
+   ``d = magnification * x_stage / pitch`` (physics.md §2: ``T_line,TDI = p / v_image``,
+   ``v_image = magnification * v_stage``). Without an explicit stage or speed the stage tracks:
+   it runs at the synchronous speed for the current TDI line period, one row per period.
+3. Photons: the scene's exact time-and-aperture integral (``firmware_models.scene``).
+4. Electrons: ``QE * photons * (1 + PRNU)`` plus dark charge
+   ``I_dark(T) * (1 + DSNU) * T_exp`` with ``I_dark(T) = I_ref * 2^((T - T_ref) / T_double)``.
+5. Temporal noise (physics.md §5): photon and dark shot noise and read noise, drawn as ONE
+   Gaussian per pixel with mean ``S + D`` and variance ``S + D + sigma_read^2`` (the Poisson
+   shot noise replaced by a Gaussian of the same mean and variance: mean and variance exact,
+   higher moments not; one draw keeps a 534 x 2048 frame fast). Then full-well clipping
+   (a saturated pixel reads the full-well charge, without read noise).
+6. ADC (physics.md §5): ``DN = e K + B``, ``K`` the system gain for the gain register
+   (``CameraProfile.system_gain_dn_per_e``), ``B`` the black level for the offset register;
+   rounded to whole DN and clipped to ``[0, 2^adc_bits - 1]``; then the ADC's
+   ``output_bits`` MSBs are kept (the IBIS5 drops 2 LSBs).
+7. Binning (``binning``; physics.md §3): the FPGA sums 2x2 blocks (``camd.tdi.bin2x2``).
+
+Fixed-pattern maps (PRNU, DSNU) cover the whole array, drawn once from ``seed``; temporal noise
+is drawn fresh for every frame from a separate seeded stream, so frames are independent and the
+same seed with the same sequence of renders gives identical frames. A test pattern other than
+``off`` in the sensor's test_pattern role replaces the pixels (``firmware_models.lvds``).
+The model does not advance the sensor's frame counter: whoever reads frames out does.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from camd.sensor.profile import SHUTTERS, CameraProfile
+from camd.sensor.timing_view import SensorTiming
+from camd.tdi.binning import bin2x2
+from firmware_models.lvds import DEFAULT_TRAINING_WORD, TestPattern, pattern_frame
+from firmware_models.scene import Scene, SceneSpec, build_scene
+from firmware_models.sensor import SensorModel
+from firmware_models.stage import LinearStage, Stage
+
+Array = npt.NDArray[Any]
+
+_FIXED_PATTERN_STREAM = 0x4650  # "FP": PRNU and DSNU maps
+_TEMPORAL_STREAM = 0x544E  # "TN": per-frame noise, independent of the fixed pattern
+DEFAULT_FILL_OF_RANGE = 0.25  # the default flat field fills a quarter of the output range
+
+
+class CameraModel:
+    """Scene + stage + optics + the sensor's physics; see the module docstring.
+
+    Attributes the caller may change between renders: ``scene`` (or ``set_scene``),
+    ``stage_speed_m_s`` (None: track the TDI line period), ``stage`` (an explicit ``Stage``,
+    which overrides ``stage_speed_m_s``), ``temperature_degc``, ``binning``.
+    """
+
+    def __init__(self, profile: CameraProfile, sensor: SensorModel, *, seed: int = 0) -> None:
+        regmap = sensor.regmap
+        if regmap.sensor != profile.sensor:
+            raise ValueError(
+                f"profile {profile.profile} is for sensor {profile.sensor}, but the sensor model "
+                f"carries the {regmap.sensor} register map; use load_register_map"
+                f"({profile.sensor!r})"
+            )
+        if (regmap.rows, regmap.columns) != (profile.rows.value, profile.columns.value):
+            raise ValueError(
+                f"profile {profile.profile} has {profile.rows.value} x {profile.columns.value} "
+                f"pixels, the {regmap.sensor} map {regmap.rows} x {regmap.columns}"
+            )
+        self.profile = profile
+        self.sensor = sensor
+        self.seed = seed
+        self.temperature_degc: float = profile.dark_reference_temp_degc.value
+        self.binning = False
+        self.stage_speed_m_s: float | None = None
+        self.stage: Stage | None = None
+        self._noise = np.random.default_rng([seed, _TEMPORAL_STREAM])
+        # Drawn on first use: a 2048 x 2048 array takes ~0.1 s, and not every model renders.
+        self._maps: tuple[Array, Array] | None = None
+        self._default_photons = self._moderate_photons()
+        self.scene: Scene = build_scene(
+            SceneSpec(),
+            columns=profile.columns.value,
+            pitch_m=profile.pitch_m.value,
+            default_photons=self._default_photons,
+        )
+
+    # -- scene and stage --------------------------------------------------------------------------
+
+    def set_scene(self, spec: SceneSpec | str | Scene) -> Scene:
+        """Show a scene: a Scene, a SceneSpec or its text (``"bars:lux=3,drift_deg=0.5"``).
+
+        Without a level in the spec the scene gets the camera's default level (a quarter of the
+        output range at the exposure the registers held when the camera was made).
+        """
+        if isinstance(spec, Scene):
+            self.scene = spec
+            return spec
+        parsed = SceneSpec.parse(spec) if isinstance(spec, str) else spec
+        self.scene = build_scene(
+            parsed,
+            columns=self.profile.columns.value,
+            pitch_m=self.profile.pitch_m.value,
+            default_photons=self._default_photons,
+        )
+        return self.scene
+
+    def synchronous_speed_m_s(self) -> float:
+        """Stage speed that moves the image one row per TDI line period: ``p / (m T_TDI)``.
+
+        physics.md §2 (``T_line,TDI = p / v_image``) and §6 eq 9 (``V_t = n_mag p / T_L``,
+        object side) with ``v_image = m v_stage``; ``T_TDI`` is the frame period the registers
+        set now (``SensorTiming.tdi_line_period_s``).
+        """
+        period_s = self.sensor.timing().tdi_line_period_s
+        return self.profile.pitch_m.value / (self.profile.magnification.value * period_s)
+
+    def current_stage(self) -> Stage:
+        """The stage that moves the target now: ``stage``, or a linear stage at
+        ``stage_speed_m_s``, or (both None) at the synchronous speed."""
+        if self.stage is not None:
+            return self.stage
+        speed = self.stage_speed_m_s
+        return LinearStage(self.synchronous_speed_m_s() if speed is None else speed)
+
+    def image_rows(self, t_s: npt.ArrayLike) -> Array:
+        """Image displacement in rows at times ``t_s``: ``m x_stage(t) / p`` (physics.md §2)."""
+        times = np.asarray(t_s, dtype=np.float64)
+        position = self.current_stage().position_m(times)
+        scale = self.profile.magnification.value / self.profile.pitch_m.value
+        result: Array = np.asarray(position, dtype=np.float64) * scale
+        return result
+
+    # -- settings the registers make --------------------------------------------------------------
+
+    @property
+    def shutter(self) -> str:
+        """The readout mode's shutter if it names one (IBIS5: rolling/global), else the profile's."""
+        mode = self.sensor.readout_mode if self.sensor.regmap.role("readout_mode") else None
+        if isinstance(mode, str) and mode in SHUTTERS:
+            return mode
+        return self.profile.shutter.value
+
+    @property
+    def rows(self) -> int:
+        """Rows of the window the registers set (before binning)."""
+        return self.window()[1]
+
+    @property
+    def columns(self) -> int:
+        """Columns of the window the registers set (before binning)."""
+        return self.window()[3]
+
+    @property
+    def bits(self) -> int:
+        """Bits per output pixel: ``output_bits``, two more when binned (a sum of 4)."""
+        return self.profile.output_bits.value + (2 if self.binning else 0)
+
+    def system_gain_dn_per_e(self) -> float:
+        """``K`` (ADC DN per electron) for the gain register's value now."""
+        gain = self.sensor.gain if self.sensor.regmap.role("gain") else None
+        return self.profile.system_gain_dn_per_e(self.profile.analog_gain_factor(gain))
+
+    def black_level_dn(self) -> float:
+        """Black level in ADC DN for the offset register's value now."""
+        offset = self.sensor.offset if self.sensor.regmap.role("offset") else None
+        return self.profile.black_level_for(offset)
+
+    def dark_factor(self) -> float:
+        """Dark current at ``temperature_degc`` relative to the profile's reference temperature:
+        ``2^((T - T_ref) / T_double)`` (the doubling rule; it scales the DSNU map too)."""
+        p = self.profile
+        doublings = (self.temperature_degc - p.dark_reference_temp_degc.value) / (
+            p.dark_doubling_temp_degc.value
+        )
+        return math.pow(2.0, doublings)
+
+    def dark_current_e_per_s(self) -> float:
+        """Mean dark current at ``temperature_degc`` (doubling rule, see the profile)."""
+        return self.profile.dark_current_e_per_s.value * self.dark_factor()
+
+    def window(self) -> tuple[int, int, int, int]:
+        """(first row, rows, first column, columns) of the window, as array indices."""
+        regmap = self.sensor.regmap
+        timing = self.sensor.timing()
+        row0 = timing.window_start_row - regmap.first_row
+        col_start = regmap.role_count("window_start_column", self.sensor.value)
+        col0 = 0 if col_start is None else col_start - regmap.first_column
+        cols = regmap.role_count("window_columns", self.sensor.value) or regmap.columns
+        rows = timing.window_rows
+        if row0 < 0 or row0 + rows > regmap.rows or col0 < 0 or col0 + cols > regmap.columns:
+            raise ValueError(
+                f"window rows {row0}..{row0 + rows - 1}, columns {col0}..{col0 + cols - 1} "
+                f"(array indices) leave the {regmap.rows} x {regmap.columns} array; move or "
+                "shrink the window"
+            )
+        return row0, rows, col0, cols
+
+    # -- frames -----------------------------------------------------------------------------------
+
+    def render(self, t_s: float) -> Array:
+        """One window frame (uint16, ``(rows, cols)``; halved when binned) whose window row 0
+        ends its exposure at ``t_s``."""
+        row0, rows, col0, cols = self.window()
+        pattern = self._test_pattern(rows, cols)
+        if pattern is not None:
+            return bin2x2(pattern) if self.binning else pattern
+        timing = self.sensor.timing()
+        electrons = self._mean_electrons(t_s, timing, (row0, rows, col0, cols), np.float32)
+        p = self.profile
+        # One Gaussian per pixel: mean S + D, variance S + D + read^2 (module docstring, 5).
+        sigma = electrons + np.float32(p.read_noise_e.value**2)
+        np.sqrt(sigma, out=sigma)
+        sigma *= self._noise.standard_normal(electrons.shape, dtype=np.float32)
+        electrons += sigma
+        np.minimum(electrons, np.float32(p.full_well_e.value), out=electrons)
+        electrons *= np.float32(self.system_gain_dn_per_e())
+        electrons += np.float32(self.black_level_dn())
+        np.rint(electrons, out=electrons)
+        np.clip(electrons, 0.0, float(p.adc_max_dn), out=electrons)
+        frame = electrons.astype(np.uint16)
+        if p.output_shift_bits:
+            frame >>= p.output_shift_bits
+        return bin2x2(frame) if self.binning else frame
+
+    def expected_electrons(self, t_s: float, *, dtype: npt.DTypeLike = np.float32) -> Array:
+        """Noise-free charge per pixel (signal + dark, full-well clipped) of ``render(t_s)``'s
+        frame, including the fixed pattern; summed over 2x2 blocks when binned."""
+        window = self.window()
+        electrons = self._mean_electrons(t_s, self.sensor.timing(), window, dtype)
+        np.minimum(electrons, self.profile.full_well_e.value, out=electrons)
+        return bin2x2(electrons) if self.binning else electrons
+
+    def expected_dn(self, t_s: float, *, dtype: npt.DTypeLike = np.float32) -> Array:
+        """Noise-free output of ``render(t_s)`` before quantisation, in output DN.
+
+        ``e K + B`` clipped to the ADC range, divided by ``2^(adc_bits - output_bits)`` (not
+        floored), summed over 2x2 blocks when binned.
+        """
+        window = self.window()
+        electrons = self._mean_electrons(t_s, self.sensor.timing(), window, dtype)
+        p = self.profile
+        np.minimum(electrons, p.full_well_e.value, out=electrons)
+        dn = electrons * self.system_gain_dn_per_e() + self.black_level_dn()
+        np.clip(dn, 0.0, float(p.adc_max_dn), out=dn)
+        dn /= 2**p.output_shift_bits
+        return bin2x2(dn) if self.binning else dn
+
+    def exposure_times_s(
+        self, t_s: float, timing: SensorTiming | None = None, rows: int | None = None
+    ) -> tuple[Array, Array]:
+        """(start, end) of each window row's exposure for the frame whose row 0 ends at ``t_s``
+        (physics.md §2 eq 4, §3: a rolling shutter staggers rows by ``T_line``)."""
+        timing = self.sensor.timing() if timing is None else timing
+        n = timing.window_rows if rows is None else rows
+        if self.shutter == "rolling":
+            end = t_s + np.arange(n, dtype=np.float64) * timing.line_period_s
+        else:
+            end = np.full(n, float(t_s))
+        return end - timing.exposure_s, end
+
+    # -- internals --------------------------------------------------------------------------------
+
+    def _mean_electrons(
+        self,
+        t_s: float,
+        timing: SensorTiming,
+        window: tuple[int, int, int, int],
+        dtype: npt.DTypeLike,
+    ) -> Array:
+        row0, rows, col0, cols = window
+        start, end = self.exposure_times_s(t_s, timing, rows)
+        # Both ends in one stage call: a stepper's position may be costly to evaluate.
+        moved = self.image_rows(np.concatenate([start, end]))
+        electrons = self.scene.integrate(
+            row0,
+            rows,
+            cols,
+            moved[:rows],
+            moved[rows:],
+            None,
+            timing.exposure_s,
+            self.profile.aperture,
+            first_col=col0,
+            dtype=dtype,
+        )
+        response, dark_ref = self._fixed_patterns()
+        electrons *= response[row0 : row0 + rows, col0 : col0 + cols]
+        # Dark rate map at T_ref times the temperature factor, times the exposure.
+        scale = np.asarray(self.dark_factor() * timing.exposure_s, dtype=electrons.dtype)
+        dark = dark_ref[row0 : row0 + rows, col0 : col0 + cols] * scale
+        electrons += dark
+        return electrons
+
+    def _fixed_patterns(self) -> tuple[Array, Array]:
+        """QE * (1 + PRNU) and the dark-current map at T_ref (e-/s, >= 0), whole array."""
+        if self._maps is not None:
+            return self._maps
+        p = self.profile
+        rng = np.random.default_rng([self.seed, _FIXED_PATTERN_STREAM])
+        shape = (p.rows.value, p.columns.value)
+        response = rng.standard_normal(shape, dtype=np.float32)
+        response *= np.float32(p.prnu_fraction.value)
+        response += np.float32(1.0)
+        response *= np.float32(p.quantum_efficiency.value)
+        np.maximum(response, 0.0, out=response)
+        dark = rng.standard_normal(shape, dtype=np.float32)
+        dark *= np.float32(p.dsnu_e_per_s.value)
+        dark += np.float32(p.dark_current_e_per_s.value)
+        # A pixel cannot have negative dark current; with DSNU <= 20 % of the mean this clips
+        # nothing in practice (5 sigma).
+        np.maximum(dark, 0.0, out=dark)
+        self._maps = (response, dark)
+        return self._maps
+
+    def _moderate_photons(self) -> float:
+        """Photons/pixel/s that fill DEFAULT_FILL_OF_RANGE of the output range at the current
+        exposure (the lower of full well and the ADC range above the black level)."""
+        p = self.profile
+        timing = self.sensor.timing()
+        gain = self.system_gain_dn_per_e()
+        range_e = min(p.full_well_e.value, (p.adc_max_dn - self.black_level_dn()) / gain)
+        per_photon_s = p.quantum_efficiency.value * p.fill_factor.value * timing.exposure_s
+        return DEFAULT_FILL_OF_RANGE * range_e / max(per_photon_s, 1e-300)
+
+    def _test_pattern(self, rows: int, cols: int) -> Array | None:
+        """The frame a test pattern setting sends instead of pixels, or None for pixels."""
+        regmap = self.sensor.regmap
+        if regmap.role("test_pattern") is None:
+            return None
+        setting = self.sensor.test_pattern
+        if setting in ("off", 0):
+            return None
+        bits = self.profile.output_bits.value
+        if setting == "test_data" and regmap.has_register("TEST_DATA"):
+            # MT9M001: the sensor repeats the TEST_DATA register's value (mt9m001.toml).
+            value = int(self.sensor.value("TEST_DATA")) & ((1 << bits) - 1)
+            return np.full((rows, cols), value, dtype=np.uint16)
+        name = setting.upper() if isinstance(setting, str) else ""
+        kind = TestPattern[name] if name in TestPattern.__members__ else TestPattern.RAMP
+        word_name = regmap.role("training_word")
+        word = DEFAULT_TRAINING_WORD if word_name is None else int(self.sensor.value(word_name))
+        frame = pattern_frame(
+            kind,
+            rows,
+            cols,
+            word_bits=bits,
+            lanes=regmap.output.lanes,
+            training_word=word & ((1 << bits) - 1),
+        )
+        assert frame is not None  # OFF was handled above
+        return frame

@@ -1,0 +1,1092 @@
+"""A simulated EZ-USB FX3 frame streamer: the pyusb backend, its socket, the stream engine.
+
+The camera's frames reach the host over USB bulk IN from an FX3-class bridge (Cypress
+04B4:00F1, the FX3 streamer example's ids; USB 3.0, one vendor-class interface, bulk IN
+endpoint 0x81 with 1024-byte packets). The host (``camd.link.frame_stream.FrameStream``)
+finds and reads it through ``usb.core.find(..., backend=...)`` and ``dev.read`` exactly as it
+reads the hardware:
+
+- ``Fx3Backend`` / ``get_backend(path)``: the device as a ``usb.backend.IBackend`` in the host
+  process, its bulk endpoint fed from the simulator's stream socket;
+- ``StreamSocketServer``: the simulator's end of that socket (one host at a time);
+- ``StreamEngine``: the FX3 firmware's job: takes frames from a source (the camera model, or a
+  ``BankSource`` of ready-made frames), paces them, injects faults (``InjectSpec.frame_*``)
+  and sends each frame as one USB transfer;
+- ``python -m firmware_models.fx3 --socket PATH``: a streamer alone, for benchmarks.
+
+Transfers (docs/stream.md): the device ends every frame's transfer with a short packet, so a
+bulk read of L bytes returns min(L, bytes left in the current transfer) and a read that asks
+for less gets the rest on the next read; a timed-out read loses what it had received (pyusb
+discards it), as on the hardware. On the socket each transfer is one message::
+
+    device -> host   u8 kind, 3 zero bytes, u32 length (little-endian), then ``length`` bytes
+                     kind 1 TRANSFER (the bytes of one USB transfer), 2 STALL (length 0:
+                     the endpoint halted; the frame in flight is lost)
+    host -> device   kind 3 CLEAR_HALT (length 0): the host cleared the halt; sending resumes
+"""
+
+from __future__ import annotations
+
+import argparse
+import array
+import contextlib
+import dataclasses
+import json
+import logging
+import os
+import selectors
+import signal
+import socket
+import struct
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from types import FrameType, TracebackType
+from typing import Any
+
+import numpy as np
+
+from camd.protocol.stream import (
+    HEADER_BYTES,
+    U32_WRAP,
+    FrameFlags,
+    FrameHeader,
+    StreamMode,
+    crc32,
+    encode_header,
+)
+from firmware_models.inject import InjectSpec
+from firmware_models.usb_device import (
+    SPEED_SUPER,
+    ConfigurationDescriptor,
+    DeviceDescriptor,
+    EndpointDescriptor,
+    Handle,
+    InterfaceDescriptor,
+    SimulatedUsbDevice,
+    claim_socket_path,
+    release_socket_path,
+    usb_error,
+)
+
+log = logging.getLogger(__name__)
+
+# -- the device -------------------------------------------------------------------------------
+
+VENDOR_ID = 0x04B4  # Cypress (Infineon)
+PRODUCT_ID = 0x00F1  # the FX3 SDK's streamer example
+EP_IN = 0x81
+INTERFACE = 0
+CONFIGURATION = 1
+MAX_PACKET_BYTES = 1024  # USB 3.0 SuperSpeed bulk
+MAX_BURST = 15  # packets per burst - 1 (the companion descriptor's bMaxBurst)
+MANUFACTURER = "Cypress"
+PRODUCT = "FX3 frame streamer (simulated)"
+DEFAULT_SERIAL = "0000000001"
+
+# -- the socket between the simulator and the backend -----------------------------------------
+
+_MSG = struct.Struct("<BxxxI")
+MSG_TRANSFER = 1
+MSG_STALL = 2
+MSG_CLEAR_HALT = 3
+MAX_TRANSFER_BYTES = 1 << 30
+SOCKET_BUFFER_BYTES = 4 << 20  # a few frames in flight: fewer wake-ups per frame
+_SEND_TICK_S = 0.25  # how often a blocked send looks whether it should give up
+
+
+class StreamLinkError(ConnectionError):
+    """The stream socket to the simulated camera is unreachable; the message says what to do."""
+
+
+def _descriptors(
+    serial: str,
+) -> tuple[
+    DeviceDescriptor, ConfigurationDescriptor, InterfaceDescriptor, list[EndpointDescriptor]
+]:
+    device = DeviceDescriptor(
+        VENDOR_ID,
+        PRODUCT_ID,
+        bus=2,  # a SuperSpeed root hub
+        address=4,
+        port_number=1,
+        bcdUSB=0x0300,
+        bMaxPacketSize0=9,  # USB 3: 2**9 = 512 bytes
+        bcdDevice=0x0100,
+        speed=SPEED_SUPER,
+    )
+    configuration = ConfigurationDescriptor(
+        bConfigurationValue=CONFIGURATION,
+        bmAttributes=0x80,  # bus powered
+        bMaxPower=25,  # 200 mA in the 8 mA units of SuperSpeed
+    )
+    interface = InterfaceDescriptor(bInterfaceNumber=INTERFACE, bInterfaceClass=0xFF)
+    # SuperSpeed endpoint companion: bursts of 16 packets, no streams.
+    companion = struct.pack("<BBBBH", 6, 0x30, MAX_BURST, 0, 0)
+    endpoint = EndpointDescriptor(
+        EP_IN,
+        bmAttributes=0x02,  # bulk
+        wMaxPacketSize=MAX_PACKET_BYTES,
+        bInterval=0,
+        extra_descriptors=list(companion),
+    )
+    return device, configuration, interface, [endpoint]
+
+
+class _Gone(Exception):
+    """The simulator's end of the stream socket went away (or broke the protocol)."""
+
+
+class Fx3Backend(SimulatedUsbDevice):
+    """A pyusb backend with one simulated FX3 streamer, fed from the stream socket at ``path``.
+
+    The device is plugged while the socket is connected: construction connects (or raises
+    StreamLinkError), a lost connection unplugs it (every call then fails with ENODEV), and
+    enumeration connects again if a simulator listens once more. Only ``bulk_read`` on 0x81
+    moves data; it receives straight into the caller's buffer. No kernel driver binds to the
+    vendor-class interface unless ``kernel_driver`` names one (tests of the detach path).
+    """
+
+    def __init__(
+        self,
+        path: str | Path,
+        *,
+        serial: str = DEFAULT_SERIAL,
+        kernel_driver: str | None = None,
+        connect_timeout_s: float = 2.0,
+    ) -> None:
+        device, configuration, interface, endpoints = _descriptors(serial)
+        super().__init__(
+            name="FX3",
+            device=device,
+            configuration=configuration,
+            interface=interface,
+            endpoints=endpoints,
+            strings={1: MANUFACTURER, 2: PRODUCT, 3: serial},
+            kernel_driver=kernel_driver,
+        )
+        self.path = Path(path)
+        self.serial = serial
+        self.connect_timeout_s = connect_timeout_s
+        self._sock: socket.socket | None = None
+        self._io_lock = threading.Lock()  # one bulk read at a time; not held for control calls
+        self._send_lock = threading.Lock()
+        self._msg = bytearray(_MSG.size)
+        self._msg_view = memoryview(self._msg)
+        self._msg_got = 0  # bytes of the next message header received so far
+        self._remaining = 0  # bytes left in the current transfer
+        self._halted = False
+        self._closed = False
+        self.plugged = False
+        self._connect()
+
+    # -- connection (the cable) -----------------------------------------------------------------
+
+    def _connect(self) -> None:
+        sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        with contextlib.suppress(OSError):
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, SOCKET_BUFFER_BYTES)
+        sock.settimeout(self.connect_timeout_s)
+        try:
+            sock.connect(str(self.path))
+        except OSError as exc:
+            sock.close()
+            raise StreamLinkError(
+                f"no simulated camera streams frames on {self.path} ({exc.strerror or exc}); "
+                "start it with `python -m firmware_models --usb-socket PATH` (or "
+                "`python -m firmware_models.fx3 --socket PATH`) or check the path"
+            ) from exc
+        with self._lock:
+            self._sock = sock
+            self._msg_got = 0
+            self._remaining = 0
+            self._halted = False
+            self.plug()
+
+    def close(self) -> None:
+        """Disconnect for good (the device is unplugged and enumeration no longer reconnects)."""
+        with self._lock:
+            self._closed = True
+            self.unplug()
+
+    def _on_unplug(self) -> None:
+        sock, self._sock = self._sock, None
+        if sock is not None:
+            # shutdown wakes a read blocked on the socket; the socket is closed when the last
+            # reference (the reader's) goes away.
+            with contextlib.suppress(OSError):
+                sock.shutdown(socket.SHUT_RDWR)
+
+    def _on_reset(self) -> None:
+        self._halted = False
+
+    def enumerate_devices(self) -> Iterator[Any]:
+        if not self.plugged and not self._closed:
+            with contextlib.suppress(StreamLinkError):
+                self._connect()  # the simulator is back: the device enumerates again
+        yield from super().enumerate_devices()
+
+    def _lost(self, sock: socket.socket, why: str) -> Exception:
+        with self._lock:
+            if self._sock is sock:
+                self.unplug()
+        sock.close()
+        return usb_error("no_device", f"simulated FX3: {why}")
+
+    # -- transfers ------------------------------------------------------------------------------
+
+    def bulk_read(
+        self, dev_handle: Handle, ep: int, intf: int, buff: array.array[int], timeout: int
+    ) -> int:
+        with self._lock:
+            self._check_claimed(dev_handle, intf)
+            if ep != EP_IN:
+                raise usb_error("pipe", f"endpoint 0x{ep:02X} is not the bulk IN endpoint")
+            if self._halted:
+                raise usb_error("pipe", f"endpoint 0x{EP_IN:02X} is halted; clear_halt it")
+            sock = self._sock
+        assert sock is not None  # plugged
+        deadline = None if timeout <= 0 else time.monotonic() + timeout / 1000.0
+        view = memoryview(buff)
+        if view.format != "B":
+            view = view.cast("B")
+        with self._io_lock:
+            try:
+                return self._read(sock, view, deadline)
+            except _Gone as exc:
+                raise self._lost(sock, str(exc)) from None
+
+    def _read(self, sock: socket.socket, view: memoryview, deadline: float | None) -> int:
+        if self._remaining == 0:
+            while self._msg_got < _MSG.size:
+                self._msg_got += self._recv(sock, self._msg_view[self._msg_got :], deadline)
+            self._msg_got = 0
+            kind, length = _MSG.unpack(self._msg)
+            if kind == MSG_STALL:
+                with self._lock:
+                    self._halted = True
+                raise usb_error("pipe", f"endpoint 0x{EP_IN:02X} stalled")
+            if kind != MSG_TRANSFER or length > MAX_TRANSFER_BYTES:
+                raise _Gone(f"stream socket protocol error: message kind {kind}, length {length}")
+            if length == 0:
+                return 0  # a zero-length packet: an empty transfer
+            self._remaining = length
+        want = min(len(view), self._remaining)
+        got = 0
+        try:
+            while got < want:
+                got += self._recv(sock, view[got:want], deadline)
+        finally:
+            # Bytes received by a read that then times out are gone, as on the hardware.
+            self._remaining -= got
+        return got
+
+    def _recv(self, sock: socket.socket, view: memoryview, deadline: float | None) -> int:
+        if deadline is None:
+            sock.settimeout(None)
+        else:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                raise usb_error("timeout", "no data from the FX3 within the read's timeout")
+            sock.settimeout(left)
+        try:
+            n = sock.recv_into(view)
+        except (TimeoutError, BlockingIOError):
+            raise usb_error("timeout", "no data from the FX3 within the read's timeout") from None
+        except OSError as exc:
+            raise _Gone(f"stream socket {self.path}: {exc}") from exc
+        if n == 0:
+            raise _Gone(f"the simulator closed the stream socket {self.path}")
+        return n
+
+    def clear_halt(self, dev_handle: Handle, ep: int) -> None:
+        with self._lock:
+            self._check_handle(dev_handle)
+            if ep != EP_IN:
+                raise usb_error("not_found", f"no endpoint 0x{ep:02X}")
+            self._halted = False
+            sock = self._sock
+        assert sock is not None
+        try:
+            with self._send_lock:
+                sock.sendall(_MSG.pack(MSG_CLEAR_HALT, 0))
+        except OSError as exc:
+            raise self._lost(sock, f"cannot send CLEAR_HALT ({exc})") from None
+
+    def bulk_write(
+        self, dev_handle: Handle, ep: int, intf: int, data: array.array[int], timeout: int
+    ) -> int:
+        raise usb_error("pipe", f"the FX3 streamer has no OUT endpoint 0x{ep:02X}")
+
+    def intr_read(
+        self, dev_handle: Handle, ep: int, intf: int, buff: array.array[int], timeout: int
+    ) -> int:
+        raise usb_error("pipe", "the FX3 streamer has no interrupt endpoint")
+
+    def intr_write(
+        self, dev_handle: Handle, ep: int, intf: int, data: array.array[int], timeout: int
+    ) -> int:
+        raise usb_error("pipe", "the FX3 streamer has no interrupt endpoint")
+
+
+def get_backend(path: str | Path, **kwargs: Any) -> Fx3Backend:
+    """A backend with one simulated FX3 fed from the simulator's stream socket at ``path``.
+
+    The pyusb convention for backend modules; keyword arguments go to ``Fx3Backend``. Raises
+    StreamLinkError if no simulator listens there."""
+    return Fx3Backend(path, **kwargs)
+
+
+# -- the simulator's end of the socket ------------------------------------------------------
+
+
+class _Connection:
+    """The host's connection: sent on by the engine, read (CLEAR_HALT) by the accept thread."""
+
+    def __init__(self, sock: socket.socket) -> None:
+        self.sock = sock
+        self.send_lock = threading.RLock()
+        self.dead = False
+        self.rx = bytearray()
+
+
+class _Aborted(Exception):
+    """A send was given up (the engine is shutting down)."""
+
+
+class StreamSocketServer:
+    """The simulator's end of the stream socket at ``path``: one host (backend) at a time.
+
+    A new connection replaces the previous one (a host that went away without closing must
+    not keep the device), which then reads ENODEV. The server holds the endpoint's halt
+    state: ``stall()`` halts it (STALL message) and the host's CLEAR_HALT clears it; a new
+    host finds it clear. A stale socket file (from a simulator that died) is replaced; a live
+    one is an error. ``stop()`` closes the connection and removes the socket file if it is
+    still this server's.
+    """
+
+    def __init__(self, path: str | Path, *, send_buffer_bytes: int = SOCKET_BUFFER_BYTES) -> None:
+        self.path = Path(path)
+        self.send_buffer_bytes = send_buffer_bytes
+        self.connections_accepted = 0
+        self._listener: socket.socket | None = None
+        self._inode: int | None = None
+        self._wake_r: socket.socket | None = None
+        self._wake_w: socket.socket | None = None
+        self._stopping = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._cond = threading.Condition()
+        self._conn: _Connection | None = None
+        self._halted = False
+
+    def __enter__(self) -> StreamSocketServer:
+        self.start()
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.stop()
+
+    # -- lifecycle --------------------------------------------------------------------------------
+
+    def start(self) -> None:
+        """Bind, listen and start the accept thread."""
+        if self._thread is not None:
+            raise RuntimeError("the stream socket server is already running")
+        claim_socket_path(self.path, "the frame stream")
+        listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        try:
+            listener.bind(str(self.path))
+            listener.listen(4)
+        except OSError:
+            listener.close()
+            raise
+        self._listener = listener
+        self._stopping.clear()
+        self._wake_r, self._wake_w = socket.socketpair()
+        self._inode = os.stat(self.path).st_ino
+        self._thread = threading.Thread(
+            target=self._accept_loop, name=f"stream-socket {self.path}", daemon=True
+        )
+        self._thread.start()
+
+    def stop(self) -> None:
+        """Close the listener and the connection, join the thread, remove the socket file."""
+        if self._thread is None:
+            return
+        self._stopping.set()
+        self._wake()
+        self._thread.join()
+        self._thread = None
+        with self._cond:
+            conn, self._conn = self._conn, None
+            self._cond.notify_all()
+        if conn is not None:
+            self._close(conn)
+        if self._listener is not None:
+            self._listener.close()
+            self._listener = None
+        release_socket_path(self.path, self._inode)
+        for sock in (self._wake_r, self._wake_w):
+            if sock is not None:
+                sock.close()
+        self._wake_r = self._wake_w = None
+
+    # -- state ------------------------------------------------------------------------------------
+
+    @property
+    def connected(self) -> bool:
+        """A host is connected."""
+        with self._cond:
+            return self._conn is not None
+
+    @property
+    def halted(self) -> bool:
+        """The bulk endpoint is halted (a STALL the host has not cleared)."""
+        with self._cond:
+            return self._halted
+
+    @property
+    def ready(self) -> bool:
+        """A transfer can be sent now: a host is connected and the endpoint is not halted."""
+        with self._cond:
+            return self._conn is not None and not self._halted
+
+    def wait_connected(self, timeout_s: float) -> bool:
+        """Wait until a host is connected; False on timeout."""
+        with self._cond:
+            return self._cond.wait_for(lambda: self._conn is not None, timeout_s)
+
+    def wait_ready(self, timeout_s: float) -> bool:
+        """Wait until a transfer can be sent; False on timeout."""
+        with self._cond:
+            return self._cond.wait_for(
+                lambda: self._conn is not None and not self._halted, timeout_s
+            )
+
+    # -- sending (the engine's thread) ------------------------------------------------------------
+
+    def send_transfer(
+        self, parts: Sequence[bytes | memoryview], *, abort: Callable[[], bool] | None = None
+    ) -> bool:
+        """Send ``parts`` (concatenated) as one USB transfer; False if no host took it.
+
+        The parts go out with ``sendmsg`` (scatter-gather), so header and pixels are never
+        joined into a new buffer. ``abort()`` is asked while the host does not read; True
+        gives up the transfer (the connection is closed: it cannot be resynchronised)."""
+        length = sum(len(p) for p in parts)
+        return self._send([_MSG.pack(MSG_TRANSFER, length), *parts], abort=abort, halt=False)
+
+    def stall(self) -> bool:
+        """Halt the bulk endpoint (a STALL message); False if no host is connected."""
+        return self._send([_MSG.pack(MSG_STALL, 0)], abort=None, halt=True)
+
+    def _send(
+        self,
+        parts: list[bytes | memoryview],
+        *,
+        abort: Callable[[], bool] | None,
+        halt: bool,
+    ) -> bool:
+        with self._cond:
+            conn = self._conn
+            if conn is None or self._halted:
+                return False
+            if halt:
+                self._halted = True
+        with conn.send_lock:
+            if conn.dead:
+                return False
+            try:
+                _send_all(conn, parts, abort)
+            except (OSError, _Aborted):
+                self._kill(conn)
+                return False
+        return True
+
+    # -- the accept thread --------------------------------------------------------------------
+
+    def _wake(self) -> None:
+        if self._wake_w is not None:
+            with contextlib.suppress(OSError):
+                self._wake_w.send(b"x")
+
+    def _kill(self, conn: _Connection) -> None:
+        """Take ``conn`` out of service (any thread); the accept thread closes it."""
+        conn.dead = True
+        with contextlib.suppress(OSError):
+            conn.sock.shutdown(socket.SHUT_RDWR)
+        with self._cond:
+            if self._conn is conn:
+                self._conn = None
+                self._halted = False
+            self._cond.notify_all()
+        self._wake()
+
+    @staticmethod
+    def _close(conn: _Connection) -> None:
+        conn.dead = True
+        with contextlib.suppress(OSError):
+            conn.sock.shutdown(socket.SHUT_RDWR)
+        with conn.send_lock:  # a send in progress fails at once after the shutdown
+            conn.sock.close()
+
+    def _accept_loop(self) -> None:
+        assert self._listener is not None and self._wake_r is not None
+        registered: _Connection | None = None
+        with selectors.DefaultSelector() as sel:
+            sel.register(self._listener, selectors.EVENT_READ)
+            sel.register(self._wake_r, selectors.EVENT_READ)
+            while not self._stopping.is_set():
+                with self._cond:
+                    current = self._conn
+                if registered is not current:
+                    if registered is not None:
+                        sel.unregister(registered.sock)
+                        self._close(registered)
+                    if current is not None:
+                        sel.register(current.sock, selectors.EVENT_READ, current)
+                    registered = current
+                for key, _ in sel.select():
+                    if key.fileobj is self._wake_r:
+                        with contextlib.suppress(OSError):
+                            self._wake_r.recv(64)
+                    elif key.fileobj is self._listener:
+                        if not self._stopping.is_set():
+                            self._accept()
+                    elif isinstance(key.data, _Connection):
+                        self._control(key.data)
+            if registered is not None:
+                sel.unregister(registered.sock)
+                with self._cond:
+                    current = self._conn
+                if registered is not current:
+                    self._close(registered)  # stop() closes the current one
+
+    def _accept(self) -> None:
+        assert self._listener is not None
+        try:
+            sock, _ = self._listener.accept()
+        except OSError:
+            return
+        with contextlib.suppress(OSError):
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, self.send_buffer_bytes)
+        sock.settimeout(_SEND_TICK_S)
+        conn = _Connection(sock)
+        with self._cond:
+            old, self._conn = self._conn, conn
+            self._halted = False  # a new host: the endpoint starts clear
+            self.connections_accepted += 1
+            self._cond.notify_all()
+        if old is not None:
+            self._kill(old)  # the accept loop closes it on its next pass
+
+    def _control(self, conn: _Connection) -> None:
+        try:
+            data = conn.sock.recv(256)
+        except (TimeoutError, BlockingIOError):
+            return
+        except OSError:
+            data = b""
+        if not data:
+            self._kill(conn)  # the host closed the connection (unplugged)
+            return
+        conn.rx += data
+        while len(conn.rx) >= _MSG.size:
+            kind, length = _MSG.unpack_from(conn.rx)
+            del conn.rx[: _MSG.size]
+            if kind != MSG_CLEAR_HALT or length != 0:
+                log.warning("stream socket: unknown host message %d/%d; hanging up", kind, length)
+                self._kill(conn)
+                return
+            with self._cond:
+                if self._conn is conn:
+                    self._halted = False
+                    self._cond.notify_all()
+
+
+def _send_all(
+    conn: _Connection, parts: list[bytes | memoryview], abort: Callable[[], bool] | None
+) -> None:
+    """sendmsg until every byte of ``parts`` is out; only memoryview slices, never joins."""
+    views = [memoryview(p) for p in parts if len(p)]
+    while views:
+        if conn.dead:
+            raise _Aborted
+        try:
+            n = conn.sock.sendmsg(views)
+        except (TimeoutError, BlockingIOError):
+            if abort is not None and abort():
+                raise _Aborted from None
+            continue
+        while n:
+            if n >= len(views[0]):
+                n -= len(views[0])
+                views.pop(0)
+            else:
+                views[0] = views[0][n:]
+                n = 0
+
+
+# -- the stream engine ----------------------------------------------------------------------
+
+FrameSource = Callable[[int], tuple[FrameHeader, np.ndarray]]
+DoneCallback = Callable[[int, int], None]
+
+
+@dataclass(slots=True)
+class StreamCounters:
+    """What the engine did since it was made (SIM_GET_STREAM_STATS)."""
+
+    produced: int = 0  # frames taken from the source (counters used)
+    sent: int = 0  # frames sent whole (including corrupted ones)
+    bytes_sent: int = 0  # bytes of every transfer, whole or short
+    dropped: int = 0  # injected: not sent
+    corrupted: int = 0  # injected: sent with one payload bit flipped
+    shortened: int = 0  # injected: the transfer ended early
+    stalls: int = 0  # injected: the endpoint halted; the frame in flight was lost
+    undelivered: int = 0  # made while no host could take them (none connected, or halted)
+
+    def as_dict(self) -> dict[str, int]:
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+
+
+@dataclass(slots=True)
+class _Stream:
+    frames: int
+    period_s: float
+    pace: bool
+    next_counter: int  # after the stream's last frame so far
+    produced: int = 0
+    stop: bool = False
+    done: bool = False
+    notify: bool = True  # call on_done when it ends
+
+
+class StreamEngine:
+    """The FX3 firmware's streaming job: frames from ``source`` to the host over ``server``.
+
+    ``start(frames, period_s, pace)`` begins a stream: the engine's thread calls
+    ``source(counter)`` for counter = ``first_counter``, +1, ... (mod 2**32); the source
+    returns the frame's complete header (payload CRC included) and its (rows, cols) uint16
+    pixels. Each frame goes out as one transfer (header + pixels by scatter-gather, no copy).
+    ``pace=True`` keeps at least ``period_s`` between frames in wall time (a slower source
+    just makes the stream slower; nothing is dropped for that); frames made while no host can
+    take them (none connected, or the endpoint halted) are discarded and counted
+    ``undelivered``, and the next frame sent carries DEVICE_OVERFLOW. ``pace=False`` sends as
+    fast as the host reads, and waits (making nothing) while no host can take frames.
+
+    A counted stream (``frames > 0``) ends by itself after that many frames, the last one
+    flagged LAST (its header CRC recomputed). ``stop()`` ends a stream after the frame in
+    progress. Either way ``on_done(frames_produced, next_counter)`` is called once, from the
+    engine's thread, after the stream's last frame went out (unless ``stop(notify=False)``).
+
+    Faults (``inject``, read per frame so it may be replaced at any time; rates per frame,
+    drawn from a numpy Generator seeded with ``seed``): frame_drop (not sent, counter used),
+    frame_corrupt (one payload bit flipped after the CRC, in a copy: the source's array is
+    never written), frame_short (a random prefix of 1 .. size-1 bytes is the whole transfer),
+    frame_stall (the endpoint halts: the frame is lost, nothing is sent until the host clears
+    the halt).
+
+    ``start`` and ``stop`` never wait for the engine's thread, so they may be called while
+    holding a lock the source takes. One thread serves all streams of the engine's life;
+    ``close()`` ends it.
+    """
+
+    def __init__(
+        self,
+        source: FrameSource | None = None,
+        *,
+        server: StreamSocketServer | None = None,
+        inject: InjectSpec | None = None,
+        seed: int | None = 0,
+        on_done: DoneCallback | None = None,
+    ) -> None:
+        self.source = source
+        self.server = server
+        self.inject = inject if inject is not None else InjectSpec()
+        self.on_done = on_done
+        self.counters = StreamCounters()
+        self.next_counter = 0
+        self._rng = np.random.default_rng(seed)
+        self._cond = threading.Condition()
+        self._pending: _Stream | None = None
+        self._current: _Stream | None = None
+        self._last: _Stream | None = None
+        self._closing = False
+        self._thread: threading.Thread | None = None
+
+    # -- control ----------------------------------------------------------------------------------
+
+    @property
+    def running(self) -> bool:
+        """A stream is on: started, not stopped, not finished."""
+        with self._cond:
+            s = self._pending or self._current
+            return s is not None and not s.stop and not s.done
+
+    @property
+    def frames_produced(self) -> int:
+        """Frames produced by the current (or last) stream, the one in progress included."""
+        with self._cond:
+            s = self._pending or self._current or self._last
+            return s.produced if s is not None else 0
+
+    def start(
+        self,
+        frames: int = 0,
+        period_s: float = 0.0,
+        pace: bool = True,
+        *,
+        first_counter: int | None = None,
+    ) -> None:
+        """Begin a stream of ``frames`` frames (0: until ``stop``), one per ``period_s``.
+
+        ``first_counter`` defaults to where the previous stream ended (``next_counter``)."""
+        if frames < 0:
+            raise ValueError(f"frames = {frames}: give a count >= 1, or 0 to stream until stop")
+        if not period_s >= 0.0:
+            raise ValueError(f"period_s = {period_s} must be >= 0")
+        if self.source is None:
+            raise RuntimeError("the stream engine has no frame source; set engine.source")
+        with self._cond:
+            if self._closing:
+                raise RuntimeError("the stream engine is closed")
+            if self.running:
+                raise RuntimeError("a stream is already running; stop() it first")
+            if first_counter is not None:
+                # A stopped stream finishing its frame in progress has used its last counter.
+                self.next_counter = first_counter % U32_WRAP
+            self._pending = _Stream(
+                frames=frames, period_s=period_s, pace=pace, next_counter=self.next_counter
+            )
+            if self._thread is None:
+                self._thread = threading.Thread(
+                    target=self._run, name="fx3-stream-engine", daemon=True
+                )
+                self._thread.start()
+            self._cond.notify_all()
+
+    def stop(self, *, notify: bool = True) -> int:
+        """End the stream after the frame in progress; frames it produced (that one included).
+
+        Does not wait for that frame to go out (see ``wait_idle``). ``notify=False``: do not
+        call ``on_done`` for this stream (the caller reports the end itself)."""
+        never_began = False
+        with self._cond:
+            s = self._pending or self._current
+            if s is None:
+                return self._last.produced if self._last is not None else 0
+            s.stop = True
+            s.notify = s.notify and notify
+            if s is self._pending:
+                self._pending = None
+                self._last = s
+                s.done = True
+                never_began = True
+            self._cond.notify_all()
+            produced, next_counter = s.produced, s.next_counter
+        if never_began and s.notify and self.on_done is not None:
+            self.on_done(produced, next_counter)  # it made no frame; still, it ended
+        return produced
+
+    def wait_idle(self, timeout_s: float | None = None) -> bool:
+        """Wait until no stream is in progress (the last frame is out); False on timeout."""
+        with self._cond:
+            return self._cond.wait_for(
+                lambda: self._pending is None and self._current is None, timeout_s
+            )
+
+    def close(self, timeout_s: float = 5.0) -> None:
+        """Stop any stream and end the engine's thread (an unread transfer is abandoned)."""
+        with self._cond:
+            self._closing = True
+            for s in (self._pending, self._current):
+                if s is not None:
+                    s.stop = True
+            self._cond.notify_all()
+        if self._thread is not None:
+            self._thread.join(timeout_s)
+
+    # -- the thread -------------------------------------------------------------------------------
+
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                self._cond.wait_for(lambda: self._pending is not None or self._closing)
+                if self._pending is None:
+                    return
+                stream, self._pending = self._pending, None
+                self._current = stream
+            try:
+                self._stream(stream)
+            except Exception:
+                log.exception("stream engine: the stream failed")
+            with self._cond:
+                stream.done = True
+                self._current = None
+                self._last = stream
+                produced, next_counter = stream.produced, stream.next_counter
+                self._cond.notify_all()
+            if stream.notify and self.on_done is not None:
+                try:
+                    self.on_done(produced, next_counter)
+                except Exception:
+                    log.exception("stream engine: on_done failed")
+
+    def _abort_send(self) -> bool:
+        return self._closing
+
+    def _wait(self, stream: _Stream, timeout_s: float) -> None:
+        """Sleep up to ``timeout_s``, waking early for stop/close."""
+        with self._cond:
+            self._cond.wait_for(lambda: stream.stop or self._closing, timeout_s)
+
+    def _stream(self, stream: _Stream) -> None:
+        due = time.monotonic()
+        overflow = False  # frames were undelivered since the last one sent
+        while True:
+            if not stream.pace:
+                # As fast as the host reads: with nobody to take frames, make none.
+                while not stream.stop and not self._closing:
+                    server = self.server
+                    if server is not None and server.wait_ready(0.05):
+                        break
+                    if server is None:
+                        self._wait(stream, 0.05)
+            elif stream.period_s > 0:
+                now = time.monotonic()
+                if due > now:
+                    self._wait(stream, due - now)
+                # Never faster than the period; a late frame moves the schedule, no catch-up.
+                due = max(due, time.monotonic()) + stream.period_s
+            with self._cond:
+                if stream.stop or self._closing:
+                    return
+                if stream.frames and stream.produced >= stream.frames:
+                    return
+                counter = self.next_counter
+                self.next_counter = (counter + 1) % U32_WRAP
+                stream.next_counter = self.next_counter
+                stream.produced += 1
+                self.counters.produced += 1
+                last = stream.frames > 0 and stream.produced == stream.frames
+            source = self.source
+            assert source is not None
+            header, pixels = source(counter)
+            sent = self._send_frame(header, pixels, last=last, overflow=overflow)
+            if sent is not None:
+                overflow = not sent
+
+    def _send_frame(
+        self, header: FrameHeader, pixels: np.ndarray, *, last: bool, overflow: bool
+    ) -> bool | None:
+        """Send one frame with the faults; True sent, False undelivered, None lost to a fault."""
+        server = self.server
+        c = self.counters
+        if server is None or not server.ready:
+            c.undelivered += 1
+            return False
+        spec, rng = self.inject, self._rng
+        if spec.frame_drop and rng.random() < spec.frame_drop:
+            c.dropped += 1
+            return None
+        if spec.frame_stall and rng.random() < spec.frame_stall:
+            if not server.stall():
+                c.undelivered += 1
+                return False
+            c.stalls += 1
+            return None
+        flags = header.flags
+        if overflow:
+            flags |= FrameFlags.DEVICE_OVERFLOW
+        if last:
+            flags |= FrameFlags.LAST
+        if flags != header.flags:
+            header = dataclasses.replace(header, flags=flags)
+        head = encode_header(header)
+        payload = pixels.data.cast("B")
+        if len(payload) != header.payload_bytes:
+            raise ValueError(
+                f"the source gave {len(payload)} payload bytes for a header saying "
+                f"{header.payload_bytes} (counter {header.counter})"
+            )
+        if spec.frame_corrupt and rng.random() < spec.frame_corrupt:
+            damaged = np.frombuffer(payload, dtype=np.uint8).copy()
+            bit = int(rng.integers(0, damaged.size * 8))
+            damaged[bit >> 3] ^= np.uint8(1 << (bit & 7))
+            payload = damaged.data
+            c.corrupted += 1
+        parts: list[bytes | memoryview] = [head, payload]
+        short = False
+        if spec.frame_short and rng.random() < spec.frame_short:
+            total = HEADER_BYTES + len(payload)
+            keep = int(rng.integers(1, total))  # 1 .. total - 1
+            parts = [head[:keep], payload[: max(0, keep - HEADER_BYTES)]]
+            short = True
+        if not server.send_transfer(parts, abort=self._abort_send):
+            c.undelivered += 1
+            return False
+        c.bytes_sent += sum(len(p) for p in parts)
+        if short:
+            c.shortened += 1
+        else:
+            c.sent += 1
+        return True
+
+
+# -- ready-made frames ----------------------------------------------------------------------
+
+
+class BankSource:
+    """A frame source replaying a bank of ready-made frames (benchmarks, tests).
+
+    Frame ``counter`` is bank frame ``counter % len(frames)`` with a fresh counter and
+    timestamp (``t0_ns + counter * line_period_ns``); payload CRCs and the SATURATED flag
+    (some pixel at 2**bits - 1) are computed once per bank frame, so a frame costs the source
+    no pass over its pixels. ``stages`` defaults to the rows in TDI mode, 0 in area mode.
+    """
+
+    def __init__(
+        self,
+        frames: Sequence[np.ndarray],
+        *,
+        line_period_ns: int,
+        bits: int,
+        mode: StreamMode,
+        stages: int | None = None,
+        t0_ns: int = 0,
+    ) -> None:
+        if not frames:
+            raise ValueError("a bank source needs at least one frame")
+        self.line_period_ns = line_period_ns
+        self.bits = bits
+        self.mode = StreamMode(mode)
+        self.t0_ns = t0_ns
+        self.frames: list[np.ndarray] = []
+        self._crc: list[int] = []
+        self._flags: list[FrameFlags] = []
+        adc_max = (1 << bits) - 1
+        for i, frame in enumerate(frames):
+            if frame.ndim != 2 or frame.dtype != np.dtype("<u2"):
+                raise ValueError(f"bank frame {i} is {frame.ndim}-D {frame.dtype}, not 2-D uint16")
+            frame = np.ascontiguousarray(frame)
+            frame.flags.writeable = False  # shared by every replay: nobody may change it
+            self.frames.append(frame)
+            self._crc.append(crc32(frame.data))
+            saturated = bool((frame >= adc_max).any())
+            self._flags.append(FrameFlags.SATURATED if saturated else FrameFlags(0))
+        rows = self.frames[0].shape[0]
+        self.stages = stages if stages is not None else (rows if mode == StreamMode.TDI else 0)
+
+    @classmethod
+    def random(
+        cls,
+        rows: int,
+        cols: int,
+        *,
+        count: int = 4,
+        bits: int = 12,
+        seed: int = 0,
+        line_period_ns: int = 25_000,
+        mode: StreamMode = StreamMode.TDI,
+    ) -> BankSource:
+        """``count`` frames of uniform random ``bits``-bit pixels."""
+        rng = np.random.default_rng(seed)
+        bank = [
+            rng.integers(0, 1 << bits, size=(rows, cols), dtype=np.uint16) for _ in range(count)
+        ]
+        return cls(bank, line_period_ns=line_period_ns, bits=bits, mode=mode)
+
+    def __call__(self, counter: int) -> tuple[FrameHeader, np.ndarray]:
+        i = counter % len(self.frames)
+        frame = self.frames[i]
+        rows, cols = frame.shape
+        header = FrameHeader(
+            counter=counter,
+            timestamp_ns=(self.t0_ns + counter * self.line_period_ns) % (1 << 64),
+            line_period_ns=self.line_period_ns,
+            rows=rows,
+            cols=cols,
+            bits=self.bits,
+            mode=self.mode,
+            stages=self.stages,
+            stage_position=0,
+            flags=self._flags[i],
+            payload_bytes=frame.nbytes,
+            payload_crc32=self._crc[i],
+        )
+        return header, frame
+
+
+# -- python -m firmware_models.fx3 ------------------------------------------------------------
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """A simulated FX3 alone, streaming a random frame bank (for benchmarks and tests).
+
+    Prints one JSON line when it listens, and one with the engine's counters when it ends
+    (SIGTERM, SIGINT or end of standard input)."""
+    p = argparse.ArgumentParser(
+        prog="python -m firmware_models.fx3",
+        description="A simulated FX3 frame streamer on a Unix socket, replaying random frames.",
+    )
+    p.add_argument("--socket", required=True, type=Path, help="Unix socket path to listen on")
+    p.add_argument("--rows", type=int, default=534, help="window rows (default 534)")
+    p.add_argument("--cols", type=int, default=2048, help="window columns (default 2048)")
+    p.add_argument("--bits", type=int, default=12, help="significant bits (default 12)")
+    p.add_argument("--bank", type=int, default=4, help="distinct frames replayed (default 4)")
+    p.add_argument("--frames", type=int, default=0, help="frames to send, 0 = until stopped")
+    p.add_argument(
+        "--period-s", type=float, default=0.0, help="frame period; 0 = unpaced (default)"
+    )
+    p.add_argument("--inject", default="", help="faults, e.g. 'frame_drop=0.01'")
+    p.add_argument("--seed", type=int, default=0, help="seed of the frames and the faults")
+    args = p.parse_args(argv)
+    if args.rows < 1 or args.cols < 1 or not 1 <= args.bits <= 16 or args.bank < 1:
+        p.error("--rows/--cols/--bank must be >= 1 and --bits 1..16")
+    source = BankSource.random(
+        args.rows,
+        args.cols,
+        count=args.bank,
+        bits=args.bits,
+        seed=args.seed,
+        line_period_ns=round(args.period_s * 1e9) if args.period_s > 0 else 25_000,
+    )
+    stop = threading.Event()
+
+    def on_signal(signum: int, frame: FrameType | None) -> None:
+        stop.set()
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+    with StreamSocketServer(args.socket) as server:
+        engine = StreamEngine(source, server=server, inject=InjectSpec.parse(args.inject))
+        engine.start(args.frames, args.period_s, pace=args.period_s > 0)
+        frame_bytes = HEADER_BYTES + 2 * args.rows * args.cols
+        ready = {"socket": str(args.socket), "frame_bytes": frame_bytes, "pid": os.getpid()}
+        print(json.dumps(ready), flush=True)
+        threading.Thread(target=_wait_stdin_eof, args=(stop,), daemon=True).start()
+        while not stop.wait(0.5):
+            pass
+        engine.close()
+    print(json.dumps(engine.counters.as_dict()), flush=True)
+    return 0
+
+
+def _wait_stdin_eof(stop: threading.Event) -> None:
+    with contextlib.suppress(OSError):
+        while os.read(sys.stdin.fileno(), 4096):
+            pass
+    stop.set()
+
+
+if __name__ == "__main__":
+    sys.exit(main())

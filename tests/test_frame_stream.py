@@ -1,0 +1,454 @@
+"""FrameStream (camd.link.frame_stream) against the simulated FX3 over a real Unix socket.
+
+The engine runs in this process (its own thread) and the host reads through pyusb and the
+Fx3Backend, as the daemon does; faults come from seeded InjectSpec rates, so every count is
+checked exactly against what the engine did.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import shutil
+import tempfile
+import threading
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from camd.link import FrameStream, ReceivedFrame, StreamError, StreamStats
+from camd.protocol.stream import (
+    HEADER_BYTES,
+    U32_WRAP,
+    FrameFlags,
+    FrameHeader,
+    encode_header,
+    payload_ok,
+)
+from firmware_models.fx3 import BankSource, StreamEngine, StreamSocketServer, get_backend
+from firmware_models.inject import InjectSpec
+
+pytestmark = pytest.mark.timeout(60)
+
+ROWS, COLS = 16, 100
+FRAME_BYTES = HEADER_BYTES + 2 * ROWS * COLS  # 3264: several 1024-byte packets
+
+
+@dataclasses.dataclass
+class Got:
+    """What a consumer saw: copies, as consumers must make."""
+
+    counter: int
+    pixels: np.ndarray
+    gap_before: int
+    index: int
+    flags: FrameFlags
+    ok: bool
+
+
+class Rig:
+    """A stream socket server, an engine on it, and a FrameStream reading it."""
+
+    def __init__(self, path: Path, bank: BankSource, **stream_kwargs: object) -> None:
+        self.server = StreamSocketServer(path)
+        self.server.start()
+        self.engine = StreamEngine(bank, server=self.server)
+        self.bank = bank
+        kwargs: dict[str, object] = {"timeout_s": 0.2, **stream_kwargs}
+        self.stream = FrameStream(backend=get_backend(path), **kwargs)  # type: ignore[arg-type]
+        self.stream.open()
+        self.got: list[Got] = []
+        self.stream.add_consumer(self.record)
+
+    def record(self, frame: ReceivedFrame) -> None:
+        self.got.append(
+            Got(
+                frame.header.counter,
+                frame.pixels.copy(),
+                frame.gap_before,
+                frame.index,
+                frame.header.flags,
+                payload_ok(frame.header, frame.pixels),
+            )
+        )
+
+    def run(self, frames: int, *, spec: InjectSpec | None = None, seed: int = 0) -> StreamStats:
+        """Stream ``frames`` frames unpaced, tell the host where it ended, drain; the stats."""
+        if spec is not None:
+            self.engine.inject = spec
+        self.engine._rng = np.random.default_rng(seed)
+        self.stream.start(max_frame_bytes=FRAME_BYTES)
+        self.engine.start(frames, 0.0, pace=False)
+        assert self.engine.wait_idle(30.0)
+        self.stream.expect_end(self.engine.next_counter)
+        assert self.stream.wait_drained(30.0)
+        self.stream.stop()
+        return self.stream.stats()
+
+    def bit_exact(self) -> bool:
+        return all(np.array_equal(g.pixels, self.bank.frames[g.counter % 3]) for g in self.got)
+
+    def close(self) -> None:
+        self.stream.close()
+        self.engine.close()
+        self.server.stop()
+
+
+@pytest.fixture
+def sock_path() -> Iterator[Path]:
+    d = Path(tempfile.mkdtemp(prefix="fs-"))
+    yield d / "usb.sock"
+    shutil.rmtree(d, ignore_errors=True)
+
+
+@pytest.fixture
+def bank() -> BankSource:
+    return BankSource.random(ROWS, COLS, count=3, seed=7)
+
+
+@pytest.fixture
+def rig(sock_path: Path, bank: BankSource) -> Iterator[Rig]:
+    r = Rig(sock_path, bank)
+    yield r
+    r.close()
+
+
+def wait_until(predicate: Callable[[], bool], timeout_s: float = 10.0) -> bool:
+    deadline = time.monotonic() + timeout_s
+    while not predicate():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.002)
+    return True
+
+
+# -- the clean path -------------------------------------------------------------------------------
+
+
+def test_n_frames_in_n_out_bit_exact_and_in_order(rig: Rig) -> None:
+    stats = rig.run(150)
+    assert [g.counter for g in rig.got] == list(range(150))
+    assert [g.index for g in rig.got] == list(range(150))
+    assert all(g.gap_before == 0 and g.ok for g in rig.got)
+    assert rig.bit_exact()
+    assert rig.got[-1].flags & FrameFlags.LAST
+    assert (stats.frames, stats.bytes, stats.first_counter, stats.last_counter) == (
+        150,
+        150 * FRAME_BYTES,
+        0,
+        149,
+    )
+    assert stats.lost == stats.corrupt == stats.short == stats.overruns == stats.out_of_order == 0
+    assert stats.reads == 150  # one read per frame: whole frames land in place
+    assert stats.mbyte_per_s > 0 and stats.mpix_per_s > 0 and stats.elapsed_s > 0
+    assert set(stats.as_dict()) >= {
+        "frames", "bytes", "lost", "corrupt", "short", "overruns", "stalls", "timeouts",
+        "out_of_order", "reads", "first_counter", "last_counter", "elapsed_s", "mpix_per_s",
+        "mbyte_per_s",
+    }  # fmt: skip
+
+
+def test_pixels_are_a_read_only_view_into_a_slot(rig: Rig) -> None:
+    seen: list[tuple[bool, bool, int]] = []
+
+    def inspect(frame: ReceivedFrame) -> None:
+        address = frame.pixels.__array_interface__["data"][0]
+        slots = [s.buf.buffer_info()[0] + HEADER_BYTES for s in rig.stream._slots]
+        seen.append(
+            (frame.pixels.flags.writeable, frame.pixels.flags.owndata, slots.index(address))
+        )
+
+    rig.stream.add_consumer(inspect)
+    rig.run(5)
+    assert len(seen) == 5
+    assert all(not writeable and not owndata for writeable, owndata, _ in seen)
+
+
+def test_start_and_stop_repeat_on_one_open_stream(rig: Rig) -> None:
+    first = rig.run(10)
+    second = rig.run(10)  # counters continue from 10
+    assert first.frames == second.frames == 10
+    assert (second.first_counter, second.last_counter) == (10, 19)
+    assert [g.index for g in rig.got] == list(range(10)) * 2
+
+
+def test_frames_spanning_several_reads(sock_path: Path, bank: BankSource) -> None:
+    rig = Rig(sock_path, bank, read_bytes=1024)
+    try:
+        stats = rig.run(60)
+        assert [g.counter for g in rig.got] == list(range(60)) and rig.bit_exact()
+        assert stats.reads == 60 * 4  # 3264 bytes: 1024 + 1024 + 1024 + 192
+        # Cut-short transfers mid-reassembly: counted, never delivered, the rest intact.
+        rig.got.clear()
+        stats = rig.run(200, spec=InjectSpec(frame_short=0.2), seed=4)
+        assert stats.short == rig.engine.counters.shortened > 0
+        assert stats.lost == stats.corrupt == 0
+        assert stats.frames == 200 - stats.short
+        assert rig.bit_exact() and all(g.ok for g in rig.got)
+    finally:
+        rig.close()
+
+
+def test_read_bytes_must_be_whole_packets(sock_path: Path) -> None:
+    with StreamSocketServer(sock_path):
+        stream = FrameStream(backend=get_backend(sock_path), read_bytes=1000)
+        with pytest.raises(ValueError, match="not a multiple of the endpoint's 1024-byte packets"):
+            stream.open()
+
+
+# -- faults -----------------------------------------------------------------------------------------
+
+
+def gaps_add_up(rig: Rig, stats: StreamStats) -> None:
+    """Every counter from the first to the last is delivered or counted, once."""
+    missing = stats.lost + stats.corrupt + stats.short + stats.overruns
+    assert sum(g.gap_before for g in rig.got) == missing
+    for a, b in zip(rig.got, rig.got[1:], strict=False):
+        assert b.gap_before == (b.counter - a.counter - 1) % U32_WRAP
+
+
+def test_injected_drops_are_lost_exactly(rig: Rig) -> None:
+    stats = rig.run(400, spec=InjectSpec(frame_drop=0.1), seed=1)
+    c = rig.engine.counters
+    assert c.dropped > 20
+    assert rig.got[0].counter == 0  # (seed 1 keeps frame 0; earlier ones could not be known)
+    assert stats.lost == c.dropped
+    assert stats.frames == 400 - c.dropped == c.sent
+    assert rig.bit_exact()
+    gaps_add_up(rig, stats)
+
+
+def test_drops_at_the_end_count_through_expect_end(rig: Rig) -> None:
+    plain = rig.bank
+
+    def source(counter: int) -> tuple[FrameHeader, np.ndarray]:
+        if counter >= 27:
+            # A rate of 1 (beyond --inject's 0.5 limit) drops the last three frames for sure.
+            rig.engine.inject = InjectSpec.model_construct(frame_drop=1.0)
+        return plain(counter)
+
+    rig.engine.source = source
+    stats = rig.run(30, spec=InjectSpec())
+    assert rig.engine.counters.dropped == 3
+    assert [g.counter for g in rig.got] == list(range(27))
+    assert not any(g.flags & FrameFlags.LAST for g in rig.got)  # the LAST frame was dropped
+    assert stats.lost == 3
+
+
+def test_expect_end_before_the_last_frames_arrive_waits_for_them(rig: Rig) -> None:
+    rig.stream.start(max_frame_bytes=FRAME_BYTES)
+    rig.engine.start(40, 0.002, pace=True)
+    assert rig.stream.wait_frames(1, 10.0)
+    rig.stream.expect_end(40)  # told early: nothing counts as lost while frames still come
+    assert rig.stream.wait_drained(30.0)
+    stats = rig.stream.stats()
+    assert (stats.frames, stats.lost) == (40, 0)
+
+
+def test_corrupt_frames_are_counted_and_never_delivered(rig: Rig) -> None:
+    stats = rig.run(300, spec=InjectSpec(frame_corrupt=0.1), seed=2)
+    c = rig.engine.counters
+    assert stats.corrupt == c.corrupted > 10
+    assert stats.frames == 300 - c.corrupted and stats.lost == 0
+    assert all(g.ok for g in rig.got) and rig.bit_exact()
+    gaps_add_up(rig, stats)
+
+
+def test_short_frames_are_counted_and_never_delivered(rig: Rig) -> None:
+    stats = rig.run(300, spec=InjectSpec(frame_short=0.1), seed=3)
+    c = rig.engine.counters
+    assert stats.short == c.shortened > 10
+    assert stats.frames == 300 - c.shortened and stats.lost == stats.corrupt == 0
+    assert rig.bit_exact()
+    gaps_add_up(rig, stats)
+
+
+def test_stalls_are_cleared_and_the_stream_goes_on(rig: Rig) -> None:
+    stats = rig.run(300, spec=InjectSpec(frame_stall=0.05, frame_drop=0.05), seed=5)
+    c = rig.engine.counters
+    assert stats.stalls == c.stalls > 5
+    assert stats.lost == c.stalls + c.dropped  # a stalled frame is lost with the halt
+    assert stats.frames == c.sent == 300 - c.stalls - c.dropped
+    assert rig.bit_exact()
+    gaps_add_up(rig, stats)
+
+
+def test_every_fault_at_once_adds_up(rig: Rig) -> None:
+    spec = InjectSpec.parse("frame_drop=0.05,frame_corrupt=0.05,frame_short=0.05,frame_stall=0.03")
+    stats = rig.run(400, spec=spec, seed=9)
+    c = rig.engine.counters
+    assert rig.got[0].counter == 0  # (seed 9 keeps frame 0: earlier ones could not be known)
+    assert stats.frames + stats.lost + stats.corrupt + stats.short == 400
+    assert stats.stalls == c.stalls and stats.short == c.shortened
+    assert stats.lost == c.dropped + c.stalls
+    assert all(g.ok for g in rig.got) and rig.bit_exact()
+    assert [g.counter for g in rig.got] == sorted({g.counter for g in rig.got})
+
+
+# -- the queue ------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("policy", "delivered", "gaps"),
+    [
+        ("drop_newest", [0, 1, 2, 3, 4], [0, 0, 0, 0, 0]),
+        ("drop_oldest", [0, 16, 17, 18, 19], [0, 15, 0, 0, 0]),
+    ],
+)
+def test_overruns_with_a_slow_consumer(
+    sock_path: Path, bank: BankSource, policy: str, delivered: list[int], gaps: list[int]
+) -> None:
+    rig = Rig(sock_path, bank, queue_frames=4, overflow=policy, overflow_wait_s=0.001)
+    entered, release = threading.Event(), threading.Event()
+
+    def slow(frame: ReceivedFrame) -> None:
+        entered.set()
+        assert release.wait(10.0)
+
+    rig.stream.add_consumer(slow)
+    try:
+        rig.stream.start(max_frame_bytes=FRAME_BYTES)
+        rig.engine.start(1, 0.0, pace=False)
+        assert entered.wait(10.0)  # the dispatcher is stuck in frame 0's callbacks
+        assert rig.engine.wait_idle(10.0)
+        rig.engine.start(19, 0.0, pace=False)
+        assert rig.engine.wait_idle(10.0)
+        assert wait_until(lambda: rig.stream.stats().overruns == 15)
+        release.set()
+        rig.stream.expect_end(20)
+        assert rig.stream.wait_drained(10.0)
+        stats = rig.stream.stats()
+        assert [g.counter for g in rig.got] == delivered
+        assert [g.gap_before for g in rig.got] == gaps
+        assert [g.index for g in rig.got] == [0, 1, 2, 3, 4]
+        assert (stats.overruns, stats.lost, stats.frames) == (15, 0, 5)
+        assert rig.bit_exact()
+    finally:
+        release.set()
+        rig.close()
+
+
+def test_a_failing_consumer_does_not_stop_the_others(rig: Rig) -> None:
+    def broken(frame: ReceivedFrame) -> None:
+        raise RuntimeError("consumer bug")
+
+    rig.stream.remove_consumer(rig.record)
+    rig.stream.add_consumer(broken)
+    rig.stream.add_consumer(rig.record)
+    stats = rig.run(5)
+    assert stats.consumer_errors == 5 and len(rig.got) == 5
+    rig.stream.remove_consumer(broken)
+    rig.stream.remove_consumer(broken)  # unknown: ignored
+    assert rig.run(3).consumer_errors == 0
+
+
+# -- transfers the engine never makes -------------------------------------------------------------
+
+
+def raw_frame(bank: BankSource, counter: int) -> list[bytes | memoryview]:
+    header, pixels = bank(counter % U32_WRAP)
+    return [encode_header(header), pixels.data.cast("B")]
+
+
+def raw_rig(sock_path: Path, bank: BankSource) -> Rig:
+    rig = Rig(sock_path, bank)
+    rig.stream.start(max_frame_bytes=FRAME_BYTES)
+    assert rig.server.wait_connected(5.0)
+    return rig
+
+
+def finish(rig: Rig, n_delivered: int) -> StreamStats:
+    assert rig.stream.wait_frames(n_delivered, 10.0)
+    assert rig.stream.wait_drained(10.0)
+    rig.stream.stop()
+    return rig.stream.stats()
+
+
+def test_bad_headers_oversize_and_counters_going_back(sock_path: Path, bank: BankSource) -> None:
+    rig = raw_rig(sock_path, bank)
+    try:
+        send = rig.server.send_transfer
+        assert send(raw_frame(bank, 0))
+        garbage = bytearray(b"".join(bytes(p) for p in raw_frame(bank, 1)))
+        garbage[10] ^= 0xFF  # inside the header: its CRC fails
+        assert send([bytes(garbage)])  # stands for frame 1
+        assert send(raw_frame(bank, 2))
+        assert send([bytes(FRAME_BYTES * 3)])  # longer than any frame: overflows the slot
+        assert send(raw_frame(bank, 4))
+        assert send(raw_frame(bank, 4))  # a repeat
+        assert send(raw_frame(bank, 3))  # going back
+        assert send([b"CAMF"])  # shorter than a header
+        assert send(raw_frame(bank, 6))
+        stats = finish(rig, 4)
+        assert [g.counter for g in rig.got] == [0, 2, 4, 6]
+        assert [g.gap_before for g in rig.got] == [0, 1, 1, 1]
+        assert (stats.corrupt, stats.short, stats.out_of_order, stats.lost) == (2, 1, 2, 0)
+        assert rig.stream.problem  # the last thing that went wrong, in words
+    finally:
+        rig.close()
+
+
+def test_a_zero_length_packet_ends_a_skipped_transfer(sock_path: Path, bank: BankSource) -> None:
+    rig = raw_rig(sock_path, bank)
+    try:
+        read_size = rig.stream._slot_bytes  # 4096: one frame + 1 byte, in whole packets
+        assert rig.server.send_transfer(raw_frame(bank, 0))
+        # Too long, and a whole number of reads: the device ends it with a zero-length packet.
+        assert rig.server.send_transfer([bytes(2 * read_size)])
+        assert rig.server.send_transfer([])
+        assert rig.server.send_transfer(raw_frame(bank, 2))
+        stats = finish(rig, 2)
+        assert [g.counter for g in rig.got] == [0, 2]
+        assert (stats.corrupt, stats.lost) == (1, 0)
+        assert "longer than max_frame_bytes=3264" in (rig.stream.problem or "")
+    finally:
+        rig.close()
+
+
+def test_counters_wrap_at_2_to_the_32(sock_path: Path, bank: BankSource) -> None:
+    rig = raw_rig(sock_path, bank)
+    try:
+        for counter in (U32_WRAP - 2, U32_WRAP - 1, 0, 2):
+            assert rig.server.send_transfer(raw_frame(bank, counter))
+        stats = finish(rig, 4)
+        assert [g.counter for g in rig.got] == [U32_WRAP - 2, U32_WRAP - 1, 0, 2]
+        assert [g.gap_before for g in rig.got] == [0, 0, 0, 1]
+        assert stats.lost == 1 and stats.out_of_order == 0
+    finally:
+        rig.close()
+
+
+# -- errors ---------------------------------------------------------------------------------------
+
+
+def test_no_device_is_a_clear_error(sock_path: Path) -> None:
+    with StreamSocketServer(sock_path):
+        stream = FrameStream(backend=get_backend(sock_path), product_id=0x1234)
+        with pytest.raises(StreamError, match=r"no frame-stream device 04b4:1234 found.*lsusb"):
+            stream.open()
+        with pytest.raises(StreamError, match="not open"):
+            stream.start(max_frame_bytes=FRAME_BYTES)
+
+
+def test_simulator_gone_ends_the_reader_with_an_error(sock_path: Path, bank: BankSource) -> None:
+    rig = raw_rig(sock_path, bank)
+    try:
+        assert rig.server.send_transfer(raw_frame(bank, 0))
+        assert rig.stream.wait_frames(1, 10.0)
+        rig.server.stop()
+        assert not rig.stream.wait_frames(2, 10.0)  # returns as soon as the reader gave up
+        assert rig.stream.error is not None
+        assert "disconnected" in str(rig.stream.error) and "04b4:00f1" in str(rig.stream.error)
+    finally:
+        rig.close()
+
+
+def test_bad_arguments() -> None:
+    with pytest.raises(ValueError, match="queue_frames"):
+        FrameStream(queue_frames=0)
+    with pytest.raises(ValueError, match="overflow"):
+        FrameStream(overflow="drop_all")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="timeout_s"):
+        FrameStream(timeout_s=0)
