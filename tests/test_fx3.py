@@ -101,8 +101,14 @@ def wait_until(predicate: Callable[[], bool], timeout_s: float = 5.0) -> bool:
 
 
 def connected(server: StreamSocketServer) -> tuple[Fx3Backend, Any]:
+    # Wait for *this* connection: the server may still hold the previous test's until it
+    # notices that one closed, and frames sent meanwhile would go nowhere.
+    before = server.connections_accepted
     backend = get_backend(server.path)
-    assert server.wait_connected(5.0)
+    deadline = time.monotonic() + 5.0
+    while server.connections_accepted == before and time.monotonic() < deadline:
+        time.sleep(0.001)
+    assert server.connections_accepted > before and server.wait_connected(5.0)
     return backend, open_device(backend)
 
 

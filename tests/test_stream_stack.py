@@ -143,3 +143,24 @@ def test_injected_faults_are_counted_exactly(tmp_path: Path) -> None:
     damaged = sum(sim2[k] - sim[k] for k in kinds)
     assert len(rec.frames) == stare["frames"] == 60 - damaged
     assert rec.crc_mismatches() == []
+
+
+def test_sim_stage_speed_and_scene(url: str) -> None:
+    timing = camctl_json(url, "timing")
+    tracking = camctl_json(url, "sim", "stage", "--track")
+    # Synchronous: the image moves one 11 um pitch per TDI line period through the 0.1x
+    # optics of the hr400 profile (physics.md §2: T_line,TDI = p / v_image).
+    sync = 11e-6 / (0.1 * timing["tdi_line_period_s"])
+    assert tracking["sync_speed_m_s"] == pytest.approx(sync, rel=1e-6)
+    assert tracking["speed_m_s"] == pytest.approx(sync, rel=1e-6) and tracking["track"] is True
+    try:
+        fixed = camctl_json(url, "sim", "stage", "--speed-m-s", f"{1.05 * sync:.9g}")
+        assert fixed["speed_m_s"] == pytest.approx(1.05 * sync, rel=1e-6)
+        assert fixed["track"] is False
+    finally:
+        camctl_json(url, "sim", "stage", "--track")
+    assert camctl_json(url, "sim", "scene", "bars:lux=3") == {"scene": "bars:lux=3"}
+    proc = camctl(url, "sim", "scene", "bars:nope=1")
+    assert proc.returncode == 1
+    assert "unknown scene key 'nope' for bars; keys for bars: photons, lux" in proc.stderr
+    camctl_json(url, "sim", "scene", "flat")

@@ -286,7 +286,7 @@ def ingest_mbyte_s(
 
 
 def bench_stream(
-    *, rows: int, cols: int, seconds: float, queue_frames: int, rounds: int = 3
+    *, rows: int, cols: int, seconds: float, queue_frames: int, rounds: int = 5
 ) -> dict[str, Any]:
     """Both sides against one simulated FX3 process, alternating in ``rounds`` rounds (so a
     slow spell of this shared machine hits both); the median MB/s of each and their ratio."""

@@ -913,3 +913,4 @@ class DeviceSession:
             self._event("info", "daemon", "housekeeping poll answered again")
             self._poll_error = None
         self._record_sample(response.values, time.time(), "poll")
+        self.stream.check_ended()

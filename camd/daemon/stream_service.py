@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, cast
@@ -57,6 +58,8 @@ class StreamService:
         # the bookkeeping of its own start, and must wait for it.
         self._settled = threading.Event()
         self._settled.set()
+        self._start_lock = threading.Lock()
+        self._started_mono = 0.0
         self._reader: FrameStream | None = None
         self._recording_to: tuple[FrameRecorder, Consumer] | None = None
         self._recording: str | None = None
@@ -121,6 +124,34 @@ class StreamService:
             daemon=True,
         ).start()
         return True
+
+    def check_ended(self) -> None:
+        """From the service loop: end a counted stream whose STREAM_DONE event was lost on
+        the line (the device's GET_STREAM says it stopped)."""
+        from camd.daemon.session import SessionError
+
+        with self._lock:
+            frames = int(self._info["frames_requested"])
+            if not self.streaming or frames == 0:
+                return
+            due = self._started_mono + frames * float(self._info["frame_period_s"]) + 0.5
+        if time.monotonic() < due:
+            return
+        try:
+            values = self.session.request("GET_STREAM").values
+        except SessionError:
+            return  # the link's own handling reports it; try again next period
+        if values["streaming"] == "no":
+            threading.Thread(
+                target=self._finish,
+                args=(
+                    int(values["next_counter"]),
+                    int(values["frames_sent"]),
+                    "the stream ended (its STREAM_DONE event was lost on the line)",
+                ),
+                name="camd-stream-finish",
+                daemon=True,
+            ).start()
 
     def on_link_lost_training(self) -> None:
         """The LVDS link lost its training: the device stopped streaming."""
@@ -207,6 +238,12 @@ class StreamService:
     # -- internals --------------------------------------------------------------------------------
 
     def _start(self, request: StreamStartRequest) -> None:
+        # One start at a time: a second client's start waits here, then finds the daemon
+        # streaming and is refused by the state machine, never touching the running reader.
+        with self._start_lock:
+            self._start_locked(request)
+
+    def _start_locked(self, request: StreamStartRequest) -> None:
         from camd.daemon.session import BadRequest
 
         session = self.session
@@ -278,6 +315,7 @@ class StreamService:
         }
         with self._lock:
             self._info = info
+            self._started_mono = time.monotonic()
             self.streaming = True
         what = "until stopped" if request.frames == 0 else f"{request.frames} frames"
         session.fire(Trigger.STREAM_STARTED, f"{info['mode']} stream, {what}")
