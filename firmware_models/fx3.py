@@ -44,7 +44,7 @@ import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from types import FrameType, TracebackType
+from types import FrameType
 from typing import Any
 
 import numpy as np
@@ -67,8 +67,7 @@ from firmware_models.usb_device import (
     Handle,
     InterfaceDescriptor,
     SimulatedUsbDevice,
-    claim_socket_path,
-    release_socket_path,
+    UnixSocketServer,
     usb_error,
 )
 
@@ -357,7 +356,7 @@ class _Aborted(Exception):
     """A send was given up (the engine is shutting down)."""
 
 
-class StreamSocketServer:
+class StreamSocketServer(UnixSocketServer):
     """The simulator's end of the stream socket at ``path``: one host (backend) at a time.
 
     A new connection replaces the previous one (a host that went away without closing must
@@ -368,54 +367,18 @@ class StreamSocketServer:
     still this server's.
     """
 
+    what = "the frame stream"
+    backlog = 4
+
     def __init__(self, path: str | Path, *, send_buffer_bytes: int = SOCKET_BUFFER_BYTES) -> None:
-        self.path = Path(path)
+        super().__init__(path)
         self.send_buffer_bytes = send_buffer_bytes
         self.connections_accepted = 0
-        self._listener: socket.socket | None = None
-        self._inode: int | None = None
-        self._wake_r: socket.socket | None = None
-        self._wake_w: socket.socket | None = None
-        self._stopping = threading.Event()
-        self._thread: threading.Thread | None = None
         self._cond = threading.Condition()
         self._conn: _Connection | None = None
         self._halted = False
 
-    def __enter__(self) -> StreamSocketServer:
-        self.start()
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.stop()
-
     # -- lifecycle --------------------------------------------------------------------------------
-
-    def start(self) -> None:
-        """Bind, listen and start the accept thread."""
-        if self._thread is not None:
-            raise RuntimeError("the stream socket server is already running")
-        claim_socket_path(self.path, "the frame stream")
-        listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-        try:
-            listener.bind(str(self.path))
-            listener.listen(4)
-        except OSError:
-            listener.close()
-            raise
-        self._listener = listener
-        self._stopping.clear()
-        self._wake_r, self._wake_w = socket.socketpair()
-        self._inode = os.stat(self.path).st_ino
-        self._thread = threading.Thread(
-            target=self._accept_loop, name=f"stream-socket {self.path}", daemon=True
-        )
-        self._thread.start()
 
     def stop(self) -> None:
         """Close the listener and the connection, join the thread, remove the socket file."""
@@ -430,14 +393,7 @@ class StreamSocketServer:
             self._cond.notify_all()
         if conn is not None:
             self._close(conn)
-        if self._listener is not None:
-            self._listener.close()
-            self._listener = None
-        release_socket_path(self.path, self._inode)
-        for sock in (self._wake_r, self._wake_w):
-            if sock is not None:
-                sock.close()
-        self._wake_r = self._wake_w = None
+        self._release()
 
     # -- state ------------------------------------------------------------------------------------
 

@@ -27,6 +27,8 @@ import threading
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import TracebackType
+from typing import Self
 
 import usb.backend
 import usb.core
@@ -531,3 +533,75 @@ def release_socket_path(path: Path, inode: int | None) -> None:
     with contextlib.suppress(FileNotFoundError):
         if os.lstat(path).st_ino == inode:
             os.unlink(path)
+
+
+class UnixSocketServer:
+    """A simulator's listening Unix socket at ``path`` and the thread that accepts on it.
+
+    Subclasses implement ``_accept_loop`` (it must return once ``_stopping`` is set and
+    ``_wake_w`` was written to) and ``stop``; ``start`` claims the path (a stale socket file is
+    replaced, a live one is an error naming ``what``), binds, listens and starts the thread.
+    """
+
+    what = "a simulated bus"  # in messages: "another simulator already serves <what> on ..."
+    backlog = 4
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self._listener: socket.socket | None = None
+        self._inode: int | None = None
+        self._wake_r: socket.socket | None = None
+        self._wake_w: socket.socket | None = None
+        self._stopping = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def __enter__(self) -> Self:
+        self.start()
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.stop()
+
+    def start(self) -> None:
+        """Bind, listen and start the accept thread."""
+        if self._thread is not None:
+            raise RuntimeError(f"the {self.what} socket server is already running")
+        claim_socket_path(self.path, self.what)
+        listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        try:
+            listener.bind(str(self.path))
+            listener.listen(self.backlog)
+        except OSError:
+            listener.close()
+            raise
+        self._listener = listener
+        self._stopping.clear()
+        self._wake_r, self._wake_w = socket.socketpair()
+        self._inode = os.stat(self.path).st_ino
+        self._thread = threading.Thread(
+            target=self._accept_loop, name=f"{self.what} socket {self.path}", daemon=True
+        )
+        self._thread.start()
+
+    def stop(self) -> None:
+        raise NotImplementedError
+
+    def _release(self) -> None:
+        """After the accept thread has ended: close the listener and the wake-up pair, and
+        remove the socket file if it is still ours."""
+        if self._listener is not None:
+            self._listener.close()
+            self._listener = None
+        release_socket_path(self.path, self._inode)
+        for sock in (self._wake_r, self._wake_w):
+            if sock is not None:
+                sock.close()
+        self._wake_r = self._wake_w = None
+
+    def _accept_loop(self) -> None:
+        raise NotImplementedError

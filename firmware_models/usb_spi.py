@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import array
 import contextlib
-import os
 import select
 import selectors
 import socket
@@ -34,7 +33,6 @@ from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from types import TracebackType
 from typing import Any, ClassVar, Protocol
 
 from firmware_models.usb_device import (
@@ -46,8 +44,7 @@ from firmware_models.usb_device import (
     Handle,
     InterfaceDescriptor,
     SimulatedUsbDevice,
-    claim_socket_path,
-    release_socket_path,
+    UnixSocketServer,
     usb_error,
 )
 
@@ -567,7 +564,7 @@ def _send_message(sock: socket.socket, payload: bytes) -> None:
     sock.sendall(_HEADER.pack(len(payload)) + payload)
 
 
-class SpiSocketServer:
+class SpiSocketServer(UnixSocketServer):
     """Serve ``target`` on a Unix socket at ``path``, one thread per connection.
 
     ``lock`` is held around every transaction, so the SPI socket and the command link never
@@ -576,56 +573,20 @@ class SpiSocketServer:
     connection and removes the socket file if it is still this server's.
     """
 
+    what = "SPI"
+    backlog = 8
+
     def __init__(
         self,
         path: str | Path,
         target: SpiTarget,
         lock: threading.Lock | threading.RLock,
     ) -> None:
-        self.path = Path(path)
+        super().__init__(path)
         self.target = target
         self.lock = lock
-        self._listener: socket.socket | None = None
-        self._inode: int | None = None
-        self._wake_r: socket.socket | None = None
-        self._wake_w: socket.socket | None = None
-        self._stopping = threading.Event()
-        self._thread: threading.Thread | None = None
         self._conns: dict[socket.socket, threading.Thread] = {}
         self._conns_lock = threading.Lock()
-
-    def __enter__(self) -> SpiSocketServer:
-        self.start()
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.stop()
-
-    def start(self) -> None:
-        """Bind, listen and start the accept thread."""
-        if self._thread is not None:
-            raise RuntimeError("the SPI socket server is already running")
-        claim_socket_path(self.path, "SPI")
-        listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-        try:
-            listener.bind(str(self.path))
-            listener.listen(8)
-        except OSError:
-            listener.close()
-            raise
-        self._listener = listener
-        self._stopping.clear()
-        self._wake_r, self._wake_w = socket.socketpair()
-        self._inode = os.stat(self.path).st_ino
-        self._thread = threading.Thread(
-            target=self._accept_loop, name=f"spi-socket {self.path}", daemon=True
-        )
-        self._thread.start()
 
     def stop(self) -> None:
         """Close the listener and every connection, join the threads, remove the socket file."""
@@ -643,14 +604,7 @@ class SpiSocketServer:
                 conn.shutdown(socket.SHUT_RDWR)
         for thread in conns.values():
             thread.join(timeout=5.0)
-        if self._listener is not None:
-            self._listener.close()
-            self._listener = None
-        release_socket_path(self.path, self._inode)
-        for sock in (self._wake_r, self._wake_w):
-            if sock is not None:
-                sock.close()
-        self._wake_r = self._wake_w = None
+        self._release()
 
     @property
     def connections(self) -> int:

@@ -461,3 +461,30 @@ def test_bad_arguments() -> None:
         FrameStream(overflow="drop_all")  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="timeout_s"):
         FrameStream(timeout_s=0)
+
+
+def test_frames_lost_before_the_first_one_received_are_counted(rig: Rig) -> None:
+    # The device says its stream starts at counter 7 (START_STREAM's answer) but the first
+    # three frames never arrive: the engine really starts at 10.
+    rig.stream.start(max_frame_bytes=FRAME_BYTES)
+    rig.stream.expect_first(7)
+    rig.engine.start(5, 0.0, pace=False, first_counter=10)
+    assert rig.engine.wait_idle(30.0)
+    rig.stream.expect_end(15)
+    assert rig.stream.wait_drained(30.0)
+    stats = rig.stream.stats()
+    assert (stats.frames, stats.lost) == (5, 3)
+    assert [g.counter for g in rig.got] == [10, 11, 12, 13, 14]
+    assert [g.gap_before for g in rig.got] == [3, 0, 0, 0, 0]
+
+
+def test_expect_first_after_the_first_frame_still_counts_the_missing_ones(rig: Rig) -> None:
+    # The answer to START_STREAM can come after the first frame: same count.
+    rig.stream.start(max_frame_bytes=FRAME_BYTES)
+    rig.engine.start(5, 0.0, pace=False, first_counter=20)
+    assert rig.engine.wait_idle(30.0)
+    assert rig.stream.wait_frames(5, 30.0)
+    rig.stream.expect_first(18)
+    rig.stream.expect_end(25)
+    assert rig.stream.wait_drained(30.0)
+    assert (rig.stream.stats().frames, rig.stream.stats().lost) == (5, 2)

@@ -46,6 +46,10 @@ def test_stream_json_has_the_contract_keys_and_every_frame(url: str) -> None:
     assert doc["mpix_per_s"] == pytest.approx(
         doc["mbyte_per_s"] * ROWS * 2048 / (64 + 4 * ROWS * 1024), rel=0.02
     )
+    with CamdClient(url) as client:
+        metrics = client.metrics()
+    assert "camd_stream_frames 40.0" in metrics and "camd_stream_lost 0.0" in metrics
+    assert "camd_stream_active 0.0" in metrics
     # A second stream carries on the frame counter where the first ended.
     again = camctl_json(url, "stream", "--frames", "3", "--mode", "area")
     assert again["first_counter"] == doc["first_counter"] + 40 and again["stages"] == 0

@@ -145,6 +145,15 @@ class _SessionCollector(Collector):
             yield CounterMetricFamily(
                 f"camd_link_{name}", f"command link host counter: {name}", value=count
             )
+        yield GaugeMetricFamily(
+            "camd_stream_active", "1 while frames stream", value=float(session.stream.streaming)
+        )
+        for name, number in session.stream.stats().model_dump().items():
+            # Per stream (reset when one starts), so gauges rather than counters.
+            yield GaugeMetricFamily(
+                f"camd_stream_{name}", f"frame stream ingest, current or last stream: {name}",
+                value=float(number),
+            )  # fmt: skip
         values = GaugeMetricFamily(
             "camd_telemetry_value",
             "latest housekeeping value per channel, in the channel's unit",

@@ -30,7 +30,7 @@ from camd.daemon.models import (
     StreamStats,
 )
 from camd.daemon.state import Request, Trigger
-from camd.link.frame_stream import FrameStream, ReceivedFrame
+from camd.link.frame_stream import FrameStream, ReceivedFrame, StreamError
 from camd.protocol.stream import HEADER_BYTES
 from camd.store.recording import FrameRecorder, RecordingError
 
@@ -279,13 +279,14 @@ class StreamService:
         recorder_path: Path | None,
     ) -> None:
         session = self.session
+        with self._lock:
+            reader = self._open_reader()
         recorder = None
         if recorder_path is not None:
             recorder = self._new_recorder(recorder_path, request, stages)
         with self._lock:
             self._finished.clear()
             self._recording = None
-            reader = self._open_reader()
             if recorder is not None:
                 self._attach_recorder(recorder, reader)
             reader.start(max_frame_bytes=max_frame_bytes)
@@ -301,6 +302,7 @@ class StreamService:
             if recorder_path is not None:
                 recorder_path.unlink(missing_ok=True)  # nothing was recorded: leave no file
             raise
+        reader.expect_first(int(values["first_counter"]))
         info = {
             "mode": str(values["mode"]),
             "rows": int(values["rows"]),
@@ -378,6 +380,15 @@ class StreamService:
         recorder.close(stats)
 
     def _open_reader(self) -> FrameStream:
+        """The USB reader, opened on first use; Disconnected (503) if the device is absent."""
+        from camd.daemon.session import Disconnected
+
+        try:
+            return self._opened_reader()
+        except (StreamError, ConnectionError, OSError) as exc:
+            raise Disconnected(f"cannot open the frame stream: {exc}") from None
+
+    def _opened_reader(self) -> FrameStream:
         if self._reader is None:
             backend: Any = None
             if self.config.backend == "sim":
@@ -428,6 +439,10 @@ class StreamService:
             f"{stats.corrupt} corrupt, {stats.overruns} overruns, {stats.mbyte_per_s:.1f} MB/s",
         )
         self.session.fire(Trigger.STREAM_STOPPED, None)
+
+    def stats(self) -> StreamStats:
+        """The host's ingest counters of the current or last stream (no device traffic)."""
+        return self._stats()
 
     def _stats(self) -> StreamStats:
         reader = self._reader

@@ -199,6 +199,7 @@ class FrameStream:
         self._last_seen: int | None = None  # counter of the last good header, in order
         self._first_seen: int | None = None  # the stream's first good header
         self._unattributed = 0  # broken transfers since then, each one frame of a gap
+        self._broken_before_first = 0  # broken transfers before the first good header
         self._last_delivered: int | None = None
         self._end: int | None = None  # expect_end's counter, until accounted
         self._stopping = threading.Event()
@@ -370,6 +371,7 @@ class FrameStream:
             self._last_seen = None
             self._first_seen = None
             self._unattributed = 0
+            self._broken_before_first = 0
             self._last_delivered = None
             self._end = None
             self._t_start = time.monotonic()
@@ -406,6 +408,22 @@ class FrameStream:
         with self._cond:
             self._end = next_counter % U32_WRAP
             self._settle_end(idle=False)
+            self._cond.notify_all()
+
+    def expect_first(self, first_counter: int) -> None:
+        """The device says the stream's first frame has counter ``first_counter`` (START_STREAM's
+        answer): frames missing before the first one received count as lost too."""
+        with self._cond:
+            first = first_counter % U32_WRAP
+            if self._last_seen is None:
+                # Nothing received yet: the first frame's gap is measured from here.
+                self._last_seen = (first - 1) % U32_WRAP
+                self._first_seen = first
+            elif self._first_seen is not None:
+                missing = (self._first_seen - first) % U32_WRAP
+                if missing < U32_WRAP // 2:
+                    self._stats.lost += max(0, missing - self._broken_before_first)
+                    self._broken_before_first = 0
             self._cond.notify_all()
 
     def wait_drained(self, timeout_s: float) -> bool:
@@ -608,6 +626,7 @@ class FrameStream:
         """Account for ``counter`` (lock held): lost frames before it; False if it goes back."""
         if self._last_seen is None:
             self._last_seen = self._first_seen = counter
+            self._broken_before_first = self._unattributed
             self._unattributed = 0
             return True
         step = (counter - self._last_seen) % U32_WRAP

@@ -9,12 +9,12 @@ it cannot drift from them; ``tests/test_docs.py`` fails when the committed file 
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from camd.markdown import docgen_parser, table, write_or_check
 from camd.protocol.dictionary import (
     CommandSpec,
     Dictionary,
@@ -66,16 +66,6 @@ def _num(x: float) -> str:
     return f"{x:.10g}"
 
 
-def _cell(text: str) -> str:
-    return text.replace("|", "\\|").replace("\n", " ")
-
-
-def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
-    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    lines += ["| " + " | ".join(_cell(c) for c in row) + " |" for row in rows]
-    return lines
-
-
 # -- payload layouts -------------------------------------------------------------------------------
 
 
@@ -98,7 +88,7 @@ def _payload_size(fields: Sequence[FieldSpec]) -> str:
     return f"{fixed} byte" if fixed == 1 else f"{fixed} bytes"
 
 
-def _field_table(fields: Sequence[FieldSpec]) -> list[str]:
+def _fieldtable(fields: Sequence[FieldSpec]) -> list[str]:
     rows: list[list[str]] = []
     offset = 0
     for f in fields:
@@ -107,13 +97,13 @@ def _field_table(fields: Sequence[FieldSpec]) -> list[str]:
         rows.append([str(offset), size, f"`{f.name}`", f.type, scale, f.unit, _range(f), f.doc])
         offset += f.size or 0
     header = ["Offset", "Size", "Field", "Type", "Scale", "Unit", "Range", "Description"]
-    return _table(header, rows)
+    return table(header, rows)
 
 
 def _layout(title: str, fields: Sequence[FieldSpec], note: str = "") -> list[str]:
     lines = [f"**{title}** ({_payload_size(fields)}){note}", ""]
     if fields:
-        lines += [*_field_table(fields), ""]
+        lines += [*_fieldtable(fields), ""]
     return lines
 
 
@@ -199,7 +189,7 @@ def _example(d: Dictionary) -> list[str]:
         _hex(cmd_wire),
         "```",
         "",
-        *_table(["Bytes", "Field", "Meaning"], cmd_rows),
+        *table(["Bytes", "Field", "Meaning"], cmd_rows),
         "",
         "The device executes it and acknowledges with the same sequence number and opcode:",
         "",
@@ -207,7 +197,7 @@ def _example(d: Dictionary) -> list[str]:
         _hex(ack_wire),
         "```",
         "",
-        *_table(["Bytes", "Field", "Meaning"], ack_rows),
+        *table(["Bytes", "Field", "Meaning"], ack_rows),
         "",
         f"Had the device refused it with {err.name}, the answer would have been:",
         "",
@@ -228,7 +218,7 @@ def _example(d: Dictionary) -> list[str]:
 
 def _frame_format() -> list[str]:
     n = "*n*"
-    layout = _table(
+    layout = table(
         ["Offset", "Size", "Field", "Value"],
         [
             ["0", "2", "sync word", f"`{_hex(SYNC)}`"],
@@ -245,7 +235,7 @@ def _frame_format() -> list[str]:
             ],
         ],
     )
-    types = _table(
+    types = table(
         ["Value", "Type", "Direction", "Opcode field", "Payload"],
         [[f"0x{int(t):02X}", t.name, *_TYPE_ROWS.get(t, ("", "", ""))] for t in FrameType],
     )
@@ -290,7 +280,7 @@ def _frame_format() -> list[str]:
 
 
 def _receiving() -> list[str]:
-    counters = _table(
+    counters = table(
         ["Counter", "Meaning"],
         [[f"`{f.name}`", _COUNTER_DOCS.get(f.name, "")] for f in dataclasses.fields(DecoderStats)],
     )
@@ -328,7 +318,7 @@ def _receiving() -> list[str]:
 
 def _exchanges(d: Dictionary) -> list[str]:
     room = MAX_PAYLOAD - 2
-    nak = _table(
+    nak = table(
         ["Offset", "Size", "Field", "Description"],
         [
             ["0", "2", "error code", "u16, one of the error codes in section 8"],
@@ -380,7 +370,7 @@ def _exchanges(d: Dictionary) -> list[str]:
 
 
 def _commands(d: Dictionary) -> list[str]:
-    summary = _table(
+    summary = table(
         ["Opcode", "Command", "Request", "Response", "Description"],
         [
             [
@@ -420,7 +410,7 @@ def _packets(title: str, intro: str, packets: Sequence[PacketSpec]) -> list[str]
     if not packets:
         return [*lines, "None.", ""]
     lines += [
-        *_table(
+        *table(
             ["Id", "Name", "Payload", "Description"],
             [[f"0x{p.opcode:02X}", f"`{p.name}`", _payload_size(p.fields), p.doc] for p in packets],
         ),
@@ -440,7 +430,7 @@ def _errors(d: Dictionary) -> list[str]:
         "",
         "Carried by NAK frames (section 4).",
         "",
-        *_table(["Code", "Name", "Meaning"], [[str(e.code), e.name, e.message] for e in d.errors]),
+        *table(["Code", "Name", "Meaning"], [[str(e.code), e.name, e.message] for e in d.errors]),
         "",
     ]
 
@@ -487,25 +477,11 @@ def render_protocol_doc(dictionary: Dictionary) -> str:
     return "\n".join(lines).rstrip("\n") + "\n"
 
 
-def _default_output() -> Path:
-    root = Path(__file__).resolve().parents[2]
-    if (root / "pyproject.toml").is_file():
-        return root / "docs" / "protocol.md"
-    return Path("docs") / "protocol.md"
-
-
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        prog="python -m camd.protocol.docgen",
-        description="Generate docs/protocol.md from the frame codec and the command dictionary.",
-    )
-    parser.add_argument(
-        "--check",
-        action="store_true",
-        help="do not write; exit 1 if the file differs from what would be generated",
-    )
-    parser.add_argument(
-        "--output", type=Path, default=_default_output(), help="file to write or check"
+    parser = docgen_parser(
+        "python -m camd.protocol.docgen",
+        "Generate docs/protocol.md from the frame codec and the command dictionary.",
+        "protocol.md",
     )
     parser.add_argument(
         "--dictionary",
@@ -521,29 +497,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"docgen: {exc}", file=sys.stderr)
         return 2
     return write_or_check(output, text, check=args.check, command="python -m camd.protocol.docgen")
-
-
-def write_or_check(output: Path, text: str, *, check: bool, command: str) -> int:
-    """Write a generated doc, or with ``check`` say whether ``output`` already holds ``text``.
-
-    Returns the exit status: 0 written or up to date, 1 missing or stale (the message says to
-    run ``command``).
-    """
-    if check:
-        try:
-            current: str | None = output.read_text(encoding="utf-8")
-        except FileNotFoundError:
-            current = None
-        if current != text:
-            state = "missing" if current is None else "stale"
-            print(f"{output} is {state}: run `{command}` and commit the result", file=sys.stderr)
-            return 1
-        print(f"{output} is up to date")
-        return 0
-    output.parent.mkdir(parents=True, exist_ok=True)
-    output.write_text(text, encoding="utf-8", newline="\n")
-    print(f"wrote {output}")
-    return 0
 
 
 if __name__ == "__main__":

@@ -10,7 +10,6 @@ so it cannot drift from them; ``tests/test_sensor_docs.py`` fails when the commi
 
 from __future__ import annotations
 
-import argparse
 import sys
 import types
 import typing
@@ -21,7 +20,7 @@ from typing import Any
 from pydantic import BaseModel
 from pydantic_core import PydanticUndefined
 
-from camd.protocol.docgen import write_or_check
+from camd.markdown import docgen_parser, table, write_or_check
 from camd.sensor.regmap import (
     ROLE_DOCS,
     ROLES,
@@ -40,16 +39,6 @@ from camd.sensor.regmap import (
 from camd.sensor.timing_view import SensorTiming, reset_timing
 
 # -- formatting -------------------------------------------------------------------------------------
-
-
-def _cell(text: str) -> str:
-    return text.replace("|", "\\|").replace("\n", " ")
-
-
-def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
-    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    lines += ["| " + " | ".join(_cell(c) for c in row) + " |" for row in rows]
-    return lines
 
 
 def _num(x: float) -> str:
@@ -108,7 +97,7 @@ def _default(info: Any) -> str:
     return _num(default) if isinstance(default, float) else str(default)
 
 
-def _schema_table(model: type[BaseModel]) -> list[str]:
+def _schematable(model: type[BaseModel]) -> list[str]:
     rows = []
     for name, info in model.model_fields.items():
         constraints = []
@@ -124,11 +113,11 @@ def _schema_table(model: type[BaseModel]) -> list[str]:
         if constraints:
             kind += f" ({', '.join(constraints)})"
         rows.append([f"`{name}`", kind, _default(info), info.description or ""])
-    return _table(["Key", "Type", "Default", "Meaning"], rows)
+    return table(["Key", "Type", "Default", "Meaning"], rows)
 
 
 def _schema() -> list[str]:
-    roles = _table(["Role", "Meaning"], [[f"`{r}`", ROLE_DOCS.get(r, "")] for r in ROLES])
+    roles = table(["Role", "Meaning"], [[f"`{r}`", ROLE_DOCS.get(r, "")] for r in ROLES])
     return [
         "## 1. Register map schema",
         "",
@@ -139,7 +128,7 @@ def _schema() -> list[str]:
         "",
         "### Top level",
         "",
-        *_schema_table(RegisterMap),
+        *_schematable(RegisterMap),
         "",
         "### `[spi]`: the SPI frame",
         "",
@@ -148,7 +137,7 @@ def _schema() -> list[str]:
         "total must be whole bytes. A read sends zeros in the data slot and the sensor drives "
         "the value on MISO during it.",
         "",
-        *_schema_table(SpiLayout),
+        *_schematable(SpiLayout),
         "",
         "### `[timing]`: the line period",
         "",
@@ -158,17 +147,17 @@ def _schema() -> list[str]:
         "clock_hz`, `f_s = clock_hz * pixels_per_clock` and `n_pixels` the `window_columns` "
         "role (or `columns`).",
         "",
-        *_schema_table(TimingSpec),
+        *_schematable(TimingSpec),
         "",
         "### `[output]`: the pixel output",
         "",
-        *_schema_table(OutputSpec),
+        *_schematable(OutputSpec),
         "",
         "### `[soft_reset]`",
         "",
         "Writing `value` to `field` returns every register to its reset value.",
         "",
-        *_schema_table(SoftResetSpec),
+        *_schematable(SoftResetSpec),
         "",
         "### `[roles]`",
         "",
@@ -181,7 +170,7 @@ def _schema() -> list[str]:
         "",
         "### `[[registers]]`",
         "",
-        *_schema_table(RegisterSpec),
+        *_schematable(RegisterSpec),
         "",
         "### Fields: `fields = [ { ... }, ... ]` of a register",
         "",
@@ -189,7 +178,7 @@ def _schema() -> list[str]:
         "The physical value of a field is `raw * scale` in `unit`; a counted quantity is "
         "`raw + bias`.",
         "",
-        *_schema_table(FieldSpec),
+        *_schematable(FieldSpec),
         "",
         "### `[[groups]]`",
         "",
@@ -197,7 +186,7 @@ def _schema() -> list[str]:
         "in two 16-bit registers. The host writes a group as hold = 1, the parts, hold = 0 in "
         "one burst; the sensor applies latched parts together when hold is cleared.",
         "",
-        *_schema_table(GroupSpec),
+        *_schematable(GroupSpec),
         "",
         "### Load errors",
         "",
@@ -338,7 +327,7 @@ def _timing_lines(regmap: RegisterMap, timing: SensorTiming) -> list[str]:
         "",
         "At the reset values:",
         "",
-        *_table(["Quantity", "Value"], rows),
+        *table(["Quantity", "Value"], rows),
         "",
     ]
 
@@ -373,7 +362,7 @@ def _sensor(number: int, regmap: RegisterMap) -> list[str]:
         )
     if regmap.source:
         facts.append(f"- Source: {regmap.source}.")
-    registers = _table(
+    registers = table(
         ["Address", "Name", "Width", "Access", "Volatile", "Reset", "Description"],
         [
             [
@@ -389,7 +378,7 @@ def _sensor(number: int, regmap: RegisterMap) -> list[str]:
         ],
     )
     field_rows = [row for reg in regmap.by_address() for row in _field_rows(reg)]
-    roles = _table(
+    roles = table(
         ["Role", "Value"],
         [[f"`{role}`", f"`{regmap.roles[role]}`"] for role in ROLES if role in regmap.roles],
     )
@@ -414,7 +403,7 @@ def _sensor(number: int, regmap: RegisterMap) -> list[str]:
         "### Fields",
         "",
         *(
-            _table(
+            table(
                 ["Register", "Field", "Bits", "Values", "Unit", "Scale", "Description"], field_rows
             )
             if field_rows
@@ -426,7 +415,7 @@ def _sensor(number: int, regmap: RegisterMap) -> list[str]:
         lines += [
             "### Groups",
             "",
-            *_table(
+            *table(
                 ["Group", "Registers (MSB first)", "Hold", "Range", "Unit", "Description"],
                 [
                     [
@@ -474,25 +463,11 @@ def shipped_maps() -> list[RegisterMap]:
     return [load_register_map(name) for name in list_sensors()]
 
 
-def _default_output() -> Path:
-    root = Path(__file__).resolve().parents[2]
-    if (root / "pyproject.toml").is_file():
-        return root / "docs" / "sensors.md"
-    return Path("docs") / "sensors.md"
-
-
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        prog="python -m camd.sensor.docgen",
-        description="Generate docs/sensors.md from the register-map schema and the shipped maps.",
-    )
-    parser.add_argument(
-        "--check",
-        action="store_true",
-        help="do not write; exit 1 if the file differs from what would be generated",
-    )
-    parser.add_argument(
-        "--output", type=Path, default=_default_output(), help="file to write or check"
+    parser = docgen_parser(
+        "python -m camd.sensor.docgen",
+        "Generate docs/sensors.md from the register-map schema and the shipped maps.",
+        "sensors.md",
     )
     parser.add_argument(
         "--map",

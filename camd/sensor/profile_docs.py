@@ -12,13 +12,11 @@ committed file is stale.
 
 from __future__ import annotations
 
-import argparse
 import math
 import sys
 from collections.abc import Sequence
-from pathlib import Path
 
-from camd.protocol.docgen import write_or_check
+from camd.markdown import docgen_parser, table, write_or_check
 from camd.sensor.profile import (
     CameraProfile,
     GainSpec,
@@ -30,16 +28,6 @@ from camd.sensor.regmap import RegisterMapError, load_register_map
 from camd.sensor.timing_view import reset_timing
 
 COMMAND = "python -m camd.sensor.profile_docs"
-
-
-def _cell(text: str) -> str:
-    return text.replace("|", "\\|").replace("\n", " ")
-
-
-def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
-    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    lines += ["| " + " | ".join(_cell(c) for c in row) + " |" for row in rows]
-    return lines
 
 
 def _num(value: object) -> str:
@@ -70,7 +58,7 @@ def _schema() -> list[str]:
         '    fill_factor = { value = 0.8, assumed = "sCMOS pixel with microlenses; no paper '
         'gives it" }',
         "",
-        *_table(["Key", "Unit", "Meaning"], rows),
+        *table(["Key", "Unit", "Meaning"], rows),
         "",
         "### `[analog_gain]`: the gain register as an analogue gain factor",
         "",
@@ -83,7 +71,7 @@ def _schema() -> list[str]:
         "- `db`: `G = 10^((db_at_zero + db_per_code * code) / 20)`; when the map's gain field is "
         "in dB its scale must equal `db_per_code`.",
         "",
-        *_table(["Key", "Meaning"], gain_rows),
+        *table(["Key", "Meaning"], gain_rows),
         "",
         "### Derived quantities",
         "",
@@ -175,11 +163,11 @@ def _profile(number: int, profile: CameraProfile) -> list[str]:
         f"`config/profiles/{profile.profile}.toml`. {assumed} of "
         f"{len(CameraProfile.physical_keys())} values are assumptions.",
         "",
-        *_table(["Key", "Value", "Unit", "Provenance"], rows),
+        *table(["Key", "Value", "Unit", "Provenance"], rows),
         "",
         "Derived at the register reset values:",
         "",
-        *_table(["Quantity", "Value"], derived),
+        *table(["Quantity", "Value"], derived),
         "",
     ]
 
@@ -214,25 +202,11 @@ def shipped_profiles() -> list[CameraProfile]:
     return [load_profile(name) for name in list_profiles()]
 
 
-def _default_output() -> Path:
-    root = Path(__file__).resolve().parents[2]
-    if (root / "pyproject.toml").is_file():
-        return root / "docs" / "profiles.md"
-    return Path("docs") / "profiles.md"
-
-
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        prog=COMMAND,
-        description="Generate docs/profiles.md from the profile schema and the shipped profiles.",
-    )
-    parser.add_argument(
-        "--check",
-        action="store_true",
-        help="do not write; exit 1 if the file differs from what would be generated",
-    )
-    parser.add_argument(
-        "--output", type=Path, default=_default_output(), help="file to write or check"
+    parser = docgen_parser(
+        COMMAND,
+        "Generate docs/profiles.md from the profile schema and the shipped profiles.",
+        "profiles.md",
     )
     args = parser.parse_args(argv)
     try:
