@@ -215,6 +215,34 @@ def test_reskew_and_reset_lose_the_training(model: FpgaModel) -> None:
     assert model.sensor.register_value("WIN_ROWS") == 64
 
 
+def test_losing_the_training_ends_the_stream_with_stream_done(model: FpgaModel) -> None:
+    ack(model, "TRAIN")
+    ack(model, "REG_WRITE", seq=2, address=address("WIN_ROWS"), value=8)
+    ack(model, "START_STREAM", seq=3, frames=0, stages=0, binning="off")
+    frames = call(model, "SIM_RESKEW", seq=4, seed=99)
+    assert event_names(model, frames) == ["LINK_LOST", "STREAM_DONE"]
+    done = model.dictionary.event("STREAM_DONE").decode(frames[-1].payload)
+    assert done["next_counter"] == done["frames_sent"]  # the first stream starts at counter 0
+    assert ack(model, "GET_SENSOR", seq=5)["imaging"] == "no"
+    # No second STREAM_DONE from the engine once its last frame is out.
+    assert model.stream.wait_idle(5.0)
+    assert model.take_unsolicited() == []
+
+
+def test_a_counted_stream_ends_with_one_stream_done(model: FpgaModel) -> None:
+    ack(model, "TRAIN")
+    ack(model, "REG_WRITE", seq=2, address=address("WIN_ROWS"), value=8)
+    started = ack(model, "START_STREAM", seq=3, frames=5, stages=0, binning="off")
+    assert model.stream.wait_idle(10.0)
+    (event,) = model.take_unsolicited()
+    assert model.dictionary.event(event.opcode).name == "STREAM_DONE"
+    done = model.dictionary.event("STREAM_DONE").decode(event.payload)
+    assert done == {"frames_sent": 5, "next_counter": started["first_counter"] + 5}
+    stopped = ack(model, "STOP_STREAM", seq=4)  # harmless after the end
+    assert stopped["next_counter"] == started["first_counter"] + 5
+    assert model.take_unsolicited() == []
+
+
 def test_a_replayed_write_is_not_applied_twice(model: FpgaModel) -> None:
     spec = model.dictionary.command("REG_WRITE")
     frame = Frame(

@@ -40,6 +40,7 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 DRAIN_TIMEOUT_S = 5.0
+LINK_LOST_GRACE_S = 1.0  # after LINK_LOST: how long STREAM_DONE may take to follow
 SETTLE_TIMEOUT_S = 30.0  # longest a START_STREAM exchange can take (with all its retries)  # after the device's last frame: how long the reader may take to catch up
 Consumer = Callable[[ReceivedFrame], None]
 
@@ -154,11 +155,17 @@ class StreamService:
             ).start()
 
     def on_link_lost_training(self) -> None:
-        """The LVDS link lost its training: the device stopped streaming."""
-        if self.streaming:
-            threading.Thread(
-                target=self._finish, args=(None, None, "LVDS link lost"), daemon=True
-            ).start()
+        """The LVDS link lost its training: the device stopped streaming. Its STREAM_DONE,
+        which says which frames it sent, normally follows; end the stream without it only if
+        it has not come within LINK_LOST_GRACE_S."""
+        if not self.streaming:
+            return
+
+        def finish_late() -> None:
+            if not self._finished.wait(LINK_LOST_GRACE_S):
+                self._finish(None, None, "LVDS link lost")
+
+        threading.Thread(target=finish_late, name="camd-stream-finish", daemon=True).start()
 
     def on_reset(self) -> None:
         """RESET stopped the sequencer: end the stream on our side too."""
