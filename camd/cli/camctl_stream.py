@@ -176,7 +176,7 @@ COMMANDS: dict[str, Callable[[CamdClient, argparse.Namespace], Any]] = {
 
 
 def render_stream(out: Console, doc: Any, args: argparse.Namespace) -> None:
-    state = "streaming" if doc["streaming"] else "stopped"
+    state = "running" if doc["streaming"] else "ended"
     binned = ", 2x2 binned" if doc["binning"] == "2x2" else ""
     stages = f", M = {doc['stages']}" if doc["stages"] else ""
     geometry = (

@@ -163,13 +163,18 @@ def run_demo(out: str | os.PathLike[str], pings: int = DEFAULT_PINGS) -> int:
     ping = summary["ping"]
     check = summary["at_most_once"]
     tel = summary["telemetry"]
+    stream = summary["stream"]["tdi"]
+    rec = summary["stream"]["recording"]
     # Plain print, never wrapped: scripts and the README quote this line.
     print(
         f"demo OK: {ping['count']} pings, {ping['retries']} retries, {ping['failed']} failed, "
         f"rtt p50/p99 {_ms(ping['rtt_ms']['p50'])}/{_ms(ping['rtt_ms']['p99'])} ms, "
         f"at most once: {check['device_executed']} executed for {check['host_answered']} "
         f"answered ({check['device_replayed']} replayed), "
-        f"{tel['samples_after']} telemetry samples archived; summary in {summary_path}",
+        f"{tel['samples_after']} telemetry samples archived, "
+        f"{stream['frames']} of {DEMO_FRAMES} frames delivered ({stream['lost']} lost, "
+        f"{stream['corrupt'] + stream['short']} damaged, all as injected), "
+        f"{rec['frames']} recorded and verified; summary in {summary_path}",
         flush=True,
     )
     return 0
