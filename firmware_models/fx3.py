@@ -92,6 +92,7 @@ _MSG = struct.Struct("<BxxxI")
 MSG_TRANSFER = 1
 MSG_STALL = 2
 MSG_CLEAR_HALT = 3
+MSG_READY = 4  # device -> host, first on every connection: the device now serves this host
 MAX_TRANSFER_BYTES = 1 << 30
 SOCKET_BUFFER_BYTES = 4 << 20  # a few frames in flight: fewer wake-ups per frame
 _SEND_TICK_S = 0.25  # how often a blocked send looks whether it should give up
@@ -198,6 +199,25 @@ class Fx3Backend(SimulatedUsbDevice):
                 "start it with `python -m firmware_models --usb-socket PATH` (or "
                 "`python -m firmware_models.fx3 --socket PATH`) or check the path"
             ) from exc
+        # Plugged in once the device says it serves this host (before that, frames it makes
+        # would be counted undelivered, and the host could not know).
+        try:
+            ready = b""
+            while len(ready) < _MSG.size:
+                chunk = sock.recv(_MSG.size - len(ready))
+                if not chunk:
+                    raise OSError("the simulator closed the connection")
+                ready += chunk
+        except OSError as exc:
+            sock.close()
+            raise StreamLinkError(
+                f"the simulated camera on {self.path} did not accept the connection within "
+                f"{self.connect_timeout_s:g} s ({exc}); is another host attached, or is it hung?"
+            ) from exc
+        kind, _ = _MSG.unpack(ready)
+        if kind != MSG_READY:
+            sock.close()
+            raise StreamLinkError(f"stream socket protocol error: first message kind {kind}")
         with self._lock:
             self._sock = sock
             self._msg_got = 0
@@ -536,11 +556,18 @@ class StreamSocketServer(UnixSocketServer):
             sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, self.send_buffer_bytes)
         sock.settimeout(_SEND_TICK_S)
         conn = _Connection(sock)
-        with self._cond:
-            old, self._conn = self._conn, conn
-            self._halted = False  # a new host: the endpoint starts clear
-            self.connections_accepted += 1
-            self._cond.notify_all()
+        # READY goes out before any transfer can (the send lock is held from before the
+        # connection is served): a host that has it knows no frame went elsewhere since.
+        with conn.send_lock:
+            with self._cond:
+                old, self._conn = self._conn, conn
+                self._halted = False  # a new host: the endpoint starts clear
+                self.connections_accepted += 1
+                self._cond.notify_all()
+            try:
+                sock.sendall(_MSG.pack(MSG_READY, 0))
+            except OSError:
+                self._kill(conn)
         if old is not None:
             self._kill(old)  # the accept loop closes it on its next pass
 

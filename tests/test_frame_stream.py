@@ -59,6 +59,9 @@ class Rig:
         kwargs: dict[str, object] = {"timeout_s": 0.2, **stream_kwargs}
         self.stream = FrameStream(backend=get_backend(path), **kwargs)  # type: ignore[arg-type]
         self.stream.open()
+        # Frames made before the server has taken this host's connection would go nowhere
+        # (counted undelivered by the engine, unknown to the host): wait for it.
+        assert wait_until(lambda: self.server.connections_accepted == 1 and self.server.connected)
         self.got: list[Got] = []
         self.stream.add_consumer(self.record)
 
