@@ -27,7 +27,6 @@ from __future__ import annotations
 import math
 import struct
 import threading
-import time
 from collections import Counter
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, fields
@@ -145,7 +144,6 @@ class FpgaModel:
             self.sensor_link,
             self.stream,
             lock=self.lock,
-            clock_s=lambda: time.monotonic() - self.power_on_s,
         )
         self.stream.source = self.imaging_path.frame
         # Events that no command caused (STREAM_DONE from the stream thread) wait here until
@@ -391,6 +389,7 @@ class FpgaModel:
             self.injector.set(InjectSpec.checked(**merged))
         except ValueError as exc:
             raise _Nak("OUT_OF_RANGE", str(exc)) from None
+        self.stream.inject = self.injector.spec  # the frame_* rates, for the next frame
         return _Outcome(spec.encode_response())
 
     def _sim_set_fault(
@@ -531,6 +530,7 @@ class FpgaModel:
             )
         try:
             geometry = self.imaging_path.start(
+                device_time_s=now_s - self.power_on_s,
                 mode=self.mode,
                 frames=int(request["frames"]),
                 stages=int(request["stages"]),

@@ -16,7 +16,6 @@ time, not how fast this process happens to render.
 from __future__ import annotations
 
 import threading
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -65,14 +64,12 @@ class ImagingPipeline:
         engine: StreamEngine,
         *,
         lock: threading.RLock,
-        clock_s: Callable[[], float],
     ) -> None:
         self.camera = camera
         self.sensor = sensor
         self.sensor_link = sensor_link
         self.engine = engine
         self.lock = lock
-        self._clock_s = clock_s  # device time, seconds since power-on
         self.geometry: StreamGeometry | None = None
         self._t0_s = 0.0
         self._mode = StreamMode.AREA
@@ -89,8 +86,12 @@ class ImagingPipeline:
             return self.engine.next_counter
         return (self.geometry.first_counter + self.engine.frames_produced) % (1 << 32)
 
-    def start(self, *, mode: str, frames: int, stages: int, binning: bool) -> StreamGeometry:
-        """Check the settings against the registers, then start the engine."""
+    def start(
+        self, *, device_time_s: float, mode: str, frames: int, stages: int, binning: bool
+    ) -> StreamGeometry:
+        """Check the settings against the registers, then start the engine. ``device_time_s``
+        (seconds since power-on, passed in: the model never reads a clock) is when START_STREAM
+        arrived; frame k's row 0 ends its exposure one exposure and k frame periods later."""
         timing = self.sensor.timing()
         rows = timing.window_rows
         cols = self.camera.columns
@@ -118,7 +119,7 @@ class ImagingPipeline:
         self.geometry = geometry
         self._mode = StreamMode.TDI if mode == "tdi" else StreamMode.AREA
         self._adc_max = (1 << self.camera.bits) - 1
-        self._t0_s = self._clock_s() + timing.exposure_s
+        self._t0_s = device_time_s + timing.exposure_s
         self.engine.start(
             frames=frames,
             period_s=timing.frame_period_s,

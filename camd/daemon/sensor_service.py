@@ -3,8 +3,9 @@
 ``SensorService`` belongs to a DeviceSession. It builds the register bridge the config names
 (the FPGA's REG_* commands, or a USB-SPI bridge), checks on every (re)connect that the camera
 reports the sensor the register map describes, trains the LVDS link when the config asks, and
-tells the stream service whether the link is trained (``require_trained``). Every device access runs inside the session's
-``device_op()``: one at a time, with link and register errors mapped to the API's errors.
+tells the stream service whether the link is trained (``require_trained``). Every device access
+runs inside the session's ``device_op()``: one at a time, with link and register errors mapped
+to the API's errors.
 """
 
 from __future__ import annotations
@@ -190,7 +191,7 @@ class SensorService:
             timing = registers.timing()
         return TimingResponse.model_validate(timing.as_dict())
 
-    # -- training ------------------------------------------------------------------
+    # -- training ----------------------------------------------------------------------------------
 
     def train(self, *, require: bool = True) -> TrainResponse:
         """TRAIN the LVDS link and read every lane's result."""
