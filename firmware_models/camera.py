@@ -38,15 +38,16 @@ The model does not advance the sensor's frame counter: whoever reads frames out 
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
+from camd.analysis.sensor_noise import dark_current_e_per_s
 from camd.sensor.profile import SHUTTERS, CameraProfile
 from camd.sensor.timing_view import SensorTiming
 from camd.tdi.binning import bin2x2
+from camd.timing import synchronous_stage_speed_m_s
 from firmware_models.lvds import DEFAULT_TRAINING_WORD, TestPattern, pattern_frame
 from firmware_models.scene import Scene, SceneSpec, build_scene
 from firmware_models.sensor import SensorModel
@@ -125,8 +126,11 @@ class CameraModel:
         object side) with ``v_image = m v_stage``; ``T_TDI`` is the frame period the registers
         set now (``SensorTiming.tdi_line_period_s``).
         """
-        period_s = self.sensor.timing().tdi_line_period_s
-        return self.profile.pitch_m.value / (self.profile.magnification.value * period_s)
+        return synchronous_stage_speed_m_s(
+            self.profile.pitch_m.value,
+            self.sensor.timing().tdi_line_period_s,
+            self.profile.magnification.value,
+        )
 
     def current_stage(self) -> Stage:
         """The stage that moves the target now: ``stage``, or a linear stage at
@@ -183,10 +187,12 @@ class CameraModel:
         """Dark current at ``temperature_degc`` relative to the profile's reference temperature:
         ``2^((T - T_ref) / T_double)`` (the doubling rule; it scales the DSNU map too)."""
         p = self.profile
-        doublings = (self.temperature_degc - p.dark_reference_temp_degc.value) / (
-            p.dark_doubling_temp_degc.value
+        return dark_current_e_per_s(
+            1.0,
+            p.dark_reference_temp_degc.value,
+            p.dark_doubling_temp_degc.value,
+            self.temperature_degc,
         )
-        return math.pow(2.0, doublings)
 
     def dark_current_e_per_s(self) -> float:
         """Mean dark current at ``temperature_degc`` (doubling rule, see the profile)."""

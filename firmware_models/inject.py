@@ -14,10 +14,11 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
+from firmware_models.spec_text import key_values
+
 Direction = Literal["rx", "tx"]
 
 GARBAGE_MAX_BYTES = 32
-_SEPARATOR = ","
 
 
 class InjectSpecError(ValueError):
@@ -93,22 +94,14 @@ class InjectSpec(BaseModel):
 
         Raises InjectSpecError naming the offending key, its value and the valid range, or
         listing the known keys for an unknown one."""
-        values: dict[str, float] = {}
-        for item in text.split(_SEPARATOR):
-            item = item.strip()
-            if not item:
-                continue
-            key, sep, raw = item.partition("=")
-            key, raw = key.strip(), raw.strip()
-            if not sep or not key:
-                raise InjectSpecError(
-                    f"--inject item {item!r} is not key=value; "
-                    f"write e.g. 'ber=1e-4,drop=0.01' (keys: {', '.join(cls.known_keys())})"
-                )
-            if key in values:
-                raise InjectSpecError(f"--inject key {key!r} is given twice; give it once")
-            values[key] = cls._check_value(key, raw)
-        return cls(**values)
+        items = key_values(
+            text,
+            what="--inject",
+            example="ber=1e-4,drop=0.01",
+            keys_note=f"keys: {', '.join(cls.known_keys())}",
+            error=InjectSpecError,
+        )
+        return cls(**{key: cls._check_value(key, raw) for key, raw in items})
 
     @classmethod
     def checked(cls, **values: float) -> InjectSpec:

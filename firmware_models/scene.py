@@ -62,6 +62,8 @@ import numpy as np
 import numpy.typing as npt
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
+from firmware_models.spec_text import key_values
+
 Array = npt.NDArray[Any]
 FloatArray = npt.NDArray[np.floating[Any]]
 
@@ -228,19 +230,14 @@ class SceneSpec(BaseModel):
         if kind not in SCENE_KINDS:
             raise SceneSpecError(f"unknown scene kind {kind!r}; kinds: {', '.join(SCENE_KINDS)}")
         values: dict[str, Any] = {"kind": kind}
-        for item in rest.split(","):
-            item = item.strip()
-            if not item:
-                continue
-            key, eq, raw = item.partition("=")
-            key, raw = key.strip(), raw.strip()
-            if not eq or not key:
-                raise SceneSpecError(
-                    f"scene item {item!r} is not key=value; write e.g. '{kind}:photons=1e6' "
-                    f"(keys for {kind}: {', '.join(_KIND_KEYS[kind])})"
-                )
-            if key in values:
-                raise SceneSpecError(f"scene key {key!r} is given twice; give it once")
+        items = key_values(
+            rest,
+            what="scene",
+            example=f"{kind}:photons=1e6",
+            keys_note=f"keys for {kind}: {', '.join(_KIND_KEYS[kind])}",
+            error=SceneSpecError,
+        )
+        for key, raw in items:
             if key not in _KIND_KEYS[kind]:
                 raise SceneSpecError(
                     f"unknown scene key {key!r} for {kind}; keys for {kind}: "

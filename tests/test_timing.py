@@ -24,6 +24,7 @@ from camd.timing import (
     sequencer_frame_period_s,
     sequencer_frame_time_s,
     sequencer_line_period_s,
+    synchronous_stage_speed_m_s,
     tdi_line_period_s,
     tdi_window,
     turntable_line_period_s,
@@ -65,6 +66,18 @@ def test_max_rolling_integration() -> None:
 
 
 # -- §2 eq 5 and T = p / v -------------------------------------------------------------------------
+
+
+def test_synchronous_stage_speed() -> None:
+    # MT9M001 on YUAN13's rail: 5.2 um pitch, 1 ms line period, image 1/20 of the object:
+    # the image must move 5.2 mm/s, the stage 20 times that, 104 mm/s (physics.md §6 eq 9).
+    assert synchronous_stage_speed_m_s(5.2e-6, 1e-3) == pytest.approx(5.2e-3, rel=1e-12)
+    assert synchronous_stage_speed_m_s(5.2e-6, 1e-3, 0.05) == pytest.approx(0.104, rel=1e-12)
+    # The inverse of the line period from the image velocity.
+    v = synchronous_stage_speed_m_s(11e-6, 100e-6)
+    assert tdi_line_period_s(11e-6, v) == pytest.approx(100e-6, rel=1e-12)
+    with pytest.raises(ValueError, match="magnification must be > 0"):
+        synchronous_stage_speed_m_s(5.2e-6, 1e-3, 0.0)
 
 
 def test_tdi_line_period_from_image_velocity() -> None:

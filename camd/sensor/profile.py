@@ -31,6 +31,7 @@ from typing import Annotated, Any, Generic, Literal, TypeVar
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
+from camd.analysis.sensor_noise import system_gain_dn_per_e
 from camd.paths import config_dir
 from camd.sensor.regmap import (
     FieldSpec,
@@ -39,6 +40,7 @@ from camd.sensor.regmap import (
     RegisterSpec,
     load_register_map,
 )
+from camd.timing import rolling_line_period_s
 
 Shutter = Literal["rolling", "global", "frame_transfer"]
 SHUTTERS: tuple[str, ...] = ("rolling", "global", "frame_transfer")
@@ -318,8 +320,12 @@ class CameraProfile(BaseModel):
         physics.md §5 (dark noise in electrons needs the system gain): conversion gain times
         analogue gain is volts per electron at the ADC; one DN is ``V_FS / 2^bits`` volts.
         """
-        lsb_v = self.adc_full_scale_v.value / 2.0**self.adc_bits.value
-        return self.conversion_gain_uv_per_e.value * 1e-6 * analog_gain / lsb_v
+        return system_gain_dn_per_e(
+            self.conversion_gain_uv_per_e.value,
+            analog_gain,
+            self.adc_full_scale_v.value,
+            self.adc_bits.value,
+        )
 
     def analog_gain_factor(self, setting: int | str | None) -> float:
         """The analogue gain for a gain role value (``SensorModel.gain``), per ``analog_gain``."""
@@ -336,7 +342,7 @@ class CameraProfile(BaseModel):
     def line_period_s(self, n_pixels: int | None = None) -> float:
         """``T_line = t_rb + n_pixels / f_s`` from the profile's values (physics.md §2 eq 4)."""
         pixels = self.columns.value if n_pixels is None else n_pixels
-        return self.row_blanking_s.value + pixels / self.pixel_rate_hz.value
+        return rolling_line_period_s(self.row_blanking_s.value, pixels, self.pixel_rate_hz.value)
 
 
 # -- loading ----------------------------------------------------------------------------------------

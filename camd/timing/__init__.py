@@ -29,6 +29,7 @@ from camd.timing.sequencer import (
 from camd.timing.tdi import (
     EXACT_MULTIPLE_RTOL,
     TdiWindow,
+    synchronous_stage_speed_m_s,
     tdi_line_period_s,
     tdi_window,
     turntable_line_period_s,
@@ -47,6 +48,7 @@ __all__ = [
     "sequencer_frame_period_s",
     "sequencer_frame_time_s",
     "sequencer_line_period_s",
+    "synchronous_stage_speed_m_s",
     "tdi_line_period_s",
     "tdi_window",
     "turntable_line_period_s",

@@ -32,6 +32,20 @@ def tdi_line_period_s(pixel_pitch_m: float, image_velocity_m_per_s: float) -> fl
     return pitch / velocity
 
 
+def synchronous_stage_speed_m_s(
+    pixel_pitch_m: float, tdi_line_period_s: float, magnification: float = 1.0
+) -> float:
+    """Stage speed that moves the image one pitch per TDI line period: ``p / (m T_line,TDI)``.
+
+    physics.md §2 (``T_line,TDI = p / v_image``, solved for ``v_image``) and §6 eq 9 [YUAN13]
+    (``V_t = n_mag p / T_L`` on the object side, written here with ``v_image = m v_stage``, m the
+    optics' image/object magnification). ``magnification`` 1 gives the image velocity itself.
+    """
+    pitch = positive("pixel_pitch_m", pixel_pitch_m)
+    period = positive("tdi_line_period_s", tdi_line_period_s)
+    return pitch / (positive("magnification", magnification) * period)
+
+
 def turntable_line_period_s(
     pixel_size_m: float, angular_velocity_rad_per_s: float, radius_m: float
 ) -> float:
