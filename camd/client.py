@@ -313,6 +313,45 @@ class SimStreamDoc(TypedDict):
     undelivered: int
 
 
+class ScanTimingDoc(TypedDict):
+    """The timing a scan runs at (physics.md §2)."""
+
+    tdi_line_period_s: float
+    row_period_s: float
+    n_lines: int
+    back_path_s: float
+    max_stages: int
+    exposure_s: float
+    sync_speed_m_s: float
+    stage_speed_m_s: float | None
+    dv_over_v: float | None
+
+
+class ScanDoc(TypedDict):
+    """GET /api/v1/scan and POST /scan/start, /scan/stop, PUT /scan/stages."""
+
+    state: str
+    file: str | None
+    quicklook: str | None
+    stages: int
+    lines_wanted: int
+    frames_requested: int
+    lines: int
+    complete_lines: int
+    lost_frames: int
+    stage_changes: list[list[int]]
+    mode: str
+    width: int
+    elapsed_s: float
+    lines_per_s: float
+    cpu_load: float
+    tdi_cpu_s: float
+    backlog_frames: int
+    timing: ScanTimingDoc | None
+    error: str | None
+    stream: StreamStatsDoc
+
+
 # -- errors ---------------------------------------------------------------------------------------
 
 
@@ -550,6 +589,60 @@ class CamdClient:
         """Simulated camera only: track the synchronous speed, or run at ``speed_m_s``."""
         body = {"track": track, "speed_m_s": speed_m_s}
         return cast(StageDoc, self._json("PUT", f"{API}/sim/stage", json=body))
+
+    def scan(self) -> ScanDoc:
+        """The current or last scan (``state`` "none" before the first)."""
+        return cast(ScanDoc, self._json("GET", f"{API}/scan"))
+
+    def start_scan(
+        self,
+        stages: int,
+        lines: int,
+        *,
+        out: str | None = None,
+        scene: str | None = None,
+        speed_m_s: float | None = None,
+        line_period_s: float | None = None,
+        mode: str = "sum",
+        out_bits: int | None = None,
+        rows_per_line: float = 1.0,
+        cols_per_line: float = 0.0,
+        reverse: bool = False,
+        binning: str = "off",
+        quicklook: bool = True,
+    ) -> ScanDoc:
+        """Start a push-broom scan of ``lines`` complete TDI lines at ``stages`` stages and
+        return at once; ``out`` is an absolute path on the daemon's host (docs/scan.md)."""
+        body: dict[str, Any] = {
+            "stages": stages, "lines": lines, "out": out, "scene": scene,
+            "speed_m_s": speed_m_s, "line_period_s": line_period_s, "mode": mode,
+            "out_bits": out_bits, "rows_per_line": rows_per_line,
+            "cols_per_line": cols_per_line, "reverse": reverse, "binning": binning,
+            "quicklook": quicklook,
+        }  # fmt: skip
+        return cast(ScanDoc, self._json("POST", f"{API}/scan/start", json=body))
+
+    def stop_scan(self) -> ScanDoc:
+        """Stop the running scan; returns once its file is closed."""
+        return cast(ScanDoc, self._json("POST", f"{API}/scan/stop"))
+
+    def set_stages(self, stages: int) -> ScanDoc:
+        """Change the running scan's TDI stage count from its next frame."""
+        return cast(ScanDoc, self._json("PUT", f"{API}/scan/stages", json={"stages": stages}))
+
+    def wait_scan(self, timeout_s: float | None = None, *, poll_s: float = 0.2) -> ScanDoc:
+        """Poll until the current scan has ended; return its final document."""
+        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        while True:
+            doc = self.scan()
+            if doc["state"] not in ("starting", "running"):
+                return doc
+            if deadline is not None and time.monotonic() > deadline:
+                raise CamdError(
+                    f"the scan did not end within {timeout_s:g} s; see `camctl scan --status`",
+                    "timeout",
+                )
+            time.sleep(poll_s)
 
     def sim_stream_stats(self) -> SimStreamDoc:
         """Simulated camera only: what its stream engine made, sent and injected."""

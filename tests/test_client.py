@@ -199,6 +199,8 @@ _CLIENT_VS_DAEMON = [
     ("StreamDoc", "StreamResponse"),
     ("StageDoc", "StageResponse"),
     ("SimStreamDoc", "SimStreamStats"),
+    ("ScanTimingDoc", "ScanTiming"),
+    ("ScanDoc", "ScanResponse"),
 ]
 
 

@@ -12,6 +12,10 @@ into its slots, reassembly, header and payload CRC checks, queue, dispatch to a 
 consumer) against bare bulk reads of the same stream into one buffer through the same pyusb
 backend and socket, with no parsing. The simulated FX3 runs in its own process
 (``python -m firmware_models.fx3``), unpaced, replaying a bank of random 12-bit frames.
+
+``camd bench tdi``: the TDI engine (``camd.tdi``), ``tdi_batch`` and a naive per-line numpy loop
+against ``np.copyto`` of the same input bytes (the memory-bandwidth floor); it lives in
+``camd.cli.bench_tdi``.
 """
 
 from __future__ import annotations
@@ -31,6 +35,7 @@ from typing import Any
 import numpy as np
 import serial
 
+from camd.cli import bench_tdi
 from camd.protocol import FrameType, encode_frame, load_dictionary
 
 # Echo peer for the baseline: a separate process, like the simulator, copying bytes back.
@@ -77,9 +82,12 @@ def add_parser(sub: Any) -> None:
     )
     stream.add_argument("--queue-frames", type=int, default=8, help="FrameStream queue (default 8)")
     stream.add_argument("--json", action="store_true", help="print one JSON document")
+    bench_tdi.add_parser(which)
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.bench == "tdi":
+        return bench_tdi.run(args)
     if args.bench == "stream":
         return _run_stream(args)
     if args.count < 10:

@@ -25,7 +25,7 @@ from rich.table import Table
 from rich.text import Text
 
 import camd
-from camd.cli import camctl_sensor, camctl_stream
+from camd.cli import camctl_scan, camctl_sensor, camctl_stream
 from camd.cli.camctl_sensor import CommandFailed, UsageError
 from camd.client import DEFAULT_URL, CamdClient, CamdError, DaemonUnreachable
 
@@ -188,6 +188,7 @@ def build_parser() -> argparse.ArgumentParser:
     command("reset", "soft-reset the device (mode back to area, fault cleared)")
     camctl_sensor.add_parsers(command)
     camctl_stream.add_parsers(command)
+    camctl_scan.add_parsers(command)
     return parser
 
 
@@ -299,6 +300,7 @@ _COMMANDS: dict[str, Callable[[CamdClient, argparse.Namespace], Any]] = {
     "reset": _cmd_reset,
     **camctl_sensor.COMMANDS,
     **camctl_stream.COMMANDS,
+    **camctl_scan.COMMANDS,
 }
 
 
@@ -534,6 +536,7 @@ _RENDER: dict[str, Callable[[Console, Any, argparse.Namespace], None]] = {
     "reset": _render_reset,
     **camctl_sensor.RENDER,
     **camctl_stream.RENDER,
+    **camctl_scan.RENDER,
 }
 
 

@@ -29,13 +29,14 @@ DEFAULT_FRAMES = 100
 _HEADLINE = ("frames", "lost", "corrupt", "overruns", "mpix_per_s", "mbyte_per_s")
 
 
-def _positive(text: str) -> int:
+def count_arg(text: str) -> int:
+    """argparse type: a whole number >= 0 (decimal or 0x hex)."""
     try:
         value = int(text, 0)
     except ValueError:
         value = -1
     if value < 0:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a frame count >= 0")
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number >= 0")
     return value
 
 
@@ -58,7 +59,7 @@ def add_parsers(command: Callable[[str, str], argparse.ArgumentParser]) -> None:
     what.add_argument("--status", action="store_true", help="show the current or last stream")
     p.add_argument(
         "--frames",
-        type=_positive,
+        type=count_arg,
         default=None,
         metavar="N",
         help=f"frames to take (default {DEFAULT_FRAMES}; with --start, 0 = until --stop)",
@@ -71,7 +72,7 @@ def add_parsers(command: Callable[[str, str], argparse.ArgumentParser]) -> None:
     )
 
     p = command("stare", "record area-mode (staring) frames to an HDF5 file")
-    p.add_argument("--frames", type=_positive, required=True, metavar="N", help="frames, >= 1")
+    p.add_argument("--frames", type=count_arg, required=True, metavar="N", help="frames, >= 1")
     p.add_argument("--out", type=Path, required=True, metavar="FILE", help="new HDF5 file")
     p.add_argument("--binning", action="store_true", help="FPGA-side 2x2 binning")
 
@@ -97,7 +98,7 @@ def _stream_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mode", choices=("area", "tdi"), help="set this mode first")
     p.add_argument(
         "--stages",
-        type=_positive,
+        type=count_arg,
         metavar="M",
         help="TDI stages recorded with the frames (tdi mode; default: all window rows)",
     )

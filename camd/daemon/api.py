@@ -41,10 +41,13 @@ from camd.daemon.models import (
     RegistersResponse,
     RegisterWriteRequest,
     RegisterWriteResponse,
+    ScanRequest,
+    ScanResponse,
     SceneRequest,
     SimStreamStats,
     StageRequest,
     StageResponse,
+    StagesRequest,
     StatusResponse,
     StreamResponse,
     StreamStartRequest,
@@ -366,6 +369,26 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
     def post_stream_stop() -> StreamResponse:
         """Stop the stream; frames the device sent are drained first. Harmless when idle."""
         return session.stream.stop()
+
+    @app.get(f"{API}/scan", response_model=ScanResponse, tags=["scan"])
+    def get_scan() -> ScanResponse:
+        """The current or last scan: progress, counters, timing (state "none" before one)."""
+        return session.scan.status()
+
+    @app.post(f"{API}/scan/start", response_model=ScanResponse, tags=["scan"])
+    def post_scan_start(body: ScanRequest) -> ScanResponse:
+        """Start a push-broom scan with host TDI and return at once (docs/scan.md)."""
+        return session.scan.start(body)
+
+    @app.post(f"{API}/scan/stop", response_model=ScanResponse, tags=["scan"])
+    def post_scan_stop() -> ScanResponse:
+        """Stop the running scan and return once its file is closed. Harmless when idle."""
+        return session.scan.stop()
+
+    @app.put(f"{API}/scan/stages", response_model=ScanResponse, tags=["scan"])
+    def put_scan_stages(body: StagesRequest) -> ScanResponse:
+        """Change the TDI stage count of the running scan from its next frame."""
+        return session.scan.set_stages(body.stages)
 
     @app.put(f"{API}/sim/scene", status_code=204, tags=["simulator"])
     def put_sim_scene(body: SceneRequest) -> Response:

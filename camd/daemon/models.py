@@ -402,3 +402,104 @@ class SimStreamStats(BaseModel):
     shortened: int
     stalls: int
     undelivered: int
+
+
+TdiMode = Literal["sum", "mean"]
+ScanState = Literal["none", "starting", "running", "done", "stopped", "failed"]
+
+
+class ScanRequest(_Request):
+    """POST /api/v1/scan/start: a push-broom scan with host TDI (docs/scan.md)."""
+
+    stages: int = Field(ge=1, le=4096, description="TDI stages M (1..window rows)")
+    lines: int = Field(
+        ge=0,
+        le=10_000_000,
+        description="complete TDI lines wanted; the scan takes lines + M - 1 frames because the "
+        "first M - 1 lines lack stages; 0 = until /scan/stop",
+    )
+    out: str | None = Field(
+        default=None,
+        description="absolute path of the new HDF5 file (on the daemon's host); null = "
+        "<data_dir>/scans/scan-<UTC time>.h5",
+    )
+    scene: str | None = Field(
+        default=None, max_length=240, description="simulated camera only: set this scene first"
+    )
+    speed_m_s: float | None = Field(
+        default=None,
+        gt=0.0,
+        le=10.0,
+        description="stage speed: the TDI line period follows from it (physics.md §2); null = "
+        "keep the registers' line period and run the stage at the synchronous speed",
+    )
+    line_period_s: float | None = Field(
+        default=None,
+        gt=0.0,
+        le=10.0,
+        description="TDI line period to set (physics.md §2 eqs 6-9); exclusive with speed_m_s",
+    )
+    mode: TdiMode = Field(default="sum", description="sum (uint32, eq 12) or mean (float32)")
+    out_bits: int | None = Field(
+        default=None, ge=1, le=32, description="clip sums to 2^out_bits - 1 (eq 12); null = none"
+    )
+    rows_per_line: float = Field(
+        default=1.0, ge=0.0, le=64.0, description="rows the image moves per line (docs/tdi.md)"
+    )
+    cols_per_line: float = Field(
+        default=0.0, ge=-64.0, le=64.0, description="columns of drift per line (docs/tdi.md)"
+    )
+    reverse: bool = Field(default=False, description="the scene moves from row 1 towards row M")
+    binning: Binning = Field(default="off", description="FPGA-side 2x2 binning")
+    quicklook: bool = Field(default=True, description="write a PNG quicklook beside the file")
+
+
+class StagesRequest(_Request):
+    """PUT /api/v1/scan/stages."""
+
+    stages: int = Field(ge=1, le=4096, description="new TDI stage count, from the next frame")
+
+
+class ScanTiming(BaseModel):
+    """The timing a scan runs at (physics.md §2 eqs 5-9, 13)."""
+
+    tdi_line_period_s: float = Field(description="T_line,TDI: the frame period the registers set")
+    row_period_s: float = Field(description="T_line,roll: the sensor's row time")
+    n_lines: int = Field(description="window rows, eq 8")
+    back_path_s: float = Field(description="T_back, eq 9")
+    max_stages: int = Field(description="M0 = n_lines, eq 13")
+    exposure_s: float
+    sync_speed_m_s: float = Field(description="stage speed that moves the image one row a period")
+    stage_speed_m_s: float | None = Field(
+        description="the stage speed the scan runs at (null: not known to camd)"
+    )
+    dv_over_v: float | None = Field(description="(V - V_m) / V, physics.md §6; null if unknown")
+
+
+class ScanResponse(BaseModel):
+    """GET /api/v1/scan, and the answer of /scan/start, /stop and /stages."""
+
+    state: ScanState
+    file: str | None = Field(description="the HDF5 file of the current or last scan")
+    quicklook: str | None = Field(description="its PNG quicklook, once written")
+    stages: int = Field(description="M now")
+    lines_wanted: int = Field(description="complete lines asked for; 0 = until stopped")
+    frames_requested: int
+    lines: int = Field(description="TDI lines recorded so far")
+    complete_lines: int = Field(description="lines with all M stages from consecutive frames")
+    lost_frames: int = Field(description="frames the stream never delivered")
+    stage_changes: list[tuple[int, int]] = Field(
+        description="[line index, stages] for the start and every change"
+    )
+    mode: TdiMode
+    width: int
+    elapsed_s: float
+    lines_per_s: float
+    cpu_load: float = Field(
+        description="the daemon's CPU time over the scan's wall time (1.0 = one core busy)"
+    )
+    tdi_cpu_s: float = Field(description="CPU time of the TDI worker thread")
+    backlog_frames: int = Field(description="frames received but not yet through the engine")
+    timing: ScanTiming | None
+    error: str | None = Field(description="why the scan failed, if it did")
+    stream: StreamStats

@@ -53,6 +53,7 @@ from camd.daemon.models import (
     StatusResponse,
     TelemetryResponse,
 )
+from camd.daemon.scan_service import ScanService
 from camd.daemon.sensor_service import SensorService
 from camd.daemon.state import (
     HOW_TO_LEAVE,
@@ -350,6 +351,7 @@ class DeviceSession:
         self._red_acknowledged: set[str] = set()
         self.sensor = SensorService(self)
         self.stream = StreamService(self)
+        self.scan = ScanService(self)
 
     # -- lifecycle ------------------------------------------------------------------------------
 
@@ -414,6 +416,7 @@ class DeviceSession:
         if self._unsubscribe is not None:
             self._unsubscribe()  # no "link lost" for our own close
             self._unsubscribe = None
+        self.scan.close()
         self.stream.close()
         self.sensor.close()
         if self.link is not None:

@@ -213,6 +213,15 @@ class StreamService:
             )
         return self._response()
 
+    def status_info(self) -> dict[str, Any]:
+        """The current or last stream's geometry and device counts (no device traffic)."""
+        with self._lock:
+            return dict(self._info)
+
+    def wait_finished(self, timeout_s: float | None = None) -> bool:
+        """Wait until the current stream (if any) has ended on the host side."""
+        return self._finished.wait(timeout_s)
+
     def stop(self) -> StreamResponse:
         """STOP_STREAM, then drain the reader; harmless when not streaming."""
         self.session.require(Request.STREAM_STOP)

@@ -52,19 +52,21 @@ class RecordingError(OSError):
     """A recording cannot be written or read; the message names the file and what to do."""
 
 
-def _camd_version() -> str:
+def camd_version() -> str:
+    """The installed camd's version, or "unknown" when running from an uninstalled checkout."""
     try:
         return importlib_metadata.version("camd")
     except importlib_metadata.PackageNotFoundError:
         return "unknown"
 
 
-def _flatten(values: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+def flatten_attrs(values: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    """Nested mappings to dotted attribute names (``adc.adc_bits``); ``None`` values dropped."""
     flat: dict[str, Any] = {}
     for key, value in values.items():
         name = f"{prefix}{key}"
         if isinstance(value, Mapping):
-            flat.update(_flatten(value, f"{name}."))
+            flat.update(flatten_attrs(value, f"{name}."))
         elif value is None:
             continue
         elif isinstance(value, (list, tuple)):
@@ -74,7 +76,8 @@ def _flatten(values: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
     return flat
 
 
-def _unflatten(attrs: Mapping[str, Any]) -> dict[str, Any]:
+def unflatten_attrs(attrs: Mapping[str, Any]) -> dict[str, Any]:
+    """HDF5 attributes (dotted names) back to nested dicts of plain Python values."""
     out: dict[str, Any] = {}
     for name, raw in attrs.items():
         value: Any = raw
@@ -136,12 +139,14 @@ class FrameRecorder:
                 "format": FORMAT,
                 "format_version": FORMAT_VERSION,
                 "created_utc": dt.datetime.now(dt.UTC).isoformat(timespec="milliseconds"),
-                "camd_version": _camd_version(),
+                "camd_version": camd_version(),
                 "frames_expected": frames_expected,
             }
         )
         for group in METADATA_GROUPS:
-            self._file.create_group(group).attrs.update(_flatten((metadata or {}).get(group, {})))
+            self._file.create_group(group).attrs.update(
+                flatten_attrs((metadata or {}).get(group, {}))
+            )
         self.rows = self.cols = 0
         self._frames: Any = None
         self._columns: dict[str, Any] = {}
@@ -235,7 +240,7 @@ class FrameRecorder:
                 column.resize(self.count, axis=0)
         self._file.attrs["frames"] = self.count
         if stream_stats:
-            self._file["stream"].attrs.update(_flatten(stream_stats))
+            self._file["stream"].attrs.update(flatten_attrs(stream_stats))
         self._file.close()
         return self.path
 
@@ -284,6 +289,6 @@ def read_recording(path: Path | str) -> Recording:
             )
         frames = np.asarray(f["frames"][...], dtype=np.uint16)
         columns = {name: np.asarray(f[name][...]) for name in _PER_FRAME}
-        attrs = _unflatten(dict(f.attrs))
-        meta = {group: _unflatten(dict(f[group].attrs)) for group in METADATA_GROUPS}
+        attrs = unflatten_attrs(dict(f.attrs))
+        meta = {group: unflatten_attrs(dict(f[group].attrs)) for group in METADATA_GROUPS}
     return Recording(path, frames, columns, attrs, meta)

@@ -1,0 +1,201 @@
+"""camctl's scan commands: ``scan`` and ``stages``.
+
+    camctl scan --stages M --lines L [--scene SPEC] [--out FILE] [--speed-m-s V | --line-period-s T]
+                [--mode sum|mean] [--out-bits n] [--rows-per-line r] [--cols-per-line c]
+                [--reverse] [--binning] [--no-quicklook] [--detach]
+    camctl scan --status | --stop
+    camctl stages M                      change M of the running scan from its next frame
+
+``scan`` waits for the scan to end, with a progress bar on stderr, and prints one document whose
+first keys are the contract {"file", "lines", "complete_lines", "lost_frames", "stages"}; the
+rest is the daemon's scan document. Ctrl-C stops the scan (the file keeps what was taken).
+FILE is made absolute on this machine: camctl and camd must share the file system.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from rich.console import Console
+from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+from camd.cli.camctl_sensor import CommandFailed, UsageError
+from camd.cli.camctl_stream import count_arg
+from camd.client import CamdClient, ScanDoc
+
+CONTRACT = ("file", "lines", "complete_lines", "lost_frames", "stages")
+POLL_S = 0.25
+
+
+def _number(text: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+
+
+def add_parsers(command: Callable[[str, str], argparse.ArgumentParser]) -> None:
+    """Add the scan commands through camctl's ``command(name, help)`` factory."""
+    p = command("scan", "push-broom scan: stream in TDI mode, host TDI, lines to HDF5 + PNG")
+    what = p.add_mutually_exclusive_group()
+    what.add_argument("--status", action="store_true", help="show the current or last scan")
+    what.add_argument("--stop", action="store_true", help="stop the running scan")
+    p.add_argument("--stages", type=count_arg, metavar="M", help="TDI stages (1..window rows)")
+    p.add_argument(
+        "--lines", type=count_arg, metavar="L", help="complete TDI lines wanted (0 = until --stop)"
+    )
+    p.add_argument("--scene", metavar="SPEC", help="simulated camera: set this scene first")
+    p.add_argument("--out", type=Path, metavar="FILE", help="new HDF5 file (default: data dir)")
+    how = p.add_mutually_exclusive_group()
+    how.add_argument(
+        "--speed-m-s", type=_number, metavar="V", help="stage speed; sets the line period"
+    )
+    how.add_argument("--line-period-s", type=_number, metavar="T", help="TDI line period to set")
+    p.add_argument("--mode", choices=("sum", "mean"), default="sum", help="sum (eq 12) or mean")
+    p.add_argument("--out-bits", type=count_arg, metavar="N", help="clip sums to 2^N - 1 (eq 12)")
+    p.add_argument(
+        "--rows-per-line", type=_number, default=1.0, metavar="R",
+        help="rows the image moves per line: 2 = every other row, 1.02 = 2%% mismatch",
+    )  # fmt: skip
+    p.add_argument(
+        "--cols-per-line", type=_number, default=0.0, metavar="C",
+        help="columns of drift per line (tan of the drift angle)",
+    )  # fmt: skip
+    p.add_argument("--reverse", action="store_true", help="the scene moves from row 1 to row M")
+    p.add_argument("--binning", action="store_true", help="FPGA-side 2x2 binning")
+    p.add_argument("--no-quicklook", action="store_true", help="write no PNG quicklook")
+    p.add_argument("--detach", action="store_true", help="start the scan and return at once")
+
+    p = command("stages", "change the TDI stage count of the running scan from its next frame")
+    p.add_argument("stages", type=count_arg, metavar="M", help="new stage count")
+
+
+def flat(doc: ScanDoc) -> dict[str, Any]:
+    """The contract keys first, then the rest of the scan document."""
+    out: dict[str, Any] = {key: doc[key] for key in CONTRACT}  # type: ignore[literal-required]
+    out.update({k: v for k, v in doc.items() if k not in CONTRACT})
+    return out
+
+
+def cmd_scan(client: CamdClient, args: argparse.Namespace) -> Any:
+    if args.stop:
+        return flat(client.stop_scan())
+    if args.status:
+        return flat(client.scan())
+    if args.stages is None or args.lines is None:
+        raise UsageError("scan needs --stages M and --lines L (or --status / --stop)")
+    if args.stages < 1:
+        raise UsageError("--stages must be at least 1")
+    out = None
+    if args.out is not None:
+        path = args.out.expanduser().absolute()
+        if path.exists():
+            raise UsageError(f"{path} already exists; choose another --out or remove it")
+        out = str(path)
+    doc = client.start_scan(
+        args.stages,
+        args.lines,
+        out=out,
+        scene=args.scene,
+        speed_m_s=args.speed_m_s,
+        line_period_s=args.line_period_s,
+        mode=args.mode,
+        out_bits=args.out_bits,
+        rows_per_line=args.rows_per_line,
+        cols_per_line=args.cols_per_line,
+        reverse=args.reverse,
+        binning="2x2" if args.binning else "off",
+        quicklook=not args.no_quicklook,
+    )
+    if not args.detach:
+        doc = _follow(client, doc)
+    result = flat(doc)
+    if result["state"] == "failed":
+        raise CommandFailed(result, f"the scan failed: {result['error']}")
+    return result
+
+
+def _follow(client: CamdClient, doc: ScanDoc) -> ScanDoc:
+    """Poll the scan until it ends, with a progress bar on stderr; Ctrl-C stops it."""
+    err = Console(stderr=True)
+    total = doc["frames_requested"] or None
+    columns = [
+        TextColumn("scan"),
+        BarColumn(),
+        TextColumn(
+            "{task.completed:.0f}/{task.total} lines" if total else "{task.completed} lines"
+        ),
+        TextColumn("{task.fields[rate]}"),
+        TimeRemainingColumn(),
+    ]
+    try:
+        with Progress(*columns, console=err, transient=True, disable=not err.is_terminal) as bar:
+            task = bar.add_task("scan", total=total, rate="")
+            while doc["state"] in ("starting", "running"):
+                time.sleep(POLL_S)
+                doc = client.scan()
+                rate = f"{doc['lines_per_s']:.0f} lines/s, {doc['lost_frames']} lost"
+                bar.update(task, completed=doc["lines"], rate=rate)
+    except KeyboardInterrupt:
+        doc = client.stop_scan()
+        err.print(f"scan stopped: {doc['lines']} lines in {doc['file']}")
+        raise
+    return doc
+
+
+def cmd_stages(client: CamdClient, args: argparse.Namespace) -> Any:
+    if args.stages < 1:
+        raise UsageError("stages must be at least 1")
+    return flat(client.set_stages(args.stages))
+
+
+COMMANDS: dict[str, Callable[[CamdClient, argparse.Namespace], Any]] = {
+    "scan": cmd_scan,
+    "stages": cmd_stages,
+}
+
+
+def render_scan(out: Console, doc: Any, args: argparse.Namespace) -> None:
+    if doc["state"] == "none":
+        out.print("no scan yet; start one with `camctl scan --stages M --lines L`")
+        return
+    bad = doc["lost_frames"] + doc["stream"]["overruns"]
+    colour = "red" if bad else "green"
+    out.print(
+        f"scan {doc['state']}: [{colour}]{doc['lines']} lines, {doc['complete_lines']} complete, "
+        f"{doc['lost_frames']} frames lost[/], M = {doc['stages']} ({doc['mode']}), "
+        f"{doc['width']} columns"
+    )
+    timing = doc.get("timing")
+    if timing:
+        speed = timing["stage_speed_m_s"]
+        stage = "unknown" if speed is None else f"{speed * 1e3:.6g} mm/s"
+        out.print(
+            f"line period {timing['tdi_line_period_s'] * 1e3:.6g} ms = {timing['n_lines']} rows "
+            f"x {timing['row_period_s'] * 1e6:.4g} us + back path "
+            f"{timing['back_path_s'] * 1e6:.4g} us; stage {stage} "
+            f"(synchronous {timing['sync_speed_m_s'] * 1e3:.6g} mm/s)"
+        )
+    out.print(
+        f"{doc['lines_per_s']:.0f} lines/s over {doc['elapsed_s']:.2f} s, CPU load "
+        f"{doc['cpu_load']:.2f} core (TDI {doc['tdi_cpu_s']:.2f} s)"
+    )
+    if len(doc["stage_changes"]) > 1:
+        changes = ", ".join(f"line {i}: M = {m}" for i, m in doc["stage_changes"])
+        out.print(f"stage changes: {changes}")
+    if doc["file"]:
+        out.print(
+            f"file {doc['file']}" + (f", quicklook {doc['quicklook']}" if doc["quicklook"] else "")
+        )
+    if doc.get("error"):
+        out.print(f"[red]error: {doc['error']}[/]")
+
+
+RENDER: dict[str, Callable[[Console, Any, argparse.Namespace], None]] = {
+    "scan": render_scan,
+    "stages": render_scan,
+}

@@ -1,0 +1,489 @@
+"""Digital-TDI scans in HDF5: the lines the TDI engine made, each line's bookkeeping, the metadata.
+
+One file per scan, appended to while the scan runs::
+
+    /lines          (L, N) uint32 (mode "sum") or float32 (mode "mean"), chunks of chunk_lines lines
+    /line_index     (L,) int64    the engine's line index (docs/tdi.md: line k belongs to frame k)
+    /frame_counter  (L,) uint32   the device's counter of the frame the line belongs to
+    /stages_used    (L,) uint16   how many of the M stages contributed to the line
+    /complete       (L,) uint8    1 if all M stages contributed (docs/tdi.md "Completeness"), else 0
+    /stage_changes  (K, 2) int64  [line index, stages]: the scan's first M, then every change of M
+    /profile, /registers, /timing, /scan   groups whose attributes hold the metadata
+    /counters       group whose attributes hold the scan's counters (written by ``close``)
+
+Root attributes: ``format`` ("camd-tdi-scan"), ``format_version``, ``mode`` ("sum" or "mean"),
+``width``, ``created_utc``, ``camd_version``, ``lines``, ``complete_lines`` and ``finished``
+(False, 0 and 0 until the scan is closed), plus whatever ``close`` is given. Nested metadata is
+flattened to dotted attribute names (``array.columns``) as in ``camd.store.recording``;
+``read_tdi_scan`` puts it back together. ``None`` values are not stored.
+
+Reading a scan while it is written: the file is written in HDF5 single-writer/multiple-reader
+(SWMR) mode (file format 1.10, readable by HDF5 1.10 and later). Another process opens it with
+``read_tdi_scan`` or ``h5py.File(path, "r", swmr=True)`` (a plain ``h5py.File(path, "r")`` is
+refused while the scan is open: "file is already open for write") and sees every line up to the
+recorder's last flush, which is at most ``chunk_lines`` lines behind; a line appended after it may
+still read as zeros. An SWMR writer may only grow datasets, so the root attributes ``lines``,
+``complete_lines``, ``finished``, the counters and ``close``'s attributes appear when the scan is
+closed: a live reader takes the number of lines from the datasets' lengths. If the writing process
+dies, the lines up to its last flush stay readable.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import operator
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, SupportsIndex
+
+import h5py
+import numpy as np
+import numpy.typing as npt
+
+from camd.store.recording import FORMAT as RECORDING_FORMAT
+from camd.store.recording import (
+    RecordingError,
+    camd_version,
+    flatten_attrs,
+    unflatten_attrs,
+)
+
+FORMAT = "camd-tdi-scan"
+FORMAT_VERSION = 1
+MODES: dict[str, type[np.generic]] = {"sum": np.uint32, "mean": np.float32}
+METADATA_GROUPS = ("profile", "registers", "timing", "scan", "counters")
+# The per-line columns besides /lines, with their stored types.
+_COLUMNS: dict[str, type[np.generic]] = {
+    "line_index": np.int64,
+    "frame_counter": np.uint32,
+    "stages_used": np.uint16,
+    "complete": np.uint8,
+}
+_DATASETS = frozenset({"lines", "stage_changes", *_COLUMNS})
+_RESERVED_ROOT = frozenset(
+    {
+        "format",
+        "format_version",
+        "mode",
+        "width",
+        "created_utc",
+        "camd_version",
+        "lines",
+        "complete_lines",
+        "finished",
+    }
+)
+_COLUMN_CHUNK = 4096  # lines per chunk of the 1-D columns
+_UINT32_MAX = 2**32 - 1
+_INT64 = np.iinfo(np.int64)
+
+
+def _store_attrs(node: h5py.Group, values: Mapping[str, Any], where: str) -> list[str]:
+    """Write flattened ``values`` as attributes of ``node``; return the ones HDF5 refused."""
+    refused: list[str] = []
+    for name, value in flatten_attrs(values).items():
+        if isinstance(value, np.ndarray) and value.dtype.kind == "U":
+            # numpy's fixed-width unicode has no HDF5 type; store variable-length UTF-8.
+            value = np.asarray(value.tolist(), dtype=h5py.string_dtype())
+        try:
+            node.attrs[name] = value
+        except (TypeError, ValueError) as exc:
+            refused.append(f"{where}{name} = {value!r} ({exc})")
+    return refused
+
+
+def _check_group_name(name: object, what: str) -> str:
+    if not isinstance(name, str) or not name or "/" in name or name in _DATASETS:
+        raise ValueError(
+            f"{what} {name!r} cannot be an HDF5 group of a TDI scan: use a non-empty name "
+            f"without '/' that is not one of the datasets ({', '.join(sorted(_DATASETS))})"
+        )
+    return name
+
+
+def _int_column(
+    name: str, values: npt.ArrayLike, n: int, lo: int, hi: int, dtype: type[np.generic]
+) -> npt.NDArray[Any]:
+    """A (n,) integer array with values in lo..hi, converted to ``dtype``; ValueError if not."""
+    a = np.asarray(values)
+    if a.ndim != 1 or a.shape[0] != n:
+        raise ValueError(f"{name} must have one value per line, shape ({n},); got {a.shape}")
+    if a.dtype.kind not in "iu":
+        raise ValueError(f"{name} must be integers (the TDI engine's int64/int32); got {a.dtype}")
+    if n and (int(a.min()) < lo or int(a.max()) > hi):
+        raise ValueError(f"{name} must lie in {lo}..{hi}; got {int(a.min())}..{int(a.max())}")
+    return a.astype(dtype, copy=False)
+
+
+def _as_int(value: object, name: str) -> int:
+    if isinstance(value, bool):
+        raise ValueError(f"{name} must be an integer, not {value!r}")
+    try:
+        return operator.index(value)  # type: ignore[arg-type]
+    except TypeError:
+        raise ValueError(f"{name} must be an integer; got {value!r}") from None
+
+
+class TdiRecorder:
+    """Appends TDI lines to a new HDF5 file (layout in the module docstring).
+
+    The file is created at once with its metadata (so a bad path fails before the scan starts)
+    and never overwrites an existing file. ``metadata`` maps group name (profile, registers,
+    timing, scan, or any other) to a dict; the groups profile, registers, timing, scan and
+    counters always exist. The recorder flushes itself whenever ``chunk_lines`` lines have been
+    appended since the last flush, so a reader in another process is never more than a chunk
+    behind; ``flush()`` makes everything so far visible at once. ``close(attributes)`` writes
+    the final attributes; a ``with`` block closes the recorder whatever happens inside.
+    """
+
+    def __init__(
+        self,
+        path: Path | str,
+        *,
+        width: int,
+        mode: str,
+        metadata: Mapping[str, Mapping[str, Any]],
+        chunk_lines: int = 256,
+    ) -> None:
+        self.path = Path(path)
+        if mode not in MODES:
+            raise ValueError(
+                f"mode {mode!r} is not a TDI output mode: use 'sum' (uint32 sums) or "
+                "'mean' (float32 means), the mode the TDI engine runs in"
+            )
+        width = _as_int(width, "width")
+        chunk_lines = _as_int(chunk_lines, "chunk_lines")
+        if width < 1:
+            raise ValueError(f"width must be at least 1 column; got {width}")
+        if chunk_lines < 1:
+            raise ValueError(f"chunk_lines must be at least 1; got {chunk_lines}")
+        dtype = np.dtype(MODES[mode])
+        chunk_bytes = chunk_lines * width * dtype.itemsize
+        if chunk_bytes >= 2**32:
+            raise ValueError(
+                f"a chunk of {chunk_lines} lines x {width} columns is {chunk_bytes} bytes; HDF5 "
+                "chunks must be under 4 GiB: use a smaller chunk_lines"
+            )
+        for group, values in metadata.items():
+            _check_group_name(group, "metadata group")
+            if not isinstance(values, Mapping):
+                raise ValueError(
+                    f"metadata[{group!r}] must be a mapping of attribute names to values; "
+                    f"got {type(values).__name__}"
+                )
+        if self.path.exists():
+            raise RecordingError(
+                f"{self.path} already exists; choose another path or remove the old file"
+            )
+        if not self.path.parent.is_dir():
+            raise RecordingError(
+                f"cannot create the TDI scan {self.path}: the directory {self.path.parent} does "
+                "not exist; create it or choose another path"
+            )
+        self.width = width
+        self.mode = mode
+        self.lines = 0
+        self.complete_lines = 0
+        self._dtype = dtype
+        self._chunk_lines = chunk_lines
+        self._flushed_lines = 0
+        self._stage_change_count = 0
+        self._closed = False
+        try:
+            # SWMR needs the 1.10 file format; the chunk cache holds two chunks of lines so that
+            # appending a few lines at a time never rewrites a whole chunk on disk.
+            self._file = h5py.File(
+                self.path,
+                "w-",
+                libver=("v110", "latest"),
+                rdcc_nbytes=max(1 << 20, 2 * chunk_bytes),
+            )
+        except OSError as exc:
+            raise RecordingError(
+                f"cannot create the TDI scan {self.path}: {exc}; check that the daemon's user "
+                "may write there"
+            ) from None
+        try:
+            self._create(metadata)
+            self._file.swmr_mode = True
+            self._file.flush()
+        except BaseException:
+            self._file.close()
+            self.path.unlink(missing_ok=True)
+            raise
+
+    def _create(self, metadata: Mapping[str, Mapping[str, Any]]) -> None:
+        f = self._file
+        f.attrs.update(
+            {
+                "format": FORMAT,
+                "format_version": FORMAT_VERSION,
+                "mode": self.mode,
+                "width": self.width,
+                "created_utc": dt.datetime.now(dt.UTC).isoformat(timespec="milliseconds"),
+                "camd_version": camd_version(),
+                "lines": 0,
+                "complete_lines": 0,
+                "finished": False,
+            }
+        )
+        refused: list[str] = []
+        for group in (*METADATA_GROUPS, *(g for g in metadata if g not in METADATA_GROUPS)):
+            node = f.create_group(group)
+            refused += _store_attrs(node, metadata.get(group, {}), f"{group}.")
+        if refused:
+            raise ValueError(
+                f"{self.path}: metadata that HDF5 cannot store: {'; '.join(refused)}; use "
+                "numbers, strings, booleans or lists of them"
+            )
+        self._lines = f.create_dataset(
+            "lines",
+            shape=(0, self.width),
+            maxshape=(None, self.width),
+            dtype=self._dtype,
+            chunks=(self._chunk_lines, self.width),
+        )
+        self._columns = {
+            name: f.create_dataset(
+                name, shape=(0,), maxshape=(None,), dtype=dtype, chunks=(_COLUMN_CHUNK,)
+            )
+            for name, dtype in _COLUMNS.items()
+        }
+        self._stage_changes = f.create_dataset(
+            "stage_changes", shape=(0, 2), maxshape=(None, 2), dtype=np.int64, chunks=(256, 2)
+        )
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise RecordingError(
+                f"{self.path} is closed; start a new TdiRecorder (with a new path) to record more"
+            )
+
+    def _line_data(self, data: npt.ArrayLike) -> npt.NDArray[Any]:
+        a = np.asarray(data)
+        if a.ndim != 2 or a.shape[1] != self.width:
+            raise ValueError(
+                f"{self.path}: lines must be an (F, {self.width}) array (the scan is "
+                f"{self.width} columns wide); got shape {a.shape}"
+            )
+        if self.mode == "sum":
+            if a.dtype.kind != "u":
+                raise ValueError(
+                    f"{self.path}: a 'sum' scan stores the engine's uint32 sums; got {a.dtype} "
+                    "lines (float lines belong in a 'mean' scan)"
+                )
+            if a.dtype.itemsize > 4 and a.size and int(a.max()) > _UINT32_MAX:
+                raise ValueError(
+                    f"{self.path}: a sum of {int(a.max())} does not fit the scan's uint32; clip "
+                    "the sums (the engine's out_bits) before recording them"
+                )
+        elif a.dtype.kind != "f":
+            raise ValueError(
+                f"{self.path}: a 'mean' scan stores the engine's float32 means; got {a.dtype} "
+                "lines (integer sums belong in a 'sum' scan)"
+            )
+        return a.astype(self._dtype, copy=False)
+
+    def append(
+        self,
+        data: npt.ArrayLike,
+        *,
+        index: npt.ArrayLike,
+        stages_used: npt.ArrayLike,
+        complete: npt.ArrayLike,
+        frame_counter: npt.ArrayLike | None = None,
+    ) -> None:
+        """Append F lines (a ``TdiBlock``'s arrays): data (F, width), index, stages_used,
+        complete (bool) and, optionally, the device's frame counter of each line (F,) — by
+        default the line index's low 32 bits. F = 0 does nothing. ValueError for a wrong shape,
+        type or range, before anything is written."""
+        self._check_open()
+        lines = self._line_data(data)
+        n = lines.shape[0]
+        line_index = _int_column("index", index, n, int(_INT64.min), int(_INT64.max), np.int64)
+        done = np.asarray(complete)
+        if done.shape != (n,) or done.dtype.kind != "b":
+            raise ValueError(
+                f"complete must be a bool array with one value per line, shape ({n},); got "
+                f"{done.dtype} with shape {done.shape}"
+            )
+        columns = {
+            "line_index": line_index,
+            "frame_counter": (
+                (line_index & _UINT32_MAX).astype(np.uint32)
+                if frame_counter is None
+                else _int_column("frame_counter", frame_counter, n, 0, _UINT32_MAX, np.uint32)
+            ),
+            "stages_used": _int_column("stages_used", stages_used, n, 0, 2**16 - 1, np.uint16),
+            "complete": done.astype(np.uint8),
+        }
+        if n == 0:
+            return
+        start, stop = self.lines, self.lines + n
+        self._lines.resize(stop, axis=0)
+        for column in self._columns.values():
+            column.resize(stop, axis=0)
+        self._lines[start:stop] = lines
+        for name, values in columns.items():
+            self._columns[name][start:stop] = values
+        self.lines = stop
+        self.complete_lines += int(np.count_nonzero(done))
+        if self.lines - self._flushed_lines >= self._chunk_lines:
+            self.flush()
+
+    def note_stage_change(self, line_index: SupportsIndex, stages: SupportsIndex) -> None:
+        """Record that from line ``line_index`` on the scan sums ``stages`` stages.
+
+        The first call gives the scan's initial number of stages (at its first line)."""
+        self._check_open()
+        line_index = _as_int(line_index, "line_index")
+        stages = _as_int(stages, "stages")
+        if stages < 1:
+            raise ValueError(f"stages must be at least 1; got {stages}")
+        k = self._stage_change_count
+        self._stage_changes.resize(k + 1, axis=0)
+        self._stage_changes[k] = (line_index, stages)
+        self._stage_change_count = k + 1
+
+    def flush(self) -> None:
+        """Write everything appended so far to the file, where readers see it."""
+        self._check_open()
+        self._file.flush()
+        self._flushed_lines = self.lines
+
+    def close(self, attributes: Mapping[str, Any] | None = None) -> None:
+        """Finish the scan: write the final attributes and close the file. Idempotent.
+
+        ``attributes`` maps names to values: a mapping value goes to the group of that name
+        (``{"counters": {...}}`` fills /counters; the group is made if needed), any other value
+        is a root attribute. The root's own attributes (format, lines, ...) cannot be replaced.
+        """
+        if self._closed:
+            return
+        root: dict[str, Any] = {}
+        groups: dict[str, Mapping[str, Any]] = {}
+        for name, value in (attributes or {}).items():
+            if isinstance(value, Mapping):
+                groups[_check_group_name(name, "close() attribute group")] = value
+            elif name in _RESERVED_ROOT:
+                raise ValueError(
+                    f"close() cannot set the root attribute {name!r}: the recorder owns "
+                    f"{', '.join(sorted(_RESERVED_ROOT))}; use another name"
+                )
+            else:
+                root[name] = value
+        self._closed = True
+        self._file.close()
+        # An SWMR writer may not add or change attributes: reopen the finished file to do it.
+        try:
+            try:
+                f = h5py.File(self.path, "r+")
+            except BlockingIOError:
+                # A reader still has the file open (and a shared lock on it): it sees the final
+                # attributes when it opens the file again.
+                f = h5py.File(self.path, "r+", locking=False)
+        except OSError as exc:
+            raise RecordingError(
+                f"cannot reopen {self.path} to write its final attributes: {exc}; its lines are "
+                "complete, its lines/complete_lines/counters attributes are missing"
+            ) from None
+        with f:
+            f.attrs.update(
+                {"lines": self.lines, "complete_lines": self.complete_lines, "finished": True}
+            )
+            refused = _store_attrs(f, root, "")
+            for group, values in groups.items():
+                node = f[group] if group in f else f.create_group(group)
+                refused += _store_attrs(node, values, f"{group}.")
+        if refused:
+            raise ValueError(
+                f"{self.path} is closed, but HDF5 could not store these attributes: "
+                f"{'; '.join(refused)}; use numbers, strings, booleans or lists of them"
+            )
+
+    def __enter__(self) -> TdiRecorder:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+@dataclass(frozen=True, slots=True)
+class TdiScan:
+    """A TDI scan read back: the lines, each line's bookkeeping, the metadata."""
+
+    path: Path
+    lines: npt.NDArray[Any]  # (L, N) uint32 ("sum") or float32 ("mean")
+    line_index: npt.NDArray[np.int64]
+    frame_counter: npt.NDArray[np.uint32]
+    stages_used: npt.NDArray[np.uint16]
+    complete: npt.NDArray[np.bool_]
+    stage_changes: npt.NDArray[np.int64]  # (K, 2): [line index, stages]
+    attrs: dict[str, Any]  # root attributes
+    metadata: dict[str, dict[str, Any]]  # profile, registers, timing, scan, counters, ...
+
+
+def read_tdi_scan(path: Path | str) -> TdiScan:
+    """Read a whole TDI scan into memory, also one still being written (SWMR).
+
+    RecordingError for a missing file, a file that is not HDF5 or not a camd TDI scan, or a
+    scan format newer than this camd reads.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise RecordingError(f"{path} does not exist (or is not a file); check the path")
+    try:
+        f = h5py.File(path, "r", swmr=True)
+    except BlockingIOError as exc:
+        raise RecordingError(
+            f"cannot open {path}: another program has it open for writing without SWMR "
+            f"(a camd frame recording being made?): {exc}; wait until it is closed"
+        ) from None
+    except OSError as exc:
+        raise RecordingError(f"cannot open {path} as HDF5: {exc}") from None
+    with f:
+        fmt = f.attrs.get("format")
+        if isinstance(fmt, bytes):
+            fmt = fmt.decode(errors="replace")
+        if fmt == RECORDING_FORMAT:
+            raise RecordingError(
+                f"{path} is a camd frame recording (format {RECORDING_FORMAT!r}), not a TDI "
+                "scan; read it with camd.store.read_recording"
+            )
+        if fmt != FORMAT:
+            raise RecordingError(
+                f"{path} is not a camd TDI scan (format={fmt!r}, expected {FORMAT!r})"
+            )
+        version = int(f.attrs.get("format_version", 0))
+        if version > FORMAT_VERSION:
+            raise RecordingError(
+                f"{path} is TDI scan format {version}; this camd reads up to {FORMAT_VERSION}: "
+                "upgrade camd"
+            )
+        try:
+            # While the scan is written, the datasets may have grown unequally: keep the lines
+            # every one of them has.
+            n = min(len(f[name]) for name in ("lines", *_COLUMNS))
+            lines = np.asarray(f["lines"][:n])
+            columns = {name: np.asarray(f[name][:n], dtype=t) for name, t in _COLUMNS.items()}
+            stage_changes = np.asarray(f["stage_changes"][...], dtype=np.int64).reshape(-1, 2)
+        except KeyError as exc:
+            raise RecordingError(f"{path} is a damaged TDI scan: {exc}") from None
+        attrs = unflatten_attrs(dict(f.attrs))
+        meta = {
+            name: unflatten_attrs(dict(node.attrs))
+            for name, node in f.items()
+            if isinstance(node, h5py.Group)
+        }
+    return TdiScan(
+        path=path,
+        lines=lines,
+        line_index=columns["line_index"],
+        frame_counter=columns["frame_counter"],
+        stages_used=columns["stages_used"],
+        complete=columns["complete"].astype(bool),
+        stage_changes=stage_changes,
+        attrs=attrs,
+        metadata=meta,
+    )

@@ -1,0 +1,398 @@
+"""The digital TDI engine: streaming (``TdiEngine``) and batch (``tdi_batch``).
+
+physics.md §1 (TAO12 eq 11): line k is ``sum_i frames[k - i][row_i]``, clipped per eq 12 or
+averaged; docs/tdi.md states the exact arithmetic, the fractional (interpolated) taps and when a
+line counts as complete. The engine holds a ring of M open partial sums (O(M x N) memory
+whatever the scan length) and a short list of recent lost-frame ranges, so that ``push``,
+``push_many`` and ``tdi_batch`` give the same bits however the frames are split into calls.
+
+Kernels: ``kernel_numba`` (fused, compiled) or ``kernel_numpy`` (the plain reference). A long
+block is cut into parts done at the same time on all cores: each part after the first starts
+from an empty ring, and the first M - 1 lines of each part then get the partial sums the part
+before left open (integer sums, so the order of the additions does not change the bits).
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import numpy as np
+import numpy.typing as npt
+
+from camd.tdi import kernel_numpy
+from camd.tdi.taps import StageTaps, stage_taps
+
+Mode = Literal["sum", "mean"]
+Kernel = Literal["auto", "numba", "numpy"]
+
+_MIN_PIXELS_PER_PART = 1 << 22  # below ~4 Mpix a part costs less than handing it to a thread
+_pool_lock = threading.Lock()
+_pool: tuple[ThreadPoolExecutor, int] | None = None  # the shared pool and its size
+
+
+def _thread_pool(workers: int) -> ThreadPoolExecutor:
+    """One pool for every engine, grown on demand: threads are made once, not per block."""
+    global _pool
+    with _pool_lock:
+        if _pool is None or _pool[1] < workers:
+            _pool = (
+                ThreadPoolExecutor(max_workers=workers, thread_name_prefix="camd-tdi"),
+                workers,
+            )
+        return _pool[0]
+
+
+def numba_available() -> bool:
+    """True if the compiled kernels can be used (numba imports)."""
+    try:
+        import numba  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+@dataclass(frozen=True, slots=True)
+class TdiLine:
+    """One output line: ``data`` (N,), its ``index`` (= the frame's), the number of stages
+    that contributed, and whether that is all M of them from consecutive frames."""
+
+    data: npt.NDArray[Any]
+    index: int
+    stages_used: int
+    complete: bool
+
+
+@dataclass(frozen=True, slots=True)
+class TdiBlock:
+    """Output lines of a block of F frames: ``data`` (F, N), ``index`` (F,) int64,
+    ``stages_used`` (F,) int32, ``complete`` (F,) bool."""
+
+    data: npt.NDArray[Any]
+    index: npt.NDArray[np.int64]
+    stages_used: npt.NDArray[np.int32]
+    complete: npt.NDArray[np.bool_]
+
+    def __len__(self) -> int:
+        return int(self.index.shape[0])
+
+
+class TdiEngine:
+    """Streaming digital TDI over window frames (physics.md §1; contract in docs/tdi.md)."""
+
+    def __init__(
+        self,
+        stages: int,
+        width: int,
+        *,
+        mode: Mode = "sum",
+        out_bits: int | None = None,
+        rows_per_line: float = 1.0,
+        cols_per_line: float = 0.0,
+        reverse: bool = False,
+        kernel: Kernel = "auto",
+        threads: int | None = None,
+    ) -> None:
+        if mode not in ("sum", "mean"):
+            raise ValueError(f"mode must be 'sum' or 'mean', got {mode!r}")
+        if out_bits is not None and (
+            isinstance(out_bits, bool) or not isinstance(out_bits, int) or not 1 <= out_bits <= 32
+        ):
+            raise ValueError(f"out_bits = {out_bits!r}: give 1..32 output bits, or None (no clip)")
+        if kernel not in ("auto", "numba", "numpy"):
+            raise ValueError(f"kernel must be 'auto', 'numba' or 'numpy', got {kernel!r}")
+        if kernel == "numba" and not numba_available():
+            raise ValueError("kernel='numba' needs numba (pip install numba), or use 'numpy'")
+        self.mode: Mode = mode
+        self.out_bits = out_bits
+        self.rows_per_line = float(rows_per_line)
+        self.cols_per_line = float(cols_per_line)
+        self.reverse = bool(reverse)
+        self.kernel: Literal["numba", "numpy"] = (
+            "numpy"
+            if kernel == "numpy" or (kernel == "auto" and not numba_available())
+            else "numba"
+        )
+        self.threads = max(1, threads if threads is not None else os.cpu_count() or 1)
+        self._taps = self._make_taps(stages, width)
+        self._acc = self._new_ring()
+        self._spares: list[npt.NDArray[Any]] = []
+        self._next = 0
+        self._run_start = 0
+        self._lost: list[tuple[int, int]] = []  # [start, stop) of recent lost frame indices
+
+    # -- configuration ------------------------------------------------------------------------
+
+    def _make_taps(self, stages: int, width: int) -> StageTaps:
+        return stage_taps(
+            stages,
+            width,
+            rows_per_line=self.rows_per_line,
+            cols_per_line=self.cols_per_line,
+            reverse=self.reverse,
+        )
+
+    def _new_ring(self) -> npt.NDArray[Any]:
+        return np.zeros((self._taps.stages, self._taps.width), dtype=self._taps.accumulator)
+
+    @property
+    def stages(self) -> int:
+        """M, the number of stages summed into a line."""
+        return self._taps.stages
+
+    @stages.setter
+    def stages(self, stages: int) -> None:
+        """Change M between frames: a new run starts with the next frame, so the next M - 1
+        lines are incomplete (nothing of the old run is mixed into them). The same M again
+        changes nothing."""
+        if stages == self._taps.stages:
+            return
+        self._taps = self._make_taps(stages, self._taps.width)
+        self._acc = self._new_ring()
+        self._spares = []
+        self._run_start = self._next
+        self._lost = []
+
+    @property
+    def width(self) -> int:
+        """N, the columns of every frame and line."""
+        return self._taps.width
+
+    @property
+    def rows_needed(self) -> int:
+        """The fewest rows a frame must have for the current stages and taps."""
+        return self._taps.rows_needed
+
+    @property
+    def next_index(self) -> int:
+        """The line index the next pushed frame gets."""
+        return self._next
+
+    @property
+    def valid_columns(self) -> slice:
+        """Columns to which every stage contributes (fewer than N with a column shift)."""
+        return self._taps.valid_columns()
+
+    @property
+    def state_bytes(self) -> int:
+        """Memory the engine holds between calls (the ring and its spares)."""
+        return int(self._acc.nbytes + sum(s.nbytes for s in self._spares))
+
+    @property
+    def taps(self) -> StageTaps:
+        """Where each stage samples its frame (``camd.tdi.taps``)."""
+        return self._taps
+
+    # -- the stream ----------------------------------------------------------------------------
+
+    def reset(self, index: int = 0) -> None:
+        """Forget every open line; the next frame gets line index ``index``."""
+        self._acc[:] = 0
+        self._next = int(index)
+        self._run_start = self._next
+        self._lost = []
+
+    def gap(self, n_frames: int) -> None:
+        """``n_frames`` frames were lost before the next one: their indices are skipped, and
+        every line they would have contributed to is incomplete."""
+        if isinstance(n_frames, bool) or not isinstance(n_frames, int | np.integer):
+            raise ValueError(f"gap needs a whole number of lost frames, got {n_frames!r}")
+        if n_frames < 0:
+            raise ValueError(f"gap of {n_frames} frames: the count of lost frames must be >= 0")
+        if n_frames == 0:
+            return
+        stages = self._taps.stages
+        start, stop = self._next, self._next + int(n_frames)
+        # The lost frames' own lines never finish: empty their ring rows for the lines that
+        # will reuse them.
+        lost_lines = np.arange(start, min(stop, start + stages))
+        self._acc[lost_lines % stages] = 0
+        self._lost.append((start, stop))
+        self._next = stop
+
+    def push(self, frame: npt.NDArray[Any]) -> TdiLine:
+        """One window frame (rows, N) in, its line out."""
+        arr = np.asarray(frame)
+        if arr.ndim != 2:
+            raise ValueError(
+                f"push takes one frame of shape (rows, {self.width}), got shape {arr.shape}; "
+                "use push_many for a stack of frames"
+            )
+        block = self.push_many(arr[np.newaxis])
+        return TdiLine(
+            data=block.data[0],
+            index=int(block.index[0]),
+            stages_used=int(block.stages_used[0]),
+            complete=bool(block.complete[0]),
+        )
+
+    def push_many(self, frames: npt.NDArray[Any]) -> TdiBlock:
+        """F window frames (F, rows, N) in, their F lines out (same bits as F ``push`` calls)."""
+        stack = self._checked(frames)
+        count = stack.shape[0]
+        first = self._next
+        raw = self._accumulate(stack, first)
+        index = np.arange(first, first + count, dtype=np.int64)
+        used = self._stages_used(index)
+        self._next = first + count
+        self._prune_lost()
+        return TdiBlock(
+            data=self._finish(raw, used),
+            index=index,
+            stages_used=used,
+            complete=used == self._taps.stages,
+        )
+
+    # -- internals ----------------------------------------------------------------------------
+
+    def _checked(self, frames: npt.NDArray[Any]) -> npt.NDArray[np.uint16]:
+        arr = np.asarray(frames)
+        if arr.ndim != 3:
+            raise ValueError(
+                f"push_many takes frames of shape (F, rows, {self.width}), got shape {arr.shape}"
+            )
+        if arr.shape[2] != self.width:
+            raise ValueError(
+                f"frames are {arr.shape[2]} columns wide but the engine was made for "
+                f"width = {self.width}; make a new engine for this window"
+            )
+        if arr.shape[1] < self.rows_needed:
+            raise ValueError(
+                f"frames have {arr.shape[1]} rows but {self.stages} stages at rows_per_line = "
+                f"{self.rows_per_line:g} need {self.rows_needed}; use fewer stages or a taller "
+                "window"
+            )
+        if arr.dtype != np.uint16:
+            if not np.issubdtype(arr.dtype, np.integer) or not np.can_cast(arr.dtype, np.uint16):
+                raise ValueError(
+                    f"frames must be uint16 pixels (or a narrower unsigned integer type), "
+                    f"got {arr.dtype}"
+                )
+            arr = arr.astype(np.uint16)
+        return np.ascontiguousarray(arr)
+
+    def _accumulate(self, frames: npt.NDArray[np.uint16], first: int) -> npt.NDArray[Any]:
+        count = frames.shape[0]
+        stages = self._taps.stages
+        min_part = max(stages - 1, 1, _MIN_PIXELS_PER_PART // max(1, stages * self.width))
+        parts = min(self.threads, count // min_part)
+        if parts <= 1:
+            return self._run(frames, self._acc, first)
+        bounds = np.linspace(0, count, parts + 1).astype(int)
+        while len(self._spares) < parts - 1:
+            self._spares.append(self._new_ring())
+        rings = [self._acc, *self._spares[: parts - 1]]
+        pool = _thread_pool(parts - 1)
+        futures: list[Future[npt.NDArray[Any]]] = []
+        for p in range(1, parts):
+            lo, hi = int(bounds[p]), int(bounds[p + 1])
+            futures.append(pool.submit(self._run_fresh, frames[lo:hi], rings[p], first + lo))
+        outs = [self._run(frames[: bounds[1]], rings[0], first)]
+        outs.extend(f.result() for f in futures)
+        # The first M - 1 lines of each later part still lack the earlier part's stages,
+        # which that part left open in its ring.
+        for p in range(1, parts):
+            lo = int(bounds[p])
+            n = min(stages - 1, outs[p].shape[0])
+            outs[p][:n] += rings[p - 1][(first + lo + np.arange(n)) % stages]
+        # The last part's ring is the state now; the others become spares.
+        self._acc = rings[-1]
+        self._spares = [*rings[:-1], *self._spares[parts - 1 :]]
+        return np.concatenate(outs)
+
+    def _run_fresh(
+        self, frames: npt.NDArray[np.uint16], ring: npt.NDArray[Any], first: int
+    ) -> npt.NDArray[Any]:
+        ring[:] = 0
+        return self._run(frames, ring, first)
+
+    def _run(
+        self, frames: npt.NDArray[np.uint16], ring: npt.NDArray[Any], first: int
+    ) -> npt.NDArray[Any]:
+        taps = self._taps
+        if self.kernel == "numpy":
+            return kernel_numpy.accumulate(frames, ring, taps, first)
+        from camd.tdi import kernel_numba
+
+        out = np.empty((frames.shape[0], taps.width), dtype=ring.dtype)
+        if taps.integer and not taps.shifted:
+            kernel_numba.integer_rows(frames, ring, out, taps.row, first)
+        else:
+            acc_type = taps.accumulator
+            kernel_numba.general(
+                frames,
+                ring,
+                out,
+                taps.row,
+                taps.row_weight.astype(acc_type),
+                taps.col,
+                taps.col_weight.astype(acc_type),
+                acc_type(taps.one),
+                first,
+            )
+        return out
+
+    def _stages_used(self, index: npt.NDArray[np.int64]) -> npt.NDArray[np.int32]:
+        """Stages present for each line: frames of the current run within the last M, less
+        those lost (docs/tdi.md, completeness)."""
+        stages = self._taps.stages
+        lo = np.maximum(index - (stages - 1), self._run_start)
+        used = index - lo + 1
+        for start, stop in self._lost:
+            overlap = np.minimum(stop, index + 1) - np.maximum(start, lo)
+            used -= np.clip(overlap, 0, None)
+        return used.astype(np.int32)
+
+    def _prune_lost(self) -> None:
+        horizon = self._next - self._taps.stages
+        self._lost = [(a, b) for a, b in self._lost if b > horizon]
+
+    def _finish(self, raw: npt.NDArray[Any], used: npt.NDArray[np.int32]) -> npt.NDArray[Any]:
+        """Raw sums (in 1/one DN) to the output: clipped uint32 sums or float32 means."""
+        one = self._taps.one
+        if self.mode == "mean":
+            scale = (used.astype(np.float64) * one)[:, np.newaxis]
+            mean: npt.NDArray[Any] = (raw / scale).astype(np.float32)
+            return mean
+        sums = raw if one == 1 else (raw + (one // 2)) // one
+        if self.out_bits is not None:
+            sums = np.minimum(sums, (1 << self.out_bits) - 1)
+        result: npt.NDArray[Any] = sums.astype(np.uint32, copy=False)
+        return result
+
+
+def tdi_batch(
+    frames: npt.NDArray[Any],
+    stages: int,
+    mode: Mode = "sum",
+    out_bits: int | None = None,
+    rows_per_line: float = 1.0,
+    cols_per_line: float = 0.0,
+    reverse: bool = False,
+    *,
+    kernel: Kernel = "auto",
+    threads: int | None = None,
+) -> tuple[npt.NDArray[Any], npt.NDArray[np.bool_]]:
+    """TDI of a whole stack of frames (F, rows, N) at once: ``(lines (F, N), complete (F,))``.
+
+    The same bits as a new ``TdiEngine`` fed the same frames (docs/tdi.md).
+    """
+    arr = np.asarray(frames)
+    if arr.ndim != 3:
+        raise ValueError(f"tdi_batch takes frames of shape (F, rows, N), got shape {arr.shape}")
+    engine = TdiEngine(
+        stages,
+        arr.shape[2],
+        mode=mode,
+        out_bits=out_bits,
+        rows_per_line=rows_per_line,
+        cols_per_line=cols_per_line,
+        reverse=reverse,
+        kernel=kernel,
+        threads=threads,
+    )
+    block = engine.push_many(arr)
+    return block.data, block.complete
