@@ -541,6 +541,8 @@ class ScanService:
         """Wait for the stream to end, then flush the engine, close the file, write the PNG."""
         stream = self.session.stream
         stream.wait_finished()
+        if scan.done.is_set():
+            return  # the daemon is shutting down and ``close`` has ended the scan
         assert scan.batcher is not None
         stream.remove_consumer(scan.batcher)
         scan.batcher.flush()
