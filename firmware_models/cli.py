@@ -132,6 +132,14 @@ def build_parser(prog: str = "python -m firmware_models") -> argparse.ArgumentPa
         help="scene in front of the camera, e.g. 'bars:lux=3' or 'flat:photons=2e4' "
         "(default: a flat field; docs/simulator.md lists the scenes)",
     )
+    parser.add_argument(
+        "--frame-bank",
+        type=int,
+        default=0,
+        metavar="K",
+        help="render the first K frames of each stream and replay them in a loop with fresh "
+        "headers (throughput tests at line rates the renderer cannot reach; 0 = render all)",
+    )
     parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     parser.add_argument("--json", action="store_true", help="print the start line as JSON")
     return parser
@@ -162,6 +170,11 @@ def main(argv: list[str] | None = None, *, prog: str = "python -m firmware_model
     )
     if args.scene is not None:
         model.camera.set_scene(args.scene)
+    if args.frame_bank < 0:
+        parser.print_usage(sys.stderr)
+        print(f"{prog}: error: --frame-bank must be >= 0", file=sys.stderr)
+        return 2
+    model.imaging_path.frame_bank = args.frame_bank
     server = PtyServer(model, link=link, hk_period_s=args.hk_period_s)
     with _stop_on_signals(server):
         spi_server = (

@@ -660,8 +660,9 @@ class StreamEngine:
     ``source(counter)`` for counter = ``first_counter``, +1, ... (mod 2**32); the source
     returns the frame's complete header (payload CRC included) and its (rows, cols) uint16
     pixels. Each frame goes out as one transfer (header + pixels by scatter-gather, no copy).
-    ``pace=True`` keeps at least ``period_s`` between frames in wall time (a slower source
-    just makes the stream slower; nothing is dropped for that); frames made while no host can
+    ``pace=True`` sends frames on a clock of ``period_s`` in wall time (a source more than a
+    period late moves the clock, so a slower source just makes the stream slower, without
+    bursts; nothing is dropped for that); frames made while no host can
     take them (none connected, or the endpoint halted) are discarded and counted
     ``undelivered``, and the next frame sent carries DEVICE_OVERFLOW. ``pace=False`` sends as
     fast as the host reads, and waits (making nothing) while no host can take frames.
@@ -848,8 +849,12 @@ class StreamEngine:
                 now = time.monotonic()
                 if due > now:
                     self._wait(stream, due - now)
-                # Never faster than the period; a late frame moves the schedule, no catch-up.
-                due = max(due, time.monotonic()) + stream.period_s
+                elif now - due > stream.period_s:
+                    # More than a period late (a slow render): the schedule moves, so the frames
+                    # after it do not come in a burst to catch up.
+                    due = now
+                # On a clock, like the sensor: the sleep's wake-up latency does not accumulate.
+                due += stream.period_s
             with self._cond:
                 if stream.stop or self._closing:
                     return

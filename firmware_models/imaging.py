@@ -74,6 +74,10 @@ class ImagingPipeline:
         self._t0_s = 0.0
         self._mode = StreamMode.AREA
         self._adc_max = 0
+        # Replay: render the first ``frame_bank`` frames of a stream, then send them again in a
+        # loop (fresh headers), for throughput tests at line rates the renderer cannot reach.
+        self.frame_bank = 0
+        self._bank: dict[int, tuple[npt.NDArray[np.uint16], FrameFlags]] = {}
 
     @property
     def streaming(self) -> bool:
@@ -117,6 +121,7 @@ class ImagingPipeline:
             binning=binning,
         )
         self.geometry = geometry
+        self._bank = {}
         self._mode = StreamMode.TDI if mode == "tdi" else StreamMode.AREA
         self._adc_max = (1 << self.camera.bits) - 1
         self._t0_s = device_time_s + timing.exposure_s
@@ -140,6 +145,30 @@ class ImagingPipeline:
         assert geometry is not None
         k = (counter - geometry.first_counter) % (1 << 32)
         t_s = self._t0_s + k * geometry.frame_period_s
+        banked = self._bank.get(k % self.frame_bank) if self.frame_bank else None
+        if banked is None:
+            pixels, flags = self._render(t_s, geometry)
+            if self.frame_bank:
+                self._bank[k % self.frame_bank] = (pixels, flags)
+        else:
+            pixels, flags = banked
+        header = frame_header(
+            pixels,
+            counter=counter,
+            timestamp_ns=round(t_s * NS_PER_S),
+            line_period_ns=round(geometry.frame_period_s * NS_PER_S),
+            bits=geometry.bits,
+            mode=self._mode,
+            stages=geometry.stages,
+            stage_position=0,
+            flags=flags,
+        )
+        return header, pixels
+
+    def _render(
+        self, t_s: float, geometry: StreamGeometry
+    ) -> tuple[npt.NDArray[np.uint16], FrameFlags]:
+        """The window frame at ``t_s`` through the link and binning, and its flags."""
         with self.lock:
             raw = self.camera.render(t_s)
             received = self.sensor_link.capture(raw)
@@ -153,15 +182,4 @@ class ImagingPipeline:
         if geometry.binning:
             pixels = bin2x2(pixels).astype(np.uint16)
             flags |= FrameFlags.BINNED_2X2
-        header = frame_header(
-            pixels,
-            counter=counter,
-            timestamp_ns=round(t_s * NS_PER_S),
-            line_period_ns=round(geometry.frame_period_s * NS_PER_S),
-            bits=geometry.bits,
-            mode=self._mode,
-            stages=geometry.stages,
-            stage_position=0,
-            flags=flags,
-        )
-        return header, pixels
+        return pixels, flags

@@ -8,6 +8,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 import camd
 
 REPO_ROOT = str(Path(camd.__file__).resolve().parent.parent)
@@ -73,6 +75,20 @@ def test_demo_runs_and_writes_its_summary(tmp_path: Path) -> None:
     recording = stream["recording"]
     assert recording["frames"] == stream["stare"]["frames"] > 0
     assert recording["crc_mismatches"] == 0 and Path(recording["path"]).is_file()
+
+    scans = summary["scans"]
+    assert [s["stages"] for s in scans] == [1, 8, 32]
+    for scan in scans:
+        assert Path(scan["file"]).is_file() and Path(scan["quicklook"]).is_file()
+        assert scan["complete_lines"] >= 100 and scan["lines"] >= scan["complete_lines"]
+        # Signal grows as M (physics.md §1 eq 11) ...
+        assert scan["signal_dn"] == pytest.approx(scans[0]["signal_dn"] * scan["stages"], rel=0.1)
+    # ... and SNR as sqrt(M) (physics.md §5: independent noise per stage), within 1.5 dB here:
+    # the TAO12 model (quantisation adding linearly) is 4.6 dB lower at M = 32.
+    for scan in scans[1:]:
+        assert abs(scan["snr_db"] - scan["model_sqrt_m_db"]) < 1.5, scan
+        assert scan["model_tao12_db"] < scan["model_sqrt_m_db"] - 1.0
+    assert "TDI scans at M = 1/8/32 with SNR " in final
 
     daemon = summary["daemon"]
     assert daemon["exit_code"] in (0, -15) and daemon["killed"] is False

@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 import serial
 
-from camd.cli import bench_tdi
+from camd.cli import bench_scan, bench_tdi
 from camd.protocol import FrameType, encode_frame, load_dictionary
 
 # Echo peer for the baseline: a separate process, like the simulator, copying bytes back.
@@ -83,11 +83,14 @@ def add_parser(sub: Any) -> None:
     stream.add_argument("--queue-frames", type=int, default=8, help="FrameStream queue (default 8)")
     stream.add_argument("--json", action="store_true", help="print one JSON document")
     bench_tdi.add_parser(which)
+    bench_scan.add_parser(which)
 
 
 def run(args: argparse.Namespace) -> int:
     if args.bench == "tdi":
         return bench_tdi.run(args)
+    if args.bench == "scan":
+        return bench_scan.run(args)
     if args.bench == "stream":
         return _run_stream(args)
     if args.count < 10:

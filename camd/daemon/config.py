@@ -132,6 +132,14 @@ class SimSection(_Section):
         description="scene in front of the simulated camera, e.g. 'bars:lux=3'; empty = the "
         "simulator's default flat field (docs/simulator.md lists the scene specs)",
     )
+    frame_bank: int = Field(
+        default=0,
+        ge=0,
+        le=4096,
+        description="render only the first K frames of each stream and replay them (fresh "
+        "headers): line-rate throughput tests on machines too small to render in real time; "
+        "0 = render every frame",
+    )
 
 
 class UsbSpiSection(_Section):

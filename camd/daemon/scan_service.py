@@ -226,7 +226,7 @@ class ScanService:
             scan.work.put(("end", None))
             if scan.worker is not None:
                 scan.worker.join(FINISH_TIMEOUT_S)
-            self._close_file(scan)
+            self._close_file(scan, "failed")
             path.unlink(missing_ok=True)  # nothing was recorded: leave no file
             scan.done.set()
             raise
@@ -276,7 +276,7 @@ class ScanService:
             scan.work.put(("end", None))
             if scan.worker is not None:
                 scan.worker.join(FINISH_TIMEOUT_S)
-            self._close_file(scan)
+            self._close_file(scan, scan.state)
             scan.done.set()
 
     # -- setting up -----------------------------------------------------------------------------
@@ -550,19 +550,25 @@ class ScanService:
         if scan.worker is not None:
             scan.worker.join(FINISH_TIMEOUT_S)
         scan.ended_mono, scan.ended_cpu = time.monotonic(), time.process_time()
-        if scan.state != "failed":
-            scan.state = "stopped" if scan.stop_requested else "done"
-        self._close_file(scan)
+        final = "stopped" if scan.stop_requested else "done"
+        if scan.state == "failed":
+            final = "failed"
+        self._close_file(scan, final)
         stats = stream.stats()
         self.session.log_event(
             "info" if scan.state != "failed" and stats.lost == 0 else "warning",
             "scan",
-            f"scan {scan.state}: {scan.progress.lines} lines ({scan.progress.complete_lines} "
-            f"complete), {stats.lost} frames lost, {stats.overruns} overruns; {scan.path}",
+            f"scan {final if scan.state != 'failed' else 'failed'}: {scan.progress.lines} lines "
+            f"({scan.progress.complete_lines} complete), {stats.lost} frames lost, "
+            f"{stats.overruns} overruns; {scan.path}",
         )
-        scan.done.set()
+        # Only now, and together: a client that sees the scan ended may start the next at once.
+        with self._lock:
+            if scan.state != "failed":
+                scan.state = final
+            scan.done.set()
 
-    def _close_file(self, scan: _Scan) -> None:
+    def _close_file(self, scan: _Scan, state: str) -> None:
         stats = self.session.stream.stats().model_dump()
         progress = scan.progress
         try:
@@ -575,7 +581,7 @@ class ScanService:
                         "dropped_frames": scan.batcher.dropped if scan.batcher else 0,
                         "tdi_cpu_s": progress.tdi_cpu_s,
                     },
-                    "state": scan.state,
+                    "state": state,
                     "error": scan.error or "",
                 }
             )

@@ -187,6 +187,7 @@ class SimulatorProcess:
         spi_socket: Path | None = None,
         usb_socket: Path | None = None,
         scene: str = "",
+        frame_bank: int = 0,
     ) -> None:
         self.link_path = link_path
         self.command = [
@@ -211,6 +212,8 @@ class SimulatorProcess:
             self.command += ["--usb-socket", str(usb_socket)]
         if scene:
             self.command += ["--scene", scene]
+        if frame_bank:
+            self.command += ["--frame-bank", str(frame_bank)]
         self.info: dict[str, Any] = {}
         self._proc: subprocess.Popen[str] | None = None
         self._exit_reported = False
@@ -382,6 +385,7 @@ class DeviceSession:
                 spi_socket=self.config.sim_spi_socket,
                 usb_socket=self.config.sim_usb_socket,
                 scene=sim_cfg.scene,
+                frame_bank=sim_cfg.frame_bank,
             )
             info = self.sim.start()
             self._event("info", "daemon", f"simulated camera started: pid {info.get('pid')}, "

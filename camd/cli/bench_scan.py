@@ -1,0 +1,156 @@
+"""``camd bench scan``: does a push-broom scan keep up with the sensor's line rate?
+
+A daemon on the simulated camera runs a scan at the fastest TDI line period a window of M rows
+allows (``M x T_row``: the sensor's own line rate), through the whole chain: simulated FX3 ->
+pyusb -> FrameStream (CRCs, counters) -> batches -> TDI engine -> HDF5. The baseline is the
+line rate itself: the bench prints lines/s against it, the frames lost and overrun, and the CPU
+the daemon and the simulator used (from /proc).
+
+The simulator replays a bank of rendered frames (``[sim] frame_bank``): rendering the scene
+at 100 Mpix/s is beyond a small machine, and the host's work does not depend on the pixels.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+DEFAULT_LINES = 5000
+DEFAULT_STAGES = 96
+DEFAULT_BANK = 64
+
+
+def add_parser(which: Any) -> None:
+    """Register ``camd bench scan`` on the ``camd bench`` subparsers."""
+    p = which.add_parser(
+        "scan",
+        help="a TDI scan at the sensor's line rate: lines/s, losses, CPU",
+        description="A scan through the daemon at the fastest line period M window rows allow, "
+        "against that line rate.",
+    )
+    p.add_argument("--profile", default="hr400", help="simulated camera profile (default hr400)")
+    p.add_argument(
+        "--stages", type=int, default=DEFAULT_STAGES, help=f"M = window rows ({DEFAULT_STAGES})"
+    )
+    p.add_argument("--lines", type=int, default=DEFAULT_LINES, help=f"lines ({DEFAULT_LINES})")
+    p.add_argument(
+        "--frame-bank", type=int, default=DEFAULT_BANK, help=f"frames replayed ({DEFAULT_BANK})"
+    )
+    p.add_argument("--json", action="store_true", help="print one JSON document")
+
+
+def _cpu_s(pid: int) -> float | None:
+    """User + system CPU seconds of a process (Linux /proc), or None where there is none."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return None
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def _children(pid: int) -> list[int]:
+    kids: list[int] = []
+    for task in Path(f"/proc/{pid}/task").glob("*"):
+        try:
+            kids += [int(x) for x in (task / "children").read_text().split()]
+        except OSError:
+            continue
+    return kids
+
+
+def bench_scan(*, profile: str, stages: int, lines: int, frame_bank: int) -> dict[str, Any]:
+    """Run the scan and return the figures (see the module docstring)."""
+    from camd.cli._daemon_proc import DaemonProcess
+    from camd.client import CamdClient
+
+    with tempfile.TemporaryDirectory(prefix="camd-bench-scan-") as tmp:
+        config = Path(tmp) / "camd.toml"
+        config.write_text(
+            f'[sensor]\nname = "{profile}"\n'
+            f'[sim]\nprofile = "{profile}"\nframe_bank = {frame_bank}\nscene = "bars:lux=3"\n'
+        )
+        with DaemonProcess(tmp, extra_args=["--config", str(config)]) as daemon:
+            client = CamdClient(daemon.url)
+            client.wait_ready(60)
+            row_s = float(client.timing()["line_period_s"])
+            period_s = stages * row_s
+            sims = _children(daemon.pid)
+            before = [_cpu_s(daemon.pid), *(_cpu_s(p) for p in sims)]
+            started = time.monotonic()
+            client.start_scan(
+                stages, lines, out=str(Path(tmp) / "scan.h5"), line_period_s=period_s,
+                quicklook=False,
+            )  # fmt: skip
+            doc = client.wait_scan(timeout_s=60 + 4 * (lines + stages) * period_s)
+            wall_s = time.monotonic() - started
+            after = [_cpu_s(daemon.pid), *(_cpu_s(p) for p in sims)]
+            sim_stats = client.sim_stream_stats()
+            client.close()
+
+    def load(i: int) -> float | None:
+        b, a = before[i], after[i]
+        return None if a is None or b is None else (a - b) / wall_s
+
+    rate_hz = 1.0 / float(doc["timing"]["tdi_line_period_s"]) if doc["timing"] else 0.0
+    cols = int(doc["width"])
+    stream = doc["stream"]
+    stream_rate = (stream["frames"] - 1) / stream["elapsed_s"] if stream["elapsed_s"] else 0.0
+    return {
+        "profile": profile,
+        "stages": stages,
+        "width": cols,
+        "lines": doc["lines"],
+        "complete_lines": doc["complete_lines"],
+        "lost_frames": doc["lost_frames"],
+        "overruns": doc["stream"]["overruns"],
+        "line_rate_hz": rate_hz,
+        "lines_per_s": doc["lines_per_s"],
+        "lines_per_s_over_line_rate": doc["lines_per_s"] / rate_hz if rate_hz else 0.0,
+        # Frames as they arrived, first to last (the scan's own time adds start and finish).
+        "stream_frames_per_s": stream_rate,
+        "stream_rate_over_line_rate": stream_rate / rate_hz if rate_hz else 0.0,
+        "input_mpix_per_s": doc["lines_per_s"] * stages * cols / 1e6,
+        "daemon_cpu_load": doc["cpu_load"],
+        "tdi_cpu_s": doc["tdi_cpu_s"],
+        "tdi_cpu_load": doc["tdi_cpu_s"] / doc["elapsed_s"] if doc["elapsed_s"] else 0.0,
+        "daemon_cpu_load_proc": load(0),
+        "sim_cpu_load": load(1) if len(before) > 1 else None,
+        "elapsed_s": doc["elapsed_s"],
+        "frame_bank": frame_bank,
+        "sim": dict(sim_stats),
+        "state": doc["state"],
+        "loadavg": list(os.getloadavg()),
+    }
+
+
+def run(args: argparse.Namespace) -> int:
+    """``camd bench scan``: print the figures (one JSON document with --json)."""
+    if args.stages < 1 or args.lines < 1 or args.frame_bank < 0:
+        print("camd bench scan: --stages and --lines must be >= 1, --frame-bank >= 0")
+        return 2
+    result = bench_scan(
+        profile=args.profile, stages=args.stages, lines=args.lines, frame_bank=args.frame_bank
+    )
+    if args.json:
+        print(json.dumps(result))
+        return 0
+    print(
+        f"scan {result['profile']} M = {result['stages']} x {result['width']}: "
+        f"{result['lines']} lines ({result['complete_lines']} complete) in "
+        f"{result['elapsed_s']:.2f} s = {result['lines_per_s']:.1f} lines/s against a line rate "
+        f"of {result['line_rate_hz']:.1f} Hz (ratio {result['lines_per_s_over_line_rate']:.3f}; "
+        f"frames arrived at {result['stream_frames_per_s']:.1f} /s, ratio "
+        f"{result['stream_rate_over_line_rate']:.3f}), {result['input_mpix_per_s']:.1f} Mpix/s in"
+    )
+    sim = result["sim_cpu_load"]
+    print(
+        f"lost {result['lost_frames']}, overruns {result['overruns']}; CPU: daemon "
+        f"{result['daemon_cpu_load']:.2f} core (TDI worker {result['tdi_cpu_load']:.3f}), "
+        f"simulator {'?' if sim is None else f'{sim:.2f}'} core"
+    )
+    return 0

@@ -1,0 +1,26 @@
+"""``camd bench scan`` end to end on a short scan: the figures it reports are consistent.
+
+No timing threshold: only that every frame reached the engine and the ratios are what they
+say they are.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from camd.cli.bench_scan import bench_scan
+
+
+def test_bench_scan_reports_a_lossless_scan_against_the_line_rate() -> None:
+    result = bench_scan(profile="hr400", stages=8, lines=60, frame_bank=4)
+    assert result["state"] == "done" and result["width"] == 2048
+    assert (result["lines"], result["complete_lines"], result["lost_frames"]) == (67, 60, 0)
+    assert result["overruns"] == 0
+    assert result["line_rate_hz"] == pytest.approx(25e6 / (513 * 8), rel=1e-6)
+    assert result["lines_per_s_over_line_rate"] == pytest.approx(
+        result["lines_per_s"] / result["line_rate_hz"]
+    )
+    assert result["input_mpix_per_s"] == pytest.approx(result["lines_per_s"] * 8 * 2048 / 1e6)
+    # The simulator rendered 4 frames and replayed them: it made exactly the frames asked for.
+    assert result["sim"]["produced"] == result["sim"]["sent"] == 67
+    assert result["frame_bank"] == 4
