@@ -19,6 +19,7 @@ import pytest
 
 from camd.sensor.profile import load_profile
 from camd.store.tdi_recording import read_tdi_scan
+from camd.tdi import bin2x2
 from tests.test_camctl import camctl, camctl_json
 from tests.test_sensor_stack import serve
 
@@ -95,6 +96,26 @@ def test_scan_records_eq11_lines_with_flags_metadata_and_quicklook(
     assert png is not None and png.shape[:2] == (37, 2048)
 
 
+def test_binned_scan_sums_binned_rows_at_twice_the_synchronous_speed(
+    url: str, ramp: None, tmp_path: Path
+) -> None:
+    row = row_period_s(url)
+    doc = camctl_json(
+        url, "scan", "--stages", "4", "--lines", "6", "--binning", "--line-period-s",
+        repr(16.5 * row), "--out", str(tmp_path / "binned.h5"), "--no-quicklook",
+    )  # fmt: skip
+    assert (doc["lines"], doc["complete_lines"], doc["width"]) == (9, 6, 1024)
+    # physics.md §3: each binned pixel is the sum of a 2x2 block of the ramp; the image must
+    # move one binned row (two pitches) per line period, so the stage runs twice as fast.
+    binned = bin2x2(np.add.outer(np.arange(16), np.arange(2048)) & 0xFFF)
+    scan = read_tdi_scan(tmp_path / "binned.h5")
+    assert np.array_equal(scan.lines[-1], binned[:4].sum(axis=0))
+    profile = load_profile("hr400")
+    period = doc["timing"]["tdi_line_period_s"]
+    sync = 2 * profile.pitch_m.value / (profile.magnification.value * period)
+    assert doc["timing"]["sync_speed_m_s"] == pytest.approx(sync, rel=1e-9)
+
+
 def test_stage_speed_sets_the_line_period_by_eq5(url: str, tmp_path: Path) -> None:
     profile = load_profile("hr400")
     row = row_period_s(url)
@@ -160,6 +181,14 @@ def test_bad_scans_are_refused_and_leave_the_daemon_idle(url: str, tmp_path: Pat
     assert proc.returncode == 2 and "already exists" in proc.stderr
     proc = camctl(url, "scan", "--stages", "4", "--lines", "5", "--line-period-s", "1e-6")
     assert proc.returncode == 1 and "shorter than one row period" in proc.stderr
+    # Stages that the window a line period leaves cannot hold: refused before any write.
+    before = camctl_json(url, "timing")
+    period = repr(10.5 * row_period_s(url))
+    proc = camctl(url, "scan", "--stages", "11", "--lines", "5", "--line-period-s", period)
+    assert proc.returncode == 1 and "needs 11 window rows but the scan's frames have 10" in (
+        proc.stderr
+    )
+    assert camctl_json(url, "timing") == before
     assert camctl_json(url, "status")["state"] == "idle"
 
 

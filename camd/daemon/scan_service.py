@@ -25,6 +25,7 @@ import logging
 import queue
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -206,12 +207,16 @@ class ScanService:
             if session.config.link.device != "sim":
                 raise BadRequest("scene is for the simulated camera only; drop --scene")
             session.stream.set_scene(request.scene)
-        session.set_mode("tdi")
-        timing = self._set_timing(request)
         binned = request.binning == "2x2"
-        rows = timing.n_lines // 2 if binned else timing.n_lines
         cols = session.sensor.window_columns() // (2 if binned else 1)
-        engine = self._engine(request, request.stages, rows, cols)
+
+        def engine_for(n_lines: int) -> TdiEngine:
+            return self._engine(request, request.stages, n_lines // 2 if binned else n_lines, cols)
+
+        session.set_mode("tdi")
+        timing = self._set_timing(request, engine_for)
+        rows = timing.n_lines // 2 if binned else timing.n_lines
+        engine = engine_for(timing.n_lines)
         path = self._scan_path(request.out)
         frames = 0 if request.lines == 0 else request.lines + request.stages - 1
         recorder = self._recorder(path, request, cols, timing, frames)
@@ -281,8 +286,12 @@ class ScanService:
 
     # -- setting up -----------------------------------------------------------------------------
 
-    def _set_timing(self, request: ScanRequest) -> ScanTiming:
-        """Program the TDI line period a speed or period asks for; return what is set."""
+    def _set_timing(
+        self, request: ScanRequest, engine_for: Callable[[int], TdiEngine]
+    ) -> ScanTiming:
+        """Program the TDI line period a speed or period asks for; return what is set.
+        ``engine_for(n_lines)`` refuses stages that would not fit, before any register is
+        written."""
         from camd.daemon.session import BadRequest
 
         sensor = self.session.sensor
@@ -296,6 +305,7 @@ class ScanService:
                 window = tdi_window(period_s, now.line_period_s)
             except ValueError as exc:
                 raise BadRequest(str(exc)) from None
+            engine_for(window.n_lines)  # BadRequest, with the registers untouched
             writes = self._window_writes(now, window.n_lines, window.back_path_s)
             if writes:
                 sensor.write(writes)
