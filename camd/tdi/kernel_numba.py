@@ -34,6 +34,20 @@ def integer_rows(frames: Any, acc: Any, out: Any, rows: Any, first_index: int) -
     for f in range(0, count, 4):
         group = min(4, count - f)
         k = first_index + f
+        if group == 1:
+            # One frame (``push``, or a block's last): each row straight into its line.
+            o = out[f]
+            for i in range(stages):
+                a = acc[(k + i) % stages]
+                src = frames[f, rows[i]]
+                if i == 0:
+                    for j in range(width):
+                        o[j] = a[j] + src[j]
+                        a[j] = 0
+                else:
+                    for j in range(width):
+                        a[j] += src[j]
+            continue
         for i in range(stages + group - 1):
             a = acc[(k + i) % stages]
             if group == 4 and 3 <= i <= stages - 1:
