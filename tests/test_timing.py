@@ -221,3 +221,14 @@ def test_bad_inputs_raise_clear_errors(call: object, message: str) -> None:
     assert callable(call)
     with pytest.raises(ValueError, match=message):
         call()
+
+
+def test_velocity_mismatch_is_yuan13_dv_over_v() -> None:
+    # physics.md §6: dV/V = (V - V_m) / V. A stage 2 % slow: +0.02; 1 % fast: -0.01.
+    from camd.timing import velocity_mismatch
+
+    assert velocity_mismatch(0.11, 0.1078) == pytest.approx(0.02, rel=1e-12)
+    assert velocity_mismatch(0.5, 0.505) == pytest.approx(-0.01, rel=1e-12)
+    assert velocity_mismatch(0.2, 0.2) == 0.0
+    with pytest.raises(ValueError, match="sync_speed_m_s"):
+        velocity_mismatch(0.0, 0.1)

@@ -25,6 +25,8 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from camd.analysis.sensor_noise import psnr_db
+
 QUANTISATION_SIGMA_DN = 1.0 / math.sqrt(12.0)
 """Rounding to whole DN: sigma_AD = 1/sqrt(12) DN per conversion (physics.md §5)."""
 
@@ -62,7 +64,8 @@ class SnrMeasurement:
 
     @property
     def snr_db(self) -> float:
-        return db(self.snr)
+        """The SNR as PSNR in dB (physics.md §5)."""
+        return psnr_db(self.signal_dn, self.noise_dn)
 
 
 def along_track_snr(lines: npt.ArrayLike, *, black_dn: float) -> SnrMeasurement:

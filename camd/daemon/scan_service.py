@@ -47,7 +47,12 @@ from camd.store.quicklook import write_quicklook_png
 from camd.store.recording import RecordingError
 from camd.store.tdi_recording import TdiRecorder
 from camd.tdi import TdiEngine, stage_taps
-from camd.timing import synchronous_stage_speed_m_s, tdi_line_period_s, tdi_window
+from camd.timing import (
+    synchronous_stage_speed_m_s,
+    tdi_line_period_s,
+    tdi_window,
+    velocity_mismatch,
+)
 
 if TYPE_CHECKING:
     from camd.daemon.session import DeviceSession
@@ -328,7 +333,7 @@ class ScanService:
             exposure_s=now.exposure_s,
             sync_speed_m_s=sync,
             stage_speed_m_s=speed,
-            dv_over_v=None if speed is None else (sync - speed) / sync,
+            dv_over_v=None if speed is None else velocity_mismatch(sync, speed),
         )
 
     def _optics(self, request: ScanRequest) -> tuple[float, float]:

@@ -7,7 +7,8 @@ paper). Bad inputs (non-positive periods or clocks, negative counts, non-finite 
 - §2 eqs 1-4, rolling/global shutter: ``rolling_line_period_s``, ``rolling_frame_time_s``,
   ``global_frame_time_s``, ``max_rolling_integration_s``
 - §2 eqs 5-9, 13, TDI window: ``tdi_line_period_s``, ``turntable_line_period_s``,
-  ``tdi_window`` -> ``TdiWindow``
+  ``tdi_window`` -> ``TdiWindow``, ``synchronous_stage_speed_m_s``
+- §6, velocity mismatch: ``velocity_mismatch`` (dV/V)
 - §3, HR400 sequencer: ``sequencer_line_period_s``, ``exposure_s``, ``sequencer_frame_time_s``,
   ``sequencer_frame_period_lines``, ``sequencer_frame_period_s``
 """
@@ -33,6 +34,7 @@ from camd.timing.tdi import (
     tdi_line_period_s,
     tdi_window,
     turntable_line_period_s,
+    velocity_mismatch,
 )
 
 __all__ = [
@@ -52,4 +54,5 @@ __all__ = [
     "tdi_line_period_s",
     "tdi_window",
     "turntable_line_period_s",
+    "velocity_mismatch",
 ]

@@ -46,6 +46,16 @@ def synchronous_stage_speed_m_s(
     return pitch / (positive("magnification", magnification) * period)
 
 
+def velocity_mismatch(sync_speed_m_s: float, speed_m_s: float) -> float:
+    """Velocity mismatch ``dV/V = (V - V_m) / V``: V the synchronous speed, V_m the actual one.
+
+    physics.md §6 [YUAN13]: positive when the image moves slower than one row per line period.
+    Both speeds on the same side of the optics (stage or image); their sign is the direction.
+    """
+    sync = positive("sync_speed_m_s", sync_speed_m_s)
+    return (sync - speed_m_s) / sync
+
+
 def turntable_line_period_s(
     pixel_size_m: float, angular_velocity_rad_per_s: float, radius_m: float
 ) -> float:
