@@ -350,6 +350,167 @@ class ScanDoc(TypedDict):
     timing: ScanTimingDoc | None
     error: str | None
     stream: StreamStatsDoc
+    mismatch_max: float | None
+    mismatch_rms: float | None
+    mismatch_level: str
+    motion: ScanMotionInfoDoc | None
+
+
+class ScanMotionInfoDoc(TypedDict):
+    """How a scan drove the stage (docs/motion.md)."""
+
+    closed_loop: str
+    stage_speed_m_s: float
+    target_speed_m_s: float
+    loop_samples: int
+    loop_error: str | None
+    line_period_limited: bool
+
+
+class StageReadingDoc(TypedDict):
+    """The scan stage at one device time (m, m/s)."""
+
+    state: str
+    homed: bool
+    position_m: float
+    encoder_m: float
+    speed_m_s: float
+    encoder_speed_m_s: float
+    at_limit: str
+    time_s: float
+
+
+class StageLimitsDoc(TypedDict):
+    low_m: float
+    high_m: float
+    max_speed_m_s: float
+    accel_m_s2: float
+
+
+class MotionDoc(TypedDict):
+    """GET /api/v1/motion and the answers of the /motion/... requests."""
+
+    profile: str
+    kind: str
+    reading: StageReadingDoc
+    limits: StageLimitsDoc
+    closed_loop: str
+    yellow: float
+    red: float
+
+
+class SyncDoc(TypedDict):
+    """GET /api/v1/motion/sync: the open-loop synchronisation (the first ten keys are the
+    contract of ``camctl sync --json``)."""
+
+    line_period_s: float
+    row_time_s: float
+    n_lines: int
+    back_path_s: float
+    m0: int
+    stages: int
+    sync_speed: float
+    step_rate_hz: float
+    dv_over_v: float
+    m_dv_over_v: float
+    image_speed_m_s: float
+    stage_speed_m_s: float
+    stage_profile: str
+    image_scale: float
+    pixel_pitch_m: float
+    angular_velocity_rad_s: float | None
+    tolerance_ok: bool
+
+
+class SimStageTruthDoc(TypedDict):
+    position_m: float
+    velocity_m_s: float
+    missed_steps: int
+    time_s: float
+
+
+class WheelChannelDoc(TypedDict):
+    """One channel of the filter wheel (config/wheel.toml)."""
+
+    channel: int
+    name: str
+    band: str
+    centre_deg: float
+    polarizer_deg: float | None
+
+
+class WheelExposureDoc(TypedDict):
+    """camd's numbers for one exposure through the wheel (physics.md §4, SI units)."""
+
+    exposure_s: float
+    exposure_lines: int
+    window_rows: int
+    line_period_s: float
+    frame_time_s: float
+    delay_s: float
+    compensated: bool
+    fits: bool
+    refusal: str | None
+    applied_delay_s: float | None
+    centre_offset_deg: float | None
+    centre_error_deg: float | None
+
+
+class WheelDoc(TypedDict):
+    """GET /api/v1/wheel and PUT /wheel/speed, /wheel/compensation."""
+
+    wheel: str
+    speed_deg_s: float
+    nominal_speed_deg_s: float
+    period_s: float | None
+    angle_deg: float
+    channel: int | None
+    compensation: bool
+    t_center_s: float
+    window_s: float
+    device_frame_time_s: float
+    device_delay_s: float
+    exposure: WheelExposureDoc
+    channels: list[WheelChannelDoc]
+    time_s: float
+
+
+class WheelRegionDoc(TypedDict):
+    """A rectangle of the frame (rows and columns from 0)."""
+
+    row: int
+    rows: int
+    col: int
+    cols: int
+
+
+class WheelFrameDoc(TypedDict):
+    """One frame of a wheel acquisition (angles in degrees, mean in DN)."""
+
+    counter: int
+    channel: int
+    name: str
+    start_angle_deg: float
+    centre_deg: float
+    centre_offset_deg: float
+    centre_error_deg: float
+    header_centre_deg: float
+    mean: float
+    timestamp_s: float
+
+
+class WheelAcquireDoc(TypedDict):
+    """POST /api/v1/wheel/acquire."""
+
+    channels: list[int]
+    passes: int
+    speed_deg_s: float
+    exposure: WheelExposureDoc
+    device_frame_time_s: float | None
+    device_delay_s: float | None
+    region: WheelRegionDoc | None
+    frames: list[WheelFrameDoc]
+    stream: StreamDoc
 
 
 # -- errors ---------------------------------------------------------------------------------------
@@ -610,21 +771,95 @@ class CamdClient:
         reverse: bool = False,
         binning: str = "off",
         quicklook: bool = True,
+        drive_stage: bool = True,
+        closed_loop: bool | None = None,
+        dv_over_v: float = 0.0,
     ) -> ScanDoc:
         """Start a push-broom scan of ``lines`` complete TDI lines at ``stages`` stages and
-        return at once; ``out`` is an absolute path on the daemon's host (docs/scan.md)."""
+        return at once; ``out`` is an absolute path on the daemon's host (docs/scan.md).
+        The scan drives the stage at the synchronous speed (``drive_stage``), closed loop
+        unless ``closed_loop`` is False (None: the config), offset by ``dv_over_v``."""
         body: dict[str, Any] = {
             "stages": stages, "lines": lines, "out": out, "scene": scene,
             "speed_m_s": speed_m_s, "line_period_s": line_period_s, "mode": mode,
             "out_bits": out_bits, "rows_per_line": rows_per_line,
             "cols_per_line": cols_per_line, "reverse": reverse, "binning": binning,
-            "quicklook": quicklook,
+            "quicklook": quicklook, "drive_stage": drive_stage, "closed_loop": closed_loop,
+            "dv_over_v": dv_over_v,
         }  # fmt: skip
         return cast(ScanDoc, self._json("POST", f"{API}/scan/start", json=body))
 
     def stop_scan(self) -> ScanDoc:
         """Stop the running scan; returns once its file is closed."""
         return cast(ScanDoc, self._json("POST", f"{API}/scan/stop"))
+
+    # -- motion (docs/motion.md) -------------------------------------------------------------
+
+    def motion(self) -> MotionDoc:
+        """The scan stage: state, positions, speeds, limits."""
+        return cast(MotionDoc, self._json("GET", f"{API}/motion"))
+
+    def enable_stage(self, on: bool = True) -> MotionDoc:
+        """Energise (or release) the stage motor; enabling clears an emergency stop."""
+        return cast(MotionDoc, self._json("POST", f"{API}/motion/enable", json={"on": on}))
+
+    def run_stage(self, speed_m_s: float) -> MotionDoc:
+        """Ramp to a constant signed speed (m/s) and hold it; 0 stops."""
+        body = {"speed_m_s": speed_m_s}
+        return cast(MotionDoc, self._json("POST", f"{API}/motion/run", json=body))
+
+    def move_stage(
+        self, position_m: float, *, speed_m_s: float | None = None, wait: bool = True
+    ) -> MotionDoc:
+        """Move to ``position_m`` (metres from home) and stop."""
+        body = {"position_m": position_m, "speed_m_s": speed_m_s, "wait": wait}
+        return cast(MotionDoc, self._json("POST", f"{API}/motion/move", json=body))
+
+    def stop_stage(self) -> MotionDoc:
+        """Decelerate the stage to a stop."""
+        return cast(MotionDoc, self._json("POST", f"{API}/motion/stop"))
+
+    def home_stage(self, *, wait: bool = True) -> MotionDoc:
+        """Find the home switch and zero the position there."""
+        return cast(MotionDoc, self._json("POST", f"{API}/motion/home", json={"wait": wait}))
+
+    def estop_stage(self) -> MotionDoc:
+        """Emergency stop (no ramp, current cut) until ``enable_stage``."""
+        return cast(MotionDoc, self._json("POST", f"{API}/motion/estop"))
+
+    def sync(
+        self,
+        *,
+        line_period_s: float | None = None,
+        speed_m_s: float | None = None,
+        stages: int | None = None,
+        binning: bool = False,
+    ) -> SyncDoc:
+        """Open-loop synchronisation for a line period, a stage speed, both, or neither."""
+        params: dict[str, Any] = {"binning": binning}
+        for key, value in (
+            ("line_period_s", line_period_s), ("speed_m_s", speed_m_s), ("stages", stages)
+        ):  # fmt: skip
+            if value is not None:
+                params[key] = value
+        return cast(SyncDoc, self._json("GET", f"{API}/motion/sync", params=params))
+
+    def set_stage_faults(
+        self,
+        *,
+        error: float = 0.0,
+        ripple: float = 0.0,
+        jitter: float = 0.0,
+        drift: float = 0.0,
+        load: float = 0.0,
+    ) -> None:
+        """Simulated camera only: the stepper stage's imperfections (as --inject stage_*)."""
+        body = {"error": error, "ripple": ripple, "jitter": jitter, "drift": drift, "load": load}
+        self._request("PUT", f"{API}/sim/stage/faults", json=body)
+
+    def stage_truth(self) -> SimStageTruthDoc:
+        """Simulated camera only: the stage's true position, velocity and missed steps."""
+        return cast(SimStageTruthDoc, self._json("GET", f"{API}/sim/stage/truth"))
 
     def set_stages(self, stages: int) -> ScanDoc:
         """Change the running scan's TDI stage count from its next frame."""
@@ -643,6 +878,53 @@ class CamdClient:
                     "timeout",
                 )
             time.sleep(poll_s)
+
+    # -- the filter wheel (docs/wheel.md) ---------------------------------------------------
+
+    def wheel(self) -> WheelDoc:
+        """The filter wheel, with camd's numbers for the exposure in the registers."""
+        return cast(WheelDoc, self._json("GET", f"{API}/wheel"))
+
+    def set_wheel_speed(self, speed_deg_s: float) -> WheelDoc:
+        """Turn the wheel at ``speed_deg_s`` (0 stops it)."""
+        body = {"speed_deg_s": speed_deg_s}
+        return cast(WheelDoc, self._json("PUT", f"{API}/wheel/speed", json=body))
+
+    def set_wheel_compensation(self, on: bool) -> WheelDoc:
+        """Exposure delay compensation on or off (refused if the exposure cannot fit)."""
+        return cast(WheelDoc, self._json("PUT", f"{API}/wheel/compensation", json={"on": on}))
+
+    def wheel_acquire(
+        self,
+        channels: list[int],
+        *,
+        passes: int = 1,
+        exposure_s: float | None = None,
+        compensated: bool | None = None,
+        record: str | None = None,
+        region: WheelRegionDoc | None = None,
+        timeout_s: float | None = None,
+    ) -> WheelAcquireDoc:
+        """One frame per channel per pass; returns each frame's imaging-centre angle, its
+        uncertainty and mean. ``exposure_s`` / ``compensated`` are set first when given;
+        ``record`` is an absolute path of a new HDF5 file on the daemon's host."""
+        body: dict[str, Any] = {"channels": list(channels), "passes": passes}
+        optional = {
+            "exposure_s": exposure_s, "compensated": compensated, "record": record,
+            "region": None if region is None else dict(region), "timeout_s": timeout_s,
+        }  # fmt: skip
+        body.update({k: v for k, v in optional.items() if v is not None})
+        # The daemon bounds the acquisition itself (timeout_s, or per frame a revolution).
+        read_s = None if timeout_s is None else timeout_s + 30.0
+        timeout = httpx.Timeout(self.timeout_s, read=read_s)
+        return cast(
+            WheelAcquireDoc,
+            self._json("POST", f"{API}/wheel/acquire", json=body, timeout=timeout),
+        )
+
+    def set_polarizer(self, angle_deg: float | None) -> None:
+        """Simulated camera only: the reference polariser's axis in degrees (None: out)."""
+        self._request("PUT", f"{API}/sim/polarizer", json={"angle_deg": angle_deg})
 
     def sim_stream_stats(self) -> SimStreamDoc:
         """Simulated camera only: what its stream engine made, sent and injected."""

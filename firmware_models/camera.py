@@ -38,6 +38,8 @@ The model does not advance the sensor's frame counter: whoever reads frames out 
 
 from __future__ import annotations
 
+import copy
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -65,7 +67,9 @@ class CameraModel:
 
     Attributes the caller may change between renders: ``scene`` (or ``set_scene``),
     ``stage_speed_m_s`` (None: track the TDI line period), ``stage`` (an explicit ``Stage``,
-    which overrides ``stage_speed_m_s``), ``temperature_degc``, ``binning``.
+    which overrides ``stage_speed_m_s``; ``stage_image_scale`` says how its travel scales onto
+    the focal plane), ``transmission`` (a filter-wheel channel's light per row),
+    ``temperature_degc``, ``binning``.
     """
 
     def __init__(self, profile: CameraProfile, sensor: SensorModel, *, seed: int = 0) -> None:
@@ -88,6 +92,12 @@ class CameraModel:
         self.binning = False
         self.stage_speed_m_s: float | None = None
         self.stage: Stage | None = None
+        # Focal-plane metres per metre of ``stage`` travel; None: the optics' magnification
+        # (a turntable carrying the sensor moves the image by its arc: 1).
+        self.stage_image_scale: float | None = None
+        # Per-row light transmission over each row's exposure (a filter-wheel channel):
+        # ``transmission(start_s, end_s)`` -> factor per row; None: everything passes.
+        self.transmission: Callable[[Array, Array], Array] | None = None
         self._noise = np.random.default_rng([seed, _TEMPORAL_STREAM])
         # Drawn on first use: a 2048 x 2048 array takes ~0.1 s, and not every model renders.
         self._maps: tuple[Array, Array] | None = None
@@ -98,6 +108,15 @@ class CameraModel:
             pitch_m=profile.pitch_m.value,
             default_photons=self._default_photons,
         )
+
+    def frozen(self, sensor: SensorModel) -> CameraModel:
+        """This camera reading ``sensor`` (a register snapshot) instead: renders from it never
+        see a register write half-way (the fixed pattern, noise stream, scene and stage are
+        shared)."""
+        self._fixed_patterns()  # drawn once here, so the twin shares them
+        twin = copy.copy(self)
+        twin.sensor = sensor
+        return twin
 
     # -- scene and stage --------------------------------------------------------------------------
 
@@ -144,7 +163,10 @@ class CameraModel:
         """Image displacement in rows at times ``t_s``: ``m x_stage(t) / p`` (physics.md §2)."""
         times = np.asarray(t_s, dtype=np.float64)
         position = self.current_stage().position_m(times)
-        scale = self.profile.magnification.value / self.profile.pitch_m.value
+        image_scale = self.stage_image_scale
+        if image_scale is None or self.stage is None:
+            image_scale = self.profile.magnification.value
+        scale = image_scale / self.profile.pitch_m.value
         result: Array = np.asarray(position, dtype=np.float64) * scale
         return result
 
@@ -305,6 +327,9 @@ class CameraModel:
         )
         response, dark_ref = self._fixed_patterns()
         electrons *= response[row0 : row0 + rows, col0 : col0 + cols]
+        if self.transmission is not None:
+            factor = np.asarray(self.transmission(start, end), dtype=electrons.dtype)
+            electrons *= factor[:, np.newaxis]
         # Dark rate map at T_ref times the temperature factor, times the exposure.
         scale = np.asarray(self.dark_factor() * timing.exposure_s, dtype=electrons.dtype)
         dark = dark_ref[row0 : row0 + rows, col0 : col0 + cols] * scale

@@ -140,6 +140,12 @@ def build_parser(prog: str = "python -m firmware_models") -> argparse.ArgumentPa
         help="render the first K frames of each stream and replay them in a loop with fresh "
         "headers (throughput tests at line rates the renderer cannot reach; 0 = render all)",
     )
+    parser.add_argument(
+        "--stage",
+        default="linear_rail",
+        metavar="NAME",
+        help="the scan stage's mechanics, config/stages/NAME.toml (default linear_rail)",
+    )
     parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     parser.add_argument("--json", action="store_true", help="print the start line as JSON")
     return parser
@@ -167,6 +173,7 @@ def main(argv: list[str] | None = None, *, prog: str = "python -m firmware_model
         power_on_s=time.monotonic(),
         injector=FaultInjector(inject, seed=args.seed),
         sensor=args.profile,
+        stage=args.stage,
     )
     if args.scene is not None:
         model.camera.set_scene(args.scene)

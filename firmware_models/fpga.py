@@ -32,6 +32,8 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, fields
 from typing import Any
 
+from camd.motion.stage_profile import StageProfile, load_stage_profile
+from camd.motion.wheel_profile import load_wheel_profile
 from camd.protocol import (
     CommandSpec,
     Decoder,
@@ -47,13 +49,17 @@ from camd.protocol.dictionary import FieldValue
 from camd.sensor.profile import load_profile
 from camd.sensor.regmap import RegisterMap, RegisterSpec, load_register_map
 from firmware_models.camera import CameraModel
+from firmware_models.errors import Nak
 from firmware_models.fx3 import StreamEngine, StreamSocketServer
 from firmware_models.housekeeping import HousekeepingModel
 from firmware_models.imaging import ImagingPipeline, StreamRefused
 from firmware_models.inject import FaultInjector, InjectSpec
+from firmware_models.motor import MotorController
 from firmware_models.sensor import SensorModel
 from firmware_models.sensor_link import SensorLink
 from firmware_models.spi import SpiMaster, SpiSlave
+from firmware_models.stage import StageFaults
+from firmware_models.wheel import FilterWheel
 
 FW_VERSION = 0x0100  # 1.0, major * 256 + minor as GET_STATUS reports it
 _U32_WRAP = 2**32
@@ -61,13 +67,7 @@ _SEQ_WRAP = 256
 _F32_SIGNIFICANT_DIGITS = 7  # what an f32 carries; used to undo f32 rounding of rates
 
 
-class _Nak(Exception):
-    """Raised by a command handler to answer with a NAK."""
-
-    def __init__(self, error: str, detail: str) -> None:
-        super().__init__(detail)
-        self.error = error
-        self.detail = detail
+_Nak = Nak  # raised by a command handler to answer with a NAK
 
 
 @dataclass(slots=True)
@@ -122,6 +122,7 @@ class FpgaModel:
         power_on_s: float = 0.0,
         injector: FaultInjector | None = None,
         sensor: str | RegisterMap = "hr400",
+        stage: str | StageProfile = "linear_rail",
     ) -> None:
         self.dictionary = dictionary if dictionary is not None else load_dictionary()
         # Commands (pty thread) and the USB-SPI socket (its own thread) share the sensor.
@@ -146,6 +147,19 @@ class FpgaModel:
             lock=self.lock,
         )
         self.stream.source = self.imaging_path.frame
+        # The scan stage: a stepper the MOTOR_* commands drive. The target rides on it once
+        # the motor has been enabled; until then (or after SIM_SET_STAGE) an ideal stage moves
+        # it, tracking the line period, so a plain stream needs no motion set-up.
+        stage_profile = stage if isinstance(stage, StageProfile) else load_stage_profile(stage)
+        self.motor = MotorController(
+            stage_profile, seed=seed or 0, faults=_stage_faults(stage_profile, self.injector.spec)
+        )
+        self.imaging_path.encoder_at = self.motor.encoder_count
+        # The filter wheel turns from power-on at its nominal speed (config/wheel.toml).
+        self.wheel = FilterWheel(load_wheel_profile(), t_s=0.0)
+        self.wheel_compensation = False
+        self.polarizer_deg: float | None = None  # the scene's reference polariser, if any
+        self._wheel_until_s = 0.0  # model time the last wheel acquisition's frames reach
         # Events that no command caused (STREAM_DONE from the stream thread) wait here until
         # the transport collects them; ``wake`` tells it there are some.
         self._unsent_events: list[Frame] = []
@@ -183,6 +197,12 @@ class FpgaModel:
             "SIM_SET_STAGE": self._sim_set_stage,
             "SIM_GET_SPI_STATS": self._sim_get_spi_stats,
             "SIM_RESKEW": self._sim_reskew,
+            **{name: self._motor for name in self.motor.commands},
+            "WHEEL_SET_SPEED": self._wheel_set_speed,
+            "WHEEL_GET": self._wheel_get,
+            "WHEEL_COMPENSATION": self._wheel_compensation,
+            "WHEEL_ACQUIRE": self._wheel_acquire,
+            "SIM_SET_POLARIZER": self._sim_set_polarizer,
         }
 
     # -- frames in, frames out ------------------------------------------------------------
@@ -223,11 +243,21 @@ class FpgaModel:
         """Send the stream to a host over ``server`` (``--usb-socket``)."""
         self.stream.server = server
 
-    def take_unsolicited(self) -> list[Frame]:
-        """Events raised outside any command since the last call, in order."""
+    def take_unsolicited(self, now_s: float | None = None) -> list[Frame]:
+        """Events raised outside any command since the last call, in order; with ``now_s``,
+        also the stage's stops due by then (MOTOR_STOPPED)."""
         with self.lock:
+            if now_s is not None:
+                for name, values in self.motor.poll_events(now_s - self.power_on_s):
+                    self._unsent_events.append(self._event(name, **values))
             frames, self._unsent_events = self._unsent_events, []
         return self._sent(frames)
+
+    def next_event_s(self) -> float | None:
+        """When (transport clock) the next unsolicited event is due, if one is planned."""
+        with self.lock:
+            due = self.motor.next_event_s()
+        return None if due is None else due + self.power_on_s
 
     def boot_frames(self, now_s: float) -> list[Frame]:
         """The frames the device sends when it starts: a BOOT event."""
@@ -438,6 +468,7 @@ class FpgaModel:
         address, value = int(request["address"]), int(request["value"])
         self._check_write(spec, address, value)
         self.spi.write(address, value)
+        self.imaging_path.note_registers(now_s - self.power_on_s)
         return _Outcome(spec.encode_response(address=address, value=value))
 
     def _reg_write_burst(
@@ -456,6 +487,7 @@ class FpgaModel:
             self._check_write(spec, address, value)
         for address, value in pairs:
             self.spi.write(address, value)
+        self.imaging_path.note_registers(now_s - self.power_on_s)
         return _Outcome(spec.encode_response(count=len(pairs)))
 
     def _get_sensor(
@@ -528,6 +560,7 @@ class FpgaModel:
                 "LINK_UNTRAINED",
                 "START_STREAM refused: the sensor's LVDS link is not trained; send TRAIN first",
             )
+        self.camera.transmission = None  # a plain stream: no wheel in the light path
         try:
             geometry = self.imaging_path.start(
                 device_time_s=now_s - self.power_on_s,
@@ -592,9 +625,163 @@ class FpgaModel:
         if not track and speed <= 0.0:
             raise _Nak("OUT_OF_RANGE", "SIM_SET_STAGE: a fixed speed must be > 0 m/s")
         self.camera.stage_speed_m_s = None if track else speed
+        self.camera.stage = None  # an ideal stage from now on, not the stepper
         sync = self.camera.synchronous_speed_m_s()
         now = sync if track else speed
         return _Outcome(spec.encode_response(speed_m_s=now, sync_speed_m_s=sync))
+
+    # -- the scan stage (docs/motion.md) --------------------------------------------------
+
+    def _motor(self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float) -> _Outcome:
+        if spec.name not in ("MOTOR_ESTOP", "MOTOR_GET", "MOTOR_GET_LIMITS", "SIM_GET_STAGE"):
+            self._require_no_fault(spec)
+        t = now_s - self.power_on_s
+        values = {
+            k: _undo_f32_rounding(v) if isinstance(v, float) and spec.name.startswith("SIM_")
+            else v
+            for k, v in request.items()
+        }  # fmt: skip
+        answer = self.motor.handle(spec.name, t, values)
+        if spec.name == "MOTOR_ENABLE" and request["enable"] == "on":
+            self._ride_the_stepper()
+        events = tuple(self._event(n, **v) for n, v in self.motor.poll_events(t))
+        return _Outcome(spec.encode_response(**answer), events)
+
+    def _ride_the_stepper(self) -> None:
+        """From now on the target moves with the stepper stage (module docs)."""
+        profile = self.motor.profile
+        self.camera.stage = self.motor.stage
+        self.camera.stage_image_scale = profile.image_scale(self.camera.profile.magnification.value)
+
+    # -- the filter wheel (physics.md §4, docs/wheel.md) -------------------------------------
+
+    def _wheel_timing(self) -> tuple[float, float, float]:
+        """(T_frame, T_delay for the registers now, exposure) (physics.md §4 eqs 5, 6)."""
+        timing = self.sensor.timing()
+        frame = timing.frame_time_s
+        return frame, self.wheel.profile.t_center_s.value - frame / 2, timing.exposure_s
+
+    def _wheel_set_speed(
+        self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float
+    ) -> _Outcome:
+        if self.imaging and self.camera.transmission is not None:
+            raise _Nak("ILLEGAL_STATE", "WHEEL_SET_SPEED refused during a wheel acquisition")
+        speed = _undo_f32_rounding(float(request["speed_deg_s"]))
+        t = max(now_s - self.power_on_s, self._wheel_until_s)
+        self.wheel.set_speed(speed, t)
+        return _Outcome(spec.encode_response(period_s=360.0 / speed if speed > 0 else 0.0))
+
+    def _wheel_get(
+        self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float
+    ) -> _Outcome:
+        # A wheel acquisition runs ahead of the wall clock (its frames are not paced): the
+        # wheel is read where its model time is, as WHEEL_SET_SPEED and WHEEL_ACQUIRE see it.
+        t = max(now_s - self.power_on_s, self._wheel_until_s)
+        frame, delay, _ = self._wheel_timing()
+        channel = self.wheel.channel_at(t)
+        return _Outcome(
+            spec.encode_response(
+                speed_deg_s=self.wheel.speed_deg_s(t),
+                angle_deg=self.wheel.angle_deg(t),
+                channel=255 if channel is None else channel,
+                compensation="on" if self.wheel_compensation else "off",
+                frame_time_s=frame,
+                delay_s=delay,
+                time_s=t,
+            )
+        )
+
+    def _wheel_compensation(
+        self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float
+    ) -> _Outcome:
+        on = request["enable"] == "on"
+        frame, delay, _ = self._wheel_timing()
+        if on:
+            try:
+                self.wheel.profile.exposure(frame, compensated=True)
+            except ValueError as exc:
+                raise _Nak("OUT_OF_RANGE", f"WHEEL_COMPENSATION refused: {exc}") from None
+        self.wheel_compensation = on
+        return _Outcome(spec.encode_response(frame_time_s=frame, delay_s=delay if on else 0.0))
+
+    def _wheel_acquire(
+        self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float
+    ) -> _Outcome:
+        self._require_no_fault(spec)
+        if self.imaging:
+            raise _Nak("ILLEGAL_STATE", "WHEEL_ACQUIRE refused: streaming; STOP_STREAM first")
+        if not self.sensor_link.trained:
+            raise _Nak(
+                "LINK_UNTRAINED",
+                "WHEEL_ACQUIRE refused: the sensor's LVDS link is not trained; TRAIN first",
+            )
+        raw = bytes(request["channels"])  # type: ignore[arg-type]
+        count = self.wheel.profile.channel_count.value
+        if not raw or any(c >= count for c in raw):
+            raise _Nak(
+                "OUT_OF_RANGE",
+                f"WHEEL_ACQUIRE refused: channels {list(raw)}; give 1 to {count} channel "
+                f"numbers 0..{count - 1}",
+            )
+        t = max(now_s - self.power_on_s, self._wheel_until_s)
+        if self.wheel.speed_deg_s(t) <= 0.0:
+            raise _Nak("ILLEGAL_STATE", "WHEEL_ACQUIRE refused: the wheel is stopped; "
+                       "WHEEL_SET_SPEED first")  # fmt: skip
+        frame, _, _ = self._wheel_timing()
+        line = self.sensor.timing().line_period_s
+        starts: list[float] = []
+        stamps: list[int] = []
+        try:
+            for _ in range(int(request["passes"])):
+                for channel in raw:
+                    start = self.wheel.exposure_schedule(channel, t, frame, self.wheel_compensation)
+                    starts.append(start + line)  # row 0 resets one line into the frame
+                    stamps.append(round(float(self.wheel.angle_deg(start)) * 1e4))
+                    t = start + frame
+        except ValueError as exc:
+            raise _Nak("OUT_OF_RANGE", f"WHEEL_ACQUIRE refused: {exc}") from None
+        self._wheel_until_s = t
+        wheel, polarizer = self.wheel, self.polarizer_deg
+
+        def transmission(start_s: Any, end_s: Any) -> Any:
+            mid = 0.5 * (float(start_s.min()) + float(end_s.max()))
+            channel = wheel.channel_at(mid)
+            if channel is None:
+                return 0.0 * start_s
+            return wheel.row_transmission(channel, start_s, end_s, polarizer)
+
+        self.camera.transmission = transmission
+        try:
+            geometry = self.imaging_path.start(
+                device_time_s=starts[0],
+                mode="area",
+                frames=len(starts),
+                stages=0,
+                binning=False,
+                schedule_s=starts,
+                stamps=stamps,
+            )
+        except StreamRefused as exc:
+            self.camera.transmission = None
+            raise _Nak("OUT_OF_RANGE", f"WHEEL_ACQUIRE refused: {exc}") from None
+        delay = self.wheel.profile.t_center_s.value - frame / 2 if self.wheel_compensation else 0
+        return _Outcome(
+            spec.encode_response(
+                frames=len(starts),
+                first_counter=geometry.first_counter,
+                rows=geometry.rows,
+                cols=geometry.cols,
+                frame_time_s=frame,
+                delay_s=delay,
+            )
+        )
+
+    def _sim_set_polarizer(
+        self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float
+    ) -> _Outcome:
+        on = request["enable"] == "on"
+        self.polarizer_deg = _undo_f32_rounding(float(request["angle_deg"])) if on else None
+        return _Outcome(spec.encode_response())
 
     def _stream_done(self, frames_sent: int, next_counter: int) -> None:
         """A counted stream ended by itself (stream thread): tell the host with STREAM_DONE.
@@ -681,6 +868,16 @@ def _as_sent(f: FieldSpec, bound: float) -> float:
     if f.type == "f32":
         return float(struct.unpack(">f", struct.pack(">f", bound))[0])
     return bound
+
+
+def _stage_faults(profile: StageProfile, spec: InjectSpec) -> StageFaults:
+    """The stage's imperfections: the profile's defaults, overridden by --inject stage_*."""
+    given = {
+        key.removeprefix("stage_"): getattr(spec, key)
+        for key in spec.model_fields_set
+        if key.startswith("stage_")
+    }
+    return StageFaults.from_profile(profile).updated(**given)
 
 
 def _undo_f32_rounding(value: float) -> float:

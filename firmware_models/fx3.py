@@ -758,6 +758,16 @@ class StreamEngine:
                 self._thread.start()
             self._cond.notify_all()
 
+    def set_period(self, period_s: float) -> None:
+        """Change the running stream's frame period from the next frame on (the sensor's line
+        period was re-programmed while streaming). Harmless when not streaming or unpaced."""
+        if not period_s > 0.0:
+            raise ValueError(f"period_s = {period_s} must be > 0")
+        with self._cond:
+            s = self._pending or self._current
+            if s is not None and s.period_s > 0:
+                s.period_s = period_s
+
     def stop(self, *, notify: bool = True) -> int:
         """End the stream after the frame in progress; frames it produced (that one included).
 
@@ -853,8 +863,6 @@ class StreamEngine:
                     # More than a period late (a slow render): the schedule moves, so the frames
                     # after it do not come in a burst to catch up.
                     due = now
-                # On a clock, like the sensor: the sleep's wake-up latency does not accumulate.
-                due += stream.period_s
             with self._cond:
                 if stream.stop or self._closing:
                     return
@@ -869,6 +877,9 @@ class StreamEngine:
             source = self.source
             assert source is not None
             header, pixels = source(counter)
+            # On a clock, like the sensor: the sleep's wake-up latency does not accumulate.
+            # Read after the source, which may have changed the period (``set_period``).
+            due += stream.period_s
             sent = self._send_frame(header, pixels, last=last, overflow=overflow)
             if sent is not None:
                 overflow = not sent

@@ -7,15 +7,24 @@ mis-trained link garbles it, as on the bench), bins it 2x2 if asked (physics.md 
 header of docs/stream.md and hands it to the stream engine (``firmware_models.fx3``), which
 paces, injects faults and sends it on the bulk endpoint.
 
-Frame k of a stream that started at device time t0 ends window row 0's exposure at
-``t0 + exposure + k * T_frame`` where T_frame is the frame period the registers set (the TDI
-line period, physics.md §2 eqs 6-7), so the scene's motion and every timestamp follow model
-time, not how fast this process happens to render.
+Frame k of a stream that started at device time t0 starts its exposure (window row 0's reset)
+at ``t_k``: ``t_0 = t0`` and ``t_(k+1) = t_k + T_frame``, T_frame the frame period the
+registers set when frame k was made (the TDI line period, physics.md §2 eqs 6-7; a host may
+re-program the back path while streaming to trim it). So the scene's motion and every timestamp
+follow model time, not how fast this process happens to render. A wheel acquisition instead
+gives each frame's start time (``schedule_s``): it waits for the wheel. Frames are made when
+the engine asks, which may be later than their model time (a slow render): register writes the
+FPGA receives while streaming are therefore kept with their device time (``note_registers``)
+and a frame uses the registers that were in force at its own start. The header's timestamp
+is when row 0's exposure ends, ``t_k + exposure``; its ``stage_position`` is the stage encoder
+latched at ``t_k`` (``encoder_at``), or the wheel angle for wheel frames.
 """
 
 from __future__ import annotations
 
+import math
 import threading
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -71,7 +80,17 @@ class ImagingPipeline:
         self.engine = engine
         self.lock = lock
         self.geometry: StreamGeometry | None = None
-        self._t0_s = 0.0
+        # Stage encoder count at a device time, latched into each frame header (None: 0).
+        self.encoder_at: Callable[[float], int] | None = None
+        # Start time of frame k (row 0's reset) for the frame made next, and k.
+        self._next_k = 0
+        self._next_start_s = 0.0
+        self._period_s = 0.0
+        self._schedule: Sequence[float] | None = None
+        self._stamps: Sequence[int] | None = None
+        # (device time, register snapshot) of every change during the stream, oldest first.
+        self._history: list[tuple[float, SensorModel]] = []
+        self._rendered_s = -math.inf  # start time of the last frame made
         self._mode = StreamMode.AREA
         self._adc_max = 0
         # Replay: render the first ``frame_bank`` frames of a stream, then send them again in a
@@ -91,11 +110,24 @@ class ImagingPipeline:
         return (self.geometry.first_counter + self.engine.frames_produced) % (1 << 32)
 
     def start(
-        self, *, device_time_s: float, mode: str, frames: int, stages: int, binning: bool
+        self,
+        *,
+        device_time_s: float,
+        mode: str,
+        frames: int,
+        stages: int,
+        binning: bool,
+        schedule_s: Sequence[float] | None = None,
+        stamps: Sequence[int] | None = None,
     ) -> StreamGeometry:
         """Check the settings against the registers, then start the engine. ``device_time_s``
         (seconds since power-on, passed in: the model never reads a clock) is when START_STREAM
-        arrived; frame k's row 0 ends its exposure one exposure and k frame periods later."""
+        arrived: frame 0 starts its exposure then, frame k one frame period after frame k - 1.
+        ``schedule_s`` (one start time per frame, ``frames`` of them) replaces that clock, with
+        ``stamps`` the header's stage_position of each frame; such a stream is not paced in
+        wall time (the simulator does not wait for the wheel)."""
+        if schedule_s is not None and (len(schedule_s) != frames or frames == 0):
+            raise StreamRefused(f"a schedule needs one start time per frame ({frames})")
         timing = self.sensor.timing()
         rows = timing.window_rows
         cols = self.camera.columns
@@ -124,13 +156,39 @@ class ImagingPipeline:
         self._bank = {}
         self._mode = StreamMode.TDI if mode == "tdi" else StreamMode.AREA
         self._adc_max = (1 << self.camera.bits) - 1
-        self._t0_s = device_time_s + timing.exposure_s
+        self._history = [(-math.inf, self.sensor.snapshot())]
+        self._rendered_s = -math.inf
+        self._next_k = 0
+        self._next_start_s = device_time_s if schedule_s is None else schedule_s[0]
+        self._period_s = timing.frame_period_s
+        self._schedule = schedule_s
+        self._stamps = stamps
         self.engine.start(
             frames=frames,
             period_s=timing.frame_period_s,
+            pace=schedule_s is None,
             first_counter=geometry.first_counter,
         )
         return geometry
+
+    def note_registers(self, t_s: float) -> None:
+        """The registers changed at device time ``t_s`` (under the FPGA's lock): frames that
+        start from then on use them, frames of earlier model time the ones before."""
+        if not self.streaming:
+            return
+        # Changes older than the last frame made can no longer matter but the latest of them.
+        while len(self._history) > 1 and self._history[1][0] <= self._rendered_s:
+            self._history.pop(0)
+        self._history.append((t_s, self.sensor.snapshot()))
+
+    def _registers_at(self, t_s: float) -> SensorModel:
+        """The register snapshot in force at model time ``t_s``."""
+        chosen = self._history[0][1]
+        for changed_s, snapshot in self._history:
+            if changed_s > t_s:
+                break
+            chosen = snapshot
+        return chosen
 
     def stop(self) -> tuple[int, int]:
         """Stop after the frame in progress; (frames produced, next counter). Never waits for
@@ -144,10 +202,14 @@ class ImagingPipeline:
         geometry = self.geometry
         assert geometry is not None
         k = (counter - geometry.first_counter) % (1 << 32)
-        t_s = self._t0_s + k * geometry.frame_period_s
+        start_s, period_s = self._frame_start(k)
+        with self.lock:
+            registers = self._registers_at(start_s)
+            self._rendered_s = max(self._rendered_s, start_s)
+        t_s = start_s + registers.timing().exposure_s
         banked = self._bank.get(k % self.frame_bank) if self.frame_bank else None
         if banked is None:
-            pixels, flags = self._render(t_s, geometry)
+            pixels, flags = self._render(t_s, geometry, registers)
             if self.frame_bank:
                 self._bank[k % self.frame_bank] = (pixels, flags)
         else:
@@ -156,27 +218,58 @@ class ImagingPipeline:
             pixels,
             counter=counter,
             timestamp_ns=round(t_s * NS_PER_S),
-            line_period_ns=round(geometry.frame_period_s * NS_PER_S),
+            line_period_ns=round(period_s * NS_PER_S),
             bits=geometry.bits,
             mode=self._mode,
             stages=geometry.stages,
-            stage_position=0,
+            stage_position=self._stage_position(k, start_s),
             flags=flags,
         )
         return header, pixels
 
-    def _render(
-        self, t_s: float, geometry: StreamGeometry
-    ) -> tuple[npt.NDArray[np.uint16], FrameFlags]:
-        """The window frame at ``t_s`` through the link and binning, and its flags."""
+    def _frame_start(self, k: int) -> tuple[float, float]:
+        """(start time, frame period) of frame k. Frames are made in order, so the clock
+        advances one frame at a time with the period the registers hold when each is made."""
+        if self._schedule is not None:
+            start = self._schedule[min(k, len(self._schedule) - 1)]
+            return start, self._period_s
+        while self._next_k <= k:
+            start = self._next_start_s
+            with self.lock:
+                period = self._registers_at(start).timing().frame_period_s
+            if period != self._period_s:
+                self._period_s = period
+                self.engine.set_period(period)
+            self._next_start_s = start + period
+            self._next_k += 1
+        return start, self._period_s
+
+    def _stage_position(self, k: int, start_s: float) -> int:
+        """The header's stage_position: the scheduled stamp, or the encoder at frame start."""
+        if self._stamps is not None:
+            return int(self._stamps[min(k, len(self._stamps) - 1)])
+        if self.encoder_at is None:
+            return 0
         with self.lock:
-            raw = self.camera.render(t_s)
+            count = int(self.encoder_at(start_s))
+        # The header field is a signed 32-bit count; an encoder wraps like the hardware's.
+        return (count + (1 << 31)) % (1 << 32) - (1 << 31)
+
+    def _render(
+        self, t_s: float, geometry: StreamGeometry, registers: SensorModel
+    ) -> tuple[npt.NDArray[np.uint16], FrameFlags]:
+        """The window frame at ``t_s`` with those registers, through the link and binning, and
+        its flags."""
+        # Not under the lock: a render takes milliseconds, and commands (the stage's closed
+        # loop polls every 10 ms) must not wait for it.
+        raw = self.camera.frozen(registers).render(t_s)
+        with self.lock:
             received = self.sensor_link.capture(raw)
             self.sensor.note_frame()
         flags = FrameFlags(0)
         if int(received.max()) >= self._adc_max:
             flags |= FrameFlags.SATURATED
-        if self.sensor.test_pattern not in ("off", 0):
+        if registers.test_pattern not in ("off", 0):
             flags |= FrameFlags.TEST_PATTERN
         pixels = np.ascontiguousarray(received, dtype=np.uint16)
         if geometry.binning:

@@ -1,6 +1,7 @@
 """Fault injection on the simulated RS-422 line: bit errors, dropped frames, garbage, latency.
 
-``InjectSpec`` is the contract of ``--inject`` and of the SIM_SET_INJECT command;
+``InjectSpec`` is the contract of ``--inject`` and of the SIM_SET_INJECT command (the
+``stage_*`` keys set the simulated scan stage's imperfections, as SIM_SET_STAGE_FAULTS does);
 ``FaultInjector`` applies it with a seeded numpy Generator so that a failing test can be
 replayed exactly. The injector works on bytes and decisions only; where it sits in the byte
 path is the transport's business (see ``firmware_models.pty_server``).
@@ -19,6 +20,8 @@ from firmware_models.spec_text import key_values
 Direction = Literal["rx", "tx"]
 
 GARBAGE_MAX_BYTES = 32
+# The keys that set the stepper stage's imperfections rather than line faults.
+STAGE_KEYS = ("stage_error", "stage_ripple", "stage_jitter", "stage_drift", "stage_load")
 
 
 class InjectSpecError(ValueError):
@@ -72,6 +75,44 @@ class InjectSpec(BaseModel):
         le=0.5,
         description="probability the bulk endpoint halts instead of sending a frame "
         "(the frame is lost; nothing is sent until the host clears the halt)",
+    )
+
+    # The stepper scan stage (firmware_models.stage / firmware_models.motor): its
+    # imperfections, the knobs SIM_SET_STAGE_FAULTS sets; not line faults (FaultInjector
+    # ignores them; ``stage_faults()`` hands them to MotorController.set_faults). 0: none.
+    stage_error: float = Field(
+        default=0.0,
+        ge=-0.1,
+        le=0.1,
+        description="stage: relative step-rate error (speed too high by this fraction; "
+        "5e-5 is a clock 50 ppm fast)",
+    )
+    stage_ripple: float = Field(
+        default=0.0,
+        ge=0.0,
+        le=0.2,
+        description="stage: relative amplitude of the periodic speed ripple "
+        "(period: the stage profile's ripple_period_m)",
+    )
+    stage_jitter: float = Field(
+        default=0.0,
+        ge=0.0,
+        le=0.2,
+        description="stage: relative rms random speed jitter "
+        "(correlated over the stage profile's jitter_corr_s)",
+    )
+    stage_drift: float = Field(
+        default=0.0,
+        ge=-0.1,
+        le=0.1,
+        description="stage: relative speed drift per second of continuous running",
+    )
+    stage_load: float = Field(
+        default=0.0,
+        ge=0.0,
+        le=3.0,
+        description="stage: load torque as a fraction of the motor's pull-out torque "
+        "(above what the motor delivers at the speed, it misses steps)",
     )
 
     @classmethod
@@ -129,6 +170,11 @@ class InjectSpec(BaseModel):
                 f"from {lo:g} to {hi:g}"
             )
         return float(value)
+
+    def stage_faults(self) -> dict[str, float]:
+        """The ``stage_*`` values by their SIM_SET_STAGE_FAULTS names (``error``, ``ripple``,
+        ``jitter``, ``drift``, ``load``), for ``MotorController.set_faults``."""
+        return {key.removeprefix("stage_"): getattr(self, key) for key in STAGE_KEYS}
 
     @property
     def active(self) -> bool:

@@ -198,7 +198,7 @@ class PtyServer:
         now_s = self._clock()
         self._expire_stale(now_s)
         self._release_due(now_s)
-        for frame in self.model.take_unsolicited():
+        for frame in self.model.take_unsolicited(now_s):
             self._transmit(frame)
         self._maybe_send_housekeeping(now_s)
         if self._out:
@@ -215,6 +215,9 @@ class PtyServer:
             deadlines.append(head_since_s + self.frame_timeout_s)
         if self.hk_period_s > 0:
             deadlines.append(self._next_hk_s)
+        event_s = self.model.next_event_s()
+        if event_s is not None:
+            deadlines.append(event_s)
         if not deadlines:
             return _IDLE_WAIT_S
         return min(_IDLE_WAIT_S, max(0.0, min(deadlines) - now_s))

@@ -25,6 +25,7 @@ Imports only camd's pure layers.
 from __future__ import annotations
 
 import contextlib
+import copy
 import random
 from collections import Counter
 
@@ -48,6 +49,14 @@ class SensorModel:
         self._values: dict[int, int] = {}
         self._latched: dict[int, int] = {}  # address -> value written while its group was held
         self.power_on_reset()
+
+    def snapshot(self) -> SensorModel:
+        """A copy of the register file as it is now, for rendering a frame without holding
+        up commands (counters and random state are shared, not copied)."""
+        snap = copy.copy(self)
+        snap._values = dict(self._values)
+        snap._latched = dict(self._latched)
+        return snap
 
     # -- the SPI bus ------------------------------------------------------------------------------
 

@@ -201,6 +201,18 @@ _CLIENT_VS_DAEMON = [
     ("SimStreamDoc", "SimStreamStats"),
     ("ScanTimingDoc", "ScanTiming"),
     ("ScanDoc", "ScanResponse"),
+    ("ScanMotionInfoDoc", "ScanMotionInfo"),
+    ("StageReadingDoc", "StageReadingModel"),
+    ("StageLimitsDoc", "StageLimitsModel"),
+    ("MotionDoc", "MotionStatus"),
+    ("SyncDoc", "SyncResponse"),
+    ("SimStageTruthDoc", "SimStageTruth"),
+    ("WheelChannelDoc", "WheelChannelInfo"),
+    ("WheelExposureDoc", "WheelExposureInfo"),
+    ("WheelDoc", "WheelStatus"),
+    ("WheelRegionDoc", "WheelRegion"),
+    ("WheelFrameDoc", "WheelFrame"),
+    ("WheelAcquireDoc", "WheelAcquireResponse"),
 ]
 
 

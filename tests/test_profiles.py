@@ -215,7 +215,7 @@ def test_bad_toml_and_unknown_names(tmp_path: Path) -> None:
         load_profile(path)
     with pytest.raises(FileNotFoundError, match=r"known: hr400, ibis5, mt9m001, uvccd"):
         load_profile("nosuch")
-    with pytest.raises(ProfileError, match="not a profile name"):
+    with pytest.raises(ProfileError, match="not a camera profile name"):
         load_profile("../etc/passwd")
 
 

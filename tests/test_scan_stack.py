@@ -62,7 +62,7 @@ def test_scan_records_eq11_lines_with_flags_metadata_and_quicklook(
     period = 12.5 * row  # 12 rows and half a row of back path (eqs 8, 9)
     out = tmp_path / "ramp.h5"
     doc = camctl_json(
-        url, "scan", "--stages", "8", "--lines", "30", "--line-period-s", repr(period),
+        url, "scan", "--no-stage", "--stages", "8", "--lines", "30", "--line-period-s", repr(period),
         "--out", str(out),
     )  # fmt: skip
     assert list(doc)[:5] == ["file", "lines", "complete_lines", "lost_frames", "stages"]
@@ -101,7 +101,7 @@ def test_binned_scan_sums_binned_rows_at_twice_the_synchronous_speed(
 ) -> None:
     row = row_period_s(url)
     doc = camctl_json(
-        url, "scan", "--stages", "4", "--lines", "6", "--binning", "--line-period-s",
+        url, "scan", "--no-stage", "--stages", "4", "--lines", "6", "--binning", "--line-period-s",
         repr(16.5 * row), "--out", str(tmp_path / "binned.h5"), "--no-quicklook",
     )  # fmt: skip
     assert (doc["lines"], doc["complete_lines"], doc["width"]) == (9, 6, 1024)
@@ -122,7 +122,7 @@ def test_stage_speed_sets_the_line_period_by_eq5(url: str, tmp_path: Path) -> No
     # A speed whose line period is 10.3 rows: 10 window rows and 0.3 rows of back path.
     speed = profile.pitch_m.value / (profile.magnification.value * 10.3 * row)
     doc = camctl_json(
-        url, "scan", "--stages", "4", "--lines", "5", "--speed-m-s", repr(speed),
+        url, "scan", "--no-stage", "--stages", "4", "--lines", "5", "--speed-m-s", repr(speed),
         "--out", str(tmp_path / "speed.h5"), "--no-quicklook",
     )  # fmt: skip
     timing = doc["timing"]
@@ -139,7 +139,7 @@ def test_stages_change_mid_scan_without_stopping_the_stream(
 ) -> None:
     out = tmp_path / "restage.h5"
     camctl_json(
-        url, "scan", "--stages", "8", "--lines", "0", "--line-period-s", repr(12 * row_period_s(url)),
+        url, "scan", "--no-stage", "--stages", "8", "--lines", "0", "--line-period-s", repr(12 * row_period_s(url)),
         "--out", str(out), "--detach",
     )  # fmt: skip
     try:
@@ -167,24 +167,32 @@ def test_stages_change_mid_scan_without_stopping_the_stream(
 
 
 def test_bad_scans_are_refused_and_leave_the_daemon_idle(url: str, tmp_path: Path) -> None:
-    proc = camctl(url, "scan", "--stages", "40", "--lines", "5", "--out", str(tmp_path / "x.h5"))
+    proc = camctl(
+        url, "scan", "--no-stage", "--stages", "40", "--lines", "5", "--out", str(tmp_path / "x.h5")
+    )
     assert proc.returncode == 1
     assert "stages = 40 needs 40 window rows" in proc.stderr and "choose 1.." in proc.stderr
     assert not (tmp_path / "x.h5").exists()
     proc = camctl(url, "stages", "4")
     assert proc.returncode == 1 and "no scan is running" in proc.stderr
-    proc = camctl(url, "scan", "--stages", "4")
+    proc = camctl(url, "scan", "--no-stage", "--stages", "4")
     assert proc.returncode == 2 and "--lines" in proc.stderr
     existing = tmp_path / "there.h5"
     existing.write_bytes(b"")
-    proc = camctl(url, "scan", "--stages", "4", "--lines", "5", "--out", str(existing))
+    proc = camctl(
+        url, "scan", "--no-stage", "--stages", "4", "--lines", "5", "--out", str(existing)
+    )
     assert proc.returncode == 2 and "already exists" in proc.stderr
-    proc = camctl(url, "scan", "--stages", "4", "--lines", "5", "--line-period-s", "1e-6")
+    proc = camctl(
+        url, "scan", "--no-stage", "--stages", "4", "--lines", "5", "--line-period-s", "1e-6"
+    )
     assert proc.returncode == 1 and "shorter than one row period" in proc.stderr
     # Stages that the window a line period leaves cannot hold: refused before any write.
     before = camctl_json(url, "timing")
     period = repr(10.5 * row_period_s(url))
-    proc = camctl(url, "scan", "--stages", "11", "--lines", "5", "--line-period-s", period)
+    proc = camctl(
+        url, "scan", "--no-stage", "--stages", "11", "--lines", "5", "--line-period-s", period
+    )
     assert proc.returncode == 1 and "needs 11 window rows but the scan's frames have 10" in (
         proc.stderr
     )
@@ -203,7 +211,7 @@ def test_flat_field_snr_grows_as_sqrt_m(url: str, tmp_path: Path) -> None:
     for stages in (1, 4, 12):
         out = tmp_path / f"flat{stages}.h5"
         camctl_json(
-            url, "scan", "--stages", str(stages), "--lines", "300", "--scene",
+            url, "scan", "--no-stage", "--stages", str(stages), "--lines", "300", "--scene",
             "flat:photons=2e5", "--line-period-s", repr(period), "--out", str(out),
             "--no-quicklook",
         )  # fmt: skip

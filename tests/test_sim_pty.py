@@ -172,6 +172,11 @@ def test_json_start_line(sim: Sim) -> None:
         "frame_corrupt": 0.0,
         "frame_short": 0.0,
         "frame_stall": 0.0,
+        "stage_error": 0.0,
+        "stage_ripple": 0.0,
+        "stage_jitter": 0.0,
+        "stage_drift": 0.0,
+        "stage_load": 0.0,
     }
     assert info["usb_socket"] is None and info["spi_socket"] is None
 

@@ -38,6 +38,11 @@ EXPECTED_LEGAL = {
     Request.STREAM_STOP: {IDLE, STR, FLT},
     Request.STREAM_READ: {DIS, IDLE, STR, FLT},
     Request.SIM: {IDLE, STR, FLT},
+    Request.MOTION_READ: {IDLE, STR, FLT},
+    Request.MOTION_MOVE: {IDLE},
+    Request.MOTION_STOP: {IDLE, STR, FLT},
+    Request.WHEEL_READ: {IDLE, STR, FLT},
+    Request.WHEEL_SET: {IDLE},
 }
 
 

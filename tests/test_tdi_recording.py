@@ -175,7 +175,7 @@ def test_metadata_round_trips(scan_path: Path) -> None:
     meta = {**META, "motion": {"stage_speed_m_s": 0.0125}}
     TdiRecorder(scan_path, width=WIDTH, mode="sum", metadata=meta).close()
     scan = read_tdi_scan(scan_path)
-    assert scan.attrs["format"] == "camd-tdi-scan" and scan.attrs["format_version"] == 1
+    assert scan.attrs["format"] == "camd-tdi-scan" and scan.attrs["format_version"] == 2
     assert isinstance(scan.attrs["camd_version"], str)
     assert scan.attrs["created_utc"].startswith("20")
     assert scan.metadata["profile"] == {
@@ -489,3 +489,50 @@ def test_quicklook_refuses_bad_input(tmp_path: Path) -> None:
     assert not path.exists()
     with pytest.raises(RecordingError, match="cannot write the quicklook"):
         write_quicklook_png(tmp_path / "nowhere" / "ql.png", np.zeros((3, 5)))
+
+
+def test_motion_columns_and_loop_datasets(scan_path: Path) -> None:
+    rec = TdiRecorder(scan_path, width=WIDTH, mode="sum", metadata=META)
+    n = 5
+    rec.append(
+        np.ones((n, WIDTH), dtype=np.uint32),
+        index=np.arange(n),
+        stages_used=np.full(n, 4),
+        complete=np.ones(n, dtype=bool),
+        stage_position=np.array([-(2**31), -5, 0, 7, 2**31 - 1]),
+        m_dv_over_v=np.array([np.nan, 0.5, -0.25, 1.0, 2.0]),
+    )
+    rec.append(
+        np.ones((2, WIDTH), dtype=np.uint32),
+        index=np.arange(n, n + 2),
+        stages_used=np.full(2, 4),
+        complete=np.ones(2, dtype=bool),
+    )
+    with pytest.raises(ValueError, match="stage_position"):
+        rec.append(
+            np.ones((1, WIDTH), dtype=np.uint32), index=[9], stages_used=[4],
+            complete=np.ones(1, dtype=bool), stage_position=[2**31],
+        )  # fmt: skip
+    rec.close(datasets={"motion_loop": {"time_s": [0.0, 0.01], "encoder_m": [1.0, 1.5]}})
+    scan = read_tdi_scan(scan_path)
+    assert scan.stage_position.tolist() == [-(2**31), -5, 0, 7, 2**31 - 1, 0, 0]
+    assert np.isnan(scan.m_dv_over_v[[0, 5, 6]]).all()
+    assert scan.m_dv_over_v[1:5].tolist() == [0.5, -0.25, 1.0, 2.0]
+    with h5py.File(scan_path, "r") as f:
+        assert f["motion_loop/encoder_m"][...].tolist() == [1.0, 1.5]
+
+
+def test_version_1_files_read_with_default_motion_columns(scan_path: Path) -> None:
+    rec = TdiRecorder(scan_path, width=WIDTH, mode="sum", metadata=META)
+    rec.append(
+        np.ones((3, WIDTH), dtype=np.uint32), index=np.arange(3), stages_used=np.full(3, 2),
+        complete=np.ones(3, dtype=bool),
+    )  # fmt: skip
+    rec.close()
+    with h5py.File(scan_path, "r+") as f:  # what a version-1 writer made
+        del f["stage_position"], f["m_dv_over_v"]
+        f.attrs["format_version"] = 1
+    scan = read_tdi_scan(scan_path)
+    assert scan.lines.shape == (3, WIDTH)
+    assert scan.stage_position.tolist() == [0, 0, 0]
+    assert np.isnan(scan.m_dv_over_v).all()

@@ -25,7 +25,7 @@ from rich.table import Table
 from rich.text import Text
 
 import camd
-from camd.cli import camctl_scan, camctl_sensor, camctl_stream
+from camd.cli import camctl_motion, camctl_scan, camctl_sensor, camctl_stream, camctl_wheel
 from camd.cli.camctl_sensor import CommandFailed, UsageError
 from camd.client import DEFAULT_URL, CamdClient, CamdError, DaemonUnreachable
 
@@ -189,6 +189,8 @@ def build_parser() -> argparse.ArgumentParser:
     camctl_sensor.add_parsers(command)
     camctl_stream.add_parsers(command)
     camctl_scan.add_parsers(command)
+    camctl_motion.add_parsers(command)
+    camctl_wheel.add_parsers(command)
     return parser
 
 
@@ -301,6 +303,8 @@ _COMMANDS: dict[str, Callable[[CamdClient, argparse.Namespace], Any]] = {
     **camctl_sensor.COMMANDS,
     **camctl_stream.COMMANDS,
     **camctl_scan.COMMANDS,
+    **camctl_motion.COMMANDS,
+    **camctl_wheel.COMMANDS,
 }
 
 
@@ -537,6 +541,8 @@ _RENDER: dict[str, Callable[[Console, Any, argparse.Namespace], None]] = {
     **camctl_sensor.RENDER,
     **camctl_stream.RENDER,
     **camctl_scan.RENDER,
+    **camctl_motion.RENDER,
+    **camctl_wheel.RENDER,
 }
 
 

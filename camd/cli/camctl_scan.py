@@ -3,12 +3,15 @@
     camctl scan --stages M --lines L [--scene SPEC] [--out FILE] [--speed-m-s V | --line-period-s T]
                 [--mode sum|mean] [--out-bits n] [--rows-per-line r] [--cols-per-line c]
                 [--reverse] [--binning] [--no-quicklook] [--detach]
+                [--open-loop | --closed-loop] [--dv-over-v X] [--no-stage]
     camctl scan --status | --stop
     camctl stages M                      change M of the running scan from its next frame
 
 ``scan`` waits for the scan to end, with a progress bar on stderr, and prints one document whose
-first keys are the contract {"file", "lines", "complete_lines", "lost_frames", "stages"}; the
-rest is the daemon's scan document. Ctrl-C stops the scan (the file keeps what was taken).
+first keys are the contract {"file", "lines", "complete_lines", "lost_frames", "stages"}, then
+"mismatch_max" and "mismatch_rms" (M |dV/V| over the scan, docs/motion.md); the rest is the
+daemon's scan document. The scan drives the stage at the synchronous speed (closed loop unless
+--open-loop, or config motion.closed_loop = "off"); --no-stage leaves it alone. Ctrl-C stops the scan (the file keeps what was taken).
 FILE is made absolute on this machine: camctl and camd must share the file system.
 """
 
@@ -27,7 +30,9 @@ from camd.cli.camctl_sensor import CommandFailed, UsageError
 from camd.cli.camctl_stream import count_arg
 from camd.client import CamdClient, ScanDoc
 
-CONTRACT = ("file", "lines", "complete_lines", "lost_frames", "stages")
+CONTRACT = (
+    "file", "lines", "complete_lines", "lost_frames", "stages", "mismatch_max", "mismatch_rms",
+)  # fmt: skip
 POLL_S = 0.25
 
 
@@ -69,6 +74,19 @@ def add_parsers(command: Callable[[str, str], argparse.ArgumentParser]) -> None:
     p.add_argument("--binning", action="store_true", help="FPGA-side 2x2 binning")
     p.add_argument("--no-quicklook", action="store_true", help="write no PNG quicklook")
     p.add_argument("--detach", action="store_true", help="start the scan and return at once")
+    loop = p.add_mutually_exclusive_group()
+    loop.add_argument("--open-loop", action="store_true", help="no closed-loop correction")
+    loop.add_argument(
+        "--closed-loop", action="store_true", help="closed loop even if off in config"
+    )
+    p.add_argument(
+        "--dv-over-v", type=_number, default=0.0, metavar="X",
+        help="deliberate mismatch: the stage runs at (1 - X) x synchronous (e.g. 0.01)",
+    )  # fmt: skip
+    p.add_argument(
+        "--no-stage", action="store_true",
+        help="do not drive the scan stage (external stage; on the simulator an ideal one)",
+    )  # fmt: skip
 
     p = command("stages", "change the TDI stage count of the running scan from its next frame")
     p.add_argument("stages", type=count_arg, metavar="M", help="new stage count")
@@ -110,6 +128,9 @@ def cmd_scan(client: CamdClient, args: argparse.Namespace) -> Any:
         reverse=args.reverse,
         binning="2x2" if args.binning else "off",
         quicklook=not args.no_quicklook,
+        drive_stage=not args.no_stage,
+        closed_loop=False if args.open_loop else True if args.closed_loop else None,
+        dv_over_v=args.dv_over_v,
     )
     if not args.detach:
         doc = _follow(client, doc)
@@ -184,6 +205,20 @@ def render_scan(out: Console, doc: Any, args: argparse.Namespace) -> None:
         f"{doc['lines_per_s']:.0f} lines/s over {doc['elapsed_s']:.2f} s, CPU load "
         f"{doc['cpu_load']:.2f} core (TDI {doc['tdi_cpu_s']:.2f} s)"
     )
+    motion = doc.get("motion")
+    if motion:
+        level = doc["mismatch_level"]
+        colour = {"ok": "green", "yellow": "yellow", "red": "red"}.get(level, "white")
+        worst = doc["mismatch_max"]
+        rms = doc["mismatch_rms"]
+        numbers = "no encoder data" if worst is None else f"max {worst:.3g}, rms {rms:.3g}"
+        out.print(
+            f"stage {motion['stage_speed_m_s'] * 1e3:.6g} mm/s, closed loop "
+            f"{motion['closed_loop']} ({motion['loop_samples']} polls); "
+            f"[{colour}]M |dV/V| {numbers} pixels ({level})[/]"
+        )
+        if motion["loop_error"]:
+            out.print(f"[yellow]{motion['loop_error']}[/]")
     if len(doc["stage_changes"]) > 1:
         changes = ", ".join(f"line {i}: M = {m}" for i, m in doc["stage_changes"])
         out.print(f"stage changes: {changes}")

@@ -7,6 +7,8 @@
     camctl sim scene SPEC               the simulated camera's scene (e.g. bars:lux=3)
     camctl sim stage --track | --speed-m-s V
     camctl sim stream                   what the simulator's stream engine did and injected
+    camctl sim stage-faults [--error X] [--ripple X] [--jitter X] [--drift X] [--load X]
+    camctl sim stage-truth              the stepper stage's true position, speed, missed steps
 
 ``stream`` and ``stare`` print one flat document: the counters (frames, lost, corrupt,
 overruns, mpix_per_s, mbyte_per_s, ...) and the stream's geometry. A recording is written by the
@@ -92,6 +94,16 @@ def add_parsers(command: Callable[[str, str], argparse.ArgumentParser]) -> None:
     how.add_argument("--track", action="store_true", help="follow the synchronous speed")
     how.add_argument("--speed-m-s", type=_speed, metavar="V", help="run at V m/s (0..10)")
     action("stream", "frames the simulator made, sent, and damaged on purpose (--inject)")
+    sp = action("stage-faults", "the stepper stage's imperfections (as --inject stage_*)")
+    for key, meaning in (
+        ("error", "relative step-rate error, e.g. 0.005 (a clock 5000 ppm off)"),
+        ("ripple", "relative amplitude of the periodic speed ripple, e.g. 0.01"),
+        ("jitter", "relative RMS random speed jitter"),
+        ("drift", "relative speed drift per second of running"),
+        ("load", "load torque / pull-out torque (above 1 the motor misses steps)"),
+    ):
+        sp.add_argument(f"--{key}", type=float, default=0.0, metavar="X", help=meaning)
+    action("stage-truth", "the stepper stage's true position, speed and missed steps")
 
 
 def _stream_options(p: argparse.ArgumentParser) -> None:
@@ -163,6 +175,12 @@ def cmd_sim(client: CamdClient, args: argparse.Namespace) -> Any:
         if args.track:
             return client.set_stage(track=True)
         return client.set_stage(track=False, speed_m_s=args.speed_m_s)
+    if args.sim_command == "stage-faults":
+        faults = {k: getattr(args, k) for k in ("error", "ripple", "jitter", "drift", "load")}
+        client.set_stage_faults(**faults)
+        return {"stage_faults": faults}
+    if args.sim_command == "stage-truth":
+        return client.stage_truth()
     return client.sim_stream_stats()
 
 
@@ -205,6 +223,10 @@ def render_sim(out: Console, doc: Any, args: argparse.Namespace) -> None:
         out.print(
             f"stage {'tracking' if doc['track'] else 'fixed'}: {doc['speed_m_s'] * 1e3:.6g} mm/s "
             f"(synchronous {sync * 1e3:.6g} mm/s, speed/sync - 1 = {dv:+.4g})"
+        )
+    elif args.sim_command == "stage-faults":
+        out.print(
+            "stage faults: " + ", ".join(f"{k} {v:g}" for k, v in doc["stage_faults"].items())
         )
     else:
         out.print(", ".join(f"{k} {v}" for k, v in doc.items()))

@@ -32,8 +32,14 @@ from camd.daemon.models import (
     LinkResponse,
     ModeRequest,
     ModeResponse,
+    MotionEnableRequest,
+    MotionHomeRequest,
+    MotionMoveRequest,
+    MotionRunRequest,
+    MotionStatus,
     PingRequest,
     PingResponse,
+    PolarizerRequest,
     RegisterConfig,
     RegisterDiffRequest,
     RegisterDiffResponse,
@@ -44,6 +50,8 @@ from camd.daemon.models import (
     ScanRequest,
     ScanResponse,
     SceneRequest,
+    SimStageFaultsRequest,
+    SimStageTruth,
     SimStreamStats,
     StageRequest,
     StageResponse,
@@ -51,9 +59,15 @@ from camd.daemon.models import (
     StatusResponse,
     StreamResponse,
     StreamStartRequest,
+    SyncResponse,
     TelemetryResponse,
     TimingResponse,
     TrainResponse,
+    WheelAcquireRequest,
+    WheelAcquireResponse,
+    WheelCompensationRequest,
+    WheelSpeedRequest,
+    WheelStatus,
 )
 from camd.daemon.session import (
     BadRequest,
@@ -151,6 +165,14 @@ class _SessionCollector(Collector):
         yield GaugeMetricFamily(
             "camd_stream_active", "1 while frames stream", value=float(session.stream.streaming)
         )
+        mismatch = GaugeMetricFamily(
+            "camd_scan_m_dv_over_v",
+            "current or last scan: M |dV/V| (pixels of smear) of the last batch, max and RMS",
+            labels=["stat"],
+        )
+        for stat, number in session.scan.mismatch_gauges().items():
+            mismatch.add_metric([stat], number)
+        yield mismatch
         for name, number in session.stream.stats().model_dump().items():
             # Per stream (reset when one starts), so gauges rather than counters.
             yield GaugeMetricFamily(
@@ -389,6 +411,98 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
     def put_scan_stages(body: StagesRequest) -> ScanResponse:
         """Change the TDI stage count of the running scan from its next frame."""
         return session.scan.set_stages(body.stages)
+
+    @app.get(f"{API}/motion", response_model=MotionStatus, tags=["motion"])
+    def get_motion() -> MotionStatus:
+        """The scan stage: state, positions, speeds, limits, synchronisation settings."""
+        return session.motion.status()
+
+    @app.post(f"{API}/motion/enable", response_model=MotionStatus, tags=["motion"])
+    def post_motion_enable(body: MotionEnableRequest) -> MotionStatus:
+        """Energise the motor (programs the configured limits first; clears an estop) or
+        release it."""
+        return session.motion.enable(body.on)
+
+    @app.post(f"{API}/motion/run", response_model=MotionStatus, tags=["motion"])
+    def post_motion_run(body: MotionRunRequest) -> MotionStatus:
+        """Ramp to a constant signed speed and hold it (0 stops)."""
+        return session.motion.run(body.speed_m_s)
+
+    @app.post(f"{API}/motion/move", response_model=MotionStatus, tags=["motion"])
+    def post_motion_move(body: MotionMoveRequest) -> MotionStatus:
+        """Move to a position (metres from home) and stop; waits unless ``wait`` is false."""
+        return session.motion.move(body)
+
+    @app.post(f"{API}/motion/stop", response_model=MotionStatus, tags=["motion"])
+    def post_motion_stop() -> MotionStatus:
+        """Decelerate to a stop. Legal while streaming."""
+        return session.motion.stop()
+
+    @app.post(f"{API}/motion/home", response_model=MotionStatus, tags=["motion"])
+    def post_motion_home(body: MotionHomeRequest | None = None) -> MotionStatus:
+        """Find the home switch and zero the position there."""
+        return session.motion.home((body or MotionHomeRequest()).wait)
+
+    @app.post(f"{API}/motion/estop", response_model=MotionStatus, tags=["motion"])
+    def post_motion_estop() -> MotionStatus:
+        """Emergency stop: no ramp, motor current cut, until /motion/enable."""
+        return session.motion.emergency_stop()
+
+    @app.get(f"{API}/motion/sync", response_model=SyncResponse, tags=["motion"])
+    def get_motion_sync(
+        line_period_s: float | None = Query(default=None, gt=0.0, le=10.0),
+        speed_m_s: float | None = Query(default=None, gt=0.0, le=10.0),
+        stages: int | None = Query(default=None, ge=1, le=4096),
+        binning: bool = False,
+    ) -> SyncResponse:
+        """Open-loop synchronisation (physics.md §2 eqs 5-9, 13; §6 eq 9) for a line period, a
+        stage speed, both (their mismatch), or neither (the registers' line period)."""
+        return session.motion.sync(
+            line_period_s=line_period_s, speed_m_s=speed_m_s, stages=stages, binning=binning
+        )
+
+    @app.get(f"{API}/wheel", response_model=WheelStatus, tags=["wheel"])
+    def get_wheel() -> WheelStatus:
+        """The filter wheel: speed, angle, compensation, and camd's T_frame / T_delay / fit /
+        imaging-centre offset and eq-8 uncertainty for the exposure in the registers."""
+        return session.wheel.status()
+
+    @app.put(f"{API}/wheel/speed", response_model=WheelStatus, tags=["wheel"])
+    def put_wheel_speed(body: WheelSpeedRequest) -> WheelStatus:
+        """Turn the wheel at a constant speed (0 stops it); legal only when idle."""
+        return session.wheel.set_speed(body.speed_deg_s)
+
+    @app.put(f"{API}/wheel/compensation", response_model=WheelStatus, tags=["wheel"])
+    def put_wheel_compensation(body: WheelCompensationRequest) -> WheelStatus:
+        """Exposure delay compensation on or off (physics.md §4 eq 5); switching on is
+        refused (400, with the numbers) when the exposure in the registers cannot fit."""
+        return session.wheel.set_compensation(body.on)
+
+    @app.post(f"{API}/wheel/acquire", response_model=WheelAcquireResponse, tags=["wheel"])
+    def post_wheel_acquire(body: WheelAcquireRequest) -> WheelAcquireResponse:
+        """One frame per channel per pass, each started by its channel's entry pulse (plus
+        T_delay with compensation); returns when done, with each frame's imaging-centre angle,
+        its uncertainty (eq 8) and mean signal. Out-of-window exposures are refused (400)
+        before anything is written."""
+        return session.wheel.acquire(body)
+
+    @app.put(f"{API}/sim/polarizer", status_code=204, tags=["simulator"])
+    def put_sim_polarizer(body: PolarizerRequest) -> Response:
+        """Simulated camera only: the reference polariser in front of the scene (docs/wheel.md);
+        ``angle_deg`` null takes it out."""
+        session.wheel.set_polarizer(body.angle_deg)
+        return Response(status_code=204)
+
+    @app.put(f"{API}/sim/stage/faults", status_code=204, tags=["simulator"])
+    def put_sim_stage_faults(body: SimStageFaultsRequest) -> Response:
+        """Simulated camera only: the stepper stage's imperfections (as --inject stage_*)."""
+        session.motion.set_sim_faults(body)
+        return Response(status_code=204)
+
+    @app.get(f"{API}/sim/stage/truth", response_model=SimStageTruth, tags=["simulator"])
+    def get_sim_stage_truth() -> SimStageTruth:
+        """Simulated camera only: the stage's true position, velocity and missed steps."""
+        return session.motion.sim_truth()
 
     @app.put(f"{API}/sim/scene", status_code=204, tags=["simulator"])
     def put_sim_scene(body: SceneRequest) -> Response:

@@ -218,6 +218,83 @@ class StreamSection(_Section):
     )
 
 
+class StageSection(_Section):
+    """The scan stage (docs/motion.md): its mechanics and the limits camd enforces."""
+
+    profile: str = Field(
+        default="linear_rail",
+        min_length=1,
+        description="stage mechanics: config/stages/<profile>.toml (the simulator uses it too)",
+    )
+    max_speed_m_s: float = Field(
+        default=0.0, ge=0, description="speed limit, m/s; 0 = the profile's maximum"
+    )
+    max_accel_m_s2: float = Field(
+        default=0.0, ge=0, description="ramp acceleration, m/s^2; 0 = the profile's maximum"
+    )
+    low_limit_m: float | None = Field(
+        default=None, description="low soft limit from home, m; none = the low end of travel"
+    )
+    high_limit_m: float | None = Field(
+        default=None, description="high soft limit from home, m; none = the high end of travel"
+    )
+
+    @model_validator(mode="after")
+    def _limits_ordered(self) -> StageSection:
+        low, high = self.low_limit_m, self.high_limit_m
+        if low is not None and high is not None and not low < high:
+            raise ValueError(
+                f"low_limit_m = {low} is not below high_limit_m = {high}: swap or widen them"
+            )
+        return self
+
+
+class MotionSection(_Section):
+    """Scan synchronisation (docs/motion.md): closed loop and mismatch monitoring."""
+
+    closed_loop: Literal["auto", "on", "off"] = Field(
+        default="auto",
+        description="correct the scan from the encoder: auto = whenever the stage has one",
+    )
+    correct: Literal["step_rate", "line_period"] = Field(
+        default="step_rate",
+        description="what the closed loop trims: the stepper's rate or the TDI line period",
+    )
+    poll_period_s: float = Field(
+        default=0.01, gt=0, le=1, description="closed-loop encoder poll period, s"
+    )
+    gain: float = Field(
+        default=1.0, gt=0, le=1, description="closed-loop gain per sample (1 = dead-beat)"
+    )
+    speed_window_s: float = Field(
+        default=0.005,
+        gt=0,
+        le=1,
+        description="the speed is estimated over at least this span of encoder readings (s)",
+    )
+    predict: bool = Field(
+        default=True, description="extrapolate the speed ratio one poll ahead (less lag)"
+    )
+    max_trim: float = Field(
+        default=0.1, gt=0, lt=1, description="largest relative correction the loop may apply"
+    )
+    settle_s: float = Field(
+        default=0.05, ge=0, le=10, description="wait after the stage reaches speed, s"
+    )
+    yellow: float = Field(default=1.0, gt=0, description="M |dV/V| yellow limit (pixels of smear)")
+    red: float = Field(default=2.0, gt=0, description="M |dV/V| red limit (physics.md §6: 2)")
+    stop_on_red: bool = Field(default=False, description="stop a scan whose mismatch goes red")
+
+    @model_validator(mode="after")
+    def _levels_ordered(self) -> MotionSection:
+        if not self.yellow < self.red:
+            raise ValueError(
+                f"yellow = {self.yellow} must be below red = {self.red}: the yellow limit warns "
+                "before the red one"
+            )
+        return self
+
+
 class ChannelLimits(_Section):
     """Yellow (warning) and red (alarm) ranges of one telemetry channel; inside = ok."""
 
@@ -307,6 +384,8 @@ class Config(_Section):
     sensor: SensorSection = Field(default_factory=SensorSection)
     stream: StreamSection = Field(default_factory=StreamSection)
     telemetry: TelemetrySection = Field(default_factory=TelemetrySection)
+    stage: StageSection = Field(default_factory=StageSection)
+    motion: MotionSection = Field(default_factory=MotionSection)
 
     @model_validator(mode="after")
     def _sim_matches_sensor(self) -> Config:

@@ -49,6 +49,10 @@ ALLOWED: dict[str, str] = {
         f"an integer in 1..{HISTORY_LIMIT_MAX} for telemetry/history, "
         f"1..{EVENTS_LIMIT_MAX} for events"
     ),
+    "speed_deg_s": "a wheel speed in deg/s from 0 (stopped) to 360",
+    "channels": "a list of 1 to 13 wheel channel numbers, each 0..12",
+    "passes": "an integer in 1..1000",
+    "angle_deg": "an angle in deg from 0 to 360, or null (no polariser)",
 }
 
 
@@ -439,6 +443,21 @@ class ScanRequest(_Request):
         le=10.0,
         description="TDI line period to set (physics.md §2 eqs 6-9); exclusive with speed_m_s",
     )
+    drive_stage: bool = Field(
+        default=True,
+        description="drive the scan stage at the synchronous speed (docs/motion.md); false = "
+        "leave it alone (an external stage; on the simulator, an ideal one)",
+    )
+    closed_loop: bool | None = Field(
+        default=None, description="correct from the encoder while scanning; null = config"
+    )
+    dv_over_v: float = Field(
+        default=0.0,
+        ge=-0.5,
+        le=0.5,
+        description="deliberate velocity mismatch (V - V_m)/V: the stage runs at "
+        "(1 - dv_over_v) x the synchronous speed (MTF against mismatch, physics.md §6)",
+    )
     mode: TdiMode = Field(default="sum", description="sum (uint32, eq 12) or mean (float32)")
     out_bits: int | None = Field(
         default=None, ge=1, le=32, description="clip sums to 2^out_bits - 1 (eq 12); null = none"
@@ -476,6 +495,21 @@ class ScanTiming(BaseModel):
     dv_over_v: float | None = Field(description="(V - V_m) / V, physics.md §6; null if unknown")
 
 
+class ScanMotionInfo(BaseModel):
+    """How a scan drove the stage (docs/motion.md)."""
+
+    closed_loop: str = Field(description="off, step_rate or line_period")
+    stage_speed_m_s: float = Field(
+        description="signed speed the stage was commanded: sync x (1 - dv_over_v)"
+    )
+    target_speed_m_s: float = Field(description="the speed the closed loop held")
+    loop_samples: int = Field(description="closed-loop polls recorded")
+    loop_error: str | None = Field(description="why the loop stopped early, if it did")
+    line_period_limited: bool = Field(
+        description="line-period correction hit n_lines = M (it could not shorten further)"
+    )
+
+
 class ScanResponse(BaseModel):
     """GET /api/v1/scan, and the answer of /scan/start, /stop and /stages."""
 
@@ -503,3 +537,279 @@ class ScanResponse(BaseModel):
     timing: ScanTiming | None
     error: str | None = Field(description="why the scan failed, if it did")
     stream: StreamStats
+    mismatch_max: float | None = Field(
+        description="largest M |dV/V| of a line (pixels of smear; physics.md §6), from the "
+        "encoder counts in the frame headers; null without encoder data"
+    )
+    mismatch_rms: float | None = Field(description="RMS of M dV/V over the scan's lines")
+    mismatch_level: str = Field(description="ok, yellow or red: the worst level reached")
+    motion: ScanMotionInfo | None = Field(description="the stage's part of the scan, if driven")
+
+
+# -- motion (docs/motion.md) --------------------------------------------------------------------
+
+
+class StageReadingModel(BaseModel):
+    """The scan stage at one device time (SI: m, m/s)."""
+
+    state: str = Field(description="disabled, idle, ramping, running, moving, homing, estop")
+    homed: bool
+    position_m: float = Field(description="commanded position (step count)")
+    encoder_m: float = Field(description="measured position (encoder)")
+    speed_m_s: float = Field(description="commanded speed now, ramps included")
+    encoder_speed_m_s: float = Field(description="the encoder's speed over the last 10 ms")
+    at_limit: str = Field(description="none, low or high: a soft limit the stage stands at")
+    time_s: float = Field(description="device time of the sample")
+
+
+class StageLimitsModel(BaseModel):
+    """Soft travel limits, speed limit and ramp acceleration in force."""
+
+    low_m: float
+    high_m: float
+    max_speed_m_s: float
+    accel_m_s2: float
+
+
+class MotionStatus(BaseModel):
+    """GET /api/v1/motion: the stage, its limits and the synchronisation settings."""
+
+    profile: str = Field(description="config/stages/<profile>.toml")
+    kind: str = Field(description="linear or turntable")
+    reading: StageReadingModel
+    limits: StageLimitsModel
+    closed_loop: str = Field(description="what a scan's closed loop trims, or off")
+    yellow: float = Field(description="M |dV/V| yellow limit")
+    red: float = Field(description="M |dV/V| red limit")
+
+
+class MotionEnableRequest(_Request):
+    """POST /api/v1/motion/enable."""
+
+    on: bool = Field(default=True, description="energise (true) or release (false) the motor")
+
+
+class MotionRunRequest(_Request):
+    """POST /api/v1/motion/run: hold a constant signed speed."""
+
+    speed_m_s: float = Field(ge=-10.0, le=10.0, description="signed speed; 0 stops")
+
+
+class MotionMoveRequest(_Request):
+    """POST /api/v1/motion/move: go to a position and stop."""
+
+    position_m: float = Field(ge=-100.0, le=100.0, description="target, metres from home")
+    speed_m_s: float | None = Field(
+        default=None, gt=0.0, le=10.0, description="cruise speed; null = the speed limit"
+    )
+    wait: bool = Field(default=True, description="answer once the stage has stopped")
+
+
+class MotionHomeRequest(_Request):
+    """POST /api/v1/motion/home."""
+
+    wait: bool = Field(default=True, description="answer once homing has finished")
+
+
+class SyncResponse(BaseModel):
+    """GET /api/v1/motion/sync: the open-loop synchronisation (physics.md §2 eqs 5-9, 13; §6).
+
+    The first ten keys are the contract of ``camctl sync --json``.
+    """
+
+    line_period_s: float = Field(description="TDI line period")
+    row_time_s: float = Field(description="rolling line period T_line,roll (eq 4)")
+    n_lines: int = Field(description="window rows (eq 8)")
+    back_path_s: float = Field(description="back path (eq 9)")
+    m0: int = Field(description="largest stage count (eq 13)")
+    stages: int = Field(description="M")
+    sync_speed: float = Field(description="synchronous stage speed, m/s (§6 eq 9)")
+    step_rate_hz: float = Field(description="stepper rate for it, microsteps/s")
+    dv_over_v: float = Field(description="mismatch of the stage speed given, (V - V_m)/V")
+    m_dv_over_v: float = Field(description="M dV/V: smear over M stages, pixels")
+    image_speed_m_s: float = Field(description="image speed on the focal plane at sync speed")
+    stage_speed_m_s: float = Field(description="the stage speed the mismatch is for")
+    stage_profile: str
+    image_scale: float = Field(description="focal-plane metres per metre of stage travel")
+    pixel_pitch_m: float = Field(description="pitch on the focal plane (doubled when binned)")
+    angular_velocity_rad_s: float | None = Field(
+        description="turntable only: table speed for the line period (eq 5)"
+    )
+    tolerance_ok: bool = Field(description="|M dV/V| within the yellow limit")
+
+
+class SimStageFaultsRequest(_Request):
+    """PUT /api/v1/sim/stage/faults: the simulated stage's imperfections."""
+
+    error: float = Field(default=0.0, ge=-0.1, le=0.1, description="relative step-rate error")
+    ripple: float = Field(default=0.0, ge=0.0, le=0.2, description="relative ripple amplitude")
+    jitter: float = Field(default=0.0, ge=0.0, le=0.2, description="relative RMS speed jitter")
+    drift: float = Field(default=0.0, ge=-0.1, le=0.1, description="relative drift per second")
+    load: float = Field(default=0.0, ge=0.0, le=3.0, description="load / pull-out torque")
+
+
+class SimStageTruth(BaseModel):
+    """GET /api/v1/sim/stage/truth: what the simulated stage really does."""
+
+    position_m: float
+    velocity_m_s: float
+    missed_steps: int
+    time_s: float
+
+
+# -- the filter wheel (docs/wheel.md) -------------------------------------------------------------
+
+
+class WheelChannelInfo(BaseModel):
+    """One channel of the wheel (config/wheel.toml)."""
+
+    channel: int = Field(description="index, 0 .. channel_count - 1")
+    name: str
+    band: str
+    centre_deg: float = Field(description="wheel angle of the channel centre")
+    polarizer_deg: float | None = Field(
+        description="transmission axis of its polariser when centred; null: no polariser"
+    )
+
+
+class WheelExposureInfo(BaseModel):
+    """camd's computation for one exposure through the wheel (physics.md §4 eqs 1, 4-6, 8)."""
+
+    exposure_s: float = Field(description="T_exp = n T_line")
+    exposure_lines: int = Field(description="n")
+    window_rows: int = Field(description="k")
+    line_period_s: float = Field(description="T_line")
+    frame_time_s: float = Field(description="T_frame = (n + k + 1) T_line (eq 6)")
+    delay_s: float = Field(
+        description="T_delay = T_center - T_frame / 2 (eq 5), negative when it cannot be centred"
+    )
+    compensated: bool = Field(description="whether the delay is applied")
+    fits: bool = Field(description="the frame fits the light window (and T_delay >= 0 if on)")
+    refusal: str | None = Field(description="why it does not fit, with the numbers; else null")
+    applied_delay_s: float | None = Field(
+        description="delay waited after each entry pulse: T_delay on, 0 off; null if no fit"
+    )
+    centre_offset_deg: float | None = Field(
+        description="imaging centre minus channel centre (eq 4; eq 1 without compensation)"
+    )
+    centre_error_deg: float | None = Field(description="its uncertainty (eq 8)")
+
+
+class WheelStatus(BaseModel):
+    """GET /api/v1/wheel and the answers of PUT /wheel/speed and /wheel/compensation."""
+
+    wheel: str = Field(description="config/wheel.toml's wheel name")
+    speed_deg_s: float = Field(description="angular speed now (0: stopped)")
+    nominal_speed_deg_s: float = Field(description="the wheel file's w, for which T_center holds")
+    period_s: float | None = Field(description="time per revolution; null when stopped")
+    angle_deg: float = Field(description="wheel angle from channel 0's centre, 0 .. 360")
+    channel: int | None = Field(description="channel whose light window is in front; else null")
+    compensation: bool = Field(description="exposure delay compensation on")
+    t_center_s: float = Field(description="entry pulse to channel centre")
+    window_s: float = Field(description="light window of a channel")
+    device_frame_time_s: float = Field(description="T_frame as the FPGA computes it")
+    device_delay_s: float = Field(description="T_delay as the FPGA computes it")
+    exposure: WheelExposureInfo = Field(description="camd's numbers for the registers now")
+    channels: list[WheelChannelInfo]
+    time_s: float = Field(description="device time of the reading")
+
+
+class WheelSpeedRequest(_Request):
+    """PUT /api/v1/wheel/speed."""
+
+    speed_deg_s: float = Field(ge=0.0, le=360.0, description="angular speed, deg/s; 0 stops")
+
+
+class WheelCompensationRequest(_Request):
+    """PUT /api/v1/wheel/compensation."""
+
+    on: bool = Field(description="exposure delay compensation on (true) or off (false)")
+
+
+class WheelRegion(_Request):
+    """A rectangle of the frame whose mean is reported (rows and columns from 0)."""
+
+    row: int = Field(default=0, ge=0, le=4095, description="first row")
+    rows: int = Field(ge=1, le=4096, description="rows")
+    col: int = Field(default=0, ge=0, le=4095, description="first column")
+    cols: int = Field(ge=1, le=4096, description="columns")
+
+
+class WheelAcquireRequest(_Request):
+    """POST /api/v1/wheel/acquire: one frame per channel per pass (docs/wheel.md)."""
+
+    channels: list[int] = Field(
+        min_length=1, max_length=13, description="channels in acquisition order, 0 .. 12"
+    )
+    passes: int = Field(default=1, ge=1, le=1000, description="times through the channel list")
+    exposure_s: float | None = Field(
+        default=None,
+        gt=0.0,
+        le=30.0,
+        description="set this exposure first (whole lines: round(T_exp / T_line)); null keeps "
+        "the registers'",
+    )
+    compensated: bool | None = Field(
+        default=None, description="set compensation first; null keeps the wheel's setting"
+    )
+    record: str | None = Field(
+        default=None, description="absolute path of a new HDF5 file for the frames; null: none"
+    )
+    region: WheelRegion | None = Field(
+        default=None, description="report the mean of this region; null: of the whole frame"
+    )
+    timeout_s: float | None = Field(
+        default=None,
+        gt=0,
+        le=86_400,
+        description="give up after this long (default: twice a revolution per frame + 10 s)",
+    )
+
+
+class WheelFrame(BaseModel):
+    """One frame of a wheel acquisition."""
+
+    counter: int = Field(description="frame counter")
+    channel: int
+    name: str = Field(description="channel name")
+    start_angle_deg: float = Field(
+        description="wheel angle at the exposure start, from the frame header (1e-4 deg)"
+    )
+    centre_deg: float = Field(
+        description="predicted imaging-centre angle: channel centre + centre_offset_deg"
+    )
+    centre_offset_deg: float = Field(description="imaging centre minus channel centre (eq 4)")
+    centre_error_deg: float = Field(description="uncertainty of the imaging centre (eq 8)")
+    header_centre_deg: float = Field(
+        description="imaging centre from the header: start angle + w T_frame / 2"
+    )
+    mean: float = Field(description="mean signal of the frame (or region), DN")
+    timestamp_s: float = Field(description="device time at the end of row 0's exposure")
+
+
+class WheelAcquireResponse(BaseModel):
+    """POST /api/v1/wheel/acquire: per frame, where it was taken and its mean signal."""
+
+    channels: list[int]
+    passes: int
+    speed_deg_s: float = Field(description="wheel speed during the acquisition")
+    exposure: WheelExposureInfo = Field(description="the exposure the frames were taken with")
+    device_frame_time_s: float | None = Field(
+        description="T_frame as the FPGA computes it (WHEEL_GET after the frames; null if unread)"
+    )
+    device_delay_s: float | None = Field(
+        description="delay the FPGA applies after each entry pulse (0 with compensation off)"
+    )
+    region: WheelRegion | None
+    frames: list[WheelFrame] = Field(description="the frames received, in order")
+    stream: StreamResponse = Field(description="the stream document: counters, recording")
+
+
+class PolarizerRequest(_Request):
+    """PUT /api/v1/sim/polarizer: the simulated scene's reference polariser."""
+
+    angle_deg: float | None = Field(
+        ge=0.0,
+        le=360.0,
+        description="transmission axis, deg; null takes the polariser out of the beam",
+    )

@@ -5,7 +5,10 @@
 1. sets the scene (simulated camera), TDI mode, and the timing: from a stage speed or a line
    period, ``T_line,TDI = p / v_image`` and the window that fits it (physics.md §2 eqs 5-9, 13:
    window rows = n_lines, back path, exposure at most n_lines - 1 rows, eq 3), written to the
-   sensor's registers, then read back; the stage is set to the speed (simulated camera);
+   sensor's registers, then read back;
+   the scan stage (``camd.daemon.motion_service.ScanMotion``, docs/motion.md) is brought to the
+   synchronous speed for that line period, with room for the scan ahead of it, and held there
+   by the closed loop while the scan runs;
 2. starts the stream with ``lines + M - 1`` frames and a consumer that copies each frame into
    a batch (on the stream's dispatcher thread: no per-frame thread hand-off), with the lost-frame
    count and stage changes as markers between batches;
@@ -13,6 +16,10 @@
    to the HDF5 file (``camd.store.tdi_recording``);
 4. when the stream ends, the last batch is flushed, the file gets its counters and a PNG
    quicklook is written beside it.
+
+Each frame header carries the stage encoder count latched at the frame's start; the worker turns
+them into the M dV/V each line saw (``camd.timing.line_mismatch``), records it with the line and
+checks it against the yellow/red limits of config ``[motion]``.
 
 A stage change (``set_stages``) takes effect at the next frame the consumer sees, without
 stopping the stream: the engine starts a new run there, so the next M - 1 lines are incomplete.
@@ -35,19 +42,23 @@ import numpy as np
 import numpy.typing as npt
 
 from camd.daemon.models import (
+    ScanMotionInfo,
     ScanRequest,
     ScanResponse,
     ScanTiming,
     StreamStartRequest,
     TimingResponse,
 )
+from camd.daemon.motion_service import ScanMotion
 from camd.daemon.state import Request
 from camd.link.frame_stream import ReceivedFrame
+from camd.motion.closed_loop import LinePeriodSetting
 from camd.store.quicklook import write_quicklook_png
 from camd.store.recording import RecordingError
 from camd.store.tdi_recording import TdiRecorder
 from camd.tdi import TdiEngine, stage_taps
 from camd.timing import (
+    line_mismatch,
     synchronous_stage_speed_m_s,
     tdi_line_period_s,
     tdi_window,
@@ -66,6 +77,7 @@ BATCH_MAX_AGE_S = 0.1  # a partial batch older than this goes to the engine (pro
 CONSUMER_WAIT_S = 5.0  # longest the consumer waits for a free batch before giving up a frame
 FINISH_TIMEOUT_S = 60.0
 QUICKLOOK_MAX_LINES = 8192
+STREAM_END_MARGIN_S = 2.0  # stage travel planned beyond the frames' own duration
 
 
 @dataclass
@@ -78,12 +90,20 @@ class _Progress:
     gap_frames: int = 0  # frames the stream lost, corrupted or overran inside the scan
     tdi_cpu_s: float = 0.0
     stage_changes: list[tuple[int, int]] = field(default_factory=list)
+    mismatch_max: float | None = None  # of |M dV/V| over the lines so far
+    mismatch_sum_sq: float = 0.0
+    mismatch_count: int = 0
+    mismatch_level: str = "ok"  # the worst level reached
+    mismatch_now: str = "ok"  # the level of the last batch (events on changes)
+    mismatch_last: float | None = None  # the last batch's largest |M dV/V|
 
 
 class _Batcher:
     """The stream consumer: copies frames into batches and queues them for the worker."""
 
     def __init__(self, rows: int, cols: int, work: queue.Queue[tuple[str, Any]]) -> None:
+        # Frames may have more rows than ``rows`` (the line period trimmed by window rows): the
+        # engine uses the first ``rows``.
         self.rows, self.cols = rows, cols
         self.batch_frames = max(1, min(MAX_BATCH_FRAMES, BATCH_BYTES // (2 * rows * cols)))
         self._free: queue.Queue[npt.NDArray[np.uint16]] = queue.Queue()
@@ -93,6 +113,7 @@ class _Batcher:
         self._lock = threading.Lock()
         self._buf: npt.NDArray[np.uint16] | None = None
         self._counters = np.zeros(self.batch_frames, dtype=np.uint32)
+        self._encoder = np.zeros(self.batch_frames, dtype=np.int32)
         self._n = 0
         self._since = 0.0
         self.pending_stages: int | None = None
@@ -112,7 +133,7 @@ class _Batcher:
                 self._work.put(("stages", self.pending_stages))
                 self.pending_stages = None
             pixels = frame.pixels
-            if pixels.shape != (self.rows, self.cols):
+            if pixels.shape[0] < self.rows or pixels.shape[1] != self.cols:
                 # Not this scan's geometry: the engine cannot use it; the line is lost.
                 self._flush()
                 self._work.put(("gap", 1))
@@ -127,8 +148,9 @@ class _Batcher:
                     self.dropped += 1
                     return
                 self._since = time.monotonic()
-            self._buf[self._n] = pixels
+            self._buf[self._n] = pixels[: self.rows]
             self._counters[self._n] = frame.header.counter
+            self._encoder[self._n] = frame.header.stage_position
             self._n += 1
             self.frames += 1
             if self._n == self.batch_frames or time.monotonic() - self._since > BATCH_MAX_AGE_S:
@@ -141,7 +163,9 @@ class _Batcher:
     def _flush(self) -> None:
         if self._buf is None or self._n == 0:
             return
-        self._work.put(("batch", (self._buf, self._n, self._counters[: self._n].copy())))
+        n = self._n
+        batch = (self._buf, n, self._counters[:n].copy(), self._encoder[:n].copy())
+        self._work.put(("batch", batch))
         self._buf, self._n = None, 0
 
 
@@ -177,6 +201,10 @@ class _Scan:
         self.finisher: threading.Thread | None = None
         self.done = threading.Event()
         self.stop_requested = False
+        self.motion: ScanMotion | None = None
+        self.counts_per_pixel: float | None = None  # encoder counts per image pitch
+        self.carry = (np.zeros(0, np.int64), np.zeros(0, np.float64))  # counters, encoder
+        self.red_stop = False
 
 
 class ScanService:
@@ -186,6 +214,19 @@ class ScanService:
         self.session = session
         self._lock = threading.Lock()
         self._scan: _Scan | None = None
+
+    def mismatch_gauges(self) -> dict[str, float]:
+        """The current (or last) scan's M |dV/V| for the metrics: last batch, max, RMS."""
+        scan = self._scan
+        if scan is None:
+            return {}
+        progress = scan.progress
+        values = {
+            "last": progress.mismatch_last,
+            "max": progress.mismatch_max,
+            "rms": self._mismatch_rms(scan),
+        }
+        return {k: v for k, v in values.items() if v is not None}
 
     # -- requests -----------------------------------------------------------------------------
 
@@ -218,20 +259,35 @@ class ScanService:
         def engine_for(n_lines: int) -> TdiEngine:
             return self._engine(request, request.stages, n_lines // 2 if binned else n_lines, cols)
 
+        path = self._scan_path(request.out)
+        frames = 0 if request.lines == 0 else request.lines + request.stages - 1
+        self._check_motion(request, frames)  # before any register is written
         session.set_mode("tdi")
         timing = self._set_timing(request, engine_for)
         rows = timing.n_lines // 2 if binned else timing.n_lines
         engine = engine_for(timing.n_lines)
-        path = self._scan_path(request.out)
-        frames = 0 if request.lines == 0 else request.lines + request.stages - 1
-        recorder = self._recorder(path, request, cols, timing, frames)
+        motion = self._scan_motion(request, timing, frames)
+        if motion is not None and motion.mode == "line_period":
+            rows = engine.rows_needed  # the window's rows may change under the loop
+        try:
+            recorder = self._recorder(path, request, cols, timing, frames)
+        except Exception:
+            if motion is not None:
+                motion.finish()
+            raise
         scan = _Scan(request, path, engine, recorder, timing, frames)
+        scan.motion = motion
+        if motion is not None:
+            pitch, scale = session.motion.optics(binned)
+            scan.counts_per_pixel = session.motion.profile.encoder_counts_per_m * pitch / scale
         recorder.note_stage_change(0, request.stages)
         with self._lock:
             self._scan = scan
         try:
             self._start_stream(scan, rows, cols)
         except Exception as exc:
+            if motion is not None:
+                motion.finish()
             scan.state, scan.error = "failed", str(exc)
             scan.work.put(("end", None))
             if scan.worker is not None:
@@ -317,7 +373,11 @@ class ScanService:
             now = sensor.timing()
         sync = synchronous_stage_speed_m_s(pitch_m, now.tdi_line_period_s, magnification)
         speed = request.speed_m_s
-        if self.session.config.link.device == "sim":
+        if request.drive_stage:
+            # The stage runs at the synchronous speed of the line period the registers could
+            # realise (whole clocks), offset by any deliberate mismatch asked for.
+            speed = sync * (1.0 - request.dv_over_v)
+        elif self.session.config.link.device == "sim":
             speed = sync if speed is None else speed
             self.session.stream.set_stage(track=False, speed_m_s=speed)
         elif speed is None:
@@ -339,6 +399,10 @@ class ScanService:
     def _optics(self, request: ScanRequest) -> tuple[float, float]:
         """Pixel pitch (doubled when binned) and magnification of the camera's profile."""
         from camd.daemon.session import BadRequest
+
+        binned = request.binning == "2x2"
+        if request.drive_stage:
+            return self.session.motion.optics(binned)  # the stage's own image scale
         from camd.sensor.profile import list_profiles, load_profile
 
         name = self.session.sensor.regmap.sensor
@@ -348,8 +412,69 @@ class ScanService:
                 "and magnification a scan's timing needs are unknown; add one"
             )
         profile = load_profile(name)
-        pitch = profile.pitch_m.value * (2 if request.binning == "2x2" else 1)
-        return pitch, profile.magnification.value
+        return profile.pitch_m.value * (2 if binned else 1), profile.magnification.value
+
+    def _check_motion(self, request: ScanRequest, frames: int) -> None:
+        """Refuse a scan whose stage speed or travel is beyond the stage's limits, from the
+        line period asked for (or the registers'), before anything is written."""
+        if not request.drive_stage:
+            return
+        pitch_m, scale = self._optics(request)
+        if request.speed_m_s is not None:
+            speed = request.speed_m_s
+            period = tdi_line_period_s(pitch_m, scale * speed)
+        else:
+            period = request.line_period_s or self.session.sensor.timing().tdi_line_period_s
+            speed = synchronous_stage_speed_m_s(pitch_m, period, scale)
+        speed *= 1.0 - request.dv_over_v
+        duration = (frames or 60.0 / period) * period + STREAM_END_MARGIN_S
+        self.session.motion.check_scan(speed, duration)
+
+    def _scan_motion(
+        self, request: ScanRequest, timing: ScanTiming, frames: int
+    ) -> ScanMotion | None:
+        """Bring the stage to speed for the scan (None: the scan does not drive it)."""
+        if not request.drive_stage:
+            return None
+        service = self.session.motion
+        assert timing.stage_speed_m_s is not None
+        mode = service.loop_mode(request.closed_loop)
+        pitch, _ = service.optics(request.binning == "2x2")
+        motion = ScanMotion(
+            service,
+            speed_m_s=-timing.stage_speed_m_s if request.reverse else timing.stage_speed_m_s,
+            mode=mode,
+            pixel_pitch_m=pitch,
+            row_time_s=timing.row_period_s,
+            stages=request.stages * (2 if request.binning == "2x2" else 1),
+            max_lines=timing.n_lines,
+            offset=request.dv_over_v,
+            apply_line_period=self._line_period_writer(timing),
+        )
+        # A scan "until stopped" plans for a minute of travel; the rail rewinds if needed.
+        duration = (frames or 60.0 / timing.tdi_line_period_s) * timing.tdi_line_period_s
+        motion.start(duration + STREAM_END_MARGIN_S)
+        return motion
+
+    def _line_period_writer(self, timing: ScanTiming) -> Callable[[LinePeriodSetting], None]:
+        """The closed loop's hand on the line period: window rows and back path registers,
+        written only when they change (physics.md §2 eqs 8-9)."""
+        sensor = self.session.sensor
+        clock_hz = sensor.regmap.timing.clock_hz
+        last = [timing.n_lines, round(timing.back_path_s * clock_hz)]
+
+        def apply(setting: LinePeriodSetting) -> None:
+            clocks = round(setting.back_path_s * clock_hz)
+            if [setting.n_lines, clocks] == last:
+                return
+            now = sensor.timing()
+            writes = self._window_writes(now, setting.n_lines, setting.back_path_s)
+            writes.pop(sensor.regmap.role("exposure_lines") or "", None)
+            if writes:
+                sensor.trim(writes)
+            last[:] = [setting.n_lines, clocks]
+
+        return apply
 
     def _window_writes(
         self, now: TimingResponse, n_lines: int, back_path_s: float
@@ -484,7 +609,10 @@ class ScanService:
         except Exception:
             stream.remove_consumer(scan.batcher)
             raise
-        if (info.rows, info.cols) != (rows, cols):
+        # The line-period loop may already have changed the window's rows: more than the
+        # engine needs is fine (it uses the first ``rows``).
+        trimmed = scan.motion is not None and scan.motion.mode == "line_period"
+        if info.cols != cols or (info.rows < rows if trimmed else info.rows != rows):
             stream.remove_consumer(scan.batcher)
             stream.stop()
             raise RuntimeError(
@@ -524,16 +652,19 @@ class ScanService:
                     scan.recorder.note_stage_change(index, int(payload))
                     progress.stage_changes.append((index, int(payload)))
                 else:
-                    buf, n, counters = payload
+                    buf, n, counters, encoder = payload
                     block = scan.engine.push_many(buf[:n])
                     assert scan.batcher is not None
                     scan.batcher.recycle(buf)
+                    mismatch = self._mismatch(scan, counters, encoder, block.complete)
                     scan.recorder.append(
                         block.data,
                         index=block.index,
                         stages_used=block.stages_used,
                         complete=block.complete,
                         frame_counter=counters,
+                        stage_position=encoder,
+                        m_dv_over_v=mismatch,
                     )
                     progress.frames_in += n
                     progress.lines += n
@@ -545,6 +676,59 @@ class ScanService:
             self.session.log_event("error", "scan", f"scan failed: {exc}; stopping the stream")
             threading.Thread(target=self._stop_quietly, daemon=True).start()
         progress.tdi_cpu_s = time.thread_time() - start_cpu
+
+    def _mismatch(
+        self,
+        scan: _Scan,
+        counters: npt.NDArray[np.uint32],
+        encoder: npt.NDArray[np.int32],
+        complete: npt.NDArray[np.bool_],
+    ) -> npt.NDArray[np.float64] | None:
+        """The smear of each line of a batch (M dV/V for complete lines) from the encoder
+        counts, the previous batch's last M frames carried over; the scan's statistics and
+        the limit check (config ``[motion]``) take the complete lines."""
+        per_pixel = scan.counts_per_pixel
+        if per_pixel is None:
+            return None
+        m = scan.engine.stages
+        # Counters wrap at 2^32: unwrap against the carried frames.
+        carry_c, carry_e = scan.carry
+        base = int(carry_c[-1]) if carry_c.size else int(counters[0])
+        unwrapped = base + ((counters.astype(np.int64) - base) % (1 << 32))
+        all_c = np.concatenate([carry_c, unwrapped])
+        all_e = np.concatenate([carry_e, encoder.astype(np.float64)])
+        values = line_mismatch(all_e, all_c, stages=m, counts_per_pixel=per_pixel)
+        result = values[carry_c.size :]
+        scan.carry = (all_c[-m:], all_e[-m:])
+        finite = np.abs(result[np.isfinite(result) & complete])
+        if finite.size:
+            self._note_mismatch(scan, finite)
+        return result
+
+    def _note_mismatch(self, scan: _Scan, magnitude: npt.NDArray[np.float64]) -> None:
+        progress = scan.progress
+        worst = float(magnitude.max())
+        progress.mismatch_last = worst
+        progress.mismatch_max = max(worst, progress.mismatch_max or 0.0)
+        progress.mismatch_sum_sq += float(np.square(magnitude).sum())
+        progress.mismatch_count += int(magnitude.size)
+        config = self.session.config.motion
+        level = "red" if worst >= config.red else "yellow" if worst >= config.yellow else "ok"
+        order = ("ok", "yellow", "red")
+        if order.index(level) > order.index(progress.mismatch_level):
+            progress.mismatch_level = level
+        if level != progress.mismatch_now:
+            progress.mismatch_now = level
+            self.session.log_event(
+                {"ok": "info", "yellow": "warning", "red": "error"}[level],
+                "motion",
+                f"scan velocity mismatch {level}: M |dV/V| up to {worst:.3g} pixels "
+                f"(limits {config.yellow:g} / {config.red:g})",
+            )
+        if level == "red" and config.stop_on_red and not scan.red_stop:
+            scan.red_stop = True
+            scan.stop_requested = True
+            threading.Thread(target=self._stop_quietly, daemon=True).start()
 
     def _stop_quietly(self) -> None:
         try:
@@ -565,6 +749,8 @@ class ScanService:
         if scan.worker is not None:
             scan.worker.join(FINISH_TIMEOUT_S)
         scan.ended_mono, scan.ended_cpu = time.monotonic(), time.process_time()
+        if scan.motion is not None:
+            scan.motion.finish()
         final = "stopped" if scan.stop_requested else "done"
         if scan.state == "failed":
             final = "failed"
@@ -586,20 +772,34 @@ class ScanService:
     def _close_file(self, scan: _Scan, state: str) -> None:
         stats = self.session.stream.stats().model_dump()
         progress = scan.progress
+        motion = self._motion_info(scan)
+        datasets = {}
+        attributes: dict[str, Any] = {
+            "counters": {
+                **stats,
+                "lines": progress.lines,
+                "complete_lines": progress.complete_lines,
+                "dropped_frames": scan.batcher.dropped if scan.batcher else 0,
+                "tdi_cpu_s": progress.tdi_cpu_s,
+            },
+            "state": state,
+            "error": scan.error or "",
+        }
+        if motion is not None:
+            assert scan.motion is not None
+            attributes["motion"] = {
+                **motion.model_dump(),
+                "mismatch_max": progress.mismatch_max,
+                "mismatch_rms": self._mismatch_rms(scan),
+                "mismatch_level": progress.mismatch_level,
+                "yellow": self.session.config.motion.yellow,
+                "red": self.session.config.motion.red,
+                "counts_per_pixel": scan.counts_per_pixel,
+            }
+            if motion.loop_samples:
+                datasets["motion_loop"] = scan.motion.record.arrays()
         try:
-            scan.recorder.close(
-                {
-                    "counters": {
-                        **stats,
-                        "lines": progress.lines,
-                        "complete_lines": progress.complete_lines,
-                        "dropped_frames": scan.batcher.dropped if scan.batcher else 0,
-                        "tdi_cpu_s": progress.tdi_cpu_s,
-                    },
-                    "state": state,
-                    "error": scan.error or "",
-                }
-            )
+            scan.recorder.close(attributes, datasets)
         except Exception as exc:
             log.exception("closing %s", scan.path)
             scan.state, scan.error = "failed", f"closing {scan.path}: {exc}"
@@ -621,6 +821,27 @@ class ScanService:
 
     # -- reporting ------------------------------------------------------------------------------
 
+    @staticmethod
+    def _mismatch_rms(scan: _Scan) -> float | None:
+        p = scan.progress
+        return (
+            None if not p.mismatch_count else float(np.sqrt(p.mismatch_sum_sq / p.mismatch_count))
+        )
+
+    @staticmethod
+    def _motion_info(scan: _Scan) -> ScanMotionInfo | None:
+        motion = scan.motion
+        if motion is None:
+            return None
+        return ScanMotionInfo(
+            closed_loop=motion.mode,
+            stage_speed_m_s=motion.speed_m_s,
+            target_speed_m_s=motion.speed_m_s,
+            loop_samples=len(motion.record.time_s),
+            loop_error=motion.error,
+            line_period_limited=motion.limited,
+        )
+
     def _lost_frames(self, scan: _Scan) -> int:
         """Frames of the scan that never reached the engine: lost, corrupt, overrun or cut
         short on the way; once the stream has ended, by the device's own count."""
@@ -638,6 +859,7 @@ class ScanService:
                 frames_requested=0, lines=0, complete_lines=0, lost_frames=0, stage_changes=[],
                 mode="sum", width=0, elapsed_s=0.0, lines_per_s=0.0, cpu_load=0.0,
                 tdi_cpu_s=0.0, backlog_frames=0, timing=None, error=None, stream=stream,
+                mismatch_max=None, mismatch_rms=None, mismatch_level="ok", motion=None,
             )  # fmt: skip
         progress = scan.progress
         end_mono = scan.ended_mono if scan.ended_mono is not None else time.monotonic()
@@ -665,4 +887,8 @@ class ScanService:
             timing=scan.timing,
             error=scan.error,
             stream=stream,
+            mismatch_max=progress.mismatch_max,
+            mismatch_rms=self._mismatch_rms(scan),
+            mismatch_level=progress.mismatch_level,
+            motion=self._motion_info(scan),
         )

@@ -141,6 +141,14 @@ class SensorService:
             written=[RegisterReading.model_validate(r.as_dict()) for r in written],
         )
 
+    def trim(self, values: dict[str, int | str]) -> None:
+        """Write timing registers while streaming, for the scan's closed loop (the line
+        period follows the stage): validated and verified like ``write``, but legal while
+        streaming and not logged as an event (it runs many times a second)."""
+        self._checked(Request.REGISTERS_READ)
+        with self.session.device_op():
+            self._sensor_registers().write(values)
+
     def diff(self, against: str, values: dict[str, int] | None) -> RegisterDiffResponse:
         """Registers that differ from their reset values or from ``values``."""
         self._checked(Request.REGISTERS_READ)

@@ -53,6 +53,7 @@ from camd.daemon.models import (
     StatusResponse,
     TelemetryResponse,
 )
+from camd.daemon.motion_service import MotionService
 from camd.daemon.scan_service import ScanService
 from camd.daemon.sensor_service import SensorService
 from camd.daemon.state import (
@@ -66,6 +67,7 @@ from camd.daemon.state import (
 )
 from camd.daemon.stream_service import StreamService
 from camd.daemon.telemetry import LimitChecker, TelemetryArchive, classify
+from camd.daemon.wheel_service import WheelService
 from camd.link import (
     CommandLink,
     CommandRejected,
@@ -188,6 +190,7 @@ class SimulatorProcess:
         usb_socket: Path | None = None,
         scene: str = "",
         frame_bank: int = 0,
+        stage: str = "linear_rail",
     ) -> None:
         self.link_path = link_path
         self.command = [
@@ -203,6 +206,8 @@ class SimulatorProcess:
             str(seed),
             "--profile",
             profile,
+            "--stage",
+            stage,
         ]
         if inject:
             self.command += ["--inject", inject]
@@ -355,6 +360,8 @@ class DeviceSession:
         self.sensor = SensorService(self)
         self.stream = StreamService(self)
         self.scan = ScanService(self)
+        self.motion = MotionService(self)
+        self.wheel = WheelService(self)
 
     # -- lifecycle ------------------------------------------------------------------------------
 
@@ -386,6 +393,7 @@ class DeviceSession:
                 usb_socket=self.config.sim_usb_socket,
                 scene=sim_cfg.scene,
                 frame_bank=sim_cfg.frame_bank,
+                stage=self.config.stage.profile,
             )
             info = self.sim.start()
             self._event("info", "daemon", f"simulated camera started: pid {info.get('pid')}, "

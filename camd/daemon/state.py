@@ -24,12 +24,20 @@ stream_start                    yes
 stream_stop                     yes   yes        yes
 stream_read       yes           yes   yes        yes
 sim                             yes   yes        yes
+motion_read                     yes   yes        yes
+motion_move                     yes
+motion_stop                     yes   yes        yes
+wheel_read                      yes   yes        yes
+wheel_set                       yes
 ================  ============  ====  =========  =====
 
 Register reads are harmless at any time the camera answers; writes and training change what the
 sensor sends, so they wait until the stream stops. ``stream_read`` (the ingest counters) needs no
 device; ``sim`` (scene, stage, fault injection of the simulated camera) changes only the world
-in front of the camera, so it is legal while streaming.
+in front of the camera, so it is legal while streaming. The stage moves on request only when
+idle (a scan drives it itself while streaming); stopping it, and its emergency stop, are always
+allowed while the camera answers. The filter wheel's speed and delay compensation change only
+when idle (a wheel acquisition streams, and is a ``stream_start``); reading it is harmless.
 """
 
 from __future__ import annotations
@@ -66,6 +74,11 @@ class Request(StrEnum):
     STREAM_STOP = "stream_stop"
     STREAM_READ = "stream_read"
     SIM = "sim"
+    MOTION_READ = "motion_read"
+    MOTION_MOVE = "motion_move"
+    MOTION_STOP = "motion_stop"
+    WHEEL_READ = "wheel_read"
+    WHEEL_SET = "wheel_set"
 
 
 class Trigger(StrEnum):
@@ -98,6 +111,11 @@ LEGAL: dict[Request, frozenset[State]] = {
     Request.STREAM_STOP: frozenset({State.IDLE, State.STREAMING, State.FAULT}),
     Request.STREAM_READ: _ALWAYS,
     Request.SIM: frozenset({State.IDLE, State.STREAMING, State.FAULT}),
+    Request.MOTION_READ: frozenset({State.IDLE, State.STREAMING, State.FAULT}),
+    Request.MOTION_MOVE: frozenset({State.IDLE}),
+    Request.MOTION_STOP: frozenset({State.IDLE, State.STREAMING, State.FAULT}),
+    Request.WHEEL_READ: frozenset({State.IDLE, State.STREAMING, State.FAULT}),
+    Request.WHEEL_SET: frozenset({State.IDLE}),
 }
 
 HOW_TO_LEAVE: dict[State, str] = {
@@ -122,6 +140,11 @@ _WHAT: dict[Request, str] = {
     Request.STREAM_STOP: "stop the stream",
     Request.STREAM_READ: "read the stream counters",
     Request.SIM: "change the simulated world",
+    Request.MOTION_READ: "read the stage",
+    Request.MOTION_MOVE: "move the stage",
+    Request.MOTION_STOP: "stop the stage",
+    Request.WHEEL_READ: "read the filter wheel",
+    Request.WHEEL_SET: "change the filter wheel's speed or compensation",
 }
 
 # (state, trigger) -> next state. A pair not listed leaves the state unchanged: e.g. a red limit

@@ -11,6 +11,12 @@ goes back to idle.
 Consumers (the HDF5 recorder here; the TDI engine next) get every frame through
 ``add_consumer``: called on the stream's dispatcher thread, in order, with ``gap_before`` set
 when frames are missing.
+
+A counted stream need not be started by START_STREAM: ``acquire(..., start=StreamStart(...))``
+sends another command that makes the camera stream a known number of frames and end with
+STREAM_DONE (WHEEL_ACQUIRE: one frame per filter-wheel channel, ``wheel_service``). Everything
+else (reader first, recording, the state machine to streaming and back) is the same; a
+``consumer`` given there sees the frames of that stream only.
 """
 
 from __future__ import annotations
@@ -18,7 +24,8 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, cast
 
@@ -39,10 +46,30 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
+SCENE_TIMEOUT_S = 30.0
+
 DRAIN_TIMEOUT_S = 5.0
 LINK_LOST_GRACE_S = 1.0  # after LINK_LOST: how long STREAM_DONE may take to follow
 SETTLE_TIMEOUT_S = 30.0  # longest a START_STREAM exchange can take (with all its retries)  # after the device's last frame: how long the reader may take to catch up
 Consumer = Callable[[ReceivedFrame], None]
+
+
+@dataclass(frozen=True, slots=True)
+class StreamStart:
+    """A device command that starts a counted area-mode stream instead of START_STREAM.
+
+    ``command`` is sent with ``fields``; its answer must carry ``frames`` (how many the stream
+    will send), ``first_counter``, ``rows`` and ``cols``, and the device ends the stream with
+    STREAM_DONE like a counted START_STREAM. ``frame_period_s`` is the longest the host should
+    expect per frame (it sizes the acquisition's timeout and the lost-STREAM_DONE check: a
+    wheel frame may wait up to a revolution for its channel). ``metadata`` goes into a
+    recording's ``stream`` group.
+    """
+
+    command: str
+    fields: Mapping[str, Any]
+    frame_period_s: float
+    metadata: Mapping[str, Any] = field(default_factory=dict)
 
 
 class StreamService:
@@ -63,6 +90,7 @@ class StreamService:
         self._started_mono = 0.0
         self._reader: FrameStream | None = None
         self._recording_to: tuple[FrameRecorder, Consumer] | None = None
+        self._stream_consumer: Consumer | None = None  # acquire(consumer=...): this stream's
         self._recording: str | None = None
         self._consumers: list[Consumer] = []
         self._info: dict[str, Any] = {
@@ -181,6 +209,7 @@ class StreamService:
             if reader is not None:
                 reader.stop()
                 self._detach_recorder(reader, reader.stats().as_dict())
+                self._detach_stream_consumer(reader)
                 reader.close()
 
     # -- requests ---------------------------------------------------------------------------------
@@ -195,13 +224,24 @@ class StreamService:
         self._start(request)
         return self._response()
 
-    def acquire(self, request: StreamStartRequest) -> StreamResponse:
-        """Take ``frames`` frames and return when the stream has ended (or on timeout)."""
+    def acquire(
+        self,
+        request: StreamStartRequest,
+        *,
+        start: StreamStart | None = None,
+        consumer: Consumer | None = None,
+    ) -> StreamResponse:
+        """Take ``frames`` frames and return when the stream has ended (or on timeout).
+
+        ``start``: send that command instead of START_STREAM (its answer says how many frames
+        come; ``request.mode``, ``stages`` and ``binning`` do not apply). ``consumer`` gets
+        every frame of this stream only (on the dispatcher thread, as ``add_consumer``).
+        """
         from camd.daemon.session import BadRequest, DeviceTimeout
 
         if request.frames < 1:
             raise BadRequest("frames must be at least 1 for an acquisition; use start for 0")
-        self._start(request)
+        self._start(request, start, consumer)
         period_s = float(self._info["frame_period_s"])
         timeout_s = request.timeout_s or 2 * request.frames * period_s + 10.0
         if not self._finished.wait(timeout_s):
@@ -233,7 +273,9 @@ class StreamService:
 
     def set_scene(self, spec: str) -> None:
         self.session.require(Request.SIM)
-        self.session.request("SIM_SET_SCENE", spec=spec)
+        # Building a finely sampled scene takes the simulator seconds (e.g. an edge at
+        # oversample=16): wait for it rather than re-send.
+        self.session.request("SIM_SET_SCENE", spec=spec, timeout_s=SCENE_TIMEOUT_S)
         self.session.log_event("info", "api", f"simulated scene: {spec}")
 
     def set_stage(self, *, track: bool, speed_m_s: float) -> StageResponse:
@@ -253,24 +295,31 @@ class StreamService:
 
     # -- internals --------------------------------------------------------------------------------
 
-    def _start(self, request: StreamStartRequest) -> None:
+    def _start(
+        self,
+        request: StreamStartRequest,
+        start: StreamStart | None = None,
+        consumer: Consumer | None = None,
+    ) -> None:
         # One start at a time: a second client's start waits here, then finds the daemon
         # streaming and is refused by the state machine, never touching the running reader.
         with self._start_lock:
-            self._start_locked(request)
+            self._start_locked(request, start, consumer)
 
-    def _start_locked(self, request: StreamStartRequest) -> None:
+    def _start_locked(
+        self, request: StreamStartRequest, start: StreamStart | None, consumer: Consumer | None
+    ) -> None:
         from camd.daemon.session import BadRequest
 
         session = self.session
         session.require(Request.STREAM_START)
         session.sensor.require_trained("start a stream")
-        if request.mode is not None:
+        if request.mode is not None and start is None:
             session.set_mode(request.mode)
         mode = session.mode or "area"
         timing = session.sensor.timing()
         stages = 0
-        if mode == "tdi":
+        if mode == "tdi" and start is None:
             stages = timing.window_rows if request.stages is None else request.stages
             if not 1 <= stages <= timing.window_rows:
                 raise BadRequest(
@@ -283,7 +332,7 @@ class StreamService:
         recorder_path = self._record_path(request.record)
         self._settled.clear()
         try:
-            self._start_stream(request, stages, max_frame_bytes, recorder_path)
+            self._start_stream(request, stages, max_frame_bytes, recorder_path, start, consumer)
         finally:
             self._settled.set()
 
@@ -293,50 +342,76 @@ class StreamService:
         stages: int,
         max_frame_bytes: int,
         recorder_path: Path | None,
+        start: StreamStart | None = None,
+        consumer: Consumer | None = None,
     ) -> None:
         session = self.session
         with self._lock:
             reader = self._open_reader()
         recorder = None
         if recorder_path is not None:
-            recorder = self._new_recorder(recorder_path, request, stages)
+            recorder = self._new_recorder(recorder_path, request, stages, start)
         with self._lock:
             self._finished.clear()
             self._recording = None
             if recorder is not None:
                 self._attach_recorder(recorder, reader)
+            if consumer is not None:
+                self._stream_consumer = consumer
+                reader.add_consumer(consumer)
             reader.start(max_frame_bytes=max_frame_bytes)
         try:
-            values = session.request(
-                "START_STREAM", frames=request.frames, stages=stages, binning=request.binning
-            ).values
+            if start is None:
+                values = session.request(
+                    "START_STREAM", frames=request.frames, stages=stages, binning=request.binning
+                ).values
+            else:
+                values = session.request(start.command, **start.fields).values
         except Exception:
             with self._lock:
                 reader.stop()
                 self._detach_recorder(reader)
+                self._detach_stream_consumer(reader)
                 self._finished.set()
             if recorder_path is not None:
                 recorder_path.unlink(missing_ok=True)  # nothing was recorded: leave no file
             raise
         reader.expect_first(int(values["first_counter"]))
-        info = {
-            "mode": str(values["mode"]),
-            "rows": int(values["rows"]),
-            "cols": int(values["cols"]),
-            "bits": int(values["bits"]),
-            "stages": stages,
-            "binning": request.binning,
-            "frame_period_s": float(values["frame_period_s"]),
-            "frames_requested": request.frames,
-            "first_counter": int(values["first_counter"]),
-            "frames_sent": None,
-        }
+        if start is None:
+            info = {
+                "mode": str(values["mode"]),
+                "rows": int(values["rows"]),
+                "cols": int(values["cols"]),
+                "bits": int(values["bits"]),
+                "stages": stages,
+                "binning": request.binning,
+                "frame_period_s": float(values["frame_period_s"]),
+                "frames_requested": request.frames,
+                "first_counter": int(values["first_counter"]),
+                "frames_sent": None,
+            }
+        else:
+            # The command's own answer says how many frames come (and their geometry); the
+            # frames are plain area-mode frames of the sensor's full word.
+            info = {
+                "mode": "area",
+                "rows": int(values["rows"]),
+                "cols": int(values["cols"]),
+                "bits": session.sensor.regmap.output.word_bits,
+                "stages": 0,
+                "binning": "off",
+                "frame_period_s": start.frame_period_s,
+                "frames_requested": int(values["frames"]),
+                "first_counter": int(values["first_counter"]),
+                "frames_sent": None,
+            }
         with self._lock:
             self._info = info
             self._started_mono = time.monotonic()
             self.streaming = True
-        what = "until stopped" if request.frames == 0 else f"{request.frames} frames"
-        session.fire(Trigger.STREAM_STARTED, f"{info['mode']} stream, {what}")
+        what = "until stopped" if request.frames == 0 else f"{info['frames_requested']} frames"
+        how = f"{info['mode']} stream" if start is None else start.command
+        session.fire(Trigger.STREAM_STARTED, f"{how}, {what}")
 
     def _record_path(self, record: str | None) -> Path | None:
         from camd.daemon.session import BadRequest
@@ -352,12 +427,25 @@ class StreamService:
             raise BadRequest(f"{path} already exists; choose another file or remove it")
         return path
 
-    def _new_recorder(self, path: Path, request: StreamStartRequest, stages: int) -> FrameRecorder:
+    def _new_recorder(
+        self,
+        path: Path,
+        request: StreamStartRequest,
+        stages: int,
+        start: StreamStart | None = None,
+    ) -> FrameRecorder:
         """A new recording with the camera's metadata, made before the stream starts so that
         its first frame is recorded too; the frames set its geometry."""
         from camd.daemon.session import BadRequest
 
         sensor = self.session.sensor
+        stream: dict[str, Any] = {
+            "frames_requested": request.frames,
+            "stages": stages,
+            "binning": request.binning,
+        }
+        if start is not None:
+            stream.update({"start_command": start.command, **start.metadata})
         try:
             return FrameRecorder(
                 path,
@@ -366,11 +454,7 @@ class StreamService:
                     "profile": sensor.profile_metadata(),
                     "registers": sensor.register_values(),
                     "timing": sensor.timing().model_dump(),
-                    "stream": {
-                        "frames_requested": request.frames,
-                        "stages": stages,
-                        "binning": request.binning,
-                    },
+                    "stream": stream,
                 },
             )
         except RecordingError as exc:
@@ -394,6 +478,11 @@ class StreamService:
         self._recording_to = None
         reader.remove_consumer(record)
         recorder.close(stats)
+
+    def _detach_stream_consumer(self, reader: FrameStream) -> None:
+        consumer, self._stream_consumer = self._stream_consumer, None
+        if consumer is not None:
+            reader.remove_consumer(consumer)
 
     def _open_reader(self) -> FrameStream:
         """The USB reader, opened on first use; Disconnected (503) if the device is absent."""
@@ -444,6 +533,7 @@ class StreamService:
                     reader.wait_drained(DRAIN_TIMEOUT_S)
                 reader.stop()
                 self._detach_recorder(reader, reader.stats().as_dict())
+                self._detach_stream_consumer(reader)
             self._info["frames_sent"] = frames_sent
             self.streaming = False
             self._finished.set()

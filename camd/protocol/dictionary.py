@@ -21,14 +21,16 @@ from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError,
 from camd.paths import config_dir
 from camd.protocol.frame import MAX_PAYLOAD
 
-FieldType = Literal["u8", "u16", "u32", "i8", "i16", "i32", "f32", "bytes", "str"]
+FieldType = Literal["u8", "u16", "u32", "u64", "i8", "i16", "i32", "i64", "f32", "bytes", "str"]
 
 _STRUCT_FORMAT: dict[str, str] = {
-    "u8": ">B", "u16": ">H", "u32": ">I", "i8": ">b", "i16": ">h", "i32": ">i", "f32": ">f",
+    "u8": ">B", "u16": ">H", "u32": ">I", "u64": ">Q",
+    "i8": ">b", "i16": ">h", "i32": ">i", "i64": ">q", "f32": ">f",
 }  # fmt: skip
 _INT_RANGE: dict[str, tuple[int, int]] = {
-    "u8": (0, 0xFF), "u16": (0, 0xFFFF), "u32": (0, 0xFFFF_FFFF),
+    "u8": (0, 0xFF), "u16": (0, 0xFFFF), "u32": (0, 0xFFFF_FFFF), "u64": (0, 2**64 - 1),
     "i8": (-0x80, 0x7F), "i16": (-0x8000, 0x7FFF), "i32": (-0x8000_0000, 0x7FFF_FFFF),
+    "i64": (-(2**63), 2**63 - 1),
 }  # fmt: skip
 _VARIABLE = frozenset({"bytes", "str"})
 

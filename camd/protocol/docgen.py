@@ -265,8 +265,8 @@ def _frame_format() -> list[str]:
         "",
         "### Payload fields",
         "",
-        "- `u8`, `u16`, `u32`, `i8`, `i16`, `i32`: big-endian integers, two's complement when "
-        "signed.",
+        "- `u8`, `u16`, `u32`, `u64`, `i8`, `i16`, `i32`, `i64`: big-endian integers, two's "
+        "complement when signed.",
         "- `f32`: IEEE-754 binary32, big-endian.",
         "- `bytes`, `str`: variable length, only as the last field of a payload; the length is "
         "what the frame's payload length leaves. `str` is UTF-8.",

@@ -24,14 +24,14 @@ from __future__ import annotations
 
 import math
 import re
-import tomllib
 from functools import cache
 from pathlib import Path
-from typing import Annotated, Any, Generic, Literal, TypeVar
+from typing import Annotated, Any, Literal, TypeVar
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from camd.analysis.sensor_noise import system_gain_dn_per_e
+from camd.datafile import DataFileError, Sourced, named_file, read_toml
 from camd.paths import config_dir
 from camd.sensor.regmap import (
     FieldSpec,
@@ -56,14 +56,8 @@ Bits = Annotated[int, Field(ge=1, le=16)]
 Celsius = Annotated[float, Field(ge=-273.15)]
 
 
-class ProfileError(ValueError):
+class ProfileError(DataFileError):
     """A profile file is invalid; the message starts with ``file:line:`` (or ``file:``)."""
-
-    def __init__(self, path: Path | str, line: int | None, message: str) -> None:
-        where = f"{path}:{line}" if line is not None else f"{path}"
-        super().__init__(f"{where}: {message}")
-        self.path = Path(path)
-        self.line = line
 
 
 class _Keyed(ValueError):
@@ -74,38 +68,6 @@ class _Keyed(ValueError):
         self.key = key
         self.sub = sub  # a key inside the [key] table, for the line number
         self.message = message
-
-
-class Sourced(BaseModel, Generic[T]):
-    """A value with its provenance: exactly one of ``source`` or ``assumed``."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-    value: T = Field(description="the value, in the unit the key's name gives")
-    source: str | None = Field(default=None, description="where the value comes from")
-    assumed: str | None = Field(default=None, description="why the value was chosen")
-
-    @model_validator(mode="after")
-    def _one_provenance(self) -> Sourced[T]:
-        given = [k for k in ("source", "assumed") if (getattr(self, k) or "").strip()]
-        if len(given) != 1:
-            what = "both" if len(given) == 2 else "neither"
-            raise ValueError(
-                "give exactly one of `source` (where the value comes from) or `assumed` "
-                f"(why it was chosen), not {what}"
-            )
-        return self
-
-    @property
-    def provenance(self) -> str:
-        """``source: ...`` or ``assumed: ...``, for docs and reports."""
-        if self.source:
-            return f"source: {self.source}"
-        return f"assumed: {self.assumed}"
-
-    @property
-    def is_assumed(self) -> bool:
-        return bool(self.assumed)
 
 
 class GainSpec(BaseModel):
@@ -363,16 +325,11 @@ def load_profile(name_or_path: str | Path) -> CameraProfile:
     Also checks the profile against its sensor's register map: the map exists, the array
     sizes agree, and every label of the map's gain enum has a factor.
     """
-    path = Path(name_or_path)
-    if path.suffix != ".toml":
-        if not re.fullmatch(r"[a-z0-9_]+", str(name_or_path)):
-            raise ProfileError(path, None, "not a profile name or a .toml file")
-        path = profiles_dir() / f"{name_or_path}.toml"
-        if not path.is_file():
-            known = ", ".join(list_profiles())
-            raise FileNotFoundError(f"no camera profile {name_or_path!r}; known: {known}")
-        return _load_cached(path)
-    return _load(path)
+    path = named_file(
+        name_or_path, profiles_dir(), kind="camera profile", known=list_profiles(),
+        error=ProfileError,
+    )  # fmt: skip
+    return _load(path) if Path(name_or_path).suffix == ".toml" else _load_cached(path)
 
 
 @cache
@@ -381,12 +338,7 @@ def _load_cached(path: Path) -> CameraProfile:
 
 
 def _load(path: Path) -> CameraProfile:
-    text = path.read_text(encoding="utf-8")
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        match = re.search(r"line (\d+)", str(exc))
-        raise ProfileError(path, int(match.group(1)) if match else None, str(exc)) from None
+    text, data = read_toml(path, ProfileError)
     try:
         profile = CameraProfile.model_validate(data)
     except ValidationError as exc:

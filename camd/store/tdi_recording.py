@@ -7,9 +7,12 @@ One file per scan, appended to while the scan runs::
     /frame_counter  (L,) uint32   the device's counter of the frame the line belongs to
     /stages_used    (L,) uint16   how many of the M stages contributed to the line
     /complete       (L,) uint8    1 if all M stages contributed (docs/tdi.md "Completeness"), else 0
+    /stage_position (L,) int32    the stage encoder count latched at the line's frame start
+    /m_dv_over_v    (L,) float32  M dV/V the line saw (docs/motion.md; NaN where unknown)
     /stage_changes  (K, 2) int64  [line index, stages]: the scan's first M, then every change of M
     /profile, /registers, /timing, /scan   groups whose attributes hold the metadata
     /counters       group whose attributes hold the scan's counters (written by ``close``)
+    /motion_loop    group of 1-D datasets: the closed loop's polls (written by ``close``, if any)
 
 Root attributes: ``format`` ("camd-tdi-scan"), ``format_version``, ``mode`` ("sum" or "mean"),
 ``width``, ``created_utc``, ``camd_version``, ``lines``, ``complete_lines`` and ``finished``
@@ -50,7 +53,7 @@ from camd.store.recording import (
 )
 
 FORMAT = "camd-tdi-scan"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # 2: /stage_position, /m_dv_over_v and close()'s datasets
 MODES: dict[str, type[np.generic]] = {"sum": np.uint32, "mean": np.float32}
 METADATA_GROUPS = ("profile", "registers", "timing", "scan", "counters")
 # The per-line columns besides /lines, with their stored types.
@@ -59,7 +62,11 @@ _COLUMNS: dict[str, type[np.generic]] = {
     "frame_counter": np.uint32,
     "stages_used": np.uint16,
     "complete": np.uint8,
+    "stage_position": np.int32,
+    "m_dv_over_v": np.float32,
 }
+# Columns a version-1 file lacks, and what a reader fills them with.
+_ADDED_IN_2: dict[str, float] = {"stage_position": 0, "m_dv_over_v": np.nan}
 _DATASETS = frozenset({"lines", "stage_changes", *_COLUMNS})
 _RESERVED_ROOT = frozenset(
     {
@@ -114,6 +121,15 @@ def _int_column(
     if n and (int(a.min()) < lo or int(a.max()) > hi):
         raise ValueError(f"{name} must lie in {lo}..{hi}; got {int(a.min())}..{int(a.max())}")
     return a.astype(dtype, copy=False)
+
+
+def _float_column(name: str, values: npt.ArrayLike | None, n: int) -> npt.NDArray[np.float32]:
+    if values is None:
+        return np.full(n, np.nan, dtype=np.float32)
+    a = np.asarray(values, dtype=np.float32)
+    if a.shape != (n,):
+        raise ValueError(f"{name} must have one value per line, shape ({n},); got {a.shape}")
+    return a
 
 
 def _as_int(value: object, name: str) -> int:
@@ -293,11 +309,14 @@ class TdiRecorder:
         stages_used: npt.ArrayLike,
         complete: npt.ArrayLike,
         frame_counter: npt.ArrayLike | None = None,
+        stage_position: npt.ArrayLike | None = None,
+        m_dv_over_v: npt.ArrayLike | None = None,
     ) -> None:
         """Append F lines (a ``TdiBlock``'s arrays): data (F, width), index, stages_used,
         complete (bool) and, optionally, the device's frame counter of each line (F,) — by
-        default the line index's low 32 bits. F = 0 does nothing. ValueError for a wrong shape,
-        type or range, before anything is written."""
+        default the line index's low 32 bits —, the stage encoder count of each line's frame
+        (default 0) and the M dV/V each line saw (default NaN). F = 0 does nothing. ValueError
+        for a wrong shape, type or range, before anything is written."""
         self._check_open()
         lines = self._line_data(data)
         n = lines.shape[0]
@@ -317,6 +336,12 @@ class TdiRecorder:
             ),
             "stages_used": _int_column("stages_used", stages_used, n, 0, 2**16 - 1, np.uint16),
             "complete": done.astype(np.uint8),
+            "stage_position": (
+                np.zeros(n, dtype=np.int32)
+                if stage_position is None
+                else _int_column("stage_position", stage_position, n, -(2**31), 2**31 - 1, np.int32)
+            ),
+            "m_dv_over_v": _float_column("m_dv_over_v", m_dv_over_v, n),
         }
         if n == 0:
             return
@@ -352,12 +377,19 @@ class TdiRecorder:
         self._file.flush()
         self._flushed_lines = self.lines
 
-    def close(self, attributes: Mapping[str, Any] | None = None) -> None:
+    def close(
+        self,
+        attributes: Mapping[str, Any] | None = None,
+        datasets: Mapping[str, Mapping[str, npt.ArrayLike]] | None = None,
+    ) -> None:
         """Finish the scan: write the final attributes and close the file. Idempotent.
 
         ``attributes`` maps names to values: a mapping value goes to the group of that name
         (``{"counters": {...}}`` fills /counters; the group is made if needed), any other value
         is a root attribute. The root's own attributes (format, lines, ...) cannot be replaced.
+        ``datasets`` maps a group name to arrays stored as datasets in it (the closed loop's
+        record, ``{"motion_loop": {"time_s": ...}}``): an SWMR writer cannot add objects, so
+        they are written here.
         """
         if self._closed:
             return
@@ -396,6 +428,10 @@ class TdiRecorder:
             for group, values in groups.items():
                 node = f[group] if group in f else f.create_group(group)
                 refused += _store_attrs(node, values, f"{group}.")
+            for group, arrays in (datasets or {}).items():
+                node = f.require_group(_check_group_name(group, "close() dataset group"))
+                for name, array in arrays.items():
+                    node.create_dataset(name, data=np.asarray(array))
         if refused:
             raise ValueError(
                 f"{self.path} is closed, but HDF5 could not store these attributes: "
@@ -419,6 +455,8 @@ class TdiScan:
     frame_counter: npt.NDArray[np.uint32]
     stages_used: npt.NDArray[np.uint16]
     complete: npt.NDArray[np.bool_]
+    stage_position: npt.NDArray[np.int32]  # encoder count at each line's frame start
+    m_dv_over_v: npt.NDArray[np.float32]  # M dV/V each line saw (NaN: unknown)
     stage_changes: npt.NDArray[np.int64]  # (K, 2): [line index, stages]
     attrs: dict[str, Any]  # root attributes
     metadata: dict[str, dict[str, Any]]  # profile, registers, timing, scan, counters, ...
@@ -464,9 +502,17 @@ def read_tdi_scan(path: Path | str) -> TdiScan:
         try:
             # While the scan is written, the datasets may have grown unequally: keep the lines
             # every one of them has.
-            n = min(len(f[name]) for name in ("lines", *_COLUMNS))
+            present = [name for name in _COLUMNS if name in f or name not in _ADDED_IN_2]
+            n = min(len(f[name]) for name in ("lines", *present))
             lines = np.asarray(f["lines"][:n])
-            columns = {name: np.asarray(f[name][:n], dtype=t) for name, t in _COLUMNS.items()}
+            columns = {
+                name: (
+                    np.asarray(f[name][:n], dtype=t)
+                    if name in f
+                    else np.full(n, _ADDED_IN_2[name], dtype=t)
+                )
+                for name, t in _COLUMNS.items()
+            }
             stage_changes = np.asarray(f["stage_changes"][...], dtype=np.int64).reshape(-1, 2)
         except KeyError as exc:
             raise RecordingError(f"{path} is a damaged TDI scan: {exc}") from None
@@ -483,6 +529,8 @@ def read_tdi_scan(path: Path | str) -> TdiScan:
         frame_counter=columns["frame_counter"],
         stages_used=columns["stages_used"],
         complete=columns["complete"].astype(bool),
+        stage_position=columns["stage_position"],
+        m_dv_over_v=columns["m_dv_over_v"],
         stage_changes=stage_changes,
         attrs=attrs,
         metadata=meta,

@@ -8,11 +8,25 @@ paper). Bad inputs (non-positive periods or clocks, negative counts, non-finite 
   ``global_frame_time_s``, ``max_rolling_integration_s``
 - §2 eqs 5-9, 13, TDI window: ``tdi_line_period_s``, ``turntable_line_period_s``,
   ``tdi_window`` -> ``TdiWindow``, ``synchronous_stage_speed_m_s``
-- §6, velocity mismatch: ``velocity_mismatch`` (dV/V)
+- §6, velocity mismatch: ``velocity_mismatch`` (dV/V), ``line_mismatch`` (M dV/V per line)
+- §2 eq 5 and §6 eq 9, synchronous motion: ``synchronous_motion`` -> ``SyncSolution``,
+  ``step_rate_hz``, ``turntable_angular_velocity_rad_s``
+- §7, motion compensation on a full-frame CCD: ``image_velocity_m_s``,
+  ``row_step_interval_s``, ``electrode_step_interval_s``, ``row_step_modulation``,
+  ``electrode_step_modulation`` and their means over the offset
 - §3, HR400 sequencer: ``sequencer_line_period_s``, ``exposure_s``, ``sequencer_frame_time_s``,
   ``sequencer_frame_period_lines``, ``sequencer_frame_period_s``
 """
 
+from camd.timing.imc import (
+    electrode_step_interval_s,
+    electrode_step_modulation,
+    image_velocity_m_s,
+    mean_electrode_step_modulation,
+    mean_row_step_modulation,
+    row_step_interval_s,
+    row_step_modulation,
+)
 from camd.timing.rolling import (
     global_frame_time_s,
     max_rolling_integration_s,
@@ -27,6 +41,13 @@ from camd.timing.sequencer import (
     sequencer_frame_time_s,
     sequencer_line_period_s,
 )
+from camd.timing.sync import (
+    SyncSolution,
+    line_mismatch,
+    step_rate_hz,
+    synchronous_motion,
+    turntable_angular_velocity_rad_s,
+)
 from camd.timing.tdi import (
     EXACT_MULTIPLE_RTOL,
     TdiWindow,
@@ -40,19 +61,31 @@ from camd.timing.tdi import (
 __all__ = [
     "EXACT_MULTIPLE_RTOL",
     "HR400_CLOCKS_PER_LINE",
+    "SyncSolution",
     "TdiWindow",
+    "electrode_step_interval_s",
+    "electrode_step_modulation",
     "exposure_s",
     "global_frame_time_s",
+    "image_velocity_m_s",
+    "line_mismatch",
     "max_rolling_integration_s",
+    "mean_electrode_step_modulation",
+    "mean_row_step_modulation",
     "rolling_frame_time_s",
     "rolling_line_period_s",
+    "row_step_interval_s",
+    "row_step_modulation",
     "sequencer_frame_period_lines",
     "sequencer_frame_period_s",
     "sequencer_frame_time_s",
     "sequencer_line_period_s",
+    "step_rate_hz",
+    "synchronous_motion",
     "synchronous_stage_speed_m_s",
     "tdi_line_period_s",
     "tdi_window",
+    "turntable_angular_velocity_rad_s",
     "turntable_line_period_s",
     "velocity_mismatch",
 ]

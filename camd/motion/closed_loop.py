@@ -1,0 +1,189 @@
+"""Closed-loop scan synchronisation: the encoder's speed against the synchronous speed.
+
+Pure logic, no I/O (``camd.daemon.motion_service`` polls the stage and applies the results).
+TAO12 (physics.md §2) proposes re-computing the timing in real time from the measured scan
+speed instead of trusting a fixed line period; with a stage encoder camd does that, either by
+trimming the stepper's rate so the stage meets the line period (``SpeedTrim``) or by trimming
+the line period to the stage (``LinePeriodTrim``: coarse by n_lines, fine by the back path).
+
+Both act on the ratio ``g = measured speed / commanded speed`` that the stage's imperfections
+(clock error, ripple, drift) make: an error in the step clock scales every speed alike, so a
+ratio learnt at one command predicts the next. ``g`` is smoothed with gain ``gain`` per sample
+(1 = dead-beat: trusts each sample fully, and passes encoder noise and jitter straight on);
+with ``predict`` it is extrapolated one poll ahead from its last change, which takes out most of
+the loop's lag on a smooth (slow ripple) disturbance at the price of doubling the noise.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from camd.timing import tdi_window
+from camd.timing._checks import positive
+
+
+@dataclass(frozen=True, slots=True)
+class EncoderSample:
+    """One reading of the stage at one device time (s): the encoder's position and the step
+    generator's commanded position (m), latched together."""
+
+    time_s: float
+    position_m: float
+    commanded_m: float
+
+
+class SpeedEstimator:
+    """Measured and commanded speeds (m/s) over the readings of the last ``window_s``.
+
+    Both are least-squares slopes of positions latched at the same device times, so their
+    ratio is exact however the command changed inside the window (a correction lands a round
+    trip after the reading it answers), and the quantisation of the encoder and of the step
+    counter averages down over the window. ``centre_s`` is the window's mean time: what the
+    estimate describes.
+    """
+
+    def __init__(self, window_s: float = 0.04) -> None:
+        self.window_s = positive("window_s", window_s)
+        self._samples: list[EncoderSample] = []
+        self.centre_s = math.nan
+
+    def reset(self) -> None:
+        self._samples.clear()
+
+    def add(self, sample: EncoderSample) -> tuple[float, float] | None:
+        """(measured speed, commanded speed) over the window up to ``sample``; None until the
+        window holds two readings at different times."""
+        samples = self._samples
+        samples.append(sample)
+        while len(samples) > 2 and sample.time_s - samples[1].time_s >= self.window_s:
+            samples.pop(0)
+        t = np.array([s.time_s for s in samples])
+        if len(samples) < 2 or t[-1] - t[0] <= 0.0:
+            return None
+        self.centre_s = float(t.mean())
+        dt = t - self.centre_s
+        norm = float(dt @ dt)
+        measured = float(dt @ np.array([s.position_m for s in samples])) / norm
+        commanded = float(dt @ np.array([s.commanded_m for s in samples])) / norm
+        return measured, commanded
+
+
+class SpeedTrim:
+    """Trim the commanded stage speed so the measured speed meets ``target_m_s``.
+
+    ``update(measured, commanded, ...)`` learns ``g = measured / commanded`` and returns the
+    next command ``target / g``, clamped to ``max_trim`` (relative) of the target: a loop that
+    would need more than that is fighting something it cannot fix (a stall, a wrong profile),
+    and a runaway command is worse than an uncorrected scan. With ``predict``, ``g`` is
+    extrapolated from the time its estimate describes (``at_s``) to the time the correction
+    will act (``until_s``) along its last change.
+    """
+
+    def __init__(
+        self,
+        target_m_s: float,
+        *,
+        gain: float = 0.6,
+        max_trim: float = 0.1,
+        predict: bool = False,
+    ) -> None:
+        if not 0.0 < gain <= 1.0:
+            raise ValueError(f"gain = {gain}: use 0 < gain <= 1 (1 = dead-beat)")
+        if not 0.0 < max_trim < 1.0:
+            raise ValueError(f"max_trim = {max_trim}: use a fraction between 0 and 1")
+        if target_m_s == 0.0 or not math.isfinite(target_m_s):
+            raise ValueError(f"target_m_s = {target_m_s}: the stage must move")
+        self.target_m_s = target_m_s
+        self.gain = gain
+        self.max_trim = max_trim
+        self.predict = predict
+        self.ratio = 1.0
+        self._previous: tuple[float, float] | None = None  # (time, ratio)
+
+    def update(
+        self,
+        measured_m_s: float,
+        commanded_m_s: float,
+        *,
+        at_s: float = math.nan,
+        until_s: float = math.nan,
+    ) -> float:
+        """The next commanded speed (m/s) after a measurement made under ``commanded_m_s``."""
+        if commanded_m_s != 0.0 and math.isfinite(measured_m_s):
+            sample = measured_m_s / commanded_m_s
+            if sample > 0.0:
+                self.ratio += self.gain * (sample - self.ratio)
+        ratio = self.ratio
+        previous = self._previous
+        if self.predict and previous is not None and at_s > previous[0] and until_s > at_s:
+            # The estimate describes ``at_s``; the correction acts until ``until_s``: a smooth
+            # disturbance (ripple) moves on meanwhile.
+            slope = (self.ratio - previous[1]) / (at_s - previous[0])
+            ratio += slope * (until_s - at_s)
+        if math.isfinite(at_s):
+            self._previous = (at_s, self.ratio)
+        command = self.target_m_s / ratio
+        lo = abs(self.target_m_s) * (1.0 - self.max_trim)
+        hi = abs(self.target_m_s) * (1.0 + self.max_trim)
+        return math.copysign(min(max(abs(command), lo), hi), self.target_m_s)
+
+
+@dataclass(frozen=True, slots=True)
+class LinePeriodSetting:
+    """A line period and the window that realises it (physics.md §2 eqs 8-9)."""
+
+    line_period_s: float
+    n_lines: int
+    back_path_s: float
+
+
+class LinePeriodTrim:
+    """Trim the TDI line period to the measured image speed (TAO12: coarse by n_lines, fine by
+    the back path; physics.md §2 eqs 5, 8, 9).
+
+    The period that matches a measured image speed v is ``p (1 - offset) / v`` (``offset`` a
+    deliberate dV/V; 0 normally); the window is ``tdi_window`` of it, with n_lines clamped to
+    ``min_lines`` (the stage count: fewer rows could not hold M stages) — at the clamp the
+    period cannot shorten further and the loop reports ``limited`` — and to ``max_lines`` (the
+    rows of the frames the stream started with: the host's frame size is fixed per stream),
+    beyond which the back path takes the rest, even if that is a row period or more.
+    """
+
+    def __init__(
+        self,
+        *,
+        pixel_pitch_m: float,
+        row_time_s: float,
+        min_lines: int,
+        max_lines: int | None = None,
+        gain: float = 0.6,
+        offset: float = 0.0,
+    ) -> None:
+        self.pitch_m = positive("pixel_pitch_m", pixel_pitch_m)
+        self.row_time_s = positive("row_time_s", row_time_s)
+        self.min_lines = min_lines
+        self.max_lines = max_lines
+        self.gain = gain
+        self.offset = offset
+        self.speed_m_s: float | None = None
+        self.limited = False
+
+    def update(self, image_speed_m_s: float) -> LinePeriodSetting:
+        """The line period setting for a new measurement of the image speed (m/s)."""
+        speed = abs(image_speed_m_s)
+        if self.speed_m_s is None:
+            self.speed_m_s = speed
+        elif speed > 0.0 and math.isfinite(speed):
+            self.speed_m_s += self.gain * (speed - self.speed_m_s)
+        period = self.pitch_m * (1.0 - self.offset) / self.speed_m_s
+        shortest = self.min_lines * self.row_time_s
+        self.limited = period < shortest
+        period = max(period, shortest)
+        window = tdi_window(period, self.row_time_s)
+        if self.max_lines is not None and window.n_lines > self.max_lines:
+            back = period - self.max_lines * self.row_time_s
+            return LinePeriodSetting(period, self.max_lines, back)
+        return LinePeriodSetting(period, window.n_lines, window.back_path_s)

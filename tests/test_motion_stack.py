@@ -1,0 +1,274 @@
+"""The scan stage and scan synchronisation over the full stack, as a user drives them.
+
+camctl (subprocess) or the client -> HTTP -> camd serve -> MOTOR_* commands over the pty ->
+the simulated stepper stage (firmware_models.motor / stage), whose true position moves the
+scene -> frames with the encoder latched in their headers -> TDI -> HDF5. The numbers are
+checked against physics.md §2 and §6 worked out here.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from pathlib import Path
+
+import h5py
+import httpx
+import numpy as np
+import pytest
+
+from camd.analysis.mtf import periodic_edge_mtf
+from camd.cli._daemon_proc import DaemonProcess
+from camd.client import CamdClient
+from camd.sensor.profile import load_profile
+from camd.store.tdi_recording import read_tdi_scan
+from tests.test_camctl import NO_TOKEN, camctl, camctl_json
+
+T_ROW_S = 513 / 25e6  # hr400 row time: 513 sequencer clocks at 25 MHz (physics.md §3)
+ROWS = 100  # the scans' window: T_line,TDI = 100 rows = 2.052 ms
+T_LINE_S = ROWS * T_ROW_S
+STAGES = 96
+PITCH_M = 11e-6
+MAGNIFICATION = 0.1  # config/profiles/hr400.toml (1:10 bench objective)
+UM_PER_MICROSTEP = 5e-3 / 3200  # config/stages/linear_rail.toml: 5 mm lead, 200 x 16
+SYNC_M_S = PITCH_M / (MAGNIFICATION * T_LINE_S)  # physics.md §6 eq 9: 53.606 mm/s
+DISTURBANCE = {"error": -0.005, "ripple": 0.01}  # a clock 0.5 % slow and 1 % speed ripple
+SCENE = "edge:angle_deg=5"
+
+
+def start_daemon(tmp: Path, motion: str = "") -> DaemonProcess:
+    config = tmp / "camd.toml"
+    config.write_text(f"[motion]\n{motion}\n")
+    return DaemonProcess(tmp, extra_args=["--config", str(config)], env=NO_TOKEN)
+
+
+@pytest.fixture(scope="module")
+def daemon(tmp_path_factory: pytest.TempPathFactory) -> Iterator[DaemonProcess]:
+    with start_daemon(tmp_path_factory.mktemp("camd-motion")) as d:
+        with CamdClient(d.url) as client:
+            client.wait_ready(60)
+            client.set_scene(SCENE)
+        yield d
+    assert d.exit_code in (0, -15), d.log_path.read_text()
+
+
+@pytest.fixture
+def client(daemon: DaemonProcess) -> Iterator[CamdClient]:
+    with CamdClient(daemon.url, timeout_s=60) as c:
+        yield c
+        c.set_stage_faults()
+
+
+def scan(
+    client: CamdClient, out: Path, *, lines: int = 400, **options: object
+) -> dict[str, object]:
+    client.start_scan(STAGES, lines, out=str(out), line_period_s=T_LINE_S, **options)  # type: ignore[arg-type]
+    doc = dict(client.wait_scan(timeout_s=300))
+    assert doc["state"] == "done", doc["error"]
+    assert doc["lost_frames"] == 0
+    return doc
+
+
+def edge_mtf(path: Path) -> tuple[float, float, float]:
+    """(MTF at Nyquist, its standard error, 10-90 % edge width) of a scan of the edge scene,
+    along track, over complete lines and the first 768 columns (enough edges, quick)."""
+    tdi = read_tdi_scan(path)
+    result = periodic_edge_mtf(tdi.lines[tdi.complete][:, :768].astype(np.float64))
+    error = result.mtf_nyquist_std / math.sqrt(result.regions)
+    return result.mtf_nyquist, error, result.edge_width_px
+
+
+# -- open loop: the equations ---------------------------------------------------------------------
+
+
+def test_sync_prints_the_contract_keys_with_the_equations_values(daemon: DaemonProcess) -> None:
+    doc = camctl_json(
+        daemon.url, "sync", "--line-period-s", repr(T_LINE_S), "--stages", str(STAGES)
+    )
+    assert list(doc)[:10] == [
+        "line_period_s", "row_time_s", "n_lines", "back_path_s", "m0", "stages", "sync_speed",
+        "step_rate_hz", "dv_over_v", "m_dv_over_v",
+    ]  # fmt: skip
+    assert doc["line_period_s"] == pytest.approx(T_LINE_S, rel=1e-12)
+    assert doc["row_time_s"] == pytest.approx(T_ROW_S, rel=1e-12)
+    # eqs 8, 9, 13: exactly 100 rows, no back path, M0 = 100.
+    assert (doc["n_lines"], doc["back_path_s"], doc["m0"], doc["stages"]) == (100, 0.0, 100, 96)
+    # §6 eq 9: V = p / (m T) = 11 um / (0.1 x 2.052 ms) = 53.606 mm/s; F = V / 1.5625 um.
+    assert doc["sync_speed"] == pytest.approx(0.053606238, rel=1e-8)
+    assert doc["step_rate_hz"] == pytest.approx(0.053606238 / UM_PER_MICROSTEP, rel=1e-8)
+    assert doc["dv_over_v"] == 0.0 and doc["m_dv_over_v"] == 0.0
+
+    # A stage 1 % slow against that line period: dV/V = +0.01, M dV/V = 0.96 (§6).
+    slow = camctl_json(
+        daemon.url, "sync", "--line-period-s", repr(T_LINE_S), "--stages", str(STAGES),
+        "--with-speed-m-s", repr(0.99 * SYNC_M_S),
+    )  # fmt: skip
+    assert slow["dv_over_v"] == pytest.approx(0.01, rel=1e-9)
+    assert slow["m_dv_over_v"] == pytest.approx(0.96, rel=1e-9)
+    assert slow["tolerance_ok"] is True
+
+    # From a stage speed instead: T = p / (m V) (§2 eq 5 general form).
+    by_speed = camctl_json(daemon.url, "sync", "--speed-m-s", "0.05")
+    assert by_speed["line_period_s"] == pytest.approx(PITCH_M / (MAGNIFICATION * 0.05))
+    assert by_speed["n_lines"] == math.floor(by_speed["line_period_s"] / T_ROW_S)
+
+    too_many = camctl(daemon.url, "sync", "--line-period-s", repr(T_LINE_S), "--stages", "101")
+    assert too_many.returncode == 1
+    assert "use at most 100 stages or a longer line period" in too_many.stderr
+
+
+def test_stage_moves_homes_stops_and_refuses_with_reasons(
+    daemon: DaemonProcess, client: CamdClient
+) -> None:
+    url = daemon.url
+    doc = camctl_json(url, "stage", "enable")
+    assert doc["reading"]["state"] == "idle"
+    assert doc["limits"] == {"low_m": 0.0, "high_m": 1.2, "max_speed_m_s": 0.1, "accel_m_s2": 0.5}
+    moved = camctl_json(url, "stage", "move", "0.01")
+    assert moved["reading"]["state"] == "idle"
+    assert moved["reading"]["position_m"] == pytest.approx(0.01, abs=UM_PER_MICROSTEP)
+    assert moved["reading"]["encoder_m"] == pytest.approx(0.01, abs=2e-6)  # 1 um encoder
+    homed = camctl_json(url, "stage", "home")
+    assert homed["reading"]["homed"] is True
+    assert homed["reading"]["position_m"] == 0.0 and homed["reading"]["encoder_m"] == 0.0
+
+    fast = camctl(url, "stage", "run", "0.3")
+    assert fast.returncode == 1
+    assert "300 mm/s is above the limit 100 mm/s" in fast.stderr
+    outside = camctl(url, "stage", "move", "1.5")
+    assert outside.returncode == 1
+    assert "outside the soft limits [0.0, 1.2] m" in outside.stderr
+
+    camctl_json(url, "stage", "run", "0.02")
+    stopped = camctl_json(url, "stage", "estop")
+    assert stopped["reading"]["state"] == "estop"
+    refused = camctl(url, "stage", "run", "0.02")
+    assert refused.returncode == 1
+    assert "emergency stop; check it, then `camctl stage enable` clears it" in refused.stderr
+    assert camctl_json(url, "stage", "enable")["reading"]["state"] == "idle"
+    camctl_json(url, "stage", "move", "0.6")
+
+
+# -- scans: open loop blurs, closed loop holds (physics.md §6) -------------------------------------
+
+
+def test_disturbed_stage_open_loop_blurs_closed_loop_holds(
+    client: CamdClient, tmp_path: Path
+) -> None:
+    perfect = scan(client, tmp_path / "perfect.h5", closed_loop=False)
+    client.set_stage_faults(**DISTURBANCE)
+    opened = scan(client, tmp_path / "open.h5", closed_loop=False)
+    closed = scan(client, tmp_path / "closed.h5", closed_loop=True)
+
+    # A perfect stage run open loop: the image moves exactly as the equations say.
+    assert perfect["mismatch_max"] == pytest.approx(0.0, abs=0.02)
+    # Open loop on the disturbed stage: the 0.5 % clock error alone is M dV/V = 0.48, the
+    # ripple adds up to 0.96 more: beyond the yellow limit 1 (MTF at Nyquist 0.64).
+    assert opened["mismatch_max"] > 1.0 and opened["mismatch_level"] == "yellow"
+    assert opened["motion"]["closed_loop"] == "off"
+    # Closed loop: well inside the tolerance (target < 0.2, |dV/V| < 0.2 %).
+    assert closed["mismatch_max"] < 0.2 and closed["mismatch_level"] == "ok"
+    assert closed["motion"]["closed_loop"] == "step_rate"
+    assert closed["motion"]["loop_samples"] > 100 and closed["motion"]["loop_error"] is None
+    events = [e["message"] for e in client.events(limit=200)["events"]]
+    assert any("velocity mismatch yellow" in m for m in events)
+    metrics = httpx.get(f"{client.url}/metrics", timeout=10).text
+    assert f'camd_scan_m_dv_over_v{{stat="max"}} {closed["mismatch_max"]}' in metrics
+
+    mtf_perfect, err_perfect, width_perfect = edge_mtf(tmp_path / "perfect.h5")
+    mtf_open, _, width_open = edge_mtf(tmp_path / "open.h5")
+    mtf_closed, err_closed, width_closed = edge_mtf(tmp_path / "closed.h5")
+    assert mtf_open < mtf_perfect - 0.05 and width_open > width_perfect + 0.1
+    # As sharp as the perfect stage within the measurement noise (4 standard errors).
+    assert abs(mtf_closed - mtf_perfect) < 4 * math.hypot(err_perfect, err_closed) + 0.01
+    assert abs(width_closed - width_perfect) < 0.05
+
+    # The file keeps the motion: encoder per line, M dV/V per line, the loop's polls.
+    tdi = read_tdi_scan(tmp_path / "closed.h5")
+    complete = tdi.complete
+    assert np.isfinite(tdi.m_dv_over_v[complete]).all()
+    assert np.abs(tdi.m_dv_over_v[complete]).max() == pytest.approx(
+        closed["mismatch_max"], rel=1e-5
+    )
+    counts_per_line = np.diff(tdi.stage_position.astype(np.int64))
+    # 1 um encoder, 5.36 um of stage per line at the synchronous speed.
+    assert np.median(counts_per_line) == pytest.approx(SYNC_M_S * T_LINE_S * 1e6, abs=1.5)
+    assert tdi.metadata["motion"]["closed_loop"] == "step_rate"
+    assert tdi.metadata["motion"]["mismatch_level"] == "ok"
+    with h5py.File(tmp_path / "closed.h5", "r") as f:
+        loop = f["motion_loop"]
+        assert set(loop) >= {"time_s", "encoder_m", "measured_m_s", "command_m_s"}
+        assert loop["time_s"].shape[0] == closed["motion"]["loop_samples"]
+
+
+def test_mtf_at_nyquist_follows_the_smear_model(client: CamdClient, tmp_path: Path) -> None:
+    """MTF at Nyquist for smears of 0, 1 and 2 pixels over M stages (physics.md §6 eq 8:
+    sinc(p f M dV/V) = sinc(smear / 2) at Nyquist) times the detector terms (eq 3).
+
+    The rolling shutter reads row i of a frame i row times after row 0, so at the synchronous
+    speed of §6 the image moves 1 - T_row / T rows between stages: M T_row / T = 0.96 pixel of
+    smear already (docs/motion.md). A stage speed off by dV/V adds M dV/V, so a total smear s
+    needs dV/V = s / M - T_row / T."""
+    skew = T_ROW_S / T_LINE_S
+    measured = {}
+    for smear in (0, 1, 2):
+        path = tmp_path / f"smear{smear}.h5"
+        doc = scan(client, path, lines=300, closed_loop=True, dv_over_v=smear / STAGES - skew)
+        # The monitor reports M dV/V against the synchronous speed: s - M T_row / T.
+        assert doc["mismatch_rms"] == pytest.approx(abs(smear - STAGES * skew), abs=0.1)
+        measured[smear] = edge_mtf(path)
+    mtf0, err0, _ = measured[0]
+    # Eq 8 alone, as a ratio (the detector and scene terms cancel): 0.637 and 0.
+    assert measured[1][0] / mtf0 == pytest.approx(2 / math.pi, abs=0.03)
+    assert measured[2][0] / mtf0 < 0.05
+    # Eq 3 at Nyquist: sinc(q / 2p) (q = sqrt(fill factor) pixels), sinc(T_int / 2 T_L) (the
+    # image moves during each frame's exposure), times the simulated scene's own cells (1/4
+    # pixel: sinc(1/8)^2, docs/mtf.md).
+    profile = load_profile("hr400")
+    exposure_s = float(client.timing()["exposure_s"])
+    q = math.sqrt(profile.fill_factor.value)
+    model = np.sinc(q / 2) * np.sinc(exposure_s / T_LINE_S / 2) * np.sinc(1 / 8) ** 2
+    assert mtf0 == pytest.approx(model, rel=0.04)
+    assert err0 < 0.01
+
+
+def test_scans_beyond_the_stage_are_refused_before_anything_is_written(
+    daemon: DaemonProcess, tmp_path: Path
+) -> None:
+    before = camctl_json(daemon.url, "timing")
+    fast = camctl(
+        daemon.url, "scan", "--stages", "8", "--lines", "50", "--line-period-s",
+        repr(12 * T_ROW_S), "--out", str(tmp_path / "fast.h5"),
+    )  # fmt: skip
+    assert fast.returncode == 1
+    assert "446.719 mm/s is above the limit 100 mm/s" in fast.stderr
+    far = camctl(
+        daemon.url, "scan", "--stages", "8", "--lines", "200000", "--line-period-s",
+        repr(T_LINE_S), "--out", str(tmp_path / "far.h5"),
+    )  # fmt: skip
+    assert far.returncode == 1
+    assert "mm of travel at 53.61 mm/s but the soft limits leave 1200.0 mm" in far.stderr
+    assert camctl_json(daemon.url, "timing") == before
+    assert not (tmp_path / "fast.h5").exists() and not (tmp_path / "far.h5").exists()
+    assert camctl_json(daemon.url, "status")["state"] == "idle"
+
+
+def test_line_period_correction_follows_the_stage(tmp_path: Path) -> None:
+    """The other closed loop (TAO12): the line period follows the stage, coarse by window
+    rows, fine by the back path (physics.md §2 eqs 8-9)."""
+    with start_daemon(tmp_path, 'correct = "line_period"') as d, CamdClient(d.url) as client:
+        client.wait_ready(60)
+        client.set_scene(SCENE)
+        client.set_stage_faults(**DISTURBANCE)
+        opened = scan(client, tmp_path / "open.h5", closed_loop=False)
+        closed = scan(client, tmp_path / "closed.h5", closed_loop=True)
+        assert opened["mismatch_max"] > 1.0
+        assert closed["motion"]["closed_loop"] == "line_period"
+        assert closed["mismatch_max"] < 0.3
+        with h5py.File(tmp_path / "closed.h5", "r") as f:
+            periods = f["motion_loop/line_period_s"][...]
+        periods = periods[np.isfinite(periods)]
+        # The stage runs 0.5 % slow, so the line period stretches by about 0.5 %, with the
+        # ripple's +-1 % on top; each period is whole rows plus a back path (eqs 8, 9).
+        assert np.median(periods) / T_LINE_S == pytest.approx(1.005, abs=0.004)
+        assert periods.max() > periods.min() * 1.005
