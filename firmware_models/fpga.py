@@ -633,7 +633,10 @@ class FpgaModel:
     # -- the scan stage (docs/motion.md) --------------------------------------------------
 
     def _motor(self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float) -> _Outcome:
-        if spec.name not in ("MOTOR_ESTOP", "MOTOR_GET", "MOTOR_GET_LIMITS", "SIM_GET_STAGE"):
+        # Stopping the stage, and reading it, are always allowed: a fault must not keep it moving.
+        if spec.name not in (
+            "MOTOR_ESTOP", "MOTOR_STOP", "MOTOR_GET", "MOTOR_GET_LIMITS", "SIM_GET_STAGE"
+        ):  # fmt: skip
             self._require_no_fault(spec)
         t = now_s - self.power_on_s
         values = {

@@ -15,7 +15,9 @@ follow model time, not how fast this process happens to render. A wheel acquisit
 gives each frame's start time (``schedule_s``): it waits for the wheel. Frames are made when
 the engine asks, which may be later than their model time (a slow render): register writes the
 FPGA receives while streaming are therefore kept with their device time (``note_registers``)
-and a frame uses the registers that were in force at its own start. The header's timestamp
+and a frame uses the registers that were in force at its own start (a change made by another
+path, the USB-SPI bridge's own bus, takes effect from the next frame made). The header's
+timestamp
 is when row 0's exposure ends, ``t_k + exposure``; its ``stage_position`` is the stage encoder
 latched at ``t_k`` (``encoder_at``), or the wheel angle for wheel frames.
 """
@@ -157,6 +159,7 @@ class ImagingPipeline:
         self._mode = StreamMode.TDI if mode == "tdi" else StreamMode.AREA
         self._adc_max = (1 << self.camera.bits) - 1
         self._history = [(-math.inf, self.sensor.snapshot())]
+        self._noted_version = self.sensor.version
         self._rendered_s = -math.inf
         self._next_k = 0
         self._next_start_s = device_time_s if schedule_s is None else schedule_s[0]
@@ -180,6 +183,7 @@ class ImagingPipeline:
         while len(self._history) > 1 and self._history[1][0] <= self._rendered_s:
             self._history.pop(0)
         self._history.append((t_s, self.sensor.snapshot()))
+        self._noted_version = self.sensor.version
 
     def _registers_at(self, t_s: float) -> SensorModel:
         """The register snapshot in force at model time ``t_s``."""
@@ -236,6 +240,10 @@ class ImagingPipeline:
         while self._next_k <= k:
             start = self._next_start_s
             with self.lock:
+                if self.sensor.version != self._noted_version:
+                    # Written by a path that gave no time (the USB-SPI bridge's own SPI bus):
+                    # in force from this frame on.
+                    self.note_registers(max(start, self._history[-1][0]))
                 period = self._registers_at(start).timing().frame_period_s
             if period != self._period_s:
                 self._period_s = period

@@ -48,6 +48,7 @@ class SensorModel:
         self.reads: Counter[int] = Counter()
         self._values: dict[int, int] = {}
         self._latched: dict[int, int] = {}  # address -> value written while its group was held
+        self.version = 0  # counts register changes (the imaging path notices them)
         self.power_on_reset()
 
     def snapshot(self) -> SensorModel:
@@ -184,6 +185,7 @@ class SensorModel:
     def _reset_all(self) -> None:
         self._values = {reg.address: reg.reset for reg in self.regmap.registers}
         self._latched.clear()
+        self.version += 1
 
     def _effective(self, reg: RegisterSpec) -> int:
         if reg.mirrors:
@@ -192,6 +194,7 @@ class SensorModel:
 
     def _store(self, reg: RegisterSpec, value: int) -> None:
         # Pulse bits act at once and never stick.
+        self.version += 1
         self._values[reg.address] = value & reg.kept_mask
         for name in reg.mirrors:
             target = self.regmap.register(name)

@@ -272,3 +272,24 @@ def test_line_period_correction_follows_the_stage(tmp_path: Path) -> None:
         # ripple's +-1 % on top; each period is whole rows plus a back path (eqs 8, 9).
         assert np.median(periods) / T_LINE_S == pytest.approx(1.005, abs=0.004)
         assert periods.max() > periods.min() * 1.005
+
+
+def test_turntable_carries_the_sensor_eq5(tmp_path: Path) -> None:
+    """A turntable (TAO12's rig, physics.md §2 eq 5): the sensor rides at l = 0.1 m, the image
+    moves with the arc (image scale 1), T = a / (w l)."""
+    config = tmp_path / "camd.toml"
+    config.write_text('[stage]\nprofile = "turntable"\n')
+    daemon = DaemonProcess(tmp_path, extra_args=["--config", str(config)], env=NO_TOKEN)
+    with daemon as d, CamdClient(d.url) as client:
+        client.wait_ready(60)
+        doc = camctl_json(d.url, "sync", "--line-period-s", repr(T_LINE_S))
+        # w = a / (T l) = 11 um / (2.052 ms x 0.1 m) = 0.053606 rad/s; arc speed w l.
+        assert doc["angular_velocity_rad_s"] == pytest.approx(0.0536062378, rel=1e-8)
+        assert doc["image_scale"] == 1.0
+        assert doc["sync_speed"] == pytest.approx(0.00536062378, rel=1e-8)
+        arc_per_microstep = 2 * math.pi * 0.1 / (200 * 16 * 180)  # 180:1 worm gear
+        assert doc["step_rate_hz"] == pytest.approx(0.00536062378 / arc_per_microstep, rel=1e-8)
+        client.set_scene(SCENE)
+        result = scan(client, tmp_path / "table.h5", lines=150, closed_loop=True)
+        assert result["motion"]["stage_speed_m_s"] == pytest.approx(doc["sync_speed"])
+        assert result["mismatch_max"] < 0.2

@@ -272,6 +272,11 @@ class MotionSection(_Section):
         le=1,
         description="the speed is estimated over at least this span of encoder readings (s)",
     )
+    speed_window_counts: float = Field(
+        default=500.0,
+        ge=0,
+        description="...and at least this many encoder counts of travel (coarse encoders)",
+    )
     predict: bool = Field(
         default=True, description="extrapolate the speed ratio one poll ahead (less lag)"
     )

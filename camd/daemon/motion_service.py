@@ -49,6 +49,7 @@ log = logging.getLogger(__name__)
 STOPPED_STATES = frozenset({"idle", "disabled", "estop"})
 WAIT_MARGIN_S = 2.0  # beyond the device's own estimate, before a wait gives up
 TRAVEL_MARGIN = 1.05  # a scan asks for 5 % more travel than it needs
+BRAKE_TIMEOUT_S = 10.0  # longest wait for a moving stage to stop before a scan
 
 
 class MotionService:
@@ -423,12 +424,18 @@ class ScanMotion:
         service = self.service
         config = service.session.config.motion
         service._check_speed(self.speed_m_s)
-        limits = service.program_limits()
         stage = service.stage
         with service._errors():
             reading = stage.read()
         if reading.state == "estop":
-            raise service._bad("the stage is emergency-stopped; `camctl stage enable` first")
+            raise service._bad("the stage is in emergency stop; `camctl stage enable` first")
+        if reading.state not in STOPPED_STATES:
+            # Still braking after the last scan (or moved by hand): the FPGA takes new limits
+            # only from a standing stage.
+            with service._errors():
+                stage.stop()
+            reading = service.wait_stopped(BRAKE_TIMEOUT_S)
+        limits = service.program_limits()
         self._make_room(limits, reading, duration_s)
         with service._errors():
             stage.enable(True)
@@ -481,7 +488,10 @@ class ScanMotion:
         config = self.service.session.config.motion
         stage = self.service.stage
         _, scale = self.service.optics()
-        estimator = SpeedEstimator(config.speed_window_s)
+        estimator = SpeedEstimator(
+            config.speed_window_s,
+            min_span_m=config.speed_window_counts / self.service.profile.encoder_counts_per_m,
+        )
         # ``speed_m_s`` already carries a deliberate mismatch (``offset``): hold it.
         target = self.speed_m_s
         trim = SpeedTrim(target, gain=config.gain, max_trim=config.max_trim, predict=config.predict)
@@ -512,7 +522,11 @@ class ScanMotion:
                         # for one poll period: aim at the middle of that.
                         until = reading.time_s + round_trip + config.poll_period_s / 2
                         new = trim.update(
-                            measured, commanded, at_s=estimator.centre_s, until_s=until
+                            measured,
+                            commanded,
+                            at_s=estimator.centre_s,
+                            until_s=until,
+                            baseline_s=estimator.span_s,
                         )
                         if abs(new - command) > 1e-6 * abs(command):
                             stage.run(new)

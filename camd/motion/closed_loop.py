@@ -41,12 +41,16 @@ class SpeedEstimator:
     Both are least-squares slopes of positions latched at the same device times, so their
     ratio is exact however the command changed inside the window (a correction lands a round
     trip after the reading it answers), and the quantisation of the encoder and of the step
-    counter averages down over the window. ``centre_s`` is the window's mean time: what the
-    estimate describes.
+    counter averages down over the window, which spans at least ``window_s`` and ``min_span_m``
+    of travel. ``centre_s`` is the window's mean time: what the estimate describes.
     """
 
-    def __init__(self, window_s: float = 0.04) -> None:
+    def __init__(self, window_s: float = 0.04, *, min_span_m: float = 0.0) -> None:
         self.window_s = positive("window_s", window_s)
+        self.span_s = 0.0  # time the last estimate's readings span
+        # A coarse encoder (few counts per poll) needs a longer baseline: the window also spans
+        # at least this much travel.
+        self.min_span_m = min_span_m
         self._samples: list[EncoderSample] = []
         self.centre_s = math.nan
 
@@ -58,12 +62,17 @@ class SpeedEstimator:
         window holds two readings at different times."""
         samples = self._samples
         samples.append(sample)
-        while len(samples) > 2 and sample.time_s - samples[1].time_s >= self.window_s:
+        while (
+            len(samples) > 2
+            and sample.time_s - samples[1].time_s >= self.window_s
+            and abs(sample.position_m - samples[1].position_m) >= self.min_span_m
+        ):
             samples.pop(0)
         t = np.array([s.time_s for s in samples])
         if len(samples) < 2 or t[-1] - t[0] <= 0.0:
             return None
         self.centre_s = float(t.mean())
+        self.span_s = float(t[-1] - t[0])
         dt = t - self.centre_s
         norm = float(dt @ dt)
         measured = float(dt @ np.array([s.position_m for s in samples])) / norm
@@ -101,7 +110,7 @@ class SpeedTrim:
         self.max_trim = max_trim
         self.predict = predict
         self.ratio = 1.0
-        self._previous: tuple[float, float] | None = None  # (time, ratio)
+        self._history: list[tuple[float, float]] = []  # (time the estimate describes, ratio)
 
     def update(
         self,
@@ -110,21 +119,34 @@ class SpeedTrim:
         *,
         at_s: float = math.nan,
         until_s: float = math.nan,
+        baseline_s: float = 0.0,
     ) -> float:
-        """The next commanded speed (m/s) after a measurement made under ``commanded_m_s``."""
+        """The next commanded speed (m/s) after a measurement made under ``commanded_m_s``.
+
+        ``baseline_s``: the slope for the prediction is taken over estimates at least this far
+        apart (the estimator's window: closer ones share most of their readings, and their
+        difference would be mostly the encoder's quantisation)."""
         if commanded_m_s != 0.0 and math.isfinite(measured_m_s):
             sample = measured_m_s / commanded_m_s
             if sample > 0.0:
                 self.ratio += self.gain * (sample - self.ratio)
         ratio = self.ratio
-        previous = self._previous
+        history = self._history
+        previous = None
+        for then_s, then_ratio in reversed(history):
+            if at_s - then_s >= baseline_s:
+                previous = (then_s, then_ratio)
+                break
         if self.predict and previous is not None and at_s > previous[0] and until_s > at_s:
             # The estimate describes ``at_s``; the correction acts until ``until_s``: a smooth
             # disturbance (ripple) moves on meanwhile.
             slope = (self.ratio - previous[1]) / (at_s - previous[0])
             ratio += slope * (until_s - at_s)
         if math.isfinite(at_s):
-            self._previous = (at_s, self.ratio)
+            history.append((at_s, self.ratio))
+            # Keep what the next baselines can reach back to.
+            while len(history) > 2 and at_s - history[1][0] > 2 * baseline_s + 1.0:
+                history.pop(0)
         command = self.target_m_s / ratio
         lo = abs(self.target_m_s) * (1.0 - self.max_trim)
         hi = abs(self.target_m_s) * (1.0 + self.max_trim)

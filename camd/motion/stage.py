@@ -178,8 +178,9 @@ class FpgaStage(ScanStage):
             "MOTOR_SET_LIMITS",
             low_steps=self._steps(limits.low_m, "low limit"),
             high_steps=self._steps(limits.high_m, "high limit"),
-            max_rate_hz=self._rate_hz(limits.max_speed_m_s),
-            accel_hz_per_s=max(1, round(self._rate_hz(limits.accel_m_s2))),
+            # Rounded down: the driver's own maxima are the profile's, rounded down the same way.
+            max_rate_hz=math.floor(self._rate_hz(limits.max_speed_m_s) * 1000 + 1e-6) / 1000,
+            accel_hz_per_s=max(1, math.floor(self._rate_hz(limits.accel_m_s2) + 1e-9)),
         )
 
     def _check_speed(self, speed_m_s: float) -> None:
