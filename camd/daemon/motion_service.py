@@ -542,7 +542,8 @@ class ScanMotion:
                 rec.measured_m_s.append(measured)
                 rec.command_m_s.append(reading.speed_m_s)
                 rec.line_period_s.append(line_period)
-                next_t += config.poll_period_s
+                # On a clock, but a late poll (a slow link) moves the clock: no catch-up burst.
+                next_t = max(next_t + config.poll_period_s, time.monotonic())
                 self._stop.wait(max(0.0, next_t - time.monotonic()))
         except Exception as exc:  # the scan goes on open loop; say so
             self.error = f"closed loop stopped: {exc}"

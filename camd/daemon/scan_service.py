@@ -339,6 +339,8 @@ class ScanService:
         """Daemon shutdown: end a running scan and close its file."""
         scan = self._scan
         if scan is not None and not scan.done.is_set():
+            if scan.motion is not None:
+                scan.motion.finish()  # a stage must not run on without its daemon
             scan.work.put(("end", None))
             if scan.worker is not None:
                 scan.worker.join(FINISH_TIMEOUT_S)

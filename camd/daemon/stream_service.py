@@ -46,7 +46,8 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-SCENE_TIMEOUT_S = 30.0
+SCENE_TIMEOUT_S = 2.0  # per attempt: a lost frame on a lossy line costs this much
+SCENE_RETRIES = 10
 
 DRAIN_TIMEOUT_S = 5.0
 LINK_LOST_GRACE_S = 1.0  # after LINK_LOST: how long STREAM_DONE may take to follow
@@ -274,8 +275,11 @@ class StreamService:
     def set_scene(self, spec: str) -> None:
         self.session.require(Request.SIM)
         # Building a finely sampled scene takes the simulator seconds (e.g. an edge at
-        # oversample=16): wait for it rather than re-send.
-        self.session.request("SIM_SET_SCENE", spec=spec, timeout_s=SCENE_TIMEOUT_S)
+        # oversample=16): wait longer per attempt, and try more often, than for a command the
+        # device answers at once. A re-send is answered from the device's record once built.
+        self.session.request(
+            "SIM_SET_SCENE", spec=spec, timeout_s=SCENE_TIMEOUT_S, retries=SCENE_RETRIES
+        )
         self.session.log_event("info", "api", f"simulated scene: {spec}")
 
     def set_stage(self, *, track: bool, speed_m_s: float) -> StageResponse:
