@@ -8,6 +8,9 @@ Models (linear SNR gain of M stages over one, ``SNR_M = SNR_1 * gain``):
 - ``snr_gain_sqrt_m``: DONG16 eqs 1-3, every noise source independent per stage: sqrt(M). This
   is also the standard quadrature model ``sigma_M^2 = M (s_AD^2 + s_CMOS^2)`` when SNR_1 is
   measured with all its noise, as it is here.
+- ``tdi_noise_tao12`` (eq 27) and ``tdi_noise_quadrature``: the noise of an M-stage sum under
+  the two noise models; ``camd.analysis.snr_models`` sets the three models side by side and
+  fits them to measurements.
 
 Measurements on a TDI scan file's lines (pure functions of arrays):
 
@@ -51,6 +54,35 @@ def snr_gain_sqrt_m(stages: int) -> float:
     if stages < 1:
         raise ValueError(f"stages must be >= 1, got {stages}")
     return math.sqrt(stages)
+
+
+def _sigmas(stages: int, sigma_ad: float, sigma_cmos: float) -> float:
+    if stages < 1:
+        raise ValueError(f"stages must be >= 1, got {stages}")
+    if sigma_ad < 0 or sigma_cmos < 0:
+        raise ValueError(f"sigma_ad and sigma_cmos must be >= 0, got {sigma_ad}, {sigma_cmos}")
+    return float(stages)
+
+
+def tdi_noise_tao12(stages: int, sigma_ad: float, sigma_cmos: float) -> float:
+    """TAO12 eq 27, noise of an M-stage sum: ``M s_AD + sqrt(M) s_CMOS`` (physics.md §5).
+
+    Quantisation adds linearly over the stages, sensor noise in quadrature; the signal is
+    ``M S``, so ``M S / tdi_noise_tao12`` is ``S / (s_AD + s_CMOS)`` times eq 28's gain.
+    """
+    m = _sigmas(stages, sigma_ad, sigma_cmos)
+    return m * sigma_ad + math.sqrt(m) * sigma_cmos
+
+
+def tdi_noise_quadrature(stages: int, sigma_ad: float, sigma_cmos: float) -> float:
+    """The quadrature model's noise of an M-stage sum: ``sqrt(M (s_AD^2 + s_CMOS^2))``.
+
+    physics.md §5 ("the standard model with independent quantisation noise"): every stage is
+    its own ADC conversion, so quantisation, like the sensor noise, is independent per stage.
+    Its SNR gain over one stage is therefore exactly ``snr_gain_sqrt_m``.
+    """
+    m = _sigmas(stages, sigma_ad, sigma_cmos)
+    return math.sqrt(m * (sigma_ad**2 + sigma_cmos**2))
 
 
 @dataclass(frozen=True, slots=True)
