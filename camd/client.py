@@ -746,6 +746,11 @@ class CamdClient:
         """Simulated camera only: the scene in front of it, e.g. ``"bars:lux=3"``."""
         self._request("PUT", f"{API}/sim/scene", json={"spec": spec})
 
+    def set_sim_seed(self, seed: int) -> None:
+        """Simulated camera only: restart its temporal noise and frame-fault random streams
+        from ``seed`` (same seed, same following acquisitions; the fixed pattern is kept)."""
+        self._request("PUT", f"{API}/sim/seed", json={"seed": seed})
+
     def set_stage(self, *, track: bool = True, speed_m_s: float = 0.0) -> StageDoc:
         """Simulated camera only: track the synchronous speed, or run at ``speed_m_s``."""
         body = {"track": track, "speed_m_s": speed_m_s}

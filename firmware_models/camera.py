@@ -118,6 +118,14 @@ class CameraModel:
         twin.sensor = sensor
         return twin
 
+    def reseed_noise(self, seed: int) -> None:
+        """Restart the temporal noise stream as if the camera had been made with ``seed``.
+
+        The generator is reset in place, not replaced: ``frozen`` twins share it and must draw
+        from the restarted stream too. The fixed pattern keeps the start seed's maps."""
+        fresh = np.random.default_rng([seed, _TEMPORAL_STREAM])
+        self._noise.bit_generator.state = fresh.bit_generator.state
+
     # -- scene and stage --------------------------------------------------------------------------
 
     def set_scene(self, spec: SceneSpec | str | Scene) -> Scene:

@@ -203,6 +203,7 @@ class FpgaModel:
             "WHEEL_COMPENSATION": self._wheel_compensation,
             "WHEEL_ACQUIRE": self._wheel_acquire,
             "SIM_SET_POLARIZER": self._sim_set_polarizer,
+            "SIM_SET_SEED": self._sim_set_seed,
         }
 
     # -- frames in, frames out ------------------------------------------------------------
@@ -784,6 +785,16 @@ class FpgaModel:
     ) -> _Outcome:
         on = request["enable"] == "on"
         self.polarizer_deg = _undo_f32_rounding(float(request["angle_deg"])) if on else None
+        return _Outcome(spec.encode_response())
+
+    def _sim_set_seed(
+        self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float
+    ) -> _Outcome:
+        # Only the streams that make one acquisition differ from the next: a campaign resumed
+        # after a restart re-seeds before each step and so sees the noise it saw the first time.
+        seed = int(request["seed"])
+        self.camera.reseed_noise(seed)
+        self.stream.reseed(seed)
         return _Outcome(spec.encode_response())
 
     def _stream_done(self, frames_sent: int, next_counter: int) -> None:

@@ -758,6 +758,12 @@ class StreamEngine:
                 self._thread.start()
             self._cond.notify_all()
 
+    def reseed(self, seed: int) -> None:
+        """Restart the injected-fault random stream from ``seed`` (in place: a stream in
+        progress draws from the restarted sequence from its next frame)."""
+        with self._cond:
+            self._rng.bit_generator.state = np.random.default_rng(seed).bit_generator.state
+
     def set_period(self, period_s: float) -> None:
         """Change the running stream's frame period from the next frame on (the sensor's line
         period was re-programmed while streaming). Harmless when not streaming or unpaced."""

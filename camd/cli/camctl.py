@@ -25,7 +25,14 @@ from rich.table import Table
 from rich.text import Text
 
 import camd
-from camd.cli import camctl_motion, camctl_scan, camctl_sensor, camctl_stream, camctl_wheel
+from camd.cli import (
+    camctl_campaign,
+    camctl_motion,
+    camctl_scan,
+    camctl_sensor,
+    camctl_stream,
+    camctl_wheel,
+)
 from camd.cli.camctl_sensor import CommandFailed, UsageError
 from camd.client import DEFAULT_URL, CamdClient, CamdError, DaemonUnreachable
 
@@ -191,6 +198,7 @@ def build_parser() -> argparse.ArgumentParser:
     camctl_scan.add_parsers(command)
     camctl_motion.add_parsers(command)
     camctl_wheel.add_parsers(command)
+    camctl_campaign.add_parsers(command)
     return parser
 
 
@@ -305,6 +313,7 @@ _COMMANDS: dict[str, Callable[[CamdClient, argparse.Namespace], Any]] = {
     **camctl_scan.COMMANDS,
     **camctl_motion.COMMANDS,
     **camctl_wheel.COMMANDS,
+    **camctl_campaign.COMMANDS,
 }
 
 
@@ -543,6 +552,7 @@ _RENDER: dict[str, Callable[[Console, Any, argparse.Namespace], None]] = {
     **camctl_scan.RENDER,
     **camctl_motion.RENDER,
     **camctl_wheel.RENDER,
+    **camctl_campaign.RENDER,
 }
 
 

@@ -50,6 +50,7 @@ from camd.daemon.models import (
     ScanRequest,
     ScanResponse,
     SceneRequest,
+    SeedRequest,
     SimStageFaultsRequest,
     SimStageTruth,
     SimStreamStats,
@@ -508,6 +509,13 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
     def put_sim_scene(body: SceneRequest) -> Response:
         """Simulated camera only: the scene in front of it (docs/simulator.md)."""
         session.stream.set_scene(body.spec)
+        return Response(status_code=204)
+
+    @app.put(f"{API}/sim/seed", status_code=204, tags=["simulator"])
+    def put_sim_seed(body: SeedRequest) -> Response:
+        """Simulated camera only: restart the temporal noise and frame-fault random streams
+        from ``seed`` (the fixed pattern is kept), so a repeated step sees the same noise."""
+        session.stream.set_seed(body.seed)
         return Response(status_code=204)
 
     @app.put(f"{API}/sim/stage", response_model=StageResponse, tags=["simulator"])

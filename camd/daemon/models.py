@@ -383,6 +383,12 @@ class SceneRequest(_Request):
     spec: str = Field(min_length=1, max_length=240, description="scene spec, e.g. 'bars:lux=3'")
 
 
+class SeedRequest(_Request):
+    """PUT /api/v1/sim/seed."""
+
+    seed: int = Field(ge=0, le=0xFFFFFFFF, description="seed of the restarted random streams")
+
+
 class StageRequest(_Request):
     """PUT /api/v1/sim/stage."""
 

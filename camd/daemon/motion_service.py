@@ -50,6 +50,7 @@ STOPPED_STATES = frozenset({"idle", "disabled", "estop"})
 WAIT_MARGIN_S = 2.0  # beyond the device's own estimate, before a wait gives up
 TRAVEL_MARGIN = 1.05  # a scan asks for 5 % more travel than it needs
 BRAKE_TIMEOUT_S = 10.0  # longest wait for a moving stage to stop before a scan
+SLOW_STREAM_FACTOR = 2.0  # travel planned for a stream this much slower than its frames
 
 
 class MotionService:
@@ -459,10 +460,14 @@ class ScanMotion:
             return
         speed = abs(self.speed_m_s)
         needed = self.travel_needed_m(speed, duration_s, limits)
+        # The stage runs in wall time until the last frame is in; a stream that runs slow (a
+        # busy host, or a simulator rendering slower than the line rate) takes longer than its
+        # frames' duration. Rewind unless there is room for twice that.
+        comfortable = self.travel_needed_m(speed, SLOW_STREAM_FACTOR * duration_s, limits)
         forward = self.speed_m_s > 0
         here = reading.position_m
         ahead = limits.high_m - here if forward else here - limits.low_m
-        if needed <= ahead:
+        if comfortable <= ahead:
             return
         span = limits.high_m - limits.low_m
         if needed > span:
@@ -511,6 +516,15 @@ class ScanMotion:
                 sent = time.monotonic()
                 reading = stage.read()
                 round_trip = time.monotonic() - sent
+                if reading.at_limit != "none" and reading.state in STOPPED_STATES:
+                    # The stage ran out of travel (the stream ran slower than planned): no
+                    # correction can move it; the monitor flags the lines that follow.
+                    self.error = (
+                        f"the stage stopped at its {reading.at_limit} soft limit before the "
+                        "scan ended; give it more travel (rewind, or widen the limits)"
+                    )
+                    self.service.session.log_event("warning", "motion", self.error)
+                    return
                 got = estimator.add(
                     EncoderSample(reading.time_s, reading.encoder_m, reading.position_m)
                 )

@@ -282,6 +282,12 @@ class StreamService:
         )
         self.session.log_event("info", "api", f"simulated scene: {spec}")
 
+    def set_seed(self, seed: int) -> None:
+        """Simulated camera only: restart its temporal noise and frame-fault streams."""
+        self.session.require(Request.SIM)
+        self.session.request("SIM_SET_SEED", seed=seed)
+        self.session.log_event("info", "api", f"simulator random streams re-seeded with {seed}")
+
     def set_stage(self, *, track: bool, speed_m_s: float) -> StageResponse:
         self.session.require(Request.SIM)
         values = self.session.request(

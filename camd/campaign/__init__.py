@@ -1,0 +1,1 @@
+"""Scripted test campaigns: YAML spec, runner, measurements and reports (docs/campaigns.md)."""

@@ -1,0 +1,517 @@
+"""Run a campaign against a daemon through ``camd.client`` only (docs/campaigns.md).
+
+``CampaignRunner(client, spec, out_dir).run()`` walks the steps in order. Every executed step
+instance (a step, or a step inside one iteration of a sweep: ``sweep_m[1]/stare``) is
+recorded in ``out_dir/state.json`` as soon as it completes, with its results, its check
+outcome or its raw file. Running again into the same directory resumes: recorded instances
+are replayed from the state file, not executed, except ``configure`` steps, which are always
+applied again (they are cheap and idempotent, and the device must be in the state the next
+step expects, possibly after a daemon restart).
+
+Determinism: on the simulated camera the runner re-seeds the simulator's random streams
+(PUT /api/v1/sim/seed) before every acquisition with a seed derived from the campaign's seed
+and the instance's key, so an acquisition sees the same noise whether the run was interrupted
+before it or not. results.json is a pure function of the recorded instances.
+
+Ctrl-C (KeyboardInterrupt) stops the step in progress (the stream or scan is stopped) and
+raises ``CampaignInterrupted``; everything completed before it is in the state file.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import math
+import os
+import zlib
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol
+
+from camd.campaign.measurements import MEASUREMENTS, Acquired
+from camd.campaign.spec import (
+    AcquireStep,
+    CampaignError,
+    CampaignSpec,
+    CheckStep,
+    ConfigureStep,
+    MeasureStep,
+    ScanAcquire,
+    StareAcquire,
+    SweepStep,
+    WheelAcquire,
+    resolve,
+)
+from camd.client import CamdClient, CamdError
+
+__all__ = ["CampaignInterrupted", "CampaignOutcome", "CampaignRunner", "Progress"]
+
+STATE_FORMAT = "camd-campaign-state"
+STATE_VERSION = 1
+
+
+class CampaignInterrupted(Exception):
+    """The run stopped before its end (Ctrl-C or ``stop_after``); the state file has every
+    completed step, so running again into the same directory resumes."""
+
+
+class Progress(Protocol):
+    """Told about each step instance as the run goes (camctl shows a rich progress bar)."""
+
+    def begin(self, total: int) -> None: ...
+
+    def step(self, key: str, title: str, *, replayed: bool) -> None: ...
+
+    def advance(self) -> None: ...
+
+
+class _NoProgress:
+    def begin(self, total: int) -> None:
+        pass
+
+    def step(self, key: str, title: str, *, replayed: bool) -> None:
+        pass
+
+    def advance(self) -> None:
+        pass
+
+
+@dataclass
+class CampaignOutcome:
+    """What a run produced: the results.json document and where the files are."""
+
+    doc: dict[str, Any]
+    results_path: Path
+    report_path: Path | None = None
+
+    @property
+    def passed(self) -> bool:
+        return bool(self.doc["passed"])
+
+
+@dataclass
+class _Level:
+    """Results and acquisitions visible at one nesting level (a sweep iteration)."""
+
+    results: dict[str, Any] = field(default_factory=dict)
+    files: dict[str, Acquired] = field(default_factory=dict)
+    parent: _Level | None = None
+
+    def result(self, name: str) -> Any:
+        level: _Level | None = self
+        while level is not None:
+            if name in level.results:
+                return level.results[name]
+            level = level.parent
+        raise KeyError(name)
+
+    def acquired(self, step_id: str) -> Acquired:
+        level: _Level | None = self
+        while level is not None:
+            if step_id in level.files:
+                return level.files[step_id]
+            level = level.parent
+        raise KeyError(step_id)
+
+
+def instance_seed(seed: int, key: str) -> int:
+    """The simulator seed of one step instance: the campaign's seed and the instance's key
+    hashed to 32 bits (stable across runs and Python versions, unlike ``hash``)."""
+    return zlib.crc32(f"{seed}/{key}".encode())
+
+
+def spec_digest(spec: CampaignSpec, quick: bool) -> str:
+    """What a state file must have been made by to be resumed: the campaign and --quick."""
+    text = json.dumps({"spec": spec.model_dump(mode="json"), "quick": quick}, sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+class CampaignRunner:
+    """Runs ``spec`` through ``client`` into ``out_dir`` (see the module docstring).
+
+    ``sim`` says whether the daemon drives the simulated camera (None: ask the daemon);
+    ``stop_after`` (a step instance key or step id) stops the run once that instance has
+    completed, as an interrupt would (for tests and debugging).
+    """
+
+    def __init__(
+        self,
+        client: CamdClient,
+        spec: CampaignSpec,
+        out_dir: str | os.PathLike[str],
+        *,
+        quick: bool = False,
+        progress: Progress | None = None,
+        sim: bool | None = None,
+        stop_after: str | None = None,
+    ) -> None:
+        self.client = client
+        self.spec = spec
+        self.out_dir = Path(out_dir).resolve()
+        self.quick = quick
+        self.progress: Progress = progress if progress is not None else _NoProgress()
+        self.sim = sim
+        self.stop_after = stop_after
+        self.parameters = spec.parameters_for(quick)
+        self.state_path = self.out_dir / "state.json"
+        self.raw_dir = self.out_dir / "raw"
+        self._completed: dict[str, dict[str, Any]] = {}
+        self._checks: list[dict[str, Any]] = []
+        self._files: dict[str, str] = {}
+
+    # -- the run --------------------------------------------------------------------------------
+
+    def run(self, *, report: bool = True) -> CampaignOutcome:
+        """Run (or resume) the campaign; write results.json and, with ``report``, the report.
+
+        Raises CampaignError when the daemon's camera is not the campaign's, a step cannot be
+        done (the message names the step), CampaignInterrupted when stopped early.
+        """
+        self.raw_dir.mkdir(parents=True, exist_ok=True)
+        self._load_state()
+        self._check_camera()
+        self.progress.begin(self._count(self.spec.steps, self.parameters))
+        top = _Level()
+        try:
+            self._run_steps(self.spec.steps, "", dict(self.parameters), top)
+        except KeyboardInterrupt:
+            self._stop_device()
+            raise CampaignInterrupted(
+                f"interrupted; {len(self._completed)} completed step(s) saved in "
+                f"{self.state_path}: run again with the same --out to resume"
+            ) from None
+        doc = self._results_doc(top)
+        results_path = self.out_dir / "results.json"
+        results_path.write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
+        outcome = CampaignOutcome(doc, results_path)
+        if report:
+            from camd.campaign.report import write_report
+
+            outcome.report_path = write_report(self.spec, doc, self.out_dir)
+        return outcome
+
+    def _results_doc(self, top: _Level) -> dict[str, Any]:
+        # Plain JSON in a fixed key order; nothing that differs between an interrupted and an
+        # uninterrupted run (no times, no absolute paths).
+        return {
+            "campaign": self.spec.name,
+            "profile": self.spec.profile,
+            "seed": self.spec.seed,
+            "quick": self.quick,
+            "passed": all(c["passed"] for c in self._checks),
+            "parameters": self.parameters,
+            "results": _plain(top.results),
+            "checks": self._checks,
+            "files": dict(sorted(self._files.items())),
+            "assumptions": list(self.spec.assumptions),
+        }
+
+    def _run_steps(
+        self, steps: list[Any], prefix: str, names: dict[str, Any], level: _Level
+    ) -> None:
+        for step in steps:
+            key = f"{prefix}{step.id}"
+            if isinstance(step, SweepStep):
+                self._sweep(step, key, names, level)
+                continue
+            record = self._completed.get(key)
+            replayed = record is not None and not isinstance(step, ConfigureStep)
+            self.progress.step(key, step.title or step.id, replayed=replayed)
+            if record is None or isinstance(step, ConfigureStep):
+                record = self._execute(step, key, names, level)
+                self._completed[key] = record
+                self._save_state()
+            self._apply(step, key, record, level)
+            self.progress.advance()
+            if self.stop_after in (key, step.id) and not replayed:
+                raise CampaignInterrupted(f"stopped after {key} (stop_after)")
+
+    def _sweep(self, step: SweepStep, key: str, names: dict[str, Any], level: _Level) -> None:
+        values = self._sweep_values(step, names)
+        per_iteration: list[_Level] = []
+        for i, value in enumerate(values):
+            inner = _Level(parent=level)
+            self._run_steps(step.steps, f"{key}[{i}]/", {**names, step.parameter: value}, inner)
+            per_iteration.append(inner)
+        # A result measured inside the sweep becomes a list over its values, in order.
+        produced: list[str] = []
+        for inner in per_iteration:
+            produced += [n for n in inner.results if n not in produced]
+        if step.record:
+            level.results[step.parameter] = list(values)
+        for name in produced:
+            level.results[name] = [inner.results.get(name) for inner in per_iteration]
+
+    def _sweep_values(self, step: SweepStep, names: dict[str, Any]) -> list[Any]:
+        values = resolve(step.values, names)
+        if not isinstance(values, list) or not values:
+            raise CampaignError(
+                f"step {step.id!r}: values: {step.values!r} must give a non-empty list, "
+                f"got {values!r}"
+            )
+        return values
+
+    def _count(self, steps: list[Any], names: dict[str, Any]) -> int:
+        total = 0
+        for step in steps:
+            if isinstance(step, SweepStep):
+                for value in self._sweep_values(step, names):
+                    total += self._count(step.steps, {**names, step.parameter: value})
+            else:
+                total += 1
+        return total
+
+    # -- one step instance ----------------------------------------------------------------------
+
+    def _execute(self, step: Any, key: str, names: dict[str, Any], level: _Level) -> dict[str, Any]:
+        try:
+            if isinstance(step, ConfigureStep):
+                return self._configure(_resolved(step, names))
+            if isinstance(step, AcquireStep):
+                return self._acquire(_resolved(step, names), key)
+            if isinstance(step, MeasureStep):
+                return self._measure(_resolved(step, names), level)
+            if isinstance(step, CheckStep):
+                return self._check(_resolved(step, names), key, level)
+        except CamdError as exc:
+            raise CampaignError(f"step {key}: the daemon refused: {exc.message}") from None
+        except (ValueError, KeyError, TypeError) as exc:
+            if isinstance(exc, CampaignError):
+                raise
+            raise CampaignError(f"step {key}: {exc}") from None
+        raise CampaignError(f"step {key}: unknown kind {step.kind!r}")
+
+    def _apply(self, step: Any, key: str, record: dict[str, Any], level: _Level) -> None:
+        """Make a completed instance's outcome visible to the steps after it."""
+        if isinstance(step, AcquireStep):
+            path = self.out_dir / record["file"]
+            level.files[step.id] = Acquired(record["how"], path, record["doc"])
+            self._files[key] = record["file"]
+        elif isinstance(step, MeasureStep):
+            level.results.update(record["results"])
+        elif isinstance(step, CheckStep):
+            self._checks.append(record["check"])
+
+    def _configure(self, step: ConfigureStep) -> dict[str, Any]:
+        c = self.client
+        if step.registers:
+            c.write_registers(dict(step.registers))
+        if step.mode is not None:
+            c.set_mode(str(step.mode))
+        if step.scene is not None:
+            self._require_sim("scene")
+            c.set_scene(step.scene)
+        if step.stage is not None:
+            self._require_sim("stage")
+            c.set_stage(track=bool(step.stage.track), speed_m_s=float(step.stage.speed_m_s))
+        if step.stage_faults is not None:
+            self._require_sim("stage_faults")
+            c.set_stage_faults(**{k: float(v) for k, v in step.stage_faults})
+        if step.stage_speed_m_s is not None:
+            c.run_stage(float(step.stage_speed_m_s))
+        if step.wheel_speed_deg_s is not None:
+            c.set_wheel_speed(float(step.wheel_speed_deg_s))
+        if step.wheel_compensation is not None:
+            c.set_wheel_compensation(bool(step.wheel_compensation))
+        if step.polarizer_deg is not None:
+            self._require_sim("polarizer_deg")
+            c.set_polarizer(float(step.polarizer_deg))
+        return {"configured": True}
+
+    def _acquire(self, step: AcquireStep, key: str) -> dict[str, Any]:
+        name = key.replace("/", "__").replace("[", "_").replace("]", "") + ".h5"
+        path = self.raw_dir / name
+        path.unlink(missing_ok=True)  # left by an interrupted attempt: the daemon makes it new
+        if self._on_sim():
+            self.client.set_sim_seed(instance_seed(self.spec.seed, key))
+        doc: dict[str, Any]
+        if isinstance(step.stare, StareAcquire):
+            s = step.stare
+            doc = dict(
+                self.client.acquire(
+                    int(s.frames),
+                    mode=None if s.mode is None else str(s.mode),
+                    stages=None if s.stages is None else int(s.stages),
+                    binning=str(s.binning),
+                    record=str(path),
+                    timeout_s=None if s.timeout_s is None else float(s.timeout_s),
+                )
+            )
+            stats = doc.get("stats", {})
+            if int(stats.get("frames", 0)) != int(s.frames):
+                raise CampaignError(
+                    f"step {key}: {stats.get('frames')} of {s.frames} frames arrived "
+                    f"({stats.get('lost')} lost, {stats.get('corrupt')} corrupt)"
+                )
+        elif isinstance(step.scan, ScanAcquire):
+            sc = step.scan
+            self.client.start_scan(
+                int(sc.stages), int(sc.lines), out=str(path), scene=sc.scene,
+                mode=str(sc.mode), out_bits=None if sc.out_bits is None else int(sc.out_bits),
+                binning=str(sc.binning), quicklook=False, drive_stage=bool(sc.drive_stage),
+                closed_loop=None if sc.closed_loop is None else bool(sc.closed_loop),
+                dv_over_v=float(sc.dv_over_v),
+            )  # fmt: skip
+            doc = dict(self.client.wait_scan(float(sc.timeout_s)))
+            if doc.get("error"):
+                raise CampaignError(f"step {key}: the scan failed: {doc['error']}")
+        else:
+            assert isinstance(step.wheel, WheelAcquire)
+            w = step.wheel
+            channels = w.channels if isinstance(w.channels, list) else []
+            doc = dict(
+                self.client.wheel_acquire(
+                    [int(ch) for ch in channels],
+                    passes=int(w.passes),
+                    exposure_s=None if w.exposure_s is None else float(w.exposure_s),
+                    compensated=None if w.compensated is None else bool(w.compensated),
+                    record=str(path),
+                    timeout_s=None if w.timeout_s is None else float(w.timeout_s),
+                )
+            )
+        return {"how": step.how, "file": str(path.relative_to(self.out_dir)), "doc": _plain(doc)}
+
+    def _measure(self, step: MeasureStep, level: _Level) -> dict[str, Any]:
+        inputs = {}
+        for arg, source in step.inputs.items():
+            try:
+                inputs[arg] = level.acquired(source)
+            except KeyError:
+                raise CampaignError(
+                    f"step {step.id}: inputs.{arg}: step {source!r} has not acquired anything "
+                    "before this step (inputs name an earlier acquire step in scope)"
+                ) from None
+        produced = MEASUREMENTS[step.function](inputs, **step.args)
+        wanted = step.results if step.results is not None else list(produced)
+        missing = [n for n in wanted if n not in produced]
+        if missing:
+            raise CampaignError(
+                f"step {step.id}: results: {step.function} gave no {', '.join(missing)} "
+                f"(it gives {', '.join(produced)})"
+            )
+        return {"results": _plain({n: produced[n] for n in wanted})}
+
+    def _check(self, step: CheckStep, key: str, level: _Level) -> dict[str, Any]:
+        try:
+            value = level.result(step.result)
+        except KeyError:
+            raise CampaignError(
+                f"step {step.id}: result: no result {step.result!r} measured before this step"
+            ) from None
+        lo = None if step.min is None else float(step.min)
+        hi = None if step.max is None else float(step.max)
+        numbers = list(_numbers(value))
+
+        def ok(x: float) -> bool:
+            return math.isfinite(x) and (lo is None or x >= lo) and (hi is None or x <= hi)
+
+        passed = bool(numbers) and all(ok(x) for x in numbers)
+        check = {
+            "id": key, "result": step.result, "value": _plain(value), "min": lo, "max": hi,
+            "passed": passed,
+        }  # fmt: skip
+        return {"check": check}
+
+    # -- the camera, the state file -------------------------------------------------------------
+
+    def _on_sim(self) -> bool:
+        if self.sim is None:
+            link = self.client.status().get("link") or {}
+            self.sim = link.get("sim_pid") is not None
+        return self.sim
+
+    def _require_sim(self, key: str) -> None:
+        if not self._on_sim():
+            raise CampaignError(
+                f"`{key}` drives the simulated camera only; this daemon runs hardware"
+            )
+
+    def _check_camera(self) -> None:
+        """The daemon's sensor must be the campaign's profile (physics differ per sensor)."""
+        sensor = self.client.timing()["sensor"]
+        if sensor == self.spec.profile:
+            return
+        if self._on_sim():
+            raise CampaignError(
+                f"campaign {self.spec.name!r} is written for the {self.spec.profile} camera but "
+                f"the daemon simulates {sensor}: run `camctl campaign run FILE --sim`, which "
+                f"starts a simulator with the campaign's profile, or start the daemon with "
+                f'[sim] profile = "{self.spec.profile}" and [sensor] name = '
+                f'"{self.spec.profile}"'
+            )
+        raise CampaignError(
+            f"campaign {self.spec.name!r} is written for the {self.spec.profile} sensor; the "
+            f"camera on this daemon has a {sensor}: refusing to run it on another sensor"
+        )
+
+    def _stop_device(self) -> None:
+        # Best effort after Ctrl-C: leave no stream or scan running behind us.
+        for stop in (self.client.stop_scan, self.client.stop_stream):
+            with contextlib.suppress(CamdError):
+                stop()
+
+    def _load_state(self) -> None:
+        if not self.state_path.exists():
+            return
+        try:
+            state = json.loads(self.state_path.read_text(encoding="utf-8"))
+        except (OSError, ValueError) as exc:
+            raise CampaignError(
+                f"{self.state_path}: unreadable state file ({exc}); remove it to start over"
+            ) from None
+        if state.get("format") != STATE_FORMAT or state.get("version") != STATE_VERSION:
+            raise CampaignError(f"{self.state_path} is not a campaign state file; remove it")
+        if state.get("digest") != spec_digest(self.spec, self.quick):
+            raise CampaignError(
+                f"{self.state_path} was written by another version of campaign "
+                f"{state.get('campaign')!r} (or with{'out' if self.quick else ''} --quick): "
+                "choose a new --out directory or remove the state file to start over"
+            )
+        self._completed = dict(state["completed"])
+
+    def _save_state(self) -> None:
+        state = {
+            "format": STATE_FORMAT,
+            "version": STATE_VERSION,
+            "campaign": self.spec.name,
+            "digest": spec_digest(self.spec, self.quick),
+            "completed": self._completed,
+        }
+        tmp = self.state_path.with_suffix(".json.tmp")
+        tmp.write_text(json.dumps(state, indent=1) + "\n", encoding="utf-8")
+        os.replace(tmp, self.state_path)  # atomic: an interrupt never leaves half a file
+
+
+def _resolved(step: Any, names: dict[str, Any]) -> Any:
+    """The step with its ``${...}`` references replaced, validated again with their values."""
+    data = step.model_dump(exclude_none=False)
+    try:
+        return type(step).model_validate(resolve(data, names))
+    except ValueError as exc:
+        raise CampaignError(f"step {step.id!r}: after substituting parameters: {exc}") from None
+
+
+def _numbers(value: Any) -> Iterator[float]:
+    if isinstance(value, bool | int | float):
+        yield float(value)
+    elif isinstance(value, list):
+        for v in value:
+            yield from _numbers(v)
+    elif isinstance(value, Mapping):
+        for v in value.values():
+            yield from _numbers(v)
+
+
+def _plain(value: Any) -> Any:
+    """JSON-safe: numpy scalars to Python, NaN/inf to None (JSON has neither)."""
+    if isinstance(value, Mapping):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_plain(v) for v in value]
+    if hasattr(value, "item") and callable(value.item):
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value

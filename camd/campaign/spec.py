@@ -1,0 +1,414 @@
+"""Campaign files: the YAML schema as pydantic models (docs/campaigns.md describes every key).
+
+A campaign declares the camera profile it was written for, a seed, named parameters (with
+``quick`` overrides for CI-sized runs), a list of steps and the report's outputs::
+
+    name: example_stare
+    profile: hr400
+    seed: 7
+    parameters: {frames: 8, stages: [1, 2, 4]}
+    quick: {stages: [1, 2]}
+    steps:
+      - {id: light, kind: configure, scene: "flat:photons=2e4", mode: area}
+      - id: sweep_stages
+        kind: sweep
+        parameter: m
+        values: ${stages}
+        steps:
+          - {id: stare, kind: acquire, stare: {frames: ${frames}}}
+          - {id: snr, kind: measure, function: stare_psnr, inputs: {frames: stare}}
+          - {id: psnr_ok, kind: check, result: psnr_db, min: 20}
+    outputs:
+      tables: [{title: PSNR, columns: [m, psnr_db]}]
+      plots: [{title: PSNR against M, x: m, y: [psnr_db]}]
+
+Step kinds are few and data-driven: ``configure`` (registers, mode, simulated scene, stage,
+wheel), ``sweep`` (a parameter over values, with nested steps), ``acquire`` (stare, scan or
+wheel, recorded to HDF5), ``measure`` (a function of camd.campaign.measurements by name) and
+``check`` (a result against min/max). ``${name}`` anywhere in a step's values refers to a
+parameter or an enclosing sweep's variable: a whole-string reference takes the parameter's
+value and type, an embedded one is formatted into the text. References are checked when the
+file is loaded, the values they resolve to when the step runs.
+
+Errors (``CampaignError``) name the file, the step (``steps[2] (id 'sweep')``) and the key.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+__all__ = [
+    "AcquireStep",
+    "CampaignError",
+    "CampaignSpec",
+    "CheckStep",
+    "ConfigureStep",
+    "MeasureStep",
+    "Outputs",
+    "PlotSpec",
+    "Step",
+    "SweepStep",
+    "TableSpec",
+    "load_campaign",
+    "resolve",
+]
+
+NAME = r"^[a-z][a-z0-9_]*$"
+REF_RE = re.compile(r"\$\{([a-z][a-z0-9_]*)\}")
+WHOLE_REF = r"^\$\{[a-z][a-z0-9_]*\}$"
+
+Ref = Annotated[str, Field(pattern=WHOLE_REF)]
+"""A whole-string parameter reference, ``${name}``, where a number or list is expected."""
+
+
+class CampaignError(ValueError):
+    """A campaign file is invalid or cannot run; the message names the file, step and key."""
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+# -- steps ------------------------------------------------------------------------------------
+
+
+class _Step(_Model):
+    id: str = Field(pattern=NAME, description="unique step id (state, files and errors name it)")
+    title: str = Field(default="", description="what the step does, for progress and reports")
+
+
+class StageSetting(_Model):
+    """The simulated stage: track the synchronous speed or run at a fixed speed."""
+
+    track: bool | Ref = True
+    speed_m_s: float | Ref = 0.0
+
+
+class StageFaults(_Model):
+    """The simulated stepper stage's imperfections (as ``--inject stage_*``)."""
+
+    error: float | Ref = 0.0
+    ripple: float | Ref = 0.0
+    jitter: float | Ref = 0.0
+    drift: float | Ref = 0.0
+    load: float | Ref = 0.0
+
+
+class ConfigureStep(_Step):
+    """Set registers, mode, the simulated scene, stage and wheel (each optional)."""
+
+    kind: Literal["configure"]
+    registers: dict[str, int | str] = Field(
+        default_factory=dict, description="REG, REG.field or GROUP -> value (written all at once)"
+    )
+    mode: Literal["area", "tdi"] | Ref | None = None
+    scene: str | None = Field(default=None, description="simulator only: a scene spec")
+    stage: StageSetting | None = Field(default=None, description="simulator only")
+    stage_faults: StageFaults | None = Field(default=None, description="simulator only")
+    stage_speed_m_s: float | Ref | None = Field(
+        default=None, description="run the real stage at this signed speed (0 stops it)"
+    )
+    wheel_speed_deg_s: float | Ref | None = None
+    wheel_compensation: bool | Ref | None = None
+    polarizer_deg: float | Ref | None = Field(
+        default=None, description="simulator only: the reference polariser's axis"
+    )
+
+
+class StareAcquire(_Model):
+    """Stare: ``frames`` window frames recorded to HDF5 (camd.store.recording)."""
+
+    frames: int | Ref = Field(default=10, description="frames to take (>= 1)")
+    mode: Literal["area", "tdi"] | Ref | None = None
+    stages: int | Ref | None = None
+    binning: Literal["off", "2x2"] | Ref = "off"
+    timeout_s: float | Ref | None = None
+
+
+class ScanAcquire(_Model):
+    """A push-broom TDI scan recorded to HDF5 (camd.store.tdi_recording)."""
+
+    stages: int | Ref
+    lines: int | Ref
+    scene: str | None = None
+    mode: Literal["sum", "mean"] | Ref = "sum"
+    out_bits: int | Ref | None = None
+    binning: Literal["off", "2x2"] | Ref = "off"
+    dv_over_v: float | Ref = 0.0
+    closed_loop: bool | Ref | None = None
+    drive_stage: bool | Ref = True
+    timeout_s: float | Ref = 120.0
+
+
+class WheelAcquire(_Model):
+    """One frame per channel per pass through the turning filter wheel."""
+
+    channels: list[int] | Ref
+    passes: int | Ref = 1
+    exposure_s: float | Ref | None = None
+    compensated: bool | Ref | None = None
+    timeout_s: float | Ref | None = None
+
+
+class AcquireStep(_Step):
+    """Take data: exactly one of ``stare``, ``scan`` or ``wheel``; recorded under raw/."""
+
+    kind: Literal["acquire"]
+    stare: StareAcquire | None = None
+    scan: ScanAcquire | None = None
+    wheel: WheelAcquire | None = None
+
+    @model_validator(mode="after")
+    def _exactly_one(self) -> AcquireStep:
+        given = [k for k in ("stare", "scan", "wheel") if getattr(self, k) is not None]
+        if len(given) != 1:
+            raise ValueError(
+                "give exactly one of `stare`, `scan` or `wheel`, got "
+                + (", ".join(given) if given else "none")
+            )
+        return self
+
+    @property
+    def how(self) -> str:
+        """``stare``, ``scan`` or ``wheel``."""
+        return "stare" if self.stare else "scan" if self.scan else "wheel"
+
+
+class MeasureStep(_Step):
+    """Apply a registered measurement function to acquired data; keep named results."""
+
+    kind: Literal["measure"]
+    function: str = Field(pattern=NAME, description="a name in camd.campaign.measurements")
+    inputs: dict[str, str] = Field(
+        default_factory=dict, description="argument name -> id of an acquire step"
+    )
+    args: dict[str, Any] = Field(default_factory=dict, description="keyword arguments")
+    results: list[str] | None = Field(
+        default=None, description="result names to keep (default: all the function returns)"
+    )
+
+
+class CheckStep(_Step):
+    """A result against limits; a failure makes the campaign fail (after it has run)."""
+
+    kind: Literal["check"]
+    result: str = Field(pattern=NAME, description="a result name in scope")
+    min: float | Ref | None = None
+    max: float | Ref | None = None
+
+
+class SweepStep(_Step):
+    """Run ``steps`` once per value of ``parameter`` (``${parameter}`` inside them)."""
+
+    kind: Literal["sweep"]
+    parameter: str = Field(pattern=NAME)
+    values: list[Any] | Ref
+    record: bool = Field(default=True, description="record the values as a result")
+    steps: list[Step] = Field(min_length=1)
+
+
+Step = Annotated[
+    ConfigureStep | SweepStep | AcquireStep | MeasureStep | CheckStep,
+    Field(discriminator="kind"),
+]
+SweepStep.model_rebuild()
+
+
+# -- outputs ----------------------------------------------------------------------------------
+
+
+class PlotSpec(_Model):
+    """One PNG: results ``y`` against result ``x`` (check limits on ``y`` drawn dashed)."""
+
+    title: str
+    x: str = Field(pattern=NAME)
+    y: list[str] = Field(min_length=1)
+    xlabel: str = ""
+    ylabel: str = ""
+    logx: bool = False
+    logy: bool = False
+
+
+class TableSpec(_Model):
+    """One table: columns are result names (lists side by side, scalars as one row)."""
+
+    title: str
+    columns: list[str] = Field(min_length=1)
+
+
+class Outputs(_Model):
+    plots: list[PlotSpec] = Field(default_factory=list)
+    tables: list[TableSpec] = Field(default_factory=list)
+
+
+# -- the campaign -----------------------------------------------------------------------------
+
+
+class CampaignSpec(_Model):
+    """A whole campaign file."""
+
+    name: str = Field(pattern=NAME)
+    description: str = ""
+    profile: str = Field(pattern=NAME, description="camera profile (config/profiles/NAME.toml)")
+    seed: int = Field(default=0, ge=0, le=0xFFFFFFFF)
+    parameters: dict[str, Any] = Field(default_factory=dict)
+    quick: dict[str, Any] = Field(
+        default_factory=dict, description="parameter overrides for --quick (CI-sized runs)"
+    )
+    assumptions: list[str] = Field(
+        default_factory=list, description="what the report must say was assumed"
+    )
+    steps: list[Step] = Field(min_length=1)
+    outputs: Outputs = Field(default_factory=Outputs)
+
+    def parameters_for(self, quick: bool) -> dict[str, Any]:
+        """The parameters, with the ``quick`` overrides applied when ``quick``."""
+        return {**self.parameters, **(self.quick if quick else {})}
+
+
+def load_campaign(path: str | Path) -> CampaignSpec:
+    """Read and validate a campaign file; CampaignError naming the file, step and key."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise CampaignError(f"{path}: cannot read the campaign file ({exc})") from None
+    try:
+        doc = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise CampaignError(f"{path}: not valid YAML: {exc}") from None
+    if not isinstance(doc, dict):
+        raise CampaignError(f"{path}: a campaign is a mapping (name, profile, steps, ...)")
+    try:
+        spec = CampaignSpec.model_validate(doc)
+    except ValidationError as exc:
+        raise CampaignError(_explain(path, doc, exc)) from None
+    _check_semantics(path, spec)
+    return spec
+
+
+def _explain(path: Path, doc: dict[str, Any], exc: ValidationError) -> str:
+    """pydantic's errors as ``file: steps[1] (id 'x'): key: message`` lines."""
+    lines = []
+    for err in exc.errors():
+        loc = list(err["loc"])
+        where: list[str] = []
+        node: Any = doc
+        i = 0
+        while i < len(loc):
+            part = loc[i]
+            if isinstance(part, int) and isinstance(node, list):
+                node = node[part] if part < len(node) else None
+                step_id = node.get("id") if isinstance(node, dict) else None
+                label = f"[{part}]" + (f" (id {step_id!r})" if step_id else "")
+                where[-1] = where[-1] + label if where else label
+            elif isinstance(node, dict) and part in node:
+                node = node[part]
+                where.append(str(part))
+            elif part in ("configure", "sweep", "acquire", "measure", "check"):
+                pass  # the discriminated union's tag: not a key of the file
+            else:
+                where.append(str(part))
+                node = None
+            i += 1
+        message = err["msg"]
+        if err["type"] == "extra_forbidden":
+            message = "unknown key (a typo?); docs/campaigns.md lists the keys"
+        elif err["type"] == "missing":
+            message = "missing key"
+        lines.append(f"{path}: {'.'.join(where) or '(top level)'}: {message}")
+    return "\n".join(lines)
+
+
+def _walk(steps: list[Any], where: str) -> list[tuple[str, Any]]:
+    out: list[tuple[str, Any]] = []
+    for i, step in enumerate(steps):
+        label = f"{where}[{i}] (id {step.id!r})"
+        out.append((label, step))
+        if isinstance(step, SweepStep):
+            out += _walk(step.steps, f"{label}.steps")
+    return out
+
+
+def _check_semantics(path: Path, spec: CampaignSpec) -> None:
+    """What the schema cannot say: unique ids, known references, known functions."""
+    from camd.campaign.measurements import MEASUREMENTS
+
+    unknown_quick = sorted(set(spec.quick) - set(spec.parameters))
+    if unknown_quick:
+        raise CampaignError(
+            f"{path}: quick: {', '.join(unknown_quick)} not in `parameters` (quick overrides "
+            "parameters; declare them there)"
+        )
+    seen: dict[str, str] = {}
+    acquires: set[str] = set()
+    for label, step in _walk(spec.steps, "steps"):
+        if step.id in seen:
+            raise CampaignError(f"{path}: {label}: id {step.id!r} already used by {seen[step.id]}")
+        seen[step.id] = label
+        if isinstance(step, AcquireStep):
+            acquires.add(step.id)
+
+    def check(steps: list[Any], where: str, names: set[str]) -> None:
+        for i, step in enumerate(steps):
+            label = f"{where}[{i}] (id {step.id!r})"
+            for key, value in step.model_dump(exclude={"steps"}).items():
+                for ref in _refs(value):
+                    if ref not in names:
+                        raise CampaignError(
+                            f"{path}: {label}: {key}: ${{{ref}}} is neither a parameter nor "
+                            f"an enclosing sweep's parameter (known: {', '.join(sorted(names))})"
+                        )
+            if isinstance(step, MeasureStep):
+                if step.function not in MEASUREMENTS:
+                    raise CampaignError(
+                        f"{path}: {label}: function: unknown measurement {step.function!r}; "
+                        f"known: {', '.join(sorted(MEASUREMENTS))}"
+                    )
+                for arg, source in step.inputs.items():
+                    if source not in acquires:
+                        raise CampaignError(
+                            f"{path}: {label}: inputs.{arg}: {source!r} is not the id of an "
+                            "acquire step"
+                        )
+            if isinstance(step, CheckStep) and step.min is None and step.max is None:
+                raise CampaignError(f"{path}: {label}: give `min`, `max` or both")
+            if isinstance(step, SweepStep):
+                check(step.steps, f"{label}.steps", names | {step.parameter})
+
+    # Result names in `outputs` are only known after a run: the report says which are missing.
+    check(spec.steps, "steps", set(spec.parameters))
+
+
+def _refs(value: Any) -> list[str]:
+    if isinstance(value, str):
+        return REF_RE.findall(value)
+    if isinstance(value, dict):
+        return [r for v in value.values() for r in _refs(v)]
+    if isinstance(value, list):
+        return [r for v in value for r in _refs(v)]
+    return []
+
+
+def resolve(value: Any, names: dict[str, Any]) -> Any:
+    """``value`` with ``${name}`` references replaced: a whole-string reference by the value
+    itself (its type kept), an embedded one by its text."""
+    if isinstance(value, str):
+        whole = re.fullmatch(REF_RE, value)
+        if whole:
+            return names[whole.group(1)]
+        return REF_RE.sub(lambda m: _text(names[m.group(1)]), value)
+    if isinstance(value, dict):
+        return {k: resolve(v, names) for k, v in value.items()}
+    if isinstance(value, list):
+        return [resolve(v, names) for v in value]
+    return value
+
+
+def _text(value: Any) -> str:
+    return format(value, "g") if isinstance(value, float) else str(value)

@@ -1,0 +1,212 @@
+"""camctl's campaign commands (docs/campaigns.md).
+
+    camctl campaign run FILE --out DIR [--quick] [--sim] [--json]
+    camctl campaign list
+
+``run`` runs (or, into a DIR holding a state file, resumes) a campaign against the daemon at
+--url, or with ``--sim`` against a simulated camera of the campaign's profile that it starts
+itself (data and log in DIR/daemon). Progress goes to stderr. ``--json`` prints one document,
+``{"campaign", "passed", "results", "report"}``. Exit status 1 when a check failed (after
+everything was written), 130 when interrupted (resume by running again).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+from camd.client import CamdClient
+
+__all__ = ["COMMANDS", "RENDER", "add_parsers", "campaigns_dir"]
+
+
+def campaigns_dir() -> Path:
+    """The shipped campaigns: config/campaigns/ of the camd config dir."""
+    from camd.paths import config_dir
+
+    return config_dir() / "campaigns"
+
+
+def add_parsers(command: Callable[[str, str], argparse.ArgumentParser]) -> None:
+    """Add ``campaign`` through camctl's ``command(name, help)`` factory."""
+    p = command("campaign", "run a scripted test campaign, or list the shipped ones")
+    p.add_argument("action", choices=("run", "list"))
+    p.add_argument(
+        "file", nargs="?", metavar="FILE",
+        help="run: the campaign YAML, or the name of a shipped one (camctl campaign list)",
+    )  # fmt: skip
+    p.add_argument("--out", metavar="DIR", help="run: output directory (resumes if it has state)")
+    p.add_argument("--quick", action="store_true", help="run: the campaign's CI-sized overrides")
+    p.add_argument(
+        "--sim", action="store_true",
+        help="run: start a simulated camera with the campaign's profile and seed for this run",
+    )  # fmt: skip
+    p.add_argument("--resume", action="store_true", help="run: require a state file to resume")
+    p.add_argument("--stop-after", metavar="STEP", help=argparse.SUPPRESS)  # tests: interrupt
+
+
+def _campaign_path(text: str) -> Path:
+    path = Path(text)
+    if path.suffix in (".yaml", ".yml") or path.exists():
+        return path
+    return campaigns_dir() / f"{text}.yaml"
+
+
+def cmd_campaign(client: CamdClient, args: argparse.Namespace) -> Any:
+    from camd.campaign.spec import CampaignError, load_campaign
+    from camd.cli.camctl_sensor import CommandFailed, UsageError
+
+    if args.action == "list":
+        return _list()
+    if not args.file or not args.out:
+        raise UsageError("campaign run needs FILE and --out DIR")
+    try:
+        spec = load_campaign(_campaign_path(args.file))
+    except CampaignError as exc:
+        raise UsageError(str(exc)) from None
+    out_dir = Path(args.out)
+    if args.resume and not (out_dir / "state.json").exists():
+        raise UsageError(f"--resume: {out_dir / 'state.json'} does not exist; nothing to resume")
+    try:
+        if args.sim:
+            doc = _run_on_own_sim(spec, out_dir, args)
+        else:
+            doc = _run(client, spec, out_dir, args, sim=None)
+    except CampaignError as exc:
+        raise CommandFailed({"campaign": spec.name, "error": str(exc)}, str(exc)) from None
+    if not doc["passed"]:
+        failed = [c for c in doc["results_doc"]["checks"] if not c["passed"]]
+        names = ", ".join(c["id"] for c in failed)
+        raise CommandFailed(_public(doc), f"campaign {spec.name}: check(s) failed: {names}")
+    return _public(doc)
+
+
+def _public(doc: dict[str, Any]) -> dict[str, Any]:
+    return {k: doc[k] for k in ("campaign", "passed", "results", "report")}
+
+
+def _run(
+    client: CamdClient, spec: Any, out_dir: Path, args: argparse.Namespace, *, sim: bool | None
+) -> dict[str, Any]:
+    from camd.campaign.runner import CampaignInterrupted, CampaignRunner
+
+    err = Console(stderr=True, highlight=False)
+    with _RichProgress(err, spec.name) as progress:
+        runner = CampaignRunner(
+            client, spec, out_dir, quick=args.quick, progress=progress, sim=sim,
+            stop_after=args.stop_after,
+        )  # fmt: skip
+        try:
+            outcome = runner.run()
+        except CampaignInterrupted as exc:
+            print(f"camctl: {exc}", file=sys.stderr)
+            raise KeyboardInterrupt from None  # camctl: "interrupted", exit 130
+    return {
+        "campaign": spec.name,
+        "passed": outcome.passed,
+        "results": outcome.doc["results"],
+        "report": str(outcome.report_path),
+        "results_doc": outcome.doc,
+    }
+
+
+def _run_on_own_sim(spec: Any, out_dir: Path, args: argparse.Namespace) -> dict[str, Any]:
+    """Start ``camd serve --sim`` with the campaign's profile and seed, run, stop it."""
+    from camd.campaign.spec import CampaignError
+    from camd.cli._daemon_proc import DaemonProcess, DaemonStartError
+
+    data = out_dir.resolve() / "daemon"
+    data.mkdir(parents=True, exist_ok=True)
+    config = data / "camd.toml"
+    config.write_text(
+        f'[sim]\nprofile = "{spec.profile}"\nseed = {spec.seed}\n'
+        f'[sensor]\nname = "{spec.profile}"\n',
+        encoding="utf-8",
+    )
+    daemon = DaemonProcess(data, extra_args=["--config", str(config)], env={"CAMD_TOKEN": ""})
+    try:
+        daemon.start()
+    except DaemonStartError as exc:
+        raise CampaignError(f"the simulated camera did not start: {exc}") from None
+    try:
+        with CamdClient(daemon.url, timeout_s=args.timeout) as client:
+            client.wait_ready(60.0)
+            return _run(client, spec, out_dir, args, sim=True)
+    finally:
+        daemon.stop()
+
+
+def _list() -> dict[str, Any]:
+    from camd.campaign.spec import CampaignError, load_campaign
+
+    found: list[dict[str, Any]] = []
+    for path in sorted(campaigns_dir().glob("*.yaml")):
+        try:
+            spec = load_campaign(path)
+            found.append({"name": spec.name, "profile": spec.profile, "file": str(path),
+                          "description": " ".join(spec.description.split())})  # fmt: skip
+        except CampaignError as exc:
+            found.append({"name": path.stem, "profile": None, "file": str(path),
+                          "description": f"INVALID: {exc}"})  # fmt: skip
+    return {"campaigns": found}
+
+
+class _RichProgress:
+    """The runner's progress as a rich bar on stderr."""
+
+    def __init__(self, console: Console, name: str) -> None:
+        self._bar = Progress(
+            TextColumn(f"[bold]{name}[/]"), BarColumn(), MofNCompleteColumn(),
+            TextColumn("{task.description}"), TimeElapsedColumn(), console=console,
+            transient=False,
+        )  # fmt: skip
+        self._task = self._bar.add_task("", total=None)
+
+    def __enter__(self) -> _RichProgress:
+        self._bar.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._bar.stop()
+
+    def begin(self, total: int) -> None:
+        self._bar.update(self._task, total=total, completed=0)
+
+    def step(self, key: str, title: str, *, replayed: bool) -> None:
+        how = " (done before: replayed)" if replayed else ""
+        self._bar.update(self._task, description=f"{key}{how}")
+
+    def advance(self) -> None:
+        self._bar.advance(self._task)
+
+
+COMMANDS: dict[str, Callable[[CamdClient, argparse.Namespace], Any]] = {
+    "campaign": cmd_campaign,
+}
+
+
+def render_campaign(out: Console, doc: Any, args: argparse.Namespace) -> None:
+    if "campaigns" in doc:
+        for c in doc["campaigns"]:
+            out.print(f"[bold]{c['name']}[/] ({c['profile']}): {c['description']}")
+        if not doc["campaigns"]:
+            out.print(f"no campaigns in {campaigns_dir()}")
+        return
+    if "error" in doc:
+        return
+    colour = "green" if doc["passed"] else "red"
+    out.print(
+        f"campaign {doc['campaign']}: [{colour}]{'PASSED' if doc['passed'] else 'FAILED'}[/]; "
+        f"report {doc['report']}"
+    )
+
+
+RENDER: dict[str, Callable[[Console, Any, argparse.Namespace], None]] = {
+    "campaign": render_campaign,
+}
