@@ -88,3 +88,25 @@ def named_file(
     if not path.is_file():
         raise FileNotFoundError(f"no {kind} {name_or_path!r}; known: {', '.join(known)}")
     return path
+
+
+def key_line(text: str, key: str, table: str | None = None) -> int | None:
+    """The 1-based line of ``key = ...`` in a TOML text: at the top level (or a ``[key]`` /
+    ``[[key]]`` header), or inside ``[table]`` (falling back to the table's header); None if
+    the key is not written (a missing key)."""
+    assign = re.compile(rf"^\s*{re.escape(key)}\s*=")
+    header = re.compile(r"^\s*\[+\s*([A-Za-z0-9_.]+)\s*\]+")
+    current: str | None = None
+    table_line: int | None = None
+    for number, line in enumerate(text.splitlines(), start=1):
+        match = header.match(line)
+        if match:
+            current = match.group(1)
+            if table is None and current == key:
+                return number
+            if table is not None and current == table and table_line is None:
+                table_line = number
+            continue
+        if current == table and assign.match(line):
+            return number
+    return table_line

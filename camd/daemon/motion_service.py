@@ -257,8 +257,9 @@ class MotionService:
             return "off"  # (auto: every stage profile has an encoder, so on)
         return motion.correct
 
-    def optics(self, binned: bool = False) -> tuple[float, float]:
-        """(pixel pitch on the focal plane, image scale of stage travel) for this camera."""
+    def camera_optics(self, binned: bool = False) -> tuple[float, float]:
+        """(pixel pitch on the focal plane, doubled when binned; the optics' magnification)
+        from the camera's profile."""
         from camd.daemon.session import BadRequest
         from camd.sensor.profile import list_profiles, load_profile
 
@@ -266,11 +267,16 @@ class MotionService:
         if name not in list_profiles():
             raise BadRequest(
                 f"sensor {name} has no camera profile in config/profiles/, so the pixel pitch "
-                "and magnification synchronisation needs are unknown; add one"
+                "and magnification that scan timing and synchronisation need are unknown; "
+                "add one"
             )
         camera = load_profile(name)
-        pitch = camera.pitch_m.value * (2 if binned else 1)
-        return pitch, self.profile.image_scale(camera.magnification.value)
+        return camera.pitch_m.value * (2 if binned else 1), camera.magnification.value
+
+    def optics(self, binned: bool = False) -> tuple[float, float]:
+        """(pixel pitch on the focal plane, image scale of stage travel) for this camera."""
+        pitch, magnification = self.camera_optics(binned)
+        return pitch, self.profile.image_scale(magnification)
 
     def sync(
         self,

@@ -399,22 +399,12 @@ class ScanService:
         )
 
     def _optics(self, request: ScanRequest) -> tuple[float, float]:
-        """Pixel pitch (doubled when binned) and magnification of the camera's profile."""
-        from camd.daemon.session import BadRequest
-
+        """Pixel pitch (doubled when binned) and the image scale of the stage's travel: the
+        stage profile's when the scan drives it, else the camera's magnification."""
         binned = request.binning == "2x2"
         if request.drive_stage:
-            return self.session.motion.optics(binned)  # the stage's own image scale
-        from camd.sensor.profile import list_profiles, load_profile
-
-        name = self.session.sensor.regmap.sensor
-        if name not in list_profiles():
-            raise BadRequest(
-                f"sensor {name} has no camera profile in config/profiles/, so the pixel pitch "
-                "and magnification a scan's timing needs are unknown; add one"
-            )
-        profile = load_profile(name)
-        return profile.pitch_m.value * (2 if binned else 1), profile.magnification.value
+            return self.session.motion.optics(binned)
+        return self.session.motion.camera_optics(binned)
 
     def _check_motion(self, request: ScanRequest, frames: int) -> None:
         """Refuse a scan whose stage speed or travel is beyond the stage's limits, from the

@@ -54,9 +54,6 @@ class SpeedEstimator:
         self._samples: list[EncoderSample] = []
         self.centre_s = math.nan
 
-    def reset(self) -> None:
-        self._samples.clear()
-
     def add(self, sample: EncoderSample) -> tuple[float, float] | None:
         """(measured speed, commanded speed) over the window up to ``sample``; None until the
         window holds two readings at different times."""

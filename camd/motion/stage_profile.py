@@ -35,14 +35,13 @@ and what to change, e.g.::
 from __future__ import annotations
 
 import math
-import re
 from functools import cache
 from pathlib import Path
 from typing import Annotated, Any, Literal, TypeVar
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from camd.datafile import DataFileError, Sourced, named_file, read_toml
+from camd.datafile import DataFileError, Sourced, key_line, named_file, read_toml
 from camd.paths import config_dir
 
 StageKind = Literal["linear", "turntable"]
@@ -353,30 +352,12 @@ def _load(path: Path) -> StageProfile:
         raise _located(path, text, exc) from None
 
 
-def _key_line(text: str, key: str, table: str | None = None) -> int | None:
-    """The line of ``key = ...`` at the top level, or inside ``[table]``, or of ``[key]``."""
-    lines = text.splitlines()
-    current: str | None = None
-    assign = re.compile(rf"^\s*{re.escape(key)}\s*=")
-    header = re.compile(r"^\s*\[\s*([A-Za-z0-9_.]+)\s*\]")
-    for number, line in enumerate(lines, start=1):
-        match = header.match(line)
-        if match:
-            current = match.group(1)
-            if table is None and current == key:
-                return number
-            continue
-        if current == table and assign.match(line):
-            return number
-    return None
-
-
 def _located(path: Path, text: str, exc: ValidationError) -> StageProfileError:
     first = exc.errors()[0]
     loc = tuple(str(part) for part in first["loc"])
     error = first.get("ctx", {}).get("error")
     if isinstance(error, _Keyed):
-        line = _key_line(text, error.key, error.table)
+        line = key_line(text, error.key, error.table)
         return StageProfileError(path, line, f"{error.key}: {error.message}")
     message = str(first["msg"]).removeprefix("Value error, ")
     if not loc:
@@ -400,7 +381,7 @@ def _located(path: Path, text: str, exc: ValidationError) -> StageProfileError:
         hint = f"; known keys: {known}"
     elif first["type"] == "model_type" and len(parts) == depth and _unit(model, key):
         hint = f'; write `{key} = {{ value = ..., source = "..." }}`'
-    line = _key_line(text, key, table)
+    line = key_line(text, key, table)
     return StageProfileError(path, line, f"{where}: {message}{hint}")
 
 

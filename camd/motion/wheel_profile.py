@@ -28,7 +28,7 @@ from typing import Annotated, Literal, TypeVar
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from camd.datafile import DataFileError, Sourced, read_toml
+from camd.datafile import DataFileError, Sourced, key_line, read_toml
 from camd.paths import config_dir
 from camd.timing.wheel import WheelExposure, wheel_exposure
 
@@ -267,8 +267,4 @@ def _key_line(text: str, loc: list[str]) -> int | None:
                 if key.match(lines[number]):
                     return number + 1
         return start + 1
-    pattern = re.compile(rf"^\s*(\[+\s*{re.escape(loc[0])}\s*\]+|{re.escape(loc[0])}\s*=)")
-    for number, line in enumerate(lines, start=1):
-        if pattern.match(line):
-            return number
-    return None
+    return key_line(text, loc[0])

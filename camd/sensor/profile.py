@@ -23,7 +23,6 @@ what to change, e.g.::
 from __future__ import annotations
 
 import math
-import re
 from functools import cache
 from pathlib import Path
 from typing import Annotated, Any, Literal, TypeVar
@@ -31,7 +30,7 @@ from typing import Annotated, Any, Literal, TypeVar
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from camd.analysis.sensor_noise import system_gain_dn_per_e
-from camd.datafile import DataFileError, Sourced, named_file, read_toml
+from camd.datafile import DataFileError, Sourced, key_line, named_file, read_toml
 from camd.paths import config_dir
 from camd.sensor.regmap import (
     FieldSpec,
@@ -346,7 +345,7 @@ def _load(path: Path) -> CameraProfile:
     try:
         _check_against_map(profile)
     except _Keyed as exc:
-        line = _key_line(text, exc.key, exc.sub)
+        line = (key_line(text, exc.sub, exc.key) if exc.sub else None) or key_line(text, exc.key)
         raise ProfileError(path, line, f"{exc.key}: {exc.message}") from None
     return profile
 
@@ -416,29 +415,12 @@ def _gain_enum(regmap: RegisterMap) -> dict[str, int] | None:
     return None if spec is None else spec.enum
 
 
-def _key_line(text: str, key: str, sub: str | None = None) -> int | None:
-    """The line of a top-level ``key = ...`` or ``[key]`` table (of ``sub = ...`` inside it)."""
-    pattern = re.compile(rf"^\s*(\[\s*{re.escape(key)}\s*\]|{re.escape(key)}\s*=)")
-    lines = text.splitlines()
-    for number, line in enumerate(lines, start=1):
-        if pattern.match(line):
-            if sub is not None and line.lstrip().startswith("["):
-                inner = re.compile(rf"^\s*{re.escape(sub)}\s*=")
-                for offset, below in enumerate(lines[number:], start=number + 1):
-                    if below.lstrip().startswith("["):
-                        break
-                    if inner.match(below):
-                        return offset
-            return number
-    return None
-
-
 def _located(path: Path, text: str, exc: ValidationError) -> ProfileError:
     first = exc.errors()[0]
     loc = tuple(str(part) for part in first["loc"])
     error = first.get("ctx", {}).get("error")
     if isinstance(error, _Keyed):
-        return ProfileError(path, _key_line(text, error.key), f"{error.key}: {error.message}")
+        return ProfileError(path, key_line(text, error.key), f"{error.key}: {error.message}")
     message = str(first["msg"]).removeprefix("Value error, ")
     if not loc:
         return ProfileError(path, None, message)
@@ -458,5 +440,6 @@ def _located(path: Path, text: str, exc: ValidationError) -> ProfileError:
         hint = f"; known keys: {known}"
     elif first["type"] == "model_type" and len(loc) == 1:
         hint = f'; write `{key} = {{ value = ..., source = "..." }}`'
-    line = _key_line(text, key, inner[0] if inner else None)
+    # A key of a [table], or of an inline table on the key's own line.
+    line = (key_line(text, inner[0], key) if inner else None) or key_line(text, key)
     return ProfileError(path, line, f"{where}: {message}{hint}")
