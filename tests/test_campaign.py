@@ -11,7 +11,6 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-import matplotlib.image as mpimg
 import pytest
 import yaml
 
@@ -20,10 +19,10 @@ from camd.campaign.spec import CampaignError, load_campaign
 from camd.cli._daemon_proc import DaemonProcess
 from camd.client import CamdClient
 from camd.paths import config_dir
+from tests.campaign_support import report_images
 from tests.test_sensor_stack import serve
 
 EXAMPLE = config_dir() / "campaigns" / "example_stare.yaml"
-PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 
 @pytest.fixture(scope="module")
@@ -65,14 +64,7 @@ def test_run_writes_results_raw_data_and_report(daemon: DaemonProcess, tmp_path:
     assert doc["report"] == str(out / "report.html")
     html = (out / "report.html").read_text()
     md = (out / "report.md").read_text()
-    images = [line.split("src='")[1].split("'")[0] for line in html.splitlines() if "<img" in line]
-    assert len(images) == 2
-    for rel in images:
-        data = (out / rel).read_bytes()
-        assert data[:8] == PNG_SIGNATURE
-        pixels = mpimg.imread(out / rel)  # decodes: a valid PNG
-        assert pixels.shape[0] > 100 and pixels.shape[1] > 100
-        assert f"({rel})" in md
+    assert len(report_images(out)) == 2
     assert "| photons | mean_dn | sigma_dn | psnr_db |" in md
     assert "PASS" in md and "<td class='PASS'>" in html
 

@@ -107,8 +107,19 @@ def _fmt(value: Any) -> str:
     return str(value)
 
 
+def lookup(results: dict[str, Any], path: str) -> Any:
+    """A result by name, or inside a mapping result by a dotted path (``model_db.tao12``);
+    None when absent."""
+    value: Any = results
+    for part in path.split("."):
+        if not isinstance(value, dict) or part not in value:
+            return None
+        value = value[part]
+    return value
+
+
 def _table(spec: TableSpec, results: dict[str, Any]) -> tuple[list[str], list[list[str]]]:
-    columns = [results.get(name) for name in spec.columns]
+    columns = [lookup(results, name) for name in spec.columns]
     lengths = {len(c) for c in columns if isinstance(c, list)}
     if len(lengths) == 1:
         n = lengths.pop()
@@ -131,10 +142,12 @@ def _html_table(header: list[str], rows: list[list[str]]) -> str:
     return "\n".join([*lines, "</table>"])
 
 
-def _series(values: Any) -> list[tuple[str, list[Any]]]:
-    """A result as plot series: a list of numbers is one, a list of lists one per inner list."""
+def _series(values: Any, labels: Any = None) -> list[tuple[str, list[Any]]]:
+    """A result as plot series: a list of numbers is one, a list of lists one per inner list
+    (labelled ``[i]``, or `` <label>`` from ``labels``)."""
     if isinstance(values, list) and values and all(isinstance(v, list) for v in values):
-        return [(f"[{i}]", v) for i, v in enumerate(values)]
+        names = labels if isinstance(labels, list) and len(labels) == len(values) else None
+        return [(f" {names[i]}" if names else f"[{i}]", v) for i, v in enumerate(values)]
     if isinstance(values, list):
         return [("", values)]
     return [("", [values])]
@@ -150,17 +163,24 @@ def _plot(
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(6.4, 4.0), dpi=100)
-    x = results.get(plot.x)
+    x = lookup(results, plot.x)
     xs = x if isinstance(x, list) else [x]
-    missing = [n for n in (plot.x, *plot.y) if n not in results]
-    for name in plot.y:
-        for label, ys in _series(results.get(name)):
+    labels = lookup(results, plot.labels) if plot.labels else None
+    missing = [n for n in (plot.x, *plot.y, *plot.model) if lookup(results, n) is None]
+    curves = [(name, "o-") for name in plot.y] + [(name, "--") for name in plot.model]
+    single = 0  # colours: one per curve, or one per inner list (shared by data and model)
+    for name, style in curves:
+        series = _series(lookup(results, name), labels)
+        for i, (label, ys) in enumerate(series):
+            colour = f"C{(i if len(series) > 1 else single) % 10}"
             if len(ys) != len(xs):
                 missing.append(f"{name}{label} (length {len(ys)} vs {len(xs)})")
                 continue
             pts = [(a, b) for a, b in zip(xs, ys, strict=True) if _num(a) and _num(b)]
             if pts:
-                ax.plot([p[0] for p in pts], [p[1] for p in pts], "o-", label=f"{name}{label}")
+                ax.plot([p[0] for p in pts], [p[1] for p in pts], style, color=colour,
+                        label=f"{name}{label}")  # fmt: skip
+        single += len(series) == 1
         for check in checks:
             if check["result"] != name:
                 continue
@@ -190,7 +210,7 @@ def _plot(
         ax.legend()
     ax.grid(True, alpha=0.3)
     fig.tight_layout()
-    name = f"plot{index + 1}_{plot.x}.png"
+    name = f"plot{index + 1}_{plot.x.replace('.', '_')}.png"
     fig.savefig(out / name, format="png")
     plt.close(fig)
     return f"plots/{name}"

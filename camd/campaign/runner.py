@@ -38,6 +38,7 @@ from camd.campaign.spec import (
     CheckStep,
     ConfigureStep,
     MeasureStep,
+    PolarizationAcquire,
     ScanAcquire,
     StareAcquire,
     SweepStep,
@@ -99,13 +100,25 @@ class _Level:
     files: dict[str, Acquired] = field(default_factory=dict)
     parent: _Level | None = None
 
-    def result(self, name: str) -> Any:
+    def result(self, path: str) -> Any:
+        """A result in scope by name, or a path into a mapping result (``rms_db.tao12``)."""
+        name, *keys = path.split(".")
         level: _Level | None = self
         while level is not None:
             if name in level.results:
-                return level.results[name]
+                value = level.results[name]
+                for key in keys:
+                    if not isinstance(value, Mapping) or key not in value:
+                        raise KeyError(path)
+                    value = value[key]
+                return value
             level = level.parent
-        raise KeyError(name)
+        raise KeyError(path)
+
+    def visible(self) -> dict[str, Any]:
+        """Every result in scope, the innermost level's winning."""
+        outer = self.parent.visible() if self.parent is not None else {}
+        return {**outer, **self.results}
 
     def acquired(self, step_id: str) -> Acquired:
         level: _Level | None = self
@@ -266,6 +279,8 @@ class CampaignRunner:
     # -- one step instance ----------------------------------------------------------------------
 
     def _execute(self, step: Any, key: str, names: dict[str, Any], level: _Level) -> dict[str, Any]:
+        # ${name} may name a result measured before this step, as well as a parameter.
+        names = {**level.visible(), **names}
         try:
             if isinstance(step, ConfigureStep):
                 return self._configure(_resolved(step, names))
@@ -357,6 +372,8 @@ class CampaignRunner:
             doc = dict(self.client.wait_scan(float(sc.timeout_s)))
             if doc.get("error"):
                 raise CampaignError(f"step {key}: the scan failed: {doc['error']}")
+        elif isinstance(step.polarization, PolarizationAcquire):
+            doc = self._polarization(step.polarization, path)
         else:
             assert isinstance(step.wheel, WheelAcquire)
             w = step.wheel
@@ -373,6 +390,26 @@ class CampaignRunner:
             )
         return {"how": step.how, "file": str(path.relative_to(self.out_dir)), "doc": _plain(doc)}
 
+    def _polarization(self, p: PolarizationAcquire, path: Path) -> dict[str, Any]:
+        """A reference-polariser scan (camd.motion.polarization_run), its frame means written
+        to ``path``; the polariser is the simulated camera's."""
+        from camd.motion.polarization_run import acquire_polarization, write_polarization_scan
+
+        self._require_sim("polarization")
+        compensated = p.compensated if isinstance(p.compensated, list) else [p.compensated]
+        try:
+            scan = acquire_polarization(
+                self.client,
+                channels=None if not isinstance(p.channels, list) else [int(c) for c in p.channels],
+                exposures_s=[float(e) for e in p.exposures_s],
+                step_deg=float(p.step_deg),
+                settings=[bool(c) for c in compensated],
+            )
+        except RuntimeError as exc:  # a frame was lost: the message says what to do
+            raise CampaignError(str(exc)) from None
+        write_polarization_scan(path, scan)
+        return scan.summary()
+
     def _measure(self, step: MeasureStep, level: _Level) -> dict[str, Any]:
         inputs = {}
         for arg, source in step.inputs.items():
@@ -383,7 +420,16 @@ class CampaignRunner:
                     f"step {step.id}: inputs.{arg}: step {source!r} has not acquired anything "
                     "before this step (inputs name an earlier acquire step in scope)"
                 ) from None
-        produced = MEASUREMENTS[step.function](inputs, **step.args)
+        kwargs = dict(step.args)
+        for arg, name in step.from_results.items():
+            try:
+                kwargs[arg] = level.result(name)
+            except KeyError:
+                raise CampaignError(
+                    f"step {step.id}: from_results.{arg}: no result {name!r} measured before "
+                    "this step"
+                ) from None
+        produced = MEASUREMENTS[step.function](inputs, **kwargs)
         wanted = step.results if step.results is not None else list(produced)
         missing = [n for n in wanted if n not in produced]
         if missing:

@@ -51,6 +51,7 @@ __all__ = [
     "MeasureStep",
     "Outputs",
     "PlotSpec",
+    "PolarizationAcquire",
     "Step",
     "SweepStep",
     "TableSpec",
@@ -59,8 +60,12 @@ __all__ = [
 ]
 
 NAME = r"^[a-z][a-z0-9_]*$"
-REF_RE = re.compile(r"\$\{([a-z][a-z0-9_]*)\}")
-WHOLE_REF = r"^\$\{[a-z][a-z0-9_]*\}$"
+# ${name}, or ${name.key} for a key of a mapping value (a sweep over conditions).
+REF_RE = re.compile(r"\$\{([a-z][a-z0-9_]*)((?:\.[A-Za-z0-9_]+)*)\}")
+WHOLE_REF = r"^\$\{[a-z][a-z0-9_]*(\.[A-Za-z0-9_]+)*\}$"
+
+RESULT_PATH = r"^[a-z][a-z0-9_]*(\.[A-Za-z0-9_]+)*$"
+"""A result name, or a path into a result that is a mapping: ``model_db.tao12``."""
 
 Ref = Annotated[str, Field(pattern=WHOLE_REF)]
 """A whole-string parameter reference, ``${name}``, where a number or list is expected."""
@@ -155,28 +160,45 @@ class WheelAcquire(_Model):
     timeout_s: float | Ref | None = None
 
 
+class PolarizationAcquire(_Model):
+    """A reference-polariser scan through the wheel's polarising channels (physics.md §4):
+    per compensation setting, exposure and reference angle one pass, the frame means recorded
+    (camd.motion.polarization_run)."""
+
+    channels: list[int] | Ref | None = None
+    exposures_s: list[float] | Ref
+    step_deg: float | Ref = 15.0
+    compensated: bool | list[bool] | Ref = Field(
+        default=[True, False], description="the settings to take: on, off or both"
+    )
+
+
 class AcquireStep(_Step):
-    """Take data: exactly one of ``stare``, ``scan`` or ``wheel``; recorded under raw/."""
+    """Take data: exactly one of ``stare``, ``scan``, ``wheel`` or ``polarization``; recorded
+    under raw/."""
 
     kind: Literal["acquire"]
     stare: StareAcquire | None = None
     scan: ScanAcquire | None = None
     wheel: WheelAcquire | None = None
+    polarization: PolarizationAcquire | None = None
 
     @model_validator(mode="after")
     def _exactly_one(self) -> AcquireStep:
-        given = [k for k in ("stare", "scan", "wheel") if getattr(self, k) is not None]
+        kinds = ("stare", "scan", "wheel", "polarization")
+        given = [k for k in kinds if getattr(self, k) is not None]
         if len(given) != 1:
             raise ValueError(
-                "give exactly one of `stare`, `scan` or `wheel`, got "
+                "give exactly one of `stare`, `scan`, `wheel` or `polarization`, got "
                 + (", ".join(given) if given else "none")
             )
         return self
 
     @property
     def how(self) -> str:
-        """``stare``, ``scan`` or ``wheel``."""
-        return "stare" if self.stare else "scan" if self.scan else "wheel"
+        """``stare``, ``scan``, ``wheel`` or ``polarization``."""
+        kinds = ("stare", "scan", "wheel", "polarization")
+        return next(k for k in kinds if getattr(self, k) is not None)
 
 
 class MeasureStep(_Step):
@@ -188,6 +210,10 @@ class MeasureStep(_Step):
         default_factory=dict, description="argument name -> id of an acquire step"
     )
     args: dict[str, Any] = Field(default_factory=dict, description="keyword arguments")
+    from_results: dict[str, str] = Field(
+        default_factory=dict,
+        description="argument name -> result name in scope (a sweep's results are lists)",
+    )
     results: list[str] | None = Field(
         default=None, description="result names to keep (default: all the function returns)"
     )
@@ -197,7 +223,9 @@ class CheckStep(_Step):
     """A result against limits; a failure makes the campaign fail (after it has run)."""
 
     kind: Literal["check"]
-    result: str = Field(pattern=NAME, description="a result name in scope")
+    result: str = Field(
+        pattern=RESULT_PATH, description="a result name in scope, or a path into it (a.b)"
+    )
     min: float | Ref | None = None
     max: float | Ref | None = None
 
@@ -223,11 +251,15 @@ SweepStep.model_rebuild()
 
 
 class PlotSpec(_Model):
-    """One PNG: results ``y`` against result ``x`` (check limits on ``y`` drawn dashed)."""
+    """One PNG: results ``y`` (markers) and ``model`` (dashed lines) against result ``x``;
+    check limits on ``y`` drawn dashed. A result that is a list of lists draws one line per
+    inner list, labelled by the entries of the result ``labels`` if given."""
 
     title: str
-    x: str = Field(pattern=NAME)
+    x: str = Field(pattern=RESULT_PATH)
     y: list[str] = Field(min_length=1)
+    model: list[str] = Field(default_factory=list, description="model curves: dashed lines")
+    labels: str | None = Field(default=None, description="a result labelling inner lists")
     xlabel: str = ""
     ylabel: str = ""
     logx: bool = False
@@ -238,7 +270,7 @@ class TableSpec(_Model):
     """One table: columns are result names (lists side by side, scalars as one row)."""
 
     title: str
-    columns: list[str] = Field(min_length=1)
+    columns: list[str] = Field(min_length=1, description="result names or paths (a.b)")
 
 
 class Outputs(_Model):
@@ -354,15 +386,22 @@ def _check_semantics(path: Path, spec: CampaignSpec) -> None:
         if isinstance(step, AcquireStep):
             acquires.add(step.id)
 
+    # Results a measure step declares (`results: [...]`) can be referred to by the steps after
+    # it, as ${name} or in `from_results`; what a step without the list gives is known only
+    # when it runs, so those are checked then.
+    declared: set[str] = set()
+
     def check(steps: list[Any], where: str, names: set[str]) -> None:
         for i, step in enumerate(steps):
             label = f"{where}[{i}] (id {step.id!r})"
-            for key, value in step.model_dump(exclude={"steps"}).items():
+            known = names | declared
+            for key, value in step.model_dump(exclude={"steps", "from_results"}).items():
                 for ref in _refs(value):
-                    if ref not in names:
+                    if ref not in known:
                         raise CampaignError(
-                            f"{path}: {label}: {key}: ${{{ref}}} is neither a parameter nor "
-                            f"an enclosing sweep's parameter (known: {', '.join(sorted(names))})"
+                            f"{path}: {label}: {key}: ${{{ref}}} is neither a parameter, an "
+                            "enclosing sweep's parameter nor a result declared before it "
+                            f"(known: {', '.join(sorted(known))})"
                         )
             if isinstance(step, MeasureStep):
                 if step.function not in MEASUREMENTS:
@@ -376,6 +415,7 @@ def _check_semantics(path: Path, spec: CampaignSpec) -> None:
                             f"{path}: {label}: inputs.{arg}: {source!r} is not the id of an "
                             "acquire step"
                         )
+                declared.update(step.results or ())
             if isinstance(step, CheckStep) and step.min is None and step.max is None:
                 raise CampaignError(f"{path}: {label}: give `min`, `max` or both")
             if isinstance(step, SweepStep):
@@ -387,7 +427,7 @@ def _check_semantics(path: Path, spec: CampaignSpec) -> None:
 
 def _refs(value: Any) -> list[str]:
     if isinstance(value, str):
-        return REF_RE.findall(value)
+        return [m.group(1) for m in REF_RE.finditer(value)]
     if isinstance(value, dict):
         return [r for v in value.values() for r in _refs(v)]
     if isinstance(value, list):
@@ -401,12 +441,21 @@ def resolve(value: Any, names: dict[str, Any]) -> Any:
     if isinstance(value, str):
         whole = re.fullmatch(REF_RE, value)
         if whole:
-            return names[whole.group(1)]
-        return REF_RE.sub(lambda m: _text(names[m.group(1)]), value)
+            return _lookup(names, whole)
+        return REF_RE.sub(lambda m: _text(_lookup(names, m)), value)
     if isinstance(value, dict):
         return {k: resolve(v, names) for k, v in value.items()}
     if isinstance(value, list):
         return [resolve(v, names) for v in value]
+    return value
+
+
+def _lookup(names: dict[str, Any], ref: re.Match[str]) -> Any:
+    value = names[ref.group(1)]
+    for key in filter(None, ref.group(2).split(".")):
+        if not isinstance(value, dict) or key not in value:
+            raise KeyError(f"${{{ref.group(1)}{ref.group(2)}}}: {ref.group(1)} has no key {key!r}")
+        value = value[key]
     return value
 
 

@@ -16,14 +16,19 @@ import argparse
 import sys
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from camd.client import CamdClient
 
-__all__ = ["COMMANDS", "RENDER", "add_parsers", "campaigns_dir"]
+if TYPE_CHECKING:
+    from camd.campaign.runner import CampaignOutcome
+    from camd.campaign.runner import Progress as StepProgress
+    from camd.campaign.spec import CampaignSpec
+
+__all__ = ["COMMANDS", "RENDER", "add_parsers", "campaigns_dir", "run_on_own_sim"]
 
 
 def campaigns_dir() -> Path:
@@ -74,10 +79,7 @@ def cmd_campaign(client: CamdClient, args: argparse.Namespace) -> Any:
     if args.resume and not (out_dir / "state.json").exists():
         raise UsageError(f"--resume: {out_dir / 'state.json'} does not exist; nothing to resume")
     try:
-        if args.sim:
-            doc = _run_on_own_sim(spec, out_dir, args)
-        else:
-            doc = _run(client, spec, out_dir, args, sim=None)
+        doc = _run(None if args.sim else client, spec, out_dir, args)
     except CampaignError as exc:
         raise CommandFailed({"campaign": spec.name, "error": str(exc)}, str(exc)) from None
     if not doc["passed"]:
@@ -92,18 +94,24 @@ def _public(doc: dict[str, Any]) -> dict[str, Any]:
 
 
 def _run(
-    client: CamdClient, spec: Any, out_dir: Path, args: argparse.Namespace, *, sim: bool | None
+    client: CamdClient | None, spec: Any, out_dir: Path, args: argparse.Namespace
 ) -> dict[str, Any]:
+    """Run on ``client``'s daemon, or (None) on a simulated camera of the campaign's own."""
     from camd.campaign.runner import CampaignInterrupted, CampaignRunner
 
     err = Console(stderr=True, highlight=False)
-    with _RichProgress(err, spec.name) as progress:
-        runner = CampaignRunner(
-            client, spec, out_dir, quick=args.quick, progress=progress, sim=sim,
-            stop_after=args.stop_after,
-        )  # fmt: skip
+    with RichProgress(err, spec.name) as progress:
         try:
-            outcome = runner.run()
+            if client is None:
+                outcome = run_on_own_sim(
+                    spec, out_dir, quick=args.quick, progress=progress, timeout_s=args.timeout,
+                    stop_after=args.stop_after,
+                )  # fmt: skip
+            else:
+                outcome = CampaignRunner(
+                    client, spec, out_dir, quick=args.quick, progress=progress,
+                    stop_after=args.stop_after,
+                ).run()  # fmt: skip
         except CampaignInterrupted as exc:
             print(f"camctl: {exc}", file=sys.stderr)
             raise KeyboardInterrupt from None  # camctl: "interrupted", exit 130
@@ -116,8 +124,19 @@ def _run(
     }
 
 
-def _run_on_own_sim(spec: Any, out_dir: Path, args: argparse.Namespace) -> dict[str, Any]:
-    """Start ``camd serve --sim`` with the campaign's profile and seed, run, stop it."""
+def run_on_own_sim(
+    spec: CampaignSpec,
+    out_dir: Path,
+    *,
+    quick: bool = False,
+    progress: StepProgress | None = None,
+    timeout_s: float = 30.0,
+    stop_after: str | None = None,
+) -> CampaignOutcome:
+    """Start ``camd serve --sim`` with the campaign's profile and seed (data and log in
+    ``out_dir/daemon``), run the campaign on it, stop it. CampaignError if it does not start;
+    the runner's errors otherwise (``camd demo`` runs its campaigns this way too)."""
+    from camd.campaign.runner import CampaignRunner
     from camd.campaign.spec import CampaignError
     from camd.cli._daemon_proc import DaemonProcess, DaemonStartError
 
@@ -135,9 +154,13 @@ def _run_on_own_sim(spec: Any, out_dir: Path, args: argparse.Namespace) -> dict[
     except DaemonStartError as exc:
         raise CampaignError(f"the simulated camera did not start: {exc}") from None
     try:
-        with CamdClient(daemon.url, timeout_s=args.timeout) as client:
+        with CamdClient(daemon.url, timeout_s=timeout_s) as client:
             client.wait_ready(60.0)
-            return _run(client, spec, out_dir, args, sim=True)
+            runner = CampaignRunner(
+                client, spec, out_dir, quick=quick, progress=progress, sim=True,
+                stop_after=stop_after,
+            )  # fmt: skip
+            return runner.run()
     finally:
         daemon.stop()
 
@@ -157,7 +180,7 @@ def _list() -> dict[str, Any]:
     return {"campaigns": found}
 
 
-class _RichProgress:
+class RichProgress:
     """The runner's progress as a rich bar on stderr."""
 
     def __init__(self, console: Console, name: str) -> None:
@@ -168,7 +191,7 @@ class _RichProgress:
         )  # fmt: skip
         self._task = self._bar.add_task("", total=None)
 
-    def __enter__(self) -> _RichProgress:
+    def __enter__(self) -> RichProgress:
         self._bar.start()
         return self
 
