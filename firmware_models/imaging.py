@@ -163,6 +163,7 @@ class ImagingPipeline:
         self._rendered_s = -math.inf
         self._next_k = 0
         self._next_start_s = device_time_s if schedule_s is None else schedule_s[0]
+        self.camera.stream_started(self._next_start_s)
         self._period_s = timing.frame_period_s
         self._schedule = schedule_s
         self._stamps = stamps

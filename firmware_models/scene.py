@@ -39,9 +39,15 @@ Built-in scenes (``SceneSpec.parse("kind:key=value,...")``):
   rows), ``across`` stacks them in 32-row bands along track with bars varying across track.
 - ``edge``: bright where ``(y - x tan(angle_deg)) mod period < period / 2`` (default 5 deg,
   64 rows): edges across track whose ESF varies along track, slanted for super-resolved ESFs.
+  ``x_oversample=1`` gives each column one cell across (the edge at the column's centre), so
+  fine cells along track (``oversample=16``: a cell smears the edge over 1/16 row) stay cheap
+  on a wide sensor (the motion-compensation campaign's target, docs/imc.md).
 - ``star``: a Siemens star of ``spokes`` pairs in a ``size`` x ``size`` tile (tiled).
 - ``ramp``: ``level * (y mod period) / period`` along track (a sawtooth; a test scene: the
   box integral of a linear function is its centre value).
+- ``natural``: a synthetic natural-image texture (``natural_texture``: the 1/f amplitude
+  spectrum of natural images, seeded), ``period`` rows by the sensor's columns, one cell per
+  pixel, tiling seamlessly.
 - ``image``: a greyscale image file (``cv2.imread``, any depth; colour is converted to grey),
   one image pixel per sensor pixel, tiled in both directions.
 
@@ -109,19 +115,20 @@ class SceneSpecError(ValueError):
     """A scene text or value is invalid; the message names the key and what is allowed."""
 
 
-SceneKind = Literal["flat", "bars", "edge", "star", "ramp", "image"]
-SCENE_KINDS: tuple[str, ...] = ("flat", "bars", "edge", "star", "ramp", "image")
+SceneKind = Literal["flat", "bars", "edge", "star", "ramp", "natural", "image"]
+SCENE_KINDS: tuple[str, ...] = ("flat", "bars", "edge", "star", "ramp", "natural", "image")
 
 _COMMON = ("photons", "lux", "drift_deg")
 _KIND_KEYS: dict[str, tuple[str, ...]] = {
     "flat": _COMMON,
     "bars": (*_COMMON, "contrast", "oversample", "orientation", "period"),
-    "edge": (*_COMMON, "contrast", "oversample", "angle_deg", "period"),
+    "edge": (*_COMMON, "contrast", "oversample", "angle_deg", "period", "x_oversample"),
     "star": (*_COMMON, "contrast", "oversample", "spokes", "size"),
     "ramp": (*_COMMON, "contrast", "oversample", "period"),
+    "natural": (*_COMMON, "contrast", "period", "seed"),
     "image": (*_COMMON, "contrast", "path"),
 }
-_DEFAULT_PERIOD_ROWS = {"bars": 40, "edge": 64, "ramp": 256}
+_DEFAULT_PERIOD_ROWS = {"bars": 40, "edge": 64, "ramp": 256, "natural": 256}
 
 
 class SceneSpec(BaseModel):
@@ -134,7 +141,9 @@ class SceneSpec(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    kind: SceneKind = Field(default="flat", description="flat, bars, edge, star, ramp or image")
+    kind: SceneKind = Field(
+        default="flat", description="flat, bars, edge, star, ramp, natural or image"
+    )
     photons: float | None = Field(
         default=None, gt=0, le=1e13, description="bright level, photons per pixel per second"
     )
@@ -153,11 +162,18 @@ class SceneSpec(BaseModel):
     oversample: int = Field(
         default=4, ge=1, le=16, description="cells per pixel along and across track"
     )
+    x_oversample: int | None = Field(
+        default=None,
+        ge=1,
+        le=16,
+        description="edge: cells per pixel across track (default: oversample); 1 makes each "
+        "column a 1-D edge at its centre and keeps fine cells along track cheap",
+    )
     period: int | None = Field(
         default=None,
         ge=2,
         le=65536,
-        description="along-track period in rows (bars 40, edge 64, ramp 256)",
+        description="along-track period in rows (bars 40, edge 64, ramp 256, natural 256)",
     )
     orientation: Literal["along", "across"] = Field(
         default="along",
@@ -170,6 +186,9 @@ class SceneSpec(BaseModel):
     spokes: int = Field(default=36, ge=4, le=720, description="star: number of spoke pairs")
     size: int = Field(default=256, ge=16, le=4096, description="star: tile size in pixels")
     path: str | None = Field(default=None, description="image: greyscale image file (cv2)")
+    seed: int = Field(
+        default=1, ge=0, le=2**32 - 1, description="natural: the texture's random seed"
+    )
 
     @model_validator(mode="after")
     def _check(self) -> SceneSpec:
@@ -583,9 +602,12 @@ def build_scene(
         level = default_photons
     if spec.kind == "flat":
         return Scene(np.full((1, 1), level), drift_deg=spec.drift_deg, spec=spec)
-    if spec.kind == "image":
-        assert spec.path is not None  # the spec's validator requires it
-        pattern = read_grey_image(spec.path)
+    if spec.kind in ("image", "natural"):
+        if spec.kind == "natural":
+            pattern = natural_texture(spec.period_rows, columns, seed=spec.seed)
+        else:
+            assert spec.path is not None  # the spec's validator requires it
+            pattern = read_grey_image(spec.path)
         return Scene(
             scale_pattern(pattern, level, spec.contrast), drift_deg=spec.drift_deg, spec=spec
         )
@@ -602,24 +624,30 @@ def build_scene(
             spec=spec,
         )
     width = spec.size if spec.kind == "star" else columns
-    pattern = _target(spec, period, width, over)
+    x_over = over if spec.x_oversample is None else spec.x_oversample
+    pattern = _target(spec, period, width, over, x_over)
     return Scene(
         scale_pattern(pattern, level, spec.contrast),
         oversample=over,
+        x_oversample=x_over,
         drift_deg=spec.drift_deg,
         spec=spec,
     )
 
 
-def _target(spec: SceneSpec, period: int, width: int, over: int) -> FloatArray:
-    """The target's pattern as cell averages in [0, 1], shape ``(period * over, width * over)``.
+def _target(
+    spec: SceneSpec, period: int, width: int, over: int, x_over: int | None = None
+) -> FloatArray:
+    """The target's pattern as cell averages in [0, 1], shape ``(period * over, width * x_over)``
+    (``x_over`` cells per pixel across, default ``over``).
 
     Bars and edges are exact cell averages along the axis their bars vary on (a closed-form
     measure of the bright part of each cell) and take the value at the cell centre along the
     other; the star is averaged over ``_SUPERSAMPLE`` ^ 2 points per cell.
     """
     y_edges = np.arange(period * over + 1) / over
-    x_edges = np.arange(width * over + 1) / over
+    x_over = over if x_over is None else x_over
+    x_edges = np.arange(width * x_over + 1) / x_over
     y_mid = (y_edges[:-1] + y_edges[1:]) / 2
     x_mid = (x_edges[:-1] + x_edges[1:]) / 2
     freqs = np.asarray(BAR_FREQUENCIES_CY_PER_PX)
@@ -672,6 +700,32 @@ def _star(spec: SceneSpec, y: FloatArray, x: FloatArray) -> FloatArray:
     spokes = (np.sin(spec.spokes * np.arctan2(dy, dx)) >= 0).astype(np.float64)
     result: FloatArray = np.where(radius <= 0.95 * half, spokes, 0.5)
     return result
+
+
+NATURAL_SPECTRUM_EXPONENT = 1.0
+"""Amplitude spectrum of the ``natural`` texture, ``|F(f)| ~ 1 / f^1``: the average spectrum of
+natural images (Field 1987, JOSA A 4:2379; van der Schaaf and van Hateren 1996)."""
+
+
+def natural_texture(rows: int, cols: int, *, seed: int) -> FloatArray:
+    """A synthetic natural-image texture in [0, 1], ``rows x cols``, periodic in both axes.
+
+    Gaussian noise shaped to the ``1 / f`` amplitude spectrum of natural images (so it has
+    structure at every scale, like a landscape: what TAO12 §5.1's natural scene needs), the
+    mean removed, then mapped linearly so the 0.1 and 99.9 percentiles span [0, 1] (clipped).
+    The same seed gives the same texture; it tiles seamlessly because it is built in the
+    Fourier domain of its own period.
+    """
+    rng = np.random.default_rng(seed)
+    noise = np.fft.rfft2(rng.standard_normal((rows, cols)))
+    fy = np.fft.fftfreq(rows)[:, None]
+    fx = np.fft.rfftfreq(cols)[None, :]
+    radius = np.hypot(fy, fx)
+    radius[0, 0] = np.inf  # no DC term: the level is set by the scene's photons
+    field = np.fft.irfft2(noise / radius**NATURAL_SPECTRUM_EXPONENT, s=(rows, cols))
+    lo, hi = np.percentile(field, [0.1, 99.9])
+    texture: FloatArray = np.clip((field - lo) / (hi - lo), 0.0, 1.0)
+    return texture
 
 
 def read_grey_image(path: str | Path) -> FloatArray:

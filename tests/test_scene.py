@@ -38,7 +38,10 @@ def test_parse_and_describe_round_trip() -> None:
 @pytest.mark.parametrize(
     ("text", "message"),
     [
-        ("bar:lux=3", "unknown scene kind 'bar'; kinds: flat, bars, edge, star, ramp, image"),
+        (
+            "bar:lux=3",
+            "unknown scene kind 'bar'; kinds: flat, bars, edge, star, ramp, natural, image",
+        ),
         (
             "bars:angle_deg=3",
             "unknown scene key 'angle_deg' for bars; keys for bars: photons, lux, drift_deg, "
