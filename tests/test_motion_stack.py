@@ -248,8 +248,16 @@ def test_scans_beyond_the_stage_are_refused_before_anything_is_written(
     )  # fmt: skip
     assert far.returncode == 1
     assert "mm of travel at 53.61 mm/s but the soft limits leave 1200.0 mm" in far.stderr
+    # A mismatch the stepper cannot run (1.6 x synchronous): only the ideal stage takes it.
+    wild = camctl(
+        daemon.url, "scan", "--stages", "8", "--lines", "50", "--line-period-s",
+        repr(T_LINE_S), "--dv-over-v", "-0.6", "--out", str(tmp_path / "wild.h5"),
+    )  # fmt: skip
+    assert wild.returncode == 1
+    assert "dv_over_v = -0.6 with the stage driven: it takes -0.5 .. 0.5" in wild.stderr
     assert camctl_json(daemon.url, "timing") == before
-    assert not (tmp_path / "fast.h5").exists() and not (tmp_path / "far.h5").exists()
+    for name in ("fast.h5", "far.h5", "wild.h5"):
+        assert not (tmp_path / name).exists()
     assert camctl_json(daemon.url, "status")["state"] == "idle"
 
 

@@ -10,7 +10,10 @@ Models (physics.md §6, [YUAN13] §3.2-3.4):
 - ``mtf_detector``: eq 3, ``sinc(f q) * sinc(f T_int / T_L)`` (aperture and exposure-time smear);
 - ``tdi_integration_ratio``: ``T_int / T_L = M / (M + 1)`` for an M-stage TDI-CMOS sensor;
 - ``mtf_velocity_mismatch``: eq 8, ``|sinc(f M dV/V)|`` (smear of ``M |dV/V|`` pixels);
-- ``mtf_tdi_model``: the product of eq 3 and eq 8, the part of eq 2 that the TDI timing sets.
+- ``mtf_tdi_model``: the product of eq 3 and eq 8, the part of eq 2 that the TDI timing sets;
+- ``mtf_rolling_tdi_model``: the same terms as a rolling-shutter digital TDI scan makes them
+  (the rolling shutter's slip per stage, the exposure smear at the image's actual speed, the M
+  discrete stages, a simulated target's cells).
 
 Measurements (pure functions of arrays):
 
@@ -19,7 +22,11 @@ Measurements (pure functions of arrays):
   edge at a time out of a periodic edge target (the simulator's ``edge`` scene);
 - ``bar_modulation`` and ``mtf_from_bars``: eq 1, ``MTF = M_out / M_in``, with
   ``sine_mtf_from_ctf`` (Coltman's series) for the square-wave bars;
-- ``edge_width_10_90_px``: the 10-90 % rise distance of an edge spread function.
+- ``edge_width_10_90_px``: the 10-90 % rise distance of an edge spread function;
+- ``combined_edge_mtf``: one MTF from the mean LSF of several edges (noise averaged before the
+  modulus), on the focal plane of a scan whose lines are ``|1 - dV/V|`` pixels apart;
+- the limiting resolution of a bar target (YUAN13 §4): ``bar_detectability`` (Rose's SNR of a
+  USAF bar), ``limiting_frequency``, ``lp_per_mm_on_target`` and ``bar_target_resolution``.
 
 docs/mtf.md describes the algorithm, its choices and the accuracy measured on exact edges.
 """
@@ -451,25 +458,13 @@ def slanted_edge_mtf(
         lsf = np.diff(esf, append=esf[-1])
         lsf[-1] = lsf[-2]
     lsf = sign * lsf
-    windowed = lsf
-    if window:
-        total = float(lsf.sum())
-        centre = float((lsf @ idx) / total) if total > 0 else float(np.argmax(lsf))
-        windowed = lsf * _hamming(lsf.size, min(max(centre, 0.0), lsf.size - 1.0))[0]
-    n_fft = max(1 << (lsf.size - 1).bit_length(), 64 * oversample)
-    spectrum = np.abs(np.fft.rfft(windowed, n=n_fft))
-    if spectrum[0] <= 0.0:
-        raise ValueError("the LSF sums to zero: no edge in the region; crop around one edge")
-    freqs: FloatArray = np.fft.rfftfreq(n_fft, d=spacing).astype(np.float64)
-    f_max = min(1.0, oversample / 4.0)
-    keep = freqs <= f_max + 1e-12
-    freqs, mtf = freqs[keep], spectrum[keep] / spectrum[0]
-
-    # 4. Corrections for the difference kernel and the bin averaging.
-    kernel = np.sinc(2.0 * freqs * spacing) if derivative == "central" else np.sinc(freqs * spacing)
-    if correct_binning:
-        kernel = kernel * np.sinc(freqs * spacing)
-    mtf = mtf / np.maximum(kernel, 1.0 / _MAX_CORRECTION)
+    freqs, mtf = _lsf_mtf(
+        lsf,
+        oversample,
+        window=window,
+        derivative=derivative,
+        correct_binning=correct_binning,
+    )
 
     return SlantedEdgeMtf(
         frequencies_cy_per_px=freqs,
@@ -483,6 +478,42 @@ def slanted_edge_mtf(
         rising=sign > 0,
         axis=axis,
     )
+
+
+def _lsf_mtf(
+    lsf: FloatArray,
+    oversample: int,
+    *,
+    window: bool,
+    derivative: Literal["central", "forward"],
+    correct_binning: bool,
+    f_max: float | None = None,
+) -> tuple[FloatArray, FloatArray]:
+    """Steps 3-4 of ``slanted_edge_mtf``: a positive LSF sampled every ``1 / oversample``
+    pixel -> (frequencies, MTF) up to ``f_max`` (default ``min(1, oversample / 4)``) cycles
+    per pixel."""
+    spacing = 1.0 / oversample
+    windowed = lsf
+    if window:
+        idx = np.arange(lsf.size, dtype=np.float64)
+        total = float(lsf.sum())
+        centre = float((lsf @ idx) / total) if total > 0 else float(np.argmax(lsf))
+        windowed = lsf * _hamming(lsf.size, min(max(centre, 0.0), lsf.size - 1.0))[0]
+    n_fft = max(1 << (lsf.size - 1).bit_length(), 64 * oversample)
+    spectrum = np.abs(np.fft.rfft(windowed, n=n_fft))
+    if spectrum[0] <= 0.0:
+        raise ValueError("the LSF sums to zero: no edge in the region; crop around one edge")
+    freqs: FloatArray = np.fft.rfftfreq(n_fft, d=spacing).astype(np.float64)
+    top = min(1.0, oversample / 4.0) if f_max is None else f_max
+    keep = freqs <= top + 1e-12
+    freqs, mtf = freqs[keep], spectrum[keep] / spectrum[0]
+
+    # 4. Corrections for the difference kernel and the bin averaging.
+    kernel = np.sinc(2.0 * freqs * spacing) if derivative == "central" else np.sinc(freqs * spacing)
+    if correct_binning:
+        kernel = kernel * np.sinc(freqs * spacing)
+    mtf = mtf / np.maximum(kernel, 1.0 / _MAX_CORRECTION)
+    return freqs, mtf
 
 
 def _fit_line(x: FloatArray, y: FloatArray) -> tuple[float, float]:
@@ -533,28 +564,36 @@ def find_edge_regions(
     if margin_px < 1 or min_lines < 1:
         raise ValueError("margin_px and min_lines must be >= 1")
     grad = np.gradient(work, axis=1) if n_pos > 1 else np.zeros_like(work)
-    strength = float(np.median(np.abs(grad).max(axis=1)))
-    if strength <= 0.0 or strength <= _EDGE_TO_NOISE * _noise_sigma(work):
+    # Seeds and tracks use the derivative averaged over a few neighbouring lines, and each edge
+    # is the centre of a run above the threshold: noise, and the flat top of a smeared edge's
+    # derivative (a box M dV/V pixels wide), would otherwise split one edge into several.
+    half_lines = min(_TRACK_HALF_LINES, (n_lines - 1) // 2)
+    smooth = _mean_over_lines(grad, half_lines)
+    strength = float(np.median(np.abs(smooth).max(axis=1)))
+    # The averaged central difference of independent pixel noise sigma has sigma / sqrt(2 n).
+    noise = _noise_sigma(work) / math.sqrt(2.0 * (2 * half_lines + 1))
+    if strength <= 0.0 or strength <= _EDGE_TO_NOISE * noise:
         raise ValueError("no edges found: the lines have no step above the noise")
     threshold = 0.5 * strength
     mid = n_lines // 2
-    seeds = _peaks(grad[mid], threshold)
+    seeds = _runs(smooth[mid], threshold)
     if not seeds:
         raise ValueError("no edges found on the middle line; check the axis")
-    tracks: list[tuple[float, float, int, int, float]] = []  # slope, intercept, j0, j1, sign
-    for seed in seeds:
-        s = 1.0 if grad[mid, seed] > 0 else -1.0
-        found = {mid: float(seed)}
+    # slope, intercept, first line, stop line, sign, width of the edge's derivative
+    tracks: list[tuple[float, float, int, int, float, float]] = []
+    for seed, seed_width, s in seeds:
+        found = {mid: seed}
+        widths = [seed_width]
         for direction in (-1, 1):
             pos = seed
             j = mid + direction
             while 0 <= j < n_lines:
-                lo, hi = max(pos - 2, 0), min(pos + 3, n_pos)
-                cand = lo + int(np.argmax(s * grad[j, lo:hi]))
-                if s * grad[j, cand] < threshold:
+                run = _run_near(smooth[j], pos, s, threshold)
+                if run is None:
                     break
-                pos = cand
-                found[j] = float(cand)
+                pos, width = run
+                found[j] = pos
+                widths.append(width)
                 j += direction
         js = np.array(sorted(found), dtype=np.float64)
         ps = np.array([found[int(j)] for j in js])
@@ -562,14 +601,20 @@ def find_edge_regions(
             slope, intercept = (float(v) for v in np.polyfit(js, ps, 1))
         else:
             slope, intercept = 0.0, float(ps[0])
-        tracks.append((slope, intercept, int(js[0]), int(js[-1]) + 1, s))
-    centres = sorted(float(seed) for seed in seeds)
+        tracks.append((slope, intercept, int(js[0]), int(js[-1]) + 1, s, float(np.median(widths))))
+    centres = sorted(seed for seed, _, _ in seeds)
     gaps = np.diff(centres)
     spacing = float(np.median(gaps)) if gaps.size else float(2 * n_pos)
     regions: list[EdgeRegion] = []
-    for slope, intercept, j0, j1, s in tracks:
+    for slope, intercept, j0, j1, s, width in tracks:
         half = spacing / 2.0
-        drift_max = spacing - 2.0 * margin_px
+        # The ESF must reach its levels inside the region: the margin is counted from the
+        # ends of the edge's transition (half its derivative's width either side).
+        margin = margin_px + width / 2.0
+        # The region spans [p0, p1) with its ends rounded from centre -/+ half (half a pixel
+        # either way) and its last position p1 - 1: the edge may drift 3 px less than the
+        # spacing minus the margins, or every block would fail the margin test below.
+        drift_max = spacing - 2.0 * margin - 3.0
         if drift_max <= 0:
             continue
         n = j1 - j0
@@ -585,7 +630,7 @@ def find_edge_regions(
             centre = float(locs.mean())
             p0 = max(0, math.floor(centre - half + 0.5))
             p1 = min(n_pos, math.floor(centre + half + 0.5))
-            if locs.min() - p0 < margin_px or p1 - 1 - locs.max() < margin_px:
+            if locs.min() - p0 < margin or p1 - 1 - locs.max() < margin:
                 continue
             along = slice(p0, p1)
             lines = slice(a0, a1)
@@ -595,21 +640,61 @@ def find_edge_regions(
     return regions
 
 
-def _peaks(row: FloatArray, threshold: float) -> list[int]:
-    """Local maxima of |row| above ``threshold``, at least 3 samples apart (strongest kept)."""
+_TRACK_HALF_LINES = 4  # find_edge_regions averages the derivative over 2 * 4 + 1 lines
+
+
+def _mean_over_lines(grad: FloatArray, half: int) -> FloatArray:
+    """Moving mean over ``2 half + 1`` lines (axis 0), over the lines that exist at the ends."""
+    n = grad.shape[0]
+    padded = np.concatenate([np.zeros((1, grad.shape[1])), np.cumsum(grad, axis=0)])
+    lo = np.clip(np.arange(n) - half, 0, n)
+    hi = np.clip(np.arange(n) + half + 1, 0, n)
+    result: FloatArray = (padded[hi] - padded[lo]) / (hi - lo)[:, None]
+    return result
+
+
+def _runs(row: FloatArray, threshold: float) -> list[tuple[float, float, float]]:
+    """The edges on one line: runs where ``|row| >= threshold`` with one sign, as (centre,
+    width, sign). Runs of one sign split by a short dip (shorter than the runs) are one edge
+    (noise on a smeared edge's flat derivative); the centre is the ``|row|``-weighted mean."""
     mag = np.abs(row)
-    cand = [
-        i
-        for i in range(row.size)
-        if mag[i] >= threshold
-        and (i == 0 or mag[i] >= mag[i - 1])
-        and (i == row.size - 1 or mag[i] > mag[i + 1])
-    ]
-    kept: list[int] = []
-    for i in sorted(cand, key=lambda i: -mag[i]):
-        if all(abs(i - k) >= 3 for k in kept):
-            kept.append(i)
-    return sorted(kept)
+    spans: list[list[int]] = []  # [first, stop, sign]
+    for i in np.flatnonzero(mag >= threshold):
+        sign = 1 if row[i] > 0 else -1
+        # Contiguous, or after a dip shorter than the run so far: the same edge.
+        if spans and spans[-1][2] == sign and i - spans[-1][1] < spans[-1][1] - spans[-1][0] + 2:
+            spans[-1][1] = int(i) + 1
+        else:
+            spans.append([int(i), int(i) + 1, sign])
+    out = []
+    for first, stop, sign in spans:
+        x = np.arange(first, stop, dtype=np.float64)
+        w = np.clip(sign * row[first:stop], 0.0, None)
+        centre = float((w @ x) / w.sum()) if w.sum() > 0 else float(x.mean())
+        out.append((centre, float(stop - first), float(sign)))
+    return out
+
+
+def _run_near(
+    row: FloatArray, pos: float, sign: float, threshold: float
+) -> tuple[float, float] | None:
+    """The run of ``sign * row >= threshold`` through the strongest sample within 2 of
+    ``pos``, as (weighted centre, width); None if that sample is below the threshold."""
+    n = row.size
+    lo, hi = max(round(pos) - 2, 0), min(round(pos) + 3, n)
+    if lo >= hi:
+        return None
+    cand = lo + int(np.argmax(sign * row[lo:hi]))
+    if sign * row[cand] < threshold:
+        return None
+    first, stop = cand, cand + 1
+    while first > 0 and sign * row[first - 1] >= threshold:
+        first -= 1
+    while stop < n and sign * row[stop] >= threshold:
+        stop += 1
+    x = np.arange(first, stop, dtype=np.float64)
+    w = sign * row[first:stop]
+    return float((w @ x) / w.sum()), float(stop - first)
 
 
 # -- edge width -------------------------------------------------------------------------------------
@@ -851,3 +936,439 @@ def periodic_edge_mtf(
         regions=len(results),
         results=tuple(results),
     )
+
+
+# -- velocity mismatch on a rolling-shutter TDI scan (physics.md §6, YUAN13 §4) ---------------------
+
+
+def _dirichlet(x: FloatArray, m: int) -> FloatArray:
+    """``|sin(pi m x) / (m sin(pi x))|``: the transfer function of ``m`` equal copies spaced
+    ``x`` periods apart (1 where ``sin(pi x) = 0``, its limit)."""
+    den = m * np.sin(np.pi * x)
+    small = np.abs(den) < 1e-12
+    ratio = np.sin(np.pi * m * x) / np.where(small, 1.0, den)
+    result: FloatArray = np.where(small, 1.0, np.abs(ratio))
+    return result
+
+
+@overload
+def mtf_rolling_tdi_model(
+    f_cy_per_px: float,
+    *,
+    stages: int,
+    dv_over_v: float,
+    fill_width: float,
+    integration_ratio: float,
+    row_skew: float = 0.0,
+    cell_px: float = 0.0,
+) -> float: ...
+@overload
+def mtf_rolling_tdi_model(
+    f_cy_per_px: FloatArray,
+    *,
+    stages: int,
+    dv_over_v: float,
+    fill_width: float,
+    integration_ratio: float,
+    row_skew: float = 0.0,
+    cell_px: float = 0.0,
+) -> FloatArray: ...
+def mtf_rolling_tdi_model(
+    f_cy_per_px: float | FloatArray,
+    *,
+    stages: int,
+    dv_over_v: float,
+    fill_width: float,
+    integration_ratio: float,
+    row_skew: float = 0.0,
+    cell_px: float = 0.0,
+) -> float | FloatArray:
+    """Along-track MTF of M-stage digital TDI on a rolling-shutter sensor under velocity
+    mismatch: the terms of physics.md §6 eq 3 and eq 8 [YUAN13] as this rig makes them, with
+    what ``mtf_tdi_model`` (eq 3 times eq 8 as written) leaves out. ``f_cy_per_px`` is on the
+    focal plane (cycles per pitch); the product of
+
+    - the aperture, ``sinc(f q)`` (eq 3's MTF_geo, ``fill_width = q / p``);
+    - the exposure smear at the image's actual speed: during ``T_int`` the image moves
+      ``(1 - dV/V) T_int / T_L`` pitches, so ``sinc(f (1 - dV/V) T_int / T_L)`` (eq 3's
+      MTF_discrete assumes the synchronous speed, ``sinc(f T_int / T_L)``);
+    - the M stages: a rolling shutter reads row ``i + 1`` one row time ``T_row`` after row
+      ``i``, so between stage ``i`` of one frame and stage ``i + 1`` of the next the image
+      moves ``(1 - dV/V)(1 - T_row / T_L)`` rows and slips ``s = 1 - (1 - dV/V)(1 - row_skew)``
+      rows against the stage it should meet (``row_skew = T_row / T_L``; 0 for a global
+      shutter: ``s = dV/V``, eq 8's slip). The M exposures sit ``s`` apart: their transfer
+      function is ``|sin(pi f M s) / (M sin(pi f s))|``, whose continuous limit (``f s`` small)
+      is eq 8's ``|sinc(f M dV/V)|`` with ``dV/V -> s``;
+    - the scene's cells (the simulator's radiance is constant on cells of ``cell_px`` pixels:
+      a box on the target, and another where the aperture integrates the cell-sampled
+      target), ``sinc(f cell_px)^2`` (docs/mtf.md; 0 for a real target).
+
+    With ``row_skew = 0``, ``cell_px = 0`` and small ``f M dV/V`` it is ``mtf_tdi_model``
+    to first order in ``dV/V`` times the exposure term's change. ``dv_over_v`` may exceed 1
+    (the image moves backwards); ``integration_ratio`` is ``T_int / T_L`` of the registers.
+    """
+    m = _stages(stages)
+    dv = float(_as_float_array("dv_over_v", dv_over_v))
+    q = _fraction("fill_width", fill_width, "photosensitive width q over pitch p")
+    ratio = _fraction("integration_ratio", integration_ratio, "T_int / T_L")
+    skew = _fraction("row_skew", row_skew, "T_row / T_L of a rolling shutter, 0 for global")
+    cell = float(cell_px)
+    if not (math.isfinite(cell) and 0.0 <= cell <= 1.0):
+        raise ValueError(f"cell_px must be in [0, 1] pixel, got {cell_px!r}")
+    f = _as_float_array("f_cy_per_px", f_cy_per_px)
+    speed = 1.0 - dv  # image rows per line period
+    slip = 1.0 - speed * (1.0 - skew)
+    result: float | FloatArray = _out(
+        np.abs(np.sinc(f * q) * np.sinc(f * speed * ratio))
+        * _dirichlet(f * slip, m)
+        * np.sinc(f * cell) ** 2
+    )
+    return result
+
+
+COMBINED_MAX_CY_PER_BIN = 0.3
+"""``combined_edge_mtf`` reports up to 0.3 cycles per ESF bin (1.2 cycles per line at 4x
+oversampling, 60 % of the bins' Nyquist, where the derivative and binning corrections reach
+2.3): beyond ISO 12233's 1 cycle per line, for lines coarser than the pixels (a scan whose
+image moves more than one row per line period)."""
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class CombinedEdgeMtf:
+    """Result of ``combined_edge_mtf``: one MTF from the mean LSF of several slanted edges.
+
+    ``frequencies_cy_per_px`` are along axis 0 of the image the edges were measured on (along
+    track for ``axis="along"``), in cycles per focal-plane pixel: the edge-normal frequencies
+    times ``cos(angle)`` over ``line_pitch_px``. ``mtf_std_error`` is the jackknife standard
+    error over the edges (NaN for a single edge).
+    """
+
+    frequencies_cy_per_px: FloatArray
+    mtf: FloatArray
+    mtf_std_error: FloatArray
+    edges: int
+    edge_angle_deg: float
+    line_pitch_px: float
+
+    def _at(self, values: FloatArray, freq_cy_per_px: float) -> float:
+        f = float(freq_cy_per_px)
+        top = float(self.frequencies_cy_per_px[-1])
+        if not 0.0 <= f <= top:
+            raise ValueError(
+                f"freq_cy_per_px must be in [0, {top:g}] (the lines' pitch on the focal plane "
+                f"is {self.line_pitch_px:g} px), got {freq_cy_per_px!r}"
+            )
+        return float(np.interp(f, self.frequencies_cy_per_px, values))
+
+    def mtf_at(self, freq_cy_per_px: float) -> float:
+        """The MTF at ``freq_cy_per_px`` (focal plane) by linear interpolation."""
+        return self._at(self.mtf, freq_cy_per_px)
+
+    def std_error_at(self, freq_cy_per_px: float) -> float:
+        """The jackknife standard error of ``mtf_at(freq_cy_per_px)``."""
+        return self._at(self.mtf_std_error, freq_cy_per_px)
+
+
+def combined_edge_mtf(
+    results: tuple[SlantedEdgeMtf, ...] | list[SlantedEdgeMtf], *, line_pitch_px: float = 1.0
+) -> CombinedEdgeMtf:
+    """One slanted-edge MTF from several edges of one image (ISO 12233 style, physics.md §6).
+
+    Averaging each edge's MTF (``periodic_edge_mtf``) keeps every edge's noise in its modulus:
+    at low SNR the noise's power adds to the MTF, most where the MTF is small (near Nyquist,
+    and under velocity mismatch). Here each edge's LSF (``SlantedEdgeMtf.lsf``, sampled in
+    bins centred on its fitted edge) is normalised to unit area and the LSFs are averaged bin
+    by bin (over the edges that reach the bin) before the window and FFT of
+    ``slanted_edge_mtf`` (steps 3-4), so the noise averages down before the modulus is taken.
+    ``mtf_std_error`` is the jackknife over the edges (each left out in turn).
+
+    ``line_pitch_px``: the pitch of the image's lines (axis 0) on the focal plane, in pixels.
+    A TDI line is taken every line period, while the image moves ``1 - dV/V`` rows, so a scan
+    under velocity mismatch has ``|1 - dV/V|`` (physics.md §6); 1 for a synchronous scan.
+    The edge-normal frequency ``nu`` (cycles per line) becomes the along-track frequency
+    ``nu cos(angle) / line_pitch_px`` (cycles per pixel). Its across-track component,
+    ``nu sin(angle)``, is neglected: on the focal plane it is ``f`` times the tangent of the
+    target's slant whatever the line pitch, 0.044 cycles per pixel for a 5-degree edge at
+    Nyquist, where a 0.71-pixel aperture loses 0.2 %.
+    """
+    if not results:
+        raise ValueError("combined_edge_mtf needs at least one edge (slanted_edge_mtf results)")
+    pitch = float(line_pitch_px)
+    if not (math.isfinite(pitch) and pitch > 0.0):
+        raise ValueError(f"line_pitch_px must be > 0, got {line_pitch_px!r}")
+    spacing = results[0].sample_spacing_px
+    axis = results[0].axis
+    if any(r.sample_spacing_px != spacing or r.axis != axis for r in results):
+        raise ValueError("the edges were measured with different oversampling or axes")
+    oversample = round(1.0 / spacing)
+    starts = [round(float(r.esf_positions_px[0]) / spacing) for r in results]
+    first = min(starts)
+    size = max(s + r.lsf.size for s, r in zip(starts, results, strict=True)) - first
+    sums = np.zeros((len(results), size))
+    present = np.zeros((len(results), size))
+    for i, (start, r) in enumerate(zip(starts, results, strict=True)):
+        area = float(r.lsf.sum())
+        if not area > 0.0:
+            raise ValueError(f"edge {i}: its LSF sums to {area:g}; not an edge")
+        sums[i, start - first : start - first + r.lsf.size] = r.lsf / area
+        present[i, start - first : start - first + r.lsf.size] = 1.0
+    total, count = sums.sum(axis=0), present.sum(axis=0)
+    # Only the bins at least half the edges reach: a bin few edges reach keeps their noise.
+    covered = np.flatnonzero(count >= 0.5 * len(results))
+    span = slice(int(covered[0]), int(covered[-1]) + 1)
+
+    def mtf_of(lsf_sum: FloatArray, n: FloatArray) -> tuple[FloatArray, FloatArray]:
+        lsf = lsf_sum[span] / np.maximum(n[span], 1.0)
+        return _lsf_mtf(
+            lsf,
+            oversample,
+            window=True,
+            derivative="central",
+            correct_binning=True,
+            f_max=COMBINED_MAX_CY_PER_BIN * oversample,
+        )
+
+    freqs, mtf = mtf_of(total, count)
+    edges = len(results)
+    if edges > 1:
+        leave_one_out = np.stack(
+            [mtf_of(total - sums[i], count - present[i])[1] for i in range(edges)]
+        )
+        spread = leave_one_out - leave_one_out.mean(axis=0)
+        error: FloatArray = np.sqrt((edges - 1) / edges * (spread**2).sum(axis=0))
+    else:
+        error = np.full_like(mtf, np.nan)
+    angle = float(np.mean([abs(r.edge_angle_deg) for r in results]))
+    along: FloatArray = freqs * math.cos(math.radians(angle)) / pitch
+    return CombinedEdgeMtf(
+        frequencies_cy_per_px=along,
+        mtf=mtf,
+        mtf_std_error=error,
+        edges=edges,
+        edge_angle_deg=angle,
+        line_pitch_px=pitch,
+    )
+
+
+def pixel_noise_dn(image: npt.ArrayLike, *, axis: Axis = "along") -> float:
+    """Per-pixel noise of an image of edges: the standard deviation of the second differences
+    along ``axis`` over ``sqrt(6)`` (independent pixel noise ``sigma`` gives ``sqrt(6)
+    sigma``), without the differences more than 5 robust sigmas from their median (the
+    edges). The robust sigma (from the median absolute deviation, at least 1 DN) only gates:
+    on whole-DN data it comes in steps of 1.48 DN, too coarse for the noise itself."""
+    work = _lines_view(image, axis, "pixel_noise_dn")
+    if work.shape[1] < 3:
+        raise ValueError("pixel_noise_dn needs at least 3 pixels along the axis")
+    d2 = np.diff(work, n=2, axis=1).ravel()
+    centre = float(np.median(d2))
+    gate = 5.0 * max(1.4826 * float(np.median(np.abs(d2 - centre))), 1.0)
+    kept = d2[np.abs(d2 - centre) <= gate]
+    return float(kept.std()) / math.sqrt(6.0)
+
+
+# -- limiting resolution of a bar target (physics.md §6, YUAN13 §4) --------------------------------
+
+ROSE_THRESHOLD = 5.0
+"""Rose's detection threshold: an object is seen when its signal over its area exceeds about 5
+times the noise in that area (A. Rose, J. Opt. Soc. Am. 38:196, 1948)."""
+
+USAF_BAR_ASPECT = 5.0
+"""Length over width of a bar of the USAF-1951 (MIL-STD-150A) resolution target."""
+
+
+def bar_detectability(
+    delta_dn: float,
+    noise_dn: float,
+    frequency_cy_per_px: float,
+    *,
+    bar_aspect: float = USAF_BAR_ASPECT,
+) -> float:
+    """Rose's signal-to-noise ratio of one bar of a group at ``frequency_cy_per_px``:
+
+        d = delta sqrt(A) / sigma,   A = bar_aspect w^2,   w = 1 / (2 f)
+
+    ``delta_dn`` is the difference between the bright and the dark bars' levels, ``noise_dn``
+    the noise of one pixel, ``A`` the bar's area in pixels (``w`` its width; a USAF-1951 bar
+    is 5 widths long): the bar's signal summed over its area against the noise of that sum.
+    YUAN13 §4 judged the finest resolved group by eye, and an observer sees a bar when ``d``
+    exceeds about 5 (``ROSE_THRESHOLD``): the criterion makes the limiting resolution depend
+    on the noise as the eye's does (physics.md §6; §5: M stages raise ``delta`` M times and
+    the noise ``sqrt(M)`` times).
+    """
+    f = float(frequency_cy_per_px)
+    if not (math.isfinite(f) and 0.0 < f <= NYQUIST_CY_PER_PX):
+        raise ValueError(f"frequency_cy_per_px must be in (0, 0.5], got {frequency_cy_per_px!r}")
+    sigma, delta, aspect = float(noise_dn), float(delta_dn), float(bar_aspect)
+    if not (math.isfinite(sigma) and sigma > 0.0):
+        raise ValueError(f"noise_dn must be > 0, got {noise_dn!r}")
+    if not math.isfinite(delta):
+        raise ValueError(f"delta_dn must be finite, got {delta_dn!r}")
+    if not (math.isfinite(aspect) and aspect > 0.0):
+        raise ValueError(f"bar_aspect must be > 0, got {bar_aspect!r}")
+    width = 1.0 / (2.0 * f)
+    return delta * math.sqrt(aspect * width * width) / sigma
+
+
+def limiting_frequency(
+    frequencies_cy_per_px: npt.ArrayLike,
+    detectability: npt.ArrayLike,
+    *,
+    threshold: float = ROSE_THRESHOLD,
+) -> float:
+    """The limiting resolution of a bar target (YUAN13 §4): the highest group frequency such
+    that it and every coarser group are resolved (``detectability >= threshold``), in cycles
+    per pixel; 0 when even the coarsest is not. Reading up from the coarsest group, as an
+    observer does, a lucky fine group above an unresolved one does not count."""
+    f = np.asarray(frequencies_cy_per_px, dtype=np.float64)
+    d = np.asarray(detectability, dtype=np.float64)
+    if f.ndim != 1 or f.shape != d.shape or f.size == 0:
+        raise ValueError(
+            f"frequencies and detectability must be 1-D of one length, got {f.shape}, {d.shape}"
+        )
+    if not np.all(np.isfinite(f)) or np.any(f <= 0):
+        raise ValueError("frequencies must be finite and > 0")
+    limit = 0.0
+    for i in np.argsort(f, kind="stable"):
+        if not d[i] >= threshold:  # NaN counts as unresolved
+            break
+        limit = float(f[i])
+    return limit
+
+
+def lp_per_mm_on_target(f_cy_per_px: float, *, pitch_m: float, magnification: float) -> float:
+    """A focal-plane frequency in cycles per pixel as line pairs per mm on the target: the
+    target-side pixel is ``pitch / magnification`` (physics.md §6, ``n_mag``)."""
+    f, p, m = float(f_cy_per_px), float(pitch_m), float(magnification)
+    if not (math.isfinite(p) and p > 0 and math.isfinite(m) and m > 0 and math.isfinite(f)):
+        raise ValueError(f"need finite f, pitch_m > 0 and magnification > 0; got {f}, {p}, {m}")
+    return f / (p / m) / 1e3
+
+
+@dataclass(frozen=True, slots=True)
+class BarGroup:
+    """One group of a bar target as ``bar_target_resolution`` measured it.
+
+    ``top_dn`` and ``bottom_dn``: the bright and dark bars' levels (mean of each bar pair's
+    maximum and minimum over one phase cycle of the pixels); ``noise_dn`` the pixel noise along
+    the bars; ``detectability`` Rose's ``d`` (``bar_detectability``); ``lines`` how many image
+    lines the group's band gave.
+    """
+
+    frequency_cy_per_px: float
+    top_dn: float
+    bottom_dn: float
+    noise_dn: float
+    detectability: float
+    lines: int
+
+    @property
+    def delta_dn(self) -> float:
+        """Bright minus dark bar level."""
+        return self.top_dn - self.bottom_dn
+
+
+@dataclass(frozen=True, slots=True)
+class BarTargetResolution:
+    """Result of ``bar_target_resolution``: the groups and the limiting frequency."""
+
+    groups: tuple[BarGroup, ...]
+    limit_cy_per_px: float
+    threshold: float
+    bar_aspect: float
+    band_offset_lines: int
+
+
+def _phase_cycle(f: float, n: int) -> int:
+    """Pixels after which bars at ``f`` meet the pixel grid in the same phase again."""
+    from fractions import Fraction
+
+    cycle = Fraction(f).limit_denominator(1000).denominator
+    if 2 * cycle > n:
+        raise ValueError(
+            f"bars at {f:g} cy/px repeat their phase every {cycle} px; the lines have only {n}"
+        )
+    return cycle
+
+
+def bar_target_resolution(
+    image: npt.ArrayLike,
+    frequencies_cy_per_px: npt.ArrayLike,
+    *,
+    band_lines: int,
+    margin_lines: int = 3,
+    threshold: float = ROSE_THRESHOLD,
+    bar_aspect: float = USAF_BAR_ASPECT,
+) -> BarTargetResolution:
+    """Limiting resolution of an image of a bar target whose bars vary across (axis 1) and
+    whose groups follow each other along axis 0 in bands of ``band_lines`` lines, in the order
+    of ``frequencies_cy_per_px``, repeating (the simulator's ``bars`` scene with
+    ``orientation=across`` in a synchronous scan: 32 lines per band). YUAN13 §4, physics.md §6.
+
+    1. Bands: each line's power at each group frequency (normalised by that frequency's mean
+       over the lines) is summed over the lines for every offset of the band pattern; the best
+       offset assigns the lines to groups. ``margin_lines`` at each end of a band are dropped
+       (the edge between bands is blurred along track).
+    2. Levels: the group's lines are averaged into one profile across the bars; the profile is
+       folded over the pixels after which the bars meet the pixel grid in the same phase again
+       (2 pixels at 0.5 cy/px, 10 at 0.3), so the noise averages down over the whole line
+       before the levels are taken; ``top`` and ``bottom`` are the means over the bar pairs of
+       one such cycle of their maximum and minimum (``bar_modulation``'s "extrema").
+    3. Noise: the pixels' standard deviation along the bars (axis 0, within the group's lines,
+       where the target is uniform), pooled over the columns.
+    4. ``bar_detectability`` with ``top - bottom``, the noise and the USAF bar area; the limit
+       is ``limiting_frequency`` at ``threshold`` (Rose's 5).
+    """
+    data = np.asarray(image, dtype=np.float64)
+    freqs = np.asarray(frequencies_cy_per_px, dtype=np.float64)
+    if data.ndim != 2 or not np.all(np.isfinite(data)):
+        raise ValueError(f"image must be a finite 2-D array (lines, columns), got {data.shape}")
+    if freqs.ndim != 1 or freqs.size == 0:
+        raise ValueError("give the groups' frequencies in band order")
+    if band_lines < 2 * margin_lines + 2 or margin_lines < 0:
+        raise ValueError(
+            f"band_lines {band_lines} leaves fewer than 2 lines per band after a margin of "
+            f"{margin_lines} at each end"
+        )
+    n_lines, n_cols = data.shape
+    groups_n = freqs.size
+    period = groups_n * band_lines
+    if n_lines < period:
+        raise ValueError(
+            f"{n_lines} lines hold no full cycle of the target's {groups_n} bands of "
+            f"{band_lines} lines; take at least {period}"
+        )
+    x = np.arange(n_cols, dtype=np.float64)
+    centred = data - data.mean(axis=1, keepdims=True)
+    power = np.abs(centred @ np.exp(-2j * np.pi * freqs[None, :] * x[:, None])) ** 2
+    power /= np.maximum(power.mean(axis=0), 1e-300)
+    lines = np.arange(n_lines)
+    scores = [power[lines, ((lines + o) % period) // band_lines].sum() for o in range(period)]
+    offset = int(np.argmax(scores))
+    phase = (lines + offset) % period
+    groups: list[BarGroup] = []
+    for g, f in enumerate(freqs):
+        if not 0.0 < f <= NYQUIST_CY_PER_PX:
+            raise ValueError(f"group frequency {f:g} is outside (0, 0.5] cy/px")
+        inside = phase - g * band_lines
+        rows = np.flatnonzero((inside >= margin_lines) & (inside < band_lines - margin_lines))
+        if rows.size < 2:
+            raise ValueError(f"the group at {f:g} cy/px has {rows.size} line(s); scan longer")
+        block = data[rows]
+        profile = block.mean(axis=0)
+        cycle = _phase_cycle(float(f), n_cols)
+        folded = profile[: n_cols // cycle * cycle].reshape(-1, cycle).mean(axis=0)
+        twice = np.concatenate([folded, folded])
+        width = math.ceil(1.0 / f - 1e-9)
+        pairs = round(f * cycle)
+        windows = [twice[round(k / f) : round(k / f) + width] for k in range(pairs)]
+        top = float(np.mean([w.max() for w in windows]))
+        bottom = float(np.mean([w.min() for w in windows]))
+        noise = math.sqrt(float(block.var(axis=0, ddof=1).mean()))
+        detect = bar_detectability(top - bottom, noise, float(f), bar_aspect=bar_aspect)
+        groups.append(BarGroup(float(f), top, bottom, noise, detect, int(rows.size)))
+    limit = limiting_frequency(
+        [g.frequency_cy_per_px for g in groups],
+        [g.detectability for g in groups],
+        threshold=threshold,
+    )
+    return BarTargetResolution(tuple(groups), limit, float(threshold), float(bar_aspect), offset)

@@ -459,10 +459,12 @@ class ScanRequest(_Request):
     )
     dv_over_v: float = Field(
         default=0.0,
-        ge=-0.5,
-        le=0.5,
+        ge=-2.0,
+        lt=1.0,
         description="deliberate velocity mismatch (V - V_m)/V: the stage runs at "
-        "(1 - dv_over_v) x the synchronous speed (MTF against mismatch, physics.md §6)",
+        "(1 - dv_over_v) x the synchronous speed (MTF against mismatch, physics.md §6); "
+        "a driven stage takes -0.5 .. 0.5, the simulator's ideal stage (drive_stage false, "
+        "forwards only) -2 .. below 1",
     )
     mode: TdiMode = Field(default="sum", description="sum (uint32, eq 12) or mean (float32)")
     out_bits: int | None = Field(

@@ -78,6 +78,7 @@ CONSUMER_WAIT_S = 5.0  # longest the consumer waits for a free batch before givi
 FINISH_TIMEOUT_S = 60.0
 QUICKLOOK_MAX_LINES = 8192
 STREAM_END_MARGIN_S = 2.0  # stage travel planned beyond the frames' own duration
+DRIVEN_MISMATCH_MAX = 0.5  # |dv_over_v| a driven stage takes (0.5 .. 1.5 x synchronous)
 
 
 @dataclass
@@ -245,6 +246,13 @@ class ScanService:
                 "give either speed_m_s or line_period_s, not both: the line period follows "
                 "from the stage speed (physics.md §2)"
             )
+        if request.drive_stage and abs(request.dv_over_v) > DRIVEN_MISMATCH_MAX:
+            raise BadRequest(
+                f"dv_over_v = {request.dv_over_v:g} with the stage driven: it takes "
+                f"-{DRIVEN_MISMATCH_MAX:g} .. {DRIVEN_MISMATCH_MAX:g} (the stage at 0.5 .. 1.5 "
+                "times the synchronous speed); larger mismatches run on the simulator's ideal "
+                "stage (drive_stage false)"
+            )
         with self._lock:
             if self._scan is not None and not self._scan.done.is_set():
                 raise BadRequest("a scan is running; stop it first (`camctl scan --stop`)")
@@ -380,7 +388,9 @@ class ScanService:
             # realise (whole clocks), offset by any deliberate mismatch asked for.
             speed = sync * (1.0 - request.dv_over_v)
         elif self.session.config.link.device == "sim":
-            speed = sync if speed is None else speed
+            # The simulator's ideal stage, offset by the deliberate mismatch too: an exact
+            # dV/V for MTF against mismatch (physics.md §6), beyond a real stage's range.
+            speed = (sync if speed is None else speed) * (1.0 - request.dv_over_v)
             self.session.stream.set_stage(track=False, speed_m_s=speed)
         elif speed is None:
             self.session.log_event(
