@@ -359,3 +359,102 @@ def binned_temporal_snr(
         gain_dn_per_e=gain_dn_per_e,
         bessel=bessel,
     )
+
+
+# -- what eqs 10 and 13 read on Gaussian noise, and the photon transfer -----------------------
+
+
+def eq10_expectation_factor(frames: int) -> float:
+    """``E[D_noise(i,j)] / sigma`` for A frames of Gaussian noise: ``sqrt((A-1)/A) c4(A)``.
+
+    physics.md §5 eq 10 divides by ``A`` (a factor ``sqrt((A-1)/A)`` on the root) and the
+    mean of a sample standard deviation is ``c4(A) sigma`` with
+    ``c4(A) = sqrt(2/(A-1)) Gamma(A/2) / Gamma((A-1)/2)``. For YE23's A = 20: 0.962. A model
+    of the noise (sigma) times this factor is what eq 10 is expected to measure.
+    """
+    a = _frame_count(frames, 2)
+    c4 = math.sqrt(2.0 / (a - 1)) * math.exp(math.lgamma(a / 2.0) - math.lgamma((a - 1) / 2.0))
+    return math.sqrt((a - 1) / a) * c4
+
+
+def eq13_expectation_factor(frames: int) -> float:
+    """``E[eq 13's SNR] / (mu / sigma)`` for A frames of Gaussian noise (physics.md §5).
+
+    Eq 13 averages per-pixel ratios ``Y / S``; for Gaussian noise ``Y`` is independent of
+    ``S`` (eq 12, divisor A), so ``E[Y / S] = mu E[1 / S]``. With ``nu = A - 1`` and
+    ``S = sigma sqrt(nu / A) chi_nu / sqrt(nu)``, ``E[sigma / S] = sqrt(A / nu) sqrt(nu / 2)
+    Gamma((nu - 1) / 2) / Gamma(nu / 2)``: 1.069 for YE23's A = 20, so eq 13 reads about 7 %
+    above the SNR ``mu / sigma`` that a noise model gives. Needs A >= 3 (for A = 2 the
+    expectation is infinite).
+    """
+    a = _frame_count(frames, 3)
+    nu = a - 1
+    e_inv_chi = math.sqrt(nu / 2.0) * math.exp(math.lgamma((nu - 1) / 2.0) - math.lgamma(nu / 2.0))
+    return math.sqrt(a / nu) * e_inv_chi
+
+
+def _frame_count(frames: int, least: int) -> int:
+    if isinstance(frames, bool) or int(frames) != frames or frames < least:
+        raise ValueError(
+            f"the number of frames A must be a whole number >= {least}, got {frames!r}"
+        )
+    return int(frames)
+
+
+@dataclass(frozen=True, slots=True)
+class PhotonTransfer:
+    """The photon-transfer fit ``sigma_y^2 = K mu_y + sigma_d^2`` (EMVA 1288).
+
+    ``gain_dn_per_e`` is the slope K (DN per electron), ``gain_error_dn_per_e`` its standard
+    error (NaN with 2 points), ``dark_variance_dn2`` the intercept (the temporal variance with
+    no signal), ``residual_rms_dn2`` the rms misfit, ``points`` the number of points.
+    """
+
+    gain_dn_per_e: float
+    gain_error_dn_per_e: float
+    dark_variance_dn2: float
+    residual_rms_dn2: float
+    points: int
+
+
+def photon_transfer(mean_dn: npt.ArrayLike, variance_dn2: npt.ArrayLike) -> PhotonTransfer:
+    """System gain ``K`` from the photon transfer of dark-subtracted means and temporal variances.
+
+    physics.md §5 (dark noise in electrons needs the system gain): photon shot noise is
+    Poisson, so in electrons the variance of the signal equals its mean, and in DN
+    ``sigma_y^2 = K^2 (mu_e + sigma_d,e^2) = K mu_y + sigma_d^2`` with ``mu_y`` the mean above
+    dark (EMVA 1288's photon transfer method). An unweighted least-squares line through
+    ``(mean_dn, variance_dn2)``; the points must stay below saturation (clipping lowers the
+    variance). 2x2-binned data give the unbinned K: electrons and DN both add.
+    """
+    mean = np.asarray(mean_dn, dtype=np.float64).reshape(-1)
+    var = np.asarray(variance_dn2, dtype=np.float64).reshape(-1)
+    if mean.shape != var.shape or mean.size < 2:
+        raise ValueError(
+            "photon transfer needs at least 2 (mean, variance) pairs of equal count, got "
+            f"{mean.size} means and {var.size} variances: measure at 2 or more light levels"
+        )
+    if not (np.isfinite(mean).all() and np.isfinite(var).all()):
+        raise ValueError("photon transfer needs finite means and variances")
+    if float(np.ptp(mean)) <= 0.0:
+        raise ValueError(
+            "photon transfer needs different signal levels (all means are equal): vary the "
+            "exposure or the light"
+        )
+    design = np.column_stack([mean, np.ones_like(mean)])
+    (slope, intercept), *_ = np.linalg.lstsq(design, var, rcond=None)
+    residuals = var - design @ np.array([slope, intercept])
+    rss = float(residuals @ residuals)
+    dof = mean.size - 2
+    if dof > 0:
+        covariance = rss / dof * np.linalg.inv(design.T @ design)
+        error = math.sqrt(max(float(covariance[0, 0]), 0.0))
+    else:
+        error = math.nan
+    return PhotonTransfer(
+        gain_dn_per_e=float(slope),
+        gain_error_dn_per_e=error,
+        dark_variance_dn2=float(intercept),
+        residual_rms_dn2=math.sqrt(rss / mean.size),
+        points=int(mean.size),
+    )

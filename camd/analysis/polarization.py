@@ -112,6 +112,12 @@ def azimuth_spread_deg(values: npt.ArrayLike) -> float:
     return float(max(180.0 - float(gaps.max()), 0.0))
 
 
+def axial_difference_deg(angle_deg: float) -> float:
+    """A difference of two azimuths folded into [-90, 90) deg: azimuths are axes (physics.md
+    §4), so 179 - 1 = 178 deg is -2 deg."""
+    return (angle_deg + 90.0) % 180.0 - 90.0
+
+
 def _finite_1d(name: str, values: npt.ArrayLike) -> npt.NDArray[np.float64]:
     array: npt.NDArray[Any] = np.asarray(values)
     if array.dtype == np.bool_ or not (
