@@ -8,14 +8,24 @@ from the registers on every render, so register writes take effect on the next f
 One frame (``render(t_s)``; window row 0 ends its exposure at ``t_s``):
 
 1. Timing (physics.md §2 eq 4, §3): a rolling shutter ends row ``i``'s exposure at
-   ``t_s + i T_line``; global and frame-transfer shutters end every row at ``t_s``. Each row
-   starts its exposure ``T_exp`` before it ends. ``T_line``, ``T_exp`` and the TDI line period
-   come from ``sensor.timing()``.
+   ``t_s + i T_line``; global, frame-transfer and full-frame shutters end every row at
+   ``t_s``. Each row starts its exposure ``T_exp`` before it ends. ``T_line``, ``T_exp`` and
+   the TDI line period come from ``sensor.timing()``.
 2. Motion: the stage's position at each row's exposure start and end, in image rows
    ``d = magnification * x_stage / pitch`` (physics.md §2: ``T_line,TDI = p / v_image``,
    ``v_image = magnification * v_stage``). Without an explicit stage or speed the stage tracks:
    it runs at the synchronous speed for the current TDI line period, one row per period.
 3. Photons: the scene's exact time-and-aperture integral (``firmware_models.scene``).
+   Image motion compensation (physics.md §7 [REN15]; a sensor whose map has the IMC_CTRL,
+   IMC_STEP and IMC_PHASES registers, the full-frame ``ftf5066``): the charge packets are
+   clocked along the columns with the image during the exposure, one electrode (``w / p``)
+   every ``IMC_STEP`` clocks or one row every ``p`` of them
+   (``camd.timing.imc.charge_shift_schedule``), so each pixel's collection aperture moves
+   relative to the scene by the image displacement minus the packets' shift: a sawtooth, a
+   sequence of linear pieces. Each piece is a moving aperture that ``Scene.integrate``
+   integrates exactly; the photons are the sum over the pieces, each weighted by its
+   duration (identical pieces are integrated once, docs/imc.md). Row ``i`` of the frame is the
+   packet that sat in window row ``i`` when the exposure began.
 4. Electrons: ``QE * photons * (1 + PRNU)`` plus dark charge
    ``I_dark(T) * (1 + DSNU) * T_exp`` with ``I_dark(T) = I_ref * 2^((T - T_ref) / T_double)``.
 5. Temporal noise (physics.md §5): photon and dark shot noise and read noise, drawn as ONE
@@ -29,7 +39,9 @@ One frame (``render(t_s)``; window row 0 ends its exposure at ``t_s``):
    ``output_bits`` MSBs are kept (the IBIS5 drops 2 LSBs).
 7. Binning (``binning``; physics.md §3): the FPGA sums 2x2 blocks (``camd.tdi.bin2x2``).
 
-Fixed-pattern maps (PRNU, DSNU) cover the whole array, drawn once from ``seed``; temporal noise
+Fixed-pattern maps (PRNU, DSNU) cover the whole array, drawn once from ``seed`` (an array of
+more than 8 Mpixel, the ftf5066's 33 Mpixel, draws them per band of 256 rows when a window
+first reads one, each band from its own seeded stream); temporal noise
 is drawn fresh for every frame from a separate seeded stream, so frames are independent and the
 same seed with the same sequence of renders gives identical frames. A test pattern other than
 ``off`` in the sensor's test_pattern role replaces the pixels (``firmware_models.lvds``).
@@ -39,6 +51,7 @@ The model does not advance the sensor's frame counter: whoever reads frames out 
 from __future__ import annotations
 
 import copy
+import math
 from collections.abc import Callable
 from typing import Any
 
@@ -50,6 +63,7 @@ from camd.sensor.profile import SHUTTERS, CameraProfile
 from camd.sensor.timing_view import SensorTiming
 from camd.tdi.binning import bin2x2
 from camd.timing import synchronous_stage_speed_m_s
+from camd.timing.imc import IMC_MODES, ImcMode, charge_shift_schedule
 from firmware_models.lvds import DEFAULT_TRAINING_WORD, TestPattern, pattern_frame
 from firmware_models.scene import Scene, SceneSpec, build_scene
 from firmware_models.sensor import SensorModel
@@ -60,6 +74,10 @@ Array = npt.NDArray[Any]
 _FIXED_PATTERN_STREAM = 0x4650  # "FP": PRNU and DSNU maps
 _TEMPORAL_STREAM = 0x544E  # "TN": per-frame noise, independent of the fixed pattern
 DEFAULT_FILL_OF_RANGE = 0.25  # the default flat field fills a quarter of the output range
+_BANDED_MAP_PIXELS = 1 << 23  # larger arrays draw their fixed pattern per band of rows
+_MAP_BAND_ROWS = 256
+_MAX_MOTION_PIECES = 64  # more distinct IMC pieces than this are merged into an occupation density
+_SAME_PIECE_ROWS = 1e-9  # pieces whose ends agree to this (rows) are integrated together
 
 
 class CameraModel:
@@ -99,8 +117,14 @@ class CameraModel:
         # ``transmission(start_s, end_s)`` -> factor per row; None: everything passes.
         self.transmission: Callable[[Array, Array], Array] | None = None
         self._noise = np.random.default_rng([seed, _TEMPORAL_STREAM])
+        # The ideal stage is at position 0 at this device time (see ``stream_started``).
+        self._ideal_origin_s = 0.0
+        self._anchor_next_stream = False
         # Drawn on first use: a 2048 x 2048 array takes ~0.1 s, and not every model renders.
         self._maps: tuple[Array, Array] | None = None
+        # Bands of a large array's maps, drawn when a window first reads them; the dict is
+        # shared with ``frozen`` twins (a shallow copy), so a band is drawn once.
+        self._bands: dict[int, tuple[Array, Array]] = {}
         self._default_photons = self._moderate_photons()
         self.scene: Scene = build_scene(
             SceneSpec(),
@@ -113,7 +137,8 @@ class CameraModel:
         """This camera reading ``sensor`` (a register snapshot) instead: renders from it never
         see a register write half-way (the fixed pattern, noise stream, scene and stage are
         shared)."""
-        self._fixed_patterns()  # drawn once here, so the twin shares them
+        if not self._banded_maps:
+            self._fixed_patterns()  # drawn once here, so the twin shares them
         twin = copy.copy(self)
         twin.sensor = sensor
         return twin
@@ -122,9 +147,20 @@ class CameraModel:
         """Restart the temporal noise stream as if the camera had been made with ``seed``.
 
         The generator is reset in place, not replaced: ``frozen`` twins share it and must draw
-        from the restarted stream too. The fixed pattern keeps the start seed's maps."""
+        from the restarted stream too, and the next stream starts the ideal stage at position
+        0 (``stream_started``). The fixed pattern keeps the start seed's maps."""
         fresh = np.random.default_rng([seed, _TEMPORAL_STREAM])
         self._noise.bit_generator.state = fresh.bit_generator.state
+        self._anchor_next_stream = True
+
+    def stream_started(self, t0_s: float) -> None:
+        """A stream starts at device time ``t0_s``. After ``reseed_noise`` the ideal stage is
+        put at position 0 then: its frames see the scene from the same place whenever the
+        stream starts, so a re-seeded acquisition is repeatable (campaign resume) -- a
+        stream's timing relative to its start is fixed, its absolute device time is not."""
+        if self._anchor_next_stream:
+            self._ideal_origin_s = t0_s
+            self._anchor_next_stream = False
 
     # -- scene and stage --------------------------------------------------------------------------
 
@@ -164,8 +200,10 @@ class CameraModel:
         ``stage_speed_m_s``, or (both None) at the synchronous speed."""
         if self.stage is not None:
             return self.stage
-        speed = self.stage_speed_m_s
-        return LinearStage(self.synchronous_speed_m_s() if speed is None else speed)
+        speed = (
+            self.synchronous_speed_m_s() if self.stage_speed_m_s is None else self.stage_speed_m_s
+        )
+        return LinearStage(speed, -speed * self._ideal_origin_s)
 
     def image_rows(self, t_s: npt.ArrayLike) -> Array:
         """Image displacement in rows at times ``t_s``: ``m x_stage(t) / p`` (physics.md §2)."""
@@ -227,6 +265,23 @@ class CameraModel:
     def dark_current_e_per_s(self) -> float:
         """Mean dark current at ``temperature_degc`` (doubling rule, see the profile)."""
         return self.profile.dark_current_e_per_s.value * self.dark_factor()
+
+    def imc(self) -> tuple[ImcMode, float, int]:
+        """Image motion compensation the registers set: (mode, electrode interval in s, phases).
+
+        ``IMC_CTRL.mode`` (none, row, electrode), ``IMC_STEP`` (the electrode-step interval in
+        clocks of the map's ``timing.clock_hz``) and ``IMC_PHASES`` (p, read-only); a sensor
+        without them never compensates: ``("none", inf, 1)``.
+        """
+        regmap = self.sensor.regmap
+        if not regmap.has_register("IMC_CTRL"):
+            return "none", math.inf, 1
+        mode = self.sensor.value("IMC_CTRL.mode")
+        if mode not in IMC_MODES:
+            raise ValueError(f"IMC_CTRL.mode is {mode!r}; the map must name none, row, electrode")
+        interval_s = int(self.sensor.value("IMC_STEP")) / regmap.timing.clock_hz
+        phases = int(self.sensor.value("IMC_PHASES"))
+        return mode, interval_s, phases
 
     def window(self) -> tuple[int, int, int, int]:
         """(first row, rows, first column, columns) of the window, as array indices."""
@@ -319,30 +374,101 @@ class CameraModel:
     ) -> Array:
         row0, rows, col0, cols = window
         start, end = self.exposure_times_s(t_s, timing, rows)
-        # Both ends in one stage call: a stepper's position may be costly to evaluate.
-        moved = self.image_rows(np.concatenate([start, end]))
-        electrons = self.scene.integrate(
-            row0,
-            rows,
-            cols,
-            moved[:rows],
-            moved[rows:],
-            None,
-            timing.exposure_s,
-            self.profile.aperture,
-            first_col=col0,
-            dtype=dtype,
-        )
-        response, dark_ref = self._fixed_patterns()
-        electrons *= response[row0 : row0 + rows, col0 : col0 + cols]
+        mode, interval_s, phases = self.imc()
+        if mode != "none" and self.shutter != "rolling":
+            electrons = self._compensated_photons(
+                float(start[0]), timing.exposure_s, (mode, interval_s, phases), window, dtype
+            )
+        else:
+            # Both ends in one stage call: a stepper's position may be costly to evaluate.
+            moved = self.image_rows(np.concatenate([start, end]))
+            electrons = self.scene.integrate(
+                row0,
+                rows,
+                cols,
+                moved[:rows],
+                moved[rows:],
+                None,
+                timing.exposure_s,
+                self.profile.aperture,
+                first_col=col0,
+                dtype=dtype,
+            )
+        response_rows, dark_rows = self._pattern_rows(row0, rows)
+        response = response_rows[:, col0 : col0 + cols]
+        dark_ref = dark_rows[:, col0 : col0 + cols]
+        electrons *= response
         if self.transmission is not None:
             factor = np.asarray(self.transmission(start, end), dtype=electrons.dtype)
             electrons *= factor[:, np.newaxis]
         # Dark rate map at T_ref times the temperature factor, times the exposure.
         scale = np.asarray(self.dark_factor() * timing.exposure_s, dtype=electrons.dtype)
-        dark = dark_ref[row0 : row0 + rows, col0 : col0 + cols] * scale
+        dark = dark_ref * scale
         electrons += dark
         return electrons
+
+    def _compensated_photons(
+        self,
+        start_s: float,
+        exposure_s: float,
+        imc: tuple[ImcMode, float, int],
+        window: tuple[int, int, int, int],
+        dtype: npt.DTypeLike,
+    ) -> Array:
+        """Photons per pixel of a full-frame exposure with the packets clocked along (module
+        docstring, 3): the sum over the schedule's pieces of the scene's exact integral of an
+        aperture moving linearly from (image displacement - packet shift) at the piece's start
+        to that at its end, each for the piece's duration."""
+        row0, rows, col0, cols = window
+        mode, interval_s, phases = imc
+        schedule = charge_shift_schedule(exposure_s, interval_s, mode, phases)
+        moved = self.image_rows(start_s + schedule.bounds_s)  # all rows expose together
+        # Drift moves the image sideways by its own displacement; the packets only move along.
+        lateral = self.scene.lateral_cols(np.full(rows, 0.5 * (moved[0] + moved[-1])))
+        pieces = _merge_pieces(
+            moved[:-1] - schedule.shift_px, moved[1:] - schedule.shift_px, schedule.durations_s
+        )
+        total: Array | None = None
+        for lo, hi, duration_s in pieces:
+            photons = self.scene.integrate(
+                row0, rows, cols, lo, hi, lateral, duration_s, self.profile.aperture,
+                first_col=col0, dtype=dtype,
+            )  # fmt: skip
+            total = photons if total is None else total + photons
+        assert total is not None  # a schedule has at least one piece
+        return total
+
+    @property
+    def _banded_maps(self) -> bool:
+        p = self.profile
+        return p.rows.value * p.columns.value > _BANDED_MAP_PIXELS
+
+    def _pattern_rows(self, row0: int, rows: int) -> tuple[Array, Array]:
+        """The fixed-pattern maps (``_fixed_patterns``) of array rows ``row0 .. row0 + rows - 1``
+        (all columns); a large array's from its bands."""
+        if not self._banded_maps:
+            response, dark = self._fixed_patterns()
+            return response[row0 : row0 + rows], dark[row0 : row0 + rows]
+        first, last = row0 // _MAP_BAND_ROWS, (row0 + rows - 1) // _MAP_BAND_ROWS
+        parts = [self._band(b) for b in range(first, last + 1)]
+        offset = row0 - first * _MAP_BAND_ROWS
+        if len(parts) == 1:
+            response, dark = parts[0]
+        else:
+            response = np.concatenate([r for r, _ in parts])
+            dark = np.concatenate([d for _, d in parts])
+        return response[offset : offset + rows], dark[offset : offset + rows]
+
+    def _band(self, band: int) -> tuple[Array, Array]:
+        """Band ``band`` (rows ``band * 256 ..``) of a large array's maps, from its own stream."""
+        cached = self._bands.get(band)
+        if cached is None:
+            p = self.profile
+            rows = min(_MAP_BAND_ROWS, p.rows.value - band * _MAP_BAND_ROWS)
+            rng = np.random.default_rng([self.seed, _FIXED_PATTERN_STREAM, band])
+            cached = self._draw_maps(rng, (rows, p.columns.value))
+            self._bands[band] = cached
+        return cached
 
     def _fixed_patterns(self) -> tuple[Array, Array]:
         """QE * (1 + PRNU) and the dark-current map at T_ref (e-/s, >= 0), whole array."""
@@ -350,7 +476,12 @@ class CameraModel:
             return self._maps
         p = self.profile
         rng = np.random.default_rng([self.seed, _FIXED_PATTERN_STREAM])
-        shape = (p.rows.value, p.columns.value)
+        self._maps = self._draw_maps(rng, (p.rows.value, p.columns.value))
+        return self._maps
+
+    def _draw_maps(self, rng: np.random.Generator, shape: tuple[int, int]) -> tuple[Array, Array]:
+        """QE * (1 + PRNU) and the dark-current map of ``shape`` pixels from ``rng``."""
+        p = self.profile
         response = rng.standard_normal(shape, dtype=np.float32)
         response *= np.float32(p.prnu_fraction.value)
         response += np.float32(1.0)
@@ -362,8 +493,7 @@ class CameraModel:
         # A pixel cannot have negative dark current; with DSNU <= 20 % of the mean this clips
         # nothing in practice (5 sigma).
         np.maximum(dark, 0.0, out=dark)
-        self._maps = (response, dark)
-        return self._maps
+        return response, dark
 
     def _moderate_photons(self) -> float:
         """Photons/pixel/s that fill DEFAULT_FILL_OF_RANGE of the output range at the current
@@ -402,3 +532,59 @@ class CameraModel:
         )
         assert frame is not None  # OFF was handled above
         return frame
+
+
+def _merge_pieces(start: Array, end: Array, durations_s: Array) -> list[tuple[float, float, float]]:
+    """Linear pieces of aperture motion (rows, from ``start[j]`` to ``end[j]`` for
+    ``durations_s[j]``) as fewer pieces with the same time integral, ``(lo, hi, duration)``.
+
+    The photons a moving aperture collects depend only on how long it spends at each
+    displacement (the time integral of the scene over it), not on the order or direction of
+    the motion. So pieces that cover the same displacements (to 1e-9 rows: the matched IMC
+    sawtooth repeats one tooth) are integrated once with their durations added. If more than
+    ``_MAX_MOTION_PIECES`` distinct pieces remain (a mismatched clock drifting through many
+    positions), the occupation density is cut at every piece's ends into intervals of
+    constant density, each an equivalent linear piece (still exact); if still too many, its
+    mass is put on ``_MAX_MOTION_PIECES`` equal bins across the range (approximate within a
+    bin's width: docs/imc.md).
+    """
+    used = durations_s > 0.0
+    lo = np.minimum(start, end)[used]
+    hi = np.maximum(start, end)[used]
+    keys = np.stack([np.round(lo / _SAME_PIECE_ROWS), np.round(hi / _SAME_PIECE_ROWS)], axis=1)
+    _, first, group = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+    tau = np.bincount(group.reshape(-1), weights=durations_s[used])
+    lo, hi = lo[first], hi[first]
+    if lo.size <= _MAX_MOTION_PIECES:
+        return [(float(a), float(b), float(t)) for a, b, t in zip(lo, hi, tau, strict=True)]
+    moving = hi - lo >= _SAME_PIECE_ROWS
+    edges = np.unique(np.concatenate([lo, hi]))
+    # Time per row on each interval between consecutive edges: +rate where a moving piece
+    # starts, -rate where it ends, summed up; a still piece is a point mass at its edge.
+    rate = tau[moving] / (hi[moving] - lo[moving])
+    change = np.zeros(edges.size)
+    np.add.at(change, np.searchsorted(edges, lo[moving]), rate)
+    np.add.at(change, np.searchsorted(edges, hi[moving]), -rate)
+    mass = np.cumsum(change)[:-1] * np.diff(edges)
+    points = np.zeros(edges.size)
+    np.add.at(points, np.searchsorted(edges, lo[~moving]), tau[~moving])
+    if np.count_nonzero(mass > 0.0) + np.count_nonzero(points) <= _MAX_MOTION_PIECES:
+        out = [(float(e), float(e), float(m)) for e, m in zip(edges, points, strict=True) if m]
+        out += [
+            (float(a), float(b), float(m))
+            for a, b, m in zip(edges[:-1], edges[1:], mass, strict=True)
+            if m > 0.0
+        ]
+        return out
+    # Still too many: the time spent below each of equal bins' edges (piecewise linear in the
+    # displacement between edges, stepping at the point masses) spread evenly over each bin.
+    bins = np.linspace(edges[0], edges[-1], _MAX_MOTION_PIECES + 1)
+    below_edges = np.cumsum(points) + np.concatenate([[0.0], np.cumsum(mass)])
+    below = np.interp(bins, edges, below_edges)
+    below[0], below[-1] = 0.0, float(tau.sum())
+    per_bin = np.diff(below)
+    return [
+        (float(a), float(b), float(m))
+        for a, b, m in zip(bins[:-1], bins[1:], per_bin, strict=True)
+        if m > 0.0
+    ]

@@ -3,7 +3,9 @@
 physics.md §7 [REN15] gives the modulation of a point beam's image in closed form for row-step
 and electrode-step compensation. This model does not use those forms: it steps time, generates
 photo-charge under each electrode, collects it into the charge packets and clocks the packets,
-so that tests can hold the closed forms against it.
+so that tests can hold the closed forms against it, and against the two other routes to the
+same image: the exact piecewise integral of ``camd.timing.imc.point_beam_profile`` and the
+simulated camera's frames (``firmware_models.camera``; tests/test_campaign_imc.py).
 
 The geometry (one CCD column, along track, coordinate ``x`` in metres):
 
@@ -46,17 +48,21 @@ and ``"none"`` are the same (the first row step falls at the end of the exposure
 
 from __future__ import annotations
 
-from typing import Literal
-
 import numpy as np
 import numpy.typing as npt
 
 from camd.timing._checks import count, positive
-from camd.timing.imc import electrode_step_interval_s, row_step_interval_s
+from camd.timing.imc import (
+    IMC_MODES,
+    ImcMode,
+    electrode_step_interval_s,
+    profile_modulation,
+    row_step_interval_s,
+)
 
 FloatArray = npt.NDArray[np.float64]
-Method = Literal["none", "row", "electrode"]
-METHODS: tuple[Method, ...] = ("none", "row", "electrode")
+Method = ImcMode  # the compensation modes of camd.timing.imc (and of the camera's IMC_CTRL)
+METHODS: tuple[Method, ...] = IMC_MODES
 
 REN15_PIXEL_M = 9e-6
 """REN15's pixel (physics.md §7, FTF5066M-class 4-phase full-frame CCD)."""
@@ -181,11 +187,8 @@ def modulation(profile: npt.ArrayLike) -> FloatArray:
         raise ValueError("profile must have at least one pixel along its last axis")
     if not np.all(np.isfinite(q)) or np.any(q < 0.0):
         raise ValueError("profile must hold finite charges >= 0")
-    total = q.sum(axis=-1)
-    if np.any(total <= 0.0):
-        raise ValueError("profile holds no charge: expose longer or aim the beam at the column")
-    result: FloatArray = (2.0 * q.max(axis=-1) - total) / total
-    return result
+    # The definition lives once, with the equations (camd.timing.imc).
+    return profile_modulation(q)
 
 
 def point_beam_modulation(

@@ -23,10 +23,10 @@ from camd.sensor.timing_view import reset_timing
 ROOT = Path(__file__).resolve().parents[1]
 PROFILES = ROOT / "config" / "profiles"
 PROFILES_MD = ROOT / "docs" / "profiles.md"
-NAMES = ["hr400", "ibis5", "mt9m001", "uvccd"]
+NAMES = ["ftf5066", "hr400", "ibis5", "mt9m001", "uvccd"]
 
 
-def test_the_four_profiles_ship_and_load() -> None:
+def test_the_five_profiles_ship_and_load() -> None:
     assert set(NAMES) <= set(list_profiles())
     for name in NAMES:
         profile = load_profile(name)
@@ -152,7 +152,7 @@ def corrupt(tmp_path: Path, old: str, new: str, name: str = "hr400") -> tuple[Pa
         (
             'shutter = { value = "rolling",',
             'shutter = { value = "rollin",',
-            "shutter.value: Input should be 'rolling', 'global' or 'frame_transfer'",
+            "shutter.value: Input should be 'rolling', 'global', 'frame_transfer' or 'full_frame'",
         ),
         (
             "pitch_m = { value = 11e-6,",
@@ -213,7 +213,7 @@ def test_bad_toml_and_unknown_names(tmp_path: Path) -> None:
     path, line = corrupt(tmp_path, "rows = { value = 2048", "rows = = { value = 2048")
     with pytest.raises(ProfileError, match=rf"^{path}:{line}: "):
         load_profile(path)
-    with pytest.raises(FileNotFoundError, match=r"known: hr400, ibis5, mt9m001, uvccd"):
+    with pytest.raises(FileNotFoundError, match=r"known: ftf5066, hr400, ibis5, mt9m001, uvccd"):
         load_profile("nosuch")
     with pytest.raises(ProfileError, match="not a camera profile name"):
         load_profile("../etc/passwd")

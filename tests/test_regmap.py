@@ -31,11 +31,11 @@ REQUIRED_ROLES = (
 )
 
 
-def test_the_four_sensor_maps_are_shipped() -> None:
-    assert {"hr400", "ibis5", "mt9m001", "uvccd"} <= set(list_sensors())
+def test_the_five_sensor_maps_are_shipped() -> None:
+    assert {"ftf5066", "hr400", "ibis5", "mt9m001", "uvccd"} <= set(list_sensors())
 
 
-@pytest.mark.parametrize("sensor", ["hr400", "ibis5", "mt9m001", "uvccd"])
+@pytest.mark.parametrize("sensor", ["ftf5066", "hr400", "ibis5", "mt9m001", "uvccd"])
 def test_every_shipped_map_loads_with_the_roles_the_timing_needs(sensor: str) -> None:
     regmap = load_register_map(sensor)
     assert regmap.sensor == sensor

@@ -41,8 +41,8 @@ from camd.sensor.regmap import (
 )
 from camd.timing import rolling_line_period_s
 
-Shutter = Literal["rolling", "global", "frame_transfer"]
-SHUTTERS: tuple[str, ...] = ("rolling", "global", "frame_transfer")
+Shutter = Literal["rolling", "global", "frame_transfer", "full_frame"]
+SHUTTERS: tuple[str, ...] = ("rolling", "global", "frame_transfer", "full_frame")
 
 T = TypeVar("T")
 
@@ -179,8 +179,9 @@ class CameraProfile(BaseModel):
         "1",
     )
     shutter: Sourced[Shutter] = _key(
-        "rolling (row i ends its exposure i line periods after row 0), global or "
-        "frame_transfer (all rows expose together)",
+        "rolling (row i ends its exposure i line periods after row 0), global, "
+        "frame_transfer or full_frame (all rows expose together; a full-frame CCD may clock "
+        "its charge along the columns during the exposure, docs/imc.md)",
         "",
     )
     adc_bits: Sourced[Bits] = _key("ADC resolution", "bit")
