@@ -83,7 +83,7 @@ def test_sensor_section_defaults_and_checks(tmp_path: Path) -> None:
     )
     assert (cfg.sensor.usb_spi.vendor_id, cfg.sensor.usb_spi.product_id) == (0x04D8, 0x00DE)
     msg = error_of(tmp_path, "[sensor]\nname = 'cmv4000'\n")
-    assert "sensor.name: no register map for sensor 'cmv4000'; known: hr400, ibis5, mt9m001" in msg
+    assert "sensor.name: no register map for sensor 'cmv4000'; known: ftf5066, hr400, ibis5" in msg
     msg = error_of(tmp_path, "[sensor]\nbridge = 'i2c'\n")
     assert "sensor.bridge: 'i2c' is not allowed; use 'fpga' or 'usb-spi'" in msg
     # The simulated camera must carry the sensor the register map describes.
@@ -231,3 +231,18 @@ def test_every_key_is_in_the_shipped_file() -> None:
             continue
         # A key whose default is "absent" (None) is shown commented out: TOML has no null.
         assert re.search(rf"^(# )?{leaf} = ", shipped, re.M), f"config/camd.toml lacks {key}"
+
+
+def test_simulator_sockets_move_out_of_a_deep_data_dir(tmp_path: Path) -> None:
+    """A Unix socket's path must fit sun_path (108 bytes on Linux): a deep data directory's
+    sockets go to a short directory of their own in the temp dir, the same for the same dir."""
+    short = config_from_dict({"daemon": {"data_dir": str(tmp_path / "d")}}, env=NO_ENV)
+    assert short.sim_spi_socket == tmp_path / "d" / "sim" / "spi.sock"
+    deep_dir = tmp_path / ("x" * 60) / ("y" * 60)
+    deep = config_from_dict({"daemon": {"data_dir": str(deep_dir)}}, env=NO_ENV)
+    for sock in (deep.sim_spi_socket, deep.sim_usb_socket):
+        assert len(str(sock).encode()) <= 100 and sock.parent.name.startswith("camd-sim-")
+    again = config_from_dict({"daemon": {"data_dir": str(deep_dir)}}, env=NO_ENV)
+    assert again.sim_socket_dir == deep.sim_socket_dir
+    other = config_from_dict({"daemon": {"data_dir": str(deep_dir / "z")}}, env=NO_ENV)
+    assert other.sim_socket_dir != deep.sim_socket_dir

@@ -7,9 +7,11 @@ with the file, the dotted key path and what is allowed; docs/config.md lists eve
 
 from __future__ import annotations
 
+import hashlib
 import ipaddress
 import math
 import os
+import tempfile
 import tomllib
 from collections.abc import Mapping
 from pathlib import Path
@@ -28,6 +30,7 @@ from camd.paths import config_dir
 from camd.protocol import load_dictionary
 
 TOKEN_ENV = "CAMD_TOKEN"
+UNIX_SOCKET_PATH_MAX = 100  # bytes: sun_path is 108 on Linux, 104 on BSD, NUL included
 """Environment variable that supplies ``api.token`` (it wins over the file)."""
 
 HOUSEKEEPING_PACKET = "HOUSEKEEPING"
@@ -404,14 +407,25 @@ class Config(_Section):
         return self
 
     @property
+    def sim_socket_dir(self) -> Path:
+        """Where the spawned simulator's Unix sockets go: ``data_dir/sim``, or, when a socket
+        there would have a path too long for a socket address (108 bytes on Linux, 104 on
+        BSD), ``camd-sim-<hash of data_dir>`` in the system's temporary directory."""
+        local = self.daemon.data_dir / "sim"
+        if len(str(local.resolve() / "spi.sock").encode()) <= UNIX_SOCKET_PATH_MAX:
+            return local
+        digest = hashlib.sha256(str(self.daemon.data_dir.resolve()).encode()).hexdigest()
+        return Path(tempfile.gettempdir()) / f"camd-sim-{digest[:16]}"
+
+    @property
     def sim_spi_socket(self) -> Path:
         """Where the spawned simulator serves its SPI bus for the simulated USB-SPI bridge."""
-        return self.daemon.data_dir / "sim" / "spi.sock"
+        return self.sim_socket_dir / "spi.sock"
 
     @property
     def sim_usb_socket(self) -> Path:
         """Where the spawned simulator serves its USB bulk stream for the simulated FX3."""
-        return self.daemon.data_dir / "sim" / "usb.sock"
+        return self.sim_socket_dir / "usb.sock"
 
     @property
     def sim_link_path(self) -> Path:

@@ -383,6 +383,7 @@ class DeviceSession:
         self._event("info", "daemon", f"camd {camd.__version__} started (pid {os.getpid()})")
         if self.config.link.device == SIM_DEVICE:
             sim_cfg = self.config.sim
+            self.config.sim_socket_dir.mkdir(mode=0o700, parents=True, exist_ok=True)
             self.sim = SimulatorProcess(
                 self.config.sim_link_path,
                 inject=sim_cfg.inject,
