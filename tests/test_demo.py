@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 
 import camd
+from tests.campaign_support import report_images
 
 REPO_ROOT = str(Path(camd.__file__).resolve().parent.parent)
 
@@ -24,7 +25,7 @@ def test_demo_runs_and_writes_its_summary(tmp_path: Path) -> None:
         [sys.executable, "-m", "camd", "demo", "--out", str(out), "--pings", "200"],
         capture_output=True,
         text=True,
-        timeout=120,
+        timeout=300,
         env=env,
         check=False,
     )
@@ -89,6 +90,19 @@ def test_demo_runs_and_writes_its_summary(tmp_path: Path) -> None:
         assert abs(scan["snr_db"] - scan["model_sqrt_m_db"]) < 1.5, scan
         assert scan["model_tao12_db"] < scan["model_sqrt_m_db"] - 1.0
     assert "TDI scans at M = 1/8/32 with SNR " in final
+
+    # Item 10: short runs of two shipped campaigns, each on its own simulated camera.
+    campaigns = summary["campaigns"]
+    assert [(c["campaign"], c["profile"]) for c in campaigns] == [
+        ("tdi_snr_stages", "ibis5"),
+        ("mtf_mismatch", "mt9m001"),
+    ]
+    for c in campaigns:
+        assert c["passed"] is True and c["failed_checks"] == []
+        report = Path(c["report"])
+        assert report == out.resolve() / "campaigns" / c["campaign"] / "report.html"
+        assert f"campaign reports {campaigns[0]['report']}, {campaigns[1]['report']};" in final
+        assert len(report_images(report.parent)) >= 2
 
     daemon = summary["daemon"]
     assert daemon["exit_code"] in (0, -15) and daemon["killed"] is False

@@ -4,7 +4,9 @@ Starts ``camd serve --sim`` on a lossy line (bit errors and dropped frames), the
 ``CamdClient`` exactly as any script would: shows the status, pings the device, compares the
 host's and the device's link counters (every command executed at most once although frames were
 lost and retried), shows telemetry being archived, switches area -> tdi -> area, lists the
-events, stops the daemon and writes everything to ``OUT/demo-summary.json``.
+events, stops the daemon and writes everything to ``OUT/demo-summary.json``. Then it runs short
+forms of two shipped test campaigns (``tdi_snr_stages``, ``mtf_mismatch``), each on a
+simulated camera of its own profile, and prints where their reports are.
 """
 
 from __future__ import annotations
@@ -34,6 +36,9 @@ DEMO_STARE_FRAMES = 10
 DEMO_SCAN_STAGES = (1, 8, 32)
 DEMO_SCAN_LINES = 400  # complete lines asked for: ten periods of the bar target
 DEMO_SCAN_SCENE = "bars:lux=20"
+# Short (--quick) runs of two shipped campaigns, each on its own simulated camera of the
+# campaign's profile (docs/campaigns.md), with their reports.
+DEMO_CAMPAIGNS = ("tdi_snr_stages", "mtf_mismatch")
 TELEMETRY_WAIT_S = 3.0
 TELEMETRY_GRACE_S = 5.0  # extra wait if no new sample arrived in TELEMETRY_WAIT_S
 # Commands that may fall between the two link snapshots on one side and not the other: the
@@ -181,7 +186,9 @@ def run_demo(out: str | os.PathLike[str], pings: int = DEFAULT_PINGS) -> int:
         f"{stream['frames']} of {DEMO_FRAMES} frames delivered ({stream['lost']} lost, "
         f"{stream['corrupt'] + stream['short']} damaged, all as injected), "
         f"{rec['frames']} recorded and verified, TDI scans at M = {scan_stages} with SNR "
-        f"{scan_snr} dB; summary in {summary_path}",
+        f"{scan_snr} dB; campaign reports "
+        + ", ".join(c["report"] for c in summary["campaigns"])
+        + f"; summary in {summary_path}",
         flush=True,
     )
     return 0
@@ -205,6 +212,7 @@ class _Demo:
         self.stream()
         self.scan()
         self.events()
+        self.campaigns()
 
     def step(self, title: str) -> None:
         self.console.print()
@@ -518,6 +526,40 @@ class _Demo:
         doc = _plain(self.client.events(limit=10))
         self.summary["events"] = doc.get("events", [])
         self.console.print(events_table(doc, title=None))
+
+    def campaigns(self) -> None:
+        import shutil
+
+        from camd.campaign.spec import CampaignError, load_campaign
+        from camd.cli.camctl_campaign import RichProgress, campaigns_dir, run_on_own_sim
+
+        names = " and ".join(DEMO_CAMPAIGNS)
+        self.step(f"10. test campaigns (short runs): {names}")
+        out_dir = Path(self.summary["out_dir"]) / "campaigns"
+        rows = []
+        for name in DEMO_CAMPAIGNS:
+            spec = load_campaign(campaigns_dir() / f"{name}.yaml")
+            run_dir = out_dir / name
+            shutil.rmtree(run_dir, ignore_errors=True)  # a fresh run, not a resume
+            try:
+                with RichProgress(self.console, name) as progress:
+                    outcome = run_on_own_sim(spec, run_dir, quick=True, progress=progress)
+            except CampaignError as exc:
+                raise DemoFailed(f"campaign {name}: {exc}") from None
+            failed = [c["id"] for c in outcome.doc["checks"] if not c["passed"]]
+            self.console.print(
+                f"{name} ({spec.profile}): {'PASSED' if outcome.passed else 'FAILED'}, "
+                f"{len(outcome.doc['checks'])} checks; report {outcome.report_path}"
+            )
+            rows.append({"campaign": name, "profile": spec.profile, "passed": outcome.passed,
+                         "failed_checks": failed, "report": str(outcome.report_path)})  # fmt: skip
+        self.summary["campaigns"] = rows
+        for row in rows:
+            if not row["passed"]:
+                raise DemoFailed(
+                    f"campaign {row['campaign']} failed its checks {row['failed_checks']}; "
+                    f"see {row['report']}"
+                )
 
 
 def at_most_once(before: dict[str, Any], after: dict[str, Any]) -> dict[str, Any]:
