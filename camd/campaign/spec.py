@@ -23,12 +23,14 @@ A campaign declares the camera profile it was written for, a seed, named paramet
       plots: [{title: PSNR against M, x: m, y: [psnr_db]}]
 
 Step kinds are few and data-driven: ``configure`` (registers, mode, simulated scene, stage,
-wheel), ``sweep`` (a parameter over values, with nested steps), ``acquire`` (stare, scan or
-wheel, recorded to HDF5), ``measure`` (a function of camd.campaign.measurements by name) and
-``check`` (a result against min/max). ``${name}`` anywhere in a step's values refers to a
-parameter or an enclosing sweep's variable: a whole-string reference takes the parameter's
-value and type, an embedded one is formatted into the text. References are checked when the
-file is loaded, the values they resolve to when the step runs.
+wheel), ``sweep`` (a parameter over values, with nested steps), ``acquire`` (stare, scan,
+wheel or polarization, recorded to HDF5), ``measure`` (a function of
+camd.campaign.measurements by name, on acquired data and/or earlier results) and ``check`` (a
+result against min/max). ``${name}`` anywhere in a step's values refers to a parameter, an
+enclosing sweep's variable or a result an earlier measure step declared; ``${name.key}`` to a
+key of a mapping value. A whole-string reference takes the value with its type, an embedded
+one is formatted into the text. References are checked when the file is loaded, the values
+they resolve to when the step runs.
 
 Errors (``CampaignError``) name the file, the step (``steps[2] (id 'sweep')``) and the key.
 """
