@@ -10,6 +10,9 @@ import pytest
 
 from camd.cli.bench_scan import bench_scan
 
+# Real-time streaming / control loops: alone under xdist (tests/conftest.py).
+pytestmark = pytest.mark.exclusive
+
 
 def test_bench_scan_reports_a_lossless_scan_against_the_line_rate() -> None:
     result = bench_scan(profile="hr400", stages=8, lines=60, frame_bank=4)

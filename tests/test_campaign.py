@@ -158,3 +158,30 @@ def test_list_shows_the_shipped_campaigns() -> None:
     names = {c["name"]: c for c in json.loads(proc.stdout)["campaigns"]}
     assert names["example_stare"]["profile"] == "hr400"
     assert not names["example_stare"]["description"].startswith("INVALID")
+
+
+def test_references_to_results_and_keys(tmp_path: Path) -> None:
+    """``${result}`` names a result a measure step declared before the step; ``${name.key}`` a
+    key of a mapping; both resolve to the value with its type."""
+    from camd.campaign.spec import resolve
+
+    doc = yaml.safe_load(EXAMPLE.read_text())
+    # The dark noise measured first sets a later scene's level: declared, so accepted.
+    doc["steps"][3]["results"] = ["dark_noise_dn"]
+    doc["steps"][4]["steps"][0]["scene"] = "flat:photons=${dark_noise_dn}"
+    ok = tmp_path / "ok.yaml"
+    ok.write_text(yaml.safe_dump(doc, sort_keys=False))
+    load_campaign(ok)
+    # Referring to it before the step that declares it is refused, naming what is known.
+    doc["steps"][2]["stare"]["frames"] = "${dark_noise_dn}"
+    early = tmp_path / "early.yaml"
+    early.write_text(yaml.safe_dump(doc, sort_keys=False))
+    with pytest.raises(CampaignError, match=r"\$\{dark_noise_dn\} is neither a parameter"):
+        load_campaign(early)
+    names = {"condition": {"lux": 4.0, "name": "4lx"}, "frames": [1, 2]}
+    assert resolve({"a": "${condition.lux}", "b": "flat:lux=${condition.lux}"}, names) == {
+        "a": 4.0, "b": "flat:lux=4"
+    }  # fmt: skip
+    assert resolve("${frames}", names) == [1, 2]
+    with pytest.raises(KeyError, match="condition has no key 'lx'"):
+        resolve("${condition.lx}", names)

@@ -13,6 +13,9 @@ import pytest
 import camd
 from tests.campaign_support import report_images
 
+# Real-time streaming / control loops: alone under xdist (tests/conftest.py).
+pytestmark = pytest.mark.exclusive
+
 REPO_ROOT = str(Path(camd.__file__).resolve().parent.parent)
 
 

@@ -24,6 +24,9 @@ from camd.sensor.profile import load_profile
 from camd.store.tdi_recording import read_tdi_scan
 from tests.test_camctl import NO_TOKEN, camctl, camctl_json
 
+# Real-time streaming / control loops: alone under xdist (tests/conftest.py).
+pytestmark = pytest.mark.exclusive
+
 T_ROW_S = 513 / 25e6  # hr400 row time: 513 sequencer clocks at 25 MHz (physics.md §3)
 ROWS = 100  # the scans' window: T_line,TDI = 100 rows = 2.052 ms
 T_LINE_S = ROWS * T_ROW_S

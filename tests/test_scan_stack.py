@@ -23,6 +23,9 @@ from camd.tdi import bin2x2
 from tests.test_camctl import camctl, camctl_json
 from tests.test_sensor_stack import serve
 
+# Real-time streaming / control loops: alone under xdist (tests/conftest.py).
+pytestmark = pytest.mark.exclusive
+
 ROWS = 16
 CLOCK_HZ = 25e6  # hr400 sequencer clock (config/sensors/hr400.toml)
 

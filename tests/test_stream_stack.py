@@ -18,6 +18,9 @@ from camd.store import read_recording
 from tests.test_camctl import camctl, camctl_json
 from tests.test_sensor_stack import serve
 
+# Real-time streaming / control loops: alone under xdist (tests/conftest.py).
+pytestmark = pytest.mark.exclusive
+
 HEADLINE = ["frames", "lost", "corrupt", "overruns", "mpix_per_s", "mbyte_per_s"]
 ROWS = 32  # a small window keeps the simulator fast
 

@@ -27,6 +27,9 @@ from camd.store.recording import read_recording
 from tests.test_camctl import camctl, camctl_json
 from tests.test_sensor_stack import serve
 
+# Real-time streaming / control loops: alone under xdist (tests/conftest.py).
+pytestmark = pytest.mark.exclusive
+
 T_LINE_S = 513 / 25e6  # hr400: 513 sequencer clocks at 25 MHz
 ROWS = 16  # k
 W_DEG_S = 73.245
