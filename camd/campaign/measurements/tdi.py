@@ -30,9 +30,12 @@ def _stage_list(stages: list[int], rows: int, what: str) -> list[int]:
 def _host_tdi(frames: npt.NDArray[Any], stages: int, mode: str) -> npt.NDArray[np.float64]:
     """The complete TDI lines of ``stages`` window rows of stared TDI-mode frames, summed by
     camd.tdi (the engine the daemon's scans use)."""
-    lines, complete = tdi_batch(
-        frames[:, :stages, :], stages, mode="mean" if mode == "mean" else "sum"
-    )
+    if mode == "sum":
+        lines, complete = tdi_batch(frames[:, :stages, :], stages, mode="sum")
+    elif mode == "mean":
+        lines, complete = tdi_batch(frames[:, :stages, :], stages, mode="mean")
+    else:
+        raise ValueError(f"mode must be 'sum' or 'mean' (TDI, physics.md §1), got {mode!r}")
     return np.asarray(lines[complete], dtype=np.float64)
 
 
