@@ -56,6 +56,7 @@ from camd.timing.imc import (
     IMC_MODES,
     ImcMode,
     electrode_step_interval_s,
+    pixel_offsets,
     profile_modulation,
     row_step_interval_s,
 )
@@ -72,23 +73,6 @@ REN15_IMAGE_VELOCITY_M_S = 0.09 * 0.05 / 0.3
 
 _MAX_BLOCK_ELEMENTS = 1 << 21
 """Largest (offsets x time steps x electrodes) temporary per block: bounds memory, not speed."""
-
-
-def _offsets(a_m: float | npt.ArrayLike, pixel_m: float) -> FloatArray:
-    """``a`` as a float array in ``[0, w)``, or a ValueError that says what to change."""
-    if isinstance(a_m, bool):
-        raise ValueError(f"a_m must be a number or an array of numbers, got {a_m!r}")
-    try:
-        a = np.asarray(a_m, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"a_m must be a number or an array of numbers, got {a_m!r}") from exc
-    bad = ~(np.isfinite(a) & (a >= 0.0) & (a < pixel_m))
-    if np.any(bad):
-        raise ValueError(
-            f"a_m must be finite and in [0, pixel_m) = [0, {pixel_m:.6g}) m, got "
-            f"{float(a[bad].flat[0])!r}: take the offset modulo the pixel"
-        )
-    return a
 
 
 def point_beam_profile(
@@ -117,7 +101,7 @@ def point_beam_profile(
     steps = count("time_steps_per_cycle", time_steps_per_cycle, 1)
     if method not in METHODS:
         raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
-    a = _offsets(a_m, pixel)
+    a, _ = pixel_offsets(a_m, pixel)
     shape = a.shape
     a = a.reshape(-1)
 

@@ -85,8 +85,9 @@ def electrode_step_interval_s(
     return pixel / (count("phases", phases, 1) * velocity)
 
 
-def _offsets(a_m: npt.ArrayLike, pixel_m: float) -> tuple[FloatArray, float]:
-    """``a`` as a float array checked to lie in ``[0, w)``, and ``w``; a ValueError otherwise."""
+def pixel_offsets(a_m: npt.ArrayLike, pixel_m: float) -> tuple[FloatArray, float]:
+    """A point beam's start offsets ``a`` as a float array checked to lie in ``[0, w)``, and
+    ``w`` (physics.md §7); a ValueError that says what to change otherwise."""
     pixel = positive("pixel_m", pixel_m)
     if isinstance(a_m, bool):
         raise ValueError(f"a_m must be a number or an array of numbers, got {a_m!r}")
@@ -121,7 +122,7 @@ def row_step_modulation(a_m: npt.ArrayLike, pixel_m: float) -> float | FloatArra
     0.5 at ``a = w / 2``. Vectorised: an array of offsets gives an array of modulations, a
     number gives a float.
     """
-    a, w = _offsets(a_m, pixel_m)
+    a, w = pixel_offsets(a_m, pixel_m)
     m: FloatArray = 2.0 * a * (w - a) / (w * w)
     return _like(a_m, m)
 
@@ -139,7 +140,7 @@ def electrode_step_modulation(a_m: npt.ArrayLike, pixel_m: float) -> float | Flo
     second branch's argument is at least ``3 w^2`` there, so its absolute value never acts.
     Only for ``p = 4`` (REN15's sensor); vectorised over ``a`` like ``row_step_modulation``.
     """
-    a, w = _offsets(a_m, pixel_m)
+    a, w = pixel_offsets(a_m, pixel_m)
     low = np.abs(3.0 * w - 8.0 * a) / (4.0 * w)
     high = np.abs(56.0 * a * w - 32.0 * a * a - 21.0 * w * w) / (4.0 * w * w)
     m: FloatArray = np.where(a <= 0.75 * w, low, high)
@@ -289,7 +290,7 @@ def point_beam_profile(
     For a whole number of row times ``w / v`` with row or electrode steps the modulation of
     the profile is the closed form (``row_step_modulation``, ``electrode_step_modulation``).
     """
-    a, w = _offsets(a_m, pixel_m)
+    a, w = pixel_offsets(a_m, pixel_m)
     velocity = non_negative("image_velocity_m_s", image_velocity_m_s)
     exposure = positive("exposure_s", exposure_s)
     p = count("phases", phases, 1)
