@@ -1,20 +1,28 @@
-"""What the data files of config/ (camera, stage and wheel profiles) have in common.
+"""What the data files of config/ (camera, stage and wheel profiles, register maps) have in common.
 
 ``Sourced`` holds a physical value with its provenance (a paper's section, or why it was
 assumed); ``DataFileError`` is a file that does not validate, its message starting with
-``file:line:``. Pure: the simulated camera reads the same files.
+``file:line:``; ``located`` turns a pydantic ValidationError (or a ``KeyedError`` a check
+raised) into that message, with the line of the key in the TOML text. Pure: the simulated
+camera reads the same files.
 """
 
 from __future__ import annotations
 
 import re
 import tomllib
+import types
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Generic, TypeVar
+from typing import Annotated, Any, Generic, TypeVar, Union, get_args, get_origin
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 T = TypeVar("T")
+
+Loc = tuple[str | int, ...]
+"""A place in a data file: the keys and ``[[array]]`` indices down to it (pydantic's ``loc``)."""
 
 
 class DataFileError(ValueError):
@@ -25,6 +33,22 @@ class DataFileError(ValueError):
         super().__init__(f"{where}: {message}")
         self.path = Path(path)
         self.line = line
+
+
+class KeyedError(ValueError):
+    """A problem a check finds at one place of a data file, for ``located`` to place.
+
+    Raised by a model validator (pydantic keeps it as the error's context; the location of the
+    model that raised it goes in front of ``key``) or by a check after validation. ``key`` is
+    a key, or the ``Loc`` of the place. The message is shown after ``label``: by default the
+    place's first key (or its named entry, see ``located``); ``label=""`` shows it alone.
+    """
+
+    def __init__(self, key: str | Loc, message: str, *, label: str | None = None) -> None:
+        super().__init__(message)
+        self.loc: Loc = (key,) if isinstance(key, str) else tuple(key)
+        self.message = message
+        self.label = label
 
 
 class Sourced(BaseModel, Generic[T]):
@@ -90,23 +114,283 @@ def named_file(
     return path
 
 
-def key_line(text: str, key: str, table: str | None = None) -> int | None:
-    """The 1-based line of ``key = ...`` in a TOML text: at the top level (or a ``[key]`` /
-    ``[[key]]`` header), or inside ``[table]`` (falling back to the table's header); None if
-    the key is not written (a missing key)."""
-    assign = re.compile(rf"^\s*{re.escape(key)}\s*=")
-    header = re.compile(r"^\s*\[+\s*([A-Za-z0-9_.]+)\s*\]+")
-    current: str | None = None
-    table_line: int | None = None
-    for number, line in enumerate(text.splitlines(), start=1):
-        match = header.match(line)
-        if match:
-            current = match.group(1)
-            if table is None and current == key:
-                return number
-            if table is not None and current == table and table_line is None:
-                table_line = number
+# -- where a validation error is -------------------------------------------------------------
+
+_SOURCED_SHAPE = '{ value = ..., source = "..." }'
+
+
+def located(
+    exc: ValidationError | KeyedError,
+    *,
+    path: Path,
+    text: str,
+    data: Mapping[str, Any],
+    model: type[BaseModel],
+    error: type[DataFileError],
+    named: Mapping[str, str] | None = None,
+) -> DataFileError:
+    """A validation error of the data file ``path`` (``text``, parsed into ``data``, validated
+    as ``model``) as ``error``: ``file:line: where: message[; hint]``.
+
+    The first of pydantic's errors is reported. ``where`` is its location, dotted
+    (``channels.2.band``); an entry of an array listed in ``named`` is called by its ``name``
+    key instead, through the format given (``{"registers": "register {}"}`` gives
+    ``register GAIN: width: ...``). A ``KeyedError`` shows its own message after its label. The
+    hint says what to write: a missing key (``add ...``), an unknown key (the known keys), a
+    table where a value was written. The line is that of the key: at the top level, in a
+    ``[table]``, in the n-th ``[[array]]`` entry, or of an inline table in an array found by its
+    ``name``; else the line of the table's header; none for a missing top-level key.
+    """
+    named = named or {}
+    layout = _Layout.of(text)
+    if isinstance(exc, KeyedError):
+        return _keyed(exc, (), path, layout, data, model, error, named)
+    first = exc.errors()[0]
+    loc = _clean_loc(first["loc"])
+    cause = first.get("ctx", {}).get("error")
+    if isinstance(cause, KeyedError):
+        return _keyed(cause, loc, path, layout, data, model, error, named)
+    message = str(first["msg"]).removeprefix("Value error, ")
+    if not loc:
+        return error(path, None, message)
+    kind = str(first["type"])
+    if kind == "model_type":  # "... instance of Sourced[Annotated[float, FieldInfo(...)]]"
+        message = re.sub(r"(instance of \w+)\[.*\]$", r"\1", message)
+    segments = _segments(loc, data, model, named)
+    if message.startswith(f"{segments[-1]}:"):  # a nested model's validator named itself
+        segments.pop()
+    where = "".join(f"{segment}: " for segment in segments)
+    return error(path, layout.line(loc, data), f"{where}{message}{_hint(model, loc, kind)}")
+
+
+def _clean_loc(loc: Sequence[str | int]) -> Loc:
+    """pydantic's location of an error without its internal parts (validator functions,
+    literal and constrained types, the ``Sourced`` wrapper's name): the keys and indices as
+    the file writes them."""
+    internal = ("function-", "literal[", "constrained-", "Sourced[")
+    return tuple(
+        part
+        for part in loc
+        if isinstance(part, int) or not (part.startswith(internal) or part == "Sourced")
+    )
+
+
+def _keyed(
+    exc: KeyedError,
+    outer: Loc,
+    path: Path,
+    layout: _Layout,
+    data: Mapping[str, Any],
+    model: type[BaseModel],
+    error: type[DataFileError],
+    named: Mapping[str, str],
+) -> DataFileError:
+    loc = outer + exc.loc
+    label = exc.label
+    if label is None and loc:  # the place's first key, or its named entry
+        head = 2 if len(loc) > 1 and _entry_of(model, loc[:1], named) else 1
+        label = _segments(loc[:head], data, model, named)[0]
+    message = f"{label}: {exc.message}" if label else exc.message
+    return error(path, layout.line(loc, data), message)
+
+
+def _segments(
+    loc: Loc, data: Mapping[str, Any], model: type[BaseModel], named: Mapping[str, str]
+) -> list[str]:
+    """How a message names a place: dotted keys, an entry of a named array of tables by its
+    name."""
+    segments: list[str] = []
+    keys: list[str] = []
+    node: object = data
+    i = 0
+    while i < len(loc):
+        part = loc[i]
+        index = loc[i + 1] if i + 1 < len(loc) else None
+        if isinstance(index, int) and _entry_of(model, loc[: i + 1], named):
+            if keys:
+                segments.append(".".join(keys))
+                keys = []
+            node = _child(_child(node, part), index)
+            name = _child(node, "name")
+            call = named[str(part)]
+            segments.append(call.format(name if isinstance(name, str) else f"#{index + 1}"))
+            i += 2
+        else:
+            keys.append(str(part))
+            node = _child(node, part)
+            i += 1
+    if keys:
+        segments.append(".".join(keys))
+    return segments
+
+
+def _entry_of(model: type[BaseModel], loc: Loc, named: Mapping[str, str]) -> bool:
+    """Whether ``loc`` is one of the ``named`` arrays of tables."""
+    if not loc or loc[-1] not in named:
+        return False
+    return _is_tables(_type_at(model, loc))
+
+
+def _hint(model: type[BaseModel], loc: Loc, kind: str) -> str:
+    """What to write, for a missing key, an unknown key or a value that should be a table."""
+    key = loc[-1]
+    if not isinstance(key, str):
+        return ""
+    tables = all(isinstance(part, str) for part in loc)
+    dotted = ".".join(str(part) for part in loc)
+    if kind == "missing":
+        expected = _type_at(model, loc)
+        if _is_model(expected, Sourced):
+            return f'; add `{key} = {_SOURCED_SHAPE}` (or assumed = "...")'
+        if _is_model(expected) and tables:
+            return f"; add a [{dotted}] table"
+        if _is_tables(expected) and tables:
+            return f"; add [[{dotted}]] tables"
+        return f"; add `{key} = ...`"
+    if kind == "extra_forbidden":
+        parent = _type_at(model, loc[:-1])
+        if isinstance(parent, type) and issubclass(parent, BaseModel):
+            return f"; known keys: {', '.join(parent.model_fields)}"
+    if kind == "model_type":
+        expected = _type_at(model, loc)
+        if _is_model(expected, Sourced):
+            return f"; write `{key} = {_SOURCED_SHAPE}`"
+        if _is_model(expected) and tables:
+            return f"; write a [{dotted}] table"
+    return ""
+
+
+def _type_at(model: type[BaseModel], loc: Loc) -> object:
+    """The type the model expects at ``loc`` (None when the location leaves the models)."""
+    expected: object = model
+    for part in loc:
+        expected = _unwrap(expected)
+        origin, args = get_origin(expected), get_args(expected)
+        if isinstance(expected, type) and issubclass(expected, BaseModel):
+            field_info = expected.model_fields.get(str(part))
+            expected = field_info.annotation if field_info is not None else None
+        elif origin is list and args and isinstance(part, int):
+            expected = args[0]
+        elif origin is dict and len(args) == 2 and isinstance(part, str):
+            expected = args[1]
+        else:
+            return None
+    return _unwrap(expected)
+
+
+def _unwrap(annotation: object) -> object:
+    """``X`` of ``Annotated[X, ...]`` and of ``X | None``."""
+    while True:
+        origin = get_origin(annotation)
+        if origin is Annotated:
+            annotation = get_args(annotation)[0]
             continue
-        if current == table and assign.match(line):
-            return number
-    return table_line
+        if origin in (Union, types.UnionType):
+            members = [a for a in get_args(annotation) if a is not type(None)]
+            if len(members) == 1:
+                annotation = members[0]
+                continue
+        return annotation
+
+
+def _is_model(annotation: object, base: type[BaseModel] = BaseModel) -> bool:
+    return isinstance(annotation, type) and issubclass(annotation, base)
+
+
+def _is_tables(annotation: object) -> bool:
+    """Whether a type is a list of models (an array of tables)."""
+    args = get_args(annotation)
+    return get_origin(annotation) is list and bool(args) and _is_model(_unwrap(args[0]))
+
+
+def _child(node: object, part: str | int) -> object:
+    """``node[part]`` of parsed TOML, None when it is not there."""
+    if isinstance(node, dict) and isinstance(part, str):
+        return node.get(part)
+    if isinstance(node, list) and isinstance(part, int) and 0 <= part < len(node):
+        return node[part]
+    return None
+
+
+_HEADER = re.compile(r"^\s*(\[\[?)\s*([A-Za-z0-9_.]+)\s*\]\]?")
+
+Span = tuple[int, int]  # first and last 1-based line; the first is a header but for the top level
+
+
+@dataclass(frozen=True)
+class _Layout:
+    """Where things are in a TOML text: line spans of the ``[tables]`` (``""``: the top level,
+    up to the first header) and of the entries of each ``[[array]]``."""
+
+    lines: list[str]
+    tables: dict[str, Span]
+    entries: dict[str, list[Span]]
+
+    @classmethod
+    def of(cls, text: str) -> _Layout:
+        lines = text.splitlines()
+        headers = [("[", "", 1)]  # the top level, up to the first header
+        for number, line in enumerate(lines, start=1):
+            match = _HEADER.match(line)
+            if match:
+                headers.append((match.group(1), match.group(2), number))
+        ends = [start - 1 for _, _, start in headers[1:]] + [len(lines)]
+        tables: dict[str, Span] = {}
+        entries: dict[str, list[Span]] = {}
+        for (brackets, name, start), end in zip(headers, ends, strict=True):
+            if brackets == "[[":
+                entries.setdefault(name, []).append((start, end))
+            else:
+                tables.setdefault(name, (start, end))
+        return cls(lines, tables, entries)
+
+    def line(self, loc: Loc, data: Mapping[str, Any]) -> int | None:
+        """The line of the place ``loc`` names (see ``located``)."""
+        head = loc[0] if loc else None
+        if not isinstance(head, str):
+            return None
+        if head in self.entries:
+            spans = self.entries[head]
+            if len(loc) == 1 or not isinstance(loc[1], int):
+                return spans[0][0]
+            if loc[1] >= len(spans):
+                return None
+            entry = _child(_child(data, head), loc[1])
+            return self._within(spans[loc[1]], loc[2:], entry, spans[loc[1]][0])
+        node: object = data
+        for n in range(len(loc), 0, -1):
+            keys = loc[:n]
+            name = ".".join(str(part) for part in keys)
+            if all(isinstance(part, str) for part in keys) and name in self.tables:
+                for part in keys:
+                    node = _child(node, part)
+                return self._within(self.tables[name], loc[n:], node, self.tables[name][0])
+        return self._within(self.tables.get("", (1, 0)), loc, data, None)
+
+    def _within(self, span: Span, rest: Loc, node: object, otherwise: int | None) -> int | None:
+        """The line of ``rest[0] = ...`` in the span (of the inline table ``rest[1]`` of its
+        array, when there is one), else ``otherwise``."""
+        key = rest[0] if rest else None
+        if not isinstance(key, str):
+            return otherwise
+        pattern = re.compile(rf"^\s*[\"']?{re.escape(key)}[\"']?\s*=")
+        start = next(
+            (n for n in range(span[0], span[1] + 1) if pattern.match(self.lines[n - 1])), None
+        )
+        if start is None:
+            return otherwise
+        if len(rest) > 1 and isinstance(rest[1], int):
+            return self._item(span, start, _child(node, key), rest[1]) or start
+        return start
+
+    def _item(self, span: Span, start: int, items: object, index: int) -> int | None:
+        """The line of the ``index``-th inline table of an array, by its ``name = "..."``."""
+        if not isinstance(items, list) or not 0 <= index < len(items):
+            return None
+        name = _child(items[index], "name")
+        if not isinstance(name, str):
+            return None
+        before = sum(1 for item in items[:index] if _child(item, "name") == name)
+        pattern = re.compile(rf"\bname\s*=\s*[\"']{re.escape(name)}[\"']")
+        found = [n for n in range(start, span[1] + 1) if pattern.search(self.lines[n - 1])]
+        return found[before] if before < len(found) else None

@@ -41,7 +41,7 @@ from typing import Annotated, Any, Literal, TypeVar
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from camd.datafile import DataFileError, Sourced, key_line, named_file, read_toml
+from camd.datafile import DataFileError, KeyedError, Sourced, located, named_file, read_toml
 from camd.paths import config_dir
 
 StageKind = Literal["linear", "turntable"]
@@ -62,16 +62,6 @@ TURNTABLE_KEYS = ("gear_ratio", "radius_m", "table_encoder_counts_per_rev")
 
 class StageProfileError(DataFileError):
     """A stage profile is invalid; the message starts with ``file:line:`` (or ``file:``)."""
-
-
-class _Keyed(ValueError):
-    """A validation error that knows which key (and ``[table]``) of the file it is about."""
-
-    def __init__(self, key: str, message: str, table: str | None = None) -> None:
-        super().__init__(message)
-        self.key = key
-        self.table = table
-        self.message = message
 
 
 def _key(description: str, unit: str, default: Any = ...) -> Any:
@@ -180,7 +170,7 @@ class StageProfile(BaseModel):
         )
         for key in other:
             if getattr(self, key) is not None:
-                raise _Keyed(
+                raise KeyedError(
                     key,
                     f'kind = "{self.kind}" does not use {key}; remove it (it belongs to '
                     f'kind = "{other_kind}")',
@@ -188,7 +178,7 @@ class StageProfile(BaseModel):
         for key in need:
             if getattr(self, key) is None:
                 unit = StageProfile.unit_of(key)
-                raise _Keyed(
+                raise KeyedError(
                     "kind",
                     f'kind = "{self.kind}" needs {key} ({unit}); add '
                     f'`{key} = {{ value = ..., source = "..." }}` (or assumed = "...")',
@@ -197,14 +187,14 @@ class StageProfile(BaseModel):
         driver = self.driver_max_rate_hz.value
         if rate > driver * (1 + 1e-12):
             highest = driver * self.metres_per_microstep
-            raise _Keyed(
+            raise KeyedError(
                 "max_speed_m_s",
                 f"{self.max_speed_m_s.value:g} m/s needs {rate:.6g} microsteps/s, above "
                 f"driver_max_rate_hz = {driver:g}; lower max_speed_m_s to at most {highest:.6g} "
                 "or use fewer microsteps",
             )
         if self.home_speed_m_s.value > self.max_speed_m_s.value:
-            raise _Keyed(
+            raise KeyedError(
                 "home_speed_m_s",
                 f"{self.home_speed_m_s.value:g} m/s is above max_speed_m_s = "
                 f"{self.max_speed_m_s.value:g}; lower it",
@@ -212,7 +202,7 @@ class StageProfile(BaseModel):
         if self.travel_m is not None:
             ramp = self.max_speed_m_s.value**2 / self.max_accel_m_s2.value
             if ramp >= self.travel_m.value:
-                raise _Keyed(
+                raise KeyedError(
                     "travel_m",
                     f"{self.travel_m.value:g} m is shorter than one ramp up and down at "
                     f"max_speed_m_s and max_accel_m_s2 ({ramp:.4g} m); lengthen the travel "
@@ -349,48 +339,6 @@ def _load(path: Path) -> StageProfile:
     try:
         return StageProfile.model_validate(data)
     except ValidationError as exc:
-        raise _located(path, text, exc) from None
-
-
-def _located(path: Path, text: str, exc: ValidationError) -> StageProfileError:
-    first = exc.errors()[0]
-    loc = tuple(str(part) for part in first["loc"])
-    error = first.get("ctx", {}).get("error")
-    if isinstance(error, _Keyed):
-        line = key_line(text, error.key, error.table)
-        return StageProfileError(path, line, f"{error.key}: {error.message}")
-    message = str(first["msg"]).removeprefix("Value error, ")
-    if not loc:
-        return StageProfileError(path, None, message)
-    # pydantic names the generic member's type in the location (value.int ...); drop it.
-    parts = [p for p in loc if not p.startswith(("function-", "literal[")) and p != "Sourced"]
-    table = "sim" if parts[0] == "sim" and len(parts) > 1 else None
-    key = parts[1] if table else parts[0]
-    where = ".".join(parts)
-    model: type[BaseModel] = StageSim if table else StageProfile
-    hint = ""
-    depth = 2 if table else 1
-    if first["type"] == "missing" and len(parts) == depth:
-        unit = _unit(model, key)
-        if unit is not None:
-            hint = f'; add `{key} = {{ value = ..., source = "..." }}` (or assumed = "...")'
-        else:
-            hint = f"; add `{key}`" if key != "sim" else "; add a [sim] table"
-    elif first["type"] == "extra_forbidden":
-        known = ", ".join(model.model_fields) if len(parts) == depth else "value, source, assumed"
-        hint = f"; known keys: {known}"
-    elif first["type"] == "model_type" and len(parts) == depth and _unit(model, key):
-        hint = f'; write `{key} = {{ value = ..., source = "..." }}`'
-    line = key_line(text, key, table)
-    return StageProfileError(path, line, f"{where}: {message}{hint}")
-
-
-def _unit(model: type[BaseModel], key: str) -> str | None:
-    field = model.model_fields.get(key)
-    if field is None:
-        return None
-    extra = field.json_schema_extra
-    if isinstance(extra, dict):
-        unit = extra.get("unit")
-        return unit if isinstance(unit, str) else None
-    return None
+        raise located(
+            exc, path=path, text=text, data=data, model=StageProfile, error=StageProfileError
+        ) from None

@@ -21,14 +21,13 @@ the line of the key and what to change.
 
 from __future__ import annotations
 
-import re
 from functools import cache
 from pathlib import Path
 from typing import Annotated, Literal, TypeVar
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from camd.datafile import DataFileError, Sourced, key_line, read_toml
+from camd.datafile import DataFileError, KeyedError, Sourced, located, read_toml
 from camd.paths import config_dir
 from camd.timing.wheel import WheelExposure, wheel_exposure
 
@@ -43,15 +42,6 @@ Stability = Annotated[float, Field(ge=0, lt=1)]
 
 class WheelProfileError(DataFileError):
     """A wheel file is invalid; the message starts with ``file:line:`` (or ``file:``)."""
-
-
-class _Keyed(ValueError):
-    """A whole-file validation error that knows which top-level key it belongs to."""
-
-    def __init__(self, key: str, message: str) -> None:
-        super().__init__(message)
-        self.key = key
-        self.message = message
 
 
 class WheelChannel(BaseModel):
@@ -103,7 +93,7 @@ class WheelProfile(BaseModel):
     def _check(self) -> WheelProfile:
         count = self.channel_count.value
         if len(self.channels) != count:
-            raise _Keyed(
+            raise KeyedError(
                 "channel_count",
                 f"channel_count is {count} but {len(self.channels)} [[channels]] tables are "
                 "given; make them agree",
@@ -111,12 +101,12 @@ class WheelProfile(BaseModel):
         names = [c.name for c in self.channels]
         repeated = sorted({n for n in names if names.count(n) > 1})
         if repeated:
-            raise _Keyed(
+            raise KeyedError(
                 "channels", f"channel names must be unique; repeated: {', '.join(repeated)}"
             )
         aperture = 2.0 * self.window_half_angle_deg
         if aperture >= self.spacing_deg:
-            raise _Keyed(
+            raise KeyedError(
                 "window_s",
                 f"the light window speed_deg_s * window_s = {self.speed_deg_s.value:g} deg/s x "
                 f"{self.window_s.value:g} s = {aperture:.6g} deg is not narrower than the "
@@ -214,57 +204,6 @@ def _load(path: Path) -> WheelProfile:
     try:
         return WheelProfile.model_validate(data)
     except ValidationError as exc:
-        raise _located(path, text, exc) from None
-
-
-def _located(path: Path, text: str, exc: ValidationError) -> WheelProfileError:
-    first = exc.errors()[0]
-    loc = [str(part) for part in first["loc"]]
-    error = first.get("ctx", {}).get("error")
-    if isinstance(error, _Keyed):
-        line = _key_line(text, [error.key])
-        return WheelProfileError(path, line, f"{error.key}: {error.message}")
-    message = str(first["msg"]).removeprefix("Value error, ")
-    if not loc:
-        return WheelProfileError(path, None, message)
-    # pydantic names the generic member's type in the location (value.float ...); drop it.
-    loc = [part for part in loc if not part.startswith(("function-", "literal[", "constrained-"))]
-    hint = ""
-    if first["type"] == "missing":
-        model = WheelChannel if loc[0] == "channels" else WheelProfile
-        name = loc[-1]
-        field = model.model_fields.get(name)
-        is_sourced = field is not None and "Sourced" in str(field.annotation)
-        value = '{ value = ..., source = "..." } (or assumed = "...")' if is_sourced else "..."
-        hint = f"; add `{name} = {value}`"
-    elif first["type"] == "extra_forbidden":
-        if len(loc) == 1:
-            hint = f"; known keys: {', '.join(WheelProfile.model_fields)}"
-        elif loc[0] == "channels" and len(loc) == 3:
-            hint = f"; known keys: {', '.join(WheelChannel.model_fields)}"
-        else:
-            hint = "; known keys: value, source, assumed"
-    line = _key_line(text, loc)
-    return WheelProfileError(path, line, f"{'.'.join(loc)}: {message}{hint}")
-
-
-def _key_line(text: str, loc: list[str]) -> int | None:
-    """The line of the key a validation error points at (``channels.3.band`` included)."""
-    lines = text.splitlines()
-    if loc[0] == "channels" and len(loc) >= 2 and loc[1].isdigit():
-        tables = [
-            i for i, line in enumerate(lines) if re.match(r"^\s*\[\[\s*channels\s*\]\]", line)
-        ]
-        index = int(loc[1])
-        if index >= len(tables):
-            return None
-        start = tables[index]
-        if len(loc) >= 3:
-            key = re.compile(rf"^\s*{re.escape(loc[2])}\s*=")
-            for number in range(start + 1, len(lines)):
-                if lines[number].lstrip().startswith("["):
-                    break
-                if key.match(lines[number]):
-                    return number + 1
-        return start + 1
-    return key_line(text, loc[0])
+        raise located(
+            exc, path=path, text=text, data=data, model=WheelProfile, error=WheelProfileError
+        ) from None

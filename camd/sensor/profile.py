@@ -30,7 +30,7 @@ from typing import Annotated, Any, Literal, TypeVar
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from camd.analysis.sensor_noise import system_gain_dn_per_e
-from camd.datafile import DataFileError, Sourced, key_line, named_file, read_toml
+from camd.datafile import DataFileError, KeyedError, Sourced, located, named_file, read_toml
 from camd.paths import config_dir
 from camd.sensor.regmap import (
     FieldSpec,
@@ -57,16 +57,6 @@ Celsius = Annotated[float, Field(ge=-273.15)]
 
 class ProfileError(DataFileError):
     """A profile file is invalid; the message starts with ``file:line:`` (or ``file:``)."""
-
-
-class _Keyed(ValueError):
-    """A validation error that knows which top-level key of the file it belongs to."""
-
-    def __init__(self, key: str, message: str, sub: str | None = None) -> None:
-        super().__init__(message)
-        self.key = key
-        self.sub = sub  # a key inside the [key] table, for the line number
-        self.message = message
 
 
 class GainSpec(BaseModel):
@@ -231,7 +221,7 @@ class CameraProfile(BaseModel):
     @model_validator(mode="after")
     def _check(self) -> CameraProfile:
         if self.output_bits.value > self.adc_bits.value:
-            raise _Keyed(
+            raise KeyedError(
                 "output_bits",
                 f"output_bits {self.output_bits.value} exceeds adc_bits {self.adc_bits.value}; "
                 "the output keeps the ADC's most significant bits, so lower output_bits",
@@ -341,13 +331,11 @@ def _load(path: Path) -> CameraProfile:
     text, data = read_toml(path, ProfileError)
     try:
         profile = CameraProfile.model_validate(data)
-    except ValidationError as exc:
-        raise _located(path, text, exc) from None
-    try:
         _check_against_map(profile)
-    except _Keyed as exc:
-        line = (key_line(text, exc.sub, exc.key) if exc.sub else None) or key_line(text, exc.key)
-        raise ProfileError(path, line, f"{exc.key}: {exc.message}") from None
+    except (ValidationError, KeyedError) as exc:
+        raise located(
+            exc, path=path, text=text, data=data, model=CameraProfile, error=ProfileError
+        ) from None
     return profile
 
 
@@ -355,11 +343,11 @@ def _check_against_map(profile: CameraProfile) -> None:
     try:
         regmap = load_register_map(profile.sensor)
     except (FileNotFoundError, RegisterMapError) as exc:
-        raise _Keyed("sensor", f"{exc}; name a map in config/sensors/") from None
+        raise KeyedError("sensor", f"{exc}; name a map in config/sensors/") from None
     for key, size in (("columns", regmap.columns), ("rows", regmap.rows)):
         value = profile.sourced(key).value
         if value != size:
-            raise _Keyed(
+            raise KeyedError(
                 key,
                 f"{value} differs from the {profile.sensor} register map's {key} = {size}; "
                 "make them agree",
@@ -373,29 +361,27 @@ def _check_against_map(profile: CameraProfile) -> None:
         and field_spec.unit == "dB"
         and not math.isclose(field_spec.scale, gain.db_per_code or 0.0, rel_tol=1e-9)
     ):
-        raise _Keyed(
-            "analog_gain",
+        raise KeyedError(
+            ("analog_gain", "db_per_code"),
             f"db_per_code = {gain.db_per_code:g} but the {profile.sensor} gain field "
             f"{regmap.role('gain')} steps {field_spec.scale:g} dB per code; make them agree",
-            sub="db_per_code",
         )
     if enum is not None:
         if gain.kind != "table":
-            raise _Keyed(
+            raise KeyedError(
                 "analog_gain",
                 f"the {profile.sensor} gain role is an enum ({', '.join(enum)}): use "
                 'kind = "table" with a factor per label',
             )
         missing = [label for label in enum if label not in gain.table]
         if missing:
-            raise _Keyed(
-                "analog_gain",
+            raise KeyedError(
+                ("analog_gain", "table"),
                 f"no factor for gain label(s) {', '.join(missing)} of the {profile.sensor} "
                 "register map; add them to `table`",
-                sub="table",
             )
     elif regmap.role("gain") is not None and gain.kind == "table":
-        raise _Keyed(
+        raise KeyedError(
             "analog_gain",
             f'the {profile.sensor} gain role is a number, not an enum: use kind = "code" or "db"',
         )
@@ -414,33 +400,3 @@ def _gain_field(regmap: RegisterMap) -> FieldSpec | None:
 def _gain_enum(regmap: RegisterMap) -> dict[str, int] | None:
     spec = _gain_field(regmap)
     return None if spec is None else spec.enum
-
-
-def _located(path: Path, text: str, exc: ValidationError) -> ProfileError:
-    first = exc.errors()[0]
-    loc = tuple(str(part) for part in first["loc"])
-    error = first.get("ctx", {}).get("error")
-    if isinstance(error, _Keyed):
-        return ProfileError(path, key_line(text, error.key), f"{error.key}: {error.message}")
-    message = str(first["msg"]).removeprefix("Value error, ")
-    if not loc:
-        return ProfileError(path, None, message)
-    key = loc[0]
-    # pydantic names the generic member's type in the location (value.int ...); drop it.
-    inner = [part for part in loc[1:] if not part.startswith(("function-", "literal["))]
-    where = ".".join([key, *inner])
-    hint = ""
-    if first["type"] == "missing" and len(loc) == 1:
-        unit = CameraProfile.unit_of(key) if key in CameraProfile.model_fields else None
-        if unit is not None:
-            hint = f'; add `{key} = {{ value = ..., source = "..." }}` (or assumed = "...")'
-        else:
-            hint = f"; add `{key}`"
-    elif first["type"] == "extra_forbidden":
-        known = ", ".join(CameraProfile.model_fields) if len(loc) == 1 else "value, source, assumed"
-        hint = f"; known keys: {known}"
-    elif first["type"] == "model_type" and len(loc) == 1:
-        hint = f'; write `{key} = {{ value = ..., source = "..." }}`'
-    # A key of a [table], or of an inline table on the key's own line.
-    line = (key_line(text, inner[0], key) if inner else None) or key_line(text, key)
-    return ProfileError(path, line, f"{where}: {message}{hint}")

@@ -21,15 +21,14 @@ from __future__ import annotations
 
 import math
 import re
-import tomllib
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
 from functools import cache
 from pathlib import Path
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, model_validator
 
+from camd.datafile import DataFileError, KeyedError, located, read_toml
 from camd.paths import config_dir
 
 Access = Literal["ro", "rw", "wo", "w1c"]
@@ -101,14 +100,8 @@ CLOCK_ROLES = ("row_blanking", "back_path")
 """Roles counted in clocks of ``timing.clock_hz``; a field in seconds must scale by 1/clock_hz."""
 
 
-class RegisterMapError(ValueError):
+class RegisterMapError(DataFileError):
     """A register map file is invalid; the message starts with ``file:line:``."""
-
-    def __init__(self, path: Path | str, line: int | None, message: str) -> None:
-        where = f"{path}:{line}" if line is not None else f"{path}"
-        super().__init__(f"{where}: {message}")
-        self.path = Path(path)
-        self.line = line
 
 
 class RegisterAccessError(ValueError):
@@ -119,12 +112,12 @@ class RegisterValueError(ValueError):
     """A value does not fit the register or field it is meant for; nothing was written."""
 
 
-class _Located(ValueError):
+class _Located(KeyedError):
     """A validation error that knows which entry and key of the file it belongs to.
 
     ``table``/``index`` name a ``[[registers]]`` / ``[[groups]]`` entry (or a plain table such
-    as ``roles`` with ``index`` None); ``key`` the key inside it; ``field`` an inline field
-    table. Raised inside a RegisterSpec, the entry is filled in from pydantic's location.
+    as ``roles`` with ``index`` None); ``key`` the key inside it; ``field`` the index of an
+    inline field table. Raised inside a RegisterSpec, the entry comes from pydantic's location.
     """
 
     def __init__(
@@ -134,14 +127,13 @@ class _Located(ValueError):
         table: str | None = None,
         index: int | None = None,
         key: str | None = None,
-        field: str | None = None,
+        field: int | None = None,
     ) -> None:
-        super().__init__(message)
-        self.message = message
-        self.table = table
-        self.index = index
-        self.key = key
-        self.field = field
+        loc = tuple(part for part in (table, index, key) if part is not None)
+        if field is not None:
+            loc += ("fields", field)
+        # A role's messages name the role themselves ("role gain: ...").
+        super().__init__(loc, message, label="" if table == "roles" else None)
 
 
 class SpiLayout(BaseModel):
@@ -352,24 +344,24 @@ class RegisterSpec(BaseModel):
         names: set[str] = set()
         for i, f in enumerate(self.fields):
             if f.name in names:
-                raise _Located(f"duplicate field name {f.name!r}", field=f.name)
+                raise _Located(f"duplicate field name {f.name!r}", field=i)
             names.add(f.name)
             if f.msb >= self.width:
                 raise _Located(
                     f"field {f.name!r} bits {f.msb}..{f.lsb} exceed the register's "
                     f"{self.width} bits",
-                    field=f.name,
+                    field=i,
                 )
             for other in self.fields[:i]:
                 if f.mask & other.mask:
                     raise _Located(
                         f"field {f.name!r} bits {f.msb}..{f.lsb} overlap field {other.name!r} "
                         f"bits {other.msb}..{other.lsb}",
-                        field=f.name,
+                        field=i,
                     )
             if f.pulse and self.access == "ro":
                 raise _Located(
-                    f"field {f.name!r} is a pulse field in a read-only register", field=f.name
+                    f"field {f.name!r} is a pulse field in a read-only register", field=i
                 )
             if f.pulse and f.extract(self.reset):
                 raise _Located(
@@ -1016,7 +1008,7 @@ class RegisterMap(BaseModel):
                         f"{clock_s:g} s, not {field_spec.scale:g}",
                         table="registers",
                         index=names[reg_name],
-                        field=field_spec.name,
+                        field=reg.fields.index(field_spec),
                     )
         sequencer = self.timing.model == "sequencer"
         if sequencer and self.timing.clocks_per_line is None and "line_clocks" not in self.roles:
@@ -1110,142 +1102,20 @@ def _load_cached(path: Path) -> RegisterMap:
 
 
 def _load(path: Path) -> RegisterMap:
-    text = path.read_text(encoding="utf-8")
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        match = re.search(r"line (\d+)", str(exc))
-        raise RegisterMapError(path, int(match.group(1)) if match else None, str(exc)) from None
+    text, data = read_toml(path, RegisterMapError)
     try:
         return RegisterMap.model_validate(data)
     except ValidationError as exc:
-        raise _located(path, data, _Layout.of(text), exc) from None
+        raise located(
+            exc,
+            path=path,
+            text=text,
+            data=data,
+            model=RegisterMap,
+            error=RegisterMapError,
+            named=_NAMED,
+        ) from None
 
 
-@dataclass
-class _Layout:
-    """Where things are in the file: 1-based line spans of entries and tables, key lines."""
-
-    lines: list[str]
-    entries: dict[str, list[tuple[int, int]]] = field(default_factory=dict)
-    tables: dict[str, tuple[int, int]] = field(default_factory=dict)
-
-    @classmethod
-    def of(cls, text: str) -> _Layout:
-        layout = cls(text.splitlines())
-        header = re.compile(r"^\s*(\[\[?)\s*([A-Za-z0-9_.]+)\s*\]\]?")
-        current: tuple[str, str, int] = ("table", "", 1)
-        spans: list[tuple[str, str, int, int]] = []
-        for number, line in enumerate(layout.lines, start=1):
-            match = header.match(line)
-            if match:
-                spans.append((*current, number - 1))
-                kind = "entry" if match.group(1) == "[[" else "table"
-                current = (kind, match.group(2), number)
-        spans.append((*current, len(layout.lines)))
-        for kind, name, start, end in spans:
-            if kind == "entry":
-                layout.entries.setdefault(name, []).append((start, end))
-            else:
-                layout.tables.setdefault(name, (start, end))
-        return layout
-
-    def key_line(self, span: tuple[int, int], key: str) -> int | None:
-        pattern = re.compile(rf"^\s*\"?{re.escape(key)}\"?\s*=")
-        for number in range(span[0], span[1] + 1):
-            if pattern.match(self.lines[number - 1]):
-                return number
-        return None
-
-    def field_line(self, span: tuple[int, int], name: str) -> int | None:
-        pattern = re.compile(rf"\bname\s*=\s*\"{re.escape(name)}\"")
-        start = self.key_line(span, "fields") or span[0]
-        for number in range(start, span[1] + 1):
-            if pattern.search(self.lines[number - 1]):
-                return number
-        return None
-
-    def locate(
-        self,
-        table: str,
-        index: int | None,
-        key: str | None = None,
-        field_name: str | None = None,
-    ) -> int | None:
-        if index is not None:
-            found = self.entries.get(table, [])
-            if index >= len(found):
-                return None
-            span = found[index]
-        else:
-            if table not in self.tables:
-                return None
-            span = self.tables[table]
-        line = None
-        if field_name is not None:
-            line = self.field_line(span, field_name)
-        if line is None and key is not None:
-            line = self.key_line(span, key)
-        if line is None and field_name is not None:
-            line = self.key_line(span, "fields")
-        return line if line is not None else span[0]
-
-
-def _located(
-    path: Path, data: dict[str, Any], layout: _Layout, exc: ValidationError
-) -> RegisterMapError:
-    first = exc.errors()[0]
-    loc = tuple(first["loc"])
-    error = first.get("ctx", {}).get("error")
-    located = error if isinstance(error, _Located) else None
-    message = located.message if located else str(first["msg"]).removeprefix("Value error, ")
-    table = located.table if located else None
-    index = located.index if located else None
-    key = located.key if located else None
-    field_name = located.field if located else None
-    tail: tuple[Any, ...] = ()
-    if table is None and loc:
-        head = str(loc[0])
-        if head in ("registers", "groups") and len(loc) >= 2 and isinstance(loc[1], int):
-            table, index, tail = head, loc[1], loc[2:]
-        else:
-            table, tail = head, loc[1:]
-    if located is None and tail:  # pydantic's own errors: the key path inside the entry/table
-        if tail[0] == "fields" and len(tail) >= 2 and isinstance(tail[1], int):
-            field_name = _entry_name(data, str(table), index, "fields", tail[1])
-            inner = ".".join(str(part) for part in tail[2:])
-            if f"field {field_name!r}" not in message:
-                message = f"field {field_name!r}{' ' + inner if inner else ''}: {message}"
-        elif table in ("registers", "groups"):
-            key = str(tail[0])
-            message = f"{'.'.join(str(part) for part in tail)}: {message}"
-        else:
-            key = str(tail[0])
-    if table in ("registers", "groups") and index is not None:
-        kind = "register" if table == "registers" else "group"
-        name = _entry_name(data, table, index)
-        line = layout.locate(table, index, key, field_name)
-        return RegisterMapError(path, line, f"{kind} {name}: {message}")
-    if table is None:
-        return RegisterMapError(path, None, message)
-    if located is None:
-        prefix = ".".join(str(part) for part in (table, *tail))
-    else:
-        prefix = "" if table == "roles" else table
-    if table in layout.tables:
-        line = layout.locate(table, None, key)
-    else:  # a top-level key (or a missing table)
-        line = layout.key_line(layout.tables.get("", (1, 0)), table)
-    return RegisterMapError(path, line, f"{prefix}: {message}" if prefix else message)
-
-
-def _entry_name(
-    data: dict[str, Any], table: str, index: int | None, sub: str | None = None, j: int = 0
-) -> str:
-    try:
-        entry = data[table][index]
-        if sub is not None:
-            return str(entry[sub][j]["name"])
-        return str(entry.get("name", f"#{(index or 0) + 1}"))
-    except (IndexError, AttributeError, KeyError, TypeError):
-        return f"#{(index or 0) + 1}" if sub is None else f"#{j + 1}"
+# A message calls an entry by its name: "register GAIN: field 'digital': ...".
+_NAMED = {"registers": "register {}", "groups": "group {}", "fields": "field {!r}"}
