@@ -13,9 +13,14 @@ camd.sensor: regmap, spi_frame, timing_view), never its stateful ones.
 - ``firmware_models.lvds``: skewed LVDS lanes, deserializer, training algorithm, test patterns
 - ``firmware_models.sequencer``: the HR400 rolling-shutter row address sequence
 - ``firmware_models.usb_device``: the simulated-USB-device base of the pyusb backends
-- ``firmware_models.usb_spi``: the MCP2210 USB-SPI bridge as a pyusb backend, SPI socket
-- ``firmware_models.fx3``: the EZ-USB FX3 frame streamer as a pyusb backend, its socket and
-  stream engine (pacing, frame faults)
+- ``firmware_models.mcp2210_backend``: host half of the MCP2210 USB-SPI bridge, loaded by the
+  daemon: the chip model as a pyusb backend and the client end of the SPI socket;
+  ``firmware_models.usb_spi``: its device half, the simulator's SPI socket server;
+  ``firmware_models.spi_wire``: that socket's framing
+- ``firmware_models.fx3_backend``: host half of the EZ-USB FX3 frame streamer, loaded by the
+  daemon: the pyusb backend reading the stream socket; ``firmware_models.fx3``: its device half,
+  the socket server and stream engine (pacing, frame faults); ``firmware_models.fx3_wire``:
+  that socket's framing
 - ``firmware_models.camera.CameraModel``: window frames from the scene and the sensor physics
 - ``firmware_models.scene``: scenes (flat, bars, edge, star, ramp, image) and exact motion
   integration; ``firmware_models.stage``: the simulated scan stage

@@ -114,7 +114,7 @@ def build_parser(prog: str = "python -m firmware_models") -> argparse.ArgumentPa
         default=None,
         metavar="PATH",
         help="also serve the sensor's SPI bus on a Unix socket at PATH, for a host driving a "
-        "simulated USB-SPI bridge (firmware_models.usb_spi.SocketSpiTarget)",
+        "simulated USB-SPI bridge (firmware_models.mcp2210_backend.SocketSpiTarget)",
     )
     parser.add_argument(
         "--usb-socket",
@@ -122,7 +122,7 @@ def build_parser(prog: str = "python -m firmware_models") -> argparse.ArgumentPa
         default=None,
         metavar="PATH",
         help="serve the USB bulk frame stream on a Unix socket at PATH, for a host using the "
-        "simulated FX3 backend (firmware_models.fx3.get_backend)",
+        "simulated FX3 backend (firmware_models.fx3_backend.get_backend)",
     )
     parser.add_argument(
         "--scene",

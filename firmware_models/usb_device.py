@@ -6,8 +6,8 @@ pyusb's descriptor calls and to GET_DESCRIPTOR control requests, open handles, c
 interface claiming, an optional kernel driver that must be detached first (as on Linux), and
 hot-plug (``unplug()`` / ``plug()``). Errors are raised as pyusb's libusb1 backend raises them
 (``usb_error``), so the host code under test handles the simulated device exactly as the
-hardware. Subclasses add the transfers (``firmware_models.usb_spi``: interrupt reports of an
-MCP2210; ``firmware_models.fx3``: bulk IN frames of an FX3).
+hardware. Subclasses add the transfers (``firmware_models.mcp2210_backend``: interrupt reports
+of an MCP2210; ``firmware_models.fx3_backend``: bulk IN frames of an FX3).
 
 The simulators serve their buses to other processes on Unix sockets; ``claim_socket_path`` /
 ``release_socket_path`` are the socket-file handling they share (a stale file from a simulator

@@ -17,6 +17,9 @@ from camd.cli.camctl_campaign import campaigns_dir, run_on_own_sim
 from camd.sensor.profile import load_profile
 from tests.campaign_support import report_images, run_shipped
 
+# Campaign acquisitions stream in real time: alone under xdist (tests/conftest.py).
+pytestmark = pytest.mark.exclusive
+
 
 def test_tdi_snr_stages(tmp_path: Path) -> None:
     r = run_shipped("tdi_snr_stages", tmp_path)["results"]

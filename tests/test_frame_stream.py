@@ -27,7 +27,8 @@ from camd.protocol.stream import (
     encode_header,
     payload_ok,
 )
-from firmware_models.fx3 import BankSource, StreamEngine, StreamSocketServer, get_backend
+from firmware_models.fx3 import BankSource, StreamEngine, StreamSocketServer
+from firmware_models.fx3_backend import get_backend
 from firmware_models.inject import InjectSpec
 
 pytestmark = pytest.mark.timeout(60)

@@ -1,5 +1,6 @@
-"""The simulated FX3 (firmware_models.fx3): pyusb through the backend over a real Unix socket,
-the stream engine's transfers, pacing bookkeeping and injected faults, and the bank source."""
+"""The simulated FX3 (host half firmware_models.fx3_backend, device half firmware_models.fx3):
+pyusb through the backend over a real Unix socket, the stream engine's transfers, pacing
+bookkeeping and injected faults, and the bank source."""
 
 from __future__ import annotations
 
@@ -31,15 +32,13 @@ from camd.protocol.stream import (
     decode_header,
     payload_ok,
 )
-from firmware_models.fx3 import (
+from firmware_models.fx3 import BankSource, StreamEngine, StreamSocketServer
+from firmware_models.fx3_backend import (
     EP_IN,
     PRODUCT_ID,
     VENDOR_ID,
-    BankSource,
     Fx3Backend,
-    StreamEngine,
     StreamLinkError,
-    StreamSocketServer,
     get_backend,
 )
 from firmware_models.inject import InjectSpec

@@ -214,7 +214,9 @@ def test_untrained_daemon_refuses_to_stream(tmp_path: Path) -> None:
         assert started["streaming"] is True and started["frames_requested"] == 0
         assert camctl_json(daemon.url, "status")["state"] == "streaming"
         proc = camctl(daemon.url, "reg", "write", "OFFSET=2")
-        assert proc.returncode == 1 and "stop the stream first" in proc.stderr
+        assert proc.returncode == 1
+        assert "cannot write sensor registers: a stream is running" in proc.stderr
+        assert "stop it with `camctl stream --stop`" in proc.stderr
         stopped = camctl_json(daemon.url, "stream", "--stop")
         assert stopped["streaming"] is False
         # Stopping drains: every frame the camera made was delivered, none lost.

@@ -1,5 +1,6 @@
 """The MCP2210 USB-SPI bridge: the host (camd.sensor.mcp2210) against the simulated chip
-(firmware_models.usb_spi), always through pyusb's API, in-process and across a Unix socket."""
+(firmware_models.mcp2210_backend; the SPI socket's server end is firmware_models.usb_spi),
+always through pyusb's API, in-process and across a Unix socket."""
 
 from __future__ import annotations
 
@@ -28,18 +29,18 @@ from camd.sensor.bridge import BridgeError
 from camd.sensor.mcp2210 import Mcp2210Bridge
 from camd.sensor.regmap import RegisterMap, RegisterSpec, load_register_map
 from camd.sensor.spi_frame import encode_spi_frame
-from firmware_models.sensor import SensorModel
-from firmware_models.spi import SpiSlave
-from firmware_models.usb_spi import (
+from firmware_models.mcp2210_backend import (
     PRODUCT_ID,
     VENDOR_ID,
     Mcp2210Backend,
     SocketSpiTarget,
     SpiLinkError,
-    SpiSocketServer,
     SpiTargetError,
     get_backend,
 )
+from firmware_models.sensor import SensorModel
+from firmware_models.spi import SpiSlave
+from firmware_models.usb_spi import SpiSocketServer
 
 pytestmark = pytest.mark.timeout(60)
 

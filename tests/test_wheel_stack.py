@@ -312,8 +312,10 @@ def test_wheel_settings_are_refused_while_streaming(client: CamdClient) -> None:
         ):
             with pytest.raises(CamdError) as info:
                 call()
-            assert info.value.code == "illegal_state", info.value.message
-            assert "stop the stream first" in info.value.message
+            # The busy error names what runs and the command that stops it.
+            assert info.value.code == "busy", info.value.message
+            assert "a stream is running (until stopped" in info.value.message
+            assert "stop it with `camctl stream --stop`" in info.value.message
     finally:
         client.stop_stream()
     assert client.status()["state"] == "idle"

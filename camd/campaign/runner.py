@@ -358,7 +358,9 @@ class CampaignRunner:
             if int(stats.get("frames", 0)) != int(s.frames):
                 raise CampaignError(
                     f"step {key}: {stats.get('frames')} of {s.frames} frames arrived "
-                    f"({stats.get('lost')} lost, {stats.get('corrupt')} corrupt)"
+                    f"({stats.get('lost')} lost, {stats.get('corrupt')} corrupt, "
+                    f"{stats.get('short')} short, {stats.get('overruns')} overrun: the host "
+                    "fell behind); run the step again (`--resume`)"
                 )
         elif isinstance(step.scan, ScanAcquire):
             sc = step.scan

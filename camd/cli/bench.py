@@ -11,7 +11,8 @@ of the same frame bytes by a separate process (the floor any pty transport can r
 into its slots, reassembly, header and payload CRC checks, queue, dispatch to a no-op
 consumer) against bare bulk reads of the same stream into one buffer through the same pyusb
 backend and socket, with no parsing. The simulated FX3 runs in its own process
-(``python -m firmware_models.fx3``), unpaced, replaying a bank of random 12-bit frames.
+(``python -m firmware_models.fx3``), unpaced, replaying a bank of random 12-bit frames; this
+process reads it through the FX3's host half (``firmware_models.fx3_backend``).
 
 ``camd bench tdi``: the TDI engine (``camd.tdi``), ``tdi_batch`` and a naive per-line numpy loop
 against ``np.copyto`` of the same input bytes (the memory-bandwidth floor); it lives in
@@ -34,9 +35,13 @@ from typing import Any
 
 import numpy as np
 import serial
+import usb.core
+import usb.util
 
 from camd.cli import bench_scan, bench_tdi
+from camd.link.frame_stream import FrameStream
 from camd.protocol import FrameType, encode_frame, load_dictionary
+from firmware_models.fx3_backend import PRODUCT_ID, VENDOR_ID, get_backend
 
 # Echo peer for the baseline: a separate process, like the simulator, copying bytes back.
 _ECHO = """
@@ -240,11 +245,6 @@ class _Streamer:
 
 def bare_bulk_mbyte_s(socket_path: Path, frame_bytes: int, seconds: float) -> dict[str, Any]:
     """Bulk reads of whole transfers into one buffer, no parsing: the transport's floor."""
-    import usb.core
-    import usb.util
-
-    from firmware_models.fx3 import PRODUCT_ID, VENDOR_ID, get_backend
-
     backend = get_backend(socket_path)
     dev = usb.core.find(idVendor=VENDOR_ID, idProduct=PRODUCT_ID, backend=backend)
     try:
@@ -273,9 +273,6 @@ def ingest_mbyte_s(
     socket_path: Path, frame_bytes: int, seconds: float, queue_frames: int
 ) -> dict[str, Any]:
     """FrameStream with a no-op consumer: delivered bytes per second after the first frame."""
-    from camd.link.frame_stream import FrameStream
-    from firmware_models.fx3 import get_backend
-
     backend = get_backend(socket_path)
     with FrameStream(backend=backend, queue_frames=queue_frames) as stream:
         stream.add_consumer(lambda frame: None)

@@ -22,6 +22,16 @@ from prometheus_client.registry import Collector, CollectorRegistry
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 import camd
+from camd.daemon.errors import (
+    BadRequest,
+    Busy,
+    DeviceRejected,
+    DeviceTimeout,
+    Disconnected,
+    LinkUntrained,
+    NotInControl,
+    SessionError,
+)
 from camd.daemon.models import (
     ALLOWED,
     EVENTS_LIMIT_MAX,
@@ -70,15 +80,7 @@ from camd.daemon.models import (
     WheelSpeedRequest,
     WheelStatus,
 )
-from camd.daemon.session import (
-    BadRequest,
-    DeviceRejected,
-    DeviceSession,
-    DeviceTimeout,
-    Disconnected,
-    LinkUntrained,
-    SessionError,
-)
+from camd.daemon.session import DeviceSession
 from camd.daemon.state import IllegalState, State
 from camd.daemon.telemetry import Level, classify
 
@@ -91,6 +93,8 @@ ERROR_MAP: list[tuple[type[Exception], int, str]] = [
     (BadRequest, 400, "bad_request"),
     (IllegalState, 409, "illegal_state"),
     (LinkUntrained, 409, "link_untrained"),
+    (Busy, 409, "busy"),
+    (NotInControl, 423, "not_in_control"),
     (DeviceRejected, 502, "device_nak"),
     (Disconnected, 503, "disconnected"),
     (DeviceTimeout, 504, "timeout"),
@@ -491,43 +495,43 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
     def put_sim_polarizer(body: PolarizerRequest) -> Response:
         """Simulated camera only: the reference polariser in front of the scene (docs/wheel.md);
         ``angle_deg`` null takes it out."""
-        session.wheel.set_polarizer(body.angle_deg)
+        session.sim.set_polarizer(body.angle_deg)
         return Response(status_code=204)
 
     @app.put(f"{API}/sim/stage/faults", status_code=204, tags=["simulator"])
     def put_sim_stage_faults(body: SimStageFaultsRequest) -> Response:
         """Simulated camera only: the stepper stage's imperfections (as --inject stage_*)."""
-        session.motion.set_sim_faults(body)
+        session.sim.set_stage_faults(body)
         return Response(status_code=204)
 
     @app.get(f"{API}/sim/stage/truth", response_model=SimStageTruth, tags=["simulator"])
     def get_sim_stage_truth() -> SimStageTruth:
         """Simulated camera only: the stage's true position, velocity and missed steps."""
-        return session.motion.sim_truth()
+        return session.sim.stage_truth()
 
     @app.put(f"{API}/sim/scene", status_code=204, tags=["simulator"])
     def put_sim_scene(body: SceneRequest) -> Response:
         """Simulated camera only: the scene in front of it (docs/simulator.md)."""
-        session.stream.set_scene(body.spec)
+        session.sim.set_scene(body.spec)
         return Response(status_code=204)
 
     @app.put(f"{API}/sim/seed", status_code=204, tags=["simulator"])
     def put_sim_seed(body: SeedRequest) -> Response:
         """Simulated camera only: restart the temporal noise and frame-fault random streams
         from ``seed`` (the fixed pattern is kept), so a repeated step sees the same noise."""
-        session.stream.set_seed(body.seed)
+        session.sim.set_seed(body.seed)
         return Response(status_code=204)
 
     @app.put(f"{API}/sim/stage", response_model=StageResponse, tags=["simulator"])
     def put_sim_stage(body: StageRequest) -> StageResponse:
         """Simulated camera only: the scan stage tracks the synchronous speed or runs at a set
         speed (any difference from synchronous is velocity mismatch)."""
-        return session.stream.set_stage(track=body.track, speed_m_s=body.speed_m_s)
+        return session.sim.set_ideal_stage(track=body.track, speed_m_s=body.speed_m_s)
 
     @app.get(f"{API}/sim/stream", response_model=SimStreamStats, tags=["simulator"])
     def get_sim_stream() -> SimStreamStats:
         """Simulated camera only: frames its stream engine made, sent and damaged on purpose."""
-        return session.stream.sim_stats()
+        return session.sim.stream_stats()
 
     @app.get("/metrics", tags=["status"], response_class=Response)
     def get_metrics() -> Response:

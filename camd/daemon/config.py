@@ -28,6 +28,7 @@ from pydantic import (
 
 from camd.paths import config_dir
 from camd.protocol import load_dictionary
+from camd.sensor.regmap import list_sensors
 
 TOKEN_ENV = "CAMD_TOKEN"
 UNIX_SOCKET_PATH_MAX = 100  # bytes: sun_path is 108 on Linux, 104 on BSD, NUL included
@@ -181,8 +182,6 @@ class SensorSection(_Section):
     @field_validator("name", mode="after")
     @classmethod
     def _known_sensor(cls, value: str) -> str:
-        from camd.sensor.regmap import list_sensors
-
         known = list_sensors()
         if value not in known:
             raise ValueError(f"no register map for sensor {value!r}; known: {', '.join(known)}")

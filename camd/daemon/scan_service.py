@@ -1,14 +1,15 @@
 """Push-broom scans: the stream in TDI mode, every frame through the TDI engine, lines to HDF5.
 
-``ScanService`` belongs to a DeviceSession. A scan (docs/scan.md):
+``ScanService`` is handed the device access and the sensor, stream, motion and simulator
+services. A scan (docs/scan.md):
 
-1. sets the scene (simulated camera), TDI mode, and the timing: from a stage speed or a line
-   period, ``T_line,TDI = p / v_image`` and the window that fits it (physics.md §2 eqs 5-9, 13:
-   window rows = n_lines, back path, exposure at most n_lines - 1 rows, eq 3), written to the
-   sensor's registers, then read back;
-   the scan stage (``camd.daemon.motion_service.ScanMotion``, docs/motion.md) is brought to the
-   synchronous speed for that line period, with room for the scan ahead of it, and held there
-   by the closed loop while the scan runs;
+1. claims the acquisition slot (one scan, stare or stream at a time), reads the registers and
+   the stage once and plans the whole scan from them (``camd.daemon.scan_plan.plan_scan``: line
+   period, window, register writes, synchronous speed, travel, file), refusing it before
+   anything is changed; then applies the plan step by step (scene, TDI mode, registers, the
+   simulator's ideal stage, the scan stage through ``camd.daemon.scan_motion.ScanMotion``, the
+   file), each step with its undo (``camd.daemon.transaction.Apply``): a failure puts back what
+   was changed and says so;
 2. starts the stream with ``lines + M - 1`` frames and a consumer that copies each frame into
    a batch (on the stream's dispatcher thread: no per-frame thread hand-off), with the lost-frame
    count and stage changes as markers between batches;
@@ -29,44 +30,55 @@ from __future__ import annotations
 
 import datetime as dt
 import logging
+import math
 import queue
 import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import h5py
 import numpy as np
 import numpy.typing as npt
 
+from camd.daemon.acquisition import Acquisition
+from camd.daemon.device import DeviceAccess
+from camd.daemon.errors import BadRequest, DeviceRejected
 from camd.daemon.models import (
     ScanMotionInfo,
     ScanRequest,
     ScanResponse,
     ScanTiming,
     StreamStartRequest,
-    TimingResponse,
 )
-from camd.daemon.motion_service import ScanMotion
+from camd.daemon.motion_service import MotionService
+from camd.daemon.scan_motion import ScanMotion
+from camd.daemon.scan_plan import (
+    ScanContext,
+    ScanPlan,
+    StageContext,
+    engine_for,
+    max_stages,
+    plan_scan,
+    scan_path,
+    window_writes,
+)
+from camd.daemon.sensor_service import RegisterSnapshot, SensorService
+from camd.daemon.sim_control import SimulatorControl
 from camd.daemon.state import Request
+from camd.daemon.stream_service import StreamService
+from camd.daemon.transaction import Apply
 from camd.link.frame_stream import ReceivedFrame
 from camd.motion.closed_loop import LinePeriodSetting
 from camd.store.quicklook import write_quicklook_png
-from camd.store.recording import RecordingError
+from camd.store.recording import RecordingError, check_new_file
 from camd.store.tdi_recording import TdiRecorder
 from camd.tdi import TdiEngine, stage_taps
 from camd.timing import (
     line_mismatch,
-    synchronous_stage_speed_m_s,
-    tdi_line_period_s,
-    tdi_window,
-    velocity_mismatch,
 )
-
-if TYPE_CHECKING:
-    from camd.daemon.session import DeviceSession
 
 log = logging.getLogger(__name__)
 
@@ -77,8 +89,6 @@ BATCH_MAX_AGE_S = 0.1  # a partial batch older than this goes to the engine (pro
 CONSUMER_WAIT_S = 5.0  # longest the consumer waits for a free batch before giving up a frame
 FINISH_TIMEOUT_S = 60.0
 QUICKLOOK_MAX_LINES = 8192
-STREAM_END_MARGIN_S = 2.0  # stage travel planned beyond the frames' own duration
-DRIVEN_MISMATCH_MAX = 0.5  # |dv_over_v| a driven stage takes (0.5 .. 1.5 x synchronous)
 
 
 @dataclass
@@ -206,13 +216,25 @@ class _Scan:
         self.counts_per_pixel: float | None = None  # encoder counts per image pitch
         self.carry = (np.zeros(0, np.int64), np.zeros(0, np.float64))  # counters, encoder
         self.red_stop = False
+        self.acquisition: Acquisition | None = None  # released once the file is closed
 
 
 class ScanService:
     """Start, watch, re-stage and stop push-broom scans."""
 
-    def __init__(self, session: DeviceSession) -> None:
-        self.session = session
+    def __init__(
+        self,
+        device: DeviceAccess,
+        sensor: SensorService,
+        stream: StreamService,
+        motion: MotionService,
+        sim: SimulatorControl,
+    ) -> None:
+        self.device = device
+        self.sensor = sensor
+        self.stream = stream
+        self.motion = motion
+        self.sim = sim
         self._lock = threading.Lock()
         self._scan: _Scan | None = None
 
@@ -236,73 +258,27 @@ class ScanService:
         return self._response(self._scan)
 
     def start(self, request: ScanRequest) -> ScanResponse:
-        """Set up and start a scan; returns at once (``status`` shows its progress)."""
-        from camd.daemon.session import BadRequest
-
-        session = self.session
-        session.require(Request.STREAM_START)
-        if request.speed_m_s is not None and request.line_period_s is not None:
-            raise BadRequest(
-                "give either speed_m_s or line_period_s, not both: the line period follows "
-                "from the stage speed (physics.md §2)"
-            )
-        if request.drive_stage and abs(request.dv_over_v) > DRIVEN_MISMATCH_MAX:
-            raise BadRequest(
-                f"dv_over_v = {request.dv_over_v:g} with the stage driven: it takes "
-                f"-{DRIVEN_MISMATCH_MAX:g} .. {DRIVEN_MISMATCH_MAX:g} (the stage at 0.5 .. 1.5 "
-                "times the synchronous speed); larger mismatches run on the simulator's ideal "
-                "stage (drive_stage false)"
-            )
-        with self._lock:
-            if self._scan is not None and not self._scan.done.is_set():
-                raise BadRequest("a scan is running; stop it first (`camctl scan --stop`)")
-        session.sensor.require_trained("start a scan")
-        if request.scene is not None:
-            if session.config.link.device != "sim":
-                raise BadRequest("scene is for the simulated camera only; drop --scene")
-            session.stream.set_scene(request.scene)
-        binned = request.binning == "2x2"
-        cols = session.sensor.window_columns() // (2 if binned else 1)
-
-        def engine_for(n_lines: int) -> TdiEngine:
-            return self._engine(request, request.stages, n_lines // 2 if binned else n_lines, cols)
-
-        path = self._scan_path(request.out)
-        frames = 0 if request.lines == 0 else request.lines + request.stages - 1
-        self._check_motion(request, frames)  # before any register is written
-        session.set_mode("tdi")
-        timing = self._set_timing(request, engine_for)
-        rows = timing.n_lines // 2 if binned else timing.n_lines
-        engine = engine_for(timing.n_lines)
-        motion = self._scan_motion(request, timing, frames)
-        if motion is not None and motion.mode == "line_period":
-            rows = engine.rows_needed  # the window's rows may change under the loop
+        """Plan the scan whole, then apply it, and return at once (``status`` shows its
+        progress). A refused scan changes nothing; a scan that fails while being applied puts
+        back what it had changed and says so (``camd.daemon.transaction``)."""
+        device = self.device
+        what = "until stopped" if request.lines == 0 else f"{request.lines} lines"
+        path = scan_path(request.out, device.config.daemon.data_dir, dt.datetime.now(dt.UTC))
+        slot = device.acquisition
+        acquisition = slot.claim("scan", f"M = {request.stages}, {what} to {path}")
         try:
-            recorder = self._recorder(path, request, cols, timing, frames)
-        except Exception:
-            if motion is not None:
-                motion.finish()
-            raise
-        scan = _Scan(request, path, engine, recorder, timing, frames)
-        scan.motion = motion
-        if motion is not None:
-            pitch, scale = session.motion.optics(binned)
-            scan.counts_per_pixel = session.motion.profile.encoder_counts_per_m * pitch / scale
-        recorder.note_stage_change(0, request.stages)
-        with self._lock:
-            self._scan = scan
-        try:
-            self._start_stream(scan, rows, cols)
-        except Exception as exc:
-            if motion is not None:
-                motion.finish()
-            scan.state, scan.error = "failed", str(exc)
-            scan.work.put(("end", None))
-            if scan.worker is not None:
-                scan.worker.join(FINISH_TIMEOUT_S)
-            self._close_file(scan, "failed")
-            path.unlink(missing_ok=True)  # nothing was recorded: leave no file
-            scan.done.set()
+            with slot.applying(acquisition):
+                device.require(Request.STREAM_START)
+                self.sensor.require_trained("start a scan")
+                plan, snapshot, stage_position = self._plan(request, path)
+                self._warm_engine(plan)
+                try:
+                    check_new_file(plan.path, plan.planned_bytes)
+                except RecordingError as exc:
+                    raise BadRequest(str(exc)) from None
+                scan = self._apply(plan, snapshot, stage_position, acquisition)
+        except BaseException:
+            slot.abandon(acquisition)
             raise
         return self._response(scan)
 
@@ -312,14 +288,12 @@ class ScanService:
         if scan is None or scan.done.is_set():
             return self._response(scan)
         scan.stop_requested = True
-        self.session.stream.stop()
+        self.stream.stop()
         scan.done.wait(FINISH_TIMEOUT_S)
         return self._response(scan)
 
     def set_stages(self, stages: int) -> ScanResponse:
         """Change M from the next frame on, without stopping the stream."""
-        from camd.daemon.session import BadRequest
-
         scan = self._scan
         if scan is None or scan.done.is_set() or scan.batcher is None:
             raise BadRequest("no scan is running; start one with `camctl scan`")
@@ -337,10 +311,10 @@ class ScanService:
             raise BadRequest(
                 f"stages = {stages} needs {taps.rows_needed} window rows but the scan's frames "
                 f"have {scan.batcher.rows} (physics.md §2 eq 13: M <= M0); choose "
-                f"1..{self._max_stages(req, scan.engine.width, scan.batcher.rows)}"
+                f"1..{max_stages(req, scan.engine.width, scan.batcher.rows)}"
             )
         scan.batcher.pending_stages = stages
-        self.session.log_event("info", "scan", f"TDI stages -> {stages} from the next frame")
+        self.device.log_event("info", "scan", f"TDI stages -> {stages} from the next frame")
         return self._response(scan)
 
     def close(self) -> None:
@@ -354,114 +328,142 @@ class ScanService:
                 scan.worker.join(FINISH_TIMEOUT_S)
             self._close_file(scan, scan.state)
             scan.done.set()
+            if scan.acquisition is not None:
+                self.device.acquisition.release(scan.acquisition)
 
     # -- setting up -----------------------------------------------------------------------------
 
-    def _set_timing(
-        self, request: ScanRequest, engine_for: Callable[[int], TdiEngine]
-    ) -> ScanTiming:
-        """Program the TDI line period a speed or period asks for; return what is set.
-        ``engine_for(n_lines)`` refuses stages that would not fit, before any register is
-        written."""
-        from camd.daemon.session import BadRequest
-
-        sensor = self.session.sensor
-        pitch_m, magnification = self._optics(request)
-        now = sensor.timing()
-        period_s = request.line_period_s
-        if request.speed_m_s is not None:
-            period_s = tdi_line_period_s(pitch_m, magnification * request.speed_m_s)
-        if period_s is not None:
-            try:
-                window = tdi_window(period_s, now.line_period_s)
-            except ValueError as exc:
-                raise BadRequest(str(exc)) from None
-            engine_for(window.n_lines)  # BadRequest, with the registers untouched
-            writes = self._window_writes(now, window.n_lines, window.back_path_s)
-            if writes:
-                sensor.write(writes)
-            now = sensor.timing()
-        sync = synchronous_stage_speed_m_s(pitch_m, now.tdi_line_period_s, magnification)
-        speed = request.speed_m_s
+    def _plan(self, request: ScanRequest, path: Path) -> tuple[ScanPlan, RegisterSnapshot, float]:
+        """Read what the plan needs (registers, stage), then plan: nothing is changed."""
+        if request.scene is not None and not self.sim.available:
+            raise BadRequest("scene is for the simulated camera only; drop --scene")
+        snapshot = self.sensor.snapshot()
+        stage: StageContext | None = None
+        position = 0.0
         if request.drive_stage:
-            # The stage runs at the synchronous speed of the line period the registers could
-            # realise (whole clocks), offset by any deliberate mismatch asked for.
-            speed = sync * (1.0 - request.dv_over_v)
-        elif self.session.config.link.device == "sim":
-            # The simulator's ideal stage, offset by the deliberate mismatch too: an exact
-            # dV/V for MTF against mismatch (physics.md §6), beyond a real stage's range.
-            speed = (sync if speed is None else speed) * (1.0 - request.dv_over_v)
-            self.session.stream.set_stage(track=False, speed_m_s=speed)
-        elif speed is None:
-            self.session.log_event(
-                "info", "scan", f"run the scan stage at {sync * 1e3:.6g} mm/s (synchronous)"
+            motion = self.motion
+            reading = motion.read()
+            position = reading.position_m
+            _, scale = motion.optics()
+            stage = StageContext(
+                kind=motion.profile.kind,
+                limits=motion.limits_wanted(),
+                position_m=reading.position_m,
+                state=reading.state,
+                loop_mode=motion.loop_mode(request.closed_loop),
+                image_scale=scale,
+                encoder_counts_per_m=motion.profile.encoder_counts_per_m,
             )
-        return ScanTiming(
-            tdi_line_period_s=now.tdi_line_period_s,
-            row_period_s=now.line_period_s,
-            n_lines=now.window_rows,
-            back_path_s=now.back_path_s,
-            max_stages=now.max_stages,
-            exposure_s=now.exposure_s,
-            sync_speed_m_s=sync,
-            stage_speed_m_s=speed,
-            dv_over_v=None if speed is None else velocity_mismatch(sync, speed),
-        )
-
-    def _optics(self, request: ScanRequest) -> tuple[float, float]:
-        """Pixel pitch (doubled when binned) and the image scale of the stage's travel: the
-        stage profile's when the scan drives it, else the camera's magnification."""
-        binned = request.binning == "2x2"
-        if request.drive_stage:
-            return self.session.motion.optics(binned)
-        return self.session.motion.camera_optics(binned)
-
-    def _check_motion(self, request: ScanRequest, frames: int) -> None:
-        """Refuse a scan whose stage speed or travel is beyond the stage's limits, from the
-        line period asked for (or the registers'), before anything is written."""
-        if not request.drive_stage:
-            return
-        pitch_m, scale = self._optics(request)
-        if request.speed_m_s is not None:
-            speed = request.speed_m_s
-            period = tdi_line_period_s(pitch_m, scale * speed)
-        else:
-            period = request.line_period_s or self.session.sensor.timing().tdi_line_period_s
-            speed = synchronous_stage_speed_m_s(pitch_m, period, scale)
-        speed *= 1.0 - request.dv_over_v
-        duration = (frames or 60.0 / period) * period + STREAM_END_MARGIN_S
-        self.session.motion.check_scan(speed, duration)
-
-    def _scan_motion(
-        self, request: ScanRequest, timing: ScanTiming, frames: int
-    ) -> ScanMotion | None:
-        """Bring the stage to speed for the scan (None: the scan does not drive it)."""
-        if not request.drive_stage:
-            return None
-        service = self.session.motion
-        assert timing.stage_speed_m_s is not None
-        mode = service.loop_mode(request.closed_loop)
-        pitch, _ = service.optics(request.binning == "2x2")
-        motion = ScanMotion(
-            service,
-            speed_m_s=-timing.stage_speed_m_s if request.reverse else timing.stage_speed_m_s,
-            mode=mode,
+        pitch, magnification = self.motion.camera_optics()
+        context = ScanContext(
+            timing=snapshot.timing(),
+            preview=snapshot.preview,
+            regmap=self.sensor.regmap,
+            columns=snapshot.columns(),
             pixel_pitch_m=pitch,
-            row_time_s=timing.row_period_s,
-            stages=request.stages * (2 if request.binning == "2x2" else 1),
-            max_lines=timing.n_lines,
-            offset=request.dv_over_v,
-            apply_line_period=self._line_period_writer(timing),
+            magnification=magnification,
+            stage=stage,
+            ideal_stage=self.sim.available and not request.drive_stage,
+            path=path,
         )
-        # A scan "until stopped" plans for a minute of travel; the rail rewinds if needed.
-        duration = (frames or 60.0 / timing.tdi_line_period_s) * timing.tdi_line_period_s
-        motion.start(duration + STREAM_END_MARGIN_S)
-        return motion
+        plan = plan_scan(request, context)
+        if request.out is None:
+            plan.path.parent.mkdir(parents=True, exist_ok=True)  # the daemon's own folder
+        return plan, snapshot, position
+
+    @staticmethod
+    def _warm_engine(plan: ScanPlan) -> None:
+        """Load (or compile) the TDI kernel now: doing it on the worker thread mid-stream would
+        hold the GIL for a second or more and starve the USB reader."""
+        engine = engine_for(plan.request, plan.request.stages, plan.columns)
+        engine.push_many(np.zeros((2, engine.rows_needed, plan.columns), dtype=np.uint16))
+
+    def _apply(
+        self,
+        plan: ScanPlan,
+        snapshot: RegisterSnapshot,
+        stage_position: float,
+        acquisition: Acquisition,
+    ) -> _Scan:
+        """Change the camera as planned, step by step, and start the stream; on a failure the
+        steps done so far are undone (newest first) and the error says what was restored."""
+        request = plan.request
+        device, sim, sensor = self.device, self.sim, self.sensor
+        with Apply("scan not started", self._events, source="scan") as apply:
+            if request.scene is not None:
+                scene, before = request.scene, sim.scene
+                apply.step(
+                    lambda: sim.set_scene(scene), lambda: sim.set_scene(before), f"scene {before}"
+                )
+            if device.mode != "tdi":
+                mode = device.mode or "area"
+                apply.step(
+                    lambda: device.set_mode("tdi"), lambda: device.set_mode(mode), f"mode {mode}"
+                )
+            if plan.register_writes:
+                changed = snapshot.changed(plan.register_writes)
+                apply.step(
+                    lambda: sensor.write(plan.register_writes),
+                    lambda: sensor.restore(snapshot, changed),
+                    "registers " + ", ".join(changed or list(plan.register_writes)),
+                )
+                self._check_timing(plan)
+            if plan.ideal_stage_speed_m_s is not None:
+                track, speed = sim.ideal_stage
+                apply.step(
+                    lambda: sim.set_ideal_stage(
+                        track=False, speed_m_s=plan.ideal_stage_speed_m_s or 0
+                    ),
+                    lambda: sim.set_ideal_stage(track=track, speed_m_s=speed),
+                    "the simulator's ideal stage",
+                )
+            motion = None
+            if plan.stage is not None:
+                motion = ScanMotion(self.motion, plan.stage, self._line_period_writer(plan.timing))
+                apply.undo_later(
+                    lambda: motion.restore(stage_position),
+                    f"stage stopped and back at {stage_position * 1e3:.3f} mm",
+                )
+                motion.start()
+            recorder = self._recorder(plan)
+            apply.undo_later(lambda: _discard(recorder), f"file {plan.path} removed")
+            scan = _Scan(request, plan.path, engine_for(request, request.stages, plan.columns), recorder, plan.timing,
+                         plan.frames)  # fmt: skip
+            scan.motion = motion
+            scan.acquisition = acquisition
+            if plan.stage is not None:
+                scan.counts_per_pixel = plan.stage.counts_per_pixel
+            recorder.note_stage_change(0, request.stages)
+            self._start_stream(scan, plan.rows, plan.columns)
+            with self._lock:
+                self._scan = scan
+            for note in plan.notes:
+                device.log_event("info", "scan", note)
+            apply.done()
+        return scan
+
+    def _events(self, level: str, source: str, message: str) -> None:
+        self.device.log_event(level, source, message)
+
+    def _check_timing(self, plan: ScanPlan) -> None:
+        """The registers read back set the planned timing (else the plan is not what runs)."""
+        now = self.sensor.timing()
+        want = plan.timing
+        if now.window_rows != want.n_lines or not math.isclose(
+            now.tdi_line_period_s, want.tdi_line_period_s, rel_tol=1e-9
+        ):
+            raise DeviceRejected(
+                f"the registers read back set a {now.window_rows}-row window and a "
+                f"{now.tdi_line_period_s * 1e6:.3f} us line period, not the planned "
+                f"{want.n_lines} rows and {want.tdi_line_period_s * 1e6:.3f} us; check "
+                "`camctl timing` and the register map",
+                "TIMING_MISMATCH",
+            )
 
     def _line_period_writer(self, timing: ScanTiming) -> Callable[[LinePeriodSetting], None]:
         """The closed loop's hand on the line period: window rows and back path registers,
         written only when they change (physics.md §2 eqs 8-9)."""
-        sensor = self.session.sensor
+        sensor = self.sensor
         clock_hz = sensor.regmap.timing.clock_hz
         last = [timing.n_lines, round(timing.back_path_s * clock_hz)]
 
@@ -470,7 +472,7 @@ class ScanService:
             if [setting.n_lines, clocks] == last:
                 return
             now = sensor.timing()
-            writes = self._window_writes(now, setting.n_lines, setting.back_path_s)
+            writes, _ = window_writes(sensor.regmap, now, setting.n_lines, setting.back_path_s)
             writes.pop(sensor.regmap.role("exposure_lines") or "", None)
             if writes:
                 sensor.trim(writes)
@@ -478,114 +480,20 @@ class ScanService:
 
         return apply
 
-    def _window_writes(
-        self, now: TimingResponse, n_lines: int, back_path_s: float
-    ) -> dict[str, int | str]:
-        """Register values for a window of ``n_lines`` rows, that back path, and an exposure
-        that fits (eq 3: at most n_lines - 1 rows; kept if it already does)."""
-        regmap = self.session.sensor.regmap
-        writes: dict[str, int | str] = {}
-
-        def put(role: str, count: int) -> None:
-            name = regmap.role(role)
-            if name is None:
-                return
-            _, spec = regmap.resolve(name)
-            writes[name] = count - (spec.bias if spec is not None else 0)
-
-        if n_lines != now.window_rows:
-            put("window_rows", n_lines)
-        clocks = round(back_path_s * regmap.timing.clock_hz)
-        if regmap.role("back_path") is not None:
-            put("back_path", clocks)
-        elif clocks:
-            self.session.log_event(
-                "warning",
-                "scan",
-                f"sensor {regmap.sensor} has no back-path register: the line period is "
-                f"{n_lines} rows, {back_path_s * 1e6:.3f} us short of the one asked for",
-            )
-        if now.exposure_lines > max(1, n_lines - 1):
-            put("exposure_lines", max(1, n_lines - 1))
-        return writes
-
-    def _max_stages(self, request: ScanRequest, width: int, rows: int) -> int:
-        """The most stages whose taps fit ``rows`` rows."""
-        best = 0
-        for stages in range(1, rows + 1):
-            taps = stage_taps(
-                stages,
-                width,
-                rows_per_line=request.rows_per_line,
-                cols_per_line=request.cols_per_line,
-                reverse=request.reverse,
-            )
-            if taps.rows_needed > rows:
-                break
-            best = stages
-        return best
-
-    def _engine(self, request: ScanRequest, stages: int, rows: int, cols: int) -> TdiEngine:
-        from camd.daemon.session import BadRequest
-
-        try:
-            engine = TdiEngine(
-                stages,
-                cols,
-                mode=request.mode,
-                out_bits=request.out_bits,
-                rows_per_line=request.rows_per_line,
-                cols_per_line=request.cols_per_line,
-                reverse=request.reverse,
-            )
-        except ValueError as exc:
-            raise BadRequest(str(exc)) from None
-        # Load (or compile) the kernel now: doing it on the worker thread mid-stream would hold
-        # the GIL for a second or more and starve the USB reader.
-        TdiEngine(stages, cols, mode=request.mode, rows_per_line=request.rows_per_line,
-                  cols_per_line=request.cols_per_line, reverse=request.reverse,
-                  ).push_many(np.zeros((2, engine.rows_needed, cols), dtype=np.uint16))  # fmt: skip
-        if engine.rows_needed > rows:
-            raise BadRequest(
-                f"stages = {stages} needs {engine.rows_needed} window rows but the scan's frames "
-                f"have {rows} (physics.md §2 eq 13: M <= M0 = n_lines); choose "
-                f"1..{self._max_stages(request, cols, rows)} stages, or slow the stage (a longer "
-                "line period holds more rows)"
-            )
-        return engine
-
-    def _scan_path(self, out: str | None) -> Path:
-        from camd.daemon.session import BadRequest
-
-        if out is None:
-            stamp = dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%S.%fZ")
-            folder = self.session.config.daemon.data_dir / "scans"
-            folder.mkdir(parents=True, exist_ok=True)
-            return folder / f"scan-{stamp}.h5"
-        path = Path(out)
-        if not path.is_absolute():
-            raise BadRequest(f"out path {out!r} is relative; give an absolute path (camctl does)")
-        if path.exists():
-            raise BadRequest(f"{path} already exists; choose another file or remove it")
-        return path
-
-    def _recorder(
-        self, path: Path, request: ScanRequest, cols: int, timing: ScanTiming, frames: int
-    ) -> TdiRecorder:
-        from camd.daemon.session import BadRequest
-
-        sensor = self.session.sensor
+    def _recorder(self, plan: ScanPlan) -> TdiRecorder:
+        sensor = self.sensor
+        request = plan.request
         scan_meta = request.model_dump(exclude={"out"})
-        scan_meta.update(frames_requested=frames, width=cols)
+        scan_meta.update(frames_requested=plan.frames, width=plan.columns)
         try:
             return TdiRecorder(
-                path,
-                width=cols,
+                plan.path,
+                width=plan.columns,
                 mode=request.mode,
                 metadata={
                     "profile": sensor.profile_metadata(),
                     "registers": sensor.register_values(),
-                    "timing": timing.model_dump(),
+                    "timing": plan.timing.model_dump(),
                     "scan": scan_meta,
                 },
             )
@@ -593,7 +501,7 @@ class ScanService:
             raise BadRequest(str(exc)) from None
 
     def _start_stream(self, scan: _Scan, rows: int, cols: int) -> None:
-        stream = self.session.stream
+        stream = self.stream
         scan.batcher = _Batcher(rows, cols, scan.work)
         scan.worker = threading.Thread(
             target=self._work, args=(scan,), name="camd-tdi-worker", daemon=True
@@ -608,23 +516,26 @@ class ScanService:
                     binning=scan.request.binning,
                 )
             )
-        except Exception:
+            # The line-period loop may already have changed the window's rows: more than the
+            # engine needs is fine (it uses the first ``rows``).
+            trimmed = scan.motion is not None and scan.motion.mode == "line_period"
+            if info.cols != cols or (info.rows < rows if trimmed else info.rows != rows):
+                stream.stop()
+                raise DeviceRejected(
+                    f"the camera streams {info.rows} x {info.cols} frames, not the {rows} x "
+                    f"{cols} the registers set; check `camctl timing` and the window registers",
+                    "GEOMETRY_MISMATCH",
+                )
+        except BaseException:
             stream.remove_consumer(scan.batcher)
+            scan.state = "failed"
+            scan.work.put(("end", None))
+            scan.worker.join(FINISH_TIMEOUT_S)
             raise
-        # The line-period loop may already have changed the window's rows: more than the
-        # engine needs is fine (it uses the first ``rows``).
-        trimmed = scan.motion is not None and scan.motion.mode == "line_period"
-        if info.cols != cols or (info.rows < rows if trimmed else info.rows != rows):
-            stream.remove_consumer(scan.batcher)
-            stream.stop()
-            raise RuntimeError(
-                f"the camera streams {info.rows} x {info.cols} frames, not the {rows} x {cols} "
-                "the registers set; check `camctl timing` and the window registers"
-            )
         scan.state = "running"
         scan.started_mono, scan.started_cpu = time.monotonic(), time.process_time()
         what = "until stopped" if scan.request.lines == 0 else f"{scan.request.lines} lines"
-        self.session.log_event(
+        self.device.log_event(
             "info", "scan", f"scan started: M = {scan.request.stages}, {what}, file {scan.path}"
         )
         scan.finisher = threading.Thread(
@@ -675,7 +586,7 @@ class ScanService:
         except Exception as exc:  # a full disk, a bad frame: stop the scan, keep what is there
             log.exception("TDI worker failed")
             scan.state, scan.error = "failed", f"TDI worker: {exc}"
-            self.session.log_event("error", "scan", f"scan failed: {exc}; stopping the stream")
+            self.device.log_event("error", "scan", f"scan failed: {exc}; stopping the stream")
             threading.Thread(target=self._stop_quietly, daemon=True).start()
         progress.tdi_cpu_s = time.thread_time() - start_cpu
 
@@ -714,14 +625,14 @@ class ScanService:
         progress.mismatch_max = max(worst, progress.mismatch_max or 0.0)
         progress.mismatch_sum_sq += float(np.square(magnitude).sum())
         progress.mismatch_count += int(magnitude.size)
-        config = self.session.config.motion
+        config = self.device.config.motion
         level = "red" if worst >= config.red else "yellow" if worst >= config.yellow else "ok"
         order = ("ok", "yellow", "red")
         if order.index(level) > order.index(progress.mismatch_level):
             progress.mismatch_level = level
         if level != progress.mismatch_now:
             progress.mismatch_now = level
-            self.session.log_event(
+            self.device.log_event(
                 {"ok": "info", "yellow": "warning", "red": "error"}[level],
                 "motion",
                 f"scan velocity mismatch {level}: M |dV/V| up to {worst:.3g} pixels "
@@ -734,13 +645,13 @@ class ScanService:
 
     def _stop_quietly(self) -> None:
         try:
-            self.session.stream.stop()
+            self.stream.stop()
         except Exception as exc:  # the stream may already have ended
             log.info("stopping the stream after a scan failure: %s", exc)
 
     def _finish(self, scan: _Scan) -> None:
         """Wait for the stream to end, then flush the engine, close the file, write the PNG."""
-        stream = self.session.stream
+        stream = self.stream
         stream.wait_finished()
         if scan.done.is_set():
             return  # the daemon is shutting down and ``close`` has ended the scan
@@ -758,7 +669,7 @@ class ScanService:
             final = "failed"
         self._close_file(scan, final)
         stats = stream.stats()
-        self.session.log_event(
+        self.device.log_event(
             "info" if scan.state != "failed" and stats.lost == 0 else "warning",
             "scan",
             f"scan {final if scan.state != 'failed' else 'failed'}: {scan.progress.lines} lines "
@@ -770,9 +681,11 @@ class ScanService:
             if scan.state != "failed":
                 scan.state = final
             scan.done.set()
+        if scan.acquisition is not None:
+            self.device.acquisition.release(scan.acquisition)
 
     def _close_file(self, scan: _Scan, state: str) -> None:
-        stats = self.session.stream.stats().model_dump()
+        stats = self.stream.stats().model_dump()
         progress = scan.progress
         motion = self._motion_info(scan)
         datasets = {}
@@ -794,8 +707,8 @@ class ScanService:
                 "mismatch_max": progress.mismatch_max,
                 "mismatch_rms": self._mismatch_rms(scan),
                 "mismatch_level": progress.mismatch_level,
-                "yellow": self.session.config.motion.yellow,
-                "red": self.session.config.motion.red,
+                "yellow": self.device.config.motion.yellow,
+                "red": self.device.config.motion.red,
                 "counts_per_pixel": scan.counts_per_pixel,
             }
             if motion.loop_samples:
@@ -810,7 +723,7 @@ class ScanService:
             try:
                 scan.quicklook = self._quicklook(scan.path)
             except Exception as exc:  # the data are safe in the file; say so and go on
-                self.session.log_event("warning", "scan", f"no quicklook for {scan.path}: {exc}")
+                self.device.log_event("warning", "scan", f"no quicklook for {scan.path}: {exc}")
 
     @staticmethod
     def _quicklook(path: Path) -> Path:
@@ -848,13 +761,13 @@ class ScanService:
         """Frames of the scan that never reached the engine: lost, corrupt, overrun or cut
         short on the way; once the stream has ended, by the device's own count."""
         if scan.done.is_set() or scan.ended_mono is not None:
-            sent = self.session.stream.status_info().get("frames_sent")
+            sent = self.stream.status_info().get("frames_sent")
             if sent is not None:
                 return max(0, int(sent) - scan.progress.frames_in)
         return scan.progress.gap_frames
 
     def _response(self, scan: _Scan | None) -> ScanResponse:
-        stream = self.session.stream.stats()
+        stream = self.stream.stats()
         if scan is None:
             return ScanResponse(
                 state="none", file=None, quicklook=None, stages=0, lines_wanted=0,
@@ -894,3 +807,11 @@ class ScanService:
             mismatch_level=progress.mismatch_level,
             motion=self._motion_info(scan),
         )
+
+
+def _discard(recorder: TdiRecorder) -> None:
+    """Close and delete a scan file that never got a line (a scan that did not start)."""
+    try:
+        recorder.close({"state": "failed"}, {})
+    finally:
+        recorder.path.unlink(missing_ok=True)

@@ -1,10 +1,10 @@
 """The daemon's sensor side: register access, timing and LVDS link training.
 
-``SensorService`` belongs to a DeviceSession. It builds the register bridge the config names
-(the FPGA's REG_* commands, or a USB-SPI bridge), checks on every (re)connect that the camera
+``SensorService`` is handed the device access and a factory of the register bridge the config
+names (the FPGA's REG_* commands, or a USB-SPI bridge; ``camd.daemon.backends``). It checks on every (re)connect that the camera
 reports the sensor the register map describes, trains the LVDS link when the config asks, and
 tells the stream service whether the link is trained (``require_trained``). Every device access
-runs inside the session's ``device_op()``: one at a time, with link and register errors mapped
+runs inside ``DeviceAccess.device_op()``: one at a time, with link and register errors mapped
 to the API's errors.
 """
 
@@ -12,8 +12,11 @@ from __future__ import annotations
 
 import logging
 import time
-from typing import TYPE_CHECKING, Any
+from collections.abc import Callable, Mapping
+from typing import Any
 
+from camd.daemon.device import DeviceAccess
+from camd.daemon.errors import BadRequest, DeviceRejected, LinkUntrained, SessionError
 from camd.daemon.models import (
     LaneResult,
     RegisterConfig,
@@ -27,12 +30,66 @@ from camd.daemon.models import (
 )
 from camd.daemon.state import Request
 from camd.sensor.bridge import RegisterBridge
-from camd.sensor.fpga_bridge import FpgaBridge
+from camd.sensor.profile import list_profiles, load_profile
 from camd.sensor.registers import SensorRegisters
-from camd.sensor.regmap import RegisterMap, load_register_map
+from camd.sensor.regmap import (
+    RegisterAccessError,
+    RegisterMap,
+    RegisterValueError,
+    load_register_map,
+)
+from camd.sensor.timing_view import SensorTiming, sensor_timing
 
-if TYPE_CHECKING:
-    from camd.daemon.session import DeviceSession
+BridgeFactory = Callable[[RegisterMap], RegisterBridge]
+
+
+class RegisterSnapshot:
+    """The sensor's registers at one moment (raw values), and what writes would make of them.
+
+    ``preview(writes)`` validates ``writes`` as a write would and returns the timing they would
+    set, with nothing sent (pure); ``changed(writes)`` names the registers they would change.
+    """
+
+    def __init__(
+        self, regmap: RegisterMap, registers: SensorRegisters, raw: dict[str, int]
+    ) -> None:
+        self.regmap = regmap
+        self.raw = raw
+        self._registers = registers
+
+    def value(self, name: str) -> int | str:
+        """A value name's value (``REG``, ``REG.field`` or ``GROUP``) in the snapshot."""
+        return self.regmap.value_of(name, lambda reg: self.raw[reg.name])
+
+    def timing(self) -> TimingResponse:
+        """The timing the snapshot's registers set."""
+        return TimingResponse.model_validate(sensor_timing(self.regmap, self.value).as_dict())
+
+    def columns(self) -> int:
+        """Columns per window row (the window-columns role, else the whole row)."""
+        count = self.regmap.role_count("window_columns", self.value)
+        return self.regmap.columns if count is None else count
+
+    def _plan(self, writes: Mapping[str, int | str]) -> tuple[dict[str, int], SensorTiming]:
+        try:
+            return self._registers.preview(writes, self.raw)
+        except (RegisterAccessError, RegisterValueError) as exc:
+            raise BadRequest(str(exc)) from None
+
+    def preview(self, writes: Mapping[str, int | str]) -> TimingResponse:
+        """The timing ``writes`` would set; BadRequest for a write that would be refused."""
+        if not writes:
+            return self.timing()
+        _, timing = self._plan(writes)
+        return TimingResponse.model_validate(timing.as_dict())
+
+    def changed(self, writes: Mapping[str, int | str]) -> list[str]:
+        """The registers ``writes`` would change, by name."""
+        if not writes:
+            return []
+        values, _ = self._plan(writes)
+        return [name for name, raw in values.items() if raw != self.raw[name]]
+
 
 log = logging.getLogger(__name__)
 
@@ -40,9 +97,10 @@ log = logging.getLogger(__name__)
 class SensorService:
     """Registers, timing and link training of the session's camera."""
 
-    def __init__(self, session: DeviceSession) -> None:
-        self.session = session
-        self.config = session.config.sensor
+    def __init__(self, device: DeviceAccess, make_bridge: BridgeFactory) -> None:
+        self.device = device
+        self.config = device.config.sensor
+        self._make_bridge = make_bridge
         self.regmap: RegisterMap = load_register_map(self.config.name)
         self.device_sensor: str | None = None  # what GET_SENSOR reported at the last connect
         self.interface = self.regmap.output.interface
@@ -59,14 +117,12 @@ class SensorService:
 
         Returns True if the camera is streaming (the session then stops the stream).
         """
-        from camd.daemon.session import SessionError
-
-        values = self.session.request("GET_SENSOR").values
+        values = self.device.request("GET_SENSOR").values
         self.device_sensor = str(values["sensor"])
         self.trained = values["trained"] == "yes"
         self.streaming = values["imaging"] == "yes"
         if self.device_sensor != self.regmap.sensor:
-            self.session.log_event(
+            self.device.log_event(
                 "error",
                 "sensor",
                 f"the camera reports sensor {self.device_sensor!r} but sensor.name is "
@@ -74,26 +130,25 @@ class SensorService:
             )
             return self.streaming
         try:
-            with self.session.device_op():
+            with self.device.device_op():
                 self._sensor_registers().sync()
         except SessionError as exc:
-            self.session.log_event("warning", "sensor", f"could not read the registers: {exc}")
+            self.device.log_event("warning", "sensor", f"could not read the registers: {exc}")
         if not self.streaming and self.config.train_on_connect and not self.trained:
             try:
                 self.train(require=False)
             except SessionError as exc:
-                self.session.log_event("error", "sensor", f"training on connect failed: {exc}")
+                self.device.log_event("error", "sensor", f"training on connect failed: {exc}")
         return self.streaming
 
     def on_event(self, name: str, values: dict[str, Any]) -> bool:
         """Handle a sensor-related device event; True if it was one."""
         if name == "LINK_LOST":
             self.trained = False
-            self.session.log_event("warning", "device", "LVDS link lost its training")
-            self.session.stream.on_link_lost_training()
+            self.device.log_event("warning", "device", "LVDS link lost its training")
             return True
         if name == "LINK_TRAINED":
-            self.session.log_event(
+            self.device.log_event(
                 "info", "device", f"LINK_TRAINED locked={values.get('locked')} "
                 f"bit_errors={values.get('bit_errors')}"
             )  # fmt: skip
@@ -111,7 +166,7 @@ class SensorService:
     def read(self, key: str) -> RegisterReading:
         """One register by name or address."""
         self._checked(Request.REGISTERS_READ)
-        with self.session.device_op():
+        with self.device.device_op():
             registers = self._sensor_registers()
             reading = registers.read(_key(key))
         return RegisterReading.model_validate(reading.as_dict())
@@ -119,7 +174,7 @@ class SensorService:
     def dump(self) -> RegistersResponse:
         """Every register, in address order."""
         self._checked(Request.REGISTERS_READ)
-        with self.session.device_op():
+        with self.device.device_op():
             registers = self._sensor_registers()
             readings = registers.dump()
         return RegistersResponse(
@@ -131,11 +186,11 @@ class SensorService:
     def write(self, values: dict[str, int | str]) -> RegisterWriteResponse:
         """Validate everything, write in one burst, verify; nothing is written if invalid."""
         self._checked(Request.REGISTERS_WRITE)
-        with self.session.device_op():
+        with self.device.device_op():
             registers = self._sensor_registers()
             written = registers.write(values)
         names = ", ".join(f"{k}={v}" for k, v in values.items())
-        self.session.log_event("info", "api", f"registers written: {names}")
+        self.device.log_event("info", "api", f"registers written: {names}")
         return RegisterWriteResponse(
             sensor=self.regmap.sensor,
             written=[RegisterReading.model_validate(r.as_dict()) for r in written],
@@ -146,14 +201,14 @@ class SensorService:
         period follows the stage): validated and verified like ``write``, but legal while
         streaming and not logged as an event (it runs many times a second)."""
         self._checked(Request.REGISTERS_READ)
-        with self.session.device_op():
+        with self.device.device_op():
             self._sensor_registers().write(values)
 
     def diff(self, against: str, values: dict[str, int] | None) -> RegisterDiffResponse:
         """Registers that differ from their reset values or from ``values``."""
         self._checked(Request.REGISTERS_READ)
         target: Any = "reset" if against == "reset" else dict(values or {})
-        with self.session.device_op():
+        with self.device.device_op():
             registers = self._sensor_registers()
             diffs = registers.diff(target)
         return RegisterDiffResponse(
@@ -170,7 +225,7 @@ class SensorService:
     def configuration(self) -> RegisterConfig:
         """The configurable registers as they are now (what `camctl reg save` writes)."""
         self._checked(Request.REGISTERS_READ)
-        with self.session.device_op():
+        with self.device.device_op():
             registers = self._sensor_registers()
             values = registers.configuration()
         return RegisterConfig(sensor=self.regmap.sensor, registers=values)
@@ -178,12 +233,12 @@ class SensorService:
     def load_configuration(self, config: RegisterConfig) -> RegisterWriteResponse:
         """Write a saved configuration: refused whole if it is for another sensor or invalid."""
         self._checked(Request.REGISTERS_WRITE)
-        with self.session.device_op():
+        with self.device.device_op():
             registers = self._sensor_registers()
             written = registers.load_configuration(
                 config.sensor, config.registers, source="the configuration"
             )
-        self.session.log_event(
+        self.device.log_event(
             "info", "api", f"configuration of {len(config.registers)} registers loaded"
         )
         return RegisterWriteResponse(
@@ -194,7 +249,7 @@ class SensorService:
     def timing(self) -> TimingResponse:
         """The timing the sensor's registers set now."""
         self._checked(Request.REGISTERS_READ)
-        with self.session.device_op():
+        with self.device.device_op():
             registers = self._sensor_registers()
             timing = registers.timing()
         return TimingResponse.model_validate(timing.as_dict())
@@ -204,12 +259,12 @@ class SensorService:
     def train(self, *, require: bool = True) -> TrainResponse:
         """TRAIN the LVDS link and read every lane's result."""
         if require:
-            self.session.require(Request.TRAIN)
-        values = self.session.request("TRAIN").values
+            self.device.require(Request.TRAIN)
+        values = self.device.request("TRAIN").values
         lanes = int(values["lanes"])
         results = []
         for lane in range(lanes):
-            lane_values = self.session.request("GET_LANE", lane=lane).values
+            lane_values = self.device.request("GET_LANE", lane=lane).values
             results.append(
                 LaneResult(
                     lane=lane,
@@ -236,7 +291,7 @@ class SensorService:
             t_s=time.time(),
         )
         level = "info" if self.trained else "error"
-        self.session.log_event(level, "sensor", self.training_summary())
+        self.device.log_event(level, "sensor", self.training_summary())
         return self._training
 
     def last_training(self) -> TrainResponse:
@@ -280,8 +335,6 @@ class SensorService:
 
     def require_trained(self, what: str) -> None:
         """Raise LinkUntrained unless the sensor's output link is trained."""
-        from camd.daemon.session import LinkUntrained
-
         if not self.trained:
             raise LinkUntrained(
                 f"cannot {what}: {self.training_summary()}; run `camctl train` "
@@ -290,21 +343,34 @@ class SensorService:
 
     def window_columns(self) -> int:
         """Columns per window row: the window-columns role if the map has one, else all."""
-        with self.session.device_op():
+        with self.device.device_op():
             registers = self._sensor_registers()
             count = self.regmap.role_count("window_columns", registers.read_value)
         return self.regmap.columns if count is None else count
 
+    def snapshot(self) -> RegisterSnapshot:
+        """Every register's raw value now, read once: what a plan is made against and what a
+        failed request is restored to."""
+        self._checked(Request.REGISTERS_READ)
+        with self.device.device_op():
+            registers = self._sensor_registers()
+            raw = registers.raw_values()
+        return RegisterSnapshot(self.regmap, registers, raw)
+
+    def restore(self, snapshot: RegisterSnapshot, names: list[str]) -> None:
+        """Write the registers ``names`` back to their values in ``snapshot`` (verified)."""
+        if names:
+            with self.device.device_op():
+                self._sensor_registers().write({name: snapshot.raw[name] for name in names})
+
     def register_values(self) -> dict[str, int]:
         """The configurable registers' values now (for recordings' metadata)."""
         self._checked(Request.REGISTERS_READ)
-        with self.session.device_op():
+        with self.device.device_op():
             return dict(self._sensor_registers().configuration())
 
     def profile_metadata(self) -> dict[str, Any]:
         """The camera profile of this sensor as plain values, for recordings (empty if none)."""
-        from camd.sensor.profile import list_profiles, load_profile
-
         if self.regmap.sensor not in list_profiles():
             return {"sensor": self.regmap.sensor}
         return load_profile(self.regmap.sensor).model_dump(mode="json")
@@ -312,9 +378,7 @@ class SensorService:
     # -- internals -------------------------------------------------------------------------------
 
     def _checked(self, request: Request) -> None:
-        from camd.daemon.session import DeviceRejected
-
-        self.session.require(request)
+        self.device.require(request)
         if self.device_sensor is not None and self.device_sensor != self.regmap.sensor:
             raise DeviceRejected(
                 f"the camera reports sensor {self.device_sensor!r} but the daemon's register map "
@@ -327,33 +391,9 @@ class SensorService:
         """The register layer, its bridge opened on first use. Call inside ``device_op()``:
         opening a USB-SPI bridge can fail, and its errors must reach the client mapped."""
         if self._registers is None:
-            self._bridge = self._make_bridge()
+            self._bridge = self._make_bridge(self.regmap)
             self._registers = SensorRegisters(self.regmap, self._bridge)
         return self._registers
-
-    def _make_bridge(self) -> RegisterBridge:
-        if self.config.bridge == "fpga":
-            link = self.session.link
-            if link is None:
-                raise RuntimeError("the session has no command link")
-            return FpgaBridge(link)
-        from camd.sensor.mcp2210 import Mcp2210Bridge
-
-        usb = self.config.usb_spi
-        backend: Any = None
-        if usb.backend == "sim":
-            # The simulated chip is wired to the spawned simulator's SPI bus.
-            from firmware_models.usb_spi import SocketSpiTarget, get_backend
-
-            backend = get_backend(SocketSpiTarget(self.session.config.sim_spi_socket))
-        return Mcp2210Bridge(
-            self.regmap.spi,
-            backend=backend,
-            vendor_id=usb.vendor_id,
-            product_id=usb.product_id,
-            serial=usb.serial or None,
-            cs_pin=usb.cs_pin,
-        )
 
 
 def _key(text: str) -> str | int:

@@ -24,7 +24,8 @@ import uvicorn
 from camd.daemon import notify
 from camd.daemon.api import create_app
 from camd.daemon.config import Config, ConfigError, load_config, with_overrides
-from camd.daemon.session import DeviceSession, SimulatorError
+from camd.daemon.errors import SimulatorError
+from camd.daemon.session import DeviceSession
 
 log = logging.getLogger("camd.serve")
 

@@ -1,11 +1,14 @@
-"""The device session: the one owner of the command link, the state machine and telemetry.
+"""The device session: composes the daemon's parts and owns their lifecycle.
 
-``DeviceSession(config)`` spawns the simulated camera when ``link.device = "sim"`` (and only
-then: camd names firmware_models nowhere else), opens the CommandLink, follows its connection
-changes, telemetry and events, and runs a service loop that polls housekeeping and pets the
-systemd watchdog. The API calls its operations (``status``, ``ping``, ``link_stats``,
-``telemetry``, ``history``, ``events``, ``set_mode``, ``reset``); each checks the state machine
-first, so an illegal request never reaches the device.
+``DeviceSession(config)`` spawns the simulated camera when ``link.device = "sim"`` (the
+backends are chosen in ``camd.daemon.backends``), opens the CommandLink inside a
+``DeviceAccess`` (link, FIFO lock, state machine, event log), builds the services on it (sensor,
+stream, motion, scan, wheel, simulator control: each handed the device access and its peers,
+never the session), follows the link's connection changes, telemetry and events, and runs a
+service loop that polls housekeeping and pets the systemd watchdog. The API calls its
+operations (``status``, ``ping``, ``link_stats``, ``telemetry``, ``history``, ``events``,
+``set_mode``, ``reset``); each checks the state machine first, so an illegal request never
+reaches the device.
 
 Threads: the link's reader thread calls ``_on_message`` (quick work only: archive, limits,
 state); the service loop thread does everything that waits for the device outside requests
@@ -17,26 +20,27 @@ the watchdog).
 from __future__ import annotations
 
 import contextlib
-import ctypes
-import json
 import logging
 import os
-import queue
 import random
-import signal
-import subprocess
-import sys
 import threading
 import time
-from collections.abc import Iterator, Mapping
-from pathlib import Path
+from collections.abc import Mapping
 from typing import Any, cast
 
 import numpy as np
 
 import camd
-from camd.daemon import notify
+from camd.daemon import backends, notify
 from camd.daemon.config import HOUSEKEEPING_PACKET, Config, telemetry_channels
+from camd.daemon.device import DeviceAccess
+from camd.daemon.errors import (
+    BadRequest,
+    DeviceRejected,
+    DeviceTimeout,
+    Disconnected,
+    SessionError,
+)
 from camd.daemon.models import (
     ChannelLatest,
     DaemonInfo,
@@ -56,276 +60,27 @@ from camd.daemon.models import (
 from camd.daemon.motion_service import MotionService
 from camd.daemon.scan_service import ScanService
 from camd.daemon.sensor_service import SensorService
-from camd.daemon.state import (
-    HOW_TO_LEAVE,
-    IllegalState,
-    Request,
-    State,
-    StateMachine,
-    Trigger,
-    is_legal,
-)
+from camd.daemon.simulator import SimulatorProcess
+from camd.daemon.state import Request, State, Trigger
 from camd.daemon.stream_service import StreamService
 from camd.daemon.telemetry import LimitChecker, TelemetryArchive, classify
 from camd.daemon.wheel_service import WheelService
 from camd.link import (
     CommandLink,
-    CommandRejected,
-    CommandTimeout,
     ConnectionChange,
-    LinkDown,
-    LinkError,
     Message,
     Response,
     Unsolicited,
 )
-from camd.protocol import Dictionary, EncodeError, FrameType, load_dictionary
+from camd.protocol import Dictionary, FrameType, load_dictionary
 from camd.protocol.dictionary import FieldValue
-from camd.sensor.bridge import BridgeError
-from camd.sensor.regmap import RegisterAccessError, RegisterValueError
 
 log = logging.getLogger(__name__)
 
-SIM_DEVICE = "sim"
-SIM_START_TIMEOUT_S = 20.0  # the simulator imports numpy and the dictionary before its line
-SIM_STOP_TIMEOUT_S = 5.0
 PROBE_RETRY_S = 1.0  # after a GET_STATUS probe went unanswered
 MAX_LOOP_SLEEP_S = 0.25  # the service loop wakes at least this often (stop, sim exit, probes)
 PING_ERRORS_MAX = 5
 PRUNE_PERIOD_S = 3600.0  # how often old telemetry samples are deleted
-
-
-# -- errors the API maps to HTTP statuses -------------------------------------------------------
-
-
-class SessionError(Exception):
-    """Base of the errors a session operation raises; str() says what to change."""
-
-
-class Disconnected(SessionError):
-    """No camera on the link (HTTP 503)."""
-
-
-class DeviceTimeout(SessionError):
-    """The device did not answer after every retry (HTTP 504)."""
-
-
-class DeviceRejected(SessionError):
-    """The device refused the command (NAK) or answered something undecodable (HTTP 502)."""
-
-    def __init__(self, message: str, name: str = "") -> None:
-        super().__init__(message)
-        self.name = name
-
-
-class BadRequest(SessionError, ValueError):
-    """A parameter is invalid (HTTP 400)."""
-
-
-class LinkUntrained(SessionError):
-    """Imaging refused: the sensor's LVDS link is not trained (HTTP 409)."""
-
-
-class SimulatorError(SessionError):
-    """The simulated camera could not be started; ``usage`` is True for bad arguments."""
-
-    def __init__(self, message: str, usage: bool = False) -> None:
-        super().__init__(message)
-        self.usage = usage
-
-
-# -- helpers -------------------------------------------------------------------------------------
-
-
-class _FairLock:
-    """A FIFO lock: waiters get it in arrival order.
-
-    threading.Lock lets a thread that releases and re-acquires in a loop (a 100000-PING run)
-    win every time; the service loop's poll, and so the watchdog, would then starve.
-    """
-
-    def __init__(self) -> None:
-        self._cond = threading.Condition(threading.Lock())
-        self._next_ticket = 0
-        self._serving = 0
-
-    @contextlib.contextmanager
-    def hold(self) -> Iterator[None]:
-        """Hold the lock for a ``with`` block, after every earlier waiter."""
-        with self._cond:
-            ticket = self._next_ticket
-            self._next_ticket += 1
-            while ticket != self._serving:
-                self._cond.wait()
-        try:
-            yield
-        finally:
-            with self._cond:
-                self._serving += 1
-                self._cond.notify_all()
-
-
-def _set_parent_death_signal() -> None:
-    """In the simulator child: receive SIGTERM when the daemon dies, even by SIGKILL."""
-    try:
-        libc = ctypes.CDLL(None, use_errno=True)
-        pr_set_pdeathsig = 1
-        libc.prctl(pr_set_pdeathsig, signal.SIGTERM)
-    except (OSError, AttributeError):
-        pass  # not Linux: the simulator then outlives a killed daemon, as any child would
-
-
-class SimulatorProcess:
-    """The simulated camera as a child process: ``python -m firmware_models --json --link``."""
-
-    def __init__(
-        self,
-        link_path: Path,
-        *,
-        inject: str = "",
-        hk_period_s: float = 1.0,
-        seed: int = 0,
-        profile: str = "hr400",
-        spi_socket: Path | None = None,
-        usb_socket: Path | None = None,
-        scene: str = "",
-        frame_bank: int = 0,
-        stage: str = "linear_rail",
-    ) -> None:
-        self.link_path = link_path
-        self.command = [
-            sys.executable,
-            "-m",
-            "firmware_models",
-            "--json",
-            "--link",
-            str(link_path),
-            "--hk-period-s",
-            f"{hk_period_s:g}",
-            "--seed",
-            str(seed),
-            "--profile",
-            profile,
-            "--stage",
-            stage,
-        ]
-        if inject:
-            self.command += ["--inject", inject]
-        if spi_socket is not None:
-            self.command += ["--spi-socket", str(spi_socket)]
-        if usb_socket is not None:
-            self.command += ["--usb-socket", str(usb_socket)]
-        if scene:
-            self.command += ["--scene", scene]
-        if frame_bank:
-            self.command += ["--frame-bank", str(frame_bank)]
-        self.info: dict[str, Any] = {}
-        self._proc: subprocess.Popen[str] | None = None
-        self._exit_reported = False
-
-    @property
-    def pid(self) -> int | None:
-        """The child's pid while it runs, else None."""
-        return self._proc.pid if self._proc is not None and self._proc.poll() is None else None
-
-    def returncode(self) -> int | None:
-        """The exit status once the child has exited (reaping it), else None."""
-        return None if self._proc is None else self._proc.poll()
-
-    def start(self, timeout_s: float = SIM_START_TIMEOUT_S) -> dict[str, Any]:
-        """Spawn the simulator and return its JSON start line as a dict.
-
-        Raises SimulatorError if it exits or stays silent for ``timeout_s`` (it is then killed).
-        """
-        self.link_path.parent.mkdir(parents=True, exist_ok=True)
-        env = dict(os.environ)
-        # The child is not the service: it must not talk to systemd in our name.
-        for key in ("NOTIFY_SOCKET", "WATCHDOG_USEC", "WATCHDOG_PID"):
-            env.pop(key, None)
-        # Run the same checkout as this daemon even when camd is not installed.
-        root = str(Path(camd.__file__).resolve().parent.parent)
-        paths = [root, *[p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p]]
-        env["PYTHONPATH"] = os.pathsep.join(dict.fromkeys(paths))
-        env["PYTHONUNBUFFERED"] = "1"
-        log.info("starting the simulated camera: %s", " ".join(self.command))
-        self._proc = subprocess.Popen(
-            self.command,
-            stdin=subprocess.DEVNULL,
-            stdout=subprocess.PIPE,
-            stderr=None,  # its messages go where ours go (the journal under systemd)
-            text=True,
-            env=env,
-            preexec_fn=_set_parent_death_signal if sys.platform == "linux" else None,
-        )
-        assert self._proc.stdout is not None
-        lines: queue.Queue[str] = queue.Queue()
-        reader = threading.Thread(
-            target=self._drain, args=(self._proc.stdout, lines), name="sim-stdout", daemon=True
-        )
-        reader.start()
-        try:
-            line = lines.get(timeout=timeout_s)
-        except queue.Empty:
-            self.stop()
-            raise SimulatorError(
-                f"the simulated camera printed nothing within {timeout_s:g} s "
-                f"({' '.join(self.command)}); see its messages above"
-            ) from None
-        if not line:
-            code = self._proc.wait()
-            raise SimulatorError(
-                f"the simulated camera exited with status {code} before it was ready "
-                f"({' '.join(self.command)}); its messages above say why (check [sim] in the "
-                "config, e.g. the inject spec)",
-                usage=code == 2,
-            )
-        try:
-            self.info = json.loads(line)
-        except json.JSONDecodeError:
-            self.stop()
-            raise SimulatorError(
-                f"the simulated camera's start line is not JSON: {line.strip()!r}"
-            ) from None
-        return self.info
-
-    @staticmethod
-    def _drain(stream: Any, lines: queue.Queue[str]) -> None:
-        # The first line is the start line; later output is discarded so the pipe never fills.
-        first = True
-        for line in stream:
-            if first:
-                lines.put(line)
-                first = False
-            else:
-                log.debug("sim: %s", line.rstrip())
-        if first:
-            lines.put("")  # EOF before the start line: the child exited
-
-    def exit_report(self) -> str | None:
-        """Once, after the child exited on its own: a message saying so; else None."""
-        code = self.returncode()
-        if code is None or self._exit_reported:
-            return None
-        self._exit_reported = True
-        how = f"killed by signal {-code}" if code < 0 else f"exited with status {code}"
-        return (
-            f"the simulated camera (pid {self._proc.pid if self._proc else '?'}) {how}; "
-            f"it is not restarted: run `camd sim --link {self.link_path}` to reconnect"
-        )
-
-    def stop(self, timeout_s: float = SIM_STOP_TIMEOUT_S) -> None:
-        """Terminate the child (SIGTERM, then SIGKILL) and reap it."""
-        proc = self._proc
-        if proc is None or proc.poll() is not None:
-            return
-        self._exit_reported = True  # our own doing, not worth an error event
-        proc.terminate()
-        try:
-            proc.wait(timeout=timeout_s)
-        except subprocess.TimeoutExpired:
-            log.warning("the simulated camera ignored SIGTERM for %g s; killing it", timeout_s)
-            proc.kill()
-            proc.wait()
 
 
 # -- the session ---------------------------------------------------------------------------------
@@ -338,39 +93,45 @@ class DeviceSession:
         self.config = config
         self.dictionary = dictionary or load_dictionary()
         self.channels: dict[str, str] = telemetry_channels()  # name -> unit
-        self.machine = StateMachine(State.DISCONNECTED, "not connected yet")
         self.checker = LimitChecker(config.telemetry.limits)
-        self.sim: SimulatorProcess | None = None
+        self.sim_process: SimulatorProcess | None = None
         self.archive: TelemetryArchive | None = None
-        self.link: CommandLink | None = None
+        self.device = DeviceAccess(config, self.dictionary, self._event)
+        self.machine = self.device.machine
 
-        self._device_lock = _FairLock()
         self._stop = threading.Event()
         self._wake = threading.Event()
         self._probe_needed = threading.Event()
         self._thread: threading.Thread | None = None
         self._unsubscribe: Any = None
         self._started_mono = time.monotonic()
-        self._mode: str | None = None
-        self._probe_error: str | None = None
         self._poll_error: str | None = None
         self._last_values: dict[str, float] = {}
         self._red_lock = threading.Lock()
         self._red_acknowledged: set[str] = set()
-        self.sensor = SensorService(self)
-        self.stream = StreamService(self)
-        self.scan = ScanService(self)
-        self.motion = MotionService(self)
-        self.wheel = WheelService(self)
+        device = self.device
+        self.sim = backends.simulator_control(device)
+        self.sensor = SensorService(
+            device, lambda regmap: backends.register_bridge(config, regmap, device.link)
+        )
+        self.stream = StreamService(
+            device, self.sensor, lambda: backends.frame_stream_backend(config)
+        )
+        self.motion = MotionService(device, self.sensor)
+        self.scan = ScanService(device, self.sensor, self.stream, self.motion, self.sim)
+        self.wheel = WheelService(device, self.sensor, self.stream)
 
     # -- lifecycle ------------------------------------------------------------------------------
 
     @property
     def port(self) -> str:
         """What the link opens: the simulator's pty symlink or the configured device."""
-        if self.config.link.device == SIM_DEVICE:
-            return str(self.config.sim_link_path)
-        return self.config.link.device
+        return self.device.port
+
+    @property
+    def link(self) -> CommandLink | None:
+        """The command link (None before ``start``)."""
+        return self.device.link
 
     def start(self) -> None:
         """Open the archive, spawn the simulator if configured, open the link, start the loop.
@@ -381,26 +142,14 @@ class DeviceSession:
         self.config.daemon.data_dir.mkdir(parents=True, exist_ok=True)
         self.archive = TelemetryArchive(self.config.archive_path)
         self._event("info", "daemon", f"camd {camd.__version__} started (pid {os.getpid()})")
-        if self.config.link.device == SIM_DEVICE:
-            sim_cfg = self.config.sim
+        self.sim_process = backends.simulator_process(self.config)
+        if self.sim_process is not None:
             self.config.sim_socket_dir.mkdir(mode=0o700, parents=True, exist_ok=True)
-            self.sim = SimulatorProcess(
-                self.config.sim_link_path,
-                inject=sim_cfg.inject,
-                hk_period_s=sim_cfg.hk_period_s,
-                seed=sim_cfg.seed,
-                profile=sim_cfg.profile,
-                spi_socket=self.config.sim_spi_socket,
-                usb_socket=self.config.sim_usb_socket,
-                scene=sim_cfg.scene,
-                frame_bank=sim_cfg.frame_bank,
-                stage=self.config.stage.profile,
-            )
-            info = self.sim.start()
+            info = self.sim_process.start()
             self._event("info", "daemon", f"simulated camera started: pid {info.get('pid')}, "
                         f"tty {info.get('tty')}, link {self.port}")  # fmt: skip
         cfg = self.config.link
-        self.link = CommandLink(
+        link = self.device.link = CommandLink(
             self.port,
             dictionary=self.dictionary,
             baudrate=cfg.baudrate,
@@ -409,8 +158,8 @@ class DeviceSession:
             reconnect_min_s=cfg.reconnect_min_s,
             reconnect_max_s=cfg.reconnect_max_s,
         )
-        self._unsubscribe = self.link.subscribe(self._on_message)
-        self.link.open()
+        self._unsubscribe = link.subscribe(self._on_message)
+        link.open()
         self._stop.clear()
         self._thread = threading.Thread(target=self._service_loop, name="camd-service", daemon=True)
         self._thread.start()
@@ -434,8 +183,8 @@ class DeviceSession:
         self.sensor.close()
         if self.link is not None:
             self.link.close()
-        if self.sim is not None:
-            self.sim.stop()
+        if self.sim_process is not None:
+            self.sim_process.stop()
         if self.archive is not None:
             with contextlib.suppress(Exception):
                 self._event("info", "daemon", "camd stopped")
@@ -478,7 +227,7 @@ class DeviceSession:
             try:
                 values = self._request("GET_STATUS").values
                 device = DeviceStatus.model_validate(values)
-                self._mode = device.mode
+                self.device.note_mode(device.mode)
                 if device.device_state == "fault":
                     # A FAULT event lost on a noisy line must not leave us believing idle.
                     self._fire(
@@ -491,13 +240,13 @@ class DeviceSession:
         link = self.link
         return StatusResponse(
             state=snap.state.value,
-            reason=self._reason(snap.state, snap.reason),
-            mode=cast(Any, self._mode),
+            reason=self.device.reason(snap.state, snap.reason),
+            mode=cast(Any, self.device.mode),
             link=LinkInfo(
                 port=self.port,
                 connected=link is not None and link.connected,
                 last_error=link.last_error if link is not None else "not opened",
-                sim_pid=self.sim.pid if self.sim is not None else None,
+                sim_pid=self.sim_process.pid if self.sim_process is not None else None,
             ),
             device=device,
             daemon=DaemonInfo(version=camd.__version__, pid=os.getpid(), uptime_s=self.uptime_s),
@@ -565,13 +314,7 @@ class DeviceSession:
         if self.machine.state != State.DISCONNECTED:
             try:
                 stats: dict[str, Any] = dict(self._request("GET_LINK_STATS").values)
-                injected: dict[str, Any] | None
-                try:
-                    injected = dict(self._request("SIM_GET_INJECTED").values)
-                except DeviceRejected as exc:
-                    if exc.name != "UNKNOWN_OPCODE":
-                        raise
-                    injected = None  # real hardware: no fault injector
+                injected = self.sim.injected()
                 device = DeviceLinkStats.model_validate({**stats, "injected": injected})
             except SessionError as exc:
                 log.info("link: device counters unavailable: %s", exc)
@@ -615,21 +358,18 @@ class DeviceSession:
     @property
     def mode(self) -> str | None:
         """The imaging mode last known (None before first contact)."""
-        return self._mode
+        return self.device.mode
 
     def set_mode(self, mode: str) -> ModeResponse:
         """Select the imaging mode (area or tdi)."""
         self._require(Request.MODE)
-        response = self._request("SET_MODE", mode=mode)
-        self._mode = str(response.values["mode"])
-        self._event("info", "api", f"mode set to {self._mode}")
-        return ModeResponse(mode=cast(Any, self._mode))
+        return ModeResponse(mode=cast(Any, self.device.set_mode(mode)))
 
     def reset(self) -> StatusResponse:
         """Soft-reset the device; on success the daemon is idle. Returns the status after."""
         self._require(Request.RESET)
         self._request("RESET")
-        self._mode = "area"  # RESET puts the device back in area mode
+        self.device.note_mode("area")  # RESET puts the device back in area mode
         self.stream.on_reset()  # and stops the sequencer; BOOT leads to a retrain
         with self._red_lock:
             # The operator has seen the red channels; they trip again only after recovering.
@@ -648,84 +388,13 @@ class DeviceSession:
         return self.archive
 
     def _require(self, request: Request) -> None:
-        snap = self.machine.snapshot
-        if is_legal(request, snap.state):
-            return
-        if snap.state == State.DISCONNECTED:
-            raise Disconnected(self._disconnected_message())
-        raise IllegalState(request, snap.state, snap.reason)
+        self.device.require(request)
 
-    def _disconnected_message(self) -> str:
-        why = self._reason(State.DISCONNECTED, self.machine.snapshot.reason)
-        hint = HOW_TO_LEAVE[State.DISCONNECTED]
-        if self.config.link.device == SIM_DEVICE:
-            hint += f"; to attach a new simulator: `camd sim --link {self.port}`"
-        return f"no camera on {self.port} ({why}); {hint}"
-
-    def _reason(self, state: State, reason: str | None) -> str | None:
-        if state != State.DISCONNECTED:
-            return reason
-        link = self.link
-        if link is not None and link.connected:
-            return self._probe_error or "link open; waiting for the device to answer GET_STATUS"
-        if link is not None and link.last_error:
-            return f"last link error: {link.last_error}"
-        return reason
-
-    @contextlib.contextmanager
-    def device_op(self) -> Iterator[CommandLink]:
-        """Hold the device (FIFO) for one operation; link and register errors become
-        SessionErrors. Several requests inside one ``device_op`` run back to back."""
-        link = self.link
-        if link is None:
-            raise Disconnected(self._disconnected_message())
-        with self._device_lock.hold():
-            try:
-                yield link
-            except LinkDown as exc:
-                if not link.connected:  # else the link came back meanwhile; keep its state
-                    self._fire(Trigger.LINK_LOST, f"link lost: {link.last_error}")
-                raise Disconnected(str(exc)) from None
-            except CommandTimeout as exc:
-                raise DeviceTimeout(str(exc)) from None
-            except CommandRejected as exc:
-                if exc.name == "DEVICE_FAULT":
-                    self._fire(Trigger.DEVICE_FAULT, str(exc))
-                raise DeviceRejected(str(exc), exc.name) from None
-            except (EncodeError, RegisterAccessError, RegisterValueError) as exc:
-                raise BadRequest(str(exc)) from None
-            except LinkError as exc:
-                raise DeviceRejected(str(exc), "UNDECODABLE") from None
-            except BridgeError as exc:
-                raise DeviceRejected(str(exc), type(exc).__name__) from None
-
-    def request(self, command: str, **fields: Any) -> Response:
-        """One device request through the FIFO lock, errors mapped to SessionErrors."""
-        with self.device_op() as link:
-            return link.request(command, **fields)
-
-    _request = request
-
-    def require(self, request: Request) -> None:
-        """Raise Disconnected or IllegalState unless ``request`` is legal now."""
-        self._require(request)
-
-    def fire(self, trigger: Trigger, reason: str | None) -> None:
-        """Move the state machine (and log the change as an event)."""
-        self._fire(trigger, reason)
-
-    def log_event(self, level: str, source: str, message: str) -> None:
-        """Log and archive an event."""
-        self._event(level, source, message)
+    def _request(self, command: str, **fields: Any) -> Response:
+        return self.device.request(command, **fields)
 
     def _fire(self, trigger: Trigger, reason: str | None) -> None:
-        change = self.machine.fire(trigger, reason)
-        if change is None:
-            return
-        level = {State.FAULT: "error", State.DISCONNECTED: "warning"}.get(change.new, "info")
-        why = f": {change.reason}" if change.reason else ""
-        self._event(level, "daemon", f"state {change.old.value} -> {change.new.value}{why}")
-        notify.status(f"camera {change.new.value}{why}")
+        self.device.fire(trigger, reason)
 
     def _event(self, level: str, source: str, message: str, t_s: float | None = None) -> None:
         getattr(log, "error" if level == "error" else level)("%s: %s", source, message)
@@ -745,7 +414,7 @@ class DeviceSession:
                 self.checker.clear()  # maybe another camera: start its limits afresh
                 with self._red_lock:
                     self._red_acknowledged.clear()
-                self._probe_error = None
+                self.device.probe_error = None
                 self._probe_needed.set()
                 self._wake.set()
             else:
@@ -760,19 +429,19 @@ class DeviceSession:
 
     def _on_device_event(self, message: Unsolicited) -> None:
         values = message.values
-        if self.sensor.on_event(message.name, dict(values)):
-            return
-        if self.stream.on_event(message.name, dict(values)):
+        handled = self.sensor.on_event(message.name, dict(values))
+        handled = self.stream.on_event(message.name, dict(values)) or handled
+        if handled:
             return
         if message.name == "FAULT":
             text = self.dictionary.describe_error(int(values.get("fault_code", 0)))
             self._event("error", "device", f"FAULT {text}", message.t_s)
             self._fire(Trigger.DEVICE_FAULT, f"device fault {text}")
         elif message.name == "MODE_CHANGED":
-            self._mode = str(values.get("mode"))
-            self._event("info", "device", f"mode changed to {self._mode}", message.t_s)
+            self.device.note_mode(str(values.get("mode")))
+            self._event("info", "device", f"mode changed to {self.device.mode}", message.t_s)
         elif message.name == "BOOT":
-            self._mode = "area"
+            self.device.note_mode("area")
             self._event(
                 "info", "device", f"BOOT (boot count {values.get('boot_count', 0)!s})", message.t_s
             )
@@ -868,8 +537,8 @@ class DeviceSession:
         return self._probe_needed.is_set() or self.machine.state == State.DISCONNECTED
 
     def _check_sim(self) -> None:
-        if self.sim is not None:
-            report = self.sim.exit_report()
+        if self.sim_process is not None:
+            report = self.sim_process.exit_report()
             if report is not None:
                 self._event("error", "daemon", report)
 
@@ -879,15 +548,15 @@ class DeviceSession:
         try:
             values = self._request("GET_STATUS").values
         except (DeviceTimeout, DeviceRejected) as exc:
-            self._probe_error = f"link open but the device did not answer GET_STATUS: {exc}"
+            self.device.probe_error = f"link open but the device did not answer GET_STATUS: {exc}"
             self._probe_needed.set()
-            log.warning("%s", self._probe_error)
+            log.warning("%s", self.device.probe_error)
             return False
         except Disconnected:
             return False  # the reconnect will set _probe_needed again
-        self._probe_error = None
+        self.device.probe_error = None
         device = DeviceStatus.model_validate(values)
-        self._mode = device.mode
+        self.device.note_mode(device.mode)
         fw = f"{device.fw_version >> 8}.{device.fw_version & 0xFF}"
         was = self.machine.state
         if device.device_state == "fault":

@@ -184,6 +184,11 @@ class IllegalState(Exception):
         self.reason = reason
 
 
+def describe(request: Request) -> str:
+    """What ``request`` does, in words ("change the imaging mode")."""
+    return _WHAT[request]
+
+
 def is_legal(request: Request, state: State) -> bool:
     """True if ``request`` is allowed in ``state``."""
     return state in LEGAL[request]

@@ -1,7 +1,8 @@
 """The daemon's frame stream: START_STREAM / STOP_STREAM and the USB ingest behind them.
 
-``StreamService`` belongs to a DeviceSession. It opens the camera's USB bulk endpoint
-(``camd.link.frame_stream.FrameStream``; the simulated FX3 or libusb, per ``[stream]``), starts
+``StreamService`` is handed the device access, the sensor service and the pyusb backend the
+config chose (``camd.daemon.backends``: the simulated FX3 or libusb, per ``[stream]``). It opens
+the camera's USB bulk endpoint (``camd.link.frame_stream.FrameStream``), starts
 the reader before it asks the camera to stream so that no frame is missed, and ends a stream
 in one place (``_finish``) whether the client stopped it, a counted stream ran out (STREAM_DONE)
 or the link lost its training: the device's ``next_counter`` tells the reader which frames it
@@ -27,31 +28,27 @@ import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, cast
+from typing import Any, cast
 
+from camd.daemon.acquisition import Acquisition
+from camd.daemon.device import DeviceAccess
+from camd.daemon.errors import BadRequest, DeviceTimeout, Disconnected, SessionError
 from camd.daemon.models import (
-    SimStreamStats,
-    StageResponse,
     StreamResponse,
     StreamStartRequest,
     StreamStats,
 )
+from camd.daemon.sensor_service import SensorService
 from camd.daemon.state import Request, Trigger
 from camd.link.frame_stream import FrameStream, ReceivedFrame, StreamError
 from camd.protocol.stream import HEADER_BYTES
 from camd.store.recording import FrameRecorder, RecordingError
 
-if TYPE_CHECKING:
-    from camd.daemon.session import DeviceSession
-
 log = logging.getLogger(__name__)
 
-SCENE_TIMEOUT_S = 2.0  # per attempt: a lost frame on a lossy line costs this much
-SCENE_RETRIES = 10
-
-DRAIN_TIMEOUT_S = 5.0
+DRAIN_TIMEOUT_S = 5.0  # after the device's last frame: how long the reader may take to catch up
 LINK_LOST_GRACE_S = 1.0  # after LINK_LOST: how long STREAM_DONE may take to follow
-SETTLE_TIMEOUT_S = 30.0  # longest a START_STREAM exchange can take (with all its retries)  # after the device's last frame: how long the reader may take to catch up
+SETTLE_TIMEOUT_S = 30.0  # longest a START_STREAM exchange can take (with all its retries)
 Consumer = Callable[[ReceivedFrame], None]
 
 
@@ -76,9 +73,13 @@ class StreamStart:
 class StreamService:
     """Start, stop and watch the camera's frame stream; record it on request."""
 
-    def __init__(self, session: DeviceSession) -> None:
-        self.session = session
-        self.config = session.config.stream
+    def __init__(
+        self, device: DeviceAccess, sensor: SensorService, usb_backend: Callable[[], Any]
+    ) -> None:
+        self.device = device
+        self.sensor = sensor
+        self.config = device.config.stream
+        self._usb_backend = usb_backend
         self.streaming = False
         self._lock = threading.RLock()  # guards the stream's bookkeeping, not the device
         self._finished = threading.Event()
@@ -94,6 +95,7 @@ class StreamService:
         self._stream_consumer: Consumer | None = None  # acquire(consumer=...): this stream's
         self._recording: str | None = None
         self._consumers: list[Consumer] = []
+        self._claimed: Acquisition | None = None  # the slot this stream took (not a scan's)
         self._info: dict[str, Any] = {
             "mode": None,
             "rows": 0,
@@ -129,21 +131,24 @@ class StreamService:
         """After a (re)connect: a stream nobody reads is stopped (its frames would be lost)."""
         if not device_streaming or self.streaming:
             return
-        self.session.log_event(
+        self.device.log_event(
             "warning",
             "stream",
             "the camera was streaming when camd connected; stopping it (nobody was reading "
             "its frames). Start it again with `camctl stream`.",
         )
-        self.session.request("STOP_STREAM")
+        self.device.request("STOP_STREAM")
 
     def on_event(self, name: str, values: dict[str, Any]) -> bool:
         """Handle a stream event (link reader thread); True if it was one."""
+        if name == "LINK_LOST":
+            self.on_link_lost_training()
+            return True
         if name != "STREAM_DONE":
             return False
         next_counter = int(values.get("next_counter", 0))
         frames_sent = int(values.get("frames_sent", 0))
-        self.session.log_event(
+        self.device.log_event(
             "info", "device", f"STREAM_DONE: {frames_sent} frames, next counter {next_counter}"
         )
         # Draining waits for the reader: not on the link's reader thread.
@@ -158,8 +163,6 @@ class StreamService:
     def check_ended(self) -> None:
         """From the service loop: end a counted stream whose STREAM_DONE event was lost on
         the line (the device's GET_STREAM says it stopped)."""
-        from camd.daemon.session import SessionError
-
         with self._lock:
             frames = int(self._info["frames_requested"])
             if not self.streaming or frames == 0:
@@ -168,7 +171,7 @@ class StreamService:
         if time.monotonic() < due:
             return
         try:
-            values = self.session.request("GET_STREAM").values
+            values = self.device.request("GET_STREAM").values
         except SessionError:
             return  # the link's own handling reports it; try again next period
         if values["streaming"] == "no":
@@ -217,12 +220,12 @@ class StreamService:
 
     def status(self) -> StreamResponse:
         """The current or last stream and its counters."""
-        self.session.require(Request.STREAM_READ)
+        self.device.require(Request.STREAM_READ)
         return self._response()
 
     def start(self, request: StreamStartRequest) -> StreamResponse:
         """Start a stream and return at once (``frames = 0``: until ``stop``)."""
-        self._start(request)
+        self._start(request, kind="stream")
         return self._response()
 
     def acquire(
@@ -238,11 +241,9 @@ class StreamService:
         come; ``request.mode``, ``stages`` and ``binning`` do not apply). ``consumer`` gets
         every frame of this stream only (on the dispatcher thread, as ``add_consumer``).
         """
-        from camd.daemon.session import BadRequest, DeviceTimeout
-
         if request.frames < 1:
             raise BadRequest("frames must be at least 1 for an acquisition; use start for 0")
-        self._start(request, start, consumer)
+        self._start(request, start, consumer, kind="stare")
         period_s = float(self._info["frame_period_s"])
         timeout_s = request.timeout_s or 2 * request.frames * period_s + 10.0
         if not self._finished.wait(timeout_s):
@@ -265,43 +266,10 @@ class StreamService:
 
     def stop(self) -> StreamResponse:
         """STOP_STREAM, then drain the reader; harmless when not streaming."""
-        self.session.require(Request.STREAM_STOP)
-        values = self.session.request("STOP_STREAM").values
+        self.device.require(Request.STREAM_STOP)
+        values = self.device.request("STOP_STREAM").values
         self._finish(int(values["next_counter"]), int(values["frames_sent"]), "stopped")
         return self._response()
-
-    # -- the simulated world ------------------------------------------------------------------
-
-    def set_scene(self, spec: str) -> None:
-        self.session.require(Request.SIM)
-        # Building a finely sampled scene takes the simulator seconds (e.g. an edge at
-        # oversample=16): wait longer per attempt, and try more often, than for a command the
-        # device answers at once. A re-send is answered from the device's record once built.
-        self.session.request(
-            "SIM_SET_SCENE", spec=spec, timeout_s=SCENE_TIMEOUT_S, retries=SCENE_RETRIES
-        )
-        self.session.log_event("info", "api", f"simulated scene: {spec}")
-
-    def set_seed(self, seed: int) -> None:
-        """Simulated camera only: restart its temporal noise and frame-fault streams."""
-        self.session.require(Request.SIM)
-        self.session.request("SIM_SET_SEED", seed=seed)
-        self.session.log_event("info", "api", f"simulator random streams re-seeded with {seed}")
-
-    def set_stage(self, *, track: bool, speed_m_s: float) -> StageResponse:
-        self.session.require(Request.SIM)
-        values = self.session.request(
-            "SIM_SET_STAGE", track="yes" if track else "no", speed_m_s=speed_m_s
-        ).values
-        return StageResponse(
-            speed_m_s=float(values["speed_m_s"]),
-            sync_speed_m_s=float(values["sync_speed_m_s"]),
-            track=track,
-        )
-
-    def sim_stats(self) -> SimStreamStats:
-        self.session.require(Request.SIM)
-        return SimStreamStats.model_validate(self.session.request("SIM_GET_STREAM_STATS").values)
 
     # -- internals --------------------------------------------------------------------------------
 
@@ -310,24 +278,45 @@ class StreamService:
         request: StreamStartRequest,
         start: StreamStart | None = None,
         consumer: Consumer | None = None,
+        *,
+        kind: str,
     ) -> None:
-        # One start at a time: a second client's start waits here, then finds the daemon
-        # streaming and is refused by the state machine, never touching the running reader.
+        # One start at a time: a second client's start waits here, then finds the slot taken
+        # and is refused (Busy), never touching the running reader. A scan or a wheel run
+        # that already holds the slot starts its stream inside its own claim.
+        slot = self.device.acquisition
         with self._start_lock:
-            self._start_locked(request, start, consumer)
+            owner = slot.applying_now()
+            claimed = None
+            if owner is None:
+                what = "until stopped" if request.frames == 0 else f"{request.frames} frames"
+                if request.record:
+                    what += f" to {request.record}"
+                claimed = slot.claim(kind, what)
+            acquisition = owner or claimed
+            assert acquisition is not None
+            with self._lock:
+                self._claimed = claimed  # before the start: its STREAM_DONE may come at once
+            try:
+                with slot.applying(acquisition):
+                    self._start_locked(request, start, consumer)
+            except BaseException:
+                with self._lock:
+                    self._claimed = None
+                if claimed is not None:
+                    slot.abandon(claimed)
+                raise
 
     def _start_locked(
         self, request: StreamStartRequest, start: StreamStart | None, consumer: Consumer | None
     ) -> None:
-        from camd.daemon.session import BadRequest
-
-        session = self.session
-        session.require(Request.STREAM_START)
-        session.sensor.require_trained("start a stream")
+        device = self.device
+        device.require(Request.STREAM_START)
+        self.sensor.require_trained("start a stream")
         if request.mode is not None and start is None:
-            session.set_mode(request.mode)
-        mode = session.mode or "area"
-        timing = session.sensor.timing()
+            device.set_mode(request.mode)
+        mode = device.mode or "area"
+        timing = self.sensor.timing()
         stages = 0
         if mode == "tdi" and start is None:
             stages = timing.window_rows if request.stages is None else request.stages
@@ -337,7 +326,7 @@ class StreamService:
                     f"(physics.md §2 eq 13: 1 <= M <= M0 = n_lines); choose 1..{timing.window_rows}"
                     " or make the window taller"
                 )
-        cols = session.sensor.window_columns()
+        cols = self.sensor.window_columns()
         max_frame_bytes = HEADER_BYTES + 2 * timing.window_rows * cols
         recorder_path = self._record_path(request.record)
         self._settled.clear()
@@ -355,7 +344,6 @@ class StreamService:
         start: StreamStart | None = None,
         consumer: Consumer | None = None,
     ) -> None:
-        session = self.session
         with self._lock:
             reader = self._open_reader()
         recorder = None
@@ -372,11 +360,11 @@ class StreamService:
             reader.start(max_frame_bytes=max_frame_bytes)
         try:
             if start is None:
-                values = session.request(
+                values = self.device.request(
                     "START_STREAM", frames=request.frames, stages=stages, binning=request.binning
                 ).values
             else:
-                values = session.request(start.command, **start.fields).values
+                values = self.device.request(start.command, **start.fields).values
         except Exception:
             with self._lock:
                 reader.stop()
@@ -407,7 +395,7 @@ class StreamService:
                 "mode": "area",
                 "rows": int(values["rows"]),
                 "cols": int(values["cols"]),
-                "bits": session.sensor.regmap.output.word_bits,
+                "bits": self.sensor.regmap.output.word_bits,
                 "stages": 0,
                 "binning": "off",
                 "frame_period_s": start.frame_period_s,
@@ -421,11 +409,9 @@ class StreamService:
             self.streaming = True
         what = "until stopped" if request.frames == 0 else f"{info['frames_requested']} frames"
         how = f"{info['mode']} stream" if start is None else start.command
-        session.fire(Trigger.STREAM_STARTED, f"{how}, {what}")
+        self.device.fire(Trigger.STREAM_STARTED, f"{how}, {what}")
 
     def _record_path(self, record: str | None) -> Path | None:
-        from camd.daemon.session import BadRequest
-
         if record is None:
             return None
         path = Path(record)
@@ -446,9 +432,7 @@ class StreamService:
     ) -> FrameRecorder:
         """A new recording with the camera's metadata, made before the stream starts so that
         its first frame is recorded too; the frames set its geometry."""
-        from camd.daemon.session import BadRequest
-
-        sensor = self.session.sensor
+        sensor = self.sensor
         stream: dict[str, Any] = {
             "frames_requested": request.frames,
             "stages": stages,
@@ -496,8 +480,6 @@ class StreamService:
 
     def _open_reader(self) -> FrameStream:
         """The USB reader, opened on first use; Disconnected (503) if the device is absent."""
-        from camd.daemon.session import Disconnected
-
         try:
             return self._opened_reader()
         except (StreamError, ConnectionError, OSError) as exc:
@@ -505,15 +487,10 @@ class StreamService:
 
     def _opened_reader(self) -> FrameStream:
         if self._reader is None:
-            backend: Any = None
-            if self.config.backend == "sim":
-                from firmware_models.fx3 import get_backend
-
-                backend = get_backend(self.session.config.sim_usb_socket)
             reader = FrameStream(
                 vendor_id=self.config.vendor_id,
                 product_id=self.config.product_id,
-                backend=backend,
+                backend=self._usb_backend(),
                 queue_frames=self.config.queue_frames,
                 overflow=self.config.overflow,
                 read_bytes=self.config.read_bytes,
@@ -546,15 +523,18 @@ class StreamService:
                 self._detach_stream_consumer(reader)
             self._info["frames_sent"] = frames_sent
             self.streaming = False
+            claimed, self._claimed = self._claimed, None
             self._finished.set()
+        if claimed is not None:
+            self.device.acquisition.release(claimed)
         stats = self._stats()
-        self.session.log_event(
+        self.device.log_event(
             "info" if stats.lost == stats.corrupt == stats.overruns == 0 else "warning",
             "stream",
             f"stream ended ({why}): {stats.frames} frames delivered, {stats.lost} lost, "
             f"{stats.corrupt} corrupt, {stats.overruns} overruns, {stats.mbyte_per_s:.1f} MB/s",
         )
-        self.session.fire(Trigger.STREAM_STOPPED, None)
+        self.device.fire(Trigger.STREAM_STOPPED, None)
 
     def stats(self) -> StreamStats:
         """The host's ingest counters of the current or last stream (no device traffic)."""

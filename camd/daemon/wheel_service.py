@@ -25,10 +25,12 @@ import threading
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
+from camd.daemon.device import DeviceAccess
+from camd.daemon.errors import BadRequest, SessionError
 from camd.daemon.models import (
     StreamStartRequest,
     WheelAcquireRequest,
@@ -39,16 +41,14 @@ from camd.daemon.models import (
     WheelRegion,
     WheelStatus,
 )
+from camd.daemon.sensor_service import SensorService
 from camd.daemon.state import Request
-from camd.daemon.stream_service import StreamStart
+from camd.daemon.stream_service import StreamService, StreamStart
 from camd.link.frame_stream import ReceivedFrame
 from camd.motion.wheel_profile import WheelProfile, load_wheel_profile
 from camd.protocol.dictionary import FieldValue
 from camd.timing import sequencer_frame_time_s
 from camd.timing.wheel import exposure_delay_s, imaging_centre_angle_deg
-
-if TYPE_CHECKING:
-    from camd.daemon.session import DeviceSession
 
 ANGLE_UNIT_DEG = 1e-4
 """A wheel frame header's ``stage_position`` counts the wheel angle in these units."""
@@ -63,12 +63,6 @@ def _from_f32(value: FieldValue) -> float:
     """A value that crossed the link as f32, as the decimal it stood for (73.245, not
     73.24500274658203): the predictions must not carry the wire's rounding."""
     return float(f"{float(value):.{F32_SIGNIFICANT_DIGITS}g}")
-
-
-def _bad(message: str) -> Exception:
-    from camd.daemon.session import BadRequest
-
-    return BadRequest(message)
 
 
 @dataclass(frozen=True, slots=True)
@@ -111,8 +105,10 @@ class _FrameMeans:
 class WheelService:
     """Filter-wheel requests for one device session (module docstring)."""
 
-    def __init__(self, session: DeviceSession) -> None:
-        self.session = session
+    def __init__(self, device: DeviceAccess, sensor: SensorService, stream: StreamService) -> None:
+        self.device = device
+        self.sensor = sensor
+        self.stream = stream
         self._profile: WheelProfile | None = None
 
     @property
@@ -122,16 +118,16 @@ class WheelService:
             try:
                 self._profile = load_wheel_profile()
             except (OSError, ValueError) as exc:
-                raise _bad(f"the wheel file: {exc}") from None
+                raise BadRequest(f"the wheel file: {exc}") from None
         return self._profile
 
     # -- requests -----------------------------------------------------------------------------------
 
     def status(self) -> WheelStatus:
         """WHEEL_GET, the wheel file's numbers and camd's computation for the registers now."""
-        self.session.require(Request.WHEEL_READ)
-        values = self.session.request("WHEEL_GET").values
-        timing = self.session.sensor.timing()
+        self.device.require(Request.WHEEL_READ)
+        values = self.device.request("WHEEL_GET").values
+        timing = self.sensor.timing()
         profile = self.profile
         speed = _from_f32(values["speed_deg_s"])
         compensated = values["compensation"] == "on"
@@ -162,8 +158,8 @@ class WheelService:
 
     def set_speed(self, speed_deg_s: float) -> WheelStatus:
         """Turn the wheel at ``speed_deg_s`` (0 stops it)."""
-        self.session.require(Request.WHEEL_SET)
-        self.session.request("WHEEL_SET_SPEED", speed_deg_s=speed_deg_s)
+        self.device.require(Request.WHEEL_SET)
+        self.device.request("WHEEL_SET_SPEED", speed_deg_s=speed_deg_s)
         nominal = self.profile.speed_deg_s.value
         message = f"filter wheel speed set to {speed_deg_s:g} deg/s"
         level = "info"
@@ -175,15 +171,15 @@ class WheelService:
                 f", not the wheel file's {nominal:g} deg/s: a compensated frame's centre lands "
                 f"{shift:+.4g} deg from the channel centre (the T_center dw term of eq 8)"
             )
-        self.session.log_event(level, "wheel", message)
+        self.device.log_event(level, "wheel", message)
         return self.status()
 
     def set_compensation(self, on: bool) -> WheelStatus:
         """Switch exposure delay compensation on or off. Switching on is refused (400, nothing
         changed) when the exposure in the registers cannot be centred on a channel."""
-        self.session.require(Request.WHEEL_SET)
+        self.device.require(Request.WHEEL_SET)
         if on:
-            timing = self.session.sensor.timing()
+            timing = self.sensor.timing()
             info = self.exposure_info(
                 timing.exposure_lines,
                 timing.window_rows,
@@ -193,27 +189,16 @@ class WheelService:
                 exposure_s=timing.exposure_s,
             )
             if not info.fits:
-                raise _bad(
+                raise BadRequest(
                     f"delay compensation not switched on (exposure {info.exposure_lines} lines "
                     f"= {info.exposure_s * 1e3:.6g} ms, window {info.window_rows} rows): "
                     f"{info.refusal}"
                 )
-        self.session.request("WHEEL_COMPENSATION", enable="on" if on else "off")
-        self.session.log_event(
+        self.device.request("WHEEL_COMPENSATION", enable="on" if on else "off")
+        self.device.log_event(
             "info", "wheel", f"exposure delay compensation {'on' if on else 'off'}"
         )
         return self.status()
-
-    def set_polarizer(self, angle_deg: float | None) -> None:
-        """Simulated camera only: the reference polariser in front of the scene (None: out)."""
-        self.session.require(Request.SIM)
-        self.session.request(
-            "SIM_SET_POLARIZER",
-            enable="off" if angle_deg is None else "on",
-            angle_deg=0.0 if angle_deg is None else angle_deg,
-        )
-        what = "out of the beam" if angle_deg is None else f"at {angle_deg:g} deg"
-        self.session.log_event("info", "api", f"simulated reference polariser {what}")
 
     def acquire(self, request: WheelAcquireRequest) -> WheelAcquireResponse:
         """One frame through each channel per pass, each timed by its entry pulse (and the
@@ -223,21 +208,20 @@ class WheelService:
         (``exposure_s``, or the registers') against the light window with the compensation
         asked for (or the wheel's), the region and the recording path.
         """
-        session = self.session
-        session.require(Request.STREAM_START)
+        self.device.require(Request.STREAM_START)
         profile = self.profile
         channels = self._check_channels(request.channels)
-        session.sensor.require_trained("take wheel frames")
-        device = session.request("WHEEL_GET").values
+        self.sensor.require_trained("take wheel frames")
+        device = self.device.request("WHEEL_GET").values
         speed = _from_f32(device["speed_deg_s"])
         if speed <= 0.0:
-            raise _bad(
+            raise BadRequest(
                 "the filter wheel is stopped, so no entry pulse will come: start it first "
                 f"(`camctl wheel speed {profile.speed_deg_s.value:g}`)"
             )
         device_compensated = device["compensation"] == "on"
         compensated = device_compensated if request.compensated is None else request.compensated
-        timing = session.sensor.timing()
+        timing = self.sensor.timing()
         lines = timing.exposure_lines
         if request.exposure_s is not None:
             lines = self._exposure_lines(request.exposure_s, timing.line_period_s)
@@ -252,19 +236,19 @@ class WheelService:
             else timing.exposure_s,
         )
         if not planned.fits:
-            raise _bad(
+            raise BadRequest(
                 f"wheel acquisition refused, nothing changed (exposure {lines} lines = "
                 f"{planned.exposure_s * 1e3:.6g} ms, window {timing.window_rows} rows, "
                 f"compensation {'on' if compensated else 'off'}): {planned.refusal}"
             )
-        self._check_region(request.region, timing.window_rows, session.sensor.window_columns())
+        self._check_region(request.region, timing.window_rows, self.sensor.window_columns())
         self._check_record(request.record)
 
         if lines != timing.exposure_lines:
-            session.sensor.write(self._exposure_writes(lines))
-            timing = session.sensor.timing()
+            self.sensor.write(self._exposure_writes(lines))
+            timing = self.sensor.timing()
         if compensated != device_compensated:
-            session.request("WHEEL_COMPENSATION", enable="on" if compensated else "off")
+            self.device.request("WHEEL_COMPENSATION", enable="on" if compensated else "off")
         exposure = self.exposure_info(
             timing.exposure_lines,
             timing.window_rows,
@@ -290,7 +274,7 @@ class WheelService:
                 "stage_position_unit": "wheel angle at the exposure start, 1e-4 deg",
             },
         )
-        stream = session.stream.acquire(
+        stream = self.stream.acquire(
             StreamStartRequest(
                 frames=len(channels) * request.passes,
                 record=request.record,
@@ -304,7 +288,7 @@ class WheelService:
             self._frame(seen, stream.first_counter, channels, exposure, speed)
             for seen in means.frames()
         ]
-        session.log_event(
+        self.device.log_event(
             "info",
             "wheel",
             f"wheel acquisition: {len(frames)} of {stream.frames_requested} frames through "
@@ -395,19 +379,19 @@ class WheelService:
     def _check_channels(self, channels: list[int]) -> list[int]:
         count = self.profile.channel_count.value
         if not 1 <= len(channels) <= count:
-            raise _bad(f"give 1 to {count} channels, got {len(channels)}")
+            raise BadRequest(f"give 1 to {count} channels, got {len(channels)}")
         for channel in channels:
             try:
                 self.profile.check_channel(channel)
             except ValueError as exc:
-                raise _bad(f"{exc}; choose channels from 0 to {count - 1}") from None
+                raise BadRequest(f"{exc}; choose channels from 0 to {count - 1}") from None
         return list(channels)
 
     def _exposure_lines(self, exposure_s: float, line_period_s: float) -> int:
         """Whole lines ``round(T_exp / T_line)`` (physics.md §3: T_exp = n T_line)."""
         lines = round(exposure_s / line_period_s)
         if lines < 1:
-            raise _bad(
+            raise BadRequest(
                 f"exposure {exposure_s * 1e3:.6g} ms is less than half a line "
                 f"({line_period_s * 1e6:.4g} us): give at least one line"
             )
@@ -415,10 +399,10 @@ class WheelService:
 
     def _exposure_writes(self, lines: int) -> dict[str, int | str]:
         """The register write that sets ``lines`` exposure lines (the map's role, its bias)."""
-        regmap = self.session.sensor.regmap
+        regmap = self.sensor.regmap
         name = regmap.role("exposure_lines")
         if name is None:
-            raise _bad(
+            raise BadRequest(
                 f"sensor {regmap.sensor} has no exposure register (role exposure_lines); "
                 "leave exposure_s out and set the exposure another way"
             )
@@ -430,7 +414,7 @@ class WheelService:
         if region is None:
             return
         if region.row + region.rows > rows or region.col + region.cols > cols:
-            raise _bad(
+            raise BadRequest(
                 f"region rows {region.row}..{region.row + region.rows - 1}, columns "
                 f"{region.col}..{region.col + region.cols - 1} does not fit the {rows} x {cols} "
                 "frame; make it smaller"
@@ -443,16 +427,14 @@ class WheelService:
             return
         path = Path(record)
         if not path.is_absolute():
-            raise _bad(f"record path {record!r} is relative; give an absolute path")
+            raise BadRequest(f"record path {record!r} is relative; give an absolute path")
         if path.exists():
-            raise _bad(f"{path} already exists; choose another file or remove it")
+            raise BadRequest(f"{path} already exists; choose another file or remove it")
 
     def _device_numbers(self) -> dict[str, float]:
         """The FPGA's T_frame and applied delay (WHEEL_GET), to show beside camd's."""
-        from camd.daemon.session import SessionError
-
         try:
-            values: Mapping[str, FieldValue] = self.session.request("WHEEL_GET").values
+            values: Mapping[str, FieldValue] = self.device.request("WHEEL_GET").values
         except SessionError:
             return {}
         delay = float(values["delay_s"]) if values["compensation"] == "on" else 0.0

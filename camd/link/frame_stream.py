@@ -1,8 +1,8 @@
 """The frame stream's host side: USB bulk reads in, checked window frames out to consumers.
 
 ``FrameStream`` finds the camera's FX3-class streamer with pyusb (``backend=None``: libusb,
-the hardware; or the simulator's ``firmware_models.fx3.get_backend(path)``), claims its
-interface and runs two threads:
+the hardware; or the simulated FX3's ``firmware_models.fx3_backend.get_backend(path)``), claims
+its interface and runs two threads:
 
 - the reader: bulk reads of whole frames straight into preallocated slots (no copy, no
   allocation per frame), reassembly of frames that span several reads, header checks

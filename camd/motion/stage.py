@@ -23,6 +23,9 @@ Request = Callable[..., Mapping[str, FieldValue]]
 
 I32_MAX = 2**31 - 1
 
+STOPPED_STATES = frozenset({"idle", "disabled", "estop"})
+"""MOTOR_GET states in which the stage stands still."""
+
 
 class StageLimitError(ValueError):
     """A motion the stage's limits forbid; the message says which limit and what to change."""

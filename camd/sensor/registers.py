@@ -270,6 +270,29 @@ class SensorRegisters:
         read_back = self._verify(written) if verify else {}
         return self._readings(plan.named, read_back)
 
+    def raw_values(self) -> dict[str, int]:
+        """Every register's raw value now: read from the device, write-only ones from the
+        shadow copy. A snapshot to plan against (``preview``) and to restore from."""
+        raw = self._cached_reader()
+        return {reg.name: raw(reg) for reg in self.regmap.by_address()}
+
+    def preview(
+        self, assignments: Mapping[str, Value], current: Mapping[str, int]
+    ) -> tuple[dict[str, int], SensorTiming]:
+        """What ``write(assignments)`` would do over the raw values ``current`` (a
+        ``raw_values()`` snapshot), without sending anything: the registers' new raw values and
+        the timing they set. Raises as ``write`` does for anything it would refuse."""
+
+        def raw(reg: RegisterSpec) -> int:
+            return current[reg.name]
+
+        plan = self._plan(assignments, raw, staging=False)
+        after = {**current, **plan.values}
+        timing = sensor_timing(
+            self.regmap, lambda name: self.regmap.value_of(name, lambda reg: after[reg.name])
+        )
+        return dict(plan.values), timing
+
     # -- configurations ---------------------------------------------------------------------------
 
     def configuration(self) -> dict[str, int]:

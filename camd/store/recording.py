@@ -21,6 +21,8 @@ viewer shows it; ``read_recording`` puts it back together. ``None`` values are n
 from __future__ import annotations
 
 import datetime as dt
+import os
+import shutil
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -50,6 +52,31 @@ _PER_FRAME: dict[str, npt.DTypeLike] = {
 
 class RecordingError(OSError):
     """A recording cannot be written or read; the message names the file and what to do."""
+
+
+def check_new_file(path: Path, planned_bytes: int = 0) -> None:
+    """Refuse, before anything is recorded, a file that cannot be written: one that exists, in
+    a directory that does not exist or is not writable, or on a disk with less free space than
+    ``planned_bytes``. RecordingError says what to change."""
+    if path.exists():
+        raise RecordingError(f"{path} already exists; choose another file or remove it")
+    folder = path.parent
+    if not folder.is_dir():
+        raise RecordingError(
+            f"the directory {folder} does not exist; create it first (mkdir -p {folder}) or "
+            "choose another file"
+        )
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise RecordingError(
+            f"cannot create files in {folder} (no write permission for the daemon's user); "
+            "choose another directory"
+        )
+    free = shutil.disk_usage(folder).free
+    if free < planned_bytes:
+        raise RecordingError(
+            f"the recording needs about {planned_bytes / 1e6:.1f} MB but {folder} has "
+            f"{free / 1e6:.1f} MB free; free some space, choose another disk, or record less"
+        )
 
 
 def camd_version() -> str:

@@ -1,0 +1,64 @@
+"""The errors a daemon operation raises; the API maps each to an HTTP status (docs/api.md).
+
+Every message says what went wrong and what to change. They live apart from the session and
+the services so that any of them can raise them without importing the others.
+"""
+
+from __future__ import annotations
+
+
+class SessionError(Exception):
+    """Base of the errors a session operation raises; str() says what to change."""
+
+
+class Disconnected(SessionError):
+    """No camera on the link (HTTP 503)."""
+
+
+class DeviceTimeout(SessionError):
+    """The device did not answer after every retry (HTTP 504)."""
+
+
+class DeviceRejected(SessionError):
+    """The device refused the command (NAK) or answered something undecodable (HTTP 502)."""
+
+    def __init__(self, message: str, name: str = "") -> None:
+        super().__init__(message)
+        self.name = name
+
+
+class BadRequest(SessionError, ValueError):
+    """A parameter is invalid (HTTP 400)."""
+
+
+class LinkUntrained(SessionError):
+    """Imaging refused: the sensor's LVDS link is not trained (HTTP 409)."""
+
+
+class Busy(SessionError):
+    """Refused because an acquisition (scan, stare, stream, wheel run) is running (HTTP 409);
+    the message names it and the command that stops it."""
+
+
+class NotInControl(SessionError):
+    """A state-changing request from a client that does not hold control (HTTP 423); the
+    message names the holder and how to take control."""
+
+
+class SimulatorError(SessionError):
+    """The simulated camera could not be started; ``usage`` is True for bad arguments."""
+
+    def __init__(self, message: str, usage: bool = False) -> None:
+        super().__init__(message)
+        self.usage = usage
+
+
+def with_note(exc: SessionError, note: str) -> SessionError:
+    """The same kind of error (so the same HTTP status) with ``note`` appended to its message,
+    e.g. what was restored after a request failed part-way."""
+    message = f"{exc}; {note}"
+    if isinstance(exc, DeviceRejected):
+        return DeviceRejected(message, exc.name)
+    if isinstance(exc, SimulatorError):
+        return SimulatorError(message, exc.usage)
+    return type(exc)(message)

@@ -1,0 +1,218 @@
+"""What only a simulated camera can do, behind one small interface.
+
+The world in front of the simulated camera (scene, reference polariser, the ideal stage's
+speed), its random streams, its stage imperfections and its fault counters are set and read with
+the simulator's own SIM_* commands. Production services never send those themselves: they ask
+a ``SimulatorControl``. ``FirmwareSimulator`` implements it with the SIM_* commands; on real
+hardware ``NoSimulator`` refuses every request with a clear 400 instead of sending an opcode
+the camera does not know. ``camd.daemon.backends.simulator_control`` picks one from the config.
+
+In the python-microscope manner, the public methods check the daemon's state and the
+arguments, then call the ``_do_*`` hooks that the two implementations provide.
+"""
+
+from __future__ import annotations
+
+import abc
+import logging
+from typing import Any
+
+from camd.daemon.device import DeviceAccess
+from camd.daemon.errors import BadRequest, DeviceRejected
+from camd.daemon.models import (
+    SimStageFaultsRequest,
+    SimStageTruth,
+    SimStreamStats,
+    StageResponse,
+)
+from camd.daemon.state import Request
+
+log = logging.getLogger(__name__)
+
+SCENE_TIMEOUT_S = 2.0  # per attempt: a lost frame on a lossy line costs this much
+SCENE_RETRIES = 10
+
+
+class SimulatorControl(abc.ABC):
+    """The simulated camera's controls (module docstring)."""
+
+    def __init__(self, device: DeviceAccess) -> None:
+        self.device = device
+        # What this daemon last set (the simulator has no way to read them back).
+        self._scene = device.config.sim.scene or "flat"
+        self._ideal_stage: tuple[bool, float] = (True, 0.0)
+
+    @property
+    @abc.abstractmethod
+    def available(self) -> bool:
+        """True when the camera is simulated (its SIM_* commands work)."""
+
+    @property
+    def scene(self) -> str:
+        """The scene spec this daemon last set (at start: config ``sim.scene``, or the flat
+        field the simulator starts with)."""
+        return self._scene
+
+    @property
+    def ideal_stage(self) -> tuple[bool, float]:
+        """The ideal stage's (track, speed_m_s) as this daemon last set it."""
+        return self._ideal_stage
+
+    def set_scene(self, spec: str) -> None:
+        """Put the scene ``spec`` in front of the camera (docs/simulator.md)."""
+        self.device.require(Request.SIM)
+        self._do_set_scene(spec)
+        self._scene = spec
+        self.device.log_event("info", "api", f"simulated scene: {spec}")
+
+    def set_seed(self, seed: int) -> None:
+        """Restart the temporal noise and frame-fault random streams from ``seed``."""
+        self.device.require(Request.SIM)
+        self._do_set_seed(seed)
+        self.device.log_event("info", "api", f"simulator random streams re-seeded with {seed}")
+
+    def set_ideal_stage(self, *, track: bool, speed_m_s: float) -> StageResponse:
+        """The simulator's ideal scan stage: track the synchronous speed, or run at one."""
+        self.device.require(Request.SIM)
+        response = self._do_set_ideal_stage(track, speed_m_s)
+        self._ideal_stage = (track, speed_m_s)
+        return response
+
+    def stream_stats(self) -> SimStreamStats:
+        """Frames the simulated stream engine made, sent and damaged on purpose."""
+        self.device.require(Request.SIM)
+        return self._do_stream_stats()
+
+    def set_stage_faults(self, request: SimStageFaultsRequest) -> None:
+        """The simulated stepper stage's imperfections."""
+        self.device.require(Request.SIM)
+        self._do_set_stage_faults(request)
+        self.device.log_event("info", "api", f"simulated stage faults: {request.model_dump()}")
+
+    def stage_truth(self) -> SimStageTruth:
+        """Where the simulated stage really is."""
+        self.device.require(Request.SIM)
+        return self._do_stage_truth()
+
+    def set_polarizer(self, angle_deg: float | None) -> None:
+        """The reference polariser in front of the scene (None: out of the beam)."""
+        self.device.require(Request.SIM)
+        self._do_set_polarizer(angle_deg)
+        what = "out of the beam" if angle_deg is None else f"at {angle_deg:g} deg"
+        self.device.log_event("info", "api", f"simulated reference polariser {what}")
+
+    @abc.abstractmethod
+    def injected(self) -> dict[str, Any] | None:
+        """The command-line faults the simulator injected so far (None on hardware)."""
+
+    @abc.abstractmethod
+    def _do_set_scene(self, spec: str) -> None: ...
+
+    @abc.abstractmethod
+    def _do_set_seed(self, seed: int) -> None: ...
+
+    @abc.abstractmethod
+    def _do_set_ideal_stage(self, track: bool, speed_m_s: float) -> StageResponse: ...
+
+    @abc.abstractmethod
+    def _do_stream_stats(self) -> SimStreamStats: ...
+
+    @abc.abstractmethod
+    def _do_set_stage_faults(self, request: SimStageFaultsRequest) -> None: ...
+
+    @abc.abstractmethod
+    def _do_stage_truth(self) -> SimStageTruth: ...
+
+    @abc.abstractmethod
+    def _do_set_polarizer(self, angle_deg: float | None) -> None: ...
+
+
+class FirmwareSimulator(SimulatorControl):
+    """The simulated camera of firmware_models, through its SIM_* commands."""
+
+    @property
+    def available(self) -> bool:
+        return True
+
+    def injected(self) -> dict[str, Any] | None:
+        try:
+            return dict(self.device.request("SIM_GET_INJECTED").values)
+        except DeviceRejected as exc:
+            if exc.name != "UNKNOWN_OPCODE":
+                raise
+            return None  # another device on the simulator's port: no fault injector
+
+    def _do_set_scene(self, spec: str) -> None:
+        # Building a finely sampled scene takes the simulator seconds (e.g. an edge at
+        # oversample=16): wait longer per attempt, and try more often, than for a command the
+        # device answers at once. A re-send is answered from the device's record once built.
+        self.device.request(
+            "SIM_SET_SCENE", spec=spec, timeout_s=SCENE_TIMEOUT_S, retries=SCENE_RETRIES
+        )
+
+    def _do_set_seed(self, seed: int) -> None:
+        self.device.request("SIM_SET_SEED", seed=seed)
+
+    def _do_set_ideal_stage(self, track: bool, speed_m_s: float) -> StageResponse:
+        values = self.device.request(
+            "SIM_SET_STAGE", track="yes" if track else "no", speed_m_s=speed_m_s
+        ).values
+        return StageResponse(
+            speed_m_s=float(values["speed_m_s"]),
+            sync_speed_m_s=float(values["sync_speed_m_s"]),
+            track=track,
+        )
+
+    def _do_stream_stats(self) -> SimStreamStats:
+        return SimStreamStats.model_validate(self.device.request("SIM_GET_STREAM_STATS").values)
+
+    def _do_set_stage_faults(self, request: SimStageFaultsRequest) -> None:
+        self.device.request("SIM_SET_STAGE_FAULTS", **request.model_dump())
+
+    def _do_stage_truth(self) -> SimStageTruth:
+        return SimStageTruth.model_validate(self.device.request("SIM_GET_STAGE").values)
+
+    def _do_set_polarizer(self, angle_deg: float | None) -> None:
+        self.device.request(
+            "SIM_SET_POLARIZER",
+            enable="off" if angle_deg is None else "on",
+            angle_deg=0.0 if angle_deg is None else angle_deg,
+        )
+
+
+class NoSimulator(SimulatorControl):
+    """Real hardware: every simulator request is refused (400), nothing is sent."""
+
+    @property
+    def available(self) -> bool:
+        return False
+
+    def injected(self) -> dict[str, Any] | None:
+        return None
+
+    def _refuse(self, what: str) -> BadRequest:
+        return BadRequest(
+            f"{what} is for the simulated camera only, and this daemon drives "
+            f"{self.device.port} (link.device); leave it out, or run `camd serve --sim`"
+        )
+
+    def _do_set_scene(self, spec: str) -> None:
+        raise self._refuse("a scene")
+
+    def _do_set_seed(self, seed: int) -> None:
+        raise self._refuse("a simulator seed")
+
+    def _do_set_ideal_stage(self, track: bool, speed_m_s: float) -> StageResponse:
+        raise self._refuse("the ideal stage")
+
+    def _do_stream_stats(self) -> SimStreamStats:
+        raise self._refuse("the simulated stream's counters")
+
+    def _do_set_stage_faults(self, request: SimStageFaultsRequest) -> None:
+        raise self._refuse("stage fault injection")
+
+    def _do_stage_truth(self) -> SimStageTruth:
+        raise self._refuse("the stage's true position")
+
+    def _do_set_polarizer(self, angle_deg: float | None) -> None:
+        raise self._refuse("the reference polariser")

@@ -1,0 +1,136 @@
+"""A refused request changes nothing; one acquisition at a time; busy errors name what runs.
+
+Over the full stack (HTTP -> camd serve -> simulated camera): the camera's state is read back
+from the device itself (mode from GET_STATUS, every register, the stage's MOTOR_GET) before and
+after each refused request and compared.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import httpx
+import pytest
+
+from camd.client import CamdClient, CamdError
+from tests.test_camctl import camctl
+from tests.test_sensor_stack import serve
+
+# Scans stream in real time: alone under xdist (tests/conftest.py).
+pytestmark = pytest.mark.exclusive
+
+
+@pytest.fixture(scope="module")
+def url(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+    with serve(tmp_path_factory.mktemp("camd-trust"), "fpga") as daemon:
+        with CamdClient(daemon.url) as client:
+            client.write_registers({"WIN_ROWS": 16, "EXPOSURE": 4})
+        yield daemon.url
+    assert daemon.exit_code in (0, -15), daemon.log_path.read_text()
+
+
+def snapshot(client: CamdClient) -> dict[str, Any]:
+    """The device's state as the device reports it."""
+    stage = client.motion()["reading"]
+    return {
+        "mode": client.status()["device"]["mode"],  # type: ignore[index]
+        "registers": client.register_config()["registers"],  # every configurable register
+        "stage": (stage["state"], stage["position_m"], stage["speed_m_s"]),
+        "state": client.status()["state"],
+    }
+
+
+def test_a_refused_scan_changes_nothing(url: str, tmp_path: Path) -> None:
+    """The issue's case: area mode, a driven scan into a directory that does not exist."""
+    with CamdClient(url) as client:
+        client.set_mode("area")
+        client.enable_stage(True)
+        client.move_stage(0.3)
+        before = snapshot(client)
+        out = str(tmp_path / "nodir/x.h5")
+        proc = camctl(
+            url, "scan", "--stages", "4", "--lines", "5", "--line-period-s", "3e-3", "--out", out
+        )
+        assert proc.returncode == 1
+        assert f"the directory {tmp_path / 'nodir'} does not exist; create it first" in (
+            proc.stderr
+        )
+        assert snapshot(client) == before
+        # Beyond the stage's travel: refused with the numbers, nothing moved or written.
+        with pytest.raises(CamdError) as info:
+            client.start_scan(4, 10_000_000, out=str(tmp_path / "long.h5"), line_period_s=3e-3)
+        assert info.value.code == "bad_request"
+        assert "mm of travel" in info.value.message and "soft limits leave" in info.value.message
+        assert snapshot(client) == before
+        assert not (tmp_path / "long.h5").exists()
+        # Stages that the line period's window cannot hold.
+        with pytest.raises(CamdError, match="window rows but the scan's frames have"):
+            client.start_scan(40, 5, out=str(tmp_path / "m.h5"), line_period_s=2e-4)
+        assert snapshot(client) == before
+        assert client.scan()["state"] in ("none", "done", "stopped")
+
+
+def test_two_scans_at_once_one_runs_and_the_status_shows_it(url: str, tmp_path: Path) -> None:
+    paths = [tmp_path / "a.h5", tmp_path / "b.h5"]
+    answers: list[httpx.Response] = []
+    lock = threading.Lock()
+    barrier = threading.Barrier(2)
+
+    def start(path: Path) -> None:
+        body = {"stages": 4, "lines": 200, "out": str(path), "drive_stage": False}
+        with httpx.Client(base_url=url, timeout=60) as http:
+            barrier.wait()
+            response = http.post("/api/v1/scan/start", json=body)
+        with lock:
+            answers.append(response)
+
+    threads = [threading.Thread(target=start, args=(p,)) for p in paths]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(90)
+    codes = sorted(r.status_code for r in answers)
+    assert codes == [200, 409], [r.text for r in answers]
+    ran = next(r.json() for r in answers if r.status_code == 200)
+    refused = next(r.json() for r in answers if r.status_code == 409)
+    assert refused["code"] == "busy"
+    assert f"a scan is running (M = 4, 200 lines to {ran['file']}" in refused["error"]
+    assert "`camctl scan --stop`" in refused["error"]
+    with CamdClient(url) as client:
+        done = client.wait_scan(60)
+        assert done["file"] == ran["file"] and done["state"] == "done"
+        assert done["lines"] == 200 + 4 - 1
+    loser = next(p for p in paths if str(p) != ran["file"])
+    assert not loser.exists()
+
+
+def test_requests_that_would_disturb_a_scan_are_refused_naming_it(url: str, tmp_path: Path) -> None:
+    with CamdClient(url) as client:
+        before = snapshot(client)
+        scan = client.start_scan(4, 0, out=str(tmp_path / "long.h5"), drive_stage=False)
+        try:
+            for call, what in (
+                (lambda: client.set_mode("area"), "cannot change the imaging mode"),
+                (lambda: client.reset(), "cannot reset the camera"),
+                (lambda: client.write_registers({"EXPOSURE": 3}), "cannot write sensor registers"),
+                (lambda: client.acquire(3), "cannot start a stare"),
+                (lambda: client.start_scan(4, 5, drive_stage=False), "cannot start a scan"),
+                (lambda: client.move_stage(0.2), "cannot move the stage"),
+            ):
+                with pytest.raises(CamdError) as info:
+                    call()
+                assert info.value.code == "busy", info.value.message
+                assert info.value.message.startswith(f"{what}: a scan is running")
+                assert f"to {scan['file']}" in info.value.message
+                assert info.value.message.endswith("stop it with `camctl scan --stop`")
+            assert client.scan()["file"] == scan["file"]
+        finally:
+            stopped = client.stop_scan()
+        assert stopped["state"] == "stopped" and stopped["file"] == scan["file"]
+        after = snapshot(client)
+        # The scan put the camera in tdi mode; nothing the refused requests asked was done.
+        assert after["registers"] == before["registers"]
+        assert after["stage"] == before["stage"]
