@@ -15,9 +15,14 @@ Failures raise ``CamdError`` built from the API's ``{"error", "code"}`` body, or
 
 from __future__ import annotations
 
+import contextlib
+import getpass
 import json
 import os
+import socket
+import threading
 import time
+from collections.abc import Iterator
 from typing import Any, Literal, NotRequired, TypedDict, cast
 
 import httpx
@@ -26,6 +31,7 @@ __all__ = [
     "DEFAULT_URL",
     "CamdClient",
     "CamdError",
+    "ControlDoc",
     "DaemonUnreachable",
     "DeviceLinkStats",
     "EventsDoc",
@@ -39,6 +45,17 @@ __all__ = [
 
 DEFAULT_URL = "http://127.0.0.1:8422"
 API = "/api/v1"
+CLIENT_HEADER = "X-Camd-Client"
+
+
+def default_client_name() -> str:
+    """``user@host``: the name a client is known by for control unless told otherwise."""
+    try:
+        user = getpass.getuser()
+    except (KeyError, OSError):
+        user = str(os.getuid())
+    return f"{user}@{socket.gethostname()}"
+
 
 # Upper bound on one ping's wall time used to size the HTTP timeout of a ping run: the daemon
 # pings strictly one at a time and a lost frame costs at most a few link timeouts of ~0.1 s, so
@@ -68,6 +85,34 @@ class DaemonInfo(TypedDict):
     uptime_s: float
 
 
+class ControlDoc(TypedDict):
+    """GET/POST/DELETE /api/v1/control and ``status.control``: who holds control."""
+
+    holder: str | None  # None: nobody; any client may then change the camera
+    since_t_s: float | None
+    why: str | None  # "lease", or the acquisition the holder started
+    expires_t_s: float | None  # the lease's end unless renewed; None while an acquisition holds
+    you: str  # the client name this request was made under
+
+
+class AcquisitionDoc(TypedDict):
+    """``status.acquisition``: the running acquisition, or the last started one."""
+
+    kind: str  # scan, stare, stream or wheel
+    description: str
+    client: str
+    started_t_s: float
+    ended_t_s: float | None
+    running: bool
+
+
+class EstopDoc(TypedDict):
+    """POST /api/v1/estop."""
+
+    stopped: list[str]
+    failed: list[str]
+
+
 class StatusDoc(TypedDict):
     """GET /api/v1/status (also what POST /api/v1/reset returns)."""
 
@@ -77,6 +122,8 @@ class StatusDoc(TypedDict):
     link: LinkPort
     device: dict[str, Any] | None  # the GET_STATUS fields, or None while disconnected
     daemon: DaemonInfo
+    control: ControlDoc
+    acquisition: AcquisitionDoc | None
 
 
 class RttMs(TypedDict):
@@ -573,7 +620,8 @@ class CamdClient:
 
     ``url`` defaults to ``$CAMD_URL``, else ``http://127.0.0.1:8422``; ``token`` to
     ``$CAMD_TOKEN`` (sent as ``Authorization: Bearer``). ``timeout_s`` bounds each request,
-    except that ``ping`` extends it with the number of pings.
+    except that ``ping`` extends it with the number of pings. ``client`` is the name the daemon
+    knows this client by for control (``X-Camd-Client``): ``$CAMD_CLIENT``, else ``user@host``.
     """
 
     def __init__(
@@ -582,13 +630,15 @@ class CamdClient:
         *,
         token: str | None = None,
         timeout_s: float = 30.0,
+        client: str | None = None,
     ) -> None:
         if timeout_s <= 0:
             raise ValueError(f"timeout_s must be > 0 seconds, got {timeout_s}")
         self.url = normalise_url(url or os.environ.get("CAMD_URL") or DEFAULT_URL)
         self.timeout_s = timeout_s
+        self.client = client or os.environ.get("CAMD_CLIENT") or default_client_name()
         token = token if token is not None else os.environ.get("CAMD_TOKEN")
-        headers = {"Accept": "application/json"}
+        headers = {"Accept": "application/json", CLIENT_HEADER: self.client}
         if token:
             headers["Authorization"] = f"Bearer {token}"
         self._http = httpx.Client(base_url=self.url, headers=headers, timeout=timeout_s)
@@ -931,6 +981,11 @@ class CamdClient:
         """Simulated camera only: the reference polariser's axis in degrees (None: out)."""
         self._request("PUT", f"{API}/sim/polarizer", json={"angle_deg": angle_deg})
 
+    def sim_settings(self) -> dict[str, Any]:
+        """What the daemon last set on the simulated camera: ``{"available", "scene",
+        "ideal_stage": {"track", "speed_m_s"}, "polarizer_deg", "stage_faults": {...}}``."""
+        return self._json("GET", f"{API}/sim")
+
     def sim_stream_stats(self) -> SimStreamDoc:
         """Simulated camera only: what its stream engine made, sent and injected."""
         return cast(SimStreamDoc, self._json("GET", f"{API}/sim/stream"))
@@ -938,6 +993,49 @@ class CamdClient:
     def metrics(self) -> str:
         """The Prometheus text exposition."""
         return self._request("GET", "/metrics").text
+
+    def control(self) -> ControlDoc:
+        """Who holds control (reading needs none)."""
+        return cast(ControlDoc, self._json("GET", f"{API}/control"))
+
+    def take_control(self, ttl_s: float = 60.0, *, force: bool = False) -> ControlDoc:
+        """Take (or renew) control for ``ttl_s`` seconds; CamdError ``not_in_control`` while
+        another client holds it, unless ``force`` (a takeover the daemon logs)."""
+        body = {"ttl_s": ttl_s, "force": force}
+        return cast(ControlDoc, self._json("POST", f"{API}/control", json=body))
+
+    def release_control(self) -> ControlDoc:
+        """Give control back (harmless when this client holds none)."""
+        return cast(ControlDoc, self._json("DELETE", f"{API}/control"))
+
+    @contextlib.contextmanager
+    def holding_control(self, ttl_s: float = 60.0, *, force: bool = False) -> Iterator[ControlDoc]:
+        """Hold control for a ``with`` block (a campaign, a script): taken at the start,
+        renewed in the background every ``ttl_s / 3``, given back at the end."""
+        doc = self.take_control(ttl_s, force=force)
+        stop = threading.Event()
+        renewer = CamdClient(self.url, timeout_s=self.timeout_s, client=self.client)
+        renewer._http.headers.update(self._http.headers)
+
+        def renew() -> None:
+            while not stop.wait(ttl_s / 3):
+                with contextlib.suppress(CamdError):
+                    renewer.take_control(ttl_s)
+
+        thread = threading.Thread(target=renew, name="camd-control-renew", daemon=True)
+        thread.start()
+        try:
+            yield doc
+        finally:
+            stop.set()
+            thread.join(5.0)
+            renewer.close()
+            with contextlib.suppress(CamdError):
+                self.release_control()
+
+    def estop(self) -> EstopDoc:
+        """Emergency stop (stage, acquisition, wheel): never refused."""
+        return cast(EstopDoc, self._json("POST", f"{API}/estop"))
 
     def wait_ready(self, timeout_s: float = 10.0, *, poll_s: float = 0.1) -> StatusDoc:
         """Wait until the daemon answers and its camera is connected (state not

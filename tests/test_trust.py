@@ -7,6 +7,7 @@ after each refused request and compared.
 
 from __future__ import annotations
 
+import contextlib
 import threading
 from collections.abc import Iterator
 from pathlib import Path
@@ -23,13 +24,21 @@ from tests.test_sensor_stack import serve
 pytestmark = pytest.mark.exclusive
 
 
-@pytest.fixture(scope="module")
-def url(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
-    with serve(tmp_path_factory.mktemp("camd-trust"), "fpga") as daemon:
+@contextlib.contextmanager
+def small_window_daemon(tmp: Path) -> Iterator[str]:
+    """A daemon on the simulated camera with a 16-row window (short frames: quick scans);
+    yields its URL and checks it exits cleanly."""
+    with serve(tmp, "fpga") as daemon:
         with CamdClient(daemon.url) as client:
             client.write_registers({"WIN_ROWS": 16, "EXPOSURE": 4})
         yield daemon.url
     assert daemon.exit_code in (0, -15), daemon.log_path.read_text()
+
+
+@pytest.fixture(scope="module")
+def url(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+    with small_window_daemon(tmp_path_factory.mktemp("camd-trust")) as url:
+        yield url
 
 
 def snapshot(client: CamdClient) -> dict[str, Any]:

@@ -14,14 +14,20 @@ import json
 from pathlib import Path
 from typing import Any
 
+from camd.campaign.baseline import describe
 from camd.campaign.spec import CampaignSpec, PlotSpec, TableSpec
 from camd.markdown import table as md_table
 
 __all__ = ["write_report"]
 
 
-def write_report(spec: CampaignSpec, doc: dict[str, Any], out_dir: Path) -> Path:
-    """Write report.md, report.html and plots/*.png under ``out_dir``; return the HTML's path."""
+def write_report(
+    spec: CampaignSpec, doc: dict[str, Any], out_dir: Path, *, restored: list[str] | None = None
+) -> Path:
+    """Write report.md, report.html and plots/*.png under ``out_dir``; return the HTML's path.
+    ``restored``: the daemon's settings put back after the run (camd.campaign.baseline)."""
+    baseline = describe(spec.baseline)
+    after = restored or []
     results: dict[str, Any] = doc["results"]
     plots_dir = out_dir / "plots"
     plots_dir.mkdir(parents=True, exist_ok=True)
@@ -55,6 +61,9 @@ def write_report(spec: CampaignSpec, doc: dict[str, Any], out_dir: Path) -> Path
         md += ["", f"## {plot.title}", "", f"![{plot.title}]({png})"]
     if spec.assumptions:
         md += ["", "## Assumptions", ""] + [f"- {a}" for a in spec.assumptions]
+    md += ["", "## Baseline", "", "Before the first step:", ""] + [f"- {b}" for b in baseline]
+    if after:
+        md += ["", "After the run, the daemon's settings were put back: " + ", ".join(after) + "."]
     md += ["", "## Parameters", "", "```json", json.dumps(doc["parameters"], indent=2), "```"]
     (out_dir / "report.md").write_text("\n".join(md) + "\n", encoding="utf-8")
 
@@ -76,6 +85,12 @@ def write_report(spec: CampaignSpec, doc: dict[str, Any], out_dir: Path) -> Path
     if spec.assumptions:
         body += ["<h2>Assumptions</h2><ul>"]
         body += [f"<li>{h(a)}</li>" for a in spec.assumptions] + ["</ul>"]
+    body += ["<h2>Baseline</h2><p>Before the first step:</p><ul>"]
+    body += [f"<li>{h(b)}</li>" for b in baseline] + ["</ul>"]
+    if after:
+        body += [
+            f"<p>After the run, the daemon's settings were put back: {h(', '.join(after))}.</p>"
+        ]
     body += ["<h2>Parameters</h2>", f"<pre>{h(json.dumps(doc['parameters'], indent=2))}</pre>"]
     page = (
         "<!DOCTYPE html>\n<html><head><meta charset='utf-8'>"

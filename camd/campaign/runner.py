@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
 
+from camd.campaign.baseline import apply_baseline, capture, restore
 from camd.campaign.measurements import MEASUREMENTS, Acquired
 from camd.campaign.spec import (
     AcquireStep,
@@ -51,6 +52,9 @@ __all__ = ["CampaignInterrupted", "CampaignOutcome", "CampaignRunner", "Progress
 
 STATE_FORMAT = "camd-campaign-state"
 STATE_VERSION = 1
+
+
+CONTROL_TTL_S = 60.0  # the campaign's control lease, renewed every 20 s while it runs
 
 
 class CampaignInterrupted(Exception):
@@ -173,6 +177,7 @@ class CampaignRunner:
         self._completed: dict[str, dict[str, Any]] = {}
         self._checks: list[dict[str, Any]] = []
         self._files: dict[str, str] = {}
+        self.restored: list[str] = []  # the daemon's settings put back after the run
 
     # -- the run --------------------------------------------------------------------------------
 
@@ -188,9 +193,20 @@ class CampaignRunner:
         self.progress.begin(self._count(self.spec.steps, self.parameters))
         top = _Level()
         try:
-            self._run_steps(self.spec.steps, "", dict(self.parameters), top)
+            # The campaign holds control for its whole run: no other client changes the
+            # camera between its steps (they may watch). It starts from its baseline and puts
+            # back the daemon's settings when it ends, passed or failed.
+            with self.client.holding_control(CONTROL_TTL_S):
+                before = capture(self.client)
+                try:
+                    apply_baseline(self.client, self.spec.baseline)
+                    self._run_steps(self.spec.steps, "", dict(self.parameters), top)
+                except BaseException:
+                    self._stop_device()
+                    raise
+                finally:
+                    self.restored = restore(self.client, before)
         except KeyboardInterrupt:
-            self._stop_device()
             raise CampaignInterrupted(
                 f"interrupted; {len(self._completed)} completed step(s) saved in "
                 f"{self.state_path}: run again with the same --out to resume"
@@ -202,7 +218,7 @@ class CampaignRunner:
         if report:
             from camd.campaign.report import write_report
 
-            outcome.report_path = write_report(self.spec, doc, self.out_dir)
+            outcome.report_path = write_report(self.spec, doc, self.out_dir, restored=self.restored)
         return outcome
 
     def _results_doc(self, top: _Level) -> dict[str, Any]:

@@ -283,6 +283,20 @@ class Outputs(_Model):
 # -- the campaign -----------------------------------------------------------------------------
 
 
+class BaselineSpec(_Model):
+    """What the camera is brought to before the first step (camd.campaign.baseline)."""
+
+    scene: str = Field(
+        default="flat", description="simulator only: the scene before any configure step"
+    )
+    stage: Literal["stop", "home", "release"] = Field(
+        default="stop",
+        description="the scan stage: stopped where it stands (on the simulator the scene then "
+        "moves with the ideal stage, whatever the stepper's position), enabled and homed, or "
+        "stopped with its motor released",
+    )
+
+
 class CampaignSpec(_Model):
     """A whole campaign file."""
 
@@ -297,6 +311,7 @@ class CampaignSpec(_Model):
     assumptions: list[str] = Field(
         default_factory=list, description="what the report must say was assumed"
     )
+    baseline: BaselineSpec = Field(default_factory=BaselineSpec)
     steps: list[Step] = Field(min_length=1)
     outputs: Outputs = Field(default_factory=Outputs)
 

@@ -91,6 +91,12 @@ def _common_options(parser: argparse.ArgumentParser, *, suppress: bool) -> None:
         metavar="S",
         help="seconds to wait for each answer (default 30; ping adds time per ping)",
     )
+    parser.add_argument(
+        "--client",
+        default=default(None),
+        metavar="NAME",
+        help="the name the daemon knows you by for control (default: $CAMD_CLIENT or user@host)",
+    )
 
 
 def _positive_float(text: str) -> float:
@@ -192,7 +198,39 @@ def build_parser() -> argparse.ArgumentParser:
     p = command("mode", "select the imaging mode: area (staring) or tdi (push-broom)")
     p.add_argument("mode", choices=MODES, help="area or tdi")
 
-    command("reset", "soft-reset the device (mode back to area, fault cleared)")
+    command(
+        "reset",
+        "soft-reset the device (mode back to area, fault cleared, the sensor's registers back "
+        "at their power-up values); refused while an acquisition runs",
+    )
+    p = command(
+        "control",
+        "show who holds control of the camera, or take or give it back (reading never needs it)",
+    )
+    p.add_argument(
+        "action",
+        nargs="?",
+        choices=("status", "take", "release"),
+        default="status",
+        help="status (default), take (or renew) a lease, or release it",
+    )
+    p.add_argument(
+        "--ttl-s",
+        type=_positive_float,
+        default=60.0,
+        metavar="S",
+        help="with take: the lease's length in seconds (default 60; take again to renew)",
+    )
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="with take: take control from the client that holds it (logged as an event)",
+    )
+    command(
+        "estop",
+        "EMERGENCY STOP: the stage (no ramp, current cut), the running acquisition and the "
+        "filter wheel; never refused, whoever holds control",
+    )
     camctl_sensor.add_parsers(command)
     camctl_stream.add_parsers(command)
     camctl_scan.add_parsers(command)
@@ -217,7 +255,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error("telemetry: --since-s and --limit go with --history CHANNEL")
 
     try:
-        client = CamdClient(args.url, token=args.token, timeout_s=args.timeout)
+        client = CamdClient(args.url, token=args.token, timeout_s=args.timeout, client=args.client)
     except ValueError as exc:
         parser.error(str(exc))
 
@@ -300,6 +338,23 @@ def _cmd_reset(client: CamdClient, args: argparse.Namespace) -> Any:
     return client.reset()
 
 
+def _cmd_control(client: CamdClient, args: argparse.Namespace) -> Any:
+    if args.action == "take":
+        return client.take_control(args.ttl_s, force=args.force)
+    if args.action == "release":
+        return client.release_control()
+    if args.force:
+        raise UsageError("--force goes with `camctl control take`")
+    return client.control()
+
+
+def _cmd_estop(client: CamdClient, args: argparse.Namespace) -> Any:
+    doc = client.estop()
+    if doc["failed"]:
+        raise CommandFailed(doc, "could not stop " + "; ".join(doc["failed"]))
+    return doc
+
+
 _COMMANDS: dict[str, Callable[[CamdClient, argparse.Namespace], Any]] = {
     "status": _cmd_status,
     "ping": _cmd_ping,
@@ -308,6 +363,8 @@ _COMMANDS: dict[str, Callable[[CamdClient, argparse.Namespace], Any]] = {
     "events": _cmd_events,
     "mode": _cmd_mode,
     "reset": _cmd_reset,
+    "control": _cmd_control,
+    "estop": _cmd_estop,
     **camctl_sensor.COMMANDS,
     **camctl_stream.COMMANDS,
     **camctl_scan.COMMANDS,
@@ -396,8 +453,20 @@ def status_table(doc: dict[str, Any], title: str | None = "camd status") -> Tabl
     daemon = doc.get("daemon") or {}
     for key, value in daemon.items():
         table.add_row(f"daemon.{key}", fmt_value(value))
+    if isinstance(doc.get("control"), dict):
+        table.add_row("control", control_text(doc["control"]))
+    acquisition = doc.get("acquisition")
+    if isinstance(acquisition, dict):
+        running = "running" if acquisition.get("running") else "ended"
+        by = f" by {acquisition['client']}" if acquisition.get("client") else ""
+        table.add_row(
+            "acquisition",
+            f"{acquisition.get('kind')} {running}: {acquisition.get('description')}{by}, "
+            f"since {fmt_time(acquisition.get('started_t_s'))}",
+        )
+    listed = {"state", "reason", "mode", "link", "device", "daemon", "control", "acquisition"}
     for key, value in doc.items():
-        if key not in {"state", "reason", "mode", "link", "device", "daemon"}:
+        if key not in listed:
             table.add_row(key, fmt_value(value))
     return table
 
@@ -539,6 +608,29 @@ def _render_reset(out: Console, doc: Any, args: argparse.Namespace) -> None:
     out.print(status_table(doc))
 
 
+def control_text(doc: dict[str, Any]) -> Text:
+    """``nobody`` or ``alice@pc1 since 12:03:04 (lease until 12:04:04)``; "you" marked."""
+    holder = doc.get("holder")
+    if holder is None:
+        return Text("nobody (any client may change the camera)", style="green")
+    until = doc.get("expires_t_s")
+    why = f"{doc.get('why')}, until {fmt_time(until)}" if until else str(doc.get("why"))
+    mine = holder == doc.get("you")
+    return Text.assemble(
+        (str(holder), "bold green" if mine else "bold yellow"),
+        " (you)" if mine else "",
+        f" since {fmt_time(doc.get('since_t_s'))} ({why})",
+    )
+
+
+def _render_control(out: Console, doc: Any, args: argparse.Namespace) -> None:
+    out.print(Text.assemble("control: ", control_text(doc)))
+
+
+def _render_estop(out: Console, doc: Any, args: argparse.Namespace) -> None:
+    out.print(Text(f"EMERGENCY STOP: stopped {', '.join(doc['stopped']) or 'nothing'}", "bold red"))
+
+
 _RENDER: dict[str, Callable[[Console, Any, argparse.Namespace], None]] = {
     "status": _render_status,
     "ping": _render_ping,
@@ -547,6 +639,8 @@ _RENDER: dict[str, Callable[[Console, Any, argparse.Namespace], None]] = {
     "events": _render_events,
     "mode": _render_mode,
     "reset": _render_reset,
+    "control": _render_control,
+    "estop": _render_estop,
     **camctl_sensor.RENDER,
     **camctl_stream.RENDER,
     **camctl_scan.RENDER,

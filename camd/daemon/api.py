@@ -13,7 +13,7 @@ import logging
 from collections.abc import Awaitable, Callable, Iterable
 from typing import Any
 
-from fastapi import FastAPI, Query, Request
+from fastapi import Depends, FastAPI, Header, Query, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse, Response
 from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
@@ -22,6 +22,8 @@ from prometheus_client.registry import Collector, CollectorRegistry
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 import camd
+from camd.daemon.acquisition import acting_as
+from camd.daemon.control import ANONYMOUS
 from camd.daemon.errors import (
     BadRequest,
     Busy,
@@ -36,7 +38,10 @@ from camd.daemon.models import (
     ALLOWED,
     EVENTS_LIMIT_MAX,
     HISTORY_LIMIT_MAX,
+    ControlInfo,
+    ControlRequest,
     ErrorResponse,
+    EstopResponse,
     EventsResponse,
     HistoryResponse,
     LinkResponse,
@@ -61,6 +66,7 @@ from camd.daemon.models import (
     ScanResponse,
     SceneRequest,
     SeedRequest,
+    SimSettings,
     SimStageFaultsRequest,
     SimStageTruth,
     SimStreamStats,
@@ -105,6 +111,18 @@ _ERROR_RESPONSES: dict[int | str, dict[str, Any]] = {
 }
 for _kind, _status, _code in ERROR_MAP:
     _ERROR_RESPONSES[_status] = {"model": ErrorResponse, "description": _code}
+
+
+CLIENT_NAME_MAX = 100
+
+
+def client_name(header: str | None) -> str:
+    """The client a request comes from (the ``X-Camd-Client`` header, printable, at most 100
+    characters), or "anonymous"."""
+    if header is None:
+        return ANONYMOUS
+    name = "".join(ch for ch in header if ch.isprintable()).strip()[:CLIENT_NAME_MAX]
+    return name or ANONYMOUS
 
 
 def error_response(status: int, code: str, message: str) -> JSONResponse:
@@ -228,6 +246,23 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
     registry = CollectorRegistry(auto_describe=False)
     registry.register(_SessionCollector(session))
 
+    def requester(
+        x_camd_client: str | None = Header(
+            default=None, description="who asks (camctl sends user@host; --client NAME)"
+        ),
+    ) -> str:
+        return client_name(x_camd_client)
+
+    def controlled(wanted: str) -> Callable[[str], str]:
+        """A dependency: the requesting client, once it is allowed to change the camera
+        (nobody holds control, or it does); 423 not_in_control naming the holder if not."""
+
+        def check(client: str = Depends(requester)) -> str:
+            session.control.check(client, wanted)
+            return client
+
+        return check
+
     @app.middleware("http")
     async def check_token(
         request: Request, call_next: Callable[[Request], Awaitable[Response]]
@@ -280,9 +315,37 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
         )
 
     @app.get(f"{API}/status", response_model=StatusResponse, tags=["status"])
-    def get_status() -> StatusResponse:
-        """State, reason, mode, link, the device's status and the daemon's identity."""
-        return session.status()
+    def get_status(client: str = Depends(requester)) -> StatusResponse:
+        """State, reason, mode, link, the device's status, the daemon's identity, who holds
+        control and the current or last acquisition."""
+        return session.status(client)
+
+    @app.get(f"{API}/control", response_model=ControlInfo, tags=["control"])
+    def get_control(client: str = Depends(requester)) -> ControlInfo:
+        """Who holds control (no device traffic); reading never needs control."""
+        return session.control_info(client)
+
+    @app.post(f"{API}/control", response_model=ControlInfo, tags=["control"])
+    def post_control(
+        body: ControlRequest | None = None, client: str = Depends(requester)
+    ) -> ControlInfo:
+        """Take control for ``ttl_s`` seconds, or renew it; 423 while another client holds
+        it, unless ``force`` (a takeover, logged as an event)."""
+        body = body or ControlRequest()
+        session.control.take(client, body.ttl_s, force=body.force)
+        return session.control_info(client)
+
+    @app.delete(f"{API}/control", response_model=ControlInfo, tags=["control"])
+    def delete_control(client: str = Depends(requester)) -> ControlInfo:
+        """Give control back (harmless when this client holds none)."""
+        session.control.release(client)
+        return session.control_info(client)
+
+    @app.post(f"{API}/estop", response_model=EstopResponse, tags=["control"])
+    def post_estop() -> EstopResponse:
+        """Emergency stop of the stage (no ramp, current cut), the running acquisition and the
+        filter wheel. Never refused, whoever asks and whatever holds control."""
+        return session.estop()
 
     @app.post(f"{API}/ping", response_model=PingResponse, tags=["link"])
     def post_ping(body: PingRequest | None = None) -> PingResponse:
@@ -320,14 +383,18 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
         return session.events(limit)
 
     @app.post(f"{API}/mode", response_model=ModeResponse, tags=["control"])
-    def post_mode(body: ModeRequest) -> ModeResponse:
+    def post_mode(
+        body: ModeRequest, client: str = Depends(controlled("change the imaging mode"))
+    ) -> ModeResponse:
         """Select area (staring) or tdi (push-broom) imaging mode; legal only when idle."""
-        return session.set_mode(body.mode)
+        with acting_as(client):
+            return session.set_mode(body.mode)
 
     @app.post(f"{API}/reset", response_model=StatusResponse, tags=["control"])
-    def post_reset() -> StatusResponse:
+    def post_reset(client: str = Depends(controlled("reset the camera"))) -> StatusResponse:
         """Soft-reset the camera; clears a fault. Returns the status afterwards."""
-        return session.reset()
+        with acting_as(client):
+            return session.reset()
 
     @app.get(f"{API}/registers", response_model=RegistersResponse, tags=["sensor"])
     def get_registers() -> RegistersResponse:
@@ -335,10 +402,13 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
         return session.sensor.dump()
 
     @app.post(f"{API}/registers", response_model=RegisterWriteResponse, tags=["sensor"])
-    def post_registers(body: RegisterWriteRequest) -> RegisterWriteResponse:
+    def post_registers(
+        body: RegisterWriteRequest, client: str = Depends(controlled("write sensor registers"))
+    ) -> RegisterWriteResponse:
         """Write registers by name: all validated first (nothing written if one is invalid),
         sent in one burst, read back and verified."""
-        return session.sensor.write(dict(body.values))
+        with acting_as(client):
+            return session.sensor.write(dict(body.values))
 
     @app.post(f"{API}/registers/diff", response_model=RegisterDiffResponse, tags=["sensor"])
     def post_registers_diff(body: RegisterDiffRequest | None = None) -> RegisterDiffResponse:
@@ -352,9 +422,12 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
         return session.sensor.configuration()
 
     @app.put(f"{API}/registers/config", response_model=RegisterWriteResponse, tags=["sensor"])
-    def put_register_config(body: RegisterConfig) -> RegisterWriteResponse:
+    def put_register_config(
+        body: RegisterConfig, client: str = Depends(controlled("load a register configuration"))
+    ) -> RegisterWriteResponse:
         """Load a whole configuration: refused whole if invalid or for another sensor."""
-        return session.sensor.load_configuration(body)
+        with acting_as(client):
+            return session.sensor.load_configuration(body)
 
     @app.get(f"{API}/registers/{{key}}", response_model=RegisterReading, tags=["sensor"])
     def get_register(key: str) -> RegisterReading:
@@ -367,9 +440,10 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
         return session.sensor.timing()
 
     @app.post(f"{API}/train", response_model=TrainResponse, tags=["sensor"])
-    def post_train() -> TrainResponse:
+    def post_train(client: str = Depends(controlled("train the sensor link"))) -> TrainResponse:
         """Train the sensor's LVDS link now; ``trained`` says whether it locked error-free."""
-        return session.sensor.train()
+        with acting_as(client):
+            return session.sensor.train()
 
     @app.get(f"{API}/train", response_model=TrainResponse, tags=["sensor"])
     def get_train() -> TrainResponse:
@@ -382,20 +456,27 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
         return session.stream.status()
 
     @app.post(f"{API}/stream/start", response_model=StreamResponse, tags=["stream"])
-    def post_stream_start(body: StreamStartRequest | None = None) -> StreamResponse:
+    def post_stream_start(
+        body: StreamStartRequest | None = None, client: str = Depends(controlled("start a stream"))
+    ) -> StreamResponse:
         """Start streaming and return at once; refused (409 link_untrained) on an untrained
         link. ``frames = 0`` streams until /stream/stop."""
-        return session.stream.start(body or StreamStartRequest())
+        with acting_as(client):
+            return session.stream.start(body or StreamStartRequest())
 
     @app.post(f"{API}/stream/acquire", response_model=StreamResponse, tags=["stream"])
-    def post_stream_acquire(body: StreamStartRequest) -> StreamResponse:
+    def post_stream_acquire(
+        body: StreamStartRequest, client: str = Depends(controlled("start a stare"))
+    ) -> StreamResponse:
         """Take ``frames`` frames (optionally recording them to HDF5) and return when done."""
-        return session.stream.acquire(body)
+        with acting_as(client):
+            return session.stream.acquire(body)
 
     @app.post(f"{API}/stream/stop", response_model=StreamResponse, tags=["stream"])
-    def post_stream_stop() -> StreamResponse:
+    def post_stream_stop(client: str = Depends(controlled("stop the stream"))) -> StreamResponse:
         """Stop the stream; frames the device sent are drained first. Harmless when idle."""
-        return session.stream.stop()
+        with acting_as(client):
+            return session.stream.stop()
 
     @app.get(f"{API}/scan", response_model=ScanResponse, tags=["scan"])
     def get_scan() -> ScanResponse:
@@ -403,19 +484,26 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
         return session.scan.status()
 
     @app.post(f"{API}/scan/start", response_model=ScanResponse, tags=["scan"])
-    def post_scan_start(body: ScanRequest) -> ScanResponse:
+    def post_scan_start(
+        body: ScanRequest, client: str = Depends(controlled("start a scan"))
+    ) -> ScanResponse:
         """Start a push-broom scan with host TDI and return at once (docs/scan.md)."""
-        return session.scan.start(body)
+        with acting_as(client):
+            return session.scan.start(body)
 
     @app.post(f"{API}/scan/stop", response_model=ScanResponse, tags=["scan"])
-    def post_scan_stop() -> ScanResponse:
+    def post_scan_stop(client: str = Depends(controlled("stop the scan"))) -> ScanResponse:
         """Stop the running scan and return once its file is closed. Harmless when idle."""
-        return session.scan.stop()
+        with acting_as(client):
+            return session.scan.stop()
 
     @app.put(f"{API}/scan/stages", response_model=ScanResponse, tags=["scan"])
-    def put_scan_stages(body: StagesRequest) -> ScanResponse:
+    def put_scan_stages(
+        body: StagesRequest, client: str = Depends(controlled("change the scan's stages"))
+    ) -> ScanResponse:
         """Change the TDI stage count of the running scan from its next frame."""
-        return session.scan.set_stages(body.stages)
+        with acting_as(client):
+            return session.scan.set_stages(body.stages)
 
     @app.get(f"{API}/motion", response_model=MotionStatus, tags=["motion"])
     def get_motion() -> MotionStatus:
@@ -423,20 +511,29 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
         return session.motion.status()
 
     @app.post(f"{API}/motion/enable", response_model=MotionStatus, tags=["motion"])
-    def post_motion_enable(body: MotionEnableRequest) -> MotionStatus:
+    def post_motion_enable(
+        body: MotionEnableRequest, client: str = Depends(controlled("enable or release the stage"))
+    ) -> MotionStatus:
         """Energise the motor (programs the configured limits first; clears an estop) or
         release it."""
-        return session.motion.enable(body.on)
+        with acting_as(client):
+            return session.motion.enable(body.on)
 
     @app.post(f"{API}/motion/run", response_model=MotionStatus, tags=["motion"])
-    def post_motion_run(body: MotionRunRequest) -> MotionStatus:
+    def post_motion_run(
+        body: MotionRunRequest, client: str = Depends(controlled("run the stage"))
+    ) -> MotionStatus:
         """Ramp to a constant signed speed and hold it (0 stops)."""
-        return session.motion.run(body.speed_m_s)
+        with acting_as(client):
+            return session.motion.run(body.speed_m_s)
 
     @app.post(f"{API}/motion/move", response_model=MotionStatus, tags=["motion"])
-    def post_motion_move(body: MotionMoveRequest) -> MotionStatus:
+    def post_motion_move(
+        body: MotionMoveRequest, client: str = Depends(controlled("move the stage"))
+    ) -> MotionStatus:
         """Move to a position (metres from home) and stop; waits unless ``wait`` is false."""
-        return session.motion.move(body)
+        with acting_as(client):
+            return session.motion.move(body)
 
     @app.post(f"{API}/motion/stop", response_model=MotionStatus, tags=["motion"])
     def post_motion_stop() -> MotionStatus:
@@ -444,9 +541,12 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
         return session.motion.stop()
 
     @app.post(f"{API}/motion/home", response_model=MotionStatus, tags=["motion"])
-    def post_motion_home(body: MotionHomeRequest | None = None) -> MotionStatus:
+    def post_motion_home(
+        body: MotionHomeRequest | None = None, client: str = Depends(controlled("home the stage"))
+    ) -> MotionStatus:
         """Find the home switch and zero the position there."""
-        return session.motion.home((body or MotionHomeRequest()).wait)
+        with acting_as(client):
+            return session.motion.home((body or MotionHomeRequest()).wait)
 
     @app.post(f"{API}/motion/estop", response_model=MotionStatus, tags=["motion"])
     def post_motion_estop() -> MotionStatus:
@@ -473,36 +573,54 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
         return session.wheel.status()
 
     @app.put(f"{API}/wheel/speed", response_model=WheelStatus, tags=["wheel"])
-    def put_wheel_speed(body: WheelSpeedRequest) -> WheelStatus:
+    def put_wheel_speed(
+        body: WheelSpeedRequest,
+        client: str = Depends(controlled("change the filter wheel's speed")),
+    ) -> WheelStatus:
         """Turn the wheel at a constant speed (0 stops it); legal only when idle."""
-        return session.wheel.set_speed(body.speed_deg_s)
+        with acting_as(client):
+            return session.wheel.set_speed(body.speed_deg_s)
 
     @app.put(f"{API}/wheel/compensation", response_model=WheelStatus, tags=["wheel"])
-    def put_wheel_compensation(body: WheelCompensationRequest) -> WheelStatus:
+    def put_wheel_compensation(
+        body: WheelCompensationRequest,
+        client: str = Depends(controlled("change the wheel's delay compensation")),
+    ) -> WheelStatus:
         """Exposure delay compensation on or off (physics.md §4 eq 5); switching on is
         refused (400, with the numbers) when the exposure in the registers cannot fit."""
-        return session.wheel.set_compensation(body.on)
+        with acting_as(client):
+            return session.wheel.set_compensation(body.on)
 
     @app.post(f"{API}/wheel/acquire", response_model=WheelAcquireResponse, tags=["wheel"])
-    def post_wheel_acquire(body: WheelAcquireRequest) -> WheelAcquireResponse:
+    def post_wheel_acquire(
+        body: WheelAcquireRequest, client: str = Depends(controlled("start a wheel acquisition"))
+    ) -> WheelAcquireResponse:
         """One frame per channel per pass, each started by its channel's entry pulse (plus
         T_delay with compensation); returns when done, with each frame's imaging-centre angle,
         its uncertainty (eq 8) and mean signal. Out-of-window exposures are refused (400)
         before anything is written."""
-        return session.wheel.acquire(body)
+        with acting_as(client):
+            return session.wheel.acquire(body)
 
     @app.put(f"{API}/sim/polarizer", status_code=204, tags=["simulator"])
-    def put_sim_polarizer(body: PolarizerRequest) -> Response:
+    def put_sim_polarizer(
+        body: PolarizerRequest, client: str = Depends(controlled("change the simulated polariser"))
+    ) -> Response:
         """Simulated camera only: the reference polariser in front of the scene (docs/wheel.md);
         ``angle_deg`` null takes it out."""
-        session.sim.set_polarizer(body.angle_deg)
-        return Response(status_code=204)
+        with acting_as(client):
+            session.sim.set_polarizer(body.angle_deg)
+            return Response(status_code=204)
 
     @app.put(f"{API}/sim/stage/faults", status_code=204, tags=["simulator"])
-    def put_sim_stage_faults(body: SimStageFaultsRequest) -> Response:
+    def put_sim_stage_faults(
+        body: SimStageFaultsRequest,
+        client: str = Depends(controlled("change the simulated stage's faults")),
+    ) -> Response:
         """Simulated camera only: the stepper stage's imperfections (as --inject stage_*)."""
-        session.sim.set_stage_faults(body)
-        return Response(status_code=204)
+        with acting_as(client):
+            session.sim.set_stage_faults(body)
+            return Response(status_code=204)
 
     @app.get(f"{API}/sim/stage/truth", response_model=SimStageTruth, tags=["simulator"])
     def get_sim_stage_truth() -> SimStageTruth:
@@ -510,23 +628,38 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
         return session.sim.stage_truth()
 
     @app.put(f"{API}/sim/scene", status_code=204, tags=["simulator"])
-    def put_sim_scene(body: SceneRequest) -> Response:
+    def put_sim_scene(
+        body: SceneRequest, client: str = Depends(controlled("change the simulated scene"))
+    ) -> Response:
         """Simulated camera only: the scene in front of it (docs/simulator.md)."""
-        session.sim.set_scene(body.spec)
-        return Response(status_code=204)
+        with acting_as(client):
+            session.sim.set_scene(body.spec)
+            return Response(status_code=204)
 
     @app.put(f"{API}/sim/seed", status_code=204, tags=["simulator"])
-    def put_sim_seed(body: SeedRequest) -> Response:
+    def put_sim_seed(
+        body: SeedRequest, client: str = Depends(controlled("re-seed the simulator"))
+    ) -> Response:
         """Simulated camera only: restart the temporal noise and frame-fault random streams
         from ``seed`` (the fixed pattern is kept), so a repeated step sees the same noise."""
-        session.sim.set_seed(body.seed)
-        return Response(status_code=204)
+        with acting_as(client):
+            session.sim.set_seed(body.seed)
+            return Response(status_code=204)
 
     @app.put(f"{API}/sim/stage", response_model=StageResponse, tags=["simulator"])
-    def put_sim_stage(body: StageRequest) -> StageResponse:
+    def put_sim_stage(
+        body: StageRequest, client: str = Depends(controlled("change the simulator's ideal stage"))
+    ) -> StageResponse:
         """Simulated camera only: the scan stage tracks the synchronous speed or runs at a set
         speed (any difference from synchronous is velocity mismatch)."""
-        return session.sim.set_ideal_stage(track=body.track, speed_m_s=body.speed_m_s)
+        with acting_as(client):
+            return session.sim.set_ideal_stage(track=body.track, speed_m_s=body.speed_m_s)
+
+    @app.get(f"{API}/sim", response_model=SimSettings, tags=["simulator"])
+    def get_sim() -> SimSettings:
+        """What this daemon last set on the simulated camera: scene, ideal stage, polariser,
+        stage faults (``available`` false on hardware)."""
+        return session.sim.settings()
 
     @app.get(f"{API}/sim/stream", response_model=SimStreamStats, tags=["simulator"])
     def get_sim_stream() -> SimStreamStats:

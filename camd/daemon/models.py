@@ -61,8 +61,8 @@ class ErrorResponse(BaseModel):
 
     error: str = Field(description="what went wrong and what to change")
     code: str = Field(
-        description="bad_request, unauthorized, illegal_state, link_untrained, device_nak, "
-        "disconnected, timeout"
+        description="bad_request, unauthorized, not_in_control, illegal_state, busy, "
+        "link_untrained, device_nak, disconnected, timeout, internal"
     )
 
 
@@ -96,6 +96,42 @@ class DaemonInfo(BaseModel):
     uptime_s: float
 
 
+class ControlInfo(BaseModel):
+    """Who holds control of the camera (docs/api.md#control)."""
+
+    holder: str | None = Field(description="the controlling client; null: nobody holds control")
+    since_t_s: float | None = Field(description="Unix time the holder took control")
+    why: str | None = Field(
+        description="'lease' (taken with POST /api/v1/control), or the acquisition it started"
+    )
+    expires_t_s: float | None = Field(
+        description="Unix time the lease ends unless renewed; null while an acquisition holds it"
+    )
+    you: str = Field(description="the client name this request was made under (X-Camd-Client)")
+
+
+class ControlRequest(_Request):
+    """POST /api/v1/control: take (or renew) control."""
+
+    ttl_s: float = Field(
+        default=60.0, gt=0.0, le=86400.0, description="lease length; ask again to renew"
+    )
+    force: bool = Field(
+        default=False, description="take control from another client (logged as an event)"
+    )
+
+
+class AcquisitionInfo(BaseModel):
+    """The acquisition slot's current or last acquisition."""
+
+    kind: Literal["scan", "stare", "stream", "wheel"]
+    description: str
+    client: str = Field(description="who started it ('' for the daemon itself)")
+    started_t_s: float
+    ended_t_s: float | None = Field(description="null while it runs")
+    running: bool
+
+
 class StatusResponse(BaseModel):
     """GET /api/v1/status and POST /api/v1/reset."""
 
@@ -105,6 +141,17 @@ class StatusResponse(BaseModel):
     link: LinkInfo
     device: DeviceStatus | None = Field(description="null when the device cannot be asked")
     daemon: DaemonInfo
+    control: ControlInfo
+    acquisition: AcquisitionInfo | None = Field(
+        description="the running acquisition, or the last started one (null before the first)"
+    )
+
+
+class EstopResponse(BaseModel):
+    """POST /api/v1/estop: what the emergency stop did."""
+
+    stopped: list[str] = Field(description="what was stopped (acquisition, stage, wheel)")
+    failed: list[str] = Field(description="what could not be stopped, with why")
 
 
 class RttMs(BaseModel):
@@ -663,6 +710,17 @@ class SimStageTruth(BaseModel):
     velocity_m_s: float
     missed_steps: int
     time_s: float
+
+
+class SimSettings(BaseModel):
+    """GET /api/v1/sim: what this daemon last set on the simulated camera (the simulator
+    cannot be asked), so that a client can put it back."""
+
+    available: bool = Field(description="false on real hardware (every sim request is refused)")
+    scene: str = Field(description="the scene spec in front of the camera")
+    ideal_stage: StageRequest = Field(description="the ideal scan stage: track, or a speed")
+    polarizer_deg: float | None = Field(description="reference polariser axis; null: out")
+    stage_faults: SimStageFaultsRequest = Field(description="the stepper stage's imperfections")
 
 
 # -- the filter wheel (docs/wheel.md) -------------------------------------------------------------

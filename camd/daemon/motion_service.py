@@ -198,11 +198,18 @@ class MotionService:
         return self.status()
 
     def emergency_stop(self) -> MotionStatus:
+        """Stop without a ramp and cut the motor current, until enabled again. Never refused
+        for control or a running acquisition (only a silent camera cannot be stopped)."""
         self.device.require(Request.MOTION_STOP)
+        self.emergency_stop_now()
+        return self.status()
+
+    def emergency_stop_now(self) -> bool:
+        """MOTOR_ESTOP at once, whatever the daemon's state (``POST /api/v1/estop``)."""
         with self.stage_errors():
             self.stage.emergency_stop()
         self.log_event("warning", "stage EMERGENCY STOP (enable to clear)")
-        return self.status()
+        return True
 
     def read(self) -> StageReading:
         """The stage now (MOTOR_GET), without the state check of ``status``."""

@@ -363,6 +363,22 @@ class SensorService:
             with self.device.device_op():
                 self._sensor_registers().write({name: snapshot.raw[name] for name in names})
 
+    def restore_defaults(self) -> list[str]:
+        """Write every configurable register that differs back to its reset value (the sensor
+        as it powers up); returns the registers written."""
+        self._checked(Request.REGISTERS_WRITE)
+        with self.device.device_op():
+            registers = self._sensor_registers()
+            now = registers.configuration()
+            changed = {
+                name: self.regmap.register(name).reset
+                for name, value in now.items()
+                if value != self.regmap.register(name).reset
+            }
+            if changed:
+                registers.write(changed)
+        return list(changed)
+
     def register_values(self) -> dict[str, int]:
         """The configurable registers' values now (for recordings' metadata)."""
         self._checked(Request.REGISTERS_READ)

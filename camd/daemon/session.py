@@ -33,6 +33,7 @@ import numpy as np
 import camd
 from camd.daemon import backends, notify
 from camd.daemon.config import HOUSEKEEPING_PACKET, Config, telemetry_channels
+from camd.daemon.control import ANONYMOUS, Control
 from camd.daemon.device import DeviceAccess
 from camd.daemon.errors import (
     BadRequest,
@@ -42,10 +43,13 @@ from camd.daemon.errors import (
     SessionError,
 )
 from camd.daemon.models import (
+    AcquisitionInfo,
     ChannelLatest,
+    ControlInfo,
     DaemonInfo,
     DeviceLinkStats,
     DeviceStatus,
+    EstopResponse,
     EventItem,
     EventsResponse,
     HistoryResponse,
@@ -120,6 +124,9 @@ class DeviceSession:
         self.motion = MotionService(device, self.sensor)
         self.scan = ScanService(device, self.sensor, self.stream, self.motion, self.sim)
         self.wheel = WheelService(device, self.sensor, self.stream)
+        self.control = Control(
+            device.acquisition, lambda level, source, message: self._event(level, source, message)
+        )
 
     # -- lifecycle ------------------------------------------------------------------------------
 
@@ -220,8 +227,68 @@ class DeviceSession:
 
     # -- operations for the API -----------------------------------------------------------------
 
-    def status(self) -> StatusResponse:
-        """State, reason, mode, link, the device's GET_STATUS (if it answers) and the daemon."""
+    def control_info(self, client: str = ANONYMOUS) -> ControlInfo:
+        """Who holds control now (no device traffic)."""
+        holder = self.control.holder()
+        if holder is None:
+            return ControlInfo(holder=None, since_t_s=None, why=None, expires_t_s=None, you=client)
+        return ControlInfo(
+            holder=holder.client,
+            since_t_s=holder.since_t_s,
+            why=holder.why,
+            expires_t_s=holder.expires_t_s,
+            you=client,
+        )
+
+    def acquisition_info(self) -> AcquisitionInfo | None:
+        """The running acquisition, or the last started one."""
+        current = self.device.acquisition.current
+        if current is None:
+            return None
+        return AcquisitionInfo(
+            kind=cast(Any, current.kind),
+            description=current.description,
+            client=current.client,
+            started_t_s=current.started_t_s,
+            ended_t_s=current.ended_t_s,
+            running=current.active,
+        )
+
+    def estop(self) -> EstopResponse:
+        """Emergency stop, never refused: the stage (no ramp, motor current cut), the running
+        acquisition (its stream stopped; a scan's file is closed as stopped) and the filter
+        wheel. Each is tried whatever the others did; what failed is said, not raised."""
+        stopped: list[str] = []
+        failed: list[str] = []
+        for what, action in (
+            ("stage", self.motion.emergency_stop_now),
+            ("acquisition", self._stop_acquisition_now),
+            ("wheel", self.wheel.stop_now),
+        ):
+            try:
+                if action():
+                    stopped.append(what)
+            except Exception as exc:  # keep stopping the others
+                failed.append(f"{what}: {exc}")
+        level = "error" if failed else "warning"
+        self._event(
+            level,
+            "api",
+            f"EMERGENCY STOP: stopped {', '.join(stopped) or 'nothing'}"
+            + (f"; could not stop {'; '.join(failed)}" if failed else ""),
+        )
+        return EstopResponse(stopped=stopped, failed=failed)
+
+    def _stop_acquisition_now(self) -> bool:
+        if self.device.acquisition.active is None and not self.stream.streaming:
+            return False
+        if self.stream.streaming:
+            self.stream.stop()
+        return True
+
+    def status(self, client: str = ANONYMOUS) -> StatusResponse:
+        """State, reason, mode, link, the device's GET_STATUS (if it answers), the daemon,
+        who holds control and the current or last acquisition."""
         device: DeviceStatus | None = None
         if self.machine.state != State.DISCONNECTED:
             try:
@@ -250,6 +317,8 @@ class DeviceSession:
             ),
             device=device,
             daemon=DaemonInfo(version=camd.__version__, pid=os.getpid(), uptime_s=self.uptime_s),
+            control=self.control_info(client),
+            acquisition=self.acquisition_info(),
         )
 
     def ping(self, count: int = 10, size: int = 16) -> PingResponse:
@@ -377,6 +446,15 @@ class DeviceSession:
             still_red = sorted(self._red_acknowledged)
         self._fire(Trigger.RESET_OK, "reset")
         note = f"; still red: {', '.join(still_red)}" if still_red else ""
+        # The sensor keeps its registers through the camera's RESET: put back the values it
+        # powers up with (the register map's reset values), so that a reset camera is a known one.
+        try:
+            changed = self.sensor.restore_defaults()
+        except SessionError as exc:
+            note += f"; the sensor's registers could NOT be put back to their defaults: {exc}"
+        else:
+            if changed:
+                note += f"; registers back at their defaults: {', '.join(changed)}"
         self._event("info", "api", f"camera reset{note}")
         return self.status()
 

@@ -20,9 +20,11 @@ from typing import Any
 from camd.daemon.device import DeviceAccess
 from camd.daemon.errors import BadRequest, DeviceRejected
 from camd.daemon.models import (
+    SimSettings,
     SimStageFaultsRequest,
     SimStageTruth,
     SimStreamStats,
+    StageRequest,
     StageResponse,
 )
 from camd.daemon.state import Request
@@ -41,6 +43,8 @@ class SimulatorControl(abc.ABC):
         # What this daemon last set (the simulator has no way to read them back).
         self._scene = device.config.sim.scene or "flat"
         self._ideal_stage: tuple[bool, float] = (True, 0.0)
+        self._polarizer_deg: float | None = None
+        self._stage_faults = SimStageFaultsRequest()
 
     @property
     @abc.abstractmethod
@@ -52,6 +56,17 @@ class SimulatorControl(abc.ABC):
         """The scene spec this daemon last set (at start: config ``sim.scene``, or the flat
         field the simulator starts with)."""
         return self._scene
+
+    def settings(self) -> SimSettings:
+        """What this daemon last set on the simulator (the simulator cannot be asked)."""
+        track, speed = self._ideal_stage
+        return SimSettings(
+            available=self.available,
+            scene=self._scene,
+            ideal_stage=StageRequest(track=track, speed_m_s=speed),
+            polarizer_deg=self._polarizer_deg,
+            stage_faults=self._stage_faults,
+        )
 
     @property
     def ideal_stage(self) -> tuple[bool, float]:
@@ -87,6 +102,7 @@ class SimulatorControl(abc.ABC):
         """The simulated stepper stage's imperfections."""
         self.device.require(Request.SIM)
         self._do_set_stage_faults(request)
+        self._stage_faults = request
         self.device.log_event("info", "api", f"simulated stage faults: {request.model_dump()}")
 
     def stage_truth(self) -> SimStageTruth:
@@ -98,6 +114,7 @@ class SimulatorControl(abc.ABC):
         """The reference polariser in front of the scene (None: out of the beam)."""
         self.device.require(Request.SIM)
         self._do_set_polarizer(angle_deg)
+        self._polarizer_deg = angle_deg
         what = "out of the beam" if angle_deg is None else f"at {angle_deg:g} deg"
         self.device.log_event("info", "api", f"simulated reference polariser {what}")
 

@@ -40,9 +40,10 @@ from camd.daemon.models import (
 )
 from camd.daemon.sensor_service import SensorService
 from camd.daemon.state import Request, Trigger
+from camd.daemon.transaction import Apply
 from camd.link.frame_stream import FrameStream, ReceivedFrame, StreamError
 from camd.protocol.stream import HEADER_BYTES
-from camd.store.recording import FrameRecorder, RecordingError
+from camd.store.recording import FrameRecorder, RecordingError, check_new_file
 
 log = logging.getLogger(__name__)
 
@@ -310,12 +311,12 @@ class StreamService:
     def _start_locked(
         self, request: StreamStartRequest, start: StreamStart | None, consumer: Consumer | None
     ) -> None:
+        # Plan: everything checked before the camera is touched.
         device = self.device
         device.require(Request.STREAM_START)
         self.sensor.require_trained("start a stream")
-        if request.mode is not None and start is None:
-            device.set_mode(request.mode)
-        mode = device.mode or "area"
+        set_mode = request.mode if start is None else None
+        mode = set_mode or device.mode or "area"
         timing = self.sensor.timing()
         stages = 0
         if mode == "tdi" and start is None:
@@ -328,12 +329,25 @@ class StreamService:
                 )
         cols = self.sensor.window_columns()
         max_frame_bytes = HEADER_BYTES + 2 * timing.window_rows * cols
-        recorder_path = self._record_path(request.record)
-        self._settled.clear()
-        try:
-            self._start_stream(request, stages, max_frame_bytes, recorder_path, start, consumer)
-        finally:
-            self._settled.set()
+        recorder_path = self._record_path(request.record, request.frames * max_frame_bytes)
+        # Apply: the mode, then the stream; a stream that does not start puts the mode back.
+        with Apply("stream not started", self._events, source="stream") as apply:
+            if set_mode is not None and device.mode != set_mode:
+                before = device.mode or "area"
+                apply.step(
+                    lambda: device.set_mode(set_mode),
+                    lambda: device.set_mode(before),
+                    f"mode {before}",
+                )
+            self._settled.clear()
+            try:
+                self._start_stream(request, stages, max_frame_bytes, recorder_path, start, consumer)
+            finally:
+                self._settled.set()
+            apply.done()
+
+    def _events(self, level: str, source: str, message: str) -> None:
+        self.device.log_event(level, source, message)
 
     def _start_stream(
         self,
@@ -411,7 +425,8 @@ class StreamService:
         how = f"{info['mode']} stream" if start is None else start.command
         self.device.fire(Trigger.STREAM_STARTED, f"{how}, {what}")
 
-    def _record_path(self, record: str | None) -> Path | None:
+    def _record_path(self, record: str | None, planned_bytes: int) -> Path | None:
+        """The recording's path, refused (nothing changed) when it cannot be written."""
         if record is None:
             return None
         path = Path(record)
@@ -419,8 +434,10 @@ class StreamService:
             raise BadRequest(
                 f"record path {record!r} is relative; give an absolute path (camctl does this)"
             )
-        if path.exists():
-            raise BadRequest(f"{path} already exists; choose another file or remove it")
+        try:
+            check_new_file(path, planned_bytes)
+        except RecordingError as exc:
+            raise BadRequest(str(exc)) from None
         return path
 
     def _new_recorder(

@@ -33,6 +33,7 @@ from camd.daemon.device import DeviceAccess
 from camd.daemon.errors import BadRequest, SessionError
 from camd.daemon.models import (
     StreamStartRequest,
+    TimingResponse,
     WheelAcquireRequest,
     WheelAcquireResponse,
     WheelChannelInfo,
@@ -44,9 +45,11 @@ from camd.daemon.models import (
 from camd.daemon.sensor_service import SensorService
 from camd.daemon.state import Request
 from camd.daemon.stream_service import StreamService, StreamStart
+from camd.daemon.transaction import Apply
 from camd.link.frame_stream import ReceivedFrame
 from camd.motion.wheel_profile import WheelProfile, load_wheel_profile
 from camd.protocol.dictionary import FieldValue
+from camd.store.recording import RecordingError, check_new_file
 from camd.timing import sequencer_frame_time_s
 from camd.timing.wheel import exposure_delay_s, imaging_centre_angle_deg
 
@@ -144,17 +147,16 @@ class WheelService:
             window_s=profile.window_s.value,
             device_frame_time_s=float(values["frame_time_s"]),
             device_delay_s=float(values["delay_s"]),
-            exposure=self.exposure_info(
-                timing.exposure_lines,
-                timing.window_rows,
-                timing.line_period_s,
-                compensated=compensated,
-                speed_deg_s=speed,
-                exposure_s=timing.exposure_s,
-            ),
+            exposure=self._exposure_now(timing, compensated=compensated, speed_deg_s=speed),
             channels=self._channels_info(),
             time_s=float(values["time_s"]),
         )
+
+    def stop_now(self) -> bool:
+        """Stop the wheel at once, whatever the daemon's state (``POST /api/v1/estop``)."""
+        self.device.request("WHEEL_SET_SPEED", speed_deg_s=0.0)
+        self.device.log_event("warning", "wheel", "filter wheel stopped (emergency stop)")
+        return True
 
     def set_speed(self, speed_deg_s: float) -> WheelStatus:
         """Turn the wheel at ``speed_deg_s`` (0 stops it)."""
@@ -180,13 +182,8 @@ class WheelService:
         self.device.require(Request.WHEEL_SET)
         if on:
             timing = self.sensor.timing()
-            info = self.exposure_info(
-                timing.exposure_lines,
-                timing.window_rows,
-                timing.line_period_s,
-                compensated=True,
-                speed_deg_s=self.profile.speed_deg_s.value,
-                exposure_s=timing.exposure_s,
+            info = self._exposure_now(
+                timing, compensated=True, speed_deg_s=self.profile.speed_deg_s.value
             )
             if not info.fits:
                 raise BadRequest(
@@ -206,8 +203,24 @@ class WheelService:
 
         Checked before anything is written: the channels, a wheel that turns, the exposure
         (``exposure_s``, or the registers') against the light window with the compensation
-        asked for (or the wheel's), the region and the recording path.
+        asked for (or the wheel's), the region and the recording path. The exposure and
+        compensation it sets stay set after it; a run that fails puts them back.
         """
+        slot = self.device.acquisition
+        what = f"channels {','.join(map(str, request.channels))} x {request.passes}"
+        acquisition = slot.claim(
+            "wheel", what + (f" to {request.record}" if request.record else "")
+        )
+        try:
+            with slot.applying(acquisition):
+                return self._acquire(request)
+        except BaseException:
+            slot.abandon(acquisition)
+            raise
+        finally:
+            slot.release(acquisition)
+
+    def _acquire(self, request: WheelAcquireRequest) -> WheelAcquireResponse:
         self.device.require(Request.STREAM_START)
         profile = self.profile
         channels = self._check_channels(request.channels)
@@ -244,45 +257,54 @@ class WheelService:
         self._check_region(request.region, timing.window_rows, self.sensor.window_columns())
         self._check_record(request.record)
 
-        if lines != timing.exposure_lines:
-            self.sensor.write(self._exposure_writes(lines))
-            timing = self.sensor.timing()
-        if compensated != device_compensated:
-            self.device.request("WHEEL_COMPENSATION", enable="on" if compensated else "off")
-        exposure = self.exposure_info(
-            timing.exposure_lines,
-            timing.window_rows,
-            timing.line_period_s,
-            compensated=compensated,
-            speed_deg_s=speed,
-            exposure_s=timing.exposure_s,
-        )
-        means = _FrameMeans(request.region)
-        start = StreamStart(
-            command="WHEEL_ACQUIRE",
-            fields={"passes": request.passes, "channels": bytes(channels)},
-            # A frame waits at most a revolution for its channel's entry pulse.
-            frame_period_s=360.0 / speed + exposure.frame_time_s,
-            metadata={
-                "wheel": profile.wheel,
-                "channels": channels,
-                "passes": request.passes,
-                "compensation": "on" if compensated else "off",
-                "speed_deg_s": speed,
-                "frame_time_s": exposure.frame_time_s,
-                "delay_s": exposure.applied_delay_s,
-                "stage_position_unit": "wheel angle at the exposure start, 1e-4 deg",
-            },
-        )
-        stream = self.stream.acquire(
-            StreamStartRequest(
-                frames=len(channels) * request.passes,
-                record=request.record,
-                timeout_s=request.timeout_s,
-            ),
-            start=start,
-            consumer=means,
-        )
+        with Apply("wheel acquisition", self._events, source="wheel") as apply:
+            if lines != timing.exposure_lines:
+                snapshot = self.sensor.snapshot()
+                writes = self._exposure_writes(lines)
+                changed = snapshot.changed(writes)
+                apply.step(
+                    lambda: self.sensor.write(writes),
+                    lambda: self.sensor.restore(snapshot, changed),
+                    "registers " + ", ".join(changed),
+                )
+                timing = self.sensor.timing()
+            if compensated != device_compensated:
+                was = "on" if device_compensated else "off"
+                apply.step(
+                    lambda: self.device.request(
+                        "WHEEL_COMPENSATION", enable="on" if compensated else "off"
+                    ),
+                    lambda: self.device.request("WHEEL_COMPENSATION", enable=was),
+                    f"delay compensation {was}",
+                )
+            exposure = self._exposure_now(timing, compensated=compensated, speed_deg_s=speed)
+            means = _FrameMeans(request.region)
+            start = StreamStart(
+                command="WHEEL_ACQUIRE",
+                fields={"passes": request.passes, "channels": bytes(channels)},
+                # A frame waits at most a revolution for its channel's entry pulse.
+                frame_period_s=360.0 / speed + exposure.frame_time_s,
+                metadata={
+                    "wheel": profile.wheel,
+                    "channels": channels,
+                    "passes": request.passes,
+                    "compensation": "on" if compensated else "off",
+                    "speed_deg_s": speed,
+                    "frame_time_s": exposure.frame_time_s,
+                    "delay_s": exposure.applied_delay_s,
+                    "stage_position_unit": "wheel angle at the exposure start, 1e-4 deg",
+                },
+            )
+            stream = self.stream.acquire(
+                StreamStartRequest(
+                    frames=len(channels) * request.passes,
+                    record=request.record,
+                    timeout_s=request.timeout_s,
+                ),
+                start=start,
+                consumer=means,
+            )
+            apply.done()
         device_after = self._device_numbers()
         frames = [
             self._frame(seen, stream.first_counter, channels, exposure, speed)
@@ -309,6 +331,19 @@ class WheelService:
         )
 
     # -- the computation (physics.md §4) ---------------------------------------------------------------
+
+    def _exposure_now(
+        self, timing: TimingResponse, *, compensated: bool, speed_deg_s: float
+    ) -> WheelExposureInfo:
+        """``exposure_info`` for the exposure the registers set now."""
+        return self.exposure_info(
+            timing.exposure_lines,
+            timing.window_rows,
+            timing.line_period_s,
+            compensated=compensated,
+            speed_deg_s=speed_deg_s,
+            exposure_s=timing.exposure_s,
+        )
 
     def exposure_info(
         self,
@@ -428,8 +463,13 @@ class WheelService:
         path = Path(record)
         if not path.is_absolute():
             raise BadRequest(f"record path {record!r} is relative; give an absolute path")
-        if path.exists():
-            raise BadRequest(f"{path} already exists; choose another file or remove it")
+        try:
+            check_new_file(path)
+        except RecordingError as exc:
+            raise BadRequest(str(exc)) from None
+
+    def _events(self, level: str, source: str, message: str) -> None:
+        self.device.log_event(level, source, message)
 
     def _device_numbers(self) -> dict[str, float]:
         """The FPGA's T_frame and applied delay (WHEEL_GET), to show beside camd's."""

@@ -1,0 +1,145 @@
+"""Who may change the camera: one controlling client at a time, everyone else observes.
+
+Every request names its client (the ``X-Camd-Client`` header; camctl and ``CamdClient`` send
+``user@host`` unless told otherwise). Reading (status, telemetry, events, files) never needs
+control. A request that changes the camera is allowed when nobody holds control or when its
+client is the holder; any other client gets 423 ``not_in_control`` naming the holder, since
+when and why, and how to take over.
+
+A client holds control:
+
+- explicitly, with a lease (``POST /api/v1/control``): for ``ttl_s`` seconds, renewed by asking
+  again, given back with ``DELETE``; a campaign or a script holds one for its whole run;
+- implicitly, while an acquisition it started (scan, stare, stream, wheel run) runs: nobody
+  else can stop or disturb it.
+
+A forced takeover (``force``) always succeeds and is logged as a warning event naming both
+clients. Emergency stops (``/api/v1/estop``, ``/api/v1/motion/estop``, ``/api/v1/motion/stop``)
+are never refused, whoever asks and whatever holds control.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from camd.daemon.acquisition import AcquisitionSlot
+from camd.daemon.errors import NotInControl
+
+ANONYMOUS = "anonymous"
+DEFAULT_TTL_S = 60.0
+MAX_TTL_S = 24 * 3600.0
+
+
+@dataclass(frozen=True, slots=True)
+class Holder:
+    """Who holds control now, since when, why, and until when (None: while it runs)."""
+
+    client: str
+    since_t_s: float
+    why: str  # "lease" or "a scan it started is running" ...
+    expires_t_s: float | None
+
+
+@dataclass(slots=True)
+class _Lease:
+    client: str
+    since_t_s: float
+    expires_t_s: float
+
+
+def _clock(t_s: float) -> str:
+    return time.strftime("%H:%M:%S", time.localtime(t_s))
+
+
+class Control:
+    """The controlling client (module docstring); thread-safe."""
+
+    def __init__(
+        self,
+        acquisition: AcquisitionSlot,
+        events: Callable[[str, str, str], None],
+        clock: Callable[[], float] = time.time,
+    ) -> None:
+        self._acquisition = acquisition
+        self._events = events
+        self._clock = clock
+        self._lock = threading.Lock()
+        self._lease: _Lease | None = None
+
+    def holder(self) -> Holder | None:
+        """Who holds control now (an expired lease holds nothing)."""
+        with self._lock:
+            return self._holder()
+
+    def _holder(self) -> Holder | None:
+        lease = self._lease
+        now = self._clock()
+        if lease is not None and lease.expires_t_s <= now:
+            self._events(
+                "info", "control", f"control lease of {lease.client} expired; control is free"
+            )
+            self._lease = lease = None
+        if lease is not None:
+            return Holder(lease.client, lease.since_t_s, "lease", lease.expires_t_s)
+        running = self._acquisition.active
+        if running is not None and running.client:
+            return Holder(
+                running.client,
+                running.started_t_s,
+                f"a {running.kind} it started is running",
+                None,
+            )
+        return None
+
+    def check(self, client: str, wanted: str) -> None:
+        """Raise NotInControl unless ``client`` may change the camera now."""
+        with self._lock:
+            holder = self._holder()
+        if holder is None or holder.client == client:
+            return
+        until = (
+            f", lease until {_clock(holder.expires_t_s)}" if holder.expires_t_s is not None else ""
+        )
+        raise NotInControl(
+            f"cannot {wanted}: {holder.client} holds control since {_clock(holder.since_t_s)} "
+            f"({holder.why}{until}); you ({client}) may read but not change the camera. Wait, "
+            "ask them, or take over with `camctl control take --force`"
+        )
+
+    def take(self, client: str, ttl_s: float, *, force: bool = False) -> Holder:
+        """Take (or renew) a lease for ``client``; NotInControl if another holds control,
+        unless ``force``, which takes it over and logs who from."""
+        with self._lock:
+            holder = self._holder()
+            now = self._clock()
+            if holder is not None and holder.client != client:
+                if not force:
+                    raise NotInControl(
+                        f"{holder.client} holds control since {_clock(holder.since_t_s)} "
+                        f"({holder.why}); wait, ask them, or take over with --force"
+                    )
+                self._events(
+                    "warning",
+                    "control",
+                    f"control taken over by {client} from {holder.client} ({holder.why})",
+                )
+            since = holder.since_t_s if holder is not None and holder.client == client else now
+            if holder is None or holder.client != client or holder.why != "lease":
+                self._events("info", "control", f"{client} took control for {ttl_s:g} s")
+            self._lease = _Lease(client, since, now + ttl_s)
+            # A takeover also takes the running acquisition: its owner is the new holder.
+            running = self._acquisition.active
+            if running is not None:
+                running.client = client
+            return self._holder()  # type: ignore[return-value]
+
+    def release(self, client: str) -> None:
+        """Give back ``client``'s lease (harmless when it holds none)."""
+        with self._lock:
+            lease = self._lease
+            if lease is not None and lease.client == client:
+                self._lease = None
+                self._events("info", "control", f"{client} released control")
