@@ -1,7 +1,9 @@
 """A small typed client of the camd HTTP API (docs/api.md), for camctl and for any script.
 
-Every method returns the API's JSON document as a plain dict (typed with TypedDicts below, which
-name the documented keys; the daemon may add more and they are passed through untouched).
+Every method returns the API's JSON document as a plain dict, typed with the TypedDicts of
+``camd.client_types``: those are generated from the API's pydantic models
+(camd/daemon/models.py) by ``python -m camd.daemon.client_types_gen``, so they name exactly the
+keys the daemon sends, and are named after the models (``StatusResponse``, ``ScanResponse``, ...).
 Failures raise ``CamdError`` built from the API's ``{"error", "code"}`` body, or
 ``DaemonUnreachable`` when nothing answers at the URL::
 
@@ -23,24 +25,45 @@ import socket
 import threading
 import time
 from collections.abc import Iterator
-from typing import Any, Literal, NotRequired, TypedDict, cast
+from typing import Any, cast
 
 import httpx
+
+from camd.client_types import (
+    ControlInfo,
+    EstopResponse,
+    EventsResponse,
+    HistoryResponse,
+    LinkResponse,
+    ModeResponse,
+    MotionStatus,
+    PingResponse,
+    RegisterConfig,
+    RegisterDiffResponse,
+    RegisterReading,
+    RegistersResponse,
+    RegisterWriteResponse,
+    ScanResponse,
+    SimSettings,
+    SimStageTruth,
+    SimStreamStats,
+    StageResponse,
+    StatusResponse,
+    StreamResponse,
+    SyncResponse,
+    TelemetryResponse,
+    TimingResponse,
+    TrainResponse,
+    WheelAcquireResponse,
+    WheelRegion,
+    WheelStatus,
+)
 
 __all__ = [
     "DEFAULT_URL",
     "CamdClient",
     "CamdError",
-    "ControlDoc",
     "DaemonUnreachable",
-    "DeviceLinkStats",
-    "EventsDoc",
-    "HistoryDoc",
-    "LinkDoc",
-    "ModeDoc",
-    "PingResult",
-    "StatusDoc",
-    "TelemetryDoc",
 ]
 
 DEFAULT_URL = "http://127.0.0.1:8422"
@@ -61,503 +84,6 @@ def default_client_name() -> str:
 # pings strictly one at a time and a lost frame costs at most a few link timeouts of ~0.1 s, so
 # a long run must not be cut off by the client's ordinary per-request timeout.
 _PING_ALLOWANCE_S = 0.05
-
-LimitState = Literal["ok", "yellow", "red"]
-
-
-# -- documents (docs/api.md); total=False where the API leaves room for more -------------------
-
-
-class LinkPort(TypedDict):
-    """``status.link``: the serial port and whether it is open."""
-
-    port: str
-    connected: bool
-    last_error: NotRequired[str | None]  # why the port is not open
-    sim_pid: NotRequired[int | None]  # the simulator the daemon spawned, if any
-
-
-class DaemonInfo(TypedDict):
-    """``status.daemon``."""
-
-    version: str
-    pid: int
-    uptime_s: float
-
-
-class ControlDoc(TypedDict):
-    """GET/POST/DELETE /api/v1/control and ``status.control``: who holds control."""
-
-    holder: str | None  # None: nobody; any client may then change the camera
-    since_t_s: float | None
-    why: str | None  # "lease", or the acquisition the holder started
-    expires_t_s: float | None  # the lease's end unless renewed; None while an acquisition holds
-    you: str  # the client name this request was made under
-
-
-class AcquisitionDoc(TypedDict):
-    """``status.acquisition``: the running acquisition, or the last started one."""
-
-    kind: str  # scan, stare, stream or wheel
-    description: str
-    client: str
-    started_t_s: float
-    ended_t_s: float | None
-    running: bool
-
-
-class EstopDoc(TypedDict):
-    """POST /api/v1/estop."""
-
-    stopped: list[str]
-    failed: list[str]
-
-
-class StatusDoc(TypedDict):
-    """GET /api/v1/status (also what POST /api/v1/reset returns)."""
-
-    state: str
-    reason: str | None
-    mode: str | None
-    link: LinkPort
-    device: dict[str, Any] | None  # the GET_STATUS fields, or None while disconnected
-    daemon: DaemonInfo
-    control: ControlDoc
-    acquisition: AcquisitionDoc | None
-
-
-class RttMs(TypedDict):
-    """Round-trip time percentiles of the successful pings, milliseconds (None if none)."""
-
-    p50: float | None
-    p99: float | None
-    max: float | None
-
-
-class PingResult(TypedDict):
-    """POST /api/v1/ping."""
-
-    count: int
-    ok: int
-    failed: int
-    retries: int
-    rtt_ms: RttMs
-    errors: list[str]  # up to 5 distinct failure reasons
-
-
-class DeviceLinkStats(TypedDict):
-    """``link.device``: the GET_LINK_STATS counters, plus the simulator's injected faults
-    (``injected`` is None on hardware)."""
-
-    rx_frames: int
-    crc_errors: int
-    resyncs: int
-    bytes_dropped: int
-    executed: int
-    replayed: int
-    nacked: int
-    tx_frames: int
-    injected: dict[str, int] | None
-
-
-class LinkDoc(TypedDict):
-    """GET /api/v1/link: host counters (sent, acked, nacked, retries, timeouts, crc_errors,
-    failed, ...) and the device's (None while it cannot be asked)."""
-
-    host: dict[str, int]
-    device: DeviceLinkStats | None
-
-
-class ChannelValue(TypedDict):
-    """One telemetry channel's latest sample."""
-
-    value: float
-    unit: str
-    t_s: float  # Unix time of the sample
-    limit: LimitState
-
-
-class TelemetryDoc(TypedDict):
-    """GET /api/v1/telemetry."""
-
-    latest: dict[str, ChannelValue]
-    samples: int
-    archive: str
-
-
-class HistoryDoc(TypedDict):
-    """GET /api/v1/telemetry/history."""
-
-    channel: str
-    unit: str
-    t_s: list[float]
-    value: list[float]
-
-
-class Event(TypedDict):
-    """One entry of the event log."""
-
-    t_s: float
-    level: str
-    source: str
-    message: str
-
-
-class EventsDoc(TypedDict):
-    """GET /api/v1/events (newest last)."""
-
-    events: list[Event]
-
-
-class ModeDoc(TypedDict):
-    """POST /api/v1/mode."""
-
-    mode: str
-
-
-class RegisterDoc(TypedDict):
-    """One register as read: raw value and fields (enum fields by name)."""
-
-    name: str
-    address: int
-    value: int
-    fields: dict[str, int | str]
-
-
-class RegistersDoc(TypedDict):
-    """GET /api/v1/registers."""
-
-    sensor: str
-    bridge: str
-    registers: list[RegisterDoc]
-
-
-class RegisterWriteDoc(TypedDict):
-    """POST /api/v1/registers and PUT /api/v1/registers/config: registers as read back."""
-
-    sensor: str
-    written: list[RegisterDoc]
-
-
-class RegisterDifferenceDoc(TypedDict):
-    name: str
-    address: int
-    expected: int
-    actual: int
-
-
-class RegisterDiffDoc(TypedDict):
-    """POST /api/v1/registers/diff."""
-
-    sensor: str
-    against: str
-    differences: list[RegisterDifferenceDoc]
-
-
-class RegisterConfigDoc(TypedDict):
-    """GET/PUT /api/v1/registers/config: a whole configuration."""
-
-    sensor: str
-    registers: dict[str, int]
-
-
-class TimingDoc(TypedDict):
-    """GET /api/v1/timing (SI units)."""
-
-    sensor: str
-    line_period_s: float
-    window_start_row: int
-    window_rows: int
-    exposure_lines: int
-    exposure_s: float
-    frame_time_s: float
-    frame_period_s: float
-    back_path_s: float
-    tdi_line_period_s: float
-    max_stages: int
-    gain: int | str | None
-    offset: int | str | None
-    readout_mode: int | str | None
-    test_pattern: int | str | None
-
-
-class LaneDoc(TypedDict):
-    lane: int
-    tap: int
-    eye_width: int
-    slips: int
-    shift: int
-    locked: bool
-
-
-class TrainDoc(TypedDict):
-    """POST/GET /api/v1/train."""
-
-    sensor: str
-    interface: str
-    trained: bool
-    lanes: int
-    locked_lanes: int
-    locked: bool
-    bit_errors: int
-    verified_bits: int
-    lane_results: list[LaneDoc]
-    t_s: float | None
-
-
-class StreamStatsDoc(TypedDict):
-    """The host's ingest counters of a stream."""
-
-    frames: int
-    bytes: int
-    lost: int
-    corrupt: int
-    short: int
-    overruns: int
-    stalls: int
-    timeouts: int
-    out_of_order: int
-    elapsed_s: float
-    mpix_per_s: float
-    mbyte_per_s: float
-
-
-class StreamDoc(TypedDict):
-    """GET /api/v1/stream and POST /stream/start, /stream/acquire, /stream/stop."""
-
-    streaming: bool
-    mode: str | None
-    rows: int
-    cols: int
-    bits: int
-    stages: int
-    binning: str
-    frame_period_s: float
-    frames_requested: int
-    first_counter: int
-    frames_sent: int | None
-    recording: str | None
-    stats: StreamStatsDoc
-
-
-class StageDoc(TypedDict):
-    """PUT /api/v1/sim/stage."""
-
-    speed_m_s: float
-    sync_speed_m_s: float
-    track: bool
-
-
-class SimStreamDoc(TypedDict):
-    """GET /api/v1/sim/stream."""
-
-    produced: int
-    sent: int
-    dropped: int
-    corrupted: int
-    shortened: int
-    stalls: int
-    undelivered: int
-
-
-class ScanTimingDoc(TypedDict):
-    """The timing a scan runs at (physics.md §2)."""
-
-    tdi_line_period_s: float
-    row_period_s: float
-    n_lines: int
-    back_path_s: float
-    max_stages: int
-    exposure_s: float
-    sync_speed_m_s: float
-    stage_speed_m_s: float | None
-    dv_over_v: float | None
-
-
-class ScanDoc(TypedDict):
-    """GET /api/v1/scan and POST /scan/start, /scan/stop, PUT /scan/stages."""
-
-    state: str
-    file: str | None
-    quicklook: str | None
-    stages: int
-    lines_wanted: int
-    frames_requested: int
-    lines: int
-    complete_lines: int
-    lost_frames: int
-    stage_changes: list[list[int]]
-    mode: str
-    width: int
-    elapsed_s: float
-    lines_per_s: float
-    cpu_load: float
-    tdi_cpu_s: float
-    backlog_frames: int
-    timing: ScanTimingDoc | None
-    error: str | None
-    stream: StreamStatsDoc
-    mismatch_max: float | None
-    mismatch_rms: float | None
-    mismatch_level: str
-    motion: ScanMotionInfoDoc | None
-
-
-class ScanMotionInfoDoc(TypedDict):
-    """How a scan drove the stage (docs/motion.md)."""
-
-    closed_loop: str
-    stage_speed_m_s: float
-    target_speed_m_s: float
-    loop_samples: int
-    loop_error: str | None
-    line_period_limited: bool
-
-
-class StageReadingDoc(TypedDict):
-    """The scan stage at one device time (m, m/s)."""
-
-    state: str
-    homed: bool
-    position_m: float
-    encoder_m: float
-    speed_m_s: float
-    encoder_speed_m_s: float
-    at_limit: str
-    time_s: float
-
-
-class StageLimitsDoc(TypedDict):
-    low_m: float
-    high_m: float
-    max_speed_m_s: float
-    accel_m_s2: float
-
-
-class MotionDoc(TypedDict):
-    """GET /api/v1/motion and the answers of the /motion/... requests."""
-
-    profile: str
-    kind: str
-    reading: StageReadingDoc
-    limits: StageLimitsDoc
-    closed_loop: str
-    yellow: float
-    red: float
-
-
-class SyncDoc(TypedDict):
-    """GET /api/v1/motion/sync: the open-loop synchronisation (the first ten keys are the
-    contract of ``camctl sync --json``)."""
-
-    line_period_s: float
-    row_time_s: float
-    n_lines: int
-    back_path_s: float
-    m0: int
-    stages: int
-    sync_speed: float
-    step_rate_hz: float
-    dv_over_v: float
-    m_dv_over_v: float
-    image_speed_m_s: float
-    stage_speed_m_s: float
-    stage_profile: str
-    image_scale: float
-    pixel_pitch_m: float
-    angular_velocity_rad_s: float | None
-    tolerance_ok: bool
-
-
-class SimStageTruthDoc(TypedDict):
-    position_m: float
-    velocity_m_s: float
-    missed_steps: int
-    time_s: float
-
-
-class WheelChannelDoc(TypedDict):
-    """One channel of the filter wheel (config/wheel.toml)."""
-
-    channel: int
-    name: str
-    band: str
-    centre_deg: float
-    polarizer_deg: float | None
-
-
-class WheelExposureDoc(TypedDict):
-    """camd's numbers for one exposure through the wheel (physics.md §4, SI units)."""
-
-    exposure_s: float
-    exposure_lines: int
-    window_rows: int
-    line_period_s: float
-    frame_time_s: float
-    delay_s: float
-    compensated: bool
-    fits: bool
-    refusal: str | None
-    applied_delay_s: float | None
-    centre_offset_deg: float | None
-    centre_error_deg: float | None
-
-
-class WheelDoc(TypedDict):
-    """GET /api/v1/wheel and PUT /wheel/speed, /wheel/compensation."""
-
-    wheel: str
-    speed_deg_s: float
-    nominal_speed_deg_s: float
-    period_s: float | None
-    angle_deg: float
-    channel: int | None
-    compensation: bool
-    t_center_s: float
-    window_s: float
-    device_frame_time_s: float
-    device_delay_s: float
-    exposure: WheelExposureDoc
-    channels: list[WheelChannelDoc]
-    time_s: float
-
-
-class WheelRegionDoc(TypedDict):
-    """A rectangle of the frame (rows and columns from 0)."""
-
-    row: int
-    rows: int
-    col: int
-    cols: int
-
-
-class WheelFrameDoc(TypedDict):
-    """One frame of a wheel acquisition (angles in degrees, mean in DN)."""
-
-    counter: int
-    channel: int
-    name: str
-    start_angle_deg: float
-    centre_deg: float
-    centre_offset_deg: float
-    centre_error_deg: float
-    header_centre_deg: float
-    mean: float
-    timestamp_s: float
-
-
-class WheelAcquireDoc(TypedDict):
-    """POST /api/v1/wheel/acquire."""
-
-    channels: list[int]
-    passes: int
-    speed_deg_s: float
-    exposure: WheelExposureDoc
-    device_frame_time_s: float | None
-    device_delay_s: float | None
-    region: WheelRegionDoc | None
-    frames: list[WheelFrameDoc]
-    stream: StreamDoc
 
 
 # -- errors ---------------------------------------------------------------------------------------
@@ -658,27 +184,27 @@ class CamdClient:
 
     # -- endpoints ------------------------------------------------------------------------------
 
-    def status(self) -> StatusDoc:
+    def status(self) -> StatusResponse:
         """The daemon's state, mode, link, device status and identity."""
-        return cast(StatusDoc, self._json("GET", f"{API}/status"))
+        return cast(StatusResponse, self._json("GET", f"{API}/status"))
 
-    def ping(self, count: int = 10, size: int = 16) -> PingResult:
+    def ping(self, count: int = 10, size: int = 16) -> PingResponse:
         """Have the daemon ping the device ``count`` times with ``size``-byte payloads."""
         timeout = self.timeout_s + _PING_ALLOWANCE_S * max(count, 0)
         body = {"count": count, "size": size}
-        return cast(PingResult, self._json("POST", f"{API}/ping", json=body, timeout=timeout))
+        return cast(PingResponse, self._json("POST", f"{API}/ping", json=body, timeout=timeout))
 
-    def link(self) -> LinkDoc:
+    def link(self) -> LinkResponse:
         """Host and device counters of the command link."""
-        return cast(LinkDoc, self._json("GET", f"{API}/link"))
+        return cast(LinkResponse, self._json("GET", f"{API}/link"))
 
-    def telemetry(self) -> TelemetryDoc:
+    def telemetry(self) -> TelemetryResponse:
         """Latest value of every telemetry channel, sample count and archive path."""
-        return cast(TelemetryDoc, self._json("GET", f"{API}/telemetry"))
+        return cast(TelemetryResponse, self._json("GET", f"{API}/telemetry"))
 
     def history(
         self, channel: str, since_s: float | None = None, limit: int | None = None
-    ) -> HistoryDoc:
+    ) -> HistoryResponse:
         """Archived samples of one telemetry channel. ``since_s`` is a Unix time, or a negative
         number of seconds before now; ``limit`` caps the number of samples."""
         params: dict[str, str | int | float] = {"channel": channel}
@@ -686,71 +212,71 @@ class CamdClient:
             params["since_s"] = since_s
         if limit is not None:
             params["limit"] = limit
-        return cast(HistoryDoc, self._json("GET", f"{API}/telemetry/history", params=params))
+        return cast(HistoryResponse, self._json("GET", f"{API}/telemetry/history", params=params))
 
-    def events(self, limit: int | None = None) -> EventsDoc:
+    def events(self, limit: int | None = None) -> EventsResponse:
         """Recent events, newest last."""
         params: dict[str, int] = {} if limit is None else {"limit": limit}
-        return cast(EventsDoc, self._json("GET", f"{API}/events", params=params))
+        return cast(EventsResponse, self._json("GET", f"{API}/events", params=params))
 
-    def set_mode(self, mode: str) -> ModeDoc:
+    def set_mode(self, mode: str) -> ModeResponse:
         """Select the imaging mode, ``area`` or ``tdi`` (the daemon checks the value)."""
-        return cast(ModeDoc, self._json("POST", f"{API}/mode", json={"mode": mode}))
+        return cast(ModeResponse, self._json("POST", f"{API}/mode", json={"mode": mode}))
 
-    def reset(self) -> StatusDoc:
+    def reset(self) -> StatusResponse:
         """Soft-reset the device; returns the status afterwards."""
-        return cast(StatusDoc, self._json("POST", f"{API}/reset"))
+        return cast(StatusResponse, self._json("POST", f"{API}/reset"))
 
     # -- sensor -----------------------------------------------------------------------------------
 
-    def registers(self) -> RegistersDoc:
+    def registers(self) -> RegistersResponse:
         """Every sensor register, in address order."""
-        return cast(RegistersDoc, self._json("GET", f"{API}/registers"))
+        return cast(RegistersResponse, self._json("GET", f"{API}/registers"))
 
-    def read_register(self, key: str | int) -> RegisterDoc:
+    def read_register(self, key: str | int) -> RegisterReading:
         """One register by name or address."""
-        return cast(RegisterDoc, self._json("GET", f"{API}/registers/{key}"))
+        return cast(RegisterReading, self._json("GET", f"{API}/registers/{key}"))
 
-    def write_registers(self, values: dict[str, int | str]) -> RegisterWriteDoc:
+    def write_registers(self, values: dict[str, int | str]) -> RegisterWriteResponse:
         """Write registers by name (REG, REG.field, GROUP); all or nothing, verified."""
         return cast(
-            RegisterWriteDoc, self._json("POST", f"{API}/registers", json={"values": values})
+            RegisterWriteResponse, self._json("POST", f"{API}/registers", json={"values": values})
         )
 
-    def diff_registers(self, values: dict[str, int] | None = None) -> RegisterDiffDoc:
+    def diff_registers(self, values: dict[str, int] | None = None) -> RegisterDiffResponse:
         """Registers differing from their reset values, or from ``values`` when given."""
         body: dict[str, Any] = (
             {"against": "reset"} if values is None else {"against": "values", "values": values}
         )
-        return cast(RegisterDiffDoc, self._json("POST", f"{API}/registers/diff", json=body))
+        return cast(RegisterDiffResponse, self._json("POST", f"{API}/registers/diff", json=body))
 
-    def register_config(self) -> RegisterConfigDoc:
+    def register_config(self) -> RegisterConfig:
         """The whole configuration (RW and WO non-volatile registers)."""
-        return cast(RegisterConfigDoc, self._json("GET", f"{API}/registers/config"))
+        return cast(RegisterConfig, self._json("GET", f"{API}/registers/config"))
 
-    def load_register_config(self, config: RegisterConfigDoc) -> RegisterWriteDoc:
+    def load_register_config(self, config: RegisterConfig) -> RegisterWriteResponse:
         """Write a whole configuration (refused whole if invalid or for another sensor)."""
         return cast(
-            RegisterWriteDoc, self._json("PUT", f"{API}/registers/config", json=dict(config))
+            RegisterWriteResponse, self._json("PUT", f"{API}/registers/config", json=dict(config))
         )
 
-    def timing(self) -> TimingDoc:
+    def timing(self) -> TimingResponse:
         """The timing the sensor's registers set."""
-        return cast(TimingDoc, self._json("GET", f"{API}/timing"))
+        return cast(TimingResponse, self._json("GET", f"{API}/timing"))
 
-    def train(self) -> TrainDoc:
+    def train(self) -> TrainResponse:
         """Train the sensor's LVDS link now."""
-        return cast(TrainDoc, self._json("POST", f"{API}/train"))
+        return cast(TrainResponse, self._json("POST", f"{API}/train"))
 
-    def last_training(self) -> TrainDoc:
+    def last_training(self) -> TrainResponse:
         """The last training result."""
-        return cast(TrainDoc, self._json("GET", f"{API}/train"))
+        return cast(TrainResponse, self._json("GET", f"{API}/train"))
 
     # -- the frame stream --------------------------------------------------------------------
 
-    def stream(self) -> StreamDoc:
+    def stream(self) -> StreamResponse:
         """The current or last stream and the host's ingest counters."""
-        return cast(StreamDoc, self._json("GET", f"{API}/stream"))
+        return cast(StreamResponse, self._json("GET", f"{API}/stream"))
 
     def start_stream(
         self,
@@ -760,10 +286,10 @@ class CamdClient:
         stages: int | None = None,
         binning: str = "off",
         record: str | None = None,
-    ) -> StreamDoc:
+    ) -> StreamResponse:
         """Start streaming and return at once (0 frames = until ``stop_stream``)."""
         body = _stream_body(frames, mode, stages, binning, record, None)
-        return cast(StreamDoc, self._json("POST", f"{API}/stream/start", json=body))
+        return cast(StreamResponse, self._json("POST", f"{API}/stream/start", json=body))
 
     def acquire(
         self,
@@ -774,7 +300,7 @@ class CamdClient:
         binning: str = "off",
         record: str | None = None,
         timeout_s: float | None = None,
-    ) -> StreamDoc:
+    ) -> StreamResponse:
         """Take ``frames`` frames (recording them to the HDF5 file ``record``, an absolute path
         on the daemon's host, if given) and return the counters when the stream has ended."""
         body = _stream_body(frames, mode, stages, binning, record, timeout_s)
@@ -783,12 +309,12 @@ class CamdClient:
         read_s = None if timeout_s is None else timeout_s + 30.0
         timeout = httpx.Timeout(self.timeout_s, read=read_s)
         return cast(
-            StreamDoc, self._json("POST", f"{API}/stream/acquire", json=body, timeout=timeout)
+            StreamResponse, self._json("POST", f"{API}/stream/acquire", json=body, timeout=timeout)
         )
 
-    def stop_stream(self) -> StreamDoc:
+    def stop_stream(self) -> StreamResponse:
         """Stop the stream (harmless when not streaming)."""
-        return cast(StreamDoc, self._json("POST", f"{API}/stream/stop"))
+        return cast(StreamResponse, self._json("POST", f"{API}/stream/stop"))
 
     # -- the simulated camera -----------------------------------------------------------------
 
@@ -801,14 +327,14 @@ class CamdClient:
         from ``seed`` (same seed, same following acquisitions; the fixed pattern is kept)."""
         self._request("PUT", f"{API}/sim/seed", json={"seed": seed})
 
-    def set_stage(self, *, track: bool = True, speed_m_s: float = 0.0) -> StageDoc:
+    def set_stage(self, *, track: bool = True, speed_m_s: float = 0.0) -> StageResponse:
         """Simulated camera only: track the synchronous speed, or run at ``speed_m_s``."""
         body = {"track": track, "speed_m_s": speed_m_s}
-        return cast(StageDoc, self._json("PUT", f"{API}/sim/stage", json=body))
+        return cast(StageResponse, self._json("PUT", f"{API}/sim/stage", json=body))
 
-    def scan(self) -> ScanDoc:
+    def scan(self) -> ScanResponse:
         """The current or last scan (``state`` "none" before the first)."""
-        return cast(ScanDoc, self._json("GET", f"{API}/scan"))
+        return cast(ScanResponse, self._json("GET", f"{API}/scan"))
 
     def start_scan(
         self,
@@ -829,7 +355,7 @@ class CamdClient:
         drive_stage: bool = True,
         closed_loop: bool | None = None,
         dv_over_v: float = 0.0,
-    ) -> ScanDoc:
+    ) -> ScanResponse:
         """Start a push-broom scan of ``lines`` complete TDI lines at ``stages`` stages and
         return at once; ``out`` is an absolute path on the daemon's host (docs/scan.md).
         The scan drives the stage at the synchronous speed (``drive_stage``), closed loop
@@ -842,45 +368,45 @@ class CamdClient:
             "quicklook": quicklook, "drive_stage": drive_stage, "closed_loop": closed_loop,
             "dv_over_v": dv_over_v,
         }  # fmt: skip
-        return cast(ScanDoc, self._json("POST", f"{API}/scan/start", json=body))
+        return cast(ScanResponse, self._json("POST", f"{API}/scan/start", json=body))
 
-    def stop_scan(self) -> ScanDoc:
+    def stop_scan(self) -> ScanResponse:
         """Stop the running scan; returns once its file is closed."""
-        return cast(ScanDoc, self._json("POST", f"{API}/scan/stop"))
+        return cast(ScanResponse, self._json("POST", f"{API}/scan/stop"))
 
     # -- motion (docs/motion.md) -------------------------------------------------------------
 
-    def motion(self) -> MotionDoc:
+    def motion(self) -> MotionStatus:
         """The scan stage: state, positions, speeds, limits."""
-        return cast(MotionDoc, self._json("GET", f"{API}/motion"))
+        return cast(MotionStatus, self._json("GET", f"{API}/motion"))
 
-    def enable_stage(self, on: bool = True) -> MotionDoc:
+    def enable_stage(self, on: bool = True) -> MotionStatus:
         """Energise (or release) the stage motor; enabling clears an emergency stop."""
-        return cast(MotionDoc, self._json("POST", f"{API}/motion/enable", json={"on": on}))
+        return cast(MotionStatus, self._json("POST", f"{API}/motion/enable", json={"on": on}))
 
-    def run_stage(self, speed_m_s: float) -> MotionDoc:
+    def run_stage(self, speed_m_s: float) -> MotionStatus:
         """Ramp to a constant signed speed (m/s) and hold it; 0 stops."""
         body = {"speed_m_s": speed_m_s}
-        return cast(MotionDoc, self._json("POST", f"{API}/motion/run", json=body))
+        return cast(MotionStatus, self._json("POST", f"{API}/motion/run", json=body))
 
     def move_stage(
         self, position_m: float, *, speed_m_s: float | None = None, wait: bool = True
-    ) -> MotionDoc:
+    ) -> MotionStatus:
         """Move to ``position_m`` (metres from home) and stop."""
         body = {"position_m": position_m, "speed_m_s": speed_m_s, "wait": wait}
-        return cast(MotionDoc, self._json("POST", f"{API}/motion/move", json=body))
+        return cast(MotionStatus, self._json("POST", f"{API}/motion/move", json=body))
 
-    def stop_stage(self) -> MotionDoc:
+    def stop_stage(self) -> MotionStatus:
         """Decelerate the stage to a stop."""
-        return cast(MotionDoc, self._json("POST", f"{API}/motion/stop"))
+        return cast(MotionStatus, self._json("POST", f"{API}/motion/stop"))
 
-    def home_stage(self, *, wait: bool = True) -> MotionDoc:
+    def home_stage(self, *, wait: bool = True) -> MotionStatus:
         """Find the home switch and zero the position there."""
-        return cast(MotionDoc, self._json("POST", f"{API}/motion/home", json={"wait": wait}))
+        return cast(MotionStatus, self._json("POST", f"{API}/motion/home", json={"wait": wait}))
 
-    def estop_stage(self) -> MotionDoc:
+    def estop_stage(self) -> MotionStatus:
         """Emergency stop (no ramp, current cut) until ``enable_stage``."""
-        return cast(MotionDoc, self._json("POST", f"{API}/motion/estop"))
+        return cast(MotionStatus, self._json("POST", f"{API}/motion/estop"))
 
     def sync(
         self,
@@ -889,7 +415,7 @@ class CamdClient:
         speed_m_s: float | None = None,
         stages: int | None = None,
         binning: bool = False,
-    ) -> SyncDoc:
+    ) -> SyncResponse:
         """Open-loop synchronisation for a line period, a stage speed, both, or neither."""
         params: dict[str, Any] = {"binning": binning}
         for key, value in (
@@ -897,7 +423,7 @@ class CamdClient:
         ):  # fmt: skip
             if value is not None:
                 params[key] = value
-        return cast(SyncDoc, self._json("GET", f"{API}/motion/sync", params=params))
+        return cast(SyncResponse, self._json("GET", f"{API}/motion/sync", params=params))
 
     def set_stage_faults(
         self,
@@ -912,15 +438,15 @@ class CamdClient:
         body = {"error": error, "ripple": ripple, "jitter": jitter, "drift": drift, "load": load}
         self._request("PUT", f"{API}/sim/stage/faults", json=body)
 
-    def stage_truth(self) -> SimStageTruthDoc:
+    def stage_truth(self) -> SimStageTruth:
         """Simulated camera only: the stage's true position, velocity and missed steps."""
-        return cast(SimStageTruthDoc, self._json("GET", f"{API}/sim/stage/truth"))
+        return cast(SimStageTruth, self._json("GET", f"{API}/sim/stage/truth"))
 
-    def set_stages(self, stages: int) -> ScanDoc:
+    def set_stages(self, stages: int) -> ScanResponse:
         """Change the running scan's TDI stage count from its next frame."""
-        return cast(ScanDoc, self._json("PUT", f"{API}/scan/stages", json={"stages": stages}))
+        return cast(ScanResponse, self._json("PUT", f"{API}/scan/stages", json={"stages": stages}))
 
-    def wait_scan(self, timeout_s: float | None = None, *, poll_s: float = 0.2) -> ScanDoc:
+    def wait_scan(self, timeout_s: float | None = None, *, poll_s: float = 0.2) -> ScanResponse:
         """Poll until the current scan has ended; return its final document."""
         deadline = None if timeout_s is None else time.monotonic() + timeout_s
         while True:
@@ -936,18 +462,18 @@ class CamdClient:
 
     # -- the filter wheel (docs/wheel.md) ---------------------------------------------------
 
-    def wheel(self) -> WheelDoc:
+    def wheel(self) -> WheelStatus:
         """The filter wheel, with camd's numbers for the exposure in the registers."""
-        return cast(WheelDoc, self._json("GET", f"{API}/wheel"))
+        return cast(WheelStatus, self._json("GET", f"{API}/wheel"))
 
-    def set_wheel_speed(self, speed_deg_s: float) -> WheelDoc:
+    def set_wheel_speed(self, speed_deg_s: float) -> WheelStatus:
         """Turn the wheel at ``speed_deg_s`` (0 stops it)."""
         body = {"speed_deg_s": speed_deg_s}
-        return cast(WheelDoc, self._json("PUT", f"{API}/wheel/speed", json=body))
+        return cast(WheelStatus, self._json("PUT", f"{API}/wheel/speed", json=body))
 
-    def set_wheel_compensation(self, on: bool) -> WheelDoc:
+    def set_wheel_compensation(self, on: bool) -> WheelStatus:
         """Exposure delay compensation on or off (refused if the exposure cannot fit)."""
-        return cast(WheelDoc, self._json("PUT", f"{API}/wheel/compensation", json={"on": on}))
+        return cast(WheelStatus, self._json("PUT", f"{API}/wheel/compensation", json={"on": on}))
 
     def wheel_acquire(
         self,
@@ -957,9 +483,9 @@ class CamdClient:
         exposure_s: float | None = None,
         compensated: bool | None = None,
         record: str | None = None,
-        region: WheelRegionDoc | None = None,
+        region: WheelRegion | None = None,
         timeout_s: float | None = None,
-    ) -> WheelAcquireDoc:
+    ) -> WheelAcquireResponse:
         """One frame per channel per pass; returns each frame's imaging-centre angle, its
         uncertainty and mean. ``exposure_s`` / ``compensated`` are set first when given;
         ``record`` is an absolute path of a new HDF5 file on the daemon's host."""
@@ -973,7 +499,7 @@ class CamdClient:
         read_s = None if timeout_s is None else timeout_s + 30.0
         timeout = httpx.Timeout(self.timeout_s, read=read_s)
         return cast(
-            WheelAcquireDoc,
+            WheelAcquireResponse,
             self._json("POST", f"{API}/wheel/acquire", json=body, timeout=timeout),
         )
 
@@ -981,35 +507,57 @@ class CamdClient:
         """Simulated camera only: the reference polariser's axis in degrees (None: out)."""
         self._request("PUT", f"{API}/sim/polarizer", json={"angle_deg": angle_deg})
 
-    def sim_settings(self) -> dict[str, Any]:
-        """What the daemon last set on the simulated camera: ``{"available", "scene",
-        "ideal_stage": {"track", "speed_m_s"}, "polarizer_deg", "stage_faults": {...}}``."""
-        return self._json("GET", f"{API}/sim")
+    def fail_next(
+        self,
+        command: str,
+        *,
+        skip: int = 0,
+        error: str | None = None,
+        duration_s: float | None = None,
+    ) -> None:
+        """Simulated camera only: make the (skip + 1)-th next ``command`` (e.g.
+        "REG_WRITE_BURST") fail, refused with a NAK of ``error`` (e.g. "BUSY") or lost because
+        the camera drops off the line for ``duration_s``; give one of the two."""
+        body: dict[str, Any] = {"command": command, "skip": skip}
+        if error is not None:
+            body["error"] = error
+        if duration_s is not None:
+            body["duration_s"] = duration_s
+        self._request("POST", f"{API}/sim/fail-next", json=body)
 
-    def sim_stream_stats(self) -> SimStreamDoc:
+    def clear_fail_next(self) -> None:
+        """Simulated camera only: disarm a failure armed with ``fail_next``."""
+        self._request("DELETE", f"{API}/sim/fail-next")
+
+    def sim_settings(self) -> SimSettings:
+        """What the daemon last set on the simulated camera (scene, ideal stage, polariser,
+        stage faults), so that it can be put back; ``available`` is false on hardware."""
+        return cast(SimSettings, self._json("GET", f"{API}/sim"))
+
+    def sim_stream_stats(self) -> SimStreamStats:
         """Simulated camera only: what its stream engine made, sent and injected."""
-        return cast(SimStreamDoc, self._json("GET", f"{API}/sim/stream"))
+        return cast(SimStreamStats, self._json("GET", f"{API}/sim/stream"))
 
     def metrics(self) -> str:
         """The Prometheus text exposition."""
         return self._request("GET", "/metrics").text
 
-    def control(self) -> ControlDoc:
+    def control(self) -> ControlInfo:
         """Who holds control (reading needs none)."""
-        return cast(ControlDoc, self._json("GET", f"{API}/control"))
+        return cast(ControlInfo, self._json("GET", f"{API}/control"))
 
-    def take_control(self, ttl_s: float = 60.0, *, force: bool = False) -> ControlDoc:
+    def take_control(self, ttl_s: float = 60.0, *, force: bool = False) -> ControlInfo:
         """Take (or renew) control for ``ttl_s`` seconds; CamdError ``not_in_control`` while
         another client holds it, unless ``force`` (a takeover the daemon logs)."""
         body = {"ttl_s": ttl_s, "force": force}
-        return cast(ControlDoc, self._json("POST", f"{API}/control", json=body))
+        return cast(ControlInfo, self._json("POST", f"{API}/control", json=body))
 
-    def release_control(self) -> ControlDoc:
+    def release_control(self) -> ControlInfo:
         """Give control back (harmless when this client holds none)."""
-        return cast(ControlDoc, self._json("DELETE", f"{API}/control"))
+        return cast(ControlInfo, self._json("DELETE", f"{API}/control"))
 
     @contextlib.contextmanager
-    def holding_control(self, ttl_s: float = 60.0, *, force: bool = False) -> Iterator[ControlDoc]:
+    def holding_control(self, ttl_s: float = 60.0, *, force: bool = False) -> Iterator[ControlInfo]:
         """Hold control for a ``with`` block (a campaign, a script): taken at the start,
         renewed in the background every ``ttl_s / 3``, given back at the end."""
         doc = self.take_control(ttl_s, force=force)
@@ -1033,11 +581,11 @@ class CamdClient:
             with contextlib.suppress(CamdError):
                 self.release_control()
 
-    def estop(self) -> EstopDoc:
+    def estop(self) -> EstopResponse:
         """Emergency stop (stage, acquisition, wheel): never refused."""
-        return cast(EstopDoc, self._json("POST", f"{API}/estop"))
+        return cast(EstopResponse, self._json("POST", f"{API}/estop"))
 
-    def wait_ready(self, timeout_s: float = 10.0, *, poll_s: float = 0.1) -> StatusDoc:
+    def wait_ready(self, timeout_s: float = 10.0, *, poll_s: float = 0.1) -> StatusResponse:
         """Wait until the daemon answers and its camera is connected (state not
         ``disconnected``); return that status.
 
@@ -1045,7 +593,7 @@ class CamdClient:
         ``timeout``) if the daemon answered but stayed disconnected, with its reason.
         """
         deadline = time.monotonic() + timeout_s
-        last: CamdError | StatusDoc | None = None
+        last: CamdError | StatusResponse | None = None
         while True:
             try:
                 doc = self.status()

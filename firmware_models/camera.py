@@ -7,16 +7,16 @@ from the registers on every render, so register writes take effect on the next f
 
 One frame (``render(t_s)``; window row 0 ends its exposure at ``t_s``):
 
-1. Timing (physics.md §2 eq 4, §3): a rolling shutter ends row ``i``'s exposure at
+1. Timing (docs/physics.md §2 eq 4, §3): a rolling shutter ends row ``i``'s exposure at
    ``t_s + i T_line``; global, frame-transfer and full-frame shutters end every row at
    ``t_s``. Each row starts its exposure ``T_exp`` before it ends. ``T_line``, ``T_exp`` and
    the TDI line period come from ``sensor.timing()``.
 2. Motion: the stage's position at each row's exposure start and end, in image rows
-   ``d = magnification * x_stage / pitch`` (physics.md §2: ``T_line,TDI = p / v_image``,
+   ``d = magnification * x_stage / pitch`` (docs/physics.md §2: ``T_line,TDI = p / v_image``,
    ``v_image = magnification * v_stage``). Without an explicit stage or speed the stage tracks:
    it runs at the synchronous speed for the current TDI line period, one row per period.
 3. Photons: the scene's exact time-and-aperture integral (``firmware_models.scene``).
-   Image motion compensation (physics.md §7 [REN15]; a sensor whose map has the IMC_CTRL,
+   Image motion compensation (docs/physics.md §7 [REN15]; a sensor whose map has the IMC_CTRL,
    IMC_STEP and IMC_PHASES registers, the full-frame ``ftf5066``): the charge packets are
    clocked along the columns with the image during the exposure, one electrode (``w / p``)
    every ``IMC_STEP`` clocks or one row every ``p`` of them
@@ -28,16 +28,16 @@ One frame (``render(t_s)``; window row 0 ends its exposure at ``t_s``):
    packet that sat in window row ``i`` when the exposure began.
 4. Electrons: ``QE * photons * (1 + PRNU)`` plus dark charge
    ``I_dark(T) * (1 + DSNU) * T_exp`` with ``I_dark(T) = I_ref * 2^((T - T_ref) / T_double)``.
-5. Temporal noise (physics.md §5): photon and dark shot noise and read noise, drawn as ONE
+5. Temporal noise (docs/physics.md §5): photon and dark shot noise and read noise, drawn as ONE
    Gaussian per pixel with mean ``S + D`` and variance ``S + D + sigma_read^2`` (the Poisson
    shot noise replaced by a Gaussian of the same mean and variance: mean and variance exact,
    higher moments not; one draw keeps a 534 x 2048 frame fast). Then full-well clipping
    (a saturated pixel reads the full-well charge, without read noise).
-6. ADC (physics.md §5): ``DN = e K + B``, ``K`` the system gain for the gain register
+6. ADC (docs/physics.md §5): ``DN = e K + B``, ``K`` the system gain for the gain register
    (``CameraProfile.system_gain_dn_per_e``), ``B`` the black level for the offset register;
    rounded to whole DN and clipped to ``[0, 2^adc_bits - 1]``; then the ADC's
    ``output_bits`` MSBs are kept (the IBIS5 drops 2 LSBs).
-7. Binning (``binning``; physics.md §3): the FPGA sums 2x2 blocks (``camd.tdi.bin2x2``).
+7. Binning (``binning``; docs/physics.md §3): the FPGA sums 2x2 blocks (``camd.tdi.bin2x2``).
 
 Fixed-pattern maps (PRNU, DSNU) cover the whole array, drawn once from ``seed`` (an array of
 more than 8 Mpixel, the ftf5066's 33 Mpixel, draws them per band of 256 rows when a window
@@ -185,7 +185,7 @@ class CameraModel:
     def synchronous_speed_m_s(self) -> float:
         """Stage speed that moves the image one row per TDI line period: ``p / (m T_TDI)``.
 
-        physics.md §2 (``T_line,TDI = p / v_image``) and §6 eq 9 (``V_t = n_mag p / T_L``,
+        docs/physics.md §2 (``T_line,TDI = p / v_image``) and §6 eq 9 (``V_t = n_mag p / T_L``,
         object side) with ``v_image = m v_stage``; ``T_TDI`` is the frame period the registers
         set now (``SensorTiming.tdi_line_period_s``).
         """
@@ -206,7 +206,7 @@ class CameraModel:
         return LinearStage(speed, -speed * self._ideal_origin_s)
 
     def image_rows(self, t_s: npt.ArrayLike) -> Array:
-        """Image displacement in rows at times ``t_s``: ``m x_stage(t) / p`` (physics.md §2)."""
+        """Image displacement in rows at times ``t_s``: ``m x_stage(t) / p`` (docs/physics.md §2)."""
         times = np.asarray(t_s, dtype=np.float64)
         position = self.current_stage().position_m(times)
         image_scale = self.stage_image_scale
@@ -354,7 +354,7 @@ class CameraModel:
         self, t_s: float, timing: SensorTiming | None = None, rows: int | None = None
     ) -> tuple[Array, Array]:
         """(start, end) of each window row's exposure for the frame whose row 0 ends at ``t_s``
-        (physics.md §2 eq 4, §3: a rolling shutter staggers rows by ``T_line``)."""
+        (docs/physics.md §2 eq 4, §3: a rolling shutter staggers rows by ``T_line``)."""
         timing = self.sensor.timing() if timing is None else timing
         n = timing.window_rows if rows is None else rows
         if self.shutter == "rolling":

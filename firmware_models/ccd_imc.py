@@ -1,6 +1,6 @@
 """Numeric charge-transfer model of image motion compensation on a p-phase full-frame CCD.
 
-physics.md §7 [REN15] gives the modulation of a point beam's image in closed form for row-step
+docs/physics.md §7 [REN15] gives the modulation of a point beam's image in closed form for row-step
 and electrode-step compensation. This model does not use those forms: it steps time, generates
 photo-charge under each electrode, collects it into the charge packets and clocks the packets,
 so that tests can hold the closed forms against it, and against the two other routes to the
@@ -31,7 +31,7 @@ The geometry (one CCD column, along track, coordinate ``x`` in metres):
 Modulation of a profile (``modulation``): the charge in the *main* packet, the brightest one,
 minus the charge spilled into all the others, over the total, ``(2 max - sum) / sum``.
 
-With this definition the model reproduces both closed forms of physics.md §7 in full, absolute
+With this definition the model reproduces both closed forms of docs/physics.md §7 in full, absolute
 values included. Row steps: per row time, the packet the beam moves into collects
 ``w^2/2 + a w - a^2``, its neighbours ``(w - a)^2/2`` and ``a^2/2`` (in units of irradiance *
 time / v), so ``M = 2a(w - a)/w^2``. Electrode steps (p = 4): for ``a <= 3w/4`` the beam stays
@@ -66,7 +66,7 @@ Method = ImcMode  # the compensation modes of camd.timing.imc (and of the camera
 METHODS: tuple[Method, ...] = IMC_MODES
 
 REN15_PIXEL_M = 9e-6
-"""REN15's pixel (physics.md §7, FTF5066M-class 4-phase full-frame CCD)."""
+"""REN15's pixel (docs/physics.md §7, FTF5066M-class 4-phase full-frame CCD)."""
 
 REN15_IMAGE_VELOCITY_M_S = 0.09 * 0.05 / 0.3
 """REN15's lab rig at its limits: f = 90 mm, V = 50 mm/s, H = 0.3 m, so v = 15 mm/s."""
@@ -162,7 +162,7 @@ def modulation(profile: npt.ArrayLike) -> FloatArray:
     """Modulation ``(2 max - sum) / sum`` of pixel profiles along the last axis.
 
     The charge in the main (brightest) packet minus the charge spilled into all the others,
-    over the total: the definition under which this model reproduces physics.md §7 [REN15]
+    over the total: the definition under which this model reproduces docs/physics.md §7 [REN15]
     (module docstring). 1 for all the charge in one pixel, 0 for an even split over two,
     negative when no pixel holds half. A single profile gives a 0-d array.
     """
@@ -189,7 +189,7 @@ def point_beam_modulation(
 
     ``modulation(point_beam_profile(...))`` with the same arguments; shape ``np.shape(a_m)``.
     Compare with ``camd.timing.imc.row_step_modulation`` / ``electrode_step_modulation``
-    (physics.md §7 [REN15]).
+    (docs/physics.md §7 [REN15]).
     """
     return modulation(
         point_beam_profile(

@@ -20,6 +20,13 @@ the whole frame (not just the sequence number) means a new command that happens 
 sequence number after the 8-bit counter wrapped, or after the host restarted, still executes.
 The record survives RESET, so a retried RESET is not executed twice. Events are not part of the
 record: they reported a state change that happened once.
+
+Failures on purpose
+-------------------
+SIM_FAIL_NEXT arms one failure of a coming command (by opcode, after ``skip`` of them): a NAK
+with a chosen error code, or a silence of ``duration_s`` (a dropped line: ``silent(now_s)`` is
+true, frames received are ignored and the transport sends nothing). The failed command is not
+executed, so the host's recovery from a request that fails part-way can be tested.
 """
 
 from __future__ import annotations
@@ -45,7 +52,7 @@ from camd.protocol import (
     ProtocolError,
     load_dictionary,
 )
-from camd.protocol.dictionary import FieldValue
+from camd.protocol.dictionary import FieldValue, f32_decimal
 from camd.sensor.profile import load_profile
 from camd.sensor.regmap import RegisterMap, RegisterSpec, load_register_map
 from firmware_models.camera import CameraModel
@@ -64,7 +71,6 @@ from firmware_models.wheel import FilterWheel
 FW_VERSION = 0x0100  # 1.0, major * 256 + minor as GET_STATUS reports it
 _U32_WRAP = 2**32
 _SEQ_WRAP = 256
-_F32_SIGNIFICANT_DIGITS = 7  # what an f32 carries; used to undo f32 rounding of rates
 
 
 _Nak = Nak  # raised by a command handler to answer with a NAK
@@ -80,6 +86,7 @@ class LinkCounters:
     nacked: int = 0
     tx_frames: int = 0
     ignored: int = 0  # received frames of a type other than COMMAND
+    silenced: int = 0  # received while silent (SIM_FAIL_NEXT silence): not seen, not answered
 
     def as_dict(self) -> dict[str, int]:
         """The counters by name."""
@@ -100,6 +107,17 @@ class _Outcome:
 
     payload: bytes
     events: tuple[Frame, ...] = ()
+
+
+@dataclass(slots=True)
+class _FailNext:
+    """The failure SIM_FAIL_NEXT armed: the command it fails and how."""
+
+    action: str  # "nak" or "silence"
+    opcode: int
+    skip: int  # commands with ``opcode`` still to let through
+    error_code: int  # action nak
+    duration_s: float  # action silence
 
 
 _Handler = Callable[[CommandSpec, dict[str, FieldValue], float], _Outcome]
@@ -173,6 +191,8 @@ class FpgaModel:
         self.executions: Counter[int] = Counter()  # opcode -> commands executed (not replayed)
         self._record: _Record | None = None
         self._unsolicited_seq = 0
+        self._fail_next: _FailNext | None = None
+        self._silent_until_s = -math.inf  # transport clock; SIM_FAIL_NEXT silence
         self._handlers: dict[str, _Handler] = {
             "PING": self._ping,
             "GET_STATUS": self._get_status,
@@ -204,6 +224,7 @@ class FpgaModel:
             "WHEEL_ACQUIRE": self._wheel_acquire,
             "SIM_SET_POLARIZER": self._sim_set_polarizer,
             "SIM_SET_SEED": self._sim_set_seed,
+            "SIM_FAIL_NEXT": self._sim_fail_next,
         }
 
     # -- frames in, frames out ------------------------------------------------------------
@@ -214,6 +235,9 @@ class FpgaModel:
             return self._handle(frame, now_s)
 
     def _handle(self, frame: Frame, now_s: float) -> list[Frame]:
+        if self.silent(now_s):
+            self.counters.silenced += 1
+            return []
         self.counters.rx_frames += 1
         if frame.type != FrameType.COMMAND:
             self.counters.ignored += 1
@@ -222,6 +246,8 @@ class FpgaModel:
         if record is not None and record.command == frame:
             self.counters.replayed += 1
             return self._sent([record.response])
+        if self._fails_now(frame):
+            return self._fail(frame, now_s)
         self.counters.executed += 1
         self.executions[frame.opcode] += 1
         response, events = self._execute(frame, now_s)
@@ -229,6 +255,40 @@ class FpgaModel:
             self.counters.nacked += 1
         self._record = _Record(frame, response)
         return self._sent([response, *events])
+
+    def silent(self, now_s: float) -> bool:
+        """True while the device is off the line (SIM_FAIL_NEXT silence): it answers nothing,
+        and the transport sends nothing it makes (events, telemetry) until ``now_s`` passes."""
+        return now_s < self._silent_until_s
+
+    def _fails_now(self, frame: Frame) -> bool:
+        """Count ``frame`` against the armed failure; True if it is the one to fail."""
+        armed = self._fail_next
+        if armed is None or frame.opcode != armed.opcode:
+            return False
+        if armed.skip > 0:
+            armed.skip -= 1
+            return False
+        return True
+
+    def _fail(self, frame: Frame, now_s: float) -> list[Frame]:
+        """Fail ``frame`` as armed (it is not executed) and disarm."""
+        armed = self._fail_next
+        assert armed is not None
+        self._fail_next = None
+        if armed.action == "silence":
+            self._silent_until_s = now_s + armed.duration_s
+            self.counters.silenced += 1
+            return []
+        name = self.dictionary.command(frame.opcode).name
+        payload = self.dictionary.encode_nak(
+            armed.error_code, f"{name} failed on purpose (SIM_FAIL_NEXT)"
+        )
+        response = Frame(FrameType.NAK, frame.seq, frame.opcode, payload)
+        self.counters.nacked += 1
+        # Recorded like any answer: a retry of this frame gets the same NAK, not an execution.
+        self._record = _Record(frame, response)
+        return self._sent([response])
 
     @property
     def imaging(self) -> bool:
@@ -413,7 +473,7 @@ class FpgaModel:
     def _sim_set_inject(
         self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float
     ) -> _Outcome:
-        rates = {name: _undo_f32_rounding(float(value)) for name, value in request.items()}
+        rates = {name: f32_decimal(float(value)) for name, value in request.items()}
         # Keys the command does not carry (added to InjectSpec later) keep their value.
         merged = {**self.injector.spec.model_dump(), **rates}
         try:
@@ -622,7 +682,7 @@ class FpgaModel:
         self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float
     ) -> _Outcome:
         track = request["track"] == "yes"
-        speed = _undo_f32_rounding(float(request["speed_m_s"]))
+        speed = f32_decimal(float(request["speed_m_s"]))
         if not track and speed <= 0.0:
             raise _Nak("OUT_OF_RANGE", "SIM_SET_STAGE: a fixed speed must be > 0 m/s")
         self.camera.stage_speed_m_s = None if track else speed
@@ -641,7 +701,7 @@ class FpgaModel:
             self._require_no_fault(spec)
         t = now_s - self.power_on_s
         values = {
-            k: _undo_f32_rounding(v) if isinstance(v, float) and spec.name.startswith("SIM_")
+            k: f32_decimal(v) if isinstance(v, float) and spec.name.startswith("SIM_")
             else v
             for k, v in request.items()
         }  # fmt: skip
@@ -657,10 +717,10 @@ class FpgaModel:
         self.camera.stage = self.motor.stage
         self.camera.stage_image_scale = profile.image_scale(self.camera.profile.magnification.value)
 
-    # -- the filter wheel (physics.md §4, docs/wheel.md) -------------------------------------
+    # -- the filter wheel (docs/physics.md §4, docs/wheel.md) -------------------------------------
 
     def _wheel_timing(self) -> tuple[float, float, float]:
-        """(T_frame, T_delay for the registers now, exposure) (physics.md §4 eqs 5, 6)."""
+        """(T_frame, T_delay for the registers now, exposure) (docs/physics.md §4 eqs 5, 6)."""
         timing = self.sensor.timing()
         frame = timing.frame_time_s
         return frame, self.wheel.profile.t_center_s.value - frame / 2, timing.exposure_s
@@ -670,7 +730,7 @@ class FpgaModel:
     ) -> _Outcome:
         if self.imaging and self.camera.transmission is not None:
             raise _Nak("ILLEGAL_STATE", "WHEEL_SET_SPEED refused during a wheel acquisition")
-        speed = _undo_f32_rounding(float(request["speed_deg_s"]))
+        speed = f32_decimal(float(request["speed_deg_s"]))
         t = max(now_s - self.power_on_s, self._wheel_until_s)
         self.wheel.set_speed(speed, t)
         return _Outcome(spec.encode_response(period_s=360.0 / speed if speed > 0 else 0.0))
@@ -784,7 +844,7 @@ class FpgaModel:
         self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float
     ) -> _Outcome:
         on = request["enable"] == "on"
-        self.polarizer_deg = _undo_f32_rounding(float(request["angle_deg"])) if on else None
+        self.polarizer_deg = f32_decimal(float(request["angle_deg"])) if on else None
         return _Outcome(spec.encode_response())
 
     def _sim_set_seed(
@@ -795,6 +855,36 @@ class FpgaModel:
         seed = int(request["seed"])
         self.camera.reseed_noise(seed)
         self.stream.reseed(seed)
+        return _Outcome(spec.encode_response())
+
+    def _sim_fail_next(
+        self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float
+    ) -> _Outcome:
+        action = str(request["action"])
+        if action == "off":
+            self._fail_next = None
+            return _Outcome(spec.encode_response())
+        opcode = int(request["opcode"])
+        if self.dictionary.command_for_opcode(opcode) is None:
+            raise _Nak(
+                "OUT_OF_RANGE",
+                f"SIM_FAIL_NEXT: opcode 0x{opcode:02X} is not a command of the dictionary",
+            )
+        code = int(request["error_code"])
+        duration_s = float(request["duration_s"])
+        if action == "nak":
+            try:
+                self.dictionary.error(code)
+            except KeyError:
+                codes = ", ".join(f"{e.code} {e.name}" for e in self.dictionary.errors)
+                raise _Nak(
+                    "OUT_OF_RANGE",
+                    f"SIM_FAIL_NEXT: error_code {code} is not an error of the dictionary; "
+                    f"use one of {codes}",
+                ) from None
+        elif duration_s <= 0.0:
+            raise _Nak("OUT_OF_RANGE", "SIM_FAIL_NEXT: a silence needs duration_s > 0")
+        self._fail_next = _FailNext(action, opcode, int(request["skip"]), code, duration_s)
         return _Outcome(spec.encode_response())
 
     def _stream_done(self, frames_sent: int, next_counter: int) -> None:
@@ -892,10 +982,6 @@ def _stage_faults(profile: StageProfile, spec: InjectSpec) -> StageFaults:
         if key.startswith("stage_")
     }
     return StageFaults.from_profile(profile).updated(**given)
-
-
-def _undo_f32_rounding(value: float) -> float:
-    return float(f"{value:.{_F32_SIGNIFICANT_DIGITS}g}")
 
 
 def _wrap_u32(values: Mapping[str, int]) -> dict[str, int]:

@@ -3,13 +3,13 @@
 ``ImagingPipeline`` is what START_STREAM starts. For every frame it asks the camera model
 (``firmware_models.camera``: scene, stage, sensor physics) for the window frame the sensor's
 registers set, receives it through the LVDS link's current alignment (an untrained or
-mis-trained link garbles it, as on the bench), bins it 2x2 if asked (physics.md §3), stamps the
+mis-trained link garbles it, as on the bench), bins it 2x2 if asked (docs/physics.md §3), stamps the
 header of docs/stream.md and hands it to the stream engine (``firmware_models.fx3``), which
 paces, injects faults and sends it on the bulk endpoint.
 
 Frame k of a stream that started at device time t0 starts its exposure (window row 0's reset)
 at ``t_k``: ``t_0 = t0`` and ``t_(k+1) = t_k + T_frame``, T_frame the frame period the
-registers set when frame k was made (the TDI line period, physics.md §2 eqs 6-7; a host may
+registers set when frame k was made (the TDI line period, docs/physics.md §2 eqs 6-7; a host may
 re-program the back path while streaming to trim it). So the scene's motion and every timestamp
 follow model time, not how fast this process happens to render. A wheel acquisition instead
 gives each frame's start time (``schedule_s``): it waits for the wheel. Frames are made when

@@ -1,6 +1,6 @@
 """LVDS link between the HR400-class sensor and the FPGA, and the FPGA's link training.
 
-physics.md §3: image data arrive on 8 LVDS data lanes plus a DDR clock lane; before imaging the
+docs/physics.md §3: image data arrive on 8 LVDS data lanes plus a DDR clock lane; before imaging the
 FPGA trains the link (bit alignment at the centre of the data eye, word alignment by bit-slip,
 channel alignment by lane shift). This module models the link closely enough that training is
 needed and has to be done the way an FPGA does it. See docs/lvds.md.

@@ -8,6 +8,8 @@ it opens a USB-RS-422 adapter. One thread runs a select loop on the master side:
          -> outgoing buffer -> write when the master is writable
 
 plus periodic HOUSEKEEPING telemetry and the expiry of stalled candidate frames in the receiver.
+While the model is silent (SIM_FAIL_NEXT with action silence: a dropped line), nothing it makes
+is sent.
 """
 
 from __future__ import annotations
@@ -47,6 +49,7 @@ class ServerCounters:
     """What the transport did besides passing frames through."""
 
     tx_overflow_dropped: int = 0  # frames (or garbage bursts) discarded: the host was not reading
+    tx_silenced: int = 0  # frames the device made while off the line (SIM_FAIL_NEXT silence)
 
 
 class PtyServer:
@@ -261,6 +264,9 @@ class PtyServer:
 
     def _transmit(self, frame: Frame) -> None:
         """Put one outgoing frame on the (faulty) line."""
+        if self.model.silent(self._clock()):
+            self.counters.tx_silenced += 1  # the line is down: the frame is lost
+            return
         telemetry = frame.type == FrameType.TELEMETRY
         burst = self.injector.garbage()
         if burst:

@@ -1,11 +1,11 @@
 """The scene the simulated camera looks at: a radiance map moving along the sensor's columns.
 
 Coordinates (rows and columns of pixel pitch, at the focal plane). The image moves along track
-"from row M towards row 1" (physics.md §1): the object seen by row ``r`` of frame ``k + 1`` was
+"from row M towards row 1" (docs/physics.md §1): the object seen by row ``r`` of frame ``k + 1`` was
 seen by row ``r + 1`` of frame ``k``. With the image displaced by ``d`` rows, sensor row ``r``
 (array index, 0-based; the pixel spans ``[r, r + 1)``) sees scene rows ``y = r + d`` and sensor
 column ``x`` sees scene column ``x + s``, ``s = d tan(beta)`` for a drift angle ``beta`` (the
-image also moves ``tan(beta)`` columns per row of along-track motion, physics.md §1).
+image also moves ``tan(beta)`` columns per row of along-track motion, docs/physics.md §1).
 
 Radiance is piecewise constant on cells: ``oversample`` cells per row along track and per column
 across track (image files: one cell per pixel), in photons per pixel area per second at the focal

@@ -1,7 +1,7 @@
 """The FPGA's side of the sensor's pixel output link: training it and capturing through it.
 
 For an LVDS sensor (HR400: 8 lanes) the FPGA must align every lane before imaging
-(physics.md §3): it switches the sensor to its training pattern over SPI, lets
+(docs/physics.md §3): it switches the sensor to its training pattern over SPI, lets
 ``firmware_models.lvds.train`` scan the delay taps, bit-slip and shift the lanes, then switches
 the sensor to a PRBS test image and counts bit errors in a captured frame to prove the result.
 The sensor's test-pattern register is restored afterwards. A parallel-interface sensor needs no

@@ -1,6 +1,6 @@
 """The HR400 rolling-shutter sequencer: read and reset row addresses per line period.
 
-physics.md §3 [YE23]. Each line period has a read phase, then a reset phase, each with a row
+docs/physics.md §3 [YE23]. Each line period has a read phase, then a reset phase, each with a row
 address; resetting a row starts its exposure, reading it ends it. The window is ``k = rows``
 rows at addresses ``x .. x+k-1`` (``x = start_row``); ``n = exposure_lines``.
 
@@ -37,7 +37,7 @@ from collections.abc import Iterator
 from camd.timing import sequencer_frame_period_lines
 
 DUMMY_ROW = 4000
-"""The HR400's dummy row address: a row that does not exist (physics.md §3 [YE23])."""
+"""The HR400's dummy row address: a row that does not exist (docs/physics.md §3 [YE23])."""
 
 
 def _check(start_row: int, rows: int, exposure_lines: int, dummy_row: int) -> None:
@@ -69,7 +69,7 @@ def line_addresses(
 ) -> tuple[int, int]:
     """(read_address, reset_address) in line period ``line`` (0 = first reset of row x).
 
-    Random access to ``rolling_sequence``: the same rule (module docstring, physics.md §3).
+    Random access to ``rolling_sequence``: the same rule (module docstring, docs/physics.md §3).
     """
     _check(start_row, rows, exposure_lines, dummy_row)
     if isinstance(line, bool) or not isinstance(line, int) or line < 0:
@@ -96,7 +96,7 @@ def rolling_sequence(
 ) -> Iterator[tuple[int, int]]:
     """Yield (read_address, reset_address) for each line period, from line 0 forever.
 
-    physics.md §3 [YE23]; the rule and both cases (n < k, n >= k) are in the module docstring.
+    docs/physics.md §3 [YE23]; the rule and both cases (n < k, n >= k) are in the module docstring.
     Infinite: take what you need with ``itertools.islice``. Arguments are checked when this is
     called (not at the first ``next``): rows >= 1, start_row >= 0, exposure_lines >= 0 and a
     dummy row outside the window.

@@ -2,10 +2,10 @@
 
 A stage is any object with ``position_m(t_s)``: the stage position along track, in metres, at
 each time of an array (seconds). The camera turns it into image rows with an image scale and
-the pixel pitch (physics.md §2: one row per ``p / v_image`` seconds): for a linear stage the
-scale is the optics magnification (physics.md §6, ``v_image = m v_stage``, the carriage carries
+the pixel pitch (docs/physics.md §2: one row per ``p / v_image`` seconds): for a linear stage the
+scale is the optics magnification (docs/physics.md §6, ``v_image = m v_stage``, the carriage carries
 the target); for a turntable carrying the sensor it is 1, positions being arc length at the
-sensor's distance ``l`` from the axis (physics.md §2 eq 5, ``v_image = w l``).
+sensor's distance ``l`` from the axis (docs/physics.md §2 eq 5, ``v_image = w l``).
 ``StageProfile.image_scale(m)`` gives the scale for a profile.
 
 ``LinearStage`` moves at a constant speed. ``StepperStage`` is the physics of a stepper-driven

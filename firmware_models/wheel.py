@@ -1,6 +1,6 @@
 """The simulated filter wheel: angle, channel windows, entry pulses and polariser transmission.
 
-physics.md §4 [YE23 §3.1, §3.3, §4]. The wheel of ``config/wheel.toml``
+docs/physics.md §4 [YE23 §3.1, §3.3, §4]. The wheel of ``config/wheel.toml``
 (``camd.motion.wheel_profile``) turns at a constant speed, changed only by ``set_speed``
 (the angle stays continuous). Sans-clock: every method takes the device time ``t_s`` (seconds);
 the model keeps the speed history, so any time can be asked about, before or after a change.
@@ -59,7 +59,7 @@ def _finite(name: str, value: float) -> float:
 
 
 class FilterWheel:
-    """A filter wheel turning at piecewise-constant speed (physics.md §4; see the module doc)."""
+    """A filter wheel turning at piecewise-constant speed (docs/physics.md §4; see the module doc)."""
 
     def __init__(
         self,
@@ -202,7 +202,7 @@ class FilterWheel:
     ) -> float:
         """Start time of a frame through ``channel``: its next entry pulse plus the delay.
 
-        physics.md §4 eq 5 via ``camd.timing.wheel.wheel_exposure``: the delay is
+        docs/physics.md §4 eq 5 via ``camd.timing.wheel.wheel_exposure``: the delay is
         ``T_center - T_frame / 2`` with compensation, 0 without. A frame that does not fit the
         light window is refused with the ValueError of ``check_wheel_exposure``.
         """

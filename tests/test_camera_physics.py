@@ -1,4 +1,4 @@
-"""The simulated camera against the noise model of physics.md §5 and exact motion geometry.
+"""The simulated camera against the noise model of docs/physics.md §5 and exact motion geometry.
 
 Statistics: every noise test uses 200 frames and estimates a per-pixel temporal variance over
 many pixels, so the relative standard error of a noise estimate is about

@@ -2,7 +2,7 @@
 forms, as a user runs them: camctl campaign run NAME --sim --quick --json --out DIR -> its own
 camd serve --sim (hr400) -> results.json, raw HDF5, report.md/html with PNG plots.
 
-The expected numbers are worked out here from physics.md and the hr400 profile's values
+The expected numbers are worked out here from docs/physics.md and the hr400 profile's values
 (config/profiles/hr400.toml), not taken from the campaign's own model columns:
 
     K = 10 uV/e- x 4096 DN / 1 V = 0.04096 DN/e-; read noise 37.2 e-; full well 80 ke-

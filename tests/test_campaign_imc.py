@@ -1,4 +1,4 @@
-"""Image motion compensation on the simulated full-frame ftf5066 (physics.md §7, REN15 §3).
+"""Image motion compensation on the simulated full-frame ftf5066 (docs/physics.md §7, REN15 §3).
 
 The campaign ``motion_compensation`` in its --quick form through `camctl campaign run --sim`
 (its own `camd serve --sim` with the ftf5066 profile: the RS-422 link, the IMC registers over
@@ -48,7 +48,7 @@ from firmware_models.scene import Scene, SceneSpec, SceneSpecError, build_scene
 from firmware_models.sensor import SensorModel
 from tests.campaign_support import report_images, run_shipped
 
-W = 9e-6  # REN15's pixel (physics.md §7)
+W = 9e-6  # REN15's pixel (docs/physics.md §7)
 CLOCK_HZ = 25e6  # ftf5066.toml timing.clock_hz: IMC_STEP counts it
 EXPOSURE_S = 0.01  # 40 lines x 250 us at reset
 
@@ -174,7 +174,7 @@ def test_moving_flat_field_keeps_its_mean(mode: ImcMode) -> None:
 )
 def test_moving_edge_blur_width(mode: ImcMode, width_px: float) -> None:
     """A moving edge's smear: v T without compensation, w with row steps when T >> dt, w / 4
-    with electrode steps (physics.md §7). At 9 mm/s a 10 ms exposure is 10 row times (whole
+    with electrode steps (docs/physics.md §7). At 9 mm/s a 10 ms exposure is 10 row times (whole
     sawtooth teeth). Measured as ``sqrt(12 (var - 1/6))`` of the edge's line profile (the
     first difference along the column), averaged over columns that sample the edge's offset
     uniformly: a uniform smear of width ``L`` has variance ``L^2 / 12``, and the pixel box and

@@ -1,8 +1,8 @@
-"""The `mtf_mismatch` campaign (YUAN13 §4, physics.md §6) in its quick form, through the real
+"""The `mtf_mismatch` campaign (YUAN13 §4, docs/physics.md §6) in its quick form, through the real
 daemon: camctl campaign run mtf_mismatch --sim --quick -> camd serve --sim (mt9m001) -> TDI scans
 of the edge and bar targets -> results.json, report.html with its plots.
 
-The expected numbers are worked out here from physics.md §6 (eq 3 times eq 8 at Nyquist) and
+The expected numbers are worked out here from docs/physics.md §6 (eq 3 times eq 8 at Nyquist) and
 the campaign's settings, not taken from camd's model functions.
 """
 
@@ -30,7 +30,7 @@ def sinc(x: float) -> float:
 
 
 def sec6_nyquist(m_dv_over_v: float) -> float:
-    """physics.md §6 at f = 1/(2p): sinc(q/2p) sinc(T_int/2T_L) |sinc(M dV/V / 2)|, times the
+    """docs/physics.md §6 at f = 1/(2p): sinc(q/2p) sinc(T_int/2T_L) |sinc(M dV/V / 2)|, times the
     scene's cells sinc(1/8)^2."""
     return abs(sinc(Q / 2) * sinc(T_INT_OVER_T_L / 2) * sinc(m_dv_over_v / 2)) * CELLS**2
 
@@ -104,7 +104,7 @@ def test_limiting_resolution_grows_with_the_stages(run: tuple[Path, dict[str, An
     assert limits[-1] > limits[0]
     assert limits[-1] == pytest.approx(0.5 * LP_MM_PER_CY_PX)
     assert r["resolution_gain_lp_mm"] == pytest.approx(limits[-1] - limits[0])
-    # Rose's d grows as sqrt(M) (M times the signal, sqrt(M) times the noise, physics.md §5):
+    # Rose's d grows as sqrt(M) (M times the signal, sqrt(M) times the noise, docs/physics.md §5):
     # the bar difference M times, the pixel noise sqrt(M) times (read noise, shot noise and
     # quantisation of each stage independent), within 10 %.
     d = r["detectability"]

@@ -170,60 +170,8 @@ def test_token_from_argument_or_environment(
             assert cam.status()["state"] == "idle"
 
 
-# The client declares the API's documents as TypedDicts so that scripts need not import the
-# daemon; this pins each one to the daemon's pydantic model, so the two cannot drift apart.
-_CLIENT_VS_DAEMON = [
-    ("LinkPort", "LinkInfo"),
-    ("DaemonInfo", "DaemonInfo"),
-    ("StatusDoc", "StatusResponse"),
-    ("RttMs", "RttMs"),
-    ("PingResult", "PingResponse"),
-    ("DeviceLinkStats", "DeviceLinkStats"),
-    ("LinkDoc", "LinkResponse"),
-    ("ChannelValue", "ChannelLatest"),
-    ("TelemetryDoc", "TelemetryResponse"),
-    ("HistoryDoc", "HistoryResponse"),
-    ("Event", "EventItem"),
-    ("EventsDoc", "EventsResponse"),
-    ("ModeDoc", "ModeResponse"),
-    ("RegisterDoc", "RegisterReading"),
-    ("RegistersDoc", "RegistersResponse"),
-    ("RegisterWriteDoc", "RegisterWriteResponse"),
-    ("RegisterDifferenceDoc", "RegisterDifference"),
-    ("RegisterDiffDoc", "RegisterDiffResponse"),
-    ("RegisterConfigDoc", "RegisterConfig"),
-    ("TimingDoc", "TimingResponse"),
-    ("LaneDoc", "LaneResult"),
-    ("TrainDoc", "TrainResponse"),
-    ("StreamStatsDoc", "StreamStats"),
-    ("StreamDoc", "StreamResponse"),
-    ("StageDoc", "StageResponse"),
-    ("SimStreamDoc", "SimStreamStats"),
-    ("ScanTimingDoc", "ScanTiming"),
-    ("ScanDoc", "ScanResponse"),
-    ("ScanMotionInfoDoc", "ScanMotionInfo"),
-    ("StageReadingDoc", "StageReadingModel"),
-    ("StageLimitsDoc", "StageLimitsModel"),
-    ("MotionDoc", "MotionStatus"),
-    ("SyncDoc", "SyncResponse"),
-    ("SimStageTruthDoc", "SimStageTruth"),
-    ("WheelChannelDoc", "WheelChannelInfo"),
-    ("WheelExposureDoc", "WheelExposureInfo"),
-    ("WheelDoc", "WheelStatus"),
-    ("WheelRegionDoc", "WheelRegion"),
-    ("WheelFrameDoc", "WheelFrame"),
-    ("WheelAcquireDoc", "WheelAcquireResponse"),
-]
-
-
-@pytest.mark.parametrize(("client_name", "model_name"), _CLIENT_VS_DAEMON)
-def test_client_documents_match_the_daemon_models(client_name: str, model_name: str) -> None:
-    import camd.client as client_module
-    import camd.daemon.models as models
-
-    typed = getattr(client_module, client_name)
-    model = getattr(models, model_name)
-    assert set(typed.__annotations__) == set(model.model_fields), (client_name, model_name)
+# The client's TypedDicts (camd/client_types.py) are generated from the daemon's pydantic models;
+# tests/test_client_types.py pins them to the models and to a live daemon's answers.
 
 
 def test_timing_response_carries_every_sensor_timing_field() -> None:

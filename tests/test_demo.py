@@ -85,9 +85,9 @@ def test_demo_runs_and_writes_its_summary(tmp_path: Path) -> None:
     for scan in scans:
         assert Path(scan["file"]).is_file() and Path(scan["quicklook"]).is_file()
         assert scan["complete_lines"] >= 100 and scan["lines"] >= scan["complete_lines"]
-        # Signal grows as M (physics.md §1 eq 11) ...
+        # Signal grows as M (docs/physics.md §1 eq 11) ...
         assert scan["signal_dn"] == pytest.approx(scans[0]["signal_dn"] * scan["stages"], rel=0.1)
-    # ... and SNR as sqrt(M) (physics.md §5: independent noise per stage), within 1.5 dB here:
+    # ... and SNR as sqrt(M) (docs/physics.md §5: independent noise per stage), within 1.5 dB here:
     # the TAO12 model (quantisation adding linearly) is 4.6 dB lower at M = 32.
     for scan in scans[1:]:
         assert abs(scan["snr_db"] - scan["model_sqrt_m_db"]) < 1.5, scan

@@ -1,4 +1,4 @@
-"""EMVA-style noise and SNR (physics.md §5 eqs 9-13), 2x2 binning (§3), the SNR-versus-M models
+"""EMVA-style noise and SNR (docs/physics.md §5 eqs 9-13), 2x2 binning (§3), the SNR-versus-M models
 side by side and their fit, and a cross-check against the ``emva1288`` package on frames from its
 own camera simulator.
 
@@ -198,7 +198,7 @@ def test_two_frame_noise_is_emva_1288s_difference_method() -> None:
     assert two_frame_noise(a, b, region=(25, 25)).pixels == 625
 
 
-# ---- 2x2 binning (physics.md §3) ----
+# ---- 2x2 binning (docs/physics.md §3) ----
 
 
 def test_bin_2x2_sums_four_neighbours() -> None:
@@ -235,7 +235,7 @@ def test_binned_frames_measure_signal_x4_noise_x2_snr_x2() -> None:
     assert binned.signal_e == pytest.approx(4.0 * 500.0 / 0.25, rel=1e-3)
 
 
-# ---- SNR versus M: the three models of physics.md §5 ----
+# ---- SNR versus M: the three models of docs/physics.md §5 ----
 
 
 def test_noise_models_eq27_and_quadrature_by_hand() -> None:
@@ -288,7 +288,7 @@ def test_models_refuse_bad_input() -> None:
 
 # ---- fits ----
 
-TAO12_ROWS = [  # physics.md §5 table: sigma_AD, sigma_CMOS, SNR_1 (dB)
+TAO12_ROWS = [  # docs/physics.md §5 table: sigma_AD, sigma_CMOS, SNR_1 (dB)
     (0.03104, 1.42471, 4.9893),
     (0.03104, 0.88489, 22.6348),
     (0.03104, 1.24938, 31.2559),
@@ -510,7 +510,7 @@ def test_two_frame_method_reproduces_emva1288_exactly(emva1288_run: Emva1288Run)
 def test_eqs_9_13_on_emva1288s_two_frames_differ_only_by_its_mean_correction(
     emva1288_run: Emva1288Run,
 ) -> None:
-    """physics.md eqs 9-10 on A = 2 frames with the A - 1 divisor, variances averaged, is EMVA
+    """docs/physics.md eqs 9-10 on A = 2 frames with the A - 1 divisor, variances averaged, is EMVA
     1288's estimator without its ``(mu_a - mu_b)^2`` term: ~1/N relative (N = 4096): 1e-3."""
     run = emva1288_run
     ours = temporal_dark_noise(
@@ -523,7 +523,7 @@ def test_eqs_9_13_on_emva1288s_two_frames_differ_only_by_its_mean_correction(
 def test_dark_noise_agrees_with_emva1288_and_the_simulator(emva1288_run: Emva1288Run) -> None:
     run = emva1288_run
     dark = run.stacks[0.0]
-    # physics.md eq 10 as written (divisor A, per-pixel noise averaged) on all 20 frames reads
+    # docs/physics.md eq 10 as written (divisor A, per-pixel noise averaged) on all 20 frames reads
     # eq10_factor(20) = 0.962 of sigma; corrected, it agrees with emva1288's two-frame value
     # within 4.5 % (4 standard errors of the two-frame estimate over 4096 pixels, 1.1 %).
     ours = temporal_dark_noise(dark, region=None, gain_dn_per_e=run.k_true)
@@ -538,7 +538,7 @@ def test_dark_noise_agrees_with_emva1288_and_the_simulator(emva1288_run: Emva128
     # true one here). Ours, with the same definition and the true K: within 3 %.
     assert unbiased.noise_e_less_quantisation == pytest.approx(run.sigma_d, rel=0.03)
     assert run.k_fit == pytest.approx(run.k_true, rel=0.03)
-    # noise_e (physics.md: noise_dn / K, quantisation left in) is the larger.
+    # noise_e (docs/physics.md: noise_dn / K, quantisation left in) is the larger.
     assert unbiased.noise_rms_dn / run.k_true > (unbiased.noise_e_less_quantisation or 0.0)
     # YE23's 25 x 25 centre region: 625 pixels, 0.65 % standard error; 2.6 % tolerance.
     centre = temporal_dark_noise(dark, gain_dn_per_e=run.k_true)

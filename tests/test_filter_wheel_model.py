@@ -1,6 +1,6 @@
 """The wheel file (camd.motion.wheel_profile) and the simulated wheel (firmware_models.wheel).
 
-physics.md §4 [YE23]: 13 channels, w = 73.245 deg/s, entry pulse T_center = 60 ms before each
+docs/physics.md §4 [YE23]: 13 channels, w = 73.245 deg/s, entry pulse T_center = 60 ms before each
 channel centre, a 120 ms light window, three polarising channels 60 deg apart. The polarisation
 experiment of YE23 §4 is run through the model: a reference polariser at 0 .. 360 deg in 15 deg
 steps, a frame per step through each polarising channel, the azimuth from the least-squares

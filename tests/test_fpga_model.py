@@ -329,6 +329,82 @@ def test_per_opcode_execution_counts(model: FpgaModel, dictionary: Dictionary) -
     assert model.execution_count("SET_MODE") == 0
 
 
+# -- failures on purpose (SIM_FAIL_NEXT) ------------------------------------------------------
+
+
+def fail_next(model: FpgaModel, seq: int = 90, **values: Any) -> list[Frame]:
+    fields: dict[str, Any] = {
+        "action": "nak", "opcode": 0, "skip": 0, "error_code": 0, "duration_s": 0.0, **values,
+    }  # fmt: skip
+    return call(model, "SIM_FAIL_NEXT", seq=seq, **fields)
+
+
+def test_fail_next_naks_the_chosen_occurrence_without_executing_it(
+    model: FpgaModel, dictionary: Dictionary
+) -> None:
+    set_mode = dictionary.command("SET_MODE").opcode
+    busy = dictionary.error("BUSY").code
+    assert fail_next(model, opcode=set_mode, skip=1, error_code=busy)[0].type == FrameType.ACK
+    call(model, "PING", seq=1, data=b"x")  # another opcode: not counted
+    assert ack_values(dictionary, "SET_MODE", call(model, "SET_MODE", seq=2, mode="tdi")) == {
+        "mode": "tdi"
+    }
+    failing = command_frame(dictionary, "SET_MODE", 3, mode="area")
+    answer = model.handle(failing, 1.0)
+    name, detail = nak(dictionary, answer)
+    assert name == "BUSY" and "SET_MODE failed on purpose (SIM_FAIL_NEXT)" in detail
+    assert model.mode == "tdi"  # not executed
+    assert model.execution_count("SET_MODE") == 1
+    assert model.handle(failing, 1.1) == answer  # a retry is answered from the record
+    # Disarmed once fired: the next SET_MODE executes.
+    ack_values(dictionary, "SET_MODE", call(model, "SET_MODE", seq=4, mode="area"))
+    assert model.mode == "area"
+
+
+def test_fail_next_silence_drops_off_the_line_then_comes_back(
+    model: FpgaModel, dictionary: Dictionary
+) -> None:
+    reg_write = dictionary.command("REG_WRITE").opcode
+    fail_next(model, action="silence", opcode=reg_write, duration_s=2.0)
+    failing = command_frame(dictionary, "REG_WRITE", 5, address=0x21, value=7)
+    assert model.handle(failing, 10.0) == []
+    assert model.silent(10.0) and model.silent(11.9)
+    assert model.handle(failing, 10.5) == []  # the host's retries are not heard either
+    assert call(model, "PING", seq=6, now_s=11.0, data=b"x") == []
+    assert model.execution_count("REG_WRITE") == 0
+    assert model.counters.silenced == 3
+    assert not model.silent(12.0)
+    ping = call(model, "PING", seq=7, now_s=12.0, data=b"y")
+    assert ping[0].type == FrameType.ACK
+    read = ack_values(
+        dictionary, "REG_READ", call(model, "REG_READ", seq=8, now_s=12.1, address=0x21)
+    )
+    assert read["value"] != 7  # the silenced write never reached the sensor
+
+
+def test_fail_next_off_disarms(model: FpgaModel, dictionary: Dictionary) -> None:
+    ping = dictionary.command("PING").opcode
+    fail_next(model, seq=1, opcode=ping, error_code=dictionary.error("BUSY").code)
+    fail_next(model, seq=2, action="off")
+    assert call(model, "PING", seq=3, data=b"z")[0].type == FrameType.ACK
+
+
+@pytest.mark.parametrize(
+    ("values", "message"),
+    [
+        ({"opcode": 0x7A, "error_code": 5}, "opcode 0x7A is not a command of the dictionary"),
+        ({"opcode": 0x01, "error_code": 999}, "error_code 999 is not an error of the dictionary"),
+        ({"action": "silence", "opcode": 0x01}, "a silence needs duration_s > 0"),
+    ],
+)
+def test_fail_next_refuses_what_it_cannot_arm(
+    model: FpgaModel, dictionary: Dictionary, values: dict[str, Any], message: str
+) -> None:
+    name, detail = nak(dictionary, fail_next(model, **values))
+    assert name == "OUT_OF_RANGE" and message in detail
+    assert call(model, "PING", seq=3, data=b"z")[0].type == FrameType.ACK  # nothing armed
+
+
 # -- link counters ---------------------------------------------------------------------------
 
 

@@ -1,4 +1,4 @@
-"""Image motion compensation on a full-frame CCD (physics.md §7, REN15).
+"""Image motion compensation on a full-frame CCD (docs/physics.md §7, REN15).
 
 The closed forms of camd.timing.imc against hand-computed values, then the numeric
 charge-transfer model of firmware_models.ccd_imc against the closed forms: two independent
@@ -36,7 +36,7 @@ from firmware_models.ccd_imc import (
     point_beam_profile,
 )
 
-W = 9e-6  # REN15's pixel (physics.md §7)
+W = 9e-6  # REN15's pixel (docs/physics.md §7)
 # Offsets that avoid the model's time grid, so its discretisation error shows (on a grid aligned
 # with the time steps the midpoint rule is exact): 997 is prime, the time steps 1/400 of a row.
 A_GRID = (np.arange(997) + 0.5) * (W / 997)

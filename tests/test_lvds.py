@@ -1,4 +1,4 @@
-"""LVDS link model and FPGA link training (firmware_models.lvds; physics.md §3)."""
+"""LVDS link model and FPGA link training (firmware_models.lvds; docs/physics.md §3)."""
 
 from __future__ import annotations
 

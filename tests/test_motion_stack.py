@@ -3,7 +3,7 @@
 camctl (subprocess) or the client -> HTTP -> camd serve -> MOTOR_* commands over the pty ->
 the simulated stepper stage (firmware_models.motor / stage), whose true position moves the
 scene -> frames with the encoder latched in their headers -> TDI -> HDF5. The numbers are
-checked against physics.md §2 and §6 worked out here.
+checked against docs/physics.md §2 and §6 worked out here.
 """
 
 from __future__ import annotations
@@ -27,14 +27,14 @@ from tests.test_camctl import NO_TOKEN, camctl, camctl_json
 # Real-time streaming / control loops: alone under xdist (tests/conftest.py).
 pytestmark = pytest.mark.exclusive
 
-T_ROW_S = 513 / 25e6  # hr400 row time: 513 sequencer clocks at 25 MHz (physics.md §3)
+T_ROW_S = 513 / 25e6  # hr400 row time: 513 sequencer clocks at 25 MHz (docs/physics.md §3)
 ROWS = 100  # the scans' window: T_line,TDI = 100 rows = 2.052 ms
 T_LINE_S = ROWS * T_ROW_S
 STAGES = 96
 PITCH_M = 11e-6
 MAGNIFICATION = 0.1  # config/profiles/hr400.toml (1:10 bench objective)
 UM_PER_MICROSTEP = 5e-3 / 3200  # config/stages/linear_rail.toml: 5 mm lead, 200 x 16
-SYNC_M_S = PITCH_M / (MAGNIFICATION * T_LINE_S)  # physics.md §6 eq 9: 53.606 mm/s
+SYNC_M_S = PITCH_M / (MAGNIFICATION * T_LINE_S)  # docs/physics.md §6 eq 9: 53.606 mm/s
 DISTURBANCE = {"error": -0.005, "ripple": 0.01}  # a clock 0.5 % slow and 1 % speed ripple
 SCENE = "edge:angle_deg=5"
 
@@ -152,7 +152,7 @@ def test_stage_moves_homes_stops_and_refuses_with_reasons(
     camctl_json(url, "stage", "move", "0.6")
 
 
-# -- scans: open loop blurs, closed loop holds (physics.md §6) -------------------------------------
+# -- scans: open loop blurs, closed loop holds (docs/physics.md §6) -------------------------------------
 
 
 def test_disturbed_stage_open_loop_blurs_closed_loop_holds(
@@ -205,7 +205,7 @@ def test_disturbed_stage_open_loop_blurs_closed_loop_holds(
 
 
 def test_mtf_at_nyquist_follows_the_smear_model(client: CamdClient, tmp_path: Path) -> None:
-    """MTF at Nyquist for smears of 0, 1 and 2 pixels over M stages (physics.md §6 eq 8:
+    """MTF at Nyquist for smears of 0, 1 and 2 pixels over M stages (docs/physics.md §6 eq 8:
     sinc(p f M dV/V) = sinc(smear / 2) at Nyquist) times the detector terms (eq 3).
 
     The rolling shutter reads row i of a frame i row times after row 0, so at the synchronous
@@ -266,7 +266,7 @@ def test_scans_beyond_the_stage_are_refused_before_anything_is_written(
 
 def test_line_period_correction_follows_the_stage(tmp_path: Path) -> None:
     """The other closed loop (TAO12): the line period follows the stage, coarse by window
-    rows, fine by the back path (physics.md §2 eqs 8-9)."""
+    rows, fine by the back path (docs/physics.md §2 eqs 8-9)."""
     with start_daemon(tmp_path, 'correct = "line_period"') as d, CamdClient(d.url) as client:
         client.wait_ready(60)
         client.set_scene(SCENE)
@@ -288,7 +288,7 @@ def test_line_period_correction_follows_the_stage(tmp_path: Path) -> None:
 
 
 def test_turntable_carries_the_sensor_eq5(tmp_path: Path) -> None:
-    """A turntable (TAO12's rig, physics.md §2 eq 5): the sensor rides at l = 0.1 m, the image
+    """A turntable (TAO12's rig, docs/physics.md §2 eq 5): the sensor rides at l = 0.1 m, the image
     moves with the arc (image scale 1), T = a / (w l)."""
     config = tmp_path / "camd.toml"
     config.write_text('[stage]\nprofile = "turntable"\n')

@@ -1,4 +1,4 @@
-"""MTF models of physics.md §6 and the slanted-edge and bar-target measurements.
+"""MTF models of docs/physics.md §6 and the slanted-edge and bar-target measurements.
 
 The models are checked against hand-computed values. The slanted-edge measurement is checked
 on edges rendered exactly (each pixel the exact integral of the edge over its area), blurred
@@ -126,7 +126,7 @@ def test_sinc_and_velocity_mismatch_at_nyquist() -> None:
     assert sinc(0.5) == pytest.approx(0.6366197723675814, rel=1e-15)  # 2 / pi
     assert abs(sinc(1.0)) < 1e-16
     assert np.allclose(sinc(np.array([0.0, 0.5, -0.5])), [1.0, TWO_OVER_PI, TWO_OVER_PI])
-    # physics.md §6 eq 8: M dV/V = 1 gives 0.64 at Nyquist, M dV/V = 2 gives 0; 0 gives 1.
+    # docs/physics.md §6 eq 8: M dV/V = 1 gives 0.64 at Nyquist, M dV/V = 2 gives 0; 0 gives 1.
     assert mtf_velocity_mismatch(0.5, 96, 1 / 96) == pytest.approx(TWO_OVER_PI, rel=1e-12)
     assert mtf_velocity_mismatch(0.5, 96, -1 / 96) == pytest.approx(TWO_OVER_PI, rel=1e-12)
     assert mtf_velocity_mismatch(0.5, 48, 2 / 48) == pytest.approx(0.0, abs=1e-15)
@@ -141,7 +141,7 @@ def test_sinc_and_velocity_mismatch_at_nyquist() -> None:
 
 
 def test_detector_terms_at_nyquist_for_96_stages() -> None:
-    # physics.md §6 eq 3 at Nyquist: sinc(q / 2p) sinc(T_int / 2 T_L), T_int / T_L = M / (M + 1).
+    # docs/physics.md §6 eq 3 at Nyquist: sinc(q / 2p) sinc(T_int / 2 T_L), T_int / T_L = M / (M + 1).
     assert tdi_integration_ratio(96) == pytest.approx(96 / 97, rel=1e-15)
     assert tdi_integration_ratio(1) == 0.5
     # q / p = sqrt(0.8) = 0.894427: sinc(0.447214) = sin(80.50 deg) / 1.404963 = 0.701998
@@ -255,7 +255,7 @@ def test_motion_smeared_edge(length: float) -> None:
 
 @pytest.mark.parametrize("m_dv", [0.0, 1.0, 2.0])
 def test_smear_of_m_dv_over_v_pixels_against_eq8_times_eq3(m_dv: float) -> None:
-    # A scan with mismatch dV/V over M stages smears M dV/V pixels (physics.md §6): here the
+    # A scan with mismatch dV/V over M stages smears M dV/V pixels (docs/physics.md §6): here the
     # smear alone on a 100 % fill pixel with an instantaneous exposure.
     stages = 32
     image = (

@@ -1,5 +1,5 @@
 """Limiting resolution by Rose's criterion and the velocity-mismatch MTF of a rolling-shutter
-TDI scan (physics.md §6, YUAN13 §4; camd.analysis.mtf, docs/mtf.md).
+TDI scan (docs/physics.md §6, YUAN13 §4; camd.analysis.mtf, docs/mtf.md).
 
 Synthetic data whose answer is known: bar targets built from exact pixel integrals of square
 bars plus Gaussian noise of a known sigma (so Rose's d, and the limit, follow by hand), edges

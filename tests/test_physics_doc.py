@@ -1,7 +1,7 @@
 """docs/physics.md against the repository's citations of it.
 
-Code, configuration and documents cite the physics reference as ``physics.md §N``, often with an
-equation: ``physics.md §2 eq 4``, ``§2 eqs 5-9, 13``, ``§4 eqs 1, 4-8``, ``§2 eqs 5-9 and 13``,
+Code, configuration and documents cite the physics reference as ``docs/physics.md §N``, often with an
+equation: ``docs/physics.md §2 eq 4``, ``§2 eqs 5-9, 13``, ``§4 eqs 1, 4-8``, ``§2 eqs 5-9 and 13``,
 ``§6 eq 3 and eq 8``, ``§5 (TAO12 eq 28, ...)``, ``§6 [YUAN13 eq 9]``, ``§2 eqs 5-9, 13; §6 eq 9``,
 ``§3 (and §4 eq 6)``, ``§2-§3``, ``§7-8``. Every cited section must exist in docs/physics.md as a
 heading ``## N. Title``, and every cited equation must be defined in that section: inside a code
@@ -14,7 +14,7 @@ that closes one opened before ``physics.md``. In that span ``§N`` (not ``§N.M`
 paper's own section) opens a section, ``eq K`` / ``eqs K-L, M`` / ``eqs K-L and M`` name
 equations of the last section opened, and a paper's name followed by its sections (``YE23 §3.1,
 §3.3, §4``, ``REN15 §3``) is a reference to the paper, not to physics.md. Equations named before
-any section (``physics.md eqs 9-13``) are not checked.
+any section (``docs/physics.md eqs 9-13``) are not checked.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""camd.analysis.polarization: the sinusoid fit of physics.md §4 on exact, noisy and wrapped data."""
+"""camd.analysis.polarization: the sinusoid fit of docs/physics.md §4 on exact, noisy and wrapped data."""
 
 from __future__ import annotations
 

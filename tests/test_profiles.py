@@ -51,7 +51,7 @@ def test_every_physical_value_is_an_inline_table_with_source_xor_assumed(name: s
 
 @pytest.mark.parametrize("name", NAMES)
 def test_profile_line_period_agrees_with_the_register_map(name: str) -> None:
-    """physics.md §2 eq 4 from the profile's values = the map's timing at reset."""
+    """docs/physics.md §2 eq 4 from the profile's values = the map's timing at reset."""
     profile = load_profile(name)
     timing = reset_timing(load_register_map(name))
     assert profile.line_period_s() == pytest.approx(timing.line_period_s, rel=1e-9)
@@ -129,18 +129,18 @@ def corrupt(tmp_path: Path, old: str, new: str, name: str = "hr400") -> tuple[Pa
     ("old", "new", "message"),
     [
         (
-            'pitch_m = { value = 11e-6, source = "YE23 §3.2 / physics.md §3, §8" }',
+            'pitch_m = { value = 11e-6, source = "YE23 §3.2 / docs/physics.md §3, §8" }',
             'pitch_m = { value = 11e-6, source = "YE23", assumed = "guess" }',
             "pitch_m: give exactly one of `source` (where the value comes from) or `assumed` "
             "(why it was chosen), not both",
         ),
         (
-            'pitch_m = { value = 11e-6, source = "YE23 §3.2 / physics.md §3, §8" }',
+            'pitch_m = { value = 11e-6, source = "YE23 §3.2 / docs/physics.md §3, §8" }',
             "pitch_m = { value = 11e-6 }",
             "pitch_m: give exactly one of `source`",
         ),
         (
-            'pitch_m = { value = 11e-6, source = "YE23 §3.2 / physics.md §3, §8" }',
+            'pitch_m = { value = 11e-6, source = "YE23 §3.2 / docs/physics.md §3, §8" }',
             "pitch_m = 11e-6",
             "pitch_m: Input should be a valid dictionary or instance of Sourced",
         ),

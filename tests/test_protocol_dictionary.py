@@ -287,6 +287,7 @@ def test_lookups_and_simulator_range() -> None:
         "SIM_GET_STAGE",
         "SIM_SET_POLARIZER",
         "SIM_SET_SEED",
+        "SIM_FAIL_NEXT",
     }
     assert all(c.name.startswith("SIM_") == (c.opcode >= 0xF0) for c in DICT.commands)
 

@@ -1,6 +1,6 @@
 """Push-broom scans over the full stack, as a user drives them.
 
-camctl scan (subprocess) -> HTTP -> camd serve -> registers for the line period (physics.md §2)
+camctl scan (subprocess) -> HTTP -> camd serve -> registers for the line period (docs/physics.md §2)
 -> START_STREAM -> simulated camera -> simulated FX3 -> FrameStream -> batches -> TdiEngine ->
 HDF5 + PNG, read back here. The sensor's ramp test pattern makes every frame known, so the TDI
 lines can be checked against eq 11 worked out here, independently of camd.tdi.
@@ -108,7 +108,7 @@ def test_binned_scan_sums_binned_rows_at_twice_the_synchronous_speed(
         repr(16.5 * row), "--out", str(tmp_path / "binned.h5"), "--no-quicklook",
     )  # fmt: skip
     assert (doc["lines"], doc["complete_lines"], doc["width"]) == (9, 6, 1024)
-    # physics.md §3: each binned pixel is the sum of a 2x2 block of the ramp; the image must
+    # docs/physics.md §3: each binned pixel is the sum of a 2x2 block of the ramp; the image must
     # move one binned row (two pitches) per line period, so the stage runs twice as fast.
     binned = bin2x2(np.add.outer(np.arange(16), np.arange(2048)) & 0xFFF)
     scan = read_tdi_scan(tmp_path / "binned.h5")
@@ -207,7 +207,7 @@ def test_bad_scans_are_refused_and_leave_the_daemon_idle(url: str, tmp_path: Pat
 
 
 def test_flat_field_snr_grows_as_sqrt_m(url: str, tmp_path: Path) -> None:
-    """physics.md §5: with independent noise per stage (shot, read, quantisation), M stages give
+    """docs/physics.md §5: with independent noise per stage (shot, read, quantisation), M stages give
     M times the signal and sqrt(M) times the noise. Temporal noise is measured along the track
     (one column's lines all sum the same M pixels, so fixed pattern cancels); the signal is
     above the black level of the M summed pixels."""

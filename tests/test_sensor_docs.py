@@ -51,7 +51,7 @@ def test_render_contains_the_hand_checked_facts() -> None:
         for reg in regmap.registers:
             assert f"| 0x{reg.address:02X} | `{reg.name}` | {reg.width} |" in text
     # HR400: 513 clocks at 25 MHz; the mission window and n = 2 give 537 lines.
-    assert "Model `sequencer`: T_line = 513 clocks / 25 MHz (physics.md §3)." in text
+    assert "Model `sequencer`: T_line = 513 clocks / 25 MHz (docs/physics.md §3)." in text
     assert "| line period T_line | 20.52 µs |" in text
     assert "| first frame (n + k + 1) T_line | 11.01924 ms |" in text
     # MT9M001 datasheet: 1524 pixel clocks at 48 MHz.

@@ -27,7 +27,7 @@ from firmware_models.sensor import SensorModel
 HR400 = load_register_map("hr400")
 IBIS5 = load_register_map("ibis5")
 MT9M001 = load_register_map("mt9m001")
-T_LINE_S = 513 / 25e6  # physics.md §3: 513 sequencer clocks at the hr400 map's 25 MHz
+T_LINE_S = 513 / 25e6  # docs/physics.md §3: 513 sequencer clocks at the hr400 map's 25 MHz
 
 
 class DirectBridge(RegisterBridge):

@@ -23,7 +23,7 @@ from camd.sensor.regmap import RegisterSpec, load_register_map
 from tests.test_camctl import NO_TOKEN, camctl, camctl_json
 
 HR400 = load_register_map("hr400")
-T_LINE_S = 513 / 25e6  # physics.md §3: one line = 513 sequencer clocks (25 MHz assumed)
+T_LINE_S = 513 / 25e6  # docs/physics.md §3: one line = 513 sequencer clocks (25 MHz assumed)
 
 
 @contextmanager

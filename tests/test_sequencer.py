@@ -1,4 +1,4 @@
-"""The HR400 rolling-shutter sequencer model (firmware_models.sequencer) against physics.md §3.
+"""The HR400 rolling-shutter sequencer model (firmware_models.sequencer) against docs/physics.md §3.
 
 The mission window of YE23 is rows 757..1290 (k = 534); dummy row 4000.
 """

@@ -1,4 +1,4 @@
-"""The grey-gradient sharpness of physics.md §7 [REN15], normalised per pair and by mean^2."""
+"""The grey-gradient sharpness of docs/physics.md §7 [REN15], normalised per pair and by mean^2."""
 
 from __future__ import annotations
 

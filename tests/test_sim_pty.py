@@ -224,6 +224,23 @@ def test_resent_identical_frame_is_replayed(host: Host, dictionary: Dictionary) 
     assert int(after["executed"]) - int(before["executed"]) == 3  # GET_STATUS, SET_MODE, this
 
 
+def test_a_silence_sends_nothing_then_the_device_answers_again(
+    host: Host, dictionary: Dictionary
+) -> None:
+    ping = dictionary.command("PING").opcode
+    host.call("SIM_FAIL_NEXT", 50, action="silence", opcode=ping, skip=0, error_code=0,
+              duration_s=1.0)  # fmt: skip
+    lost = host.command_frame("PING", 51, data=b"lost")
+    host.send(lost)
+    heard = host.drain(0.5)
+    assert not [f for f in heard if f.type in (FrameType.ACK, FrameType.NAK)]
+    # Telemetry comes every 0.1 s; at most one frame was already on its way.
+    assert len([f for f in heard if f.type == FrameType.TELEMETRY]) <= 1
+    # The line comes back: telemetry again, and commands are answered.
+    host.wait_for(lambda f: f.type == FrameType.TELEMETRY, timeout_s=5.0)
+    assert host.call("PING", 52, data=b"back")["data"] == b"back"
+
+
 def test_delay_is_counted(host: Host) -> None:
     injected = host.call("SIM_GET_INJECTED", 30)
     assert int(injected["delayed"]) > 0

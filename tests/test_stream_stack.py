@@ -156,7 +156,7 @@ def test_sim_stage_speed_and_scene(url: str) -> None:
     timing = camctl_json(url, "timing")
     tracking = camctl_json(url, "sim", "stage", "--track")
     # Synchronous: the image moves one 11 um pitch per TDI line period through the 0.1x
-    # optics of the hr400 profile (physics.md §2: T_line,TDI = p / v_image).
+    # optics of the hr400 profile (docs/physics.md §2: T_line,TDI = p / v_image).
     sync = 11e-6 / (0.1 * timing["tdi_line_period_s"])
     assert tracking["sync_speed_m_s"] == pytest.approx(sync, rel=1e-6)
     assert tracking["speed_m_s"] == pytest.approx(sync, rel=1e-6) and tracking["track"] is True

@@ -1,4 +1,4 @@
-"""The digital TDI engine ``camd.tdi`` against its specification, docs/tdi.md (physics.md §1).
+"""The digital TDI engine ``camd.tdi`` against its specification, docs/tdi.md (docs/physics.md §1).
 
 The file carries its own direct implementation of docs/tdi.md (``ReferenceTdi``): it keeps the
 frames of the current run and, for every line, sums the stages straight from eq 11 (with row step,

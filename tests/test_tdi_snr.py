@@ -1,4 +1,4 @@
-"""The SNR-versus-stages models of physics.md §5 and the scan SNR measurements."""
+"""The SNR-versus-stages models of docs/physics.md §5 and the scan SNR measurements."""
 
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ from camd.analysis.tdi_snr import (
 
 
 def test_tao12_gain_is_eq28_as_a_linear_ratio() -> None:
-    # physics.md §5 table, fig 6a: sigma_AD = 0.03104, sigma_CMOS = 1.42471, M = 10:
+    # docs/physics.md §5 table, fig 6a: sigma_AD = 0.03104, sigma_CMOS = 1.42471, M = 10:
     # 10 * 1.45575 / (0.3104 + sqrt(10) * 1.42471) = 14.5575 / 4.815... = 3.0230
     gain = snr_gain_tao12(10, 0.03104, 1.42471)
     assert gain == pytest.approx(14.5575 / (0.3104 + math.sqrt(10) * 1.42471), rel=1e-12)

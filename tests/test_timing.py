@@ -1,4 +1,4 @@
-"""camd.timing against hand-computed values from physics.md §2-3, plus properties and errors.
+"""camd.timing against hand-computed values from docs/physics.md §2-3, plus properties and errors.
 
 Expected numbers are worked out by hand in the comments, never by calling the simulator.
 """
@@ -30,9 +30,9 @@ from camd.timing import (
     turntable_line_period_s,
 )
 
-# IBIS5 row period (physics.md §2 eq 4): 3.5 us blanking + 1280 px / 40 MHz = 3.5 + 32 = 35.5 us.
+# IBIS5 row period (docs/physics.md §2 eq 4): 3.5 us blanking + 1280 px / 40 MHz = 3.5 + 32 = 35.5 us.
 IBIS5_ROW_S = 35.5e-6
-# HR400 line period (physics.md §3): 513 clocks / 25 MHz = 20.52 us.
+# HR400 line period (docs/physics.md §3): 513 clocks / 25 MHz = 20.52 us.
 HR400_LINE_S = 20.52e-6
 
 
@@ -70,7 +70,7 @@ def test_max_rolling_integration() -> None:
 
 def test_synchronous_stage_speed() -> None:
     # MT9M001 on YUAN13's rail: 5.2 um pitch, 1 ms line period, image 1/20 of the object:
-    # the image must move 5.2 mm/s, the stage 20 times that, 104 mm/s (physics.md §6 eq 9).
+    # the image must move 5.2 mm/s, the stage 20 times that, 104 mm/s (docs/physics.md §6 eq 9).
     assert synchronous_stage_speed_m_s(5.2e-6, 1e-3) == pytest.approx(5.2e-3, rel=1e-12)
     assert synchronous_stage_speed_m_s(5.2e-6, 1e-3, 0.05) == pytest.approx(0.104, rel=1e-12)
     # The inverse of the line period from the image velocity.
@@ -224,7 +224,7 @@ def test_bad_inputs_raise_clear_errors(call: object, message: str) -> None:
 
 
 def test_velocity_mismatch_is_yuan13_dv_over_v() -> None:
-    # physics.md §6: dV/V = (V - V_m) / V. A stage 2 % slow: +0.02; 1 % fast: -0.01.
+    # docs/physics.md §6: dV/V = (V - V_m) / V. A stage 2 % slow: +0.02; 1 % fast: -0.01.
     from camd.timing import velocity_mismatch
 
     assert velocity_mismatch(0.11, 0.1078) == pytest.approx(0.02, rel=1e-12)

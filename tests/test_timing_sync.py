@@ -1,4 +1,4 @@
-"""Open-loop synchronisation (physics.md §2 eqs 5-9, 13; §6 eq 9) against hand-computed values."""
+"""Open-loop synchronisation (docs/physics.md §2 eqs 5-9, 13; §6 eq 9) against hand-computed values."""
 
 from __future__ import annotations
 

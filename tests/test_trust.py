@@ -9,14 +9,16 @@ from __future__ import annotations
 
 import contextlib
 import threading
+import time
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
 
+import h5py
 import httpx
 import pytest
 
 from camd.client import CamdClient, CamdError
+from tests.device_snapshot import snapshot
 from tests.test_camctl import camctl
 from tests.test_sensor_stack import serve
 
@@ -39,17 +41,6 @@ def small_window_daemon(tmp: Path) -> Iterator[str]:
 def url(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
     with small_window_daemon(tmp_path_factory.mktemp("camd-trust")) as url:
         yield url
-
-
-def snapshot(client: CamdClient) -> dict[str, Any]:
-    """The device's state as the device reports it."""
-    stage = client.motion()["reading"]
-    return {
-        "mode": client.status()["device"]["mode"],  # type: ignore[index]
-        "registers": client.register_config()["registers"],  # every configurable register
-        "stage": (stage["state"], stage["position_m"], stage["speed_m_s"]),
-        "state": client.status()["state"],
-    }
 
 
 def test_a_refused_scan_changes_nothing(url: str, tmp_path: Path) -> None:
@@ -143,3 +134,22 @@ def test_requests_that_would_disturb_a_scan_are_refused_naming_it(url: str, tmp_
         # The scan put the camera in tdi mode; nothing the refused requests asked was done.
         assert after["registers"] == before["registers"]
         assert after["stage"] == before["stage"]
+
+
+def test_an_emergency_stop_ends_a_running_scan_stopped_with_its_file_closed(
+    url: str, tmp_path: Path
+) -> None:
+    with CamdClient(url) as client:
+        scan = client.start_scan(4, 0, out=str(tmp_path / "estop.h5"), drive_stage=False)
+        deadline = time.monotonic() + 60
+        while client.scan()["lines"] == 0:  # lines on their way to the file
+            assert time.monotonic() < deadline, client.scan()
+            time.sleep(0.05)
+        answer = client.estop()
+        assert "acquisition" in answer["stopped"] and answer["failed"] == []
+        ended = client.wait_scan(60)
+        assert ended["state"] == "stopped" and ended["file"] == scan["file"]
+        with h5py.File(scan["file"], "r") as f:  # no writer holds it open any more
+            assert f.attrs["finished"] and f.attrs["state"] == "stopped"
+            assert f["lines"].shape[0] == ended["lines"] > 0
+        client.enable_stage(True)  # clears the stage's emergency stop

@@ -1,8 +1,8 @@
-"""The filter wheel over the full stack (physics.md §4, docs/wheel.md), as a user drives it.
+"""The filter wheel over the full stack (docs/physics.md §4, docs/wheel.md), as a user drives it.
 
 CamdClient over real HTTP, or camctl as a subprocess -> camd serve -> WHEEL_* commands over the
 pty -> the simulated FPGA's wheel -> frames over the simulated FX3 -> FrameStream -> the wheel
-service. Every expected number is worked out here from physics.md §4 and the instrument values
+service. Every expected number is worked out here from docs/physics.md §4 and the instrument values
 (config/wheel.toml), not taken from camd.timing:
 
     T_line = 513 / 25 MHz = 20.52 us, T_frame = (n + k + 1) T_line             eq 6

@@ -1,4 +1,4 @@
-"""camd.timing.wheel against hand-computed values of physics.md §4 (eqs 1, 4, 5, 8), and refusals.
+"""camd.timing.wheel against hand-computed values of docs/physics.md §4 (eqs 1, 4, 5, 8), and refusals.
 
 The HR400 numbers: T_line = 513 clocks / 25 MHz = 20.52 us (config/sensors/hr400.toml), a window
 of k = 534 rows (YE23's mission example), so T_frame = (n + 535) x 20.52 us (eq 6). Exposures

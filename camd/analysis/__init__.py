@@ -1,6 +1,6 @@
 """Analysis: SNR, EMVA-style noise, MTF, sharpness, polarisation fit (pure functions).
 
-- ``camd.analysis.sensor_noise``: the lumped sensor noise model of physics.md §5 (and §3 for
+- ``camd.analysis.sensor_noise``: the lumped sensor noise model of docs/physics.md §5 (and §3 for
   2x2 binning) that measurements on the simulated or real camera are compared with.
 - ``camd.analysis.tdi_snr``: SNR against the TDI stage count, the models of §5 and the
   along-track / periodic measurements of a scan.

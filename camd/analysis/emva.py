@@ -1,6 +1,6 @@
-"""EMVA-style temporal noise and SNR from stacks of frames (physics.md §5, §3): pure functions.
+"""EMVA-style temporal noise and SNR from stacks of frames (docs/physics.md §5, §3): pure functions.
 
-physics.md §5 [YE23 eqs 9-13], A frames at one exposure, per pixel (i, j), then over a region:
+docs/physics.md §5 [YE23 eqs 9-13], A frames at one exposure, per pixel (i, j), then over a region:
 
     Y_dark(i,j)  = mean over the A dark frames                                        (9)
     D_noise(i,j) = sqrt( sum_m (D_dark(i,j,m) - Y_dark(i,j))^2 / A )   temporal dark noise (10)
@@ -9,7 +9,7 @@ physics.md §5 [YE23 eqs 9-13], A frames at one exposure, per pixel (i, j), then
     SNR          = mean over the region of Y(i,j) / S(i,j)                             (13)
 
 YE23 takes A = 20 frames and a 25 x 25 region at the field centre (``centred_region``,
-``YE23_REGION_PX``), 2x2-binned data (``bin_2x2``, ``binned_temporal_snr``; physics.md §3:
+``YE23_REGION_PX``), 2x2-binned data (``bin_2x2``, ``binned_temporal_snr``; docs/physics.md §3:
 signal x4, temporal dark noise x2, SNR x2).
 
 Differences from EMVA 1288 (release 3.x/4.0) itself, and from the ``emva1288`` package:
@@ -19,14 +19,14 @@ Differences from EMVA 1288 (release 3.x/4.0) itself, and from the ``emva1288`` p
   not ``A - 1``, so its variance reads ``(A - 1) / A`` of the true one, and averaging the
   per-pixel roots (below) takes off another ``c4(A)``: for Gaussian noise and A = 20 the
   expectation is 0.962 sigma. ``bessel=True`` divides by ``A - 1`` instead.
-- EMVA 1288 averages variances over the region and then takes the root; physics.md averages the
+- EMVA 1288 averages variances over the region and then takes the root; docs/physics.md averages the
   per-pixel noise ``D_noise(i,j)``. Both are reported (``noise_dn``, ``noise_rms_dn``).
 - EMVA 1288's SNR is a ratio of region means, ``mu_y - mu_y.dark`` over ``sigma_y``
   (``TemporalSnr.snr_of_means``); eq 13 averages per-pixel ratios, which ``1 / S`` biases
   high: by a factor 1.069 for Gaussian noise and A = 20 (derived in tests/test_emva.py).
 - EMVA 1288's dark noise in electrons removes quantisation first,
   ``sigma_d = sqrt(sigma_y.dark^2 - 1/12) / K`` (``DarkNoise.noise_e_less_quantisation``);
-  physics.md only says that the conversion needs the system gain ``K``: ``noise_e`` is
+  docs/physics.md only says that the conversion needs the system gain ``K``: ``noise_e`` is
   ``noise_dn / K``, the total temporal dark noise referred to the pixel.
 """
 
@@ -53,10 +53,10 @@ from camd.tdi.binning import bin2x2
 FloatArray = npt.NDArray[np.float64]
 
 YE23_REGION_PX: Final = (25, 25)
-"""YE23's measurement region: 25 x 25 pixels at the field centre (physics.md §5)."""
+"""YE23's measurement region: 25 x 25 pixels at the field centre (docs/physics.md §5)."""
 
 YE23_FRAMES: Final = 20
-"""YE23's number of frames A per exposure (physics.md §5)."""
+"""YE23's number of frames A per exposure (docs/physics.md §5)."""
 
 Region = tuple[int, int] | None
 """A centred ``(rows, cols)`` region, or ``None`` for the whole frame."""
@@ -65,7 +65,7 @@ Region = tuple[int, int] | None
 def centred_region(
     shape: tuple[int, ...], rows: int = YE23_REGION_PX[0], cols: int = YE23_REGION_PX[1]
 ) -> tuple[slice, slice]:
-    """Slices of a ``rows x cols`` region at the centre of a frame (physics.md §5, YE23).
+    """Slices of a ``rows x cols`` region at the centre of a frame (docs/physics.md §5, YE23).
 
     ``shape`` is a frame's or a stack's shape; its last two axes are (rows, columns). When the
     free margin is odd, the extra row or column is left below or to the right.
@@ -119,7 +119,7 @@ def _gain(gain_dn_per_e: float | None) -> float | None:
 def region_psnr_db(
     image: npt.ArrayLike, *, region: Region = YE23_REGION_PX, black_dn: float = 0.0
 ) -> float:
-    """``PSNR = 20 lg(mean / sigma_RMS)`` of a region of one image (physics.md §5, TAO12 §5.1).
+    """``PSNR = 20 lg(mean / sigma_RMS)`` of a region of one image (docs/physics.md §5, TAO12 §5.1).
 
     The spatial mean and RMS deviation (divisor N) of the centred region, after subtracting
     ``black_dn`` from the mean (TAO12 uses the raw mean: ``black_dn = 0``). On a single image
@@ -134,10 +134,10 @@ def region_psnr_db(
 
 @dataclass(frozen=True, slots=True)
 class DarkNoise:
-    """Temporal dark noise of a region from A dark frames (physics.md §5, eqs 9-10).
+    """Temporal dark noise of a region from A dark frames (docs/physics.md §5, eqs 9-10).
 
     ``mean_dn``: region mean of ``Y_dark``; ``noise_dn``: region mean of ``D_noise(i,j)``
-    (physics.md); ``noise_rms_dn``: root of the region mean of ``D_noise(i,j)^2`` (EMVA 1288's
+    (docs/physics.md); ``noise_rms_dn``: root of the region mean of ``D_noise(i,j)^2`` (EMVA 1288's
     averaging). ``bessel`` records whether eq 10 divided by ``A - 1`` rather than ``A``.
     """
 
@@ -174,7 +174,7 @@ def temporal_dark_noise(
     gain_dn_per_e: float | None = None,
     bessel: bool = False,
 ) -> DarkNoise:
-    """Temporal dark noise from A >= 2 dark frames, shape (A, rows, cols) (physics.md §5).
+    """Temporal dark noise from A >= 2 dark frames, shape (A, rows, cols) (docs/physics.md §5).
 
     Eq 9 (per-pixel mean) and eq 10 (per-pixel temporal noise, divided by ``A`` as written;
     ``bessel=True`` divides by ``A - 1``) over the centred ``region`` (YE23: 25 x 25; ``None``
@@ -200,7 +200,7 @@ def _dark_noise(stack: FloatArray, gain: float | None, bessel: bool) -> DarkNois
 
 @dataclass(frozen=True, slots=True)
 class TemporalSnr:
-    """Signal, temporal noise and SNR of a region (physics.md §5, eqs 11-13).
+    """Signal, temporal noise and SNR of a region (docs/physics.md §5, eqs 11-13).
 
     ``signal_dn``: region mean of ``Y(i,j)`` (dark subtracted); ``noise_dn``: region mean of
     ``S(i,j)``; ``noise_rms_dn``: root of the region mean of ``S(i,j)^2``; ``snr``: eq 13,
@@ -219,7 +219,7 @@ class TemporalSnr:
 
     @property
     def snr_db(self) -> float:
-        """Eq 13's SNR in dB, ``20 lg(SNR)`` (physics.md §5)."""
+        """Eq 13's SNR in dB, ``20 lg(SNR)`` (docs/physics.md §5)."""
         return db(self.snr)
 
     @property
@@ -246,9 +246,9 @@ def temporal_snr(
     gain_dn_per_e: float | None = None,
     bessel: bool = False,
 ) -> TemporalSnr:
-    """SNR of a region from A >= 2 lit and A' >= 2 dark frames at one exposure (physics.md §5).
+    """SNR of a region from A >= 2 lit and A' >= 2 dark frames at one exposure (docs/physics.md §5).
 
-    Eqs 9-13 as physics.md writes them: the per-pixel dark mean ``Y_dark`` is subtracted from
+    Eqs 9-13 as docs/physics.md writes them: the per-pixel dark mean ``Y_dark`` is subtracted from
     every lit frame, ``S(i,j)`` divides by ``A`` (``bessel=True``: ``A - 1``), and the SNR is
     the region mean of the per-pixel ratios. Both stacks have shape (frames, rows, cols) with
     the same rows and columns. YE23 measures at 80 % of saturation; a saturated pixel has no
@@ -306,7 +306,7 @@ def two_frame_noise(
 ) -> TwoFrameNoise:
     """EMVA 1288's two-frame temporal variance: ``(<(y_a - y_b)^2> - (mu_a - mu_b)^2) / 2``.
 
-    Not in physics.md (which uses eqs 9-13 on A frames); EMVA 1288 (release 3.x/4.0, the
+    Not in docs/physics.md (which uses eqs 9-13 on A frames); EMVA 1288 (release 3.x/4.0, the
     ``emva1288`` package) measures every point of its photon-transfer curve this way, over the
     whole frame (``region=None``). The mean is that of both frames. Subtracting the squared
     difference of the frame means removes a global level change between the frames.
@@ -324,7 +324,7 @@ def two_frame_noise(
 def binned_snr(signal_dn: float, noise_dn: float) -> float:
     """SNR of a 2x2-binned pixel from unbinned statistics: ``4 S / (2 N) = 2 S / N``.
 
-    physics.md §3 [YE23]: the sum of 4 neighbours has signal x4 and, with independent temporal
+    docs/physics.md §3 [YE23]: the sum of 4 neighbours has signal x4 and, with independent temporal
     noise, noise x2, so the SNR doubles (+6.02 dB). ``signal_dn`` is above black.
     """
     if not noise_dn > 0.0:
@@ -333,7 +333,7 @@ def binned_snr(signal_dn: float, noise_dn: float) -> float:
 
 
 def bin_2x2(frames: npt.ArrayLike) -> FloatArray:
-    """Sum 2 x 2 neighbours of a frame or stack (..., rows, cols) (physics.md §3), in float64
+    """Sum 2 x 2 neighbours of a frame or stack (..., rows, cols) (docs/physics.md §3), in float64
     (``camd.tdi.bin2x2``, the FPGA's binning, on widened pixels)."""
     binned: FloatArray = bin2x2(np.asarray(frames, dtype=np.float64))
     return binned
@@ -347,7 +347,7 @@ def binned_temporal_snr(
     gain_dn_per_e: float | None = None,
     bessel: bool = False,
 ) -> TemporalSnr:
-    """``temporal_snr`` of 2x2-binned frames, as YE23 measures (physics.md §3, §5).
+    """``temporal_snr`` of 2x2-binned frames, as YE23 measures (docs/physics.md §3, §5).
 
     The unbinned stacks are binned with ``bin_2x2``; ``region`` counts binned pixels. The
     system gain of a binned pixel is the unbinned ``K`` (DN and electrons both add).
@@ -367,7 +367,7 @@ def binned_temporal_snr(
 def eq10_expectation_factor(frames: int) -> float:
     """``E[D_noise(i,j)] / sigma`` for A frames of Gaussian noise: ``sqrt((A-1)/A) c4(A)``.
 
-    physics.md §5 eq 10 divides by ``A`` (a factor ``sqrt((A-1)/A)`` on the root) and the
+    docs/physics.md §5 eq 10 divides by ``A`` (a factor ``sqrt((A-1)/A)`` on the root) and the
     mean of a sample standard deviation is ``c4(A) sigma`` with
     ``c4(A) = sqrt(2/(A-1)) Gamma(A/2) / Gamma((A-1)/2)``. For YE23's A = 20: 0.962. A model
     of the noise (sigma) times this factor is what eq 10 is expected to measure.
@@ -378,7 +378,7 @@ def eq10_expectation_factor(frames: int) -> float:
 
 
 def eq13_expectation_factor(frames: int) -> float:
-    """``E[eq 13's SNR] / (mu / sigma)`` for A frames of Gaussian noise (physics.md §5).
+    """``E[eq 13's SNR] / (mu / sigma)`` for A frames of Gaussian noise (docs/physics.md §5).
 
     Eq 13 averages per-pixel ratios ``Y / S``; for Gaussian noise ``Y`` is independent of
     ``S`` (eq 12, divisor A), so ``E[Y / S] = mu E[1 / S]``. With ``nu = A - 1`` and
@@ -420,7 +420,7 @@ class PhotonTransfer:
 def photon_transfer(mean_dn: npt.ArrayLike, variance_dn2: npt.ArrayLike) -> PhotonTransfer:
     """System gain ``K`` from the photon transfer of dark-subtracted means and temporal variances.
 
-    physics.md §5 (dark noise in electrons needs the system gain): photon shot noise is
+    docs/physics.md §5 (dark noise in electrons needs the system gain): photon shot noise is
     Poisson, so in electrons the variance of the signal equals its mean, and in DN
     ``sigma_y^2 = K^2 (mu_e + sigma_d,e^2) = K mu_y + sigma_d^2`` with ``mu_y`` the mean above
     dark (EMVA 1288's photon transfer method). An unweighted least-squares line through

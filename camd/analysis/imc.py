@@ -1,4 +1,4 @@
-"""Image motion compensation measured on images of a slanted periodic edge (physics.md §7).
+"""Image motion compensation measured on images of a slanted periodic edge (docs/physics.md §7).
 
 REN15 judges electronic image motion compensation on a full-frame CCD by the grey-gradient
 sharpness of the images and by the modulation of a point beam's image. Both can be measured
@@ -40,7 +40,7 @@ FloatArray = npt.NDArray[np.float64]
 
 
 def periodic_edge_sharpness(square_sum: float, period_rows: float, contrast: float = 1.0) -> float:
-    """Noise-free grey-gradient sharpness along the track of a periodic edge, physics.md §7.
+    """Noise-free grey-gradient sharpness along the track of a periodic edge, docs/physics.md §7.
 
     ``G = 8 c^2 <sum q^2> / P`` (module docstring): ``square_sum`` is the point-beam profile's
     ``<sum q^2>`` over the offsets (``camd.timing.imc.point_beam_means``), ``period_rows`` the
@@ -66,7 +66,7 @@ def edge_line_modulations(
     half_width: int = 3,
     threshold: float = 0.2,
 ) -> FloatArray:
-    """The point-beam modulation of every edge in an image of a periodic edge, physics.md §7.
+    """The point-beam modulation of every edge in an image of a periodic edge, docs/physics.md §7.
 
     Along each column the first difference ``I[i + 1] - I[i]`` is the point beam's pixel
     profile at that edge (module docstring). An edge is a difference that is the largest of

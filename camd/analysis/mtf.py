@@ -1,10 +1,10 @@
-"""MTF: the models of physics.md §6 and measurements by slanted edge and bar target.
+"""MTF: the models of docs/physics.md §6 and measurements by slanted edge and bar target.
 
 Spatial frequencies are in cycles per pixel (``f_cy_per_px``, i.e. ``p f`` for ``f`` in cycles
 per metre and pitch ``p``); the Nyquist frequency is 0.5 cycles per pixel. All MTFs are moduli
 normalised to 1 at zero frequency.
 
-Models (physics.md §6, [YUAN13] §3.2-3.4):
+Models (docs/physics.md §6, [YUAN13] §3.2-3.4):
 
 - ``sinc``: the normalised ``sin(pi x) / (pi x)``;
 - ``mtf_detector``: eq 3, ``sinc(f q) * sinc(f T_int / T_L)`` (aperture and exposure-time smear);
@@ -65,7 +65,7 @@ _END_MARGIN_PX = 2.0  # the fitted edge must stay this far inside every line
 Axis = Literal["along", "across"]
 
 
-# -- models (physics.md §6) -------------------------------------------------------------------------
+# -- models (docs/physics.md §6) -------------------------------------------------------------------------
 
 
 def _as_float_array(name: str, value: float | npt.ArrayLike) -> FloatArray:
@@ -86,7 +86,7 @@ def sinc(x: float) -> float: ...
 @overload
 def sinc(x: FloatArray) -> FloatArray: ...
 def sinc(x: float | FloatArray) -> float | FloatArray:
-    """Normalised ``sinc(x) = sin(pi x) / (pi x)``, ``sinc(0) = 1`` (physics.md §6, after eq 3)."""
+    """Normalised ``sinc(x) = sin(pi x) / (pi x)``, ``sinc(0) = 1`` (docs/physics.md §6, after eq 3)."""
     result: float | FloatArray = _out(np.sinc(_as_float_array("x", x)))
     return result
 
@@ -104,14 +104,14 @@ def mtf_velocity_mismatch(f_cy_per_px: FloatArray, stages: int, dv_over_v: float
 def mtf_velocity_mismatch(
     f_cy_per_px: float | FloatArray, stages: int, dv_over_v: float
 ) -> float | FloatArray:
-    """Velocity-mismatch MTF ``|sinc(p f M dV/V)|`` (physics.md §6 eq 8, [YUAN13]).
+    """Velocity-mismatch MTF ``|sinc(p f M dV/V)|`` (docs/physics.md §6 eq 8, [YUAN13]).
 
     Over ``M`` stages the image smears by ``M p |dV/V|``; the line spread function is a
     rectangle of that width. ``f_cy_per_px`` is ``p f``. At Nyquist (0.5) ``M dV/V = 1`` gives
     ``2 / pi = 0.637`` and ``M dV/V = 2`` gives 0. The modulus is returned: beyond the first
     zero the optical transfer function ``sinc`` is negative (contrast reversal).
 
-    physics.md notes that YUAN13 eqs 4-6 put an extra factor M inside V; this is the consistent
+    docs/physics.md notes that YUAN13 eqs 4-6 put an extra factor M inside V; this is the consistent
     form (smear = M stages times the per-stage slip ``p dV/V``). ``dv_over_v`` is
     ``camd.timing.velocity_mismatch``.
     """
@@ -123,7 +123,7 @@ def mtf_velocity_mismatch(
 
 
 def tdi_integration_ratio(stages: int) -> float:
-    """``T_int / T_L = M / (M + 1)`` for an M-stage TDI-CMOS sensor (physics.md §6, after eq 3)."""
+    """``T_int / T_L = M / (M + 1)`` for an M-stage TDI-CMOS sensor (docs/physics.md §6, after eq 3)."""
     m = _stages(stages)
     return m / (m + 1.0)
 
@@ -144,7 +144,7 @@ def mtf_detector(
 def mtf_detector(
     f_cy_per_px: float | FloatArray, *, fill_width: float, integration_ratio: float
 ) -> float | FloatArray:
-    """Detector MTF ``sinc(f q) * sinc(f p T_int / T_L)`` (physics.md §6 eq 3, [YUAN13]).
+    """Detector MTF ``sinc(f q) * sinc(f p T_int / T_L)`` (docs/physics.md §6 eq 3, [YUAN13]).
 
     ``MTF_geo = sinc(f q)``: the photosensitive width ``q`` as a fraction of the pitch
     (``fill_width = q / p``; a square aperture of fill factor FF has ``q / p = sqrt(FF)``).
@@ -189,7 +189,7 @@ def mtf_tdi_model(
     fill_width: float,
     integration_ratio: float | None = None,
 ) -> float | FloatArray:
-    """``MTF_detector * MTF_dV``: eq 3 times eq 8 of physics.md §6 [YUAN13].
+    """``MTF_detector * MTF_dV``: eq 3 times eq 8 of docs/physics.md §6 [YUAN13].
 
     Of eq 2 (``MTF_optics * MTF_detector * MTF_sampling * MTF_readout * MTF_dV``) this includes
     only the detector aperture (``sinc(f q)``), the exposure-time smear
@@ -307,7 +307,7 @@ def slanted_edge_mtf(
 ) -> SlantedEdgeMtf:
     """MTF from one slanted edge, ISO 12233 style (the sfrmat algorithm).
 
-    What it measures is the presampling MTF along the edge normal: the product of physics.md
+    What it measures is the presampling MTF along the edge normal: the product of docs/physics.md
     §6 eq 2 without the sampling term (the slant samples every phase), to compare with
     ``mtf_tdi_model`` times the optics' MTF.
 
@@ -828,7 +828,7 @@ SQUARE_WAVE_FUNDAMENTAL = 4.0 / math.pi
 
 
 def mtf_from_bars(modulation: float, target_contrast: float, *, fundamental: bool = False) -> float:
-    """``MTF = M_out / M_in`` (physics.md §6 eq 1) for one bar group.
+    """``MTF = M_out / M_in`` (docs/physics.md §6 eq 1) for one bar group.
 
     ``target_contrast`` is the target's Michelson contrast ``M_in`` (the simulator's
     ``contrast``). With a peak-to-peak ``modulation`` (``bar_modulation`` methods
@@ -913,7 +913,7 @@ def periodic_edge_mtf(
 ) -> PeriodicEdgeMtf:
     """Slanted-edge MTF (ISO 12233 style, ``slanted_edge_mtf``) of each edge that
     ``find_edge_regions`` finds in a periodic edge target, e.g. a TDI scan of the simulator's
-    ``edge`` scene (physics.md §6: the along-track MTF that velocity mismatch degrades).
+    ``edge`` scene (docs/physics.md §6: the along-track MTF that velocity mismatch degrades).
     Edges the measurement refuses (too short, clipped) are skipped; none measurable is a
     ValueError."""
     data = np.asarray(image, dtype=np.float64)
@@ -938,7 +938,7 @@ def periodic_edge_mtf(
     )
 
 
-# -- velocity mismatch on a rolling-shutter TDI scan (physics.md §6, YUAN13 §4) ---------------------
+# -- velocity mismatch on a rolling-shutter TDI scan (docs/physics.md §6, YUAN13 §4) ---------------------
 
 
 def _dirichlet(x: FloatArray, m: int) -> FloatArray:
@@ -984,7 +984,7 @@ def mtf_rolling_tdi_model(
     cell_px: float = 0.0,
 ) -> float | FloatArray:
     """Along-track MTF of M-stage digital TDI on a rolling-shutter sensor under velocity
-    mismatch: the terms of physics.md §6 eq 3 and eq 8 [YUAN13] as this rig makes them, with
+    mismatch: the terms of docs/physics.md §6 eq 3 and eq 8 [YUAN13] as this rig makes them, with
     what ``mtf_tdi_model`` (eq 3 times eq 8 as written) leaves out. ``f_cy_per_px`` is on the
     focal plane (cycles per pitch); the product of
 
@@ -1072,7 +1072,7 @@ class CombinedEdgeMtf:
 def combined_edge_mtf(
     results: tuple[SlantedEdgeMtf, ...] | list[SlantedEdgeMtf], *, line_pitch_px: float = 1.0
 ) -> CombinedEdgeMtf:
-    """One slanted-edge MTF from several edges of one image (ISO 12233 style, physics.md §6).
+    """One slanted-edge MTF from several edges of one image (ISO 12233 style, docs/physics.md §6).
 
     Averaging each edge's MTF (``periodic_edge_mtf``) keeps every edge's noise in its modulus:
     at low SNR the noise's power adds to the MTF, most where the MTF is small (near Nyquist,
@@ -1084,7 +1084,7 @@ def combined_edge_mtf(
 
     ``line_pitch_px``: the pitch of the image's lines (axis 0) on the focal plane, in pixels.
     A TDI line is taken every line period, while the image moves ``1 - dV/V`` rows, so a scan
-    under velocity mismatch has ``|1 - dV/V|`` (physics.md §6); 1 for a synchronous scan.
+    under velocity mismatch has ``|1 - dV/V|`` (docs/physics.md §6); 1 for a synchronous scan.
     The edge-normal frequency ``nu`` (cycles per line) becomes the along-track frequency
     ``nu cos(angle) / line_pitch_px`` (cycles per pixel). Its across-track component,
     ``nu sin(angle)``, is neglected: on the focal plane it is ``f`` times the tangent of the
@@ -1166,7 +1166,7 @@ def pixel_noise_dn(image: npt.ArrayLike, *, axis: Axis = "along") -> float:
     return float(kept.std()) / math.sqrt(6.0)
 
 
-# -- limiting resolution of a bar target (physics.md §6, YUAN13 §4) --------------------------------
+# -- limiting resolution of a bar target (docs/physics.md §6, YUAN13 §4) --------------------------------
 
 ROSE_THRESHOLD = 5.0
 """Rose's detection threshold: an object is seen when its signal over its area exceeds about 5
@@ -1192,7 +1192,7 @@ def bar_detectability(
     is 5 widths long): the bar's signal summed over its area against the noise of that sum.
     YUAN13 §4 judged the finest resolved group by eye, and an observer sees a bar when ``d``
     exceeds about 5 (``ROSE_THRESHOLD``): the criterion makes the limiting resolution depend
-    on the noise as the eye's does (physics.md §6; §5: M stages raise ``delta`` M times and
+    on the noise as the eye's does (docs/physics.md §6; §5: M stages raise ``delta`` M times and
     the noise ``sqrt(M)`` times).
     """
     f = float(frequency_cy_per_px)
@@ -1237,7 +1237,7 @@ def limiting_frequency(
 
 def lp_per_mm_on_target(f_cy_per_px: float, *, pitch_m: float, magnification: float) -> float:
     """A focal-plane frequency in cycles per pixel as line pairs per mm on the target: the
-    target-side pixel is ``pitch / magnification`` (physics.md §6, ``n_mag``)."""
+    target-side pixel is ``pitch / magnification`` (docs/physics.md §6, ``n_mag``)."""
     f, p, m = float(f_cy_per_px), float(pitch_m), float(magnification)
     if not (math.isfinite(p) and p > 0 and math.isfinite(m) and m > 0 and math.isfinite(f)):
         raise ValueError(f"need finite f, pitch_m > 0 and magnification > 0; got {f}, {p}, {m}")
@@ -1302,7 +1302,7 @@ def bar_target_resolution(
     """Limiting resolution of an image of a bar target whose bars vary across (axis 1) and
     whose groups follow each other along axis 0 in bands of ``band_lines`` lines, in the order
     of ``frequencies_cy_per_px``, repeating (the simulator's ``bars`` scene with
-    ``orientation=across`` in a synchronous scan: 32 lines per band). YUAN13 §4, physics.md §6.
+    ``orientation=across`` in a synchronous scan: 32 lines per band). YUAN13 §4, docs/physics.md §6.
 
     1. Bands: each line's power at each group frequency (normalised by that frequency's mean
        over the lines) is summed over the lines for every offset of the band pattern; the best

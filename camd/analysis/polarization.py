@@ -1,6 +1,6 @@
 """Polarisation azimuth from a rotating reference polariser: a least-squares sinusoid fit.
 
-physics.md §4 [YE23 §4]: the reference polariser is turned 0 .. 360 deg (15 deg steps) in front
+docs/physics.md §4 [YE23 §4]: the reference polariser is turned 0 .. 360 deg (15 deg steps) in front
 of a polarising channel and the signal follows ``I(theta) = a + b cos(2 (theta - phi))``
 (Malus's law through two polarisers); ``phi`` is the channel's polarisation azimuth. The fit is
 linear: ``I = a + c cos 2 theta + s sin 2 theta`` with ``c = b cos 2 phi``, ``s = b sin 2 phi``.
@@ -26,7 +26,7 @@ ANGLE_TOLERANCE_DEG = 1e-9
 
 @dataclass(frozen=True, slots=True)
 class PolarizationFit:
-    """``I(theta) = offset + amplitude * cos(2 (theta - azimuth_deg))`` (physics.md §4).
+    """``I(theta) = offset + amplitude * cos(2 (theta - azimuth_deg))`` (docs/physics.md §4).
 
     ``amplitude`` >= 0 and ``0 <= azimuth_deg < 180``; ``residual_rms`` is the rms of the data
     minus the fit; ``azimuth_error_deg`` the standard error of the azimuth from the fit's
@@ -43,7 +43,7 @@ class PolarizationFit:
 
 
 def fit_polarization(theta_deg: npt.ArrayLike, intensity: npt.ArrayLike) -> PolarizationFit:
-    """Fit ``I = a + b cos(2 (theta - phi))`` to a reference-polariser scan (physics.md §4).
+    """Fit ``I = a + b cos(2 (theta - phi))`` to a reference-polariser scan (docs/physics.md §4).
 
     Linear least squares on ``[1, cos 2 theta, sin 2 theta]``, then ``b = hypot(c, s)`` and
     ``phi = atan2(s, c) / 2`` mod 180. Needs at least 3 distinct reference angles modulo 180 deg
@@ -97,7 +97,7 @@ def fit_polarization(theta_deg: npt.ArrayLike, intensity: npt.ArrayLike) -> Pola
 
 
 def azimuth_spread_deg(values: npt.ArrayLike) -> float:
-    """Spread (max - min) of polarisation azimuths, across the 0/180 deg wrap (physics.md §4).
+    """Spread (max - min) of polarisation azimuths, across the 0/180 deg wrap (docs/physics.md §4).
 
     Azimuths are axes, so 179 and 1 deg are 2 deg apart. The spread is the shortest arc of the
     180-deg circle that holds every value (180 minus the widest gap between neighbours), which
@@ -113,7 +113,7 @@ def azimuth_spread_deg(values: npt.ArrayLike) -> float:
 
 
 def axial_difference_deg(angle_deg: float) -> float:
-    """A difference of two azimuths folded into [-90, 90) deg: azimuths are axes (physics.md
+    """A difference of two azimuths folded into [-90, 90) deg: azimuths are axes (docs/physics.md
     §4), so 179 - 1 = 178 deg is -2 deg."""
     return (angle_deg + 90.0) % 180.0 - 90.0
 

@@ -1,19 +1,19 @@
-"""The lumped sensor noise model of physics.md §5 (and §3 for 2x2 binning): pure functions.
+"""The lumped sensor noise model of docs/physics.md §5 (and §3 for 2x2 binning): pure functions.
 
 These equations are what measurements on the simulated (or real) camera are compared with. They
-are written from physics.md alone, independently of the simulator (``firmware_models.camera``),
+are written from docs/physics.md alone, independently of the simulator (``firmware_models.camera``),
 so that a test comparing the two checks both.
 
 Units: electrons (e-) at the pixel, DN (digital numbers, ADC counts) at the output, the system
 gain ``K`` in DN per electron. Noise terms are standard deviations; independent terms add in
-quadrature (physics.md §5: photon shot noise, dark-current shot noise, read noise, quantisation).
+quadrature (docs/physics.md §5: photon shot noise, dark-current shot noise, read noise, quantisation).
 
 - ``dark_current_e_per_s``: dark current at a temperature (doubling rule)
 - ``system_gain_dn_per_e``: ``K`` from conversion gain, analogue gain and ADC full scale
 - ``mean_signal_dn``, ``temporal_noise_dn``, ``dark_noise_dn``, ``saturation_dn``
-- ``binned_mean_dn``, ``binned_noise_dn`` (physics.md §3)
-- ``psnr_db`` (physics.md §5, TAO12 §5.1)
-- ``emva_dark_mean_dn``, ``emva_temporal_noise_dn`` (physics.md §5, YE23 eqs 9-13)
+- ``binned_mean_dn``, ``binned_noise_dn`` (docs/physics.md §3)
+- ``psnr_db`` (docs/physics.md §5, TAO12 §5.1)
+- ``emva_dark_mean_dn``, ``emva_temporal_noise_dn`` (docs/physics.md §5, YE23 eqs 9-13)
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ import numpy as np
 import numpy.typing as npt
 
 QUANTISATION_VARIANCE_DN2 = 1.0 / 12.0
-"""Variance of rounding to whole DN, ``1/12 DN^2`` (uniform error over one step; physics.md §5)."""
+"""Variance of rounding to whole DN, ``1/12 DN^2`` (uniform error over one step; docs/physics.md §5)."""
 
 
 def dark_current_e_per_s(
@@ -32,7 +32,7 @@ def dark_current_e_per_s(
 ) -> float:
     """Dark current at ``temp_degc``: ``I(T) = I_ref * 2^((T - T_ref) / T_double)``.
 
-    physics.md §5 keeps dark-current shot noise as one of the lumped terms; the temperature law
+    docs/physics.md §5 keeps dark-current shot noise as one of the lumped terms; the temperature law
     is the usual doubling rule (the doubling temperature is a per-profile assumption, see
     docs/profiles.md). ``doubling_degc`` must be > 0.
     """
@@ -49,7 +49,7 @@ def system_gain_dn_per_e(
 ) -> float:
     """System gain ``K = g_conv * G / (V_FS / 2^bits)`` in DN per electron.
 
-    physics.md §5 ("dark noise in electrons needs the system gain"): the charge-to-voltage
+    docs/physics.md §5 ("dark noise in electrons needs the system gain"): the charge-to-voltage
     conversion gain ``g_conv`` (uV/e-) times the analogue gain ``G`` gives volts per electron
     at the ADC, and one DN is ``V_FS / 2^bits`` volts.
     """
@@ -62,7 +62,7 @@ def mean_signal_dn(
 ) -> float:
     """Mean output ``K (S + D) + B`` in DN, below saturation.
 
-    physics.md §5: the mean of an unsaturated pixel is the collected charge (signal ``S`` and
+    docs/physics.md §5: the mean of an unsaturated pixel is the collected charge (signal ``S`` and
     dark charge ``D``, electrons) times the system gain, on top of the black level ``B``.
     Rounding to whole DN leaves the mean unchanged when the noise exceeds about 0.5 DN.
     """
@@ -74,7 +74,7 @@ def temporal_noise_dn(
 ) -> float:
     """Temporal noise ``sqrt(K^2 (S + D + sigma_read^2) + 1/12)`` in DN.
 
-    physics.md §5, lumped terms: photon shot noise (variance ``S``) and dark-current shot
+    docs/physics.md §5, lumped terms: photon shot noise (variance ``S``) and dark-current shot
     noise (variance ``D``) are Poisson, read noise ``sigma_read`` (electrons) is independent
     of both, and quantisation adds ``1/12 DN^2``.
     """
@@ -83,7 +83,7 @@ def temporal_noise_dn(
 
 
 def dark_noise_dn(dark_e: float, read_noise_e: float, gain_dn_per_e: float) -> float:
-    """Temporal dark noise (no light): ``temporal_noise_dn`` with ``S = 0`` (physics.md §5)."""
+    """Temporal dark noise (no light): ``temporal_noise_dn`` with ``S = 0`` (docs/physics.md §5)."""
     return temporal_noise_dn(0.0, dark_e, read_noise_e, gain_dn_per_e)
 
 
@@ -92,34 +92,34 @@ def saturation_dn(
 ) -> float:
     """The code a saturated pixel gives: ``min(FW K + B, 2^bits - 1)``.
 
-    physics.md §5 (full-well clipping, ADC clipping): the well stops filling at ``FW``
+    docs/physics.md §5 (full-well clipping, ADC clipping): the well stops filling at ``FW``
     electrons, the ADC at its largest code; whichever comes first sets the output.
     """
     return min(full_well_e * gain_dn_per_e + black_level_dn, 2.0**adc_bits - 1.0)
 
 
 def binned_mean_dn(mean_dn: float) -> float:
-    """Mean of a 2x2-binned pixel: the sum of 4 neighbours, ``4 x`` (physics.md §3 [YE23])."""
+    """Mean of a 2x2-binned pixel: the sum of 4 neighbours, ``4 x`` (docs/physics.md §3 [YE23])."""
     return 4.0 * mean_dn
 
 
 def binned_noise_dn(noise_dn: float) -> float:
     """Temporal noise of a 2x2-binned pixel: 4 independent pixels add in quadrature, ``2 x``.
 
-    physics.md §3 [YE23]: binning gives signal x4, temporal dark noise x2, SNR x2.
+    docs/physics.md §3 [YE23]: binning gives signal x4, temporal dark noise x2, SNR x2.
     """
     return 2.0 * noise_dn
 
 
 def psnr_db(mean: float, sigma: float) -> float:
-    """``PSNR = 20 lg(mean / sigma_RMS)`` in dB (physics.md §5 [TAO12 §5.1])."""
+    """``PSNR = 20 lg(mean / sigma_RMS)`` in dB (docs/physics.md §5 [TAO12 §5.1])."""
     if not sigma > 0.0:
         raise ValueError(f"sigma must be > 0, got {sigma!r}")
     return 20.0 * math.log10(mean / sigma)
 
 
 def emva_dark_mean_dn(frames: npt.ArrayLike) -> npt.NDArray[np.float64]:
-    """Per-pixel mean over A frames, ``Y(i,j) = mean_m D(i,j,m)`` (physics.md §5, YE23 eq 9).
+    """Per-pixel mean over A frames, ``Y(i,j) = mean_m D(i,j,m)`` (docs/physics.md §5, YE23 eq 9).
 
     ``frames`` has shape (A, rows, cols).
     """
@@ -131,7 +131,7 @@ def emva_dark_mean_dn(frames: npt.ArrayLike) -> npt.NDArray[np.float64]:
 
 
 def emva_temporal_noise_dn(frames: npt.ArrayLike) -> npt.NDArray[np.float64]:
-    """Per-pixel temporal noise ``sqrt(sum_m (D - Y)^2 / A)`` (physics.md §5, YE23 eqs 10, 12).
+    """Per-pixel temporal noise ``sqrt(sum_m (D - Y)^2 / A)`` (docs/physics.md §5, YE23 eqs 10, 12).
 
     As in YE23 the sum is divided by ``A``, not ``A - 1``, so its expectation is
     ``sigma * sqrt((A - 1) / A)`` (0.25 % low for A = 200; 2.5 % low for YE23's A = 20).

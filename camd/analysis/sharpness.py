@@ -1,4 +1,4 @@
-"""Image sharpness by the grey-gradient function (physics.md §7, [REN15]).
+"""Image sharpness by the grey-gradient function (docs/physics.md §7, [REN15]).
 
 REN15 compares the sharpness of images taken with and without image motion compensation by the
 grey-gradient function, the sum of squared differences of neighbouring pixels, normalised.
@@ -31,7 +31,7 @@ SharpnessAxis = Literal["both", "along", "across"]
 def grey_gradient_sharpness(
     image: npt.ArrayLike, *, black_dn: float = 0.0, axis: SharpnessAxis = "both"
 ) -> float:
-    """The grey-gradient sharpness ``G`` of physics.md §7 [REN15], normalised (module doc).
+    """The grey-gradient sharpness ``G`` of docs/physics.md §7 [REN15], normalised (module doc).
 
     ``axis``: ``"both"`` takes the pairs along axis 0 (rows, along track) and axis 1
     (columns, across track) together; ``"along"`` only pairs along axis 0, ``"across"`` only

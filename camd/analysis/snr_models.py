@@ -1,4 +1,4 @@
-"""The three SNR-versus-stages models of physics.md §5 side by side, and fits to measurements.
+"""The three SNR-versus-stages models of docs/physics.md §5 side by side, and fits to measurements.
 
 For M-stage digital TDI from a single-stage measurement (signal ``S`` above black, sensor
 temporal noise ``s_CMOS`` and quantisation ``s_AD``, all in DN):
@@ -6,12 +6,12 @@ temporal noise ``s_CMOS`` and quantisation ``s_AD``, all in DN):
 - TAO12 (eqs 27-28): ``SNR_M = SNR_1 * gain``, ``gain = M (s_AD + s_CMOS) / (M s_AD +
   sqrt(M) s_CMOS)``: quantisation adds linearly over the stages (``tdi_snr.snr_gain_tao12``);
 - sqrt(M) (DONG16 eqs 1-3): ``SNR_M = sqrt(M) SNR_1`` (``tdi_snr.snr_gain_sqrt_m``);
-- quadrature (physics.md: "the standard model with independent quantisation noise"):
+- quadrature (docs/physics.md: "the standard model with independent quantisation noise"):
   ``SNR_M = M S / sqrt(M (s_AD^2 + s_CMOS^2))`` (``tdi_snr.tdi_noise_quadrature``).
 
 ``SNR_1`` is the measured single-stage SNR; without one it is ``S / sqrt(s_AD^2 + s_CMOS^2)``
 (what a temporal-noise measurement of one stage gives). Because every stage of digital TDI is
-its own ADC conversion, physics.md's quadrature model has quantisation per stage, and it then
+its own ADC conversion, docs/physics.md's quadrature model has quantisation per stage, and it then
 predicts exactly ``sqrt(M) SNR_1`` whenever ``SNR_1`` is that quadrature sum: the two columns
 differ only when the measured ``SNR_1`` is not explained by ``s_AD`` and ``s_CMOS`` alone.
 TAO12's model is the one that predicts a different shape: below sqrt(M), and the more so the
@@ -42,7 +42,7 @@ from camd.analysis.tdi_snr import (
 FloatArray = npt.NDArray[np.float64]
 
 SnrModel = Literal["tao12", "sqrt_m", "quadrature"]
-"""The names of physics.md §5's three models."""
+"""The names of docs/physics.md §5's three models."""
 
 SNR_MODELS: tuple[SnrModel, ...] = ("tao12", "sqrt_m", "quadrature")
 
@@ -63,7 +63,7 @@ def _stages(stages: Sequence[int] | npt.ArrayLike) -> tuple[int, ...]:
 def sensor_sigma_dn(noise_dn: float, sigma_ad_dn: float = QUANTISATION_SIGMA_DN) -> float:
     """``s_CMOS = sqrt(N_1^2 - s_AD^2)``: sensor noise from a measured single-stage noise.
 
-    physics.md §5: the measured temporal noise ``N_1`` of one stage is the sensor's (photon
+    docs/physics.md §5: the measured temporal noise ``N_1`` of one stage is the sensor's (photon
     shot, dark-current shot and read noise, TAO12's lumped ``s_CMOS``) and quantisation's in
     quadrature.
     """
@@ -77,7 +77,7 @@ def sensor_sigma_dn(noise_dn: float, sigma_ad_dn: float = QUANTISATION_SIGMA_DN)
 
 @dataclass(frozen=True, slots=True)
 class SnrModels:
-    """Linear SNR of M stages under the three models of physics.md §5, one entry per M."""
+    """Linear SNR of M stages under the three models of docs/physics.md §5, one entry per M."""
 
     stages: tuple[int, ...]
     tao12: tuple[float, ...]
@@ -109,13 +109,13 @@ def snr_models(
     sigma_ad_dn: float = QUANTISATION_SIGMA_DN,
     snr_1: float | None = None,
 ) -> SnrModels:
-    """The three SNR-versus-M models of physics.md §5 side by side for ``stages``.
+    """The three SNR-versus-M models of docs/physics.md §5 side by side for ``stages``.
 
     ``signal_dn`` is one stage's signal above black, ``sigma_cmos_dn`` its sensor temporal
     noise (TAO12's ``s_CMOS``: photon shot, dark-current shot and read noise in quadrature;
     ``sensor_sigma_dn`` derives it from a measured noise), ``sigma_ad_dn`` the quantisation
     noise of one conversion (``1/sqrt(12)`` DN). ``snr_1`` is the measured single-stage SNR the
-    TAO12 and sqrt(M) models scale (physics.md: ``SNR_M[dB] = SNR_1[dB] + 20 lg(gain)``);
+    TAO12 and sqrt(M) models scale (docs/physics.md: ``SNR_M[dB] = SNR_1[dB] + 20 lg(gain)``);
     by default ``S / sqrt(s_AD^2 + s_CMOS^2)``. The quadrature model is computed from the
     components: ``M S / sqrt(M (s_AD^2 + s_CMOS^2))``.
     """
@@ -144,7 +144,7 @@ def snr_models(
 
 @dataclass(frozen=True, slots=True)
 class SnrFit:
-    """A model of physics.md §5 fitted to measured ``(M, SNR)`` points, least squares in dB.
+    """A model of docs/physics.md §5 fitted to measured ``(M, SNR)`` points, least squares in dB.
 
     ``snr_1_db`` is the fitted single-stage SNR, ``sigma_cmos_dn`` the fitted sensor noise
     (None for ``sqrt_m``, which has no such parameter); the ``*_sigma`` fields are their
@@ -222,7 +222,7 @@ def fit_snr_model(
     sigma_ad_dn: float = QUANTISATION_SIGMA_DN,
     signal_dn: float | None = None,
 ) -> SnrFit:
-    """Fit a physics.md §5 model to measured linear SNRs at ``stages``, least squares in dB.
+    """Fit a docs/physics.md §5 model to measured linear SNRs at ``stages``, least squares in dB.
 
     Free parameters, with the standard errors reported in ``SnrFit``:
 

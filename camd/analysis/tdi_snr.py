@@ -1,10 +1,10 @@
-"""SNR of M-stage digital TDI: the models of physics.md §5 and measurements on TDI scans.
+"""SNR of M-stage digital TDI: the models of docs/physics.md §5 and measurements on TDI scans.
 
 Models (linear SNR gain of M stages over one, ``SNR_M = SNR_1 * gain``):
 
 - ``snr_gain_tao12``: TAO12 eqs 27-28, quantisation noise adding linearly over the stages,
   sensor noise in quadrature: ``gain = M (s_AD + s_CMOS) / (M s_AD + sqrt(M) s_CMOS)``
-  (physics.md notes that eq 28 is a linear gain: convert with 20 lg);
+  (docs/physics.md notes that eq 28 is a linear gain: convert with 20 lg);
 - ``snr_gain_sqrt_m``: DONG16 eqs 1-3, every noise source independent per stage: sqrt(M). This
   is also the standard quadrature model ``sigma_M^2 = M (s_AD^2 + s_CMOS^2)`` when SNR_1 is
   measured with all its noise, as it is here.
@@ -31,16 +31,16 @@ import numpy.typing as npt
 from camd.analysis.sensor_noise import psnr_db
 
 QUANTISATION_SIGMA_DN = 1.0 / math.sqrt(12.0)
-"""Rounding to whole DN: sigma_AD = 1/sqrt(12) DN per conversion (physics.md §5)."""
+"""Rounding to whole DN: sigma_AD = 1/sqrt(12) DN per conversion (docs/physics.md §5)."""
 
 
 def db(ratio: float) -> float:
-    """A linear amplitude ratio in decibels, ``20 lg(ratio)`` (physics.md §5)."""
+    """A linear amplitude ratio in decibels, ``20 lg(ratio)`` (docs/physics.md §5)."""
     return 20.0 * math.log10(ratio)
 
 
 def snr_gain_tao12(stages: int, sigma_ad: float, sigma_cmos: float) -> float:
-    """TAO12 eq 28 (linear): ``M (s_AD + s_CMOS) / (M s_AD + sqrt(M) s_CMOS)`` (physics.md §5)."""
+    """TAO12 eq 28 (linear): ``M (s_AD + s_CMOS) / (M s_AD + sqrt(M) s_CMOS)`` (docs/physics.md §5)."""
     if stages < 1:
         raise ValueError(f"stages must be >= 1, got {stages}")
     if sigma_ad < 0 or sigma_cmos < 0 or sigma_ad + sigma_cmos == 0:
@@ -50,7 +50,7 @@ def snr_gain_tao12(stages: int, sigma_ad: float, sigma_cmos: float) -> float:
 
 
 def snr_gain_sqrt_m(stages: int) -> float:
-    """DONG16 eqs 1-3 and the quadrature model: ``sqrt(M)`` (physics.md §5)."""
+    """DONG16 eqs 1-3 and the quadrature model: ``sqrt(M)`` (docs/physics.md §5)."""
     if stages < 1:
         raise ValueError(f"stages must be >= 1, got {stages}")
     return math.sqrt(stages)
@@ -65,7 +65,7 @@ def _sigmas(stages: int, sigma_ad: float, sigma_cmos: float) -> float:
 
 
 def tdi_noise_tao12(stages: int, sigma_ad: float, sigma_cmos: float) -> float:
-    """TAO12 eq 27, noise of an M-stage sum: ``M s_AD + sqrt(M) s_CMOS`` (physics.md §5).
+    """TAO12 eq 27, noise of an M-stage sum: ``M s_AD + sqrt(M) s_CMOS`` (docs/physics.md §5).
 
     Quantisation adds linearly over the stages, sensor noise in quadrature; the signal is
     ``M S``, so ``M S / tdi_noise_tao12`` is ``S / (s_AD + s_CMOS)`` times eq 28's gain.
@@ -77,7 +77,7 @@ def tdi_noise_tao12(stages: int, sigma_ad: float, sigma_cmos: float) -> float:
 def tdi_noise_quadrature(stages: int, sigma_ad: float, sigma_cmos: float) -> float:
     """The quadrature model's noise of an M-stage sum: ``sqrt(M (s_AD^2 + s_CMOS^2))``.
 
-    physics.md §5 ("the standard model with independent quantisation noise"): every stage is
+    docs/physics.md §5 ("the standard model with independent quantisation noise"): every stage is
     its own ADC conversion, so quantisation, like the sensor noise, is independent per stage.
     Its SNR gain over one stage is therefore exactly ``snr_gain_sqrt_m``.
     """
@@ -96,7 +96,7 @@ class SnrMeasurement:
 
     @property
     def snr_db(self) -> float:
-        """The SNR as PSNR in dB (physics.md §5)."""
+        """The SNR as PSNR in dB (docs/physics.md §5)."""
         return psnr_db(self.signal_dn, self.noise_dn)
 
 

@@ -30,6 +30,7 @@ from typing import Any
 
 from camd.campaign.spec import BaselineSpec
 from camd.client import CamdClient, CamdError
+from camd.client_types import SimSettings
 
 HOME_TIMEOUT_S = 120.0  # homing from the far end of the shipped rail at 20 mm/s, with margin
 STAGE_TOLERANCE_M = 1e-6  # a stage this close to where it stood is back
@@ -58,7 +59,7 @@ class Settings:
 
     registers: dict[str, Any]  # the register configuration document
     mode: str | None
-    sim: dict[str, Any] | None  # the simulator settings, None on hardware
+    sim: SimSettings | None  # the simulator settings, None on hardware
     stage_position_m: float | None  # None: no stage could be read
     stage_enabled: bool
     wheel_speed_deg_s: float | None
@@ -147,7 +148,7 @@ def restore(client: CamdClient, before: Settings) -> list[str]:
             client.set_polarizer(sim["polarizer_deg"])
             ideal = sim["ideal_stage"]
             client.set_stage(track=bool(ideal["track"]), speed_m_s=float(ideal["speed_m_s"]))
-            client.set_stage_faults(**{k: float(v) for k, v in sim["stage_faults"].items()})
+            client.set_stage_faults(**sim["stage_faults"])
 
         attempt(f"simulated scene {sim['scene']} and stage settings", put_sim)
     if before.stage_position_m is not None:

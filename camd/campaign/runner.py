@@ -185,8 +185,10 @@ class CampaignRunner:
         """Run (or resume) the campaign; write results.json and, with ``report``, the report.
 
         Raises CampaignError when the daemon's camera is not the campaign's, a step cannot be
-        done (the message names the step), CampaignInterrupted when stopped early.
+        done (the message names the step), CampaignInterrupted when stopped early. A step that
+        its parameters make invalid is refused before the daemon is touched (``_preflight``).
         """
+        self._preflight(self.spec.steps, dict(self.parameters))
         self.raw_dir.mkdir(parents=True, exist_ok=True)
         self._load_state()
         self._check_camera()
@@ -281,6 +283,29 @@ class CampaignRunner:
                 f"got {values!r}"
             )
         return values
+
+    def _preflight(self, steps: list[Any], names: dict[str, Any]) -> None:
+        """Substitute the parameters into every step (every sweep value too) and validate it,
+        so that a bad parameter refuses the campaign before its baseline changes the camera. A
+        step that names a result measured by an earlier step is checked when it runs."""
+        for step in steps:
+            if isinstance(step, SweepStep):
+                try:
+                    values = self._sweep_values(step, names)
+                except KeyError:
+                    continue  # swept over a measured result
+                for value in values:
+                    self._preflight(step.steps, {**names, step.parameter: value})
+                continue
+            try:
+                _resolved(step, names)
+            except KeyError:
+                continue  # names a result measured before it
+            except CampaignError as exc:
+                raise CampaignError(
+                    f"{exc}\nnothing was done: correct the campaign's parameters (or their quick "
+                    "overrides) that this step uses"
+                ) from None
 
     def _count(self, steps: list[Any], names: dict[str, Any]) -> int:
         total = 0

@@ -72,6 +72,13 @@ RESULT_PATH = r"^[a-z][a-z0-9_]*(\.[A-Za-z0-9_]+)*$"
 Ref = Annotated[str, Field(pattern=WHOLE_REF)]
 """A whole-string parameter reference, ``${name}``, where a number or list is expected."""
 
+# Counts in the daemon's own ranges, so that a parameter out of them refuses the campaign
+# before it starts (the runner checks every step with its parameters first), not at its step.
+Frames = Annotated[int, Field(ge=1, le=0xFFFFFFFF)]
+Stages = Annotated[int, Field(ge=1, le=4096)]
+Lines = Annotated[int, Field(ge=0, le=10_000_000)]
+Passes = Annotated[int, Field(ge=1, le=1000)]
+
 
 class CampaignError(ValueError):
     """A campaign file is invalid or cannot run; the message names the file, step and key."""
@@ -130,9 +137,9 @@ class ConfigureStep(_Step):
 class StareAcquire(_Model):
     """Stare: ``frames`` window frames recorded to HDF5 (camd.store.recording)."""
 
-    frames: int | Ref = Field(default=10, description="frames to take (>= 1)")
+    frames: Frames | Ref = Field(default=10, description="frames to take (>= 1)")
     mode: Literal["area", "tdi"] | Ref | None = None
-    stages: int | Ref | None = None
+    stages: Stages | Ref | None = None
     binning: Literal["off", "2x2"] | Ref = "off"
     timeout_s: float | Ref | None = None
 
@@ -140,8 +147,8 @@ class StareAcquire(_Model):
 class ScanAcquire(_Model):
     """A push-broom TDI scan recorded to HDF5 (camd.store.tdi_recording)."""
 
-    stages: int | Ref
-    lines: int | Ref
+    stages: Stages | Ref
+    lines: Lines | Ref
     scene: str | None = None
     mode: Literal["sum", "mean"] | Ref = "sum"
     out_bits: int | Ref | None = None
@@ -156,14 +163,14 @@ class WheelAcquire(_Model):
     """One frame per channel per pass through the turning filter wheel."""
 
     channels: list[int] | Ref
-    passes: int | Ref = 1
+    passes: Passes | Ref = 1
     exposure_s: float | Ref | None = None
     compensated: bool | Ref | None = None
     timeout_s: float | Ref | None = None
 
 
 class PolarizationAcquire(_Model):
-    """A reference-polariser scan through the wheel's polarising channels (physics.md §4):
+    """A reference-polariser scan through the wheel's polarising channels (docs/physics.md §4):
     per compensation setting, exposure and reference angle one pass, the frame means recorded
     (camd.motion.polarization_run)."""
 

@@ -71,8 +71,15 @@ def cmd_campaign(client: CamdClient, args: argparse.Namespace) -> Any:
         return _list()
     if not args.file or not args.out:
         raise UsageError("campaign run needs FILE and --out DIR")
+    path = _campaign_path(args.file)
+    if not path.exists() and path.parent == campaigns_dir():
+        shipped = ", ".join(p.stem for p in sorted(campaigns_dir().glob("*.yaml")))
+        raise UsageError(
+            f"no campaign {args.file!r}: give a campaign YAML file, or one of the shipped "
+            f"campaigns (`camctl campaign list`): {shipped}"
+        )
     try:
-        spec = load_campaign(_campaign_path(args.file))
+        spec = load_campaign(path)
     except CampaignError as exc:
         raise UsageError(str(exc)) from None
     out_dir = Path(args.out)

@@ -28,7 +28,8 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
 from camd.cli.camctl_sensor import CommandFailed, UsageError
 from camd.cli.camctl_stream import count_arg
-from camd.client import CamdClient, ScanDoc
+from camd.client import CamdClient
+from camd.client_types import ScanResponse
 
 CONTRACT = (
     "file", "lines", "complete_lines", "lost_frames", "stages", "mismatch_max", "mismatch_rms",
@@ -92,7 +93,7 @@ def add_parsers(command: Callable[[str, str], argparse.ArgumentParser]) -> None:
     p.add_argument("stages", type=count_arg, metavar="M", help="new stage count")
 
 
-def flat(doc: ScanDoc) -> dict[str, Any]:
+def flat(doc: ScanResponse) -> dict[str, Any]:
     """The contract keys first, then the rest of the scan document."""
     out: dict[str, Any] = {key: doc[key] for key in CONTRACT}  # type: ignore[literal-required]
     out.update({k: v for k, v in doc.items() if k not in CONTRACT})
@@ -140,7 +141,7 @@ def cmd_scan(client: CamdClient, args: argparse.Namespace) -> Any:
     return result
 
 
-def _follow(client: CamdClient, doc: ScanDoc) -> ScanDoc:
+def _follow(client: CamdClient, doc: ScanResponse) -> ScanResponse:
     """Poll the scan until it ends, with a progress bar on stderr; Ctrl-C stops it."""
     err = Console(stderr=True)
     total = doc["frames_requested"] or None

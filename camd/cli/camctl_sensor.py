@@ -24,7 +24,8 @@ from rich import box
 from rich.console import Console
 from rich.table import Table
 
-from camd.client import CamdClient, RegisterConfigDoc
+from camd.client import CamdClient
+from camd.client_types import RegisterConfig
 from camd.sensor.config_file import ConfigFileError, format_configuration, parse_configuration
 
 
@@ -90,7 +91,7 @@ def add_parsers(command: Callable[[str, str], argparse.ArgumentParser]) -> None:
 # -- commands --------------------------------------------------------------------------------------
 
 
-def _read_file(path: Path) -> RegisterConfigDoc:
+def _read_file(path: Path) -> RegisterConfig:
     try:
         text = path.read_text(encoding="utf-8")
     except OSError as exc:

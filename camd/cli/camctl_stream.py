@@ -25,7 +25,8 @@ from typing import Any
 from rich.console import Console
 
 from camd.cli.camctl_sensor import CommandFailed, UsageError
-from camd.client import CamdClient, StreamDoc
+from camd.client import CamdClient
+from camd.client_types import StreamResponse
 
 DEFAULT_FRAMES = 100
 _HEADLINE = ("frames", "lost", "corrupt", "overruns", "mpix_per_s", "mbyte_per_s")
@@ -117,7 +118,7 @@ def _stream_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--binning", action="store_true", help="FPGA-side 2x2 binning")
 
 
-def flat(doc: StreamDoc) -> dict[str, Any]:
+def flat(doc: StreamResponse) -> dict[str, Any]:
     """The headline counters first, then the rest of the stream's counters and geometry."""
     stats = dict(doc["stats"])
     out: dict[str, Any] = {key: stats.pop(key) for key in _HEADLINE}

@@ -1,4 +1,4 @@
-"""camctl's filter-wheel commands (docs/wheel.md, physics.md §4).
+"""camctl's filter-wheel commands (docs/wheel.md, docs/physics.md §4).
 
     camctl wheel [status]                 speed, angle, compensation, camd's T_frame / T_delay
     camctl wheel speed DEG_S              turn at DEG_S deg/s (0 stops)
@@ -26,7 +26,8 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from camd.cli.camctl_sensor import UsageError
-from camd.client import CamdClient, WheelRegionDoc
+from camd.client import CamdClient
+from camd.client_types import WheelRegion
 from camd.motion.polarization_run import (
     DEFAULT_EXPOSURES_S,
     DEFAULT_STEP_DEG,
@@ -76,7 +77,7 @@ def _on_off(text: str) -> bool:
     raise argparse.ArgumentTypeError(f"{text!r} is not on or off")
 
 
-def _region(text: str) -> WheelRegionDoc:
+def _region(text: str) -> WheelRegion:
     try:
         row, rows, col, cols = (int(part) for part in text.split(","))
     except ValueError:
@@ -105,7 +106,7 @@ def add_parsers(command: Callable[[str, str], argparse.ArgumentParser]) -> None:
     action("status", "speed, angle, compensation and camd's numbers for the exposure set now")
     sp = action("speed", "turn the wheel at a constant speed (0 stops it)")
     sp.add_argument("speed_deg_s", type=_speed, metavar="DEG_S", help="deg/s, 0 .. 360")
-    sp = action("compensation", "exposure delay compensation (physics.md §4 eq 5) on or off")
+    sp = action("compensation", "exposure delay compensation (docs/physics.md §4 eq 5) on or off")
     sp.add_argument("on", type=_on_off, metavar="on|off")
     sp = action("acquire", "one frame through each channel per pass; imaging centre and mean")
     sp.add_argument(

@@ -66,6 +66,7 @@ from camd.daemon.models import (
     ScanResponse,
     SceneRequest,
     SeedRequest,
+    SimFailNextRequest,
     SimSettings,
     SimStageFaultsRequest,
     SimStageTruth,
@@ -560,7 +561,7 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
         stages: int | None = Query(default=None, ge=1, le=4096),
         binning: bool = False,
     ) -> SyncResponse:
-        """Open-loop synchronisation (physics.md §2 eqs 5-9, 13; §6 eq 9) for a line period, a
+        """Open-loop synchronisation (docs/physics.md §2 eqs 5-9, 13; §6 eq 9) for a line period, a
         stage speed, both (their mismatch), or neither (the registers' line period)."""
         return session.motion.sync(
             line_period_s=line_period_s, speed_m_s=speed_m_s, stages=stages, binning=binning
@@ -586,7 +587,7 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
         body: WheelCompensationRequest,
         client: str = Depends(controlled("change the wheel's delay compensation")),
     ) -> WheelStatus:
-        """Exposure delay compensation on or off (physics.md §4 eq 5); switching on is
+        """Exposure delay compensation on or off (docs/physics.md §4 eq 5); switching on is
         refused (400, with the numbers) when the exposure in the registers cannot fit."""
         with acting_as(client):
             return session.wheel.set_compensation(body.on)
@@ -654,6 +655,26 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
         speed (any difference from synchronous is velocity mismatch)."""
         with acting_as(client):
             return session.sim.set_ideal_stage(track=body.track, speed_m_s=body.speed_m_s)
+
+    @app.post(f"{API}/sim/fail-next", status_code=204, tags=["simulator"])
+    def post_sim_fail_next(
+        body: SimFailNextRequest,
+        client: str = Depends(controlled("make a simulated command fail")),
+    ) -> Response:
+        """Simulated camera only: make the (skip + 1)-th next ``command`` fail, refused with a
+        NAK of ``error`` or lost to a dropped line for ``duration_s`` (to test recovery)."""
+        with acting_as(client):
+            session.sim.fail_next(body)
+            return Response(status_code=204)
+
+    @app.delete(f"{API}/sim/fail-next", status_code=204, tags=["simulator"])
+    def delete_sim_fail_next(
+        client: str = Depends(controlled("make a simulated command fail")),
+    ) -> Response:
+        """Simulated camera only: disarm a failure armed with POST (harmless when none is)."""
+        with acting_as(client):
+            session.sim.clear_fail_next()
+            return Response(status_code=204)
 
     @app.get(f"{API}/sim", response_model=SimSettings, tags=["simulator"])
     def get_sim() -> SimSettings:

@@ -289,7 +289,7 @@ class MotionSection(_Section):
         default=0.05, ge=0, le=10, description="wait after the stage reaches speed, s"
     )
     yellow: float = Field(default=1.0, gt=0, description="M |dV/V| yellow limit (pixels of smear)")
-    red: float = Field(default=2.0, gt=0, description="M |dV/V| red limit (physics.md §6: 2)")
+    red: float = Field(default=2.0, gt=0, description="M |dV/V| red limit (docs/physics.md §6: 2)")
     stop_on_red: bool = Field(default=False, description="stop a scan whose mismatch goes red")
 
     @model_validator(mode="after")

@@ -5,7 +5,9 @@ arrival order), the state machine, the event log and the imaging mode. Every ser
 stream, scan, motion, wheel) is handed this object and the peer services it needs, never the
 whole session: ``request`` sends one command with link errors mapped to the API's errors,
 ``device_op`` holds the device for several back to back, ``require`` checks the state machine
-before anything is sent, ``fire`` moves it, ``log_event`` logs and archives.
+before anything is sent, ``fire`` moves it, ``log_event`` logs and archives. A request that
+failed on a lost link or a silent device carries ``wait_usable`` (its error's ``link_wait``), so
+that what it had changed is put back once the camera answers again.
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import threading
+import time
 from collections.abc import Callable, Iterator
 from typing import Any
 
@@ -66,6 +69,11 @@ EventSink = Callable[[str, str, str, float | None], None]
 """``(level, source, message, t_s)``: log and archive one event (t_s None: now)."""
 
 SIM_DEVICE = "sim"
+
+RESTORE_GRACE_S = 5.0
+"""After a link failure, how long beyond the link's own reconnect backoff and one command's
+attempts an undo waits for the camera to answer again, seconds."""
+LINK_POLL_S = 0.1  # between checks while waiting for the link to be usable
 
 
 class FairLock:
@@ -188,9 +196,13 @@ class DeviceAccess:
             except LinkDown as exc:
                 if not link.connected:  # else the link came back meanwhile; keep its state
                     self.fire(Trigger.LINK_LOST, f"link lost: {link.last_error}")
-                raise Disconnected(str(exc)) from None
+                lost = Disconnected(str(exc))
+                lost.link_wait = self.wait_usable
+                raise lost from None
             except CommandTimeout as exc:
-                raise DeviceTimeout(str(exc)) from None
+                silent = DeviceTimeout(str(exc))
+                silent.link_wait = self.wait_usable
+                raise silent from None
             except CommandRejected as exc:
                 if exc.name == "DEVICE_FAULT":
                     self.fire(Trigger.DEVICE_FAULT, str(exc))
@@ -206,6 +218,46 @@ class DeviceAccess:
         """One device request through the FIFO lock, errors mapped to SessionErrors."""
         with self.device_op() as link:
             return link.request(command, **fields)
+
+    # -- after a link failure ----------------------------------------------------------------------
+
+    @property
+    def restore_wait_s(self) -> float:
+        """How long ``wait_usable`` waits: the longest reconnect backoff, one command's attempts
+        (``link.reconnect_max_s``, ``link.timeout_s``, ``link.retries``) and a grace, seconds."""
+        cfg = self.config.link
+        return cfg.reconnect_max_s + (1 + cfg.retries) * cfg.timeout_s + RESTORE_GRACE_S
+
+    def wait_usable(self) -> str | None:
+        """Wait until the camera answers again after a lost link or a silent device: the port
+        open, the daemon past its re-probe (not disconnected), a PING answered. Returns None
+        once it is usable, else (after ``restore_wait_s``) why it is not, in words."""
+        wait_s = self.restore_wait_s
+        deadline = time.monotonic() + wait_s
+        while True:
+            why = self._unusable()
+            if why is None:
+                return None
+            if time.monotonic() >= deadline:
+                return f"the camera did not answer again within {wait_s:.3g} s: {why}"
+            time.sleep(LINK_POLL_S)
+
+    def _unusable(self) -> str | None:
+        link = self.link
+        if link is None:
+            return "the link is not open"
+        if not link.connected:
+            return f"{self.port} is closed ({link.last_error})"
+        if self.machine.state == State.DISCONNECTED:
+            return f"{self.port} is open again; the camera has not answered GET_STATUS yet"
+        try:
+            with self._lock.hold():
+                link.request("PING", data=b"")
+        except CommandRejected:
+            return None  # refused, but it answers
+        except LinkError as exc:
+            return str(exc)
+        return None
 
     # -- the imaging mode ------------------------------------------------------------------------
 

@@ -6,9 +6,21 @@ the services so that any of them can raise them without importing the others.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
+LinkWait = Callable[[], str | None]
+"""Wait (bounded) until the camera answers again: None once it does, else why it does not."""
+
 
 class SessionError(Exception):
-    """Base of the errors a session operation raises; str() says what to change."""
+    """Base of the errors a session operation raises; str() says what to change.
+
+    ``link_wait`` is set on the errors of a lost link or a silent device (``Disconnected``,
+    ``DeviceTimeout`` raised by ``DeviceAccess``): putting back what a failed request changed
+    needs the link, so the undo waits with it first (``camd.daemon.transaction``).
+    """
+
+    link_wait: LinkWait | None = None
 
 
 class Disconnected(SessionError):
@@ -57,8 +69,12 @@ def with_note(exc: SessionError, note: str) -> SessionError:
     """The same kind of error (so the same HTTP status) with ``note`` appended to its message,
     e.g. what was restored after a request failed part-way."""
     message = f"{exc}; {note}"
+    noted: SessionError
     if isinstance(exc, DeviceRejected):
-        return DeviceRejected(message, exc.name)
-    if isinstance(exc, SimulatorError):
-        return SimulatorError(message, exc.usage)
-    return type(exc)(message)
+        noted = DeviceRejected(message, exc.name)
+    elif isinstance(exc, SimulatorError):
+        noted = SimulatorError(message, exc.usage)
+    else:
+        noted = type(exc)(message)
+    noted.link_wait = exc.link_wait  # an enclosing request's undo needs the link too
+    return noted

@@ -310,7 +310,7 @@ class RegisterConfig(BaseModel):
 
 
 class TimingResponse(BaseModel):
-    """GET /api/v1/timing: the sensor timing its registers set (physics.md §2, §3)."""
+    """GET /api/v1/timing: the sensor timing its registers set (docs/physics.md §2, §3)."""
 
     sensor: str
     line_period_s: float
@@ -487,14 +487,14 @@ class ScanRequest(_Request):
         default=None,
         gt=0.0,
         le=10.0,
-        description="stage speed: the TDI line period follows from it (physics.md §2); null = "
+        description="stage speed: the TDI line period follows from it (docs/physics.md §2); null = "
         "keep the registers' line period and run the stage at the synchronous speed",
     )
     line_period_s: float | None = Field(
         default=None,
         gt=0.0,
         le=10.0,
-        description="TDI line period to set (physics.md §2 eqs 6-9); exclusive with speed_m_s",
+        description="TDI line period to set (docs/physics.md §2 eqs 6-9); exclusive with speed_m_s",
     )
     drive_stage: bool = Field(
         default=True,
@@ -509,7 +509,7 @@ class ScanRequest(_Request):
         ge=-2.0,
         lt=1.0,
         description="deliberate velocity mismatch (V - V_m)/V: the stage runs at "
-        "(1 - dv_over_v) x the synchronous speed (MTF against mismatch, physics.md §6); "
+        "(1 - dv_over_v) x the synchronous speed (MTF against mismatch, docs/physics.md §6); "
         "a driven stage takes -0.5 .. 0.5, the simulator's ideal stage (drive_stage false, "
         "forwards only) -2 .. below 1",
     )
@@ -535,7 +535,7 @@ class StagesRequest(_Request):
 
 
 class ScanTiming(BaseModel):
-    """The timing a scan runs at (physics.md §2 eqs 5-9, 13)."""
+    """The timing a scan runs at (docs/physics.md §2 eqs 5-9, 13)."""
 
     tdi_line_period_s: float = Field(description="T_line,TDI: the frame period the registers set")
     row_period_s: float = Field(description="T_line,roll: the sensor's row time")
@@ -547,7 +547,9 @@ class ScanTiming(BaseModel):
     stage_speed_m_s: float | None = Field(
         description="the stage speed the scan runs at (null: not known to camd)"
     )
-    dv_over_v: float | None = Field(description="(V - V_m) / V, physics.md §6; null if unknown")
+    dv_over_v: float | None = Field(
+        description="(V - V_m) / V, docs/physics.md §6; null if unknown"
+    )
 
 
 class ScanMotionInfo(BaseModel):
@@ -593,7 +595,7 @@ class ScanResponse(BaseModel):
     error: str | None = Field(description="why the scan failed, if it did")
     stream: StreamStats
     mismatch_max: float | None = Field(
-        description="largest M |dV/V| of a line (pixels of smear; physics.md §6), from the "
+        description="largest M |dV/V| of a line (pixels of smear; docs/physics.md §6), from the "
         "encoder counts in the frame headers; null without encoder data"
     )
     mismatch_rms: float | None = Field(description="RMS of M dV/V over the scan's lines")
@@ -667,7 +669,7 @@ class MotionHomeRequest(_Request):
 
 
 class SyncResponse(BaseModel):
-    """GET /api/v1/motion/sync: the open-loop synchronisation (physics.md §2 eqs 5-9, 13; §6).
+    """GET /api/v1/motion/sync: the open-loop synchronisation (docs/physics.md §2 eqs 5-9, 13; §6).
 
     The first ten keys are the contract of ``camctl sync --json``.
     """
@@ -701,6 +703,24 @@ class SimStageFaultsRequest(_Request):
     jitter: float = Field(default=0.0, ge=0.0, le=0.2, description="relative RMS speed jitter")
     drift: float = Field(default=0.0, ge=-0.1, le=0.1, description="relative drift per second")
     load: float = Field(default=0.0, ge=0.0, le=3.0, description="load / pull-out torque")
+
+
+class SimFailNextRequest(_Request):
+    """POST /api/v1/sim/fail-next: make one coming command fail (SIM_FAIL_NEXT), with a NAK
+    (``error``) or a dropped line (``duration_s``)."""
+
+    command: str = Field(
+        min_length=1, max_length=40, description="the command to fail, e.g. REG_WRITE_BURST"
+    )
+    skip: int = Field(
+        default=0, ge=0, le=65535, description="commands of that kind to let through first"
+    )
+    error: str | None = Field(
+        default=None, description="answer it with a NAK of this error, e.g. BUSY (docs/protocol.md)"
+    )
+    duration_s: float | None = Field(
+        default=None, gt=0.0, le=600.0, description="or: drop off the line for this long, s"
+    )
 
 
 class SimStageTruth(BaseModel):
@@ -739,7 +759,7 @@ class WheelChannelInfo(BaseModel):
 
 
 class WheelExposureInfo(BaseModel):
-    """camd's computation for one exposure through the wheel (physics.md §4 eqs 1, 4-6, 8)."""
+    """camd's computation for one exposure through the wheel (docs/physics.md §4 eqs 1, 4-6, 8)."""
 
     exposure_s: float = Field(description="T_exp = n T_line")
     exposure_lines: int = Field(description="n")

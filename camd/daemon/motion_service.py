@@ -3,8 +3,12 @@
 ``MotionService`` is handed the device access and the sensor service. It drives the stage
 through ``FpgaStage`` (the MOTOR_* commands), enforces the limits of config ``[stage]``
 (programmed into the FPGA too), and answers ``camctl sync`` with
-``camd.timing.synchronous_motion`` (physics.md §2, §6). A scan's motion
+``camd.timing.synchronous_motion`` (docs/physics.md §2, §6). A scan's motion
 (``camd.daemon.scan_motion.ScanMotion``) drives the stage through this service's public methods.
+Enabling and homing program the configured limits first: if the command after them fails, the
+limits in force before are put back (``camd.daemon.transaction.Apply``). A move or run whose
+answer is lost (a lost link, a silent camera) may have started: the stage is then stopped and
+put back where it stood, or at the speed it had.
 """
 
 from __future__ import annotations
@@ -27,6 +31,7 @@ from camd.daemon.models import (
 )
 from camd.daemon.sensor_service import SensorService
 from camd.daemon.state import Request
+from camd.daemon.transaction import Apply
 from camd.motion.stage import (
     STOPPED_STATES,
     FpgaStage,
@@ -42,6 +47,8 @@ from camd.timing import synchronous_motion, turntable_angular_velocity_rad_s
 log = logging.getLogger(__name__)
 
 WAIT_MARGIN_S = 2.0  # beyond the device's own estimate, before a wait gives up
+BRAKE_TIMEOUT_S = 10.0  # longest a stage takes to decelerate to a stop
+POSITION_TOLERANCE_M = 1e-6  # a stage this close to where it stood is back
 
 
 class MotionService:
@@ -128,39 +135,78 @@ class MotionService:
 
     def enable(self, on: bool) -> MotionStatus:
         self.device.require(Request.MOTION_MOVE if on else Request.MOTION_STOP)
-        if on:
-            self.program_limits_if_idle()
-        with self.stage_errors():
-            self.stage.enable(on)
+        with Apply("stage enable", self._events, source="motion") as apply:
+            if on:
+                self._program_limits_if_idle(apply)
+            with self.stage_errors():
+                self.stage.enable(on)
+            apply.done()
         self.log_event("info", f"stage {'enabled' if on else 'released'}")
         return self.status()
 
-    def program_limits_if_idle(self) -> None:
-        """Program the limits unless the stage moves (the FPGA refuses then; they are set)."""
+    def _program_limits_if_idle(self, apply: Apply) -> None:
+        """Program the limits unless the stage moves (the FPGA refuses then; they are set), as
+        a step of ``apply`` whose undo programs the limits in force before."""
+        stage = self.stage
         with self.stage_errors():
-            state = self.stage.read().state
-        if state in STOPPED_STATES:
-            self.program_limits()
+            state = stage.read().state
+        if state not in STOPPED_STATES:
+            return
+        wanted = self.limits_wanted()
+        with self.stage_errors():
+            before = stage.limits()
+
+        def program(limits: StageLimits) -> None:
+            with self.stage_errors():
+                stage.set_limits(limits)
+
+        apply.step(lambda: program(wanted), lambda: program(before), "stage limits")
+
+    def _events(self, level: str, source: str, message: str) -> None:
+        self.device.log_event(level, source, message)
 
     def run(self, speed_m_s: float) -> MotionStatus:
         """Hold a constant signed speed (0 stops)."""
         self.device.require(Request.MOTION_MOVE)
         self.check_speed(speed_m_s)
-        self._check_not_stopped_hard()
-        with self.stage_errors():
-            self.stage.run(speed_m_s)
+        was = self._check_not_stopped_hard().speed_m_s
+        stage = self.stage
+
+        def run_at(speed: float) -> None:
+            with self.stage_errors():
+                stage.run(speed)
+
+        with Apply("stage run", self._events, source="motion") as apply:
+            apply.step(
+                lambda: run_at(speed_m_s),
+                lambda: run_at(was),
+                f"stage speed back at {was * 1e3:.6g} mm/s",
+            )
+            apply.done()
         return self.status()
 
-    def _check_not_stopped_hard(self) -> None:
-        """Refuse motion in emergency stop or with the motor released, in camctl's words."""
+    def _check_not_stopped_hard(self) -> StageReading:
+        """Refuse motion in emergency stop or with the motor released, in camctl's words;
+        returns the stage as it is."""
         with self.stage_errors():
-            state = self.stage.read().state
-        if state == "estop":
+            reading = self.stage.read()
+        if reading.state == "estop":
             raise BadRequest(
                 "the stage is in emergency stop; check it, then `camctl stage enable` clears it"
             )
-        if state == "disabled":
+        if reading.state == "disabled":
             raise BadRequest("the stage motor is released; `camctl stage enable` first")
+        return reading
+
+    def _back_to(self, position_m: float) -> None:
+        """Stop, and move back to ``position_m`` unless the stage stands there."""
+        with self.stage_errors():
+            self.stage.stop()
+        reading = self.wait_stopped(BRAKE_TIMEOUT_S)
+        if abs(reading.position_m - position_m) > POSITION_TOLERANCE_M:
+            with self.stage_errors():
+                duration = self.stage.move_to(position_m)
+            self.wait_stopped(duration + WAIT_MARGIN_S)
 
     def move(self, request: MotionMoveRequest) -> MotionStatus:
         self.device.require(Request.MOTION_MOVE)
@@ -173,9 +219,20 @@ class MotionService:
             )
         if request.speed_m_s is not None:
             self.check_speed(request.speed_m_s)
-        self._check_not_stopped_hard()
-        with self.stage_errors():
-            duration = self.stage.move_to(request.position_m, request.speed_m_s)
+        stood = self._check_not_stopped_hard().position_m
+        stage = self.stage
+
+        def move() -> float:
+            with self.stage_errors():
+                return stage.move_to(request.position_m, request.speed_m_s)
+
+        with Apply("stage move", self._events, source="motion") as apply:
+            duration = apply.step(
+                move,
+                lambda: self._back_to(stood),
+                f"stage stopped and back at {stood * 1e3:.3f} mm",
+            )
+            apply.done()
         if request.wait:
             self.wait_stopped(duration + WAIT_MARGIN_S)
         return self.status()
@@ -189,9 +246,11 @@ class MotionService:
     def home(self, wait: bool) -> MotionStatus:
         self.device.require(Request.MOTION_MOVE)
         self._check_not_stopped_hard()
-        self.program_limits_if_idle()
-        with self.stage_errors():
-            duration = self.stage.home()
+        with Apply("stage homing", self._events, source="motion") as apply:
+            self._program_limits_if_idle(apply)
+            with self.stage_errors():
+                duration = self.stage.home()
+            apply.done()
         if wait:
             self.wait_stopped(duration + WAIT_MARGIN_S)
         self.log_event("info", "stage homing")
@@ -268,7 +327,7 @@ class MotionService:
         binning: bool = False,
     ) -> SyncResponse:
         """The open-loop solution for a line period or a stage speed (or the line period in the
-        registers): physics.md §2 eqs 5-9, 13 and §6 eq 9."""
+        registers): docs/physics.md §2 eqs 5-9, 13 and §6 eq 9."""
         self.device.require(Request.REGISTERS_READ)
         pitch, scale = self.optics(binning)
         timing = self.sensor.timing()

@@ -27,7 +27,7 @@ from camd.motion.closed_loop import (
     SpeedEstimator,
     SpeedTrim,
 )
-from camd.motion.stage import STOPPED_STATES
+from camd.motion.stage import STOPPED_STATES, StageLimits
 
 log = logging.getLogger(__name__)
 
@@ -75,6 +75,8 @@ class ScanMotion:
         self._thread: threading.Thread | None = None
         self.error: str | None = None
         self.limited = False
+        self._released = False  # the motor was released before the scan enabled it
+        self._limits_before: StageLimits | None = None  # put back by ``restore``
 
     def start(self) -> None:
         """Brake if still moving, program the limits, rewind if the plan says so, enable,
@@ -82,12 +84,15 @@ class ScanMotion:
         service = self.service
         plan = self.plan
         stage = service.stage
+        self._released = service.read().state == "disabled"
         if plan.must_brake:
             # Still braking after the last scan (or moved by hand): the FPGA takes new limits
             # only from a standing stage.
             with service.stage_errors():
                 stage.stop()
             service.wait_stopped(BRAKE_TIMEOUT_S)
+        with service.stage_errors():
+            self._limits_before = stage.limits()
         service.program_limits()
         if plan.rewind_to_m is not None:
             service.log_event(
@@ -112,12 +117,21 @@ class ScanMotion:
         service.wait_stopped(duration + WAIT_MARGIN_S)
 
     def restore(self, position_m: float) -> None:
-        """A scan that could not start: stop, and put the stage back at ``position_m``."""
+        """A scan that could not start: stop, put the stage back at ``position_m``, and
+        release the motor again if the scan had enabled it."""
         self.finish()
         self.service.wait_stopped(BRAKE_TIMEOUT_S)
         reading = self.service.read()
         if abs(reading.position_m - position_m) > RESTORE_TOLERANCE_M:
             self._go_to(position_m)
+        before = self._limits_before
+        if before is not None and before != self.service.stage.limits():
+            # The FPGA takes limits only from a standing stage: it stands now.
+            with self.service.stage_errors():
+                self.service.stage.set_limits(before)
+        if self._released:
+            with self.service.stage_errors():
+                self.service.stage.enable(False)
 
     def _loop(self) -> None:
         """Poll the encoder, trim the step rate or the line period (module docstring)."""

@@ -4,7 +4,7 @@
 configuration (``ScanContext``: the registers' timing, a preview of what register writes would
 set, the optics, the stage) it computes, once, everything a scan needs (docs/scan.md):
 
-- the TDI line period, from a stage speed ``T_line,TDI = p / v_image`` or as given (physics.md §2,
+- the TDI line period, from a stage speed ``T_line,TDI = p / v_image`` or as given (docs/physics.md §2,
   general form of eq 5), the window that fits it (eqs 6-9, 13: window rows, back path, an
   exposure of at most n_lines - 1 rows, eq 3) and the register writes that set it;
 - the timing those writes realise (whole clocks), hence the synchronous stage speed (§6 eq 9),
@@ -163,7 +163,7 @@ def check_engine(request: ScanRequest, stages: int, rows: int, cols: int) -> int
     if engine.rows_needed > rows:
         raise BadRequest(
             f"stages = {stages} needs {engine.rows_needed} window rows but the scan's frames "
-            f"have {rows} (physics.md §2 eq 13: M <= M0 = n_lines); choose "
+            f"have {rows} (docs/physics.md §2 eq 13: M <= M0 = n_lines); choose "
             f"1..{max_stages(request, cols, rows)} stages, or slow the stage (a longer "
             "line period holds more rows)"
         )
@@ -205,7 +205,7 @@ def _check_request(request: ScanRequest, stage: StageContext | None) -> None:
     if request.speed_m_s is not None and request.line_period_s is not None:
         raise BadRequest(
             "give either speed_m_s or line_period_s, not both: the line period follows "
-            "from the stage speed (physics.md §2)"
+            "from the stage speed (docs/physics.md §2)"
         )
     if request.drive_stage and abs(request.dv_over_v) > DRIVEN_MISMATCH_MAX:
         raise BadRequest(
@@ -272,7 +272,7 @@ def plan_scan(request: ScanRequest, context: ScanContext) -> ScanPlan:
         speed = sync * (1.0 - request.dv_over_v)
     elif context.ideal_stage:
         # The simulator's ideal stage, offset by the deliberate mismatch too: an exact dV/V
-        # for MTF against mismatch (physics.md §6), beyond a real stage's range.
+        # for MTF against mismatch (docs/physics.md §6), beyond a real stage's range.
         speed = (sync if speed is None else speed) * (1.0 - request.dv_over_v)
         ideal = speed
     elif speed is None:

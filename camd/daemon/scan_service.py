@@ -10,17 +10,13 @@ services. A scan (docs/scan.md):
    simulator's ideal stage, the scan stage through ``camd.daemon.scan_motion.ScanMotion``, the
    file), each step with its undo (``camd.daemon.transaction.Apply``): a failure puts back what
    was changed and says so;
-2. starts the stream with ``lines + M - 1`` frames and a consumer that copies each frame into
-   a batch (on the stream's dispatcher thread: no per-frame thread hand-off), with the lost-frame
-   count and stage changes as markers between batches;
-3. a worker thread runs each batch through ``camd.tdi.TdiEngine.push_many`` and appends the lines
-   to the HDF5 file (``camd.store.tdi_recording``);
-4. when the stream ends, the last batch is flushed, the file gets its counters and a PNG
+2. starts the stream with ``lines + M - 1`` frames and the scan's acquisition pipeline
+   (``camd.pipeline.TdiPipeline``): its consumer copies each frame into a batch on the stream's
+   dispatcher thread, and its worker thread runs the batches through the TDI engine, works out
+   each line's M dV/V from the encoder counts in the frame headers (checked against the
+   yellow/red limits of config ``[motion]``) and appends the lines to the HDF5 file;
+3. when the stream ends, the pipeline is finished, the file gets its counters and a PNG
    quicklook is written beside it.
-
-Each frame header carries the stage encoder count latched at the frame's start; the worker turns
-them into the M dV/V each line saw (``camd.timing.line_mismatch``), records it with the line and
-checks it against the yellow/red limits of config ``[motion]``.
 
 A stage change (``set_stages``) takes effect at the next frame the consumer sees, without
 stopping the stream: the engine starts a new run there, so the next M - 1 lines are incomplete.
@@ -31,17 +27,14 @@ from __future__ import annotations
 import datetime as dt
 import logging
 import math
-import queue
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import h5py
 import numpy as np
-import numpy.typing as npt
 
 from camd.daemon.acquisition import Acquisition
 from camd.daemon.device import DeviceAccess
@@ -70,153 +63,46 @@ from camd.daemon.sim_control import SimulatorControl
 from camd.daemon.state import Request
 from camd.daemon.stream_service import StreamService
 from camd.daemon.transaction import Apply
-from camd.link.frame_stream import ReceivedFrame
 from camd.motion.closed_loop import LinePeriodSetting
+from camd.pipeline import TdiPipeline
 from camd.store.quicklook import write_quicklook_png
 from camd.store.recording import RecordingError, check_new_file
 from camd.store.tdi_recording import TdiRecorder
-from camd.tdi import TdiEngine, stage_taps
-from camd.timing import (
-    line_mismatch,
-)
+from camd.tdi import stage_taps
 
 log = logging.getLogger(__name__)
 
-BATCH_BYTES = 16 << 20  # frames per batch: about this many bytes, so one push_many amortises
-MAX_BATCH_FRAMES = 512
-BATCH_BUFFERS = 4  # batches in flight between the consumer and the worker
-BATCH_MAX_AGE_S = 0.1  # a partial batch older than this goes to the engine (progress, latency)
-CONSUMER_WAIT_S = 5.0  # longest the consumer waits for a free batch before giving up a frame
 FINISH_TIMEOUT_S = 60.0
 QUICKLOOK_MAX_LINES = 8192
 
 
-@dataclass
-class _Progress:
-    """What the worker has done (read by status requests; plain ints, written by one thread)."""
-
-    lines: int = 0
-    complete_lines: int = 0
-    frames_in: int = 0
-    gap_frames: int = 0  # frames the stream lost, corrupted or overran inside the scan
-    tdi_cpu_s: float = 0.0
-    stage_changes: list[tuple[int, int]] = field(default_factory=list)
-    mismatch_max: float | None = None  # of |M dV/V| over the lines so far
-    mismatch_sum_sq: float = 0.0
-    mismatch_count: int = 0
-    mismatch_level: str = "ok"  # the worst level reached
-    mismatch_now: str = "ok"  # the level of the last batch (events on changes)
-    mismatch_last: float | None = None  # the last batch's largest |M dV/V|
-
-
-class _Batcher:
-    """The stream consumer: copies frames into batches and queues them for the worker."""
-
-    def __init__(self, rows: int, cols: int, work: queue.Queue[tuple[str, Any]]) -> None:
-        # Frames may have more rows than ``rows`` (the line period trimmed by window rows): the
-        # engine uses the first ``rows``.
-        self.rows, self.cols = rows, cols
-        self.batch_frames = max(1, min(MAX_BATCH_FRAMES, BATCH_BYTES // (2 * rows * cols)))
-        self._free: queue.Queue[npt.NDArray[np.uint16]] = queue.Queue()
-        for _ in range(BATCH_BUFFERS):
-            self._free.put(np.empty((self.batch_frames, rows, cols), dtype=np.uint16))
-        self._work = work
-        self._lock = threading.Lock()
-        self._buf: npt.NDArray[np.uint16] | None = None
-        self._counters = np.zeros(self.batch_frames, dtype=np.uint32)
-        self._encoder = np.zeros(self.batch_frames, dtype=np.int32)
-        self._n = 0
-        self._since = 0.0
-        self.pending_stages: int | None = None
-        self.frames = 0
-        self.dropped = 0
-
-    def recycle(self, buf: npt.NDArray[np.uint16]) -> None:
-        self._free.put(buf)
-
-    def __call__(self, frame: ReceivedFrame) -> None:
-        with self._lock:
-            if frame.gap_before:
-                self._flush()
-                self._work.put(("gap", int(frame.gap_before)))
-            if self.pending_stages is not None:
-                self._flush()
-                self._work.put(("stages", self.pending_stages))
-                self.pending_stages = None
-            pixels = frame.pixels
-            if pixels.shape[0] < self.rows or pixels.shape[1] != self.cols:
-                # Not this scan's geometry: the engine cannot use it; the line is lost.
-                self._flush()
-                self._work.put(("gap", 1))
-                self.dropped += 1
-                return
-            if self._buf is None:
-                try:
-                    self._buf = self._free.get(timeout=CONSUMER_WAIT_S)
-                except queue.Empty:
-                    self._flush()
-                    self._work.put(("gap", 1))
-                    self.dropped += 1
-                    return
-                self._since = time.monotonic()
-            self._buf[self._n] = pixels[: self.rows]
-            self._counters[self._n] = frame.header.counter
-            self._encoder[self._n] = frame.header.stage_position
-            self._n += 1
-            self.frames += 1
-            if self._n == self.batch_frames or time.monotonic() - self._since > BATCH_MAX_AGE_S:
-                self._flush()
-
-    def flush(self) -> None:
-        with self._lock:
-            self._flush()
-
-    def _flush(self) -> None:
-        if self._buf is None or self._n == 0:
-            return
-        n = self._n
-        batch = (self._buf, n, self._counters[:n].copy(), self._encoder[:n].copy())
-        self._work.put(("batch", batch))
-        self._buf, self._n = None, 0
-
-
 class _Scan:
-    """One scan: its engine, file, batcher, worker and counters."""
+    """One scan: its request, pipeline, stage and state."""
+
+    pipeline: TdiPipeline  # made by ``ScanService._apply`` once the scan exists
 
     def __init__(
         self,
-        request: ScanRequest,
-        path: Path,
-        engine: TdiEngine,
-        recorder: TdiRecorder,
-        timing: ScanTiming,
-        frames_requested: int,
+        plan: ScanPlan,
+        motion: ScanMotion | None,
+        acquisition: Acquisition,
     ) -> None:
-        self.request = request
-        self.path = path
-        self.engine = engine
-        self.recorder = recorder
-        self.timing = timing
-        self.frames_requested = frames_requested
+        self.request = plan.request
+        self.path = plan.path
+        self.timing = plan.timing
+        self.frames_requested = plan.frames
+        self.motion = motion
+        self.acquisition = acquisition  # released once the file is closed
         self.state = "starting"
         self.error: str | None = None
         self.quicklook: Path | None = None
-        self.progress = _Progress(stage_changes=[(0, request.stages)])
-        self.work: queue.Queue[tuple[str, Any]] = queue.Queue()
-        self.batcher: _Batcher | None = None
         self.started_mono = time.monotonic()
         self.started_cpu = time.process_time()
         self.ended_mono: float | None = None
         self.ended_cpu: float | None = None
-        self.worker: threading.Thread | None = None
         self.finisher: threading.Thread | None = None
         self.done = threading.Event()
         self.stop_requested = False
-        self.motion: ScanMotion | None = None
-        self.counts_per_pixel: float | None = None  # encoder counts per image pitch
-        self.carry = (np.zeros(0, np.int64), np.zeros(0, np.float64))  # counters, encoder
-        self.red_stop = False
-        self.acquisition: Acquisition | None = None  # released once the file is closed
 
 
 class ScanService:
@@ -243,11 +129,11 @@ class ScanService:
         scan = self._scan
         if scan is None:
             return {}
-        progress = scan.progress
+        progress = scan.pipeline.progress()
         values = {
             "last": progress.mismatch_last,
             "max": progress.mismatch_max,
-            "rms": self._mismatch_rms(scan),
+            "rms": progress.mismatch_rms,
         }
         return {k: v for k, v in values.items() if v is not None}
 
@@ -285,35 +171,43 @@ class ScanService:
     def stop(self) -> ScanResponse:
         """Stop the running scan (the stream drains first) and wait until its file is closed."""
         scan = self._scan
+        if self.request_stop():
+            assert scan is not None
+            scan.done.wait(FINISH_TIMEOUT_S)
+        return self._response(scan)
+
+    def request_stop(self) -> bool:
+        """Stop the running scan without waiting for its file (the emergency stop): it ends
+        as "stopped". False if no scan is running."""
+        scan = self._scan
         if scan is None or scan.done.is_set():
-            return self._response(scan)
+            return False
         scan.stop_requested = True
         self.stream.stop()
-        scan.done.wait(FINISH_TIMEOUT_S)
-        return self._response(scan)
+        return True
 
     def set_stages(self, stages: int) -> ScanResponse:
         """Change M from the next frame on, without stopping the stream."""
         scan = self._scan
-        if scan is None or scan.done.is_set() or scan.batcher is None:
+        if scan is None or scan.done.is_set():
             raise BadRequest("no scan is running; start one with `camctl scan`")
-        req = scan.request
-        if stages == scan.engine.stages and scan.batcher.pending_stages is None:
+        pipeline, req = scan.pipeline, scan.request
+        if stages == pipeline.stages and pipeline.pending_stages is None:
             return self._response(scan)
         taps = stage_taps(
             stages,
-            scan.engine.width,
+            pipeline.width,
             rows_per_line=req.rows_per_line,
             cols_per_line=req.cols_per_line,
             reverse=req.reverse,
         )
-        if taps.rows_needed > scan.batcher.rows:
+        if taps.rows_needed > pipeline.rows:
             raise BadRequest(
                 f"stages = {stages} needs {taps.rows_needed} window rows but the scan's frames "
-                f"have {scan.batcher.rows} (physics.md §2 eq 13: M <= M0); choose "
-                f"1..{max_stages(req, scan.engine.width, scan.batcher.rows)}"
+                f"have {pipeline.rows} (docs/physics.md §2 eq 13: M <= M0); choose "
+                f"1..{max_stages(req, pipeline.width, pipeline.rows)}"
             )
-        scan.batcher.pending_stages = stages
+        pipeline.request_stages(stages)
         self.device.log_event("info", "scan", f"TDI stages -> {stages} from the next frame")
         return self._response(scan)
 
@@ -323,13 +217,10 @@ class ScanService:
         if scan is not None and not scan.done.is_set():
             if scan.motion is not None:
                 scan.motion.finish()  # a stage must not run on without its daemon
-            scan.work.put(("end", None))
-            if scan.worker is not None:
-                scan.worker.join(FINISH_TIMEOUT_S)
+            scan.pipeline.finish(flush=False)
             self._close_file(scan, scan.state)
             scan.done.set()
-            if scan.acquisition is not None:
-                self.device.acquisition.release(scan.acquisition)
+            self.device.acquisition.release(scan.acquisition)
 
     # -- setting up -----------------------------------------------------------------------------
 
@@ -427,13 +318,19 @@ class ScanService:
                 motion.start()
             recorder = self._recorder(plan)
             apply.undo_later(lambda: _discard(recorder), f"file {plan.path} removed")
-            scan = _Scan(request, plan.path, engine_for(request, request.stages, plan.columns), recorder, plan.timing,
-                         plan.frames)  # fmt: skip
-            scan.motion = motion
-            scan.acquisition = acquisition
-            if plan.stage is not None:
-                scan.counts_per_pixel = plan.stage.counts_per_pixel
-            recorder.note_stage_change(0, request.stages)
+            scan = _Scan(plan, motion, acquisition)
+            limits = device.config.motion
+            scan.pipeline = TdiPipeline(
+                engine_for(request, request.stages, plan.columns),
+                recorder,
+                rows=plan.rows,
+                counts_per_pixel=None if plan.stage is None else plan.stage.counts_per_pixel,
+                yellow_px=limits.yellow,
+                red_px=limits.red,
+                on_event=self._events,
+                on_failure=lambda: self._worker_failed(scan),
+                on_red=lambda: self._mismatch_red(scan),
+            )
             self._start_stream(scan, plan.rows, plan.columns)
             with self._lock:
                 self._scan = scan
@@ -462,7 +359,7 @@ class ScanService:
 
     def _line_period_writer(self, timing: ScanTiming) -> Callable[[LinePeriodSetting], None]:
         """The closed loop's hand on the line period: window rows and back path registers,
-        written only when they change (physics.md §2 eqs 8-9)."""
+        written only when they change (docs/physics.md §2 eqs 8-9)."""
         sensor = self.sensor
         clock_hz = sensor.regmap.timing.clock_hz
         last = [timing.n_lines, round(timing.back_path_s * clock_hz)]
@@ -501,13 +398,9 @@ class ScanService:
             raise BadRequest(str(exc)) from None
 
     def _start_stream(self, scan: _Scan, rows: int, cols: int) -> None:
-        stream = self.stream
-        scan.batcher = _Batcher(rows, cols, scan.work)
-        scan.worker = threading.Thread(
-            target=self._work, args=(scan,), name="camd-tdi-worker", daemon=True
-        )
-        scan.worker.start()
-        stream.add_consumer(scan.batcher)
+        stream, pipeline = self.stream, scan.pipeline
+        pipeline.start()
+        stream.add_consumer(pipeline.consumer)
         try:
             info = stream.start(
                 StreamStartRequest(
@@ -527,10 +420,9 @@ class ScanService:
                     "GEOMETRY_MISMATCH",
                 )
         except BaseException:
-            stream.remove_consumer(scan.batcher)
+            stream.remove_consumer(pipeline.consumer)
             scan.state = "failed"
-            scan.work.put(("end", None))
-            scan.worker.join(FINISH_TIMEOUT_S)
+            pipeline.abort(FINISH_TIMEOUT_S)
             raise
         scan.state = "running"
         scan.started_mono, scan.started_cpu = time.monotonic(), time.process_time()
@@ -543,103 +435,14 @@ class ScanService:
         )
         scan.finisher.start()
 
-    # -- running --------------------------------------------------------------------------------
+    # -- running (the pipeline's callbacks, on its worker thread: they must not wait) -----------
 
-    def _work(self, scan: _Scan) -> None:
-        """The TDI worker: batches through the engine, lines to the file."""
-        start_cpu = time.thread_time()
-        progress = scan.progress
-        try:
-            while True:
-                kind, payload = scan.work.get()
-                if kind == "end":
-                    break
-                if scan.state == "failed":
-                    continue  # drain; the file is closed by the finisher
-                if kind == "gap":
-                    scan.engine.gap(int(payload))
-                    progress.gap_frames += int(payload)
-                elif kind == "stages":
-                    scan.engine.stages = int(payload)
-                    index = scan.engine.next_index
-                    scan.recorder.note_stage_change(index, int(payload))
-                    progress.stage_changes.append((index, int(payload)))
-                else:
-                    buf, n, counters, encoder = payload
-                    block = scan.engine.push_many(buf[:n])
-                    assert scan.batcher is not None
-                    scan.batcher.recycle(buf)
-                    mismatch = self._mismatch(scan, counters, encoder, block.complete)
-                    scan.recorder.append(
-                        block.data,
-                        index=block.index,
-                        stages_used=block.stages_used,
-                        complete=block.complete,
-                        frame_counter=counters,
-                        stage_position=encoder,
-                        m_dv_over_v=mismatch,
-                    )
-                    progress.frames_in += n
-                    progress.lines += n
-                    progress.complete_lines += int(block.complete.sum())
-                progress.tdi_cpu_s = time.thread_time() - start_cpu
-        except Exception as exc:  # a full disk, a bad frame: stop the scan, keep what is there
-            log.exception("TDI worker failed")
-            scan.state, scan.error = "failed", f"TDI worker: {exc}"
-            self.device.log_event("error", "scan", f"scan failed: {exc}; stopping the stream")
-            threading.Thread(target=self._stop_quietly, daemon=True).start()
-        progress.tdi_cpu_s = time.thread_time() - start_cpu
+    def _worker_failed(self, scan: _Scan) -> None:
+        scan.state, scan.error = "failed", scan.pipeline.error
+        threading.Thread(target=self._stop_quietly, daemon=True).start()
 
-    def _mismatch(
-        self,
-        scan: _Scan,
-        counters: npt.NDArray[np.uint32],
-        encoder: npt.NDArray[np.int32],
-        complete: npt.NDArray[np.bool_],
-    ) -> npt.NDArray[np.float64] | None:
-        """The smear of each line of a batch (M dV/V for complete lines) from the encoder
-        counts, the previous batch's last M frames carried over; the scan's statistics and
-        the limit check (config ``[motion]``) take the complete lines."""
-        per_pixel = scan.counts_per_pixel
-        if per_pixel is None:
-            return None
-        m = scan.engine.stages
-        # Counters wrap at 2^32: unwrap against the carried frames.
-        carry_c, carry_e = scan.carry
-        base = int(carry_c[-1]) if carry_c.size else int(counters[0])
-        unwrapped = base + ((counters.astype(np.int64) - base) % (1 << 32))
-        all_c = np.concatenate([carry_c, unwrapped])
-        all_e = np.concatenate([carry_e, encoder.astype(np.float64)])
-        values = line_mismatch(all_e, all_c, stages=m, counts_per_pixel=per_pixel)
-        result = values[carry_c.size :]
-        scan.carry = (all_c[-m:], all_e[-m:])
-        finite = np.abs(result[np.isfinite(result) & complete])
-        if finite.size:
-            self._note_mismatch(scan, finite)
-        return result
-
-    def _note_mismatch(self, scan: _Scan, magnitude: npt.NDArray[np.float64]) -> None:
-        progress = scan.progress
-        worst = float(magnitude.max())
-        progress.mismatch_last = worst
-        progress.mismatch_max = max(worst, progress.mismatch_max or 0.0)
-        progress.mismatch_sum_sq += float(np.square(magnitude).sum())
-        progress.mismatch_count += int(magnitude.size)
-        config = self.device.config.motion
-        level = "red" if worst >= config.red else "yellow" if worst >= config.yellow else "ok"
-        order = ("ok", "yellow", "red")
-        if order.index(level) > order.index(progress.mismatch_level):
-            progress.mismatch_level = level
-        if level != progress.mismatch_now:
-            progress.mismatch_now = level
-            self.device.log_event(
-                {"ok": "info", "yellow": "warning", "red": "error"}[level],
-                "motion",
-                f"scan velocity mismatch {level}: M |dV/V| up to {worst:.3g} pixels "
-                f"(limits {config.yellow:g} / {config.red:g})",
-            )
-        if level == "red" and config.stop_on_red and not scan.red_stop:
-            scan.red_stop = True
+    def _mismatch_red(self, scan: _Scan) -> None:
+        if self.device.config.motion.stop_on_red:
             scan.stop_requested = True
             threading.Thread(target=self._stop_quietly, daemon=True).start()
 
@@ -649,18 +452,16 @@ class ScanService:
         except Exception as exc:  # the stream may already have ended
             log.info("stopping the stream after a scan failure: %s", exc)
 
+    # -- finishing ------------------------------------------------------------------------------
+
     def _finish(self, scan: _Scan) -> None:
-        """Wait for the stream to end, then flush the engine, close the file, write the PNG."""
+        """Wait for the stream to end, then finish the pipeline, close the file, write the PNG."""
         stream = self.stream
         stream.wait_finished()
         if scan.done.is_set():
             return  # the daemon is shutting down and ``close`` has ended the scan
-        assert scan.batcher is not None
-        stream.remove_consumer(scan.batcher)
-        scan.batcher.flush()
-        scan.work.put(("end", None))
-        if scan.worker is not None:
-            scan.worker.join(FINISH_TIMEOUT_S)
+        stream.remove_consumer(scan.pipeline.consumer)
+        scan.pipeline.finish(timeout_s=FINISH_TIMEOUT_S)
         scan.ended_mono, scan.ended_cpu = time.monotonic(), time.process_time()
         if scan.motion is not None:
             scan.motion.finish()
@@ -669,11 +470,12 @@ class ScanService:
             final = "failed"
         self._close_file(scan, final)
         stats = stream.stats()
+        progress = scan.pipeline.progress()
         self.device.log_event(
             "info" if scan.state != "failed" and stats.lost == 0 else "warning",
             "scan",
-            f"scan {final if scan.state != 'failed' else 'failed'}: {scan.progress.lines} lines "
-            f"({scan.progress.complete_lines} complete), {stats.lost} frames lost, "
+            f"scan {final if scan.state != 'failed' else 'failed'}: {progress.lines} lines "
+            f"({progress.complete_lines} complete), {stats.lost} frames lost, "
             f"{stats.overruns} overruns; {scan.path}",
         )
         # Only now, and together: a client that sees the scan ended may start the next at once.
@@ -681,12 +483,11 @@ class ScanService:
             if scan.state != "failed":
                 scan.state = final
             scan.done.set()
-        if scan.acquisition is not None:
-            self.device.acquisition.release(scan.acquisition)
+        self.device.acquisition.release(scan.acquisition)
 
     def _close_file(self, scan: _Scan, state: str) -> None:
         stats = self.stream.stats().model_dump()
-        progress = scan.progress
+        progress = scan.pipeline.progress()
         motion = self._motion_info(scan)
         datasets = {}
         attributes: dict[str, Any] = {
@@ -694,7 +495,7 @@ class ScanService:
                 **stats,
                 "lines": progress.lines,
                 "complete_lines": progress.complete_lines,
-                "dropped_frames": scan.batcher.dropped if scan.batcher else 0,
+                "dropped_frames": progress.dropped_frames,
                 "tdi_cpu_s": progress.tdi_cpu_s,
             },
             "state": state,
@@ -702,19 +503,20 @@ class ScanService:
         }
         if motion is not None:
             assert scan.motion is not None
+            limits = self.device.config.motion
             attributes["motion"] = {
                 **motion.model_dump(),
                 "mismatch_max": progress.mismatch_max,
-                "mismatch_rms": self._mismatch_rms(scan),
+                "mismatch_rms": progress.mismatch_rms,
                 "mismatch_level": progress.mismatch_level,
-                "yellow": self.device.config.motion.yellow,
-                "red": self.device.config.motion.red,
-                "counts_per_pixel": scan.counts_per_pixel,
+                "yellow": limits.yellow,
+                "red": limits.red,
+                "counts_per_pixel": scan.pipeline.counts_per_pixel,
             }
             if motion.loop_samples:
                 datasets["motion_loop"] = scan.motion.record.arrays()
         try:
-            scan.recorder.close(attributes, datasets)
+            scan.pipeline.recorder.close(attributes, datasets)
         except Exception as exc:
             log.exception("closing %s", scan.path)
             scan.state, scan.error = "failed", f"closing {scan.path}: {exc}"
@@ -737,13 +539,6 @@ class ScanService:
     # -- reporting ------------------------------------------------------------------------------
 
     @staticmethod
-    def _mismatch_rms(scan: _Scan) -> float | None:
-        p = scan.progress
-        return (
-            None if not p.mismatch_count else float(np.sqrt(p.mismatch_sum_sq / p.mismatch_count))
-        )
-
-    @staticmethod
     def _motion_info(scan: _Scan) -> ScanMotionInfo | None:
         motion = scan.motion
         if motion is None:
@@ -757,14 +552,14 @@ class ScanService:
             line_period_limited=motion.limited,
         )
 
-    def _lost_frames(self, scan: _Scan) -> int:
+    def _lost_frames(self, scan: _Scan, frames_in: int, gap_frames: int) -> int:
         """Frames of the scan that never reached the engine: lost, corrupt, overrun or cut
         short on the way; once the stream has ended, by the device's own count."""
         if scan.done.is_set() or scan.ended_mono is not None:
             sent = self.stream.status_info().get("frames_sent")
             if sent is not None:
-                return max(0, int(sent) - scan.progress.frames_in)
-        return scan.progress.gap_frames
+                return max(0, int(sent) - frames_in)
+        return gap_frames
 
     def _response(self, scan: _Scan | None) -> ScanResponse:
         stream = self.stream.stats()
@@ -776,34 +571,33 @@ class ScanService:
                 tdi_cpu_s=0.0, backlog_frames=0, timing=None, error=None, stream=stream,
                 mismatch_max=None, mismatch_rms=None, mismatch_level="ok", motion=None,
             )  # fmt: skip
-        progress = scan.progress
+        progress = scan.pipeline.progress()
         end_mono = scan.ended_mono if scan.ended_mono is not None else time.monotonic()
         end_cpu = scan.ended_cpu if scan.ended_cpu is not None else time.process_time()
         elapsed = max(end_mono - scan.started_mono, 1e-9)
-        batched = scan.batcher.frames if scan.batcher is not None else 0
         return ScanResponse(
             state=scan.state,  # type: ignore[arg-type]
             file=str(scan.path),
             quicklook=None if scan.quicklook is None else str(scan.quicklook),
-            stages=scan.engine.stages,
+            stages=scan.pipeline.stages,
             lines_wanted=scan.request.lines,
             frames_requested=scan.frames_requested,
             lines=progress.lines,
             complete_lines=progress.complete_lines,
-            lost_frames=self._lost_frames(scan),
+            lost_frames=self._lost_frames(scan, progress.frames_in, progress.gap_frames),
             stage_changes=list(progress.stage_changes),
             mode=scan.request.mode,
-            width=scan.engine.width,
+            width=scan.pipeline.width,
             elapsed_s=elapsed,
             lines_per_s=progress.lines / elapsed,
             cpu_load=(end_cpu - scan.started_cpu) / elapsed,
             tdi_cpu_s=progress.tdi_cpu_s,
-            backlog_frames=max(0, batched - progress.frames_in),
+            backlog_frames=progress.backlog_frames,
             timing=scan.timing,
             error=scan.error,
             stream=stream,
             mismatch_max=progress.mismatch_max,
-            mismatch_rms=self._mismatch_rms(scan),
+            mismatch_rms=progress.mismatch_rms,
             mismatch_level=progress.mismatch_level,
             motion=self._motion_info(scan),
         )

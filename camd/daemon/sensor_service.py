@@ -6,6 +6,11 @@ reports the sensor the register map describes, trains the LVDS link when the con
 tells the stream service whether the link is trained (``require_trained``). Every device access
 runs inside ``DeviceAccess.device_op()``: one at a time, with link and register errors mapped
 to the API's errors.
+
+A register write reads the register file first (``RegisterSnapshot``), checks the write against
+it, and then writes through an ``Apply``: a write that fails after the camera may have taken it
+(its burst unanswered, a read-back refused or different) puts the registers it changes back
+to the snapshot and says so.
 """
 
 from __future__ import annotations
@@ -29,6 +34,7 @@ from camd.daemon.models import (
     TrainResponse,
 )
 from camd.daemon.state import Request
+from camd.daemon.transaction import Apply
 from camd.sensor.bridge import RegisterBridge
 from camd.sensor.profile import list_profiles, load_profile
 from camd.sensor.registers import SensorRegisters
@@ -184,11 +190,10 @@ class SensorService:
         )
 
     def write(self, values: dict[str, int | str]) -> RegisterWriteResponse:
-        """Validate everything, write in one burst, verify; nothing is written if invalid."""
+        """Validate everything, write in one burst, verify; nothing is written if invalid, and
+        a write that fails part-way puts back what it changed (module docstring)."""
         self._checked(Request.REGISTERS_WRITE)
-        with self.device.device_op():
-            registers = self._sensor_registers()
-            written = registers.write(values)
+        written = self._write_restoring("register write", values, lambda r: r.write(values))
         names = ", ".join(f"{k}={v}" for k, v in values.items())
         self.device.log_event("info", "api", f"registers written: {names}")
         return RegisterWriteResponse(
@@ -233,11 +238,18 @@ class SensorService:
     def load_configuration(self, config: RegisterConfig) -> RegisterWriteResponse:
         """Write a saved configuration: refused whole if it is for another sensor or invalid."""
         self._checked(Request.REGISTERS_WRITE)
-        with self.device.device_op():
-            registers = self._sensor_registers()
-            written = registers.load_configuration(
+        with self.device.device_op():  # another sensor's configuration: refused before reading
+            self._sensor_registers().check_configuration(
                 config.sensor, config.registers, source="the configuration"
             )
+        written = self._write_restoring(
+            "configuration load",
+            dict(config.registers),
+            lambda r: r.load_configuration(
+                config.sensor, config.registers, source="the configuration"
+            ),
+            source="the configuration",
+        )
         self.device.log_event(
             "info", "api", f"configuration of {len(config.registers)} registers loaded"
         )
@@ -392,6 +404,48 @@ class SensorService:
         return load_profile(self.regmap.sensor).model_dump(mode="json")
 
     # -- internals -------------------------------------------------------------------------------
+
+    def _write_restoring(
+        self,
+        what: str,
+        values: Mapping[str, int | str],
+        write: Callable[[SensorRegisters], list[Any]],
+        *,
+        source: str | None = None,
+    ) -> list[Any]:
+        """Snapshot, check ``values`` against it, then ``write`` with the registers it changes
+        restored if the write fails (it may have reached the sensor before failing).
+        ``source`` (e.g. "the configuration") prefixes a refusal, as the write would."""
+        snapshot = self.snapshot()
+        try:
+            changed = self._restorable(snapshot.changed(values))
+        except BadRequest as exc:
+            if source is None:
+                raise
+            raise BadRequest(f"{source}: {exc}; nothing was written") from None
+        with Apply(what, self._events, source="api") as apply:
+            if changed:
+                apply.undo_later(
+                    lambda: self.restore(snapshot, changed), "registers " + ", ".join(changed)
+                )
+            with self.device.device_op():
+                written = write(self._sensor_registers())
+            apply.done()
+        return written
+
+    def _restorable(self, names: list[str]) -> list[str]:
+        """The settings among ``names``: what a failed write puts back. Actions (a soft reset,
+        flags cleared by writing 1) and volatile registers cannot be put back."""
+        reset_reg = self.regmap.soft_reset_register()
+        return [
+            name
+            for name in names
+            if self.regmap.register(name).configurable
+            and self.regmap.register(name) is not reset_reg
+        ]
+
+    def _events(self, level: str, source: str, message: str) -> None:
+        self.device.log_event(level, source, message)
 
     def _checked(self, request: Request) -> None:
         self.device.require(request)

@@ -68,6 +68,7 @@ from camd.daemon.simulator import SimulatorProcess
 from camd.daemon.state import Request, State, Trigger
 from camd.daemon.stream_service import StreamService
 from camd.daemon.telemetry import LimitChecker, TelemetryArchive, classify
+from camd.daemon.transaction import Apply
 from camd.daemon.wheel_service import WheelService
 from camd.link import (
     CommandLink,
@@ -280,6 +281,9 @@ class DeviceSession:
         return EstopResponse(stopped=stopped, failed=failed)
 
     def _stop_acquisition_now(self) -> bool:
+        # A scan first, through its own stop: stopping only its stream would end it "done".
+        if self.scan.request_stop():
+            return True
         if self.device.acquisition.active is None and not self.stream.streaming:
             return False
         if self.stream.streaming:
@@ -430,9 +434,17 @@ class DeviceSession:
         return self.device.mode
 
     def set_mode(self, mode: str) -> ModeResponse:
-        """Select the imaging mode (area or tdi)."""
+        """Select the imaging mode (area or tdi). If the answer is lost (a lost link, a silent
+        camera), the camera may have changed mode: the mode before is put back (``Apply``)."""
         self._require(Request.MODE)
-        return ModeResponse(mode=cast(Any, self.device.set_mode(mode)))
+        device = self.device
+        before = device.mode or "area"
+        with Apply("mode change", self._event) as apply:
+            now = apply.step(
+                lambda: device.set_mode(mode), lambda: device.set_mode(before), f"mode {before}"
+            )
+            apply.done()
+        return ModeResponse(mode=cast(Any, now))
 
     def reset(self) -> StatusResponse:
         """Soft-reset the device; on success the daemon is idle. Returns the status after."""

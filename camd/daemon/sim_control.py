@@ -1,7 +1,8 @@
 """What only a simulated camera can do, behind one small interface.
 
 The world in front of the simulated camera (scene, reference polariser, the ideal stage's
-speed), its random streams, its stage imperfections and its fault counters are set and read with
+speed), its random streams, its stage imperfections, its fault counters and failures on purpose
+of a coming command (``fail_next``: a NAK, or a dropped line) are set and read with
 the simulator's own SIM_* commands. Production services never send those themselves: they ask
 a ``SimulatorControl``. ``FirmwareSimulator`` implements it with the SIM_* commands; on real
 hardware ``NoSimulator`` refuses every request with a clear 400 instead of sending an opcode
@@ -20,6 +21,7 @@ from typing import Any
 from camd.daemon.device import DeviceAccess
 from camd.daemon.errors import BadRequest, DeviceRejected
 from camd.daemon.models import (
+    SimFailNextRequest,
     SimSettings,
     SimStageFaultsRequest,
     SimStageTruth,
@@ -118,6 +120,48 @@ class SimulatorControl(abc.ABC):
         what = "out of the beam" if angle_deg is None else f"at {angle_deg:g} deg"
         self.device.log_event("info", "api", f"simulated reference polariser {what}")
 
+    def fail_next(self, request: SimFailNextRequest) -> None:
+        """Make the (skip + 1)-th next ``command`` fail: a NAK of ``error``, or the device off
+        the line for ``duration_s`` (a link drop). Checked here, against the dictionary."""
+        self.device.require(Request.SIM)
+        dictionary = self.device.dictionary
+        name = request.command.strip().upper()
+        try:
+            opcode = dictionary.command(name).opcode
+        except KeyError:
+            raise BadRequest(
+                f"command: {request.command!r} is not a command of config/protocol.toml; "
+                "use one of " + ", ".join(c.name for c in dictionary.commands)
+            ) from None
+        if (request.error is None) == (request.duration_s is None):
+            raise BadRequest(
+                "give error (the command is refused with a NAK, e.g. BUSY) or duration_s (the "
+                "camera drops off the line for that long), not both or neither"
+            )
+        error_code = 0
+        if request.error is not None:
+            try:
+                error_code = dictionary.error(request.error.strip().upper()).code
+            except KeyError:
+                raise BadRequest(
+                    f"error: {request.error!r} is not an error of config/protocol.toml; use one "
+                    "of " + ", ".join(e.name for e in dictionary.errors)
+                ) from None
+        self._do_fail_next(opcode, request.skip, error_code, request.duration_s or 0.0)
+        how = (
+            f"refused with {request.error.strip().upper()}"
+            if request.error is not None
+            else f"lost: the camera drops off the line for {request.duration_s:g} s"
+        )
+        self.device.log_event(
+            "warning", "api", f"simulator: {name} number {request.skip + 1} from now will be {how}"
+        )
+
+    def clear_fail_next(self) -> None:
+        """Disarm a failure ``fail_next`` armed (harmless when none is)."""
+        self.device.require(Request.SIM)
+        self._do_clear_fail_next()
+
     @abc.abstractmethod
     def injected(self) -> dict[str, Any] | None:
         """The command-line faults the simulator injected so far (None on hardware)."""
@@ -142,6 +186,12 @@ class SimulatorControl(abc.ABC):
 
     @abc.abstractmethod
     def _do_set_polarizer(self, angle_deg: float | None) -> None: ...
+
+    @abc.abstractmethod
+    def _do_fail_next(self, opcode: int, skip: int, error_code: int, duration_s: float) -> None: ...
+
+    @abc.abstractmethod
+    def _do_clear_fail_next(self) -> None: ...
 
 
 class FirmwareSimulator(SimulatorControl):
@@ -196,6 +246,21 @@ class FirmwareSimulator(SimulatorControl):
             angle_deg=0.0 if angle_deg is None else angle_deg,
         )
 
+    def _do_fail_next(self, opcode: int, skip: int, error_code: int, duration_s: float) -> None:
+        self.device.request(
+            "SIM_FAIL_NEXT",
+            action="nak" if error_code else "silence",
+            opcode=opcode,
+            skip=skip,
+            error_code=error_code,
+            duration_s=duration_s,
+        )
+
+    def _do_clear_fail_next(self) -> None:
+        self.device.request(
+            "SIM_FAIL_NEXT", action="off", opcode=0, skip=0, error_code=0, duration_s=0.0
+        )
+
 
 class NoSimulator(SimulatorControl):
     """Real hardware: every simulator request is refused (400), nothing is sent."""
@@ -233,3 +298,9 @@ class NoSimulator(SimulatorControl):
 
     def _do_set_polarizer(self, angle_deg: float | None) -> None:
         raise self._refuse("the reference polariser")
+
+    def _do_fail_next(self, opcode: int, skip: int, error_code: int, duration_s: float) -> None:
+        raise self._refuse("a failure on purpose (fail-next)")
+
+    def _do_clear_fail_next(self) -> None:
+        raise self._refuse("a failure on purpose (fail-next)")

@@ -155,7 +155,7 @@ class StreamService:
         # Draining waits for the reader: not on the link's reader thread.
         threading.Thread(
             target=self._finish,
-            args=(next_counter, frames_sent, "the stream ended"),
+            args=(next_counter, frames_sent, "all frames sent"),
             name="camd-stream-finish",
             daemon=True,
         ).start()
@@ -324,7 +324,7 @@ class StreamService:
             if not 1 <= stages <= timing.window_rows:
                 raise BadRequest(
                     f"stages = {stages} does not fit the window of {timing.window_rows} rows "
-                    f"(physics.md §2 eq 13: 1 <= M <= M0 = n_lines); choose 1..{timing.window_rows}"
+                    f"(docs/physics.md §2 eq 13: 1 <= M <= M0 = n_lines); choose 1..{timing.window_rows}"
                     " or make the window taller"
                 )
         cols = self.sensor.window_columns()
@@ -342,6 +342,12 @@ class StreamService:
             self._settled.clear()
             try:
                 self._start_stream(request, stages, max_frame_bytes, recorder_path, start, consumer)
+            except (DeviceTimeout, Disconnected) as exc:
+                if exc.link_wait is not None:  # the command link failed, not the USB reader
+                    # Only the answer may have been lost: the camera may be streaming to
+                    # nobody. STOP_STREAM is harmless when it is not (sent once it answers).
+                    apply.undo_later(lambda: device.request("STOP_STREAM"), "stream stopped")
+                raise
             finally:
                 self._settled.set()
             apply.done()

@@ -1,6 +1,6 @@
 """The filter wheel in the daemon: status, speed, delay compensation and wheel acquisitions.
 
-``WheelService`` belongs to a DeviceSession (docs/wheel.md, physics.md §4). The FPGA waits for
+``WheelService`` belongs to a DeviceSession (docs/wheel.md, docs/physics.md §4). The FPGA waits for
 each channel's entry pulse and, with compensation on, for ``T_delay = T_center - T_frame / 2``
 before it exposes (WHEEL_COMPENSATION, WHEEL_ACQUIRE). camd computes the same numbers on its
 side, from the exposure and window in the sensor's registers and ``config/wheel.toml``
@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import math
 import threading
-from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -47,8 +46,8 @@ from camd.daemon.state import Request
 from camd.daemon.stream_service import StreamService, StreamStart
 from camd.daemon.transaction import Apply
 from camd.link.frame_stream import ReceivedFrame
+from camd.motion.wheel import FilterWheel, FpgaWheel, WheelReading, WheelSpeedError
 from camd.motion.wheel_profile import WheelProfile, load_wheel_profile
-from camd.protocol.dictionary import FieldValue
 from camd.store.recording import RecordingError, check_new_file
 from camd.timing import sequencer_frame_time_s
 from camd.timing.wheel import exposure_delay_s, imaging_centre_angle_deg
@@ -56,16 +55,7 @@ from camd.timing.wheel import exposure_delay_s, imaging_centre_angle_deg
 ANGLE_UNIT_DEG = 1e-4
 """A wheel frame header's ``stage_position`` counts the wheel angle in these units."""
 
-F32_SIGNIFICANT_DIGITS = 7
-"""Speeds and angles cross the link as f32; this many digits recover the decimal sent."""
-
 _COUNTER_WRAP = 1 << 32
-
-
-def _from_f32(value: FieldValue) -> float:
-    """A value that crossed the link as f32, as the decimal it stood for (73.245, not
-    73.24500274658203): the predictions must not carry the wire's rounding."""
-    return float(f"{float(value):.{F32_SIGNIFICANT_DIGITS}g}")
 
 
 @dataclass(frozen=True, slots=True)
@@ -113,6 +103,7 @@ class WheelService:
         self.sensor = sensor
         self.stream = stream
         self._profile: WheelProfile | None = None
+        self._wheel: FilterWheel | None = None
 
     @property
     def profile(self) -> WheelProfile:
@@ -124,44 +115,66 @@ class WheelService:
                 raise BadRequest(f"the wheel file: {exc}") from None
         return self._profile
 
+    @property
+    def wheel(self) -> FilterWheel:
+        """The wheel behind the camera's WHEEL_* commands (the simulated camera answers them)."""
+        if self._wheel is None:
+            self._wheel = FpgaWheel(
+                self.profile,
+                lambda command, **fields: self.device.request(command, **fields).values,
+            )
+        return self._wheel
+
     # -- requests -----------------------------------------------------------------------------------
 
     def status(self) -> WheelStatus:
         """WHEEL_GET, the wheel file's numbers and camd's computation for the registers now."""
         self.device.require(Request.WHEEL_READ)
-        values = self.device.request("WHEEL_GET").values
+        reading = self.wheel.read()
         timing = self.sensor.timing()
         profile = self.profile
-        speed = _from_f32(values["speed_deg_s"])
-        compensated = values["compensation"] == "on"
-        channel = int(values["channel"])
+        speed = reading.speed_deg_s
+        compensated = reading.compensation
         return WheelStatus(
             wheel=profile.wheel,
             speed_deg_s=speed,
             nominal_speed_deg_s=profile.speed_deg_s.value,
             period_s=360.0 / speed if speed > 0 else None,
-            angle_deg=float(values["angle_deg"]),
-            channel=None if channel >= profile.channel_count.value else channel,
+            angle_deg=reading.angle_deg,
+            channel=reading.channel,
             compensation=compensated,
             t_center_s=profile.t_center_s.value,
             window_s=profile.window_s.value,
-            device_frame_time_s=float(values["frame_time_s"]),
-            device_delay_s=float(values["delay_s"]),
+            device_frame_time_s=reading.frame_time_s,
+            device_delay_s=reading.delay_s,
             exposure=self._exposure_now(timing, compensated=compensated, speed_deg_s=speed),
             channels=self._channels_info(),
-            time_s=float(values["time_s"]),
+            time_s=reading.time_s,
         )
 
     def stop_now(self) -> bool:
         """Stop the wheel at once, whatever the daemon's state (``POST /api/v1/estop``)."""
-        self.device.request("WHEEL_SET_SPEED", speed_deg_s=0.0)
+        self.wheel.stop()
         self.device.log_event("warning", "wheel", "filter wheel stopped (emergency stop)")
         return True
 
     def set_speed(self, speed_deg_s: float) -> WheelStatus:
-        """Turn the wheel at ``speed_deg_s`` (0 stops it)."""
+        """Turn the wheel at ``speed_deg_s`` (0 stops it). If the answer is lost, the wheel may
+        have changed speed: the speed before is put back (``Apply``)."""
         self.device.require(Request.WHEEL_SET)
-        self.device.request("WHEEL_SET_SPEED", speed_deg_s=speed_deg_s)
+        wheel = self.wheel
+        try:
+            wheel.check_speed(speed_deg_s)
+        except WheelSpeedError as exc:
+            raise BadRequest(str(exc)) from None
+        before = wheel.read().speed_deg_s
+        with Apply("wheel speed not set", self._events, source="wheel") as apply:
+            apply.step(
+                lambda: wheel.set_speed(speed_deg_s),
+                lambda: wheel.set_speed(before),
+                f"wheel speed {before:g} deg/s",
+            )
+            apply.done()
         nominal = self.profile.speed_deg_s.value
         message = f"filter wheel speed set to {speed_deg_s:g} deg/s"
         level = "info"
@@ -191,7 +204,15 @@ class WheelService:
                     f"= {info.exposure_s * 1e3:.6g} ms, window {info.window_rows} rows): "
                     f"{info.refusal}"
                 )
-        self.device.request("WHEEL_COMPENSATION", enable="on" if on else "off")
+        wheel = self.wheel
+        before = wheel.read().compensation
+        with Apply("delay compensation not switched", self._events, source="wheel") as apply:
+            apply.step(
+                lambda: wheel.set_compensation(on),
+                lambda: wheel.set_compensation(before),
+                f"delay compensation {'on' if before else 'off'}",
+            )
+            apply.done()
         self.device.log_event(
             "info", "wheel", f"exposure delay compensation {'on' if on else 'off'}"
         )
@@ -225,14 +246,14 @@ class WheelService:
         profile = self.profile
         channels = self._check_channels(request.channels)
         self.sensor.require_trained("take wheel frames")
-        device = self.device.request("WHEEL_GET").values
-        speed = _from_f32(device["speed_deg_s"])
+        reading: WheelReading = self.wheel.read()
+        speed = reading.speed_deg_s
         if speed <= 0.0:
             raise BadRequest(
                 "the filter wheel is stopped, so no entry pulse will come: start it first "
                 f"(`camctl wheel speed {profile.speed_deg_s.value:g}`)"
             )
-        device_compensated = device["compensation"] == "on"
+        device_compensated = reading.compensation
         compensated = device_compensated if request.compensated is None else request.compensated
         timing = self.sensor.timing()
         lines = timing.exposure_lines
@@ -269,13 +290,10 @@ class WheelService:
                 )
                 timing = self.sensor.timing()
             if compensated != device_compensated:
-                was = "on" if device_compensated else "off"
                 apply.step(
-                    lambda: self.device.request(
-                        "WHEEL_COMPENSATION", enable="on" if compensated else "off"
-                    ),
-                    lambda: self.device.request("WHEEL_COMPENSATION", enable=was),
-                    f"delay compensation {was}",
+                    lambda: self.wheel.set_compensation(compensated),
+                    lambda: self.wheel.set_compensation(device_compensated),
+                    f"delay compensation {'on' if device_compensated else 'off'}",
                 )
             exposure = self._exposure_now(timing, compensated=compensated, speed_deg_s=speed)
             means = _FrameMeans(request.region)
@@ -330,7 +348,7 @@ class WheelService:
             stream=stream,
         )
 
-    # -- the computation (physics.md §4) ---------------------------------------------------------------
+    # -- the computation (docs/physics.md §4) ---------------------------------------------------------------
 
     def _exposure_now(
         self, timing: TimingResponse, *, compensated: bool, speed_deg_s: float
@@ -423,7 +441,7 @@ class WheelService:
         return list(channels)
 
     def _exposure_lines(self, exposure_s: float, line_period_s: float) -> int:
-        """Whole lines ``round(T_exp / T_line)`` (physics.md §3: T_exp = n T_line)."""
+        """Whole lines ``round(T_exp / T_line)`` (docs/physics.md §3: T_exp = n T_line)."""
         lines = round(exposure_s / line_period_s)
         if lines < 1:
             raise BadRequest(
@@ -474,11 +492,11 @@ class WheelService:
     def _device_numbers(self) -> dict[str, float]:
         """The FPGA's T_frame and applied delay (WHEEL_GET), to show beside camd's."""
         try:
-            values: Mapping[str, FieldValue] = self.device.request("WHEEL_GET").values
+            reading = self.wheel.read()
         except SessionError:
             return {}
-        delay = float(values["delay_s"]) if values["compensation"] == "on" else 0.0
-        return {"frame_time_s": float(values["frame_time_s"]), "delay_s": delay}
+        delay = reading.delay_s if reading.compensation else 0.0
+        return {"frame_time_s": reading.frame_time_s, "delay_s": delay}
 
     def _frame(
         self,

@@ -1,7 +1,7 @@
 """Closed-loop scan synchronisation: the encoder's speed against the synchronous speed.
 
 Pure logic, no I/O (``camd.daemon.motion_service`` polls the stage and applies the results).
-TAO12 (physics.md §2) proposes re-computing the timing in real time from the measured scan
+TAO12 (docs/physics.md §2) proposes re-computing the timing in real time from the measured scan
 speed instead of trusting a fixed line period; with a stage encoder camd does that, either by
 trimming the stepper's rate so the stage meets the line period (``SpeedTrim``) or by trimming
 the line period to the stage (``LinePeriodTrim``: coarse by n_lines, fine by the back path).
@@ -152,7 +152,7 @@ class SpeedTrim:
 
 @dataclass(frozen=True, slots=True)
 class LinePeriodSetting:
-    """A line period and the window that realises it (physics.md §2 eqs 8-9)."""
+    """A line period and the window that realises it (docs/physics.md §2 eqs 8-9)."""
 
     line_period_s: float
     n_lines: int
@@ -161,7 +161,7 @@ class LinePeriodSetting:
 
 class LinePeriodTrim:
     """Trim the TDI line period to the measured image speed (TAO12: coarse by n_lines, fine by
-    the back path; physics.md §2 eqs 5, 8, 9).
+    the back path; docs/physics.md §2 eqs 5, 8, 9).
 
     The period that matches a measured image speed v is ``p (1 - offset) / v`` (``offset`` a
     deliberate dV/V; 0 normally); the window is ``tdi_window`` of it, with n_lines clamped to

@@ -1,6 +1,6 @@
 """The polarisation azimuth measurement through the filter wheel, driven over the camd API.
 
-physics.md §4 [YE23 §4]: a reference polariser in front of the scene is rotated through 0 .. 360
+docs/physics.md §4 [YE23 §4]: a reference polariser in front of the scene is rotated through 0 .. 360
 deg (15 deg steps); at each position one frame is taken through each polarising channel of the
 wheel, and the frames' mean signals follow ``I(theta) = a + b cos(2 (theta - phi))``; the
 least-squares fit (``camd.analysis.polarization.fit_polarization``) gives each channel's
@@ -51,7 +51,7 @@ DEFAULT_EXPOSURES_S = (0.003, 0.015, 0.060)
 """The exposures of issue 6: 3, 15 and 60 ms."""
 
 DEFAULT_STEP_DEG = 15.0
-"""Reference polariser step (physics.md §4: 0 .. 360 deg in 15 deg steps)."""
+"""Reference polariser step (docs/physics.md §4: 0 .. 360 deg in 15 deg steps)."""
 
 SETTINGS = (("compensated", True), ("uncompensated", False))
 
@@ -139,7 +139,7 @@ def acquire_polarization(
     settings: Sequence[bool] = (True, False),
     progress: Progress | None = None,
 ) -> PolarizationScan:
-    """Take a reference-polariser scan through the polarising channels (physics.md §4).
+    """Take a reference-polariser scan through the polarising channels (docs/physics.md §4).
 
     ``channels``: polarising channels (default: all of the wheel's); ``settings``: the
     compensation settings to take (True: compensated), compensated first. For each setting,

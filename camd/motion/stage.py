@@ -1,7 +1,7 @@
 """The scan stage as the daemon drives it: a small abstract interface and its RS-422 device.
 
 ``ScanStage`` speaks SI (metres, m/s, m/s^2; for a turntable, metres of arc at the sensor's
-radius, physics.md §2 eq 5); ``FpgaStage`` implements it with the MOTOR_* commands of
+radius, docs/physics.md §2 eq 5); ``FpgaStage`` implements it with the MOTOR_* commands of
 config/protocol.toml, which speak the driver's units (microsteps, encoder counts, microsteps
 per second), converting with the stage profile (``camd.motion.stage_profile``). The simulated
 camera answers the same commands, so tests run the same code as the bench.

@@ -12,12 +12,12 @@ Two kinds (``kind``):
 - ``linear``: a carriage on a rail driven by a lead screw (``lead_m_per_rev``), mechanical
   travel ``travel_m`` from the home switch at the low end, an incremental linear encoder
   (``linear_encoder_counts_per_m``). The carriage carries the target: its position is on the
-  object side, and the image moves ``m`` times as fast (physics.md §6, ``V_m = n_mag V_motor``):
+  object side, and the image moves ``m`` times as fast (docs/physics.md §6, ``V_m = n_mag V_motor``):
   ``image_scale(m) = m``.
 - ``turntable``: a table driven through a gear (``gear_ratio`` motor turns per table turn) with
   the sensor at the distance ``radius_m`` (``l``) from the axis, travel unlimited, an encoder on
   the table (``table_encoder_counts_per_rev``). Positions, speeds and accelerations in "metres"
-  are arc length at ``radius_m``: the image moves at ``v_image = w l`` (physics.md §2 eq 5,
+  are arc length at ``radius_m``: the image moves at ``v_image = w l`` (docs/physics.md §2 eq 5,
   ``T_line,TDI = a / (w l)``), so ``image_scale(m) = 1``.
 
 Every physical value is an inline table with its provenance, exactly one of ``source`` or
@@ -147,7 +147,7 @@ class StageProfile(BaseModel):
         "turntable: motor revolutions per table revolution", "1", None
     )
     radius_m: Sourced[Positive] | None = _key(
-        "turntable: distance l of the sensor from the axis (physics.md §2 eq 5)", "m", None
+        "turntable: distance l of the sensor from the axis (docs/physics.md §2 eq 5)", "m", None
     )
     table_encoder_counts_per_rev: Sourced[Positive] | None = _key(
         "turntable: encoder counts per table revolution", "count/rev", None
@@ -297,8 +297,8 @@ class StageProfile(BaseModel):
         """Image displacement on the focal plane per metre of stage position.
 
         Linear: the carriage moves the target, the optics image it at ``camera_magnification``
-        (physics.md §6: ``v_image = m v_stage``). Turntable: the sensor rides on the table, so
-        the image moves at the arc speed at ``radius_m`` (physics.md §2 eq 5: ``v_image = w l``)
+        (docs/physics.md §6: ``v_image = m v_stage``). Turntable: the sensor rides on the table, so
+        the image moves at the arc speed at ``radius_m`` (docs/physics.md §2 eq 5: ``v_image = w l``)
         and the scale is 1 whatever the magnification. Image rows = ``image_scale * x / p``.
         """
         return float(camera_magnification) if self.is_linear else 1.0

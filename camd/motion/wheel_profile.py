@@ -1,6 +1,6 @@
 """The filter wheel as data: ``config/wheel.toml``, validated by pydantic.
 
-physics.md §4 [YE23 §3.1, §3.3, §4]: 13 channels on a wheel turning at constant ``w``
+docs/physics.md §4 [YE23 §3.1, §3.3, §4]: 13 channels on a wheel turning at constant ``w``
 (73.245 deg/s), an entry-point pulse ``T_center`` = 60 ms before each channel centre, a light
 window of 120 ms per channel, three polarising channels 60 deg apart, and the error sources of
 eq 8 (entry angle, speed, clock stability). The daemon (wheel sequencing) and the simulated
@@ -10,7 +10,7 @@ standard library, ``camd.paths`` and ``camd.timing``.
 Every physical value is an inline table with its provenance, exactly one of ``source`` (where
 the number comes from) or ``assumed`` (why this value was chosen)::
 
-    speed_deg_s = { value = 73.245, source = "YE23 §4 / physics.md §4" }
+    speed_deg_s = { value = 73.245, source = "YE23 §4 / docs/physics.md §4" }
 
 Channel centres are equally spaced (``centres = "equal"``: channel ``i`` at ``i * 360 / N``
 deg, channel 0 at 0 deg, the origin of wheel angles). The window and the entry pulse are times
@@ -63,7 +63,7 @@ class WheelChannel(BaseModel):
 
 
 class WheelProfile(BaseModel):
-    """The filter wheel, as loaded from ``config/wheel.toml`` (physics.md §4)."""
+    """The filter wheel, as loaded from ``config/wheel.toml`` (docs/physics.md §4)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
@@ -158,7 +158,7 @@ class WheelProfile(BaseModel):
         return self.check_channel(channel) * self.spacing_deg
 
     def exposure(self, frame_time_s: float, *, compensated: bool) -> WheelExposure:
-        """``camd.timing.wheel.wheel_exposure`` with this wheel's values (physics.md §4).
+        """``camd.timing.wheel.wheel_exposure`` with this wheel's values (docs/physics.md §4).
 
         Refuses a frame that does not fit the light window (and, compensated, T_delay < 0).
         """

@@ -34,6 +34,16 @@ _INT_RANGE: dict[str, tuple[int, int]] = {
 }  # fmt: skip
 _VARIABLE = frozenset({"bytes", "str"})
 
+F32_SIGNIFICANT_DIGITS = 7
+"""Decimal digits an f32 field carries: a value rounded to this many is the decimal sent."""
+
+
+def f32_decimal(value: float) -> float:
+    """A value that crossed the link in an f32 field, as the decimal it was sent as (73.245,
+    not 73.24500274658203): predictions and comparisons must not carry the wire's rounding."""
+    return float(f"{float(value):.{F32_SIGNIFICANT_DIGITS}g}")
+
+
 FieldValue = int | float | str | bytes
 
 

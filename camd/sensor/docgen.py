@@ -141,8 +141,8 @@ def _schema() -> list[str]:
         "",
         "### `[timing]`: the line period",
         "",
-        "- `sequencer`: `T_line = clocks_per_line / clock_hz` (physics.md §3).",
-        "- `row_blanking`: `T_line = t_rb + n_pixels / f_s` (physics.md §2 eq 4) with "
+        "- `sequencer`: `T_line = clocks_per_line / clock_hz` (docs/physics.md §3).",
+        "- `row_blanking`: `T_line = t_rb + n_pixels / f_s` (docs/physics.md §2 eq 4) with "
         "`t_rb = (fixed_row_overhead_clocks + max(row_blanking, row_blanking_min_clocks)) / "
         "clock_hz`, `f_s = clock_hz * pixels_per_clock` and `n_pixels` the `window_columns` "
         "role (or `columns`).",
@@ -283,7 +283,7 @@ def _timing_lines(regmap: RegisterMap, timing: SensorTiming) -> list[str]:
         clocks = regmap.role("line_clocks") or f"{spec.clocks_per_line}"
         formula = (
             f"`sequencer`: T_line = {clocks} clocks / {_num(spec.clock_hz / 1e6)} MHz "
-            "(physics.md §3)"
+            "(docs/physics.md §3)"
         )
     else:
         blanking = regmap.role("row_blanking") or "0"
@@ -299,7 +299,7 @@ def _timing_lines(regmap: RegisterMap, timing: SensorTiming) -> list[str]:
         rate = spec.clock_hz * spec.pixels_per_clock
         formula = (
             f"`row_blanking`: T_line = ({blanking}) clocks / {_num(spec.clock_hz / 1e6)} MHz + "
-            f"{pixels} pixels / {_num(rate / 1e6)} MHz (physics.md §2 eq 4)"
+            f"{pixels} pixels / {_num(rate / 1e6)} MHz (docs/physics.md §2 eq 4)"
         )
     rows = [
         ["line period T_line", _duration(timing.line_period_s)],

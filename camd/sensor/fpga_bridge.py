@@ -1,6 +1,6 @@
 """The FPGA register bridge: sensor registers through REG_* commands on the RS-422 link.
 
-The camera's FPGA runs the SPI master (physics.md §3, §9); the host sends REG_READ, REG_WRITE and
+The camera's FPGA runs the SPI master (docs/physics.md §3, §9); the host sends REG_READ, REG_WRITE and
 REG_WRITE_BURST. A burst is executed by the FPGA as one uninterrupted SPI sequence, which is what
 makes a group-hold write atomic. The link's at-most-once execution means a write retried after
 a lost acknowledge is not applied twice. Link errors (LinkDown, CommandTimeout,

@@ -1,6 +1,6 @@
 """Camera profiles as data: ``config/profiles/<name>.toml``, validated by pydantic.
 
-A profile holds the physical facts the simulated camera needs about one camera (physics.md §8):
+A profile holds the physical facts the simulated camera needs about one camera (docs/physics.md §8):
 array size, pitch, fill factor, shutter, ADC and output bits, readout rate, full well,
 conversion gain and ADC full scale (hence the system gain), read noise, dark current and its
 temperature law, fixed-pattern noise, quantum efficiency, black level, optics magnification,
@@ -10,7 +10,7 @@ register map (``config/sensors/<sensor>.toml``) the camera's sensor carries.
 Every physical value is an inline table with its provenance, exactly one of ``source`` (where
 the number comes from) or ``assumed`` (why this value was chosen)::
 
-    pitch_m = { value = 11e-6, source = "YE23 §3.2 / physics.md §8" }
+    pitch_m = { value = 11e-6, source = "YE23 §3.2 / docs/physics.md §8" }
     fill_factor = { value = 0.8, assumed = "sCMOS with microlenses; no paper gives it" }
 
 A file that does not validate raises ``ProfileError`` naming the file, the line of the key and
@@ -176,8 +176,10 @@ class CameraProfile(BaseModel):
     )
     adc_bits: Sourced[Bits] = _key("ADC resolution", "bit")
     output_bits: Sourced[Bits] = _key("bits per pixel sent on (the ADC's MSBs)", "bit")
-    pixel_rate_hz: Sourced[Positive] = _key("pixel readout rate f_s (physics.md §2 eq 4)", "Hz")
-    row_blanking_s: Sourced[NonNegative] = _key("row blanking t_rb (physics.md §2 eq 4)", "s")
+    pixel_rate_hz: Sourced[Positive] = _key(
+        "pixel readout rate f_s (docs/physics.md §2 eq 4)", "Hz"
+    )
+    row_blanking_s: Sourced[NonNegative] = _key("row blanking t_rb (docs/physics.md §2 eq 4)", "s")
     full_well_e: Sourced[Positive] = _key("full-well capacity", "e-")
     conversion_gain_uv_per_e: Sourced[Positive] = _key(
         "charge-to-voltage conversion gain at analogue gain 1", "uV/e-"
@@ -269,7 +271,7 @@ class CameraProfile(BaseModel):
     def system_gain_dn_per_e(self, analog_gain: float = 1.0) -> float:
         """System gain ``K = g_conv * G / (V_FS / 2^adc_bits)`` in ADC DN per electron.
 
-        physics.md §5 (dark noise in electrons needs the system gain): conversion gain times
+        docs/physics.md §5 (dark noise in electrons needs the system gain): conversion gain times
         analogue gain is volts per electron at the ADC; one DN is ``V_FS / 2^bits`` volts.
         """
         return system_gain_dn_per_e(
@@ -292,7 +294,7 @@ class CameraProfile(BaseModel):
         return self.black_level_dn.value + self.offset_dn_per_code.value * code
 
     def line_period_s(self, n_pixels: int | None = None) -> float:
-        """``T_line = t_rb + n_pixels / f_s`` from the profile's values (physics.md §2 eq 4)."""
+        """``T_line = t_rb + n_pixels / f_s`` from the profile's values (docs/physics.md §2 eq 4)."""
         pixels = self.columns.value if n_pixels is None else n_pixels
         return rolling_line_period_s(self.row_blanking_s.value, pixels, self.pixel_rate_hz.value)
 

@@ -63,9 +63,9 @@ ROLE_DOCS: dict[str, str] = {
     "window_start_row": "first row of the readout window (array row address)",
     "window_rows": "rows in the window, k (raw + bias)",
     "window_start_column": "first column of the readout window (array column address)",
-    "window_columns": "columns read per row, n_pixels of physics.md §2 eq 4 (raw + bias); "
+    "window_columns": "columns read per row, n_pixels of docs/physics.md §2 eq 4 (raw + bias); "
     "the map's `columns` when absent",
-    "exposure_lines": "exposure n in whole line periods (physics.md §3)",
+    "exposure_lines": "exposure n in whole line periods (docs/physics.md §3)",
     "gain": "gain setting (reported by `camctl timing`)",
     "offset": "black-level offset (reported by `camctl timing`)",
     "readout_mode": "readout mode (reported by `camctl timing`)",
@@ -75,7 +75,7 @@ ROLE_DOCS: dict[str, str] = {
     "when absent",
     "row_blanking": "row blanking t_rb in clocks of `timing.clock_hz` (row_blanking model)",
     "back_path": "idle time at the end of each TDI line period, in clocks of `timing.clock_hz` "
-    "(physics.md §2 eqs 6-9)",
+    "(docs/physics.md §2 eqs 6-9)",
     "frame_counter": "field the sensor advances by itself once per frame read out",
     "spi_error_flag": "write-1-to-clear flag the sensor sets when a write hits a read-only "
     "register",
@@ -517,8 +517,8 @@ class GroupSpec(BaseModel):
 class TimingSpec(BaseModel):
     """How the sensor's line period follows from its clock (see camd.sensor.timing_view).
 
-    ``sequencer``: ``T_line = clocks_per_line / clock_hz`` (physics.md §3).
-    ``row_blanking``: ``T_line = t_rb + n_pixels / f_s`` (physics.md §2 eq 4) with
+    ``sequencer``: ``T_line = clocks_per_line / clock_hz`` (docs/physics.md §3).
+    ``row_blanking``: ``T_line = t_rb + n_pixels / f_s`` (docs/physics.md §2 eq 4) with
     ``t_rb = (fixed_row_overhead_clocks + max(row_blanking, row_blanking_min_clocks)) / clock_hz``
     and ``f_s = clock_hz * pixels_per_clock``.
     """

@@ -5,8 +5,8 @@ name (``REG``, ``REG.field`` or ``GROUP``, as ``RegisterMap.value_of`` computes 
 source of raw register values: the device, the host's shadow copy, the simulated sensor) and
 computes everything with the equations of ``camd.timing``, so that each exists once:
 
-- line period ``T_line``: ``sequencer`` model, ``clocks_per_line / clock_hz`` (physics.md §3);
-  ``row_blanking`` model, ``t_rb + n_pixels / f_s`` (physics.md §2 eq 4);
+- line period ``T_line``: ``sequencer`` model, ``clocks_per_line / clock_hz`` (docs/physics.md §3);
+  ``row_blanking`` model, ``t_rb + n_pixels / f_s`` (docs/physics.md §2 eq 4);
 - exposure ``n * T_line + T_RES`` (§3); first-frame time ``(n + k + 1) T_line`` (§3, §4 eq 6);
 - frame period in continuous imaging ``max(k, n + 1)`` lines plus the back path, which is the
   TDI line period (§2 eqs 6-7: ``T_frm + T_back = T_line,TDI``); ``M0 = k`` stages (§2 eq 13).

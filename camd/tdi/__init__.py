@@ -1,8 +1,8 @@
 """The digital TDI engine and binning (numpy/numba; no I/O). docs/tdi.md is the contract.
 
 - ``TdiEngine``, ``tdi_batch``: M window rows of one ground line summed into one line
-  (physics.md §1 eqs 11-12), streaming or batch, with completeness flags
-- ``bin2x2``: FPGA-side 2x2 binning, the sum of four neighbours (physics.md §3)
+  (docs/physics.md §1 eqs 11-12), streaming or batch, with completeness flags
+- ``bin2x2``: FPGA-side 2x2 binning, the sum of four neighbours (docs/physics.md §3)
 """
 
 from camd.tdi.binning import bin2x2

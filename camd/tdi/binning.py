@@ -1,4 +1,4 @@
-"""FPGA-side 2x2 binning: each output pixel is the sum of a 2x2 block (physics.md §3 [YE23]).
+"""FPGA-side 2x2 binning: each output pixel is the sum of a 2x2 block (docs/physics.md §3 [YE23]).
 
 Summing four independent pixels multiplies the signal by 4 and the temporal noise by 2, so the
 SNR doubles; the output needs two more bits than the input.
@@ -13,7 +13,7 @@ import numpy.typing as npt
 
 def bin2x2(frame: npt.NDArray[Any]) -> npt.NDArray[Any]:
     """Sum of each 2x2 block: shape (..., rows, cols) -> (..., rows // 2, cols // 2)
-    (physics.md §3); a frame or a stack of frames.
+    (docs/physics.md §3); a frame or a stack of frames.
 
     Integer frames are summed in the same dtype: uint16 holds the sum of four 14-bit values,
     so a caller with wider pixels must widen first. Odd sizes are refused (a half block would

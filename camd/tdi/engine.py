@@ -1,6 +1,6 @@
 """The digital TDI engine: streaming (``TdiEngine``) and batch (``tdi_batch``).
 
-physics.md §1 (TAO12 eq 11): line k is ``sum_i frames[k - i][row_i]``, clipped per eq 12 or
+docs/physics.md §1 (TAO12 eq 11): line k is ``sum_i frames[k - i][row_i]``, clipped per eq 12 or
 averaged; docs/tdi.md states the exact arithmetic, the fractional (interpolated) taps and when a
 line counts as complete. The engine holds a ring of M open partial sums (O(M x N) memory
 whatever the scan length) and a short list of recent lost-frame ranges, so that ``push``,
@@ -81,7 +81,7 @@ class TdiBlock:
 
 
 class TdiEngine:
-    """Streaming digital TDI over window frames (physics.md §1; contract in docs/tdi.md)."""
+    """Streaming digital TDI over window frames (docs/physics.md §1; contract in docs/tdi.md)."""
 
     def __init__(
         self,

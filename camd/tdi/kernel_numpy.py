@@ -2,7 +2,7 @@
 
 The state is a ring of M partial sums (``acc``, M x N): the partial sum of line L lives in row
 ``L % M``, and the row of a line that has no contribution yet is zero (the successive-
-accumulation form of physics.md §1 [YUAN13 Table 2], with the ring addressing of DONG16 §2.3).
+accumulation form of docs/physics.md §1 [YUAN13 Table 2], with the ring addressing of DONG16 §2.3).
 A block of F frames is done by the direct formula over stages, one vectorised add per stage, on
 an extended buffer holding the block's lines and the M - 1 lines still open after it.
 """

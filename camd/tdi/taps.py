@@ -1,6 +1,6 @@
 """Where each TDI stage samples its frame: row and column taps with fixed-point weights.
 
-physics.md §1: stage i of output line k takes frame k - i at row position ``i * rows_per_line``
+docs/physics.md §1: stage i of output line k takes frame k - i at row position ``i * rows_per_line``
 (``(M - 1 - i) * rows_per_line`` when the scene moves the other way) and column offset
 ``i * cols_per_line``. Whole-number positions are exact; fractional ones are linear interpolation
 with weights in steps of 1/``FIXED_POINT_ONE`` of a pixel, so that integer arithmetic (which does

@@ -1,6 +1,6 @@
-"""The timing equations of physics.md §2-3: pure functions of plain values, SI units.
+"""The timing equations of docs/physics.md §2-3: pure functions of plain values, SI units.
 
-Each function's docstring names its section and equation in physics.md (and through it the
+Each function's docstring names its section and equation in docs/physics.md (and through it the
 paper). Bad inputs (non-positive periods or clocks, negative counts, non-finite numbers) raise
 ``ValueError`` naming the argument.
 

@@ -1,6 +1,6 @@
 """Electronic image motion compensation (IMC) on a full-frame CCD: clocking and modulation.
 
-physics.md §7 [REN15]: the image of the ground moves over the focal plane at ``v = f V / H``.
+docs/physics.md §7 [REN15]: the image of the ground moves over the focal plane at ``v = f V / H``.
 Conventional compensation moves the charge packets one row (one pixel ``w``) every ``w / v``;
 REN15's improved method moves them one electrode (``w / p`` on a p-phase CCD) every
 ``dt = w / (p v)``. The modulation of a point beam's image (beam one pixel wide, starting ``a``
@@ -40,7 +40,7 @@ _STATIC_PX = 1e-7  # below this motion (pixels) a piece of the exposure is treat
 _STEP_AT_END_RTOL = 1e-9  # a move this close to the end of the exposure falls after it
 
 ELECTRODE_FORM_PHASES = 4
-"""The electrode-step closed form of physics.md §7 is REN15's, for a 4-phase CCD (FTF5066M)."""
+"""The electrode-step closed form of docs/physics.md §7 is REN15's, for a 4-phase CCD (FTF5066M)."""
 
 MEAN_ROW_STEP_MODULATION = Fraction(1, 3)
 """Exact average of the row-step modulation over ``a`` uniform in ``[0, w)``."""
@@ -52,7 +52,7 @@ MEAN_ELECTRODE_STEP_MODULATION = Fraction(47, 96)
 def image_velocity_m_s(focal_length_m: float, ground_speed_m_s: float, height_m: float) -> float:
     """Image velocity on the focal plane ``v = f V / H``.
 
-    physics.md §7 [REN15]: focal length ``f``, ground (aircraft, or lab target) speed ``V``,
+    docs/physics.md §7 [REN15]: focal length ``f``, ground (aircraft, or lab target) speed ``V``,
     height (object distance) ``H``. Pass the speed's magnitude: the direction only decides which
     way the charge is clocked, not how fast.
     """
@@ -65,7 +65,7 @@ def image_velocity_m_s(focal_length_m: float, ground_speed_m_s: float, height_m:
 def row_step_interval_s(pixel_m: float, image_velocity_m_s: float) -> float:
     """Clock interval of row-step (conventional) compensation: one row ``w`` every ``w / v``.
 
-    physics.md §7 [REN15]: the packets move one whole pixel each time the image has moved one.
+    docs/physics.md §7 [REN15]: the packets move one whole pixel each time the image has moved one.
     """
     pixel = positive("pixel_m", pixel_m)
     velocity = positive("image_velocity_m_s", image_velocity_m_s)
@@ -77,7 +77,7 @@ def electrode_step_interval_s(
 ) -> float:
     """Clock interval of electrode-step compensation ``dt = w / (p v)``.
 
-    physics.md §7 [REN15]: on a p-phase CCD the packets move one electrode (``w / p``) at a
+    docs/physics.md §7 [REN15]: on a p-phase CCD the packets move one electrode (``w / p``) at a
     time; ``phases = 4`` on an FTF5066M-class sensor. ``phases = 1`` is row stepping.
     """
     pixel = positive("pixel_m", pixel_m)
@@ -87,7 +87,7 @@ def electrode_step_interval_s(
 
 def pixel_offsets(a_m: npt.ArrayLike, pixel_m: float) -> tuple[FloatArray, float]:
     """A point beam's start offsets ``a`` as a float array checked to lie in ``[0, w)``, and
-    ``w`` (physics.md §7); a ValueError that says what to change otherwise."""
+    ``w`` (docs/physics.md §7); a ValueError that says what to change otherwise."""
     pixel = positive("pixel_m", pixel_m)
     if isinstance(a_m, bool):
         raise ValueError(f"a_m must be a number or an array of numbers, got {a_m!r}")
@@ -117,7 +117,7 @@ def row_step_modulation(a_m: npt.ArrayLike, pixel_m: float) -> FloatArray: ...
 def row_step_modulation(a_m: npt.ArrayLike, pixel_m: float) -> float | FloatArray:
     """Point-beam modulation with row-step compensation ``M(a) = 2a(w - a) / w^2``.
 
-    physics.md §7 [REN15]: a beam one pixel ``w`` wide starting ``a`` from a pixel edge,
+    docs/physics.md §7 [REN15]: a beam one pixel ``w`` wide starting ``a`` from a pixel edge,
     ``0 <= a < w``. 0 at ``a = 0`` (the beam straddles two pixels equally over each row step),
     0.5 at ``a = w / 2``. Vectorised: an array of offsets gives an array of modulations, a
     number gives a float.
@@ -132,7 +132,7 @@ def electrode_step_modulation(a_m: float, pixel_m: float) -> float: ...
 @overload
 def electrode_step_modulation(a_m: npt.ArrayLike, pixel_m: float) -> FloatArray: ...
 def electrode_step_modulation(a_m: npt.ArrayLike, pixel_m: float) -> float | FloatArray:
-    """Point-beam modulation with 4-phase electrode-step compensation, physics.md §7 [REN15].
+    """Point-beam modulation with 4-phase electrode-step compensation, docs/physics.md §7 [REN15].
 
     ``M(a) = |3w - 8a| / (4w)`` for ``0 <= a <= 3w/4`` and
     ``M(a) = |56 a w - 32 a^2 - 21 w^2| / (4 w^2)`` for ``3w/4 < a < w``: 0.75 at ``a = 0``,
@@ -150,7 +150,7 @@ def electrode_step_modulation(a_m: npt.ArrayLike, pixel_m: float) -> float | Flo
 def mean_row_step_modulation() -> float:
     """Average of the row-step modulation over ``a`` uniform in ``[0, w)``: exactly 1/3.
 
-    From physics.md §7 [REN15], with ``x = a / w``:
+    From docs/physics.md §7 [REN15], with ``x = a / w``:
     ``int_0^1 2x(1 - x) dx = 2 (1/2 - 1/3) = 1/3`` (independent of ``w``).
     """
     return float(MEAN_ROW_STEP_MODULATION)
@@ -159,7 +159,7 @@ def mean_row_step_modulation() -> float:
 def mean_electrode_step_modulation() -> float:
     """Average of the 4-phase electrode-step modulation over ``a`` in ``[0, w)``: exactly 47/96.
 
-    From physics.md §7 [REN15], with ``x = a / w``, split where the absolute value turns
+    From docs/physics.md §7 [REN15], with ``x = a / w``, split where the absolute value turns
     (``x = 3/8``) and where the branches meet (``x = 3/4``):
 
     - ``int_0^{3/8} (3 - 8x)/4 dx = (9/8 - 9/16)/4 = 9/64``;
@@ -213,7 +213,7 @@ def charge_shift_schedule(
     mode: ImcMode,
     phases: int = ELECTRODE_FORM_PHASES,
 ) -> ChargeShifts:
-    """When the packets move during an exposure, physics.md §7 [REN15].
+    """When the packets move during an exposure, docs/physics.md §7 [REN15].
 
     The compensation clock starts with the exposure (``t = 0``). ``"electrode"``: the packets
     move one electrode (``w / p``) at every ``k * electrode_interval_s``; ``"row"``: they move
@@ -274,7 +274,7 @@ def point_beam_profile(
     electrode_interval_s: float | None = None,
     phases: int = ELECTRODE_FORM_PHASES,
 ) -> tuple[int, FloatArray]:
-    """The packets' share of a moving point beam's charge, exactly, physics.md §7 [REN15].
+    """The packets' share of a moving point beam's charge, exactly, docs/physics.md §7 [REN15].
 
     The geometry of ``firmware_models.ccd_imc`` (one CCD column): a beam one pixel ``w`` wide
     starts ``a`` from the edge of pixel 0 and moves at ``v`` along the column; packet ``k``'s
@@ -330,7 +330,7 @@ def profile_modulation(profile: npt.ArrayLike) -> FloatArray:
     """Modulation ``(2 max - sum) / sum`` of pixel profiles along the last axis, §7 [REN15].
 
     The charge in the main (brightest) packet minus the charge spilled into all the others,
-    over the total: the definition under which both closed forms of physics.md §7 follow from
+    over the total: the definition under which both closed forms of docs/physics.md §7 follow from
     the charge-transfer geometry (docs/imc.md). 1 for all the charge in one pixel, 0 for an
     even split over two, negative when no pixel holds half. A single profile gives a 0-d
     array.

@@ -1,6 +1,6 @@
 """Synchronous scan motion: the stage speed and step rate that match a TDI line period.
 
-physics.md §2 eqs 5-9 and 13 [TAO12] give the line period from the scan speed and the window
+docs/physics.md §2 eqs 5-9 and 13 [TAO12] give the line period from the scan speed and the window
 that fits it; §6 eq 9 [YUAN13] gives the synchronous speed for a line period and the stepper's
 step rate from it. ``synchronous_motion`` solves either way round (from a line period, or from a
 stage speed) and reports the numbers ``camctl sync`` shows; ``line_mismatch`` measures the
@@ -29,7 +29,7 @@ FloatArray = npt.NDArray[np.float64]
 def step_rate_hz(stage_speed_m_s: float, metres_per_microstep: float) -> float:
     """Stepper step rate for a stage speed: ``F = V / (travel per microstep)``.
 
-    physics.md §6 [YUAN13 eq 9]: "the stepper's step rate follows from V_t and the travel per
+    docs/physics.md §6 [YUAN13 eq 9]: "the stepper's step rate follows from V_t and the travel per
     (micro)step". Signed: a negative speed gives a negative (reverse) rate.
     """
     speed = real("stage_speed_m_s", stage_speed_m_s)
@@ -41,7 +41,7 @@ def turntable_angular_velocity_rad_s(
 ) -> float:
     """Turntable angular velocity for a TDI line period: eq 5 solved for w, ``w = a / (T l)``.
 
-    physics.md §2 eq 5 [TAO12]: pixel size ``a``, sensor at ``l = radius_m`` from the axis.
+    docs/physics.md §2 eq 5 [TAO12]: pixel size ``a``, sensor at ``l = radius_m`` from the axis.
     """
     size = positive("pixel_size_m", pixel_size_m)
     period = positive("tdi_line_period_s", tdi_line_period_s)
@@ -86,7 +86,7 @@ def synchronous_motion(
     stage_speed_m_s: float | None = None,
     stages: int | None = None,
 ) -> SyncSolution:
-    """Solve the synchronous motion from a line period or from a stage speed (physics.md §2, §6).
+    """Solve the synchronous motion from a line period or from a stage speed (docs/physics.md §2, §6).
 
     - ``line_period_s`` only: the stage speed ``V = p / (m T)`` (§6 eq 9, ``m = image_scale``,
       the focal-plane metres per stage metre) and its step rate; dV/V = 0.
@@ -140,7 +140,7 @@ def line_mismatch(
 ) -> FloatArray:
     """The smear of each TDI line in pixels, from the encoder count latched at each frame start.
 
-    physics.md §6 [YUAN13]: over n line periods the image should move n pitches; it moved
+    docs/physics.md §6 [YUAN13]: over n line periods the image should move n pitches; it moved
     ``d = |e_k - e_(k-n)| / counts_per_pixel`` pitches, so a line that integrated n periods is
     smeared by ``n - d = n dV/V`` pixels, dV/V being the mean mismatch over those periods. For a
     line with all M stages (n = M) this is M dV/V, the quantity whose tolerance is 2. A line

@@ -1,6 +1,6 @@
 """TDI line period from the scan, and the rolling-shutter window that fits it.
 
-physics.md §2 eqs 5-9 and 13 [TAO12]: each TDI line period holds one window frame of
+docs/physics.md §2 eqs 5-9 and 13 [TAO12]: each TDI line period holds one window frame of
 ``n_lines`` rows read at the row period, plus an idle "back path" that absorbs the remainder.
 """
 
@@ -24,7 +24,7 @@ femtosecond for microsecond periods, far below any sequencer clock.
 def tdi_line_period_s(pixel_pitch_m: float, image_velocity_m_per_s: float) -> float:
     """TDI line period ``T_line,TDI = p / v_image``: the image moves one pitch per period.
 
-    physics.md §2 (general form of eq 5) [TAO12]. The velocity is the image speed on the focal
+    docs/physics.md §2 (general form of eq 5) [TAO12]. The velocity is the image speed on the focal
     plane; pass its magnitude (the scan direction does not change the period).
     """
     pitch = positive("pixel_pitch_m", pixel_pitch_m)
@@ -37,7 +37,7 @@ def synchronous_stage_speed_m_s(
 ) -> float:
     """Stage speed that moves the image one pitch per TDI line period: ``p / (m T_line,TDI)``.
 
-    physics.md §2 (``T_line,TDI = p / v_image``, solved for ``v_image``) and §6 eq 9 [YUAN13]
+    docs/physics.md §2 (``T_line,TDI = p / v_image``, solved for ``v_image``) and §6 eq 9 [YUAN13]
     (``V_t = n_mag p / T_L`` on the object side, written here with ``v_image = m v_stage``, m the
     optics' image/object magnification). ``magnification`` 1 gives the image velocity itself.
     """
@@ -49,7 +49,7 @@ def synchronous_stage_speed_m_s(
 def velocity_mismatch(sync_speed_m_s: float, speed_m_s: float) -> float:
     """Velocity mismatch ``dV/V = (V - V_m) / V``: V the synchronous speed, V_m the actual one.
 
-    physics.md §6 [YUAN13]: positive when the image moves slower than one row per line period.
+    docs/physics.md §6 [YUAN13]: positive when the image moves slower than one row per line period.
     Both speeds on the same side of the optics (stage or image); their sign is the direction.
     """
     sync = positive("sync_speed_m_s", sync_speed_m_s)
@@ -61,7 +61,7 @@ def turntable_line_period_s(
 ) -> float:
     """TDI line period on a turntable ``T_line,TDI = a / (w * l)``.
 
-    physics.md §2 eq 5 [TAO12]: pixel size ``a``, angular velocity ``w``, sensor at distance
+    docs/physics.md §2 eq 5 [TAO12]: pixel size ``a``, angular velocity ``w``, sensor at distance
     ``l`` from the axis (drift angle 0, row-by-row accumulation).
     """
     size = positive("pixel_size_m", pixel_size_m)
@@ -72,7 +72,7 @@ def turntable_line_period_s(
 
 @dataclass(frozen=True, slots=True)
 class TdiWindow:
-    """The rolling-shutter window that fits one TDI line period (physics.md §2 eqs 6-9, 13).
+    """The rolling-shutter window that fits one TDI line period (docs/physics.md §2 eqs 6-9, 13).
 
     ``n_lines`` window rows (eq 8), ``back_path_s`` idle time at the end of each period (eq 9),
     ``max_stages`` = M0 = n_lines (eq 13), ``frame_time_s`` = n_lines * row period (eq 2).
@@ -85,7 +85,7 @@ class TdiWindow:
 
 
 def tdi_window(tdi_line_period_s: float, row_period_s: float) -> TdiWindow:
-    """Window rows and back path for a TDI line period: eqs 6-9 and 13 of physics.md §2 [TAO12].
+    """Window rows and back path for a TDI line period: eqs 6-9 and 13 of docs/physics.md §2 [TAO12].
 
     ``n_lines = floor(T_line,TDI / T_line,roll)`` (TAO12's rem(.) is floor) and
     ``T_back = T_line,TDI - n_lines * T_line,roll``, so ``0 <= T_back < T_line,roll``. A quotient

@@ -1,6 +1,6 @@
 """Filter-wheel dynamic delay compensation: when to start an exposure through a turning wheel.
 
-physics.md §4 [YE23 §3.1, §3.3, §4, eqs 1, 4-8]. The wheel turns at constant ``w`` and sends an
+docs/physics.md §4 [YE23 §3.1, §3.3, §4, eqs 1, 4-8]. The wheel turns at constant ``w`` and sends an
 entry-point pulse ``T_center`` before each channel's centre is in front of the sensor. A
 rolling-shutter frame of ``T_frame = (n + k + 1) T_line`` (eq 6: ``camd.timing.sequencer_frame_time_s``,
 not repeated here) started at the pulse is centred ``w T_frame / 2`` past the entry point (eq 1),
@@ -27,7 +27,7 @@ from camd.timing._checks import non_negative, positive, real
 def exposure_delay_s(t_center_s: float, frame_time_s: float) -> float:
     """Delay from the entry pulse to the exposure start ``T_delay = T_center - T_frame / 2``.
 
-    physics.md §4 eq 5 [YE23]. The value is returned even when negative (the exposure is then
+    docs/physics.md §4 eq 5 [YE23]. The value is returned even when negative (the exposure is then
     too long to be centred on the channel: ``check_wheel_exposure`` refuses it). E.g.
     ``T_center`` = 60 ms and ``T_frame`` = 70.97868 ms (HR400, n = 2924, k = 534) give
     24.51066 ms.
@@ -40,7 +40,7 @@ def exposure_delay_s(t_center_s: float, frame_time_s: float) -> float:
 def check_wheel_exposure(
     frame_time_s: float, *, t_center_s: float, window_s: float, compensated: bool
 ) -> None:
-    """Refuse a frame that cannot fit a channel's light window (physics.md §4, after eq 6).
+    """Refuse a frame that cannot fit a channel's light window (docs/physics.md §4, after eq 6).
 
     ``T_frame > window``: part of the frame would be vignetted or the next entry pulse missed.
     With compensation, ``T_delay < 0`` (eq 5): the exposure would have to start before the
@@ -71,7 +71,7 @@ def imaging_centre_angle_deg(
 ) -> float:
     """Wheel angle at the frame's centre ``P_frame = P_entry + w T_delay + w T_frame / 2``.
 
-    physics.md §4 eq 4 [YE23]; with ``delay_s`` = 0 it is eq 1 (exposure started at the entry
+    docs/physics.md §4 eq 4 [YE23]; with ``delay_s`` = 0 it is eq 1 (exposure started at the entry
     pulse), ``P_entry + w T_frame / 2``. ``delay_s`` is the delay actually waited after the
     pulse, so it must be >= 0; the angle is not wrapped to [0, 360).
     """
@@ -91,7 +91,7 @@ def imaging_centre_error_deg(
 ) -> float:
     """Uncertainty of the imaging-centre angle ``sqrt(dP_entry^2 + (T_center dw)^2 + (w dT_center)^2)``.
 
-    physics.md §4 eq 8 [YE23]: after compensation the centre is ``P_entry + w T_center``, and
+    docs/physics.md §4 eq 8 [YE23]: after compensation the centre is ``P_entry + w T_center``, and
     the entry angle, the speed and the delay timing err independently. With the instrument's
     0.087 deg, 60 ms, 0.03 deg/s, 73.245 deg/s and 20e-6 x 60 ms = 1.2 us it is 0.08702 deg
     (the entry angle dominates). For a frame started at the pulse pass ``T_frame / 2`` as
@@ -107,7 +107,7 @@ def imaging_centre_error_deg(
 
 @dataclass(frozen=True, slots=True)
 class WheelExposure:
-    """One frame through a channel of the wheel (physics.md §4 eqs 1, 4, 5, 8).
+    """One frame through a channel of the wheel (docs/physics.md §4 eqs 1, 4, 5, 8).
 
     ``frame_time_s`` T_frame (eq 6); ``delay_s`` the delay waited after the entry pulse (eq 5's
     T_delay with compensation, 0 without); ``centre_offset_deg`` the wheel angle of the frame's
@@ -132,7 +132,7 @@ def wheel_exposure(
     speed_error_deg_s: float,
     clock_stability: float,
 ) -> WheelExposure:
-    """Check a frame against the light window and place its centre on the wheel (physics.md §4).
+    """Check a frame against the light window and place its centre on the wheel (docs/physics.md §4).
 
     Refuses what ``check_wheel_exposure`` refuses. The delay is eq 5 (compensated) or 0; the
     centre is eq 4 with the entry point ``w T_center`` before the channel centre; its error is

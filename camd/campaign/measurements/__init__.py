@@ -12,7 +12,7 @@ A measurement is a plain function registered by name::
 file and the API's answer); the step's ``args`` arrive as keyword arguments. The function
 returns named results: JSON values (numbers, strings, lists, dicts of them); the runner keeps
 the names the step lists. The numbers come from camd.analysis (pure functions citing
-physics.md); a measurement only reads the data and calls them. Results must depend on the data
+docs/physics.md); a measurement only reads the data and calls them. Results must depend on the data
 alone (no clocks, no file paths): a resumed campaign must reproduce them exactly.
 
 The functions live in the modules of this package, one per kind of measurement (``basic``:

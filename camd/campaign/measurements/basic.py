@@ -22,7 +22,7 @@ from camd.campaign.measurements import (
 def stare_stats(
     inputs: Inputs, *, region: list[int] | None = None, black_dn: float = 0.0
 ) -> Results:
-    """Mean, spatial sigma and PSNR of a region of stared frames (physics.md §5, TAO12 §5.1):
+    """Mean, spatial sigma and PSNR of a region of stared frames (docs/physics.md §5, TAO12 §5.1):
     ``psnr_db`` is the mean over the frames of ``20 lg(mean / sigma)`` of the region
     (``camd.analysis.emva.region_psnr_db``); ``mean_dn`` and ``sigma_dn`` are the region's
     spatial mean and RMS deviation averaged over the frames. Input ``frames``."""
@@ -46,7 +46,7 @@ def stare_stats(
 def dark_noise(
     inputs: Inputs, *, region: list[int] | None = None, gain_dn_per_e: float | None = None
 ) -> Results:
-    """EMVA-style temporal dark noise of dark frames (physics.md §5, eqs 9-10):
+    """EMVA-style temporal dark noise of dark frames (docs/physics.md §5, eqs 9-10):
     ``dark_mean_dn``, ``dark_noise_dn`` and, given the system gain, ``dark_noise_e``.
     Input ``frames`` (at least 2)."""
     frames = require_input(inputs, "frames", "dark_noise").frames()
@@ -59,7 +59,7 @@ def dark_noise(
 
 @measurement("scan_flat_snr")
 def scan_flat_snr(inputs: Inputs, *, black_dn: float = 0.0) -> Results:
-    """Temporal SNR of a TDI scan of a flat field along the track (physics.md §5,
+    """Temporal SNR of a TDI scan of a flat field along the track (docs/physics.md §5,
     ``camd.analysis.tdi_snr.along_track_snr``): ``signal_dn``, ``noise_dn`` and ``snr_db``.
     Input ``scan``."""
     lines = require_input(inputs, "scan", "scan_flat_snr").lines()
@@ -91,7 +91,7 @@ def light_for_level(
 ) -> Results:
     """The light level that gives a wanted signal, scaled from a probe acquisition taken at
     ``probe_level`` (the dark-subtracted signal is proportional to the light between black
-    and saturation: physics.md §5's signal model), as a lab engineer sets a light source from
+    and saturation: docs/physics.md §5's signal model), as a lab engineer sets a light source from
     one trial exposure: ``level = probe_level * wanted / (probe_mean - dark_mean)``.
 
     The wanted signal above dark is ``target_dn - dark_mean`` (``target_dn``: the mean

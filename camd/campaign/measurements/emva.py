@@ -1,4 +1,4 @@
-"""EMVA-style SNR against exposure on 2x2-binned frames (physics.md §3, §5; YE23 §5.1).
+"""EMVA-style SNR against exposure on 2x2-binned frames (docs/physics.md §3, §5; YE23 §5.1).
 
 The measurements of config/campaigns/emva_snr_exposure.yaml, in the order it uses them:
 
@@ -11,7 +11,7 @@ The measurements of config/campaigns/emva_snr_exposure.yaml, in the order it use
 - ``emva_point``: eqs 9-13 at one exposure (signal, temporal noise and variance, SNR, dark
   noise), on frames the FPGA binned.
 - ``photon_transfer_gain``: the system gain K from variance against mean over the exposures.
-- ``emva_model``: the measured SNR and dark noise against the model of physics.md §5 with the
+- ``emva_model``: the measured SNR and dark noise against the model of docs/physics.md §5 with the
   profile's parameters (as the daemon recorded them in each file's ``profile`` group), and
   against the photon-transfer model of the measured K.
 
@@ -48,7 +48,7 @@ from camd.sensor.profile import CameraProfile
 
 
 def _lines(acquired: Acquired, exposure_ms: float) -> int:
-    """``round(T_exp / T_line)`` (physics.md §3: T_exp = n T_line), T_line from the file."""
+    """``round(T_exp / T_line)`` (docs/physics.md §3: T_exp = n T_line), T_line from the file."""
     line_period_s = float(acquired.metadata()["timing"]["line_period_s"])
     exposure_s = float(exposure_ms) * 1e-3
     lines = round(exposure_s / line_period_s)
@@ -62,7 +62,7 @@ def _lines(acquired: Acquired, exposure_ms: float) -> int:
 
 @measurement("exposure_lines")
 def exposure_lines(inputs: Inputs, *, exposure_ms: float) -> Results:
-    """``exposure_lines``: whole lines for ``exposure_ms`` (physics.md §3), the line period
+    """``exposure_lines``: whole lines for ``exposure_ms`` (docs/physics.md §3), the line period
     from the input ``recording``'s timing; a configure step writes it to ``EXPOSURE``."""
     return {
         "exposure_lines": _lines(require_input(inputs, "recording", "exposure_lines"), exposure_ms)
@@ -113,7 +113,7 @@ def saturation_level(inputs: Inputs, *, region: list[int] | None = None) -> Resu
 
 @measurement("emva_point")
 def emva_point(inputs: Inputs, *, region: list[int] | None = None) -> Results:
-    """Eqs 9-13 of physics.md §5 at one exposure, on ``frames`` and ``dark`` frames (already
+    """Eqs 9-13 of docs/physics.md §5 at one exposure, on ``frames`` and ``dark`` frames (already
     2x2-binned by the FPGA for YE23's measurement; the region counts output pixels).
 
     ``signal_dn`` (eq 11), ``temporal_noise_dn`` (eq 12), ``snr`` (eq 13) and ``snr_db``;
@@ -171,13 +171,13 @@ def emva_model(
     ptc_dark_variance_dn2: float,
     saturation_dn: float,
 ) -> Results:
-    """Measured SNR and dark noise of 2x2-binned pixels against physics.md §5's model.
+    """Measured SNR and dark noise of 2x2-binned pixels against docs/physics.md §5's model.
 
     The model, per exposure t with the measured binned signal Y (DN above dark): each of the
     4 summed pixels holds ``S = Y / (4 K)`` signal and ``D = I_dark t`` dark electrons, its
     noise is ``sqrt(K^2 (S + D + sigma_read^2) + 1/12)`` DN (shot, dark shot, read,
     quantisation: ``temporal_noise_dn``), and the sum has 4 x the signal and 2 x the noise
-    (physics.md §3). K, sigma_read and I_dark are the profile's (the input ``recording``'s
+    (docs/physics.md §3). K, sigma_read and I_dark are the profile's (the input ``recording``'s
     ``profile`` group, the gain setting from its ``timing``). Eq 13 averages per-pixel
     ratios and so reads ``eq13_expectation_factor(frames)`` (1.069 at 20 frames) above
     ``Y / noise``: ``snr_model`` is that expectation, ``snr_ratio`` measured / model.

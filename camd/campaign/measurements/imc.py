@@ -1,4 +1,4 @@
-"""Image motion compensation measurements (physics.md §7; REN15 §3): the clock settings for an
+"""Image motion compensation measurements (docs/physics.md §7; REN15 §3): the clock settings for an
 image speed, the sharpness and point-beam modulation of stared frames of a slanted periodic
 edge, with the models beside them, and a summary keyed by compensation mode.
 
@@ -97,7 +97,7 @@ def imc_image(
     black_dn: float = 0.0,
 ) -> Results:
     """Sharpness and point-beam modulation of stared frames of a slanted periodic edge, and
-    their models (physics.md §7, REN15 §3; ``camd.analysis.imc``). Input ``frames``.
+    their models (docs/physics.md §7, REN15 §3; ``camd.analysis.imc``). Input ``frames``.
 
     ``image_sharpness``: the grey-gradient function along the track
     (``grey_gradient_sharpness``, axis ``along``, ``black_dn`` removed) averaged over the
@@ -167,7 +167,7 @@ def imc_summary(
     one_row_speed_mm_s: float,
 ) -> Results:
     """The per-image results (``imc_image``) of a sweep over image speed and, inside it, IMC
-    mode, keyed by mode, with the comparisons a report checks (physics.md §7, REN15 §3). No inputs.
+    mode, keyed by mode, with the comparisons a report checks (docs/physics.md §7, REN15 §3). No inputs.
 
     ``sharpness``, ``sharpness_model``, ``modulation``, ``modulation_model``: ``{mode: [one per
     speed]}``. ``sharpness_error``: ``{mode: [measured / model - 1]}``. ``sharpness_ratio``:

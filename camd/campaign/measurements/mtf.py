@@ -1,19 +1,19 @@
 """MTF measurements: along-track MTF of TDI scans of an edge target against velocity mismatch,
-and the limiting resolution of a bar target against the stage count (physics.md §6, YUAN13 §4;
+and the limiting resolution of a bar target against the stage count (docs/physics.md §6, YUAN13 §4;
 the ``mtf_mismatch`` campaign).
 
 - ``mismatch_scan_plan``: the ``dv_over_v``, the number of lines and the edge target's period
   for a scan at ``M dV/V`` (no data; its results feed the scan step as ``${dv_over_v}``,
   ``${scan_lines}``, ``${edge_period}``);
 - ``scan_edge_mtf``: the along-track MTF at the focal plane's Nyquist frequency of a scan of a
-  slanted-edge target (``camd.analysis.mtf.combined_edge_mtf``), with physics.md §6's model
+  slanted-edge target (``camd.analysis.mtf.combined_edge_mtf``), with docs/physics.md §6's model
   (eq 3 times eq 8, ``mtf_tdi_model``) and the rig's complete model
   (``mtf_rolling_tdi_model``), both from what the scan's file records;
 - ``mismatch_model_curve``: both models as curves over ``M dV/V``, for the report's plot;
 - ``bar_resolution``: the limiting resolution of a scan of a bar target by Rose's criterion
   (``camd.analysis.mtf.bar_target_resolution``), in lp/mm on the target;
 - ``resolution_model``: the limits the stage counts should give if M stages raise the bars'
-  detectability ``sqrt(M)`` times (physics.md §5's independent noise per stage), from the
+  detectability ``sqrt(M)`` times (docs/physics.md §5's independent noise per stage), from the
   first scan's detectabilities.
 """
 
@@ -81,7 +81,7 @@ def mismatch_scan_plan(
     edge_period_rows: int = 64,
     max_forward: float = 0.9,
 ) -> Results:
-    """The scan for a velocity mismatch ``M dV/V`` at ``stages`` (physics.md §6). Takes no
+    """The scan for a velocity mismatch ``M dV/V`` at ``stages`` (docs/physics.md §6). Takes no
     data. Results:
 
     - ``dv_over_v = m_dv_over_v / stages`` (the stage at ``1 - dV/V`` times the synchronous
@@ -123,7 +123,7 @@ def scan_edge_mtf(
 ) -> Results:
     """Along-track MTF of a TDI scan of a slanted-edge target (the simulator's ``edge``
     scene) at ``frequency_cy_per_px`` on the focal plane (Nyquist by default), against
-    physics.md §6's model. Input ``scan``.
+    docs/physics.md §6's model. Input ``scan``.
 
     The complete lines are cut into one region per edge (``find_edge_regions``); each goes
     through ``slanted_edge_mtf`` (regions it refuses are counted, not used) and their LSFs are
@@ -135,7 +135,7 @@ def scan_edge_mtf(
     0 for a global shutter) and the aperture ``q = sqrt(fill factor)`` (or ``fill_width``).
 
     Results: ``mtf_nyquist`` and its jackknife standard error ``mtf_nyquist_err``;
-    ``model_nyquist``, eq 3 times eq 8 as physics.md §6 writes them (``mtf_tdi_model``) times
+    ``model_nyquist``, eq 3 times eq 8 as docs/physics.md §6 writes them (``mtf_tdi_model``) times
     the scene's cells ``sinc(f cell_px)^2``; ``model_nyquist_rig`` the rig's complete model
     (``mtf_rolling_tdi_model``: the rolling shutter's slip, the exposure smear at the image's
     speed, the discrete stages, the cells); ``mtf_dev_model`` and ``mtf_dev_rig``, the
@@ -225,7 +225,7 @@ def mismatch_model_curve(
     ``dV/V`` takes the sign ``mismatch_scan_plan`` gives it (``planned_dv_over_v``): the rig's
     model jumps where the stage changes from slower to faster than synchronous.
 
-    Results: ``mismatch_grid``, ``mtf_nyquist_grid``, ``model_nyquist_grid`` (physics.md §6,
+    Results: ``mismatch_grid``, ``mtf_nyquist_grid``, ``model_nyquist_grid`` (docs/physics.md §6,
     eq 3 times eq 8, times the cells) and ``model_nyquist_rig_grid``
     (``mtf_rolling_tdi_model``).
     """
@@ -276,7 +276,7 @@ def bar_resolution(
     """Limiting resolution of a TDI scan of a bar target whose bars vary across track (the
     simulator's ``bars`` scene, ``orientation=across``: groups at ``frequencies`` in bands of
     ``band_lines`` lines), by Rose's criterion (``camd.analysis.mtf.bar_target_resolution``;
-    physics.md §6, YUAN13 §4). Input ``scan`` (synchronous: one target row per line).
+    docs/physics.md §6, YUAN13 §4). Input ``scan`` (synchronous: one target row per line).
 
     Results: ``resolution_cy_per_px`` (the highest group resolved with every coarser one),
     ``resolution_lp_mm`` (on the target: the target-side pixel is pitch / magnification, from
@@ -319,7 +319,7 @@ def resolution_model(
 ) -> Results:
     """The limiting resolutions the stage counts should give, from the first count's scan:
     M stages sum M times the bars' signal and, the noise of each stage being independent,
-    ``sqrt(M)`` times the noise (physics.md §5, the quadrature model), so Rose's detectability
+    ``sqrt(M)`` times the noise (docs/physics.md §5, the quadrature model), so Rose's detectability
     grows as ``sqrt(M)``: ``d_M = d_M0 sqrt(M / M0)`` per group, and the limit follows by the
     same criterion (``limiting_frequency``). Takes the results of the ``bar_resolution``
     sweep (``from_results``).

@@ -1,5 +1,5 @@
 """Polarisation azimuth through the filter wheel, with and without delay compensation
-(physics.md §4; YE23 §5.2): the measurement of config/campaigns/polarization_delay.yaml.
+(docs/physics.md §4; YE23 §5.2): the measurement of config/campaigns/polarization_delay.yaml.
 
 ``polarization_azimuth`` reads a ``polarization`` acquisition (the frame means of a
 reference-polariser scan, camd.motion.polarization_run) and fits each channel's azimuth per

@@ -1,4 +1,4 @@
-"""TDI measurements: SNR and noise against the stage count M (physics.md §1, §5; TAO12 §5,
+"""TDI measurements: SNR and noise against the stage count M (docs/physics.md §1, §5; TAO12 §5,
 DONG16 §3.1), from scans or from window frames summed on the host by camd's own TDI engine."""
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ def _host_tdi(frames: npt.NDArray[Any], stages: int, mode: str) -> npt.NDArray[n
     elif mode == "mean":
         lines, complete = tdi_batch(frames[:, :stages, :], stages, mode="mean")
     else:
-        raise ValueError(f"mode must be 'sum' or 'mean' (TDI, physics.md §1), got {mode!r}")
+        raise ValueError(f"mode must be 'sum' or 'mean' (TDI, docs/physics.md §1), got {mode!r}")
     return np.asarray(lines[complete], dtype=np.float64)
 
 
@@ -44,7 +44,7 @@ def tdi_stage_snr(
     inputs: Inputs, *, stages: list[int], mode: str = "sum", black_dn: float = 0.0
 ) -> Results:
     """Along-track SNR of a flat field against M from one stream of TDI-mode window frames
-    (physics.md §5; TAO12 §5.2): for each M the first M window rows of every frame go through
+    (docs/physics.md §5; TAO12 §5.2): for each M the first M window rows of every frame go through
     camd's TDI engine (``tdi_batch``), and the complete lines' temporal SNR is
     ``camd.analysis.tdi_snr.along_track_snr``. The black level of a line is taken from the
     optional input ``dark`` (the same frames without light, summed the same way), else
@@ -68,7 +68,7 @@ def tdi_stage_snr(
 
 @measurement("tdi_stage_noise")
 def tdi_stage_noise(inputs: Inputs, *, stages: list[int], mode: str = "mean") -> Results:
-    """Temporal noise of dark TDI lines against M, in output LSB (DONG16 §3.1; physics.md §5):
+    """Temporal noise of dark TDI lines against M, in output LSB (DONG16 §3.1; docs/physics.md §5):
     the first M window rows of stared dark TDI-mode frames through camd's TDI engine, the
     noise each column's lines spread by (``along_track_snr``'s noise: fixed pattern drops
     out). Also the model: M independent stages, ``sigma_1 / sqrt(M)`` in mean mode
@@ -100,7 +100,7 @@ def scan_periodic_psnr(
     inputs: Inputs, *, period: int, black_dn: float = 0.0, bright_fraction: float = 1.0
 ) -> Results:
     """PSNR of a TDI scan of a textured (natural) scene that repeats every ``period`` lines
-    (physics.md §5, TAO12 §5.1): ``mean`` is the scene's mean above black, ``sigma`` the
+    (docs/physics.md §5, TAO12 §5.1): ``mean`` is the scene's mean above black, ``sigma`` the
     temporal noise (the spread of lines one scene period apart, which see the same scene:
     ``camd.analysis.tdi_snr.periodic_snr``), ``psnr_db`` = 20 lg(mean / sigma). The scene's
     own texture is not noise, so it is kept out of sigma. Input ``scan`` (at least two scene
@@ -128,7 +128,7 @@ def snr_model_compare(
     noise_dn: list[float],
     sigma_ad_dn: float = QUANTISATION_SIGMA_DN,
 ) -> Results:
-    """The three SNR-versus-M models of physics.md §5 (TAO12 eq 28, sqrt(M), quadrature) for
+    """The three SNR-versus-M models of docs/physics.md §5 (TAO12 eq 28, sqrt(M), quadrature) for
     one condition, from its measured M = 1 point: ``SNR_1``, the signal, and the sensor noise
     ``sigma_CMOS = sqrt(noise^2 - sigma_AD^2)`` (``sensor_sigma_dn``; ``sigma_AD`` the
     quantisation of one output conversion). Results (lists over ``stages``): ``tao12_db``,
@@ -189,7 +189,7 @@ def snr_model_summary(
     quadrature_db: list[list[float]],
     conditions: list[Any] | None = None,
 ) -> Results:
-    """Every condition of a sweep together (physics.md §5): ``model_db`` {model: [per
+    """Every condition of a sweep together (docs/physics.md §5): ``model_db`` {model: [per
     condition [per M]]}, ``overall_rms_db`` {model: RMS of measured - model over every point,
     dB}, ``best_model`` (the smallest RMS: which model the camera follows) and its
     ``best_rms_db``; ``stages``; and ``condition_names`` (each condition's ``name``, or its

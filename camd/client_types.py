@@ -1,0 +1,730 @@
+# Generated from camd/daemon/models.py by `python -m camd.daemon.client_types_gen`: do not edit.
+"""The JSON documents of the camd HTTP API as TypedDicts: the shapes ``camd.client`` returns.
+
+Generated from the pydantic models of camd/daemon/models.py (the bodies the daemon publishes in
+/openapi.json) by ``python -m camd.daemon.client_types_gen``: to change a shape, change the
+model and run that command (tests/test_client_types.py fails while this file is stale).
+
+One TypedDict per response model and per model nested in one, named after the model. Its keys
+are the JSON keys the API emits; every key is always present, with null where the model allows
+None. JSON has no tuples, so a model's ``tuple[...]`` is a ``list`` here. The module imports
+nothing of camd, so a script can type the client's answers without loading the daemon.
+"""
+
+from __future__ import annotations
+
+from typing import Literal, TypedDict
+
+
+class ErrorResponse(TypedDict):
+    """The body of every error response."""
+
+    # what went wrong and what to change
+    error: str
+    # bad_request, unauthorized, not_in_control, illegal_state, busy, link_untrained, device_nak,
+    # disconnected, timeout, internal
+    code: str
+
+
+class LinkInfo(TypedDict):
+    """The link part of the status."""
+
+    # serial device, pyserial URL, or the simulator's pty link
+    port: str
+    connected: bool
+    # why the port is not open
+    last_error: str | None
+    # pid of the simulator this daemon spawned, while it runs
+    sim_pid: int | None
+
+
+class DeviceStatus(TypedDict):
+    """GET_STATUS fields, as the device reported them."""
+
+    mode: Literal["area", "tdi"]
+    device_state: Literal["idle", "busy", "fault"]
+    # error code of the active fault, 0 if none
+    fault_code: int
+    # time since power-on or RESET
+    uptime_s: float
+    # firmware version, major * 256 + minor
+    fw_version: int
+    boot_count: int
+
+
+class DaemonInfo(TypedDict):
+    """The daemon process."""
+
+    version: str
+    pid: int
+    uptime_s: float
+
+
+class ControlInfo(TypedDict):
+    """Who holds control of the camera (docs/api.md#control)."""
+
+    # the controlling client; null: nobody holds control
+    holder: str | None
+    # Unix time the holder took control
+    since_t_s: float | None
+    # 'lease' (taken with POST /api/v1/control), or the acquisition it started
+    why: str | None
+    # Unix time the lease ends unless renewed; null while an acquisition holds it
+    expires_t_s: float | None
+    # the client name this request was made under (X-Camd-Client)
+    you: str
+
+
+class AcquisitionInfo(TypedDict):
+    """The acquisition slot's current or last acquisition."""
+
+    kind: Literal["scan", "stare", "stream", "wheel"]
+    description: str
+    # who started it ('' for the daemon itself)
+    client: str
+    started_t_s: float
+    # null while it runs
+    ended_t_s: float | None
+    running: bool
+
+
+class StatusResponse(TypedDict):
+    """GET /api/v1/status and POST /api/v1/reset."""
+
+    state: Literal["disconnected", "idle", "streaming", "fault"]
+    # why the daemon is in this state (null when idle)
+    reason: str | None
+    # imaging mode last known, null before first contact
+    mode: Literal["area", "tdi"] | None
+    link: LinkInfo
+    # null when the device cannot be asked
+    device: DeviceStatus | None
+    daemon: DaemonInfo
+    control: ControlInfo
+    # the running acquisition, or the last started one (null before the first)
+    acquisition: AcquisitionInfo | None
+
+
+class EstopResponse(TypedDict):
+    """POST /api/v1/estop: what the emergency stop did."""
+
+    # what was stopped (acquisition, stage, wheel)
+    stopped: list[str]
+    # what could not be stopped, with why
+    failed: list[str]
+
+
+class RttMs(TypedDict):
+    """Round-trip times of the successful PINGs, milliseconds (null if none succeeded)."""
+
+    p50: float | None
+    p99: float | None
+    max: float | None
+
+
+class PingResponse(TypedDict):
+    """POST /api/v1/ping."""
+
+    count: int
+    ok: int
+    failed: int
+    # re-sends needed, summed over all PINGs
+    retries: int
+    rtt_ms: RttMs
+    # up to 5 distinct failure reasons
+    errors: list[str]
+
+
+class DeviceLinkStats(TypedDict):
+    """GET_LINK_STATS fields, plus the simulator's injected faults (null on hardware)."""
+
+    rx_frames: int
+    crc_errors: int
+    resyncs: int
+    bytes_dropped: int
+    executed: int
+    replayed: int
+    nacked: int
+    tx_frames: int
+    injected: dict[str, int] | None
+
+
+class LinkResponse(TypedDict):
+    """GET /api/v1/link."""
+
+    # host-side link counters
+    host: dict[str, int]
+    # null when the device cannot be asked
+    device: DeviceLinkStats | None
+
+
+class ChannelLatest(TypedDict):
+    """The newest sample of one channel."""
+
+    value: float
+    unit: str
+    # Unix time of the sample, seconds
+    t_s: float
+    limit: Literal["ok", "yellow", "red"]
+
+
+class TelemetryResponse(TypedDict):
+    """GET /api/v1/telemetry."""
+
+    latest: dict[str, ChannelLatest]
+    # samples in the archive
+    samples: int
+    # path of the SQLite archive
+    archive: str
+
+
+class HistoryResponse(TypedDict):
+    """GET /api/v1/telemetry/history."""
+
+    channel: str
+    unit: str
+    t_s: list[float]
+    value: list[float]
+
+
+class EventItem(TypedDict):
+    """One event."""
+
+    t_s: float
+    level: Literal["info", "warning", "error"]
+    source: str
+    message: str
+
+
+class EventsResponse(TypedDict):
+    """GET /api/v1/events."""
+
+    # newest last
+    events: list[EventItem]
+
+
+class ModeResponse(TypedDict):
+    """POST /api/v1/mode."""
+
+    mode: Literal["area", "tdi"]
+
+
+class RegisterReading(TypedDict):
+    """One register as read: raw value and its fields (enum fields by name)."""
+
+    name: str
+    address: int
+    value: int
+    fields: dict[str, int | str]
+
+
+class RegistersResponse(TypedDict):
+    """GET /api/v1/registers: every register of the map, in address order."""
+
+    sensor: str
+    bridge: str
+    registers: list[RegisterReading]
+
+
+class RegisterWriteResponse(TypedDict):
+    """The registers written, as read back after the write (verified where the map allows)."""
+
+    sensor: str
+    written: list[RegisterReading]
+
+
+class RegisterDifference(TypedDict):
+    """The ``RegisterDifference`` document (its model has no docstring)."""
+
+    name: str
+    address: int
+    expected: int
+    actual: int
+
+
+class RegisterDiffResponse(TypedDict):
+    """The ``RegisterDiffResponse`` document (its model has no docstring)."""
+
+    sensor: str
+    against: str
+    differences: list[RegisterDifference]
+
+
+class RegisterConfig(TypedDict):
+    """A whole sensor configuration: the configurable (RW/WO, non-volatile) registers."""
+
+    sensor: str
+    registers: dict[str, int]
+
+
+class TimingResponse(TypedDict):
+    """GET /api/v1/timing: the sensor timing its registers set (docs/physics.md §2, §3)."""
+
+    sensor: str
+    line_period_s: float
+    window_start_row: int
+    window_rows: int
+    exposure_lines: int
+    exposure_s: float
+    frame_time_s: float
+    frame_period_s: float
+    back_path_s: float
+    tdi_line_period_s: float
+    max_stages: int
+    gain: int | str | None
+    offset: int | str | None
+    readout_mode: int | str | None
+    test_pattern: int | str | None
+
+
+class LaneResult(TypedDict):
+    """The ``LaneResult`` document (its model has no docstring)."""
+
+    lane: int
+    tap: int
+    eye_width: int
+    slips: int
+    shift: int
+    locked: bool
+
+
+class TrainResponse(TypedDict):
+    """POST/GET /api/v1/train: the last LVDS link training."""
+
+    sensor: str
+    interface: str
+    # locked on every lane and the PRBS check error-free
+    trained: bool
+    lanes: int
+    locked_lanes: int
+    locked: bool
+    bit_errors: int
+    verified_bits: int
+    lane_results: list[LaneResult]
+    # Unix time of the training; None if never trained
+    t_s: float | None
+
+
+class StreamStats(TypedDict):
+    """The host side of the stream: what the reader received and delivered."""
+
+    # frames delivered to consumers, valid and in order
+    frames: int
+    # bytes of delivered frames, headers included
+    bytes: int
+    # frames never received (gaps in the frame counter)
+    lost: int
+    # frames with a bad header or payload CRC, discarded
+    corrupt: int
+    # frames cut short by the device, discarded
+    short: int
+    # frames dropped because the queue to consumers was full
+    overruns: int
+    # endpoint stalls cleared
+    stalls: int
+    # bulk reads that timed out
+    timeouts: int
+    # frames whose counter went backwards, discarded
+    out_of_order: int
+    # from the first to the last frame received
+    elapsed_s: float
+    # delivered pixel rate
+    mpix_per_s: float
+    # delivered byte rate, 1 MB = 1e6 bytes
+    mbyte_per_s: float
+
+
+class StreamResponse(TypedDict):
+    """GET /api/v1/stream, and the answer of /stream/start, /stop and /acquire."""
+
+    streaming: bool
+    # mode of the current or last stream
+    mode: Literal["area", "tdi"] | None
+    # rows per frame (after binning)
+    rows: int
+    # columns per frame (after binning)
+    cols: int
+    # significant bits per pixel
+    bits: int
+    # TDI stage count in the frame headers (0 in area mode)
+    stages: int
+    binning: Literal["off", "2x2"]
+    # frame period = TDI line period
+    frame_period_s: float
+    # 0 = until stopped
+    frames_requested: int
+    first_counter: int
+    # frames the device says it produced, once ended
+    frames_sent: int | None
+    # HDF5 file being (or last) recorded
+    recording: str | None
+    stats: StreamStats
+
+
+class StageResponse(TypedDict):
+    """The ``StageResponse`` document (its model has no docstring)."""
+
+    speed_m_s: float
+    sync_speed_m_s: float
+    track: bool
+
+
+class SimStreamStats(TypedDict):
+    """GET /api/v1/sim/stream: what the simulated camera's stream engine did and injected."""
+
+    produced: int
+    sent: int
+    dropped: int
+    corrupted: int
+    shortened: int
+    stalls: int
+    undelivered: int
+
+
+class ScanTiming(TypedDict):
+    """The timing a scan runs at (docs/physics.md §2 eqs 5-9, 13)."""
+
+    # T_line,TDI: the frame period the registers set
+    tdi_line_period_s: float
+    # T_line,roll: the sensor's row time
+    row_period_s: float
+    # window rows, eq 8
+    n_lines: int
+    # T_back, eq 9
+    back_path_s: float
+    # M0 = n_lines, eq 13
+    max_stages: int
+    exposure_s: float
+    # stage speed that moves the image one row a period
+    sync_speed_m_s: float
+    # the stage speed the scan runs at (null: not known to camd)
+    stage_speed_m_s: float | None
+    # (V - V_m) / V, docs/physics.md §6; null if unknown
+    dv_over_v: float | None
+
+
+class ScanMotionInfo(TypedDict):
+    """How a scan drove the stage (docs/motion.md)."""
+
+    # off, step_rate or line_period
+    closed_loop: str
+    # signed speed the stage was commanded: sync x (1 - dv_over_v)
+    stage_speed_m_s: float
+    # the speed the closed loop held
+    target_speed_m_s: float
+    # closed-loop polls recorded
+    loop_samples: int
+    # why the loop stopped early, if it did
+    loop_error: str | None
+    # line-period correction hit n_lines = M (it could not shorten further)
+    line_period_limited: bool
+
+
+class ScanResponse(TypedDict):
+    """GET /api/v1/scan, and the answer of /scan/start, /stop and /stages."""
+
+    state: Literal["none", "starting", "running", "done", "stopped", "failed"]
+    # the HDF5 file of the current or last scan
+    file: str | None
+    # its PNG quicklook, once written
+    quicklook: str | None
+    # M now
+    stages: int
+    # complete lines asked for; 0 = until stopped
+    lines_wanted: int
+    frames_requested: int
+    # TDI lines recorded so far
+    lines: int
+    # lines with all M stages from consecutive frames
+    complete_lines: int
+    # frames the stream never delivered
+    lost_frames: int
+    # [line index, stages] for the start and every change
+    stage_changes: list[list[int]]
+    mode: Literal["sum", "mean"]
+    width: int
+    elapsed_s: float
+    lines_per_s: float
+    # the daemon's CPU time over the scan's wall time (1.0 = one core busy)
+    cpu_load: float
+    # CPU time of the TDI worker thread
+    tdi_cpu_s: float
+    # frames received but not yet through the engine
+    backlog_frames: int
+    timing: ScanTiming | None
+    # why the scan failed, if it did
+    error: str | None
+    stream: StreamStats
+    # largest M |dV/V| of a line (pixels of smear; docs/physics.md §6), from the encoder counts in
+    # the frame headers; null without encoder data
+    mismatch_max: float | None
+    # RMS of M dV/V over the scan's lines
+    mismatch_rms: float | None
+    # ok, yellow or red: the worst level reached
+    mismatch_level: str
+    # the stage's part of the scan, if driven
+    motion: ScanMotionInfo | None
+
+
+class StageReadingModel(TypedDict):
+    """The scan stage at one device time (SI: m, m/s)."""
+
+    # disabled, idle, ramping, running, moving, homing, estop
+    state: str
+    homed: bool
+    # commanded position (step count)
+    position_m: float
+    # measured position (encoder)
+    encoder_m: float
+    # commanded speed now, ramps included
+    speed_m_s: float
+    # the encoder's speed over the last 10 ms
+    encoder_speed_m_s: float
+    # none, low or high: a soft limit the stage stands at
+    at_limit: str
+    # device time of the sample
+    time_s: float
+
+
+class StageLimitsModel(TypedDict):
+    """Soft travel limits, speed limit and ramp acceleration in force."""
+
+    low_m: float
+    high_m: float
+    max_speed_m_s: float
+    accel_m_s2: float
+
+
+class MotionStatus(TypedDict):
+    """GET /api/v1/motion: the stage, its limits and the synchronisation settings."""
+
+    # config/stages/<profile>.toml
+    profile: str
+    # linear or turntable
+    kind: str
+    reading: StageReadingModel
+    limits: StageLimitsModel
+    # what a scan's closed loop trims, or off
+    closed_loop: str
+    # M |dV/V| yellow limit
+    yellow: float
+    # M |dV/V| red limit
+    red: float
+
+
+class SyncResponse(TypedDict):
+    """GET /api/v1/motion/sync: the open-loop synchronisation (docs/physics.md §2 eqs 5-9, 13; §6)."""
+
+    # TDI line period
+    line_period_s: float
+    # rolling line period T_line,roll (eq 4)
+    row_time_s: float
+    # window rows (eq 8)
+    n_lines: int
+    # back path (eq 9)
+    back_path_s: float
+    # largest stage count (eq 13)
+    m0: int
+    # M
+    stages: int
+    # synchronous stage speed, m/s (§6 eq 9)
+    sync_speed: float
+    # stepper rate for it, microsteps/s
+    step_rate_hz: float
+    # mismatch of the stage speed given, (V - V_m)/V
+    dv_over_v: float
+    # M dV/V: smear over M stages, pixels
+    m_dv_over_v: float
+    # image speed on the focal plane at sync speed
+    image_speed_m_s: float
+    # the stage speed the mismatch is for
+    stage_speed_m_s: float
+    stage_profile: str
+    # focal-plane metres per metre of stage travel
+    image_scale: float
+    # pitch on the focal plane (doubled when binned)
+    pixel_pitch_m: float
+    # turntable only: table speed for the line period (eq 5)
+    angular_velocity_rad_s: float | None
+    # |M dV/V| within the yellow limit
+    tolerance_ok: bool
+
+
+class SimStageTruth(TypedDict):
+    """GET /api/v1/sim/stage/truth: what the simulated stage really does."""
+
+    position_m: float
+    velocity_m_s: float
+    missed_steps: int
+    time_s: float
+
+
+class StageRequest(TypedDict):
+    """PUT /api/v1/sim/stage."""
+
+    # follow the synchronous speed
+    track: bool
+    # speed when not tracking
+    speed_m_s: float
+
+
+class SimStageFaultsRequest(TypedDict):
+    """PUT /api/v1/sim/stage/faults: the simulated stage's imperfections."""
+
+    # relative step-rate error
+    error: float
+    # relative ripple amplitude
+    ripple: float
+    # relative RMS speed jitter
+    jitter: float
+    # relative drift per second
+    drift: float
+    # load / pull-out torque
+    load: float
+
+
+class SimSettings(TypedDict):
+    """GET /api/v1/sim: what this daemon last set on the simulated camera (the simulator cannot be
+    asked), so that a client can put it back."""
+
+    # false on real hardware (every sim request is refused)
+    available: bool
+    # the scene spec in front of the camera
+    scene: str
+    # the ideal scan stage: track, or a speed
+    ideal_stage: StageRequest
+    # reference polariser axis; null: out
+    polarizer_deg: float | None
+    # the stepper stage's imperfections
+    stage_faults: SimStageFaultsRequest
+
+
+class WheelChannelInfo(TypedDict):
+    """One channel of the wheel (config/wheel.toml)."""
+
+    # index, 0 .. channel_count - 1
+    channel: int
+    name: str
+    band: str
+    # wheel angle of the channel centre
+    centre_deg: float
+    # transmission axis of its polariser when centred; null: no polariser
+    polarizer_deg: float | None
+
+
+class WheelExposureInfo(TypedDict):
+    """camd's computation for one exposure through the wheel (docs/physics.md §4 eqs 1, 4-6, 8)."""
+
+    # T_exp = n T_line
+    exposure_s: float
+    # n
+    exposure_lines: int
+    # k
+    window_rows: int
+    # T_line
+    line_period_s: float
+    # T_frame = (n + k + 1) T_line (eq 6)
+    frame_time_s: float
+    # T_delay = T_center - T_frame / 2 (eq 5), negative when it cannot be centred
+    delay_s: float
+    # whether the delay is applied
+    compensated: bool
+    # the frame fits the light window (and T_delay >= 0 if on)
+    fits: bool
+    # why it does not fit, with the numbers; else null
+    refusal: str | None
+    # delay waited after each entry pulse: T_delay on, 0 off; null if no fit
+    applied_delay_s: float | None
+    # imaging centre minus channel centre (eq 4; eq 1 without compensation)
+    centre_offset_deg: float | None
+    # its uncertainty (eq 8)
+    centre_error_deg: float | None
+
+
+class WheelStatus(TypedDict):
+    """GET /api/v1/wheel and the answers of PUT /wheel/speed and /wheel/compensation."""
+
+    # config/wheel.toml's wheel name
+    wheel: str
+    # angular speed now (0: stopped)
+    speed_deg_s: float
+    # the wheel file's w, for which T_center holds
+    nominal_speed_deg_s: float
+    # time per revolution; null when stopped
+    period_s: float | None
+    # wheel angle from channel 0's centre, 0 .. 360
+    angle_deg: float
+    # channel whose light window is in front; else null
+    channel: int | None
+    # exposure delay compensation on
+    compensation: bool
+    # entry pulse to channel centre
+    t_center_s: float
+    # light window of a channel
+    window_s: float
+    # T_frame as the FPGA computes it
+    device_frame_time_s: float
+    # T_delay as the FPGA computes it
+    device_delay_s: float
+    # camd's numbers for the registers now
+    exposure: WheelExposureInfo
+    channels: list[WheelChannelInfo]
+    # device time of the reading
+    time_s: float
+
+
+class WheelFrame(TypedDict):
+    """One frame of a wheel acquisition."""
+
+    # frame counter
+    counter: int
+    channel: int
+    # channel name
+    name: str
+    # wheel angle at the exposure start, from the frame header (1e-4 deg)
+    start_angle_deg: float
+    # predicted imaging-centre angle: channel centre + centre_offset_deg
+    centre_deg: float
+    # imaging centre minus channel centre (eq 4)
+    centre_offset_deg: float
+    # uncertainty of the imaging centre (eq 8)
+    centre_error_deg: float
+    # imaging centre from the header: start angle + w T_frame / 2
+    header_centre_deg: float
+    # mean signal of the frame (or region), DN
+    mean: float
+    # device time at the end of row 0's exposure
+    timestamp_s: float
+
+
+class WheelRegion(TypedDict):
+    """A rectangle of the frame whose mean is reported (rows and columns from 0)."""
+
+    # first row
+    row: int
+    # rows
+    rows: int
+    # first column
+    col: int
+    # columns
+    cols: int
+
+
+class WheelAcquireResponse(TypedDict):
+    """POST /api/v1/wheel/acquire: per frame, where it was taken and its mean signal."""
+
+    channels: list[int]
+    passes: int
+    # wheel speed during the acquisition
+    speed_deg_s: float
+    # the exposure the frames were taken with
+    exposure: WheelExposureInfo
+    # T_frame as the FPGA computes it (WHEEL_GET after the frames; null if unread)
+    device_frame_time_s: float | None
+    # delay the FPGA applies after each entry pulse (0 with compensation off)
+    device_delay_s: float | None
+    region: WheelRegion | None
+    # the frames received, in order
+    frames: list[WheelFrame]
+    # the stream document: counters, recording
+    stream: StreamResponse

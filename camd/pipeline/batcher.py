@@ -1,0 +1,115 @@
+"""The stream consumer of a scan: frames copied into batches, queued for the TDI worker.
+
+``Batcher`` is added to the frame stream's consumers and so runs on its dispatcher thread: it
+copies each frame into a batch buffer (no per-frame thread hand-off; the frame's pixels are
+only valid during the callback) and queues ``camd.pipeline.messages`` for the worker. Lost
+frames (``ReceivedFrame.gap_before``), frames of the wrong geometry and a pending change of M
+end the current batch and are queued as markers between batches, so the worker sees
+everything in stream order.
+"""
+
+from __future__ import annotations
+
+import queue
+import threading
+import time
+
+import numpy as np
+import numpy.typing as npt
+
+from camd.link.frame_stream import ReceivedFrame
+from camd.pipeline.messages import Batch, Gap, Message, StageChange
+
+BATCH_BYTES = 16 << 20  # frames per batch: about this many bytes, so one push_many amortises
+MAX_BATCH_FRAMES = 512
+BATCH_BUFFERS = 4  # batches in flight between the consumer and the worker
+BATCH_MAX_AGE_S = 0.1  # a partial batch older than this goes to the engine (progress, latency)
+CONSUMER_WAIT_S = 5.0  # longest the consumer waits for a free batch before giving up a frame
+
+
+class Batcher:
+    """The stream consumer: copies frames into batches and queues them for the worker.
+
+    ``rows`` x ``cols`` is the frame the engine needs; a frame with more rows (the line period
+    loop trimmed the window) gives its first ``rows``, a smaller or narrower one is dropped and
+    counted as a gap. ``frames`` counts the frames batched, ``dropped`` those given up.
+    """
+
+    def __init__(self, rows: int, cols: int, work: queue.Queue[Message]) -> None:
+        self.rows, self.cols = rows, cols
+        self.batch_frames = max(1, min(MAX_BATCH_FRAMES, BATCH_BYTES // (2 * rows * cols)))
+        self._free: queue.Queue[npt.NDArray[np.uint16]] = queue.Queue()
+        for _ in range(BATCH_BUFFERS):
+            self._free.put(np.empty((self.batch_frames, rows, cols), dtype=np.uint16))
+        self._work = work
+        self._lock = threading.Lock()
+        self._buf: npt.NDArray[np.uint16] | None = None
+        self._counters = np.zeros(self.batch_frames, dtype=np.uint32)
+        self._encoder = np.zeros(self.batch_frames, dtype=np.int32)
+        self._n = 0
+        self._since = 0.0
+        self._pending_stages: int | None = None
+        self.frames = 0
+        self.dropped = 0
+
+    @property
+    def pending_stages(self) -> int | None:
+        """The M asked for and not yet reached by a frame (None: none pending)."""
+        return self._pending_stages
+
+    def request_stages(self, stages: int) -> None:
+        """Change M at the next frame this consumer sees (the latest request wins)."""
+        with self._lock:
+            self._pending_stages = stages
+
+    def recycle(self, buf: npt.NDArray[np.uint16]) -> None:
+        """Hand back a batch's buffer once the engine has read it."""
+        self._free.put(buf)
+
+    def __call__(self, frame: ReceivedFrame) -> None:
+        with self._lock:
+            if frame.gap_before:
+                self._flush()
+                self._work.put(Gap(int(frame.gap_before)))
+            if self._pending_stages is not None:
+                self._flush()
+                self._work.put(StageChange(self._pending_stages))
+                self._pending_stages = None
+            pixels = frame.pixels
+            if pixels.shape[0] < self.rows or pixels.shape[1] != self.cols:
+                # Not this scan's geometry: the engine cannot use it; the line is lost.
+                self._drop()
+                return
+            if self._buf is None:
+                try:
+                    self._buf = self._free.get(timeout=CONSUMER_WAIT_S)
+                except queue.Empty:
+                    # The worker is this far behind: give the frame up rather than stall the
+                    # stream's dispatcher (and with it the USB reader) any longer.
+                    self._drop()
+                    return
+                self._since = time.monotonic()
+            self._buf[self._n] = pixels[: self.rows]
+            self._counters[self._n] = frame.header.counter
+            self._encoder[self._n] = frame.header.stage_position
+            self._n += 1
+            self.frames += 1
+            if self._n == self.batch_frames or time.monotonic() - self._since > BATCH_MAX_AGE_S:
+                self._flush()
+
+    def flush(self) -> None:
+        """Queue the partial batch now (the stream has ended)."""
+        with self._lock:
+            self._flush()
+
+    def _drop(self) -> None:
+        self._flush()
+        self._work.put(Gap(1))
+        self.dropped += 1
+
+    def _flush(self) -> None:
+        if self._buf is None or self._n == 0:
+            return
+        n = self._n
+        self._work.put(Batch(self._buf, n, self._counters[:n].copy(), self._encoder[:n].copy()))
+        self._buf, self._n = None, 0
