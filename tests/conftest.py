@@ -9,6 +9,9 @@ from collections.abc import Iterator
 import pytest
 from hypothesis import settings
 
+# The browser fixtures (``browser``, ``page``) for the tests of the pages the daemon serves.
+pytest_plugins = ["tests.browser"]
+
 # No per-example deadline: CI machines are slow and shared; a slow example is not a failure.
 settings.register_profile("camd", deadline=None)
 settings.load_profile("camd")

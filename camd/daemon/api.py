@@ -15,13 +15,16 @@ from typing import Any
 
 from fastapi import Depends, FastAPI, Header, Query, Request
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import JSONResponse, Response
+from fastapi.openapi.docs import get_swagger_ui_html
+from fastapi.responses import HTMLResponse, JSONResponse, Response
+from fastapi.staticfiles import StaticFiles
 from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metric
 from prometheus_client.registry import Collector, CollectorRegistry
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 import camd
+from camd import web
 from camd.daemon.acquisition import acting_as
 from camd.daemon.control import ANONYMOUS
 from camd.daemon.errors import (
@@ -243,7 +246,23 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
         version=camd.__version__,
         description="Control daemon of a digital-TDI push-broom camera (docs/api.md).",
         responses=_ERROR_RESPONSES,
+        # FastAPI's own /docs and /redoc load their scripts from a CDN: blank on an offline
+        # test PC. /docs is served below from the Swagger UI shipped in camd.web.
+        docs_url=None,
+        redoc_url=None,
     )
+    app.mount("/static", StaticFiles(directory=web.STATIC_DIR), name="static")
+
+    @app.get("/docs", include_in_schema=False)
+    def swagger_ui() -> HTMLResponse:
+        return get_swagger_ui_html(
+            openapi_url=app.openapi_url or "/openapi.json",
+            title="camd API",
+            swagger_js_url=f"{web.SWAGGER_UI_URL}/swagger-ui-bundle.js",
+            swagger_css_url=f"{web.SWAGGER_UI_URL}/swagger-ui.css",
+            swagger_favicon_url=f"{web.SWAGGER_UI_URL}/favicon-32x32.png",
+        )
+
     registry = CollectorRegistry(auto_describe=False)
     registry.register(_SessionCollector(session))
 
