@@ -20,6 +20,8 @@ from typing import Any, TypeVar, cast
 
 import httpx
 import pytest
+from websockets.exceptions import InvalidStatus
+from websockets.sync.client import connect as ws_connect
 
 REPO = Path(__file__).resolve().parent.parent
 API = "/api/v1"
@@ -371,6 +373,20 @@ def test_token_required_when_configured(tmp_path: Path) -> None:
         good = {"Authorization": "Bearer s3cret"}
         assert d.get(f"{API}/status", headers=good).status_code == 200
         assert d.get("/metrics", headers=good).status_code == 200
+        # The pages and their files follow the same rule.
+        error_of(d.get("/docs"), 401, "unauthorized")
+        error_of(d.get("/static/vendor/swagger-ui/swagger-ui.css"), 401, "unauthorized")
+        assert d.get("/docs", headers=good).status_code == 200
+        # A browser's WebSocket cannot send headers: the token comes as ?token=.
+        ws = d.url.replace("http://", "ws://") + f"{API}/live/ws"
+        for refused in (ws, ws + "?token=wrong"):
+            with pytest.raises(InvalidStatus) as info, ws_connect(refused, open_timeout=10):
+                pass
+            assert info.value.response.status_code == 403
+        with ws_connect(ws + "?token=s3cret", open_timeout=10):
+            pass
+        with ws_connect(ws, additional_headers=good, open_timeout=10):
+            pass
     finally:
         d.stop()
 

@@ -8,12 +8,15 @@ parameter and its allowed values.
 
 from __future__ import annotations
 
+import contextlib
 import hmac
+import json
 import logging
 from collections.abc import Awaitable, Callable, Iterable
 from typing import Any
 
-from fastapi import Depends, FastAPI, Header, Query, Request
+import anyio
+from fastapi import Depends, FastAPI, Header, Query, Request, WebSocket, WebSocketDisconnect
 from fastapi.exceptions import RequestValidationError
 from fastapi.openapi.docs import get_swagger_ui_html
 from fastapi.responses import HTMLResponse, JSONResponse, Response
@@ -127,6 +130,12 @@ def client_name(header: str | None) -> str:
         return ANONYMOUS
     name = "".join(ch for ch in header if ch.isprintable()).strip()[:CLIENT_NAME_MAX]
     return name or ANONYMOUS
+
+
+LIVE_WAIT_MAX_S = 5.0
+"""Longest a live-frame request waits for a newer frame (no call blocks for long)."""
+LIVE_POLL_S = 1.0  # a WebSocket viewer's wait for the next frame, between checks
+WS_POLICY_VIOLATION = 1008  # the WebSocket close code for a refused token
 
 
 def error_response(status: int, code: str, message: str) -> JSONResponse:
@@ -283,17 +292,26 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
 
         return check
 
+    def token_ok(header: str, query_token: str | None = None) -> bool:
+        """The request carries the daemon's token: ``Authorization: Bearer <token>``, or (for a
+        WebSocket, which a browser cannot give headers) ``?token=<token>``."""
+        scheme, _, given = header.partition(" ")
+        if scheme.lower() == "bearer":
+            candidate = given.strip()
+        elif query_token is not None:
+            candidate = query_token
+        else:
+            return False
+        # compare_digest: the time taken must not reveal how much of a guess was right.
+        return hmac.compare_digest(candidate.encode(), token.encode())
+
     @app.middleware("http")
     async def check_token(
         request: Request, call_next: Callable[[Request], Awaitable[Response]]
     ) -> Response:
         if token:
             header = request.headers.get("authorization", "")
-            scheme, _, given = header.partition(" ")
-            # compare_digest: the time taken must not reveal how much of a guess was right.
-            if scheme.lower() != "bearer" or not hmac.compare_digest(
-                given.strip().encode(), token.encode()
-            ):
+            if not token_ok(header):
                 what = "wrong token" if header else "no token"
                 response = error_response(
                     401,
@@ -401,6 +419,77 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
     ) -> EventsResponse:
         """Recent events (link, device, limits, state changes), newest last."""
         return session.events(limit)
+
+    @app.get(
+        f"{API}/live/frame",
+        tags=["live"],
+        response_class=Response,
+        responses={200: {"content": {"application/octet-stream": {}}}},
+    )
+    def get_live_frame(
+        after: int = Query(
+            default=0, ge=0, description="wait for a frame newer than this seq (0: the newest)"
+        ),
+        timeout_s: float = Query(
+            default=LIVE_WAIT_MAX_S, gt=0, le=LIVE_WAIT_MAX_S, description="longest wait, s"
+        ),
+    ) -> Response:
+        """The live view's newest frame (at most 20 a second are kept, whatever streams):
+        raw pixels, little-endian uint16, row by row; the header ``X-Camd-Frame`` holds its
+        JSON description (seq, counter, timestamp_ns, mode, stages, rows, cols, skipped,
+        gap_before, dtype). Reading never needs control. 404 if no frame newer than ``after``
+        came within ``timeout_s``."""
+        frame = session.live.latest() if after == 0 else session.live.wait_newer(after, timeout_s)
+        if frame is None:
+            newer = f" newer than seq {after} within {timeout_s:g} s" if after else " yet"
+            return error_response(
+                404,
+                "no_frame",
+                f"no live frame{newer}: the live view shows frames while something streams; "
+                "start a stream (`camctl stream --frames 100`), a stare or a scan",
+            )
+        return Response(
+            content=frame.pixels.astype("<u2", copy=False).tobytes(),
+            media_type="application/octet-stream",
+            headers={"X-Camd-Frame": json.dumps(frame.meta()), "Cache-Control": "no-store"},
+        )
+
+    @app.websocket(f"{API}/live/ws")
+    async def live_ws(websocket: WebSocket) -> None:
+        """The live view pushed: for each frame the tap keeps (at most 20 a second), a text
+        message with its JSON description (as ``X-Camd-Frame``) then a binary one with its
+        pixels. A slow viewer gets fewer frames (always the newest), never a backlog, and
+        never slows the acquisition. With a token: ``?token=`` or the Authorization header."""
+        if token and not token_ok(
+            websocket.headers.get("authorization", ""), websocket.query_params.get("token")
+        ):
+            await websocket.close(code=WS_POLICY_VIOLATION, reason="no or wrong token")
+            return
+        await websocket.accept()
+        live = session.live
+
+        async def watch_for_close(scope: anyio.CancelScope) -> None:
+            # A viewer that goes away is noticed at once, not at the next frame.
+            with contextlib.suppress(WebSocketDisconnect):
+                while (await websocket.receive())["type"] != "websocket.disconnect":
+                    pass
+            scope.cancel()
+
+        async with anyio.create_task_group() as group:
+            group.start_soon(watch_for_close, group.cancel_scope)
+            seq = 0
+            try:
+                while True:
+                    frame = await anyio.to_thread.run_sync(
+                        live.wait_newer, seq, LIVE_POLL_S, abandon_on_cancel=True
+                    )
+                    if frame is None:
+                        continue
+                    seq = frame.seq
+                    await websocket.send_text(json.dumps(frame.meta()))
+                    await websocket.send_bytes(frame.pixels.astype("<u2", copy=False).tobytes())
+            except (WebSocketDisconnect, RuntimeError):  # gone between two frames
+                group.cancel_scope.cancel()
 
     @app.post(f"{API}/mode", response_model=ModeResponse, tags=["control"])
     def post_mode(

@@ -77,6 +77,7 @@ from camd.link import (
     Response,
     Unsolicited,
 )
+from camd.pipeline.live import LiveTap
 from camd.protocol import Dictionary, FrameType, load_dictionary
 from camd.protocol.dictionary import FieldValue
 
@@ -122,6 +123,9 @@ class DeviceSession:
         self.stream = StreamService(
             device, self.sensor, lambda: backends.frame_stream_backend(config)
         )
+        # The live view's tap stays on every stream (stare, stream, scan, wheel).
+        self.live = LiveTap()
+        self.stream.add_consumer(self.live)
         self.motion = MotionService(device, self.sensor)
         self.scan = ScanService(device, self.sensor, self.stream, self.motion, self.sim)
         self.wheel = WheelService(device, self.sensor, self.stream)
