@@ -25,11 +25,12 @@ import socket
 import threading
 import time
 from collections.abc import Iterator
-from typing import Any, cast
+from typing import TYPE_CHECKING, Any, cast
 
 import httpx
 
 from camd.client_types import (
+    BackgroundStatus,
     ControlInfo,
     EstopResponse,
     EventsResponse,
@@ -58,6 +59,10 @@ from camd.client_types import (
     WheelRegion,
     WheelStatus,
 )
+
+if TYPE_CHECKING:
+    import numpy as np
+    import numpy.typing as npt
 
 __all__ = [
     "DEFAULT_URL",
@@ -316,6 +321,52 @@ class CamdClient:
         """Stop the stream (harmless when not streaming)."""
         return cast(StreamResponse, self._json("POST", f"{API}/stream/stop"))
 
+    # -- the live view's background ------------------------------------------------------------
+
+    def capture_background(self, frames: int = 16) -> BackgroundStatus:
+        """Start averaging the next ``frames`` (1..1000) frames of the running stream into the
+        live view's background and return at once; ``background()`` shows when it is ready."""
+        return cast(
+            BackgroundStatus,
+            self._json("POST", f"{API}/live/background", json={"frames": frames}),
+        )
+
+    def background(self) -> BackgroundStatus:
+        """The background's state: none, capturing, ready or failed."""
+        return cast(BackgroundStatus, self._json("GET", f"{API}/live/background"))
+
+    def background_frame(self) -> tuple[dict[str, Any], npt.NDArray[np.float32]]:
+        """The ready background: its description (seq, frames, rows, cols, mode, stages,
+        first_counter, last_counter, captured_t_s, mean_dn, std_dn, dtype) and its pixels,
+        float32 DN, shape (rows, cols)."""
+        import numpy as np  # only here: the rest of the client needs no numpy
+
+        response = self._request("GET", f"{API}/live/background/frame")
+        meta = json.loads(response.headers["X-Camd-Background"])
+        pixels = np.frombuffer(response.content, dtype="<f4").reshape(meta["rows"], meta["cols"])
+        return meta, pixels.astype(np.float32)
+
+    def clear_background(self) -> BackgroundStatus:
+        """Drop the background (and stop a capture)."""
+        return cast(BackgroundStatus, self._json("DELETE", f"{API}/live/background"))
+
+    def live_lines(
+        self, after: int = -1, *, max_lines: int = 512, timeout_s: float = 0.0
+    ) -> tuple[dict[str, Any], npt.NDArray[np.float32]]:
+        """The live view's lines of the running (or last) TDI scan with index > ``after``:
+        their description (scan, scan_seq, first_index, n, cols, index, complete, stages_used,
+        skipped, lines_done, lines_planned, state, dtype) and the lines, float32, shape
+        (n, cols). With none newer the daemon waits up to ``timeout_s`` (0..5) for one, then
+        answers n = 0. CamdError ``no_scan`` before the daemon's first scan."""
+        import numpy as np  # only here: the rest of the client needs no numpy
+
+        params: dict[str, Any] = {"after": after, "max": max_lines, "timeout_s": timeout_s}
+        timeout = self.timeout_s + max(0.0, timeout_s)
+        response = self._request("GET", f"{API}/live/lines", params=params, timeout=timeout)
+        meta = json.loads(response.headers["X-Camd-Lines"])
+        lines = np.frombuffer(response.content, dtype="<f4").reshape(meta["n"], meta["cols"])
+        return meta, lines.astype(np.float32)
+
     # -- the simulated camera -----------------------------------------------------------------
 
     def set_scene(self, spec: str) -> None:
@@ -555,6 +606,16 @@ class CamdClient:
     def release_control(self) -> ControlInfo:
         """Give control back (harmless when this client holds none)."""
         return cast(ControlInfo, self._json("DELETE", f"{API}/control"))
+
+    def set_activity(
+        self, text: str, done: int | None = None, total: int | None = None
+    ) -> ControlInfo:
+        """Say what this client, holding control, is doing (``done`` of ``total`` steps), for
+        observers to see in the control document until control is given back or taken over.
+        CamdError ``not_in_control`` while another client holds control, ``no_control`` while
+        nobody does."""
+        body = {"text": text, "done": done, "total": total}
+        return cast(ControlInfo, self._json("PUT", f"{API}/control/activity", json=body))
 
     @contextlib.contextmanager
     def holding_control(self, ttl_s: float = 60.0, *, force: bool = False) -> Iterator[ControlInfo]:

@@ -21,8 +21,8 @@ class ErrorResponse(TypedDict):
 
     # what went wrong and what to change
     error: str
-    # bad_request, unauthorized, not_in_control, illegal_state, busy, link_untrained, device_nak,
-    # disconnected, timeout, internal
+    # bad_request, unauthorized, not_in_control, no_control, illegal_state, busy, link_untrained,
+    # device_nak, disconnected, timeout, internal
     code: str
 
 
@@ -60,6 +60,19 @@ class DaemonInfo(TypedDict):
     uptime_s: float
 
 
+class ControlActivity(TypedDict):
+    """What the controlling client says it is doing (PUT /api/v1/control/activity)."""
+
+    # e.g. 'campaign mtf: step 3/12 acquire scan_m8'
+    text: str
+    # steps done so far (null: not given)
+    done: int | None
+    # steps in all (null: not given)
+    total: int | None
+    # Unix time it was set
+    t_s: float
+
+
 class ControlInfo(TypedDict):
     """Who holds control of the camera (docs/api.md#control)."""
 
@@ -73,6 +86,9 @@ class ControlInfo(TypedDict):
     expires_t_s: float | None
     # the client name this request was made under (X-Camd-Client)
     you: str
+    # what the holder last said it is doing (PUT /api/v1/control/activity); null: nothing said, or
+    # control was given back or taken over since
+    activity: ControlActivity | None
 
 
 class AcquisitionInfo(TypedDict):
@@ -275,6 +291,9 @@ class TimingResponse(TypedDict):
     offset: int | str | None
     readout_mode: int | str | None
     test_pattern: int | str | None
+    # the register (or REG.field) that sets exposure_lines: write it with POST /api/v1/registers to
+    # change the exposure
+    exposure_register: str | None
 
 
 class LaneResult(TypedDict):
@@ -359,6 +378,43 @@ class StreamResponse(TypedDict):
     # HDF5 file being (or last) recorded
     recording: str | None
     stats: StreamStats
+
+
+class BackgroundStatus(TypedDict):
+    """GET /api/v1/live/background, and the answer of POST and DELETE there. While capturing (and
+    after a failure) the geometry and counters are those of the frames taken so far; a field that
+    does not apply is null."""
+
+    # none: no background; capturing: averaging frames; ready: the mean is there (GET
+    # /api/v1/live/background/frame); failed: see error
+    state: Literal["none", "capturing", "ready", "failed"]
+    # frames the capture averages
+    frames_wanted: int | None
+    # frames averaged so far
+    frames_done: int | None
+    rows: int | None
+    cols: int | None
+    # the frames' mode (area, tdi)
+    mode: str | None
+    # TDI stages in the frame headers (0 in area mode)
+    stages: int | None
+    # the device's counter of the first frame
+    first_counter: int | None
+    # ... and of the last frame averaged so far
+    last_counter: int | None
+    # Unix time the capture completed
+    captured_t_s: float | None
+    # completed captures since the daemon started
+    seq: int | None
+    # spatial mean of the background, DN
+    mean_dn: float | None
+    # spatial standard deviation of the background, DN
+    std_dn: float | None
+    # recordings started since it was captured, which hold it as /background (newest last, the last
+    # 20)
+    saved_to: list[str]
+    # why the capture failed, and what to do
+    error: str | None
 
 
 class StageResponse(TypedDict):

@@ -11,7 +11,6 @@ without the playwright package, browser tests skip and say why; with ``CAMD_REQU
 from __future__ import annotations
 
 import os
-import shutil
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -20,26 +19,9 @@ from urllib.parse import urlsplit
 
 import pytest
 
+from camd.web.chromium import CHROMIUM_ARGS, chromium_path
+
 ROOT = Path(__file__).resolve().parents[1]
-
-# As the machine's own check starts it: headless, and nothing that phones home (a closed
-# network refuses those connections, and they would count as requests leaving loopback).
-CHROMIUM_ARGS = [
-    "--no-sandbox",
-    "--disable-gpu",
-    "--disable-quic",
-    "--no-first-run",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-]
-
-
-def chromium_path() -> str | None:
-    given = os.environ.get("CAMD_CHROMIUM")
-    if given:
-        return given if Path(given).is_file() else None
-    return shutil.which("chromium") or shutil.which("chromium-browser")
 
 
 def artifacts_dir() -> Path:

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import fcntl
 import os
+import tempfile
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 from hypothesis import settings
@@ -17,23 +19,26 @@ settings.register_profile("camd", deadline=None)
 settings.load_profile("camd")
 
 
-@pytest.fixture(autouse=True)
-def _cpu_share(
-    request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory
-) -> Iterator[None]:
+@pytest.hookimpl(hookwrapper=True, tryfirst=True)
+def pytest_runtest_protocol(item: pytest.Item) -> Iterator[None]:
     """Under pytest-xdist, a test marked ``exclusive`` runs while no other test does.
 
     Those tests stream or close a control loop in real time (lost frames, stream overruns,
     the stage loop's mismatch): another worker's test sharing the CPU makes them miss their
     deadlines, which is not what they test. Every test holds a lock shared; an exclusive one
-    holds it alone (flock on a file in the session's base temp dir, which the workers share).
-    Without xdist there is one process and nothing to share.
+    holds it alone (flock on a file named after the run, which the workers share). Without
+    xdist there is one process and nothing to share.
+
+    A hook wrapping the whole test (setup, call, teardown) from outside, not a fixture: the
+    wait for the lock must not count against the test's timeout (pytest-timeout starts its
+    clock inside this), since a test may wait minutes behind an exclusive one.
     """
-    if "PYTEST_XDIST_WORKER" not in os.environ:
+    run = os.environ.get("PYTEST_XDIST_TESTRUNUID")
+    if "PYTEST_XDIST_WORKER" not in os.environ or run is None:
         yield
         return
-    path = tmp_path_factory.getbasetemp().parent / "cpu-share.lock"
-    exclusive = request.node.get_closest_marker("exclusive") is not None
+    path = Path(tempfile.gettempdir()) / f"camd-cpu-share-{run}.lock"
+    exclusive = item.get_closest_marker("exclusive") is not None
     with open(path, "a") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH)
         try:

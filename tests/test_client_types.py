@@ -16,6 +16,7 @@ import datetime
 import shutil
 import subprocess
 import sys
+import time
 import types
 import typing
 from collections.abc import Callable, Iterator
@@ -315,6 +316,7 @@ def mismatches(value: Any, annotation: Any, path: str, seen: set[str]) -> list[s
 # (label, TypedDict) of each answer below, in the order the daemon is driven.
 ANSWERS: list[tuple[str, str]] = [
     ("take_control", "ControlInfo"),
+    ("set_activity", "ControlInfo"),
     ("ping", "PingResponse"),
     ("link", "LinkResponse"),
     ("telemetry", "TelemetryResponse"),
@@ -329,6 +331,7 @@ ANSWERS: list[tuple[str, str]] = [
     ("timing", "TimingResponse"),
     ("train", "TrainResponse"),
     ("acquire", "StreamResponse"),
+    ("background", "BackgroundStatus"),
     ("scan", "ScanResponse"),
     ("motion", "MotionStatus"),
     ("sync", "SyncResponse"),
@@ -353,6 +356,7 @@ def answers(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]
     docs: dict[str, Any] = {}
     with serve(tmp, "fpga") as daemon, CamdClient(daemon.url, timeout_s=60) as client:
         docs["take_control"] = client.take_control(120)
+        docs["set_activity"] = client.set_activity("checking the client types", 1, 2)
         docs["ping"] = client.ping(count=5)
         docs["link"] = client.link()
         docs["telemetry"] = client.telemetry()
@@ -369,6 +373,13 @@ def answers(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]
         docs["timing"] = client.timing()
         docs["train"] = client.train()
         docs["acquire"] = client.acquire(3, timeout_s=60)
+        client.start_stream(0)
+        client.capture_background(2)
+        deadline = time.monotonic() + 30
+        while client.background()["state"] == "capturing" and time.monotonic() < deadline:
+            time.sleep(0.05)
+        client.stop_stream()
+        docs["background"] = client.background()
         client.start_scan(4, 20, out=str(tmp / "scan.h5"), quicklook=False)
         docs["scan"] = client.wait_scan(120)
         docs["motion"] = client.motion()
@@ -413,6 +424,7 @@ def test_the_answers_reach_the_nested_documents(answers: dict[str, Any]) -> None
     assert answers["wheel_acquire"]["region"] == {"row": 0, "rows": 4, "col": 0, "cols": 8}
     assert len(answers["wheel_acquire"]["frames"]) == 2
     assert answers["error"]["code"] == "bad_request"
+    assert answers["background"]["state"] == "ready"
 
 
 def test_the_answers_show_every_typed_dict(answers: dict[str, Any]) -> None:

@@ -4,13 +4,22 @@ from __future__ import annotations
 
 import json
 import os
+import queue
+import re
+import signal
 import subprocess
 import sys
+import threading
+import time
 from pathlib import Path
+from typing import IO
 
+import httpx
+import numpy as np
 import pytest
 
 import camd
+from camd.cli.demo import live_page_url
 from tests.campaign_support import report_images
 
 # Real-time streaming / control loops: alone under xdist (tests/conftest.py).
@@ -19,11 +28,17 @@ pytestmark = pytest.mark.exclusive
 REPO_ROOT = str(Path(camd.__file__).resolve().parent.parent)
 
 
-def test_demo_runs_and_writes_its_summary(tmp_path: Path) -> None:
-    out = tmp_path / "demo"
+def demo_env() -> dict[str, str]:
     # The demo's daemon and client would both take $CAMD_TOKEN; run it as a user without one.
     env = {k: v for k, v in os.environ.items() if k not in ("CAMD_URL", "CAMD_TOKEN")}
     env["PYTHONPATH"] = os.pathsep.join(p for p in (REPO_ROOT, env.get("PYTHONPATH")) if p)
+    env["PYTHONUNBUFFERED"] = "1"
+    return env
+
+
+def test_demo_runs_and_writes_its_summary(tmp_path: Path) -> None:
+    out = tmp_path / "demo"
+    env = demo_env()
     proc = subprocess.run(
         [sys.executable, "-m", "camd", "demo", "--out", str(out), "--pings", "200"],
         capture_output=True,
@@ -36,10 +51,15 @@ def test_demo_runs_and_writes_its_summary(tmp_path: Path) -> None:
     assert "Traceback" not in proc.stderr
     summary_path = out / "demo-summary.json"
     final = proc.stdout.strip().splitlines()[-1]
+    # The live view's address, early (right after the daemon's) and in the summary.
+    summary = json.loads(summary_path.read_text())
+    live_url = summary["daemon"]["url"] + "/live"
+    assert summary["live_url"] == live_url and "keep" not in summary
+    lines = proc.stdout.splitlines()
+    assert any(line.startswith(f"live view: {live_url} ") for line in lines[:10]), lines[:10]
     assert final.startswith("demo OK: 200 pings, ")
     assert " 0 failed" in final and final.endswith(f"summary in {summary_path}")
 
-    summary = json.loads(summary_path.read_text())
     assert summary["ok"] is True and summary["error"] is None
     assert summary["inject"] == (
         "ber=1e-4,drop=0.01,frame_drop=0.02,frame_corrupt=0.01,frame_short=0.01"
@@ -111,3 +131,109 @@ def test_demo_runs_and_writes_its_summary(tmp_path: Path) -> None:
     assert daemon["exit_code"] in (0, -15) and daemon["killed"] is False
     assert Path(daemon["log"]).is_file()
     assert "camd serving http://" in Path(daemon["log"]).read_text()
+
+
+def test_the_live_view_address_carries_the_token() -> None:
+    assert live_page_url("http://127.0.0.1:8422") == "http://127.0.0.1:8422/live"
+    assert live_page_url("http://h:1/", "a b&c") == "http://h:1/live?token=a%20b%26c"
+
+
+def is_camd_serve(pid: int) -> bool:
+    try:
+        command = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
+    except OSError:
+        return False
+    return b"camd" in command and b"serve" in command
+
+
+def test_demo_keep_leaves_the_daemon_running_until_ctrl_c(tmp_path: Path) -> None:
+    """``camd demo --keep``: after its steps the daemon serves a streaming live view at the
+    address it printed, until SIGINT; then everything stops and the demo exits 0."""
+    out = tmp_path / "demo"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "camd", "demo", "--out", str(out), "--pings", "20",
+         "--no-campaigns", "--keep"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=demo_env(),
+    )  # fmt: skip
+    lines: queue.Queue[str | None] = queue.Queue()
+    stdout: list[str] = []
+    stderr: list[str] = []
+
+    def read(stream: IO[str], into: list[str], forward: bool) -> None:
+        for line in stream:
+            into.append(line)
+            if forward:
+                lines.put(line)
+        if forward:
+            lines.put(None)
+
+    readers = [
+        threading.Thread(target=read, args=(proc.stdout, stdout, True), daemon=True),
+        threading.Thread(target=read, args=(proc.stderr, stderr, False), daemon=True),
+    ]
+    for reader in readers:
+        reader.start()
+    daemon_pid: int | None = None
+    try:
+        while True:
+            line = lines.get(timeout=300)
+            assert line is not None, "".join(stdout) + "".join(stderr)
+            if match := re.search(r"daemon pid (\d+) serving", line):
+                daemon_pid = int(match.group(1))
+            if "Ctrl-C to stop" in line:
+                break
+        addresses = [m.group(1) for x in stdout if (m := re.match(r"live view: (\S+)", x))]
+        # Printed early (before the steps) and again, the same, before waiting.
+        assert len(addresses) == 2 and addresses[0] == addresses[1], addresses
+        live_url = addresses[-1]
+        assert re.fullmatch(r"http://127\.0\.0\.1:\d+/live", live_url)
+        base = live_url.removesuffix("/live")
+        with httpx.Client(base_url=base, timeout=30) as http:
+            status = http.get("/api/v1/status")
+            assert status.status_code == 200 and status.json()["state"] == "streaming"
+            # The newest frame may still be one of the demo's scans (the tap keeps the last
+            # frame of any stream): wait for the kept stream's own.
+            seq, deadline = 0, time.monotonic() + 120
+            while True:
+                frame = http.get("/api/v1/live/frame", params={"after": seq, "timeout_s": 5})
+                assert frame.status_code == 200, frame.text
+                meta = json.loads(frame.headers["X-Camd-Frame"])
+                if (meta["mode"], meta["rows"]) == ("area", 534):
+                    break
+                assert time.monotonic() < deadline, meta
+                seq = meta["seq"]
+            assert (meta["mode"], meta["rows"], meta["cols"]) == ("area", 534, 2048)
+            assert len(frame.content) == 2 * 534 * 2048
+            # The bar target, sharp: the stage tracks one row a frame again after the scans.
+            pixels = np.frombuffer(frame.content, dtype="<u2")
+            spread = np.percentile(pixels, 99) - np.percentile(pixels, 1)
+            assert spread > 500, (spread, meta)
+            page = http.get("/live")
+            assert page.status_code == 200 and "text/html" in page.headers["content-type"]
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=120) == 0, "".join(stdout) + "".join(stderr)
+        for reader in readers:
+            reader.join(timeout=10)
+        assert stdout[-1].startswith("demo OK: 20 pings, "), stdout[-5:]
+        assert "campaigns skipped (--no-campaigns)" in stdout[-1]
+        summary = json.loads((out / "demo-summary.json").read_text())
+        assert summary["ok"] is True and summary["live_url"] == live_url
+        assert summary["campaigns"] == []
+        keep = summary["keep"]
+        assert (keep["signal"], keep["stream_stopped"]) == ("SIGINT", "by the demo")
+        assert keep["stream"]["mode"] == "area" and keep["live_url"] == live_url
+        assert summary["daemon"]["exit_code"] in (0, -15)
+        assert summary["daemon"]["killed"] is False
+        with pytest.raises(httpx.ConnectError):
+            httpx.get(f"{base}/api/v1/status", timeout=5)
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+            try:
+                proc.wait(timeout=60)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+        # The daemon runs in its own session: never leave it behind (if it is still this one).
+        if daemon_pid is not None and is_camd_serve(daemon_pid):
+            os.kill(daemon_pid, signal.SIGTERM)

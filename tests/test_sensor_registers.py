@@ -493,10 +493,11 @@ def test_hr400_timing_matches_hand_computed_values() -> None:
     assert t.frame_period_s == pytest.approx(534 * 20.52e-6, rel=1e-12)  # max(k, n + 1) = k
     assert t.max_stages == 534
     assert t.as_dict()["gain"] == "x1"
+    assert t.exposure_register == "EXPOSURE"  # the register the live view writes
     assert set(t.as_dict()) == {
         "sensor", "line_period_s", "window_start_row", "window_rows", "exposure_lines",
         "exposure_s", "frame_time_s", "frame_period_s", "back_path_s", "tdi_line_period_s",
-        "max_stages", "gain", "offset", "readout_mode", "test_pattern",
+        "max_stages", "gain", "offset", "readout_mode", "test_pattern", "exposure_register",
     }  # fmt: skip
     regs.write({"EXPOSURE": 600, "BACK_PATH": 500})  # n >= k; back path 500 clocks = 20 us
     t = regs.timing()

@@ -43,6 +43,7 @@ EXPECTED_LEGAL = {
     Request.MOTION_STOP: {IDLE, STR, FLT},
     Request.WHEEL_READ: {IDLE, STR, FLT},
     Request.WHEEL_SET: {IDLE},
+    Request.LIVE_BACKGROUND: {STR},
 }
 
 

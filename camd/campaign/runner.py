@@ -13,6 +13,10 @@ Determinism: on the simulated camera the runner re-seeds the simulator's random 
 and the instance's key, so an acquisition sees the same noise whether the run was interrupted
 before it or not. results.json is a pure function of the recorded instances.
 
+Observers see the progress: before each step instance the runner, which holds control, says
+what it does (PUT /api/v1/control/activity: ``campaign <name>: step <i>/<n> <kind> <key>`` with
+i - 1 steps done of n); giving control back at the end clears it.
+
 Ctrl-C (KeyboardInterrupt) stops the step in progress (the stream or scan is stopped) and
 raises ``CampaignInterrupted``; everything completed before it is in the state file.
 """
@@ -55,6 +59,7 @@ STATE_VERSION = 1
 
 
 CONTROL_TTL_S = 60.0  # the campaign's control lease, renewed every 20 s while it runs
+ACTIVITY_TEXT_MAX = 200  # the daemon's limit on an activity's text
 
 
 class CampaignInterrupted(Exception):
@@ -178,6 +183,8 @@ class CampaignRunner:
         self._checks: list[dict[str, Any]] = []
         self._files: dict[str, str] = {}
         self.restored: list[str] = []  # the daemon's settings put back after the run
+        self._step_number = 0  # step instances begun so far in this run
+        self._steps_total = 0
 
     # -- the run --------------------------------------------------------------------------------
 
@@ -192,7 +199,9 @@ class CampaignRunner:
         self.raw_dir.mkdir(parents=True, exist_ok=True)
         self._load_state()
         self._check_camera()
-        self.progress.begin(self._count(self.spec.steps, self.parameters))
+        self._steps_total = self._count(self.spec.steps, self.parameters)
+        self._step_number = 0
+        self.progress.begin(self._steps_total)
         top = _Level()
         try:
             # The campaign holds control for its whole run: no other client changes the
@@ -207,6 +216,7 @@ class CampaignRunner:
                     self._stop_device()
                     raise
                 finally:
+                    self._say("putting the daemon's settings back", self._step_number)
                     self.restored = restore(self.client, before)
         except KeyboardInterrupt:
             raise CampaignInterrupted(
@@ -250,6 +260,12 @@ class CampaignRunner:
             record = self._completed.get(key)
             replayed = record is not None and not isinstance(step, ConfigureStep)
             self.progress.step(key, step.title or step.id, replayed=replayed)
+            self._step_number += 1
+            self._say(
+                f"step {self._step_number}/{self._steps_total} {step.kind} {key}"
+                + (" (replayed)" if replayed else ""),
+                self._step_number - 1,
+            )
             if record is None or isinstance(step, ConfigureStep):
                 record = self._execute(step, key, names, level)
                 self._completed[key] = record
@@ -258,6 +274,15 @@ class CampaignRunner:
             self.progress.advance()
             if self.stop_after in (key, step.id) and not replayed:
                 raise CampaignInterrupted(f"stopped after {key} (stop_after)")
+
+    def _say(self, what: str, done: int) -> None:
+        """Tell the daemon what the campaign is doing, for observers (GET /api/v1/control);
+        informative only: a daemon that refuses it (an older one) does not stop the run."""
+        text = "".join(
+            ch if ch.isprintable() else " " for ch in f"campaign {self.spec.name}: {what}"
+        )
+        with contextlib.suppress(CamdError):
+            self.client.set_activity(text[:ACTIVITY_TEXT_MAX], done, self._steps_total)
 
     def _sweep(self, step: SweepStep, key: str, names: dict[str, Any], level: _Level) -> None:
         values = self._sweep_values(step, names)

@@ -17,6 +17,10 @@ process reads it through the FX3's host half (``firmware_models.fx3_backend``).
 ``camd bench tdi``: the TDI engine (``camd.tdi``), ``tdi_batch`` and a naive per-line numpy loop
 against ``np.copyto`` of the same input bytes (the memory-bandwidth floor); it lives in
 ``camd.cli.bench_tdi``.
+
+``camd bench scan`` (``camd.cli.bench_scan``): a scan through the daemon at the sensor's line
+rate. ``camd bench live`` (``camd.cli.bench_live``): the daemon's stream ingest with live
+viewers attached against none, in alternating rounds of the same run.
 """
 
 from __future__ import annotations
@@ -38,7 +42,7 @@ import serial
 import usb.core
 import usb.util
 
-from camd.cli import bench_scan, bench_tdi
+from camd.cli import bench_live, bench_scan, bench_tdi
 from camd.link.frame_stream import FrameStream
 from camd.protocol import FrameType, encode_frame, load_dictionary
 from firmware_models.fx3_backend import PRODUCT_ID, VENDOR_ID, get_backend
@@ -89,6 +93,7 @@ def add_parser(sub: Any) -> None:
     stream.add_argument("--json", action="store_true", help="print one JSON document")
     bench_tdi.add_parser(which)
     bench_scan.add_parser(which)
+    bench_live.add_parser(which)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -96,6 +101,8 @@ def run(args: argparse.Namespace) -> int:
         return bench_tdi.run(args)
     if args.bench == "scan":
         return bench_scan.run(args)
+    if args.bench == "live":
+        return bench_live.run(args)
     if args.bench == "stream":
         return _run_stream(args)
     if args.count < 10:

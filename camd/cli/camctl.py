@@ -609,17 +609,24 @@ def _render_reset(out: Console, doc: Any, args: argparse.Namespace) -> None:
 
 
 def control_text(doc: dict[str, Any]) -> Text:
-    """``nobody`` or ``alice@pc1 since 12:03:04 (lease until 12:04:04)``; "you" marked."""
+    """``nobody`` or ``alice@pc1 since 12:03:04 (lease until 12:04:04)``, then what the holder
+    says it is doing (``; doing: campaign x: step 3/12 ... (2/12)``); "you" marked."""
     holder = doc.get("holder")
     if holder is None:
         return Text("nobody (any client may change the camera)", style="green")
     until = doc.get("expires_t_s")
     why = f"{doc.get('why')}, until {fmt_time(until)}" if until else str(doc.get("why"))
     mine = holder == doc.get("you")
+    activity = doc.get("activity")
+    doing = ""
+    if activity:
+        done, total = activity.get("done"), activity.get("total")
+        steps = f" ({done if done is not None else '?'}/{total})" if total is not None else ""
+        doing = f"; doing: {activity.get('text')}{steps}"
     return Text.assemble(
         (str(holder), "bold green" if mine else "bold yellow"),
         " (you)" if mine else "",
-        f" since {fmt_time(doc.get('since_t_s'))} ({why})",
+        f" since {fmt_time(doc.get('since_t_s'))} ({why}){doing}",
     )
 
 

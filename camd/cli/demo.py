@@ -4,9 +4,15 @@ Starts ``camd serve --sim`` on a lossy line (bit errors and dropped frames), the
 ``CamdClient`` exactly as any script would: shows the status, pings the device, compares the
 host's and the device's link counters (every command executed at most once although frames were
 lost and retried), shows telemetry being archived, switches area -> tdi -> area, lists the
-events, stops the daemon and writes everything to ``OUT/demo-summary.json``. Then it runs short
-forms of two shipped test campaigns (``tdi_snr_stages``, ``mtf_mismatch``), each on a
-simulated camera of its own profile, and prints where their reports are.
+events, then runs short forms of two shipped test campaigns (``tdi_snr_stages``,
+``mtf_mismatch``), each on a simulated camera of its own profile, and prints where their reports
+are; stops the daemon and writes everything to ``OUT/demo-summary.json``. As soon as the daemon
+runs it prints the address of its live view (``http://HOST:PORT/live``), where the demo's streams
+and scans can be watched.
+
+``--keep``: after the campaigns (which run beside the daemon, on their own simulated cameras), the
+daemon is not stopped: it streams a moving bar target, prints the live view's address again and
+waits for Ctrl-C (or SIGTERM), then stops the stream and the daemon and ends as usual.
 """
 
 from __future__ import annotations
@@ -17,14 +23,17 @@ import math
 import os
 import signal
 import sys
+import threading
 import time
 from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
+from urllib.parse import quote
 
 if TYPE_CHECKING:
     from rich.console import Console
 
+    from camd.cli._daemon_proc import DaemonProcess
     from camd.client import CamdClient
 
 DEFAULT_OUT = "camd-demo"
@@ -46,6 +55,14 @@ TELEMETRY_GRACE_S = 5.0  # extra wait if no new sample arrived in TELEMETRY_WAIT
 # of the two snapshots. A command executed twice per lost acknowledge would show as a
 # difference of about `replayed`, far above this.
 AT_MOST_ONCE_SLACK = 4
+LIVE_PAGE = "/live"
+# --keep: what the live view shows until Ctrl-C. YE23's window at 20 frames a second (the live
+# view's own rate: a longer exposure sets the frame period, max(k, n + 1) lines), the bar target
+# moving one row a frame with the ideal stage; lux=4 fills about half the 12-bit range at the
+# 50 ms exposure.
+KEEP_FRAME_PERIOD_S = 0.05
+KEEP_WINDOW = {"WIN_START": 757, "WIN_ROWS": 534}
+KEEP_SCENE = "bars:lux=4"
 
 
 def add_parser(sub: Any) -> None:
@@ -70,6 +87,17 @@ def add_parser(sub: Any) -> None:
         metavar="N",
         help=f"number of pings, 1..100000 (default {DEFAULT_PINGS})",
     )
+    p.add_argument(
+        "--keep",
+        action="store_true",
+        help="after the steps, leave the daemon and the simulated camera running (streaming a "
+        "moving target to the live view) until Ctrl-C",
+    )
+    p.add_argument(
+        "--no-campaigns",
+        action="store_true",
+        help="skip step 10, the two short campaign runs (about 20 s)",
+    )
 
 
 def _pings_arg(text: str) -> int:
@@ -88,11 +116,24 @@ class DemoFailed(Exception):
 
 def run(args: argparse.Namespace) -> int:
     """Run the demo; 0 if every step passed, 1 otherwise (the reason on stderr)."""
-    return run_demo(args.out, args.pings)
+    return run_demo(args.out, args.pings, keep=args.keep, campaigns=not args.no_campaigns)
 
 
-def run_demo(out: str | os.PathLike[str], pings: int = DEFAULT_PINGS) -> int:
-    """Run the whole demo with its output in ``out``; returns the exit status."""
+def live_page_url(daemon_url: str, token: str | None = None) -> str:
+    """The address of a daemon's live view, with ``?token=`` when it has a token."""
+    query = f"?token={quote(token, safe='')}" if token else ""
+    return f"{daemon_url.rstrip('/')}{LIVE_PAGE}{query}"
+
+
+def run_demo(
+    out: str | os.PathLike[str],
+    pings: int = DEFAULT_PINGS,
+    *,
+    keep: bool = False,
+    campaigns: bool = True,
+) -> int:
+    """Run the whole demo with its output in ``out``; returns the exit status. ``keep``: leave
+    the daemon running until SIGINT/SIGTERM (module docstring); ``campaigns``: run step 10."""
     # Imported here, not at the top: camd_main imports this module to build its parser for
     # every subcommand, and `camd serve` should not pay for rich and the client.
     from rich.console import Console
@@ -114,6 +155,8 @@ def run_demo(out: str | os.PathLike[str], pings: int = DEFAULT_PINGS) -> int:
         "pings_requested": pings,
         "inject": DEMO_INJECT,
         "daemon": {},
+        "live_url": None,
+        "campaigns": [],
     }
     daemon = DaemonProcess(out_dir, inject=DEMO_INJECT)
     error: str | None = None
@@ -124,12 +167,21 @@ def run_demo(out: str | os.PathLike[str], pings: int = DEFAULT_PINGS) -> int:
         with console.status(f"starting camd serve --sim --inject {DEMO_INJECT} ..."):
             daemon.start()
         summary["daemon"] = {"url": daemon.url, "pid": daemon.pid, "log": str(daemon.log_path)}
+        # The daemon takes $CAMD_TOKEN as its token (the shipped config has none).
+        live_url = live_page_url(daemon.url, os.environ.get("CAMD_TOKEN"))
+        summary["live_url"] = live_url
         console.print(
             f"daemon pid {daemon.pid} serving {daemon.url}, data in {out_dir}, "
             f"line faults {DEMO_INJECT}"
         )
+        console.print(
+            f"live view: {live_url} (open it in a browser to watch the streams and scans below)",
+            soft_wrap=True,
+        )
         with CamdClient(daemon.url) as client:
-            _Demo(console, client, summary, pings).run()
+            _Demo(console, client, summary, pings, campaigns=campaigns).run()
+            if keep:
+                _keep(console, client, daemon, summary)
     except DaemonStartError as exc:
         error = f"the daemon did not start: {exc}"
     except CamdError as exc:
@@ -176,6 +228,11 @@ def run_demo(out: str | os.PathLike[str], pings: int = DEFAULT_PINGS) -> int:
     rec = summary["stream"]["recording"]
     scan_stages = "/".join(str(r["stages"]) for r in summary["scans"])
     scan_snr = "/".join(f"{r['snr_db']:.1f}" for r in summary["scans"])
+    reports = (
+        "campaign reports " + ", ".join(c["report"] for c in summary["campaigns"])
+        if campaigns
+        else "campaigns skipped (--no-campaigns)"
+    )
     # Plain print, never wrapped: scripts and the README quote this line.
     print(
         f"demo OK: {ping['count']} pings, {ping['retries']} retries, {ping['failed']} failed, "
@@ -186,9 +243,7 @@ def run_demo(out: str | os.PathLike[str], pings: int = DEFAULT_PINGS) -> int:
         f"{stream['frames']} of {DEMO_FRAMES} frames delivered ({stream['lost']} lost, "
         f"{stream['corrupt'] + stream['short']} damaged, all as injected), "
         f"{rec['frames']} recorded and verified, TDI scans at M = {scan_stages} with SNR "
-        f"{scan_snr} dB; campaign reports "
-        + ", ".join(c["report"] for c in summary["campaigns"])
-        + f"; summary in {summary_path}",
+        f"{scan_snr} dB; {reports}; summary in {summary_path}",
         flush=True,
     )
     return 0
@@ -197,11 +252,20 @@ def run_demo(out: str | os.PathLike[str], pings: int = DEFAULT_PINGS) -> int:
 class _Demo:
     """The demo's steps against a running daemon; each records its results in ``summary``."""
 
-    def __init__(self, console: Console, client: CamdClient, summary: dict[str, Any], pings: int):
+    def __init__(
+        self,
+        console: Console,
+        client: CamdClient,
+        summary: dict[str, Any],
+        pings: int,
+        *,
+        campaigns: bool = True,
+    ):
         self.console = console
         self.client = client
         self.summary = summary
         self.pings = pings
+        self.with_campaigns = campaigns
 
     def run(self) -> None:
         self.status()
@@ -212,7 +276,10 @@ class _Demo:
         self.stream()
         self.scan()
         self.events()
-        self.campaigns()
+        if self.with_campaigns:
+            self.campaigns()
+        else:
+            self.step("10. test campaigns: skipped (--no-campaigns)")
 
     def step(self, title: str) -> None:
         self.console.print()
@@ -560,6 +627,80 @@ class _Demo:
                     f"campaign {row['campaign']} failed its checks {row['failed_checks']}; "
                     f"see {row['report']}"
                 )
+
+
+def _keep(
+    console: Console, client: CamdClient, daemon: DaemonProcess, summary: dict[str, Any]
+) -> None:
+    """``--keep``: stream a moving target to the live view until SIGINT or SIGTERM, then stop
+    the stream (the daemon is stopped by the caller, as without --keep)."""
+    from camd.client import CamdError
+
+    console.print()
+    console.rule("[bold]kept running: the live view", align="left")
+    timing = client.timing()
+    exposure = max(1, round(KEEP_FRAME_PERIOD_S / float(timing["line_period_s"])) - 1)
+    client.write_registers({**KEEP_WINDOW, "EXPOSURE": exposure})
+    client.set_scene(KEEP_SCENE)
+    client.set_stage(track=True)  # the scans left the ideal stage at their speed: track again
+    doc = client.start_stream(0, mode="area")
+    # The demo holds no lease: the page may take control. The stream itself holds it for the
+    # demo's client while it runs (docs/api.md), so a page takes it over (and may stop it).
+    client.release_control()
+    record: dict[str, Any] = {
+        "live_url": summary["live_url"],
+        "scene": KEEP_SCENE,
+        "stream": {k: doc[k] for k in ("mode", "rows", "cols", "frame_period_s")},
+        "client": client.client,
+        "signal": None,
+        "stream_stopped": None,
+    }
+    summary["keep"] = record
+    console.print(
+        f"streaming {doc['rows']} x {doc['cols']} area frames of a moving bar target "
+        f"({KEEP_SCENE}) at {1 / doc['frame_period_s']:.0f} frames/s, until stopped; the line "
+        "still drops, corrupts and cuts short some frames on purpose. The stream is "
+        f"{client.client}'s (this demo) while it runs: the page watches without control, and "
+        "taking control there takes the stream over.",
+        soft_wrap=True,
+    )
+    # Plain prints, flushed: scripts (and the tests) wait for these lines.
+    print(f"live view: {summary['live_url']}", flush=True)
+    print("the daemon and the simulated camera keep running; Ctrl-C to stop", flush=True)
+    signame = _wait_for_stop(daemon)
+    if signame is None:
+        raise DemoFailed(
+            f"the daemon exited while kept running (exit status {daemon.stop()}); "
+            f"see its log {daemon.log_path}"
+        )
+    record["signal"] = signame
+    console.print(f"{signame}: stopping the stream and the daemon")
+    try:
+        client.stop_stream()
+        record["stream_stopped"] = "by the demo"
+    except CamdError as exc:
+        # Someone took control (the page): the daemon stops the stream as it stops.
+        record["stream_stopped"] = f"by the daemon as it stopped ({exc.code}: {exc.message})"
+
+
+def _wait_for_stop(daemon: DaemonProcess) -> str | None:
+    """Wait for SIGINT or SIGTERM (their name) or for the daemon to exit (None)."""
+    got: list[str] = []
+    stop = threading.Event()
+
+    def handler(signum: int, frame: object) -> None:
+        got.append(signal.Signals(signum).name)
+        stop.set()
+
+    previous = {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        while not stop.wait(0.5):
+            if not daemon.running:
+                return None
+    finally:
+        for sig, old in previous.items():
+            signal.signal(sig, old)
+    return got[0]
 
 
 def at_most_once(before: dict[str, Any], after: dict[str, Any]) -> dict[str, Any]:

@@ -19,7 +19,13 @@ import anyio
 from fastapi import Depends, FastAPI, Header, Query, Request, WebSocket, WebSocketDisconnect
 from fastapi.exceptions import RequestValidationError
 from fastapi.openapi.docs import get_swagger_ui_html
-from fastapi.responses import HTMLResponse, JSONResponse, Response
+from fastapi.responses import (
+    FileResponse,
+    HTMLResponse,
+    JSONResponse,
+    RedirectResponse,
+    Response,
+)
 from fastapi.staticfiles import StaticFiles
 from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metric
@@ -37,6 +43,7 @@ from camd.daemon.errors import (
     DeviceTimeout,
     Disconnected,
     LinkUntrained,
+    NoControl,
     NotInControl,
     SessionError,
 )
@@ -44,6 +51,11 @@ from camd.daemon.models import (
     ALLOWED,
     EVENTS_LIMIT_MAX,
     HISTORY_LIMIT_MAX,
+    LIVE_LINES_MAX,
+    LIVE_WAIT_MAX_S,
+    ActivityRequest,
+    BackgroundRequest,
+    BackgroundStatus,
     ControlInfo,
     ControlRequest,
     ErrorResponse,
@@ -107,6 +119,7 @@ ERROR_MAP: list[tuple[type[Exception], int, str]] = [
     (IllegalState, 409, "illegal_state"),
     (LinkUntrained, 409, "link_untrained"),
     (Busy, 409, "busy"),
+    (NoControl, 409, "no_control"),
     (NotInControl, 423, "not_in_control"),
     (DeviceRejected, 502, "device_nak"),
     (Disconnected, 503, "disconnected"),
@@ -132,9 +145,9 @@ def client_name(header: str | None) -> str:
     return name or ANONYMOUS
 
 
-LIVE_WAIT_MAX_S = 5.0
-"""Longest a live-frame request waits for a newer frame (no call blocks for long)."""
+# LIVE_WAIT_MAX_S (models): longest a live-view request waits for something newer.
 LIVE_POLL_S = 1.0  # a WebSocket viewer's wait for the next frame, between checks
+TOKEN_COOKIE = "camd_token"  # a browser's copy of the token (set by a page opened with ?token=)
 WS_POLICY_VIOLATION = 1008  # the WebSocket close code for a refused token
 
 
@@ -272,6 +285,21 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
             swagger_favicon_url=f"{web.SWAGGER_UI_URL}/favicon-32x32.png",
         )
 
+    @app.get("/live", include_in_schema=False, response_model=None)
+    def live_page(request: Request) -> FileResponse | RedirectResponse:
+        """The live view (docs/live-view.md). Opened with ``?token=``, it answers with the
+        token cookie and sends the browser to the plain address (the token leaves the
+        address bar and the history)."""
+        if "token" in request.query_params:
+            rest = [(k, v) for k, v in request.query_params.multi_items() if k != "token"]
+            query = "&".join(f"{k}={v}" for k, v in rest)
+            return RedirectResponse(f"/live?{query}" if query else "/live", status_code=303)
+        return FileResponse(web.LIVE_PAGE, headers={"Cache-Control": "no-cache"})
+
+    @app.get("/", include_in_schema=False)
+    def root() -> RedirectResponse:
+        return RedirectResponse("/live", status_code=307)
+
     registry = CollectorRegistry(auto_describe=False)
     registry.register(_SessionCollector(session))
 
@@ -292,14 +320,19 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
 
         return check
 
-    def token_ok(header: str, query_token: str | None = None) -> bool:
-        """The request carries the daemon's token: ``Authorization: Bearer <token>``, or (for a
-        WebSocket, which a browser cannot give headers) ``?token=<token>``."""
+    def token_ok(
+        header: str, query_token: str | None = None, cookie_token: str | None = None
+    ) -> bool:
+        """The request carries the daemon's token: ``Authorization: Bearer <token>``; or, from
+        a browser, which cannot add that header to a page, a script or a WebSocket, the
+        ``camd_token`` cookie or ``?token=<token>``."""
         scheme, _, given = header.partition(" ")
         if scheme.lower() == "bearer":
             candidate = given.strip()
-        elif query_token is not None:
+        elif query_token is not None:  # asked for now, so it wins over an older cookie
             candidate = query_token
+        elif cookie_token is not None:
+            candidate = cookie_token
         else:
             return False
         # compare_digest: the time taken must not reveal how much of a guess was right.
@@ -309,19 +342,27 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
     async def check_token(
         request: Request, call_next: Callable[[Request], Awaitable[Response]]
     ) -> Response:
-        if token:
-            header = request.headers.get("authorization", "")
-            if not token_ok(header):
-                what = "wrong token" if header else "no token"
-                response = error_response(
-                    401,
-                    "unauthorized",
-                    f"{what}: send 'Authorization: Bearer <token>' with the daemon's api.token "
-                    "(camctl --token or $CAMD_TOKEN)",
-                )
-                response.headers["WWW-Authenticate"] = "Bearer"
-                return response
-        return await call_next(request)
+        if not token:
+            return await call_next(request)
+        header = request.headers.get("authorization", "")
+        query_token = request.query_params.get("token")
+        if not token_ok(header, query_token, request.cookies.get(TOKEN_COOKIE)):
+            given = header or query_token is not None or TOKEN_COOKIE in request.cookies
+            refusal = error_response(
+                401,
+                "unauthorized",
+                f"{'wrong token' if given else 'no token'}: send 'Authorization: Bearer "
+                "<token>' with the daemon's api.token (camctl --token or $CAMD_TOKEN); in a "
+                "browser, open /live?token=<token> once",
+            )
+            refusal.headers["WWW-Authenticate"] = "Bearer"
+            return refusal
+        response = await call_next(request)
+        if query_token is not None and request.cookies.get(TOKEN_COOKIE) != token:
+            # A page opened with ?token= keeps it in a cookie, so that its scripts, its API
+            # calls and its WebSocket carry it (SameSite=Strict: never sent by another site).
+            response.set_cookie(TOKEN_COOKIE, token, httponly=True, samesite="strict", path="/")
+        return response
 
     @app.exception_handler(RequestValidationError)
     async def on_validation_error(request: Request, exc: RequestValidationError) -> JSONResponse:
@@ -377,6 +418,17 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
     def delete_control(client: str = Depends(requester)) -> ControlInfo:
         """Give control back (harmless when this client holds none)."""
         session.control.release(client)
+        return session.control_info(client)
+
+    @app.put(f"{API}/control/activity", response_model=ControlInfo, tags=["control"])
+    def put_control_activity(
+        body: ActivityRequest, client: str = Depends(requester)
+    ) -> ControlInfo:
+        """Say what the controlling client is doing (a campaign's step, with steps done and
+        in all), for observers: it shows in the control document until control is given back,
+        expires or is taken over. Only the holder may: 423 while another client holds
+        control, 409 ``no_control`` while nobody does."""
+        session.control.set_activity(client, body.text, body.done, body.total)
         return session.control_info(client)
 
     @app.post(f"{API}/estop", response_model=EstopResponse, tags=["control"])
@@ -461,7 +513,9 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
         pixels. A slow viewer gets fewer frames (always the newest), never a backlog, and
         never slows the acquisition. With a token: ``?token=`` or the Authorization header."""
         if token and not token_ok(
-            websocket.headers.get("authorization", ""), websocket.query_params.get("token")
+            websocket.headers.get("authorization", ""),
+            websocket.query_params.get("token"),
+            websocket.cookies.get(TOKEN_COOKIE),
         ):
             await websocket.close(code=WS_POLICY_VIOLATION, reason="no or wrong token")
             return
@@ -490,6 +544,113 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
                     await websocket.send_bytes(frame.pixels.astype("<u2", copy=False).tobytes())
             except (WebSocketDisconnect, RuntimeError):  # gone between two frames
                 group.cancel_scope.cancel()
+
+    @app.get(f"{API}/live/background", response_model=BackgroundStatus, tags=["live"])
+    def get_live_background() -> BackgroundStatus:
+        """The live view's background: none, capturing (progress), ready (where it came from,
+        its spatial mean and standard deviation, the recordings it was saved in) or failed
+        (why). Reading never needs control."""
+        return session.background_status()
+
+    @app.post(f"{API}/live/background", response_model=BackgroundStatus, tags=["live"])
+    def post_live_background(
+        body: BackgroundRequest | None = None,
+        client: str = Depends(controlled("capture a background")),
+    ) -> BackgroundStatus:
+        """Average the next ``frames`` frames of the running stream into the background, and
+        return at once (poll GET). It replaces the background there was; every recording
+        started while it is ready stores it as ``/background``. 409 when nothing streams
+        (nothing changed then)."""
+        body = body or BackgroundRequest()
+        with acting_as(client):
+            return session.capture_background(body.frames)
+
+    @app.delete(f"{API}/live/background", response_model=BackgroundStatus, tags=["live"])
+    def delete_live_background(
+        client: str = Depends(controlled("clear the background")),
+    ) -> BackgroundStatus:
+        """Drop the background (and stop a capture); recordings no longer get one."""
+        with acting_as(client):
+            return session.clear_background()
+
+    @app.get(
+        f"{API}/live/background/frame",
+        tags=["live"],
+        response_class=Response,
+        responses={200: {"content": {"application/octet-stream": {}}}},
+    )
+    def get_live_background_frame() -> Response:
+        """The background: raw little-endian float32, row by row (DN, the mean of its frames);
+        the header ``X-Camd-Background`` holds its JSON description (seq, frames, rows, cols,
+        mode, stages, first_counter, last_counter, captured_t_s, mean_dn, std_dn, dtype).
+        404 when none is ready."""
+        background = session.background.ready()
+        if background is None:
+            state = session.background_status()
+            why = {"capturing": "one is being captured", "failed": "the last capture failed"}
+            return error_response(
+                404,
+                "no_background",
+                f"no background is ready ({why.get(state.state, 'none was captured')}); "
+                "capture one while something streams: POST /api/v1/live/background "
+                '{"frames": 16}, then poll GET /api/v1/live/background',
+            )
+        return Response(
+            content=background.pixels.astype("<f4", copy=False).tobytes(),
+            media_type="application/octet-stream",
+            headers={
+                "X-Camd-Background": json.dumps(background.meta()),
+                "Cache-Control": "no-store",
+            },
+        )
+
+    @app.get(
+        f"{API}/live/lines",
+        tags=["live"],
+        response_class=Response,
+        responses={200: {"content": {"application/octet-stream": {}}}},
+    )
+    def get_live_lines(
+        after: int = Query(
+            default=-1, ge=-1, description="the last line index the viewer has (-1: none)"
+        ),
+        max_lines: int = Query(
+            default=512, ge=1, le=LIVE_LINES_MAX, alias="max", description="most lines to send"
+        ),
+        timeout_s: float = Query(
+            default=0.0,
+            ge=0,
+            le=LIVE_WAIT_MAX_S,
+            description="with no line newer than after: longest wait for one, s",
+        ),
+    ) -> Response:
+        """The live view's waterfall: the newest integrated lines of the running (or last)
+        TDI scan with index > ``after``, at most ``max``, the newest ones. Raw little-endian
+        float32, ``n`` x ``cols`` row by row; the header ``X-Camd-Lines`` holds their JSON
+        description (scan, scan_seq, first_index, n, cols, index, complete, stages_used,
+        skipped, lines_done, lines_planned, state, dtype). With none newer, waits up to
+        ``timeout_s`` for one, then answers ``n`` = 0 with an empty body. 404 before the
+        first scan. Reading never needs control."""
+        lines = session.live_lines
+        if timeout_s > 0:
+            lines.wait_newer(after, timeout_s)
+        chunk = lines.since(after, max_lines)
+        if chunk is None:
+            return error_response(
+                404,
+                "no_scan",
+                "no scan has run since the daemon started: the live lines are those of the "
+                "running or last TDI scan; start one (`camctl scan --stages 8 --lines 1000`)",
+            )
+        return Response(
+            content=chunk.data.astype("<f4", copy=False).tobytes(),
+            media_type="application/octet-stream",
+            # Compact: with 2048 lines the flags and indices make a header of tens of kB.
+            headers={
+                "X-Camd-Lines": json.dumps(chunk.meta(), separators=(",", ":")),
+                "Cache-Control": "no-store",
+            },
+        )
 
     @app.post(f"{API}/mode", response_model=ModeResponse, tags=["control"])
     def post_mode(

@@ -13,6 +13,10 @@ A client holds control:
 - implicitly, while an acquisition it started (scan, stare, stream, wheel run) runs: nobody
   else can stop or disturb it.
 
+The holder may say what it is doing (``set_activity``: "campaign mtf: step 3/12 ...", with
+steps done and in all) for observers to see; what it said is forgotten when control is given
+back, expires, ends with its acquisition or is taken over.
+
 A forced takeover (``force``) always succeeds and is logged as a warning event naming both
 clients. Emergency stops (``/api/v1/estop``, ``/api/v1/motion/estop``, ``/api/v1/motion/stop``)
 are never refused, whoever asks and whatever holds control.
@@ -26,7 +30,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from camd.daemon.acquisition import AcquisitionSlot
-from camd.daemon.errors import NotInControl
+from camd.daemon.errors import NoControl, NotInControl
 
 ANONYMOUS = "anonymous"
 DEFAULT_TTL_S = 60.0
@@ -41,6 +45,17 @@ class Holder:
     since_t_s: float
     why: str  # "lease" or "a scan it started is running" ...
     expires_t_s: float | None
+
+
+@dataclass(frozen=True, slots=True)
+class Activity:
+    """What ``client``, holding control, last said it is doing (``done`` of ``total`` steps)."""
+
+    client: str
+    text: str
+    done: int | None
+    total: int | None
+    t_s: float
 
 
 @dataclass(slots=True)
@@ -68,6 +83,7 @@ class Control:
         self._clock = clock
         self._lock = threading.Lock()
         self._lease: _Lease | None = None
+        self._activity: Activity | None = None
 
     def holder(self) -> Holder | None:
         """Who holds control now (an expired lease holds nothing)."""
@@ -75,6 +91,13 @@ class Control:
             return self._holder()
 
     def _holder(self) -> Holder | None:
+        holder = self._current_holder()
+        activity = self._activity
+        if activity is not None and (holder is None or holder.client != activity.client):
+            self._activity = None  # given back, expired, ended or taken over: said no more
+        return holder
+
+    def _current_holder(self) -> Holder | None:
         lease = self._lease
         now = self._clock()
         if lease is not None and lease.expires_t_s <= now:
@@ -137,9 +160,35 @@ class Control:
             return self._holder()  # type: ignore[return-value]
 
     def release(self, client: str) -> None:
-        """Give back ``client``'s lease (harmless when it holds none)."""
+        """Give back ``client``'s lease (harmless when it holds none); what it said it was
+        doing goes with it."""
         with self._lock:
             lease = self._lease
             if lease is not None and lease.client == client:
                 self._lease = None
                 self._events("info", "control", f"{client} released control")
+            if self._activity is not None and self._activity.client == client:
+                self._activity = None
+
+    def activity(self) -> Activity | None:
+        """What the holder last said it is doing (None: nothing, or no longer the holder)."""
+        with self._lock:
+            self._holder()
+            return self._activity
+
+    def set_activity(
+        self, client: str, text: str, done: int | None = None, total: int | None = None
+    ) -> Activity:
+        """Record what ``client`` is doing; only the holder may: NoControl while nobody
+        holds control, NotInControl (naming the holder) while another client does."""
+        with self._lock:
+            holder = self._holder()
+            if holder is not None and holder.client == client:
+                self._activity = Activity(client, text, done, total, self._clock())
+                return self._activity
+        if holder is not None:
+            self.check(client, "set the activity")  # NotInControl, naming the holder
+        raise NoControl(
+            "cannot set the activity: nobody holds control; take it first (POST "
+            "/api/v1/control, `camctl control take`), then say what you are doing"
+        )

@@ -57,6 +57,11 @@ class NotInControl(SessionError):
     message names the holder and how to take control."""
 
 
+class NoControl(SessionError):
+    """A request only the controlling client may make, while nobody holds control (HTTP 409);
+    the message says to take control first."""
+
+
 class SimulatorError(SessionError):
     """The simulated camera could not be started; ``usage`` is True for bad arguments."""
 

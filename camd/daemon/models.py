@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator
 
 Mode = Literal["area", "tdi"]
 StateName = Literal["disconnected", "idle", "streaming", "fault"]
@@ -19,6 +19,9 @@ PING_COUNT_MAX = 100_000
 PING_SIZE_MAX = 256
 HISTORY_LIMIT_MAX = 1_000_000
 EVENTS_LIMIT_MAX = 100_000
+LIVE_LINES_MAX = 2048  # lines the live view's waterfall keeps, and the most one request gets
+LIVE_WAIT_MAX_S = 5.0  # longest a live-view request waits for something newer
+ACTIVITY_TEXT_MAX = 200
 
 
 class _Request(BaseModel):
@@ -52,7 +55,23 @@ ALLOWED: dict[str, str] = {
     "speed_deg_s": "a wheel speed in deg/s from 0 (stopped) to 360",
     "channels": "a list of 1 to 13 wheel channel numbers, each 0..12",
     "passes": "an integer in 1..1000",
+    "frames": (
+        "an integer in 1..1000 for a live-view background, 0 (until stopped) .. 4294967295 "
+        "for a stream"
+    ),
     "angle_deg": "an angle in deg from 0 to 360, or null (no polariser)",
+    "after": (
+        "a line index >= -1 for live/lines (-1: from the first line), a frame seq >= 0 for "
+        "live/frame (0: the newest)"
+    ),
+    "max": f"an integer in 1..{LIVE_LINES_MAX} (lines)",
+    "timeout_s": (
+        f"seconds: 0..{LIVE_WAIT_MAX_S:g} for live/lines, more than 0 and at most "
+        f"{LIVE_WAIT_MAX_S:g} for live/frame, more than 0 and at most 86400 for acquisitions"
+    ),
+    "text": f"1 to {ACTIVITY_TEXT_MAX} printable characters (no newlines or tabs)",
+    "done": "null or an integer >= 0, at most total",
+    "total": "null or an integer >= 0, at least done",
 }
 
 
@@ -61,8 +80,8 @@ class ErrorResponse(BaseModel):
 
     error: str = Field(description="what went wrong and what to change")
     code: str = Field(
-        description="bad_request, unauthorized, not_in_control, illegal_state, busy, "
-        "link_untrained, device_nak, disconnected, timeout, internal"
+        description="bad_request, unauthorized, not_in_control, no_control, illegal_state, "
+        "busy, link_untrained, device_nak, disconnected, timeout, internal"
     )
 
 
@@ -96,6 +115,15 @@ class DaemonInfo(BaseModel):
     uptime_s: float
 
 
+class ControlActivity(BaseModel):
+    """What the controlling client says it is doing (PUT /api/v1/control/activity)."""
+
+    text: str = Field(description="e.g. 'campaign mtf: step 3/12 acquire scan_m8'")
+    done: int | None = Field(description="steps done so far (null: not given)")
+    total: int | None = Field(description="steps in all (null: not given)")
+    t_s: float = Field(description="Unix time it was set")
+
+
 class ControlInfo(BaseModel):
     """Who holds control of the camera (docs/api.md#control)."""
 
@@ -108,6 +136,11 @@ class ControlInfo(BaseModel):
         description="Unix time the lease ends unless renewed; null while an acquisition holds it"
     )
     you: str = Field(description="the client name this request was made under (X-Camd-Client)")
+    activity: ControlActivity | None = Field(
+        default=None,
+        description="what the holder last said it is doing (PUT /api/v1/control/activity); "
+        "null: nothing said, or control was given back or taken over since",
+    )
 
 
 class ControlRequest(_Request):
@@ -119,6 +152,33 @@ class ControlRequest(_Request):
     force: bool = Field(
         default=False, description="take control from another client (logged as an event)"
     )
+
+
+class ActivityRequest(_Request):
+    """PUT /api/v1/control/activity: what the controlling client is doing, for observers."""
+
+    text: str = Field(
+        min_length=1,
+        max_length=ACTIVITY_TEXT_MAX,
+        description=f"what it is doing, 1 to {ACTIVITY_TEXT_MAX} printable characters",
+    )
+    done: int | None = Field(default=None, ge=0, description="steps done so far")
+    total: int | None = Field(default=None, ge=0, description="steps in all (>= done)")
+
+    @field_validator("text")
+    @classmethod
+    def _printable(cls, text: str) -> str:
+        if not text.isprintable():
+            raise ValueError("text must be printable (no newlines, tabs or control characters)")
+        return text
+
+    @field_validator("total")
+    @classmethod
+    def _done_within_total(cls, total: int | None, info: ValidationInfo) -> int | None:
+        done = info.data.get("done")
+        if total is not None and done is not None and done > total:
+            raise ValueError(f"done = {done} is more than total = {total}")
+        return total
 
 
 class AcquisitionInfo(BaseModel):
@@ -327,6 +387,11 @@ class TimingResponse(BaseModel):
     offset: RegisterValue | None = None
     readout_mode: RegisterValue | None = None
     test_pattern: RegisterValue | None = None
+    exposure_register: str | None = Field(
+        default=None,
+        description="the register (or REG.field) that sets exposure_lines: write it with "
+        "POST /api/v1/registers to change the exposure",
+    )
 
 
 class LaneResult(BaseModel):
@@ -422,6 +487,51 @@ class StreamResponse(BaseModel):
     frames_sent: int | None = Field(description="frames the device says it produced, once ended")
     recording: str | None = Field(description="HDF5 file being (or last) recorded")
     stats: StreamStats
+
+
+# -- the live view's background ------------------------------------------------------------------
+
+BACKGROUND_FRAMES_MAX = 1000  # = camd.pipeline.background.FRAMES_MAX
+BACKGROUND_FRAMES_DEFAULT = 16
+
+
+class BackgroundRequest(_Request):
+    """POST /api/v1/live/background."""
+
+    frames: int = Field(
+        default=BACKGROUND_FRAMES_DEFAULT,
+        ge=1,
+        le=BACKGROUND_FRAMES_MAX,
+        description=f"frames to average, 1..{BACKGROUND_FRAMES_MAX}",
+    )
+
+
+class BackgroundStatus(BaseModel):
+    """GET /api/v1/live/background, and the answer of POST and DELETE there. While capturing
+    (and after a failure) the geometry and counters are those of the frames taken so far; a
+    field that does not apply is null."""
+
+    state: Literal["none", "capturing", "ready", "failed"] = Field(
+        description="none: no background; capturing: averaging frames; ready: the mean is "
+        "there (GET /api/v1/live/background/frame); failed: see error"
+    )
+    frames_wanted: int | None = Field(description="frames the capture averages")
+    frames_done: int | None = Field(description="frames averaged so far")
+    rows: int | None
+    cols: int | None
+    mode: str | None = Field(description="the frames' mode (area, tdi)")
+    stages: int | None = Field(description="TDI stages in the frame headers (0 in area mode)")
+    first_counter: int | None = Field(description="the device's counter of the first frame")
+    last_counter: int | None = Field(description="... and of the last frame averaged so far")
+    captured_t_s: float | None = Field(description="Unix time the capture completed")
+    seq: int | None = Field(description="completed captures since the daemon started")
+    mean_dn: float | None = Field(description="spatial mean of the background, DN")
+    std_dn: float | None = Field(description="spatial standard deviation of the background, DN")
+    saved_to: list[str] = Field(
+        description="recordings started since it was captured, which hold it as /background "
+        "(newest last, the last 20)"
+    )
+    error: str | None = Field(description="why the capture failed, and what to do")
 
 
 class SceneRequest(_Request):

@@ -20,6 +20,10 @@ services. A scan (docs/scan.md):
 
 A stage change (``set_stages``) takes effect at the next frame the consumer sees, without
 stopping the stream: the engine starts a new run there, so the next M - 1 lines are incomplete.
+
+With ``live_lines`` (the session's ``camd.pipeline.live.LiveLines``), each scan's lines also go
+to the live view's waterfall: reset as the scan's stream starts, fed by the pipeline's worker,
+ended with the scan's final state.
 """
 
 from __future__ import annotations
@@ -65,6 +69,8 @@ from camd.daemon.stream_service import StreamService
 from camd.daemon.transaction import Apply
 from camd.motion.closed_loop import LinePeriodSetting
 from camd.pipeline import TdiPipeline
+from camd.pipeline.background import Background, BackgroundCapture
+from camd.pipeline.live import LiveLines
 from camd.store.quicklook import write_quicklook_png
 from camd.store.recording import RecordingError, check_new_file
 from camd.store.tdi_recording import TdiRecorder
@@ -115,12 +121,18 @@ class ScanService:
         stream: StreamService,
         motion: MotionService,
         sim: SimulatorControl,
+        *,
+        background: BackgroundCapture | None = None,
+        live_lines: LiveLines | None = None,
     ) -> None:
         self.device = device
         self.sensor = sensor
         self.stream = stream
         self.motion = motion
         self.sim = sim
+        self.live_lines = live_lines  # the live view's waterfall (None: no live lines)
+        # The live view's background: stored in every scan started while it is ready.
+        self.background = background
         self._lock = threading.Lock()
         self._scan: _Scan | None = None
 
@@ -220,6 +232,7 @@ class ScanService:
             scan.pipeline.finish(flush=False)
             self._close_file(scan, scan.state)
             scan.done.set()
+            self._live_end(scan.state)
             self.device.acquisition.release(scan.acquisition)
 
     # -- setting up -----------------------------------------------------------------------------
@@ -316,7 +329,8 @@ class ScanService:
                     f"stage stopped and back at {stage_position * 1e3:.3f} mm",
                 )
                 motion.start()
-            recorder = self._recorder(plan)
+            background = self.background.ready() if self.background is not None else None
+            recorder = self._recorder(plan, background)
             apply.undo_later(lambda: _discard(recorder), f"file {plan.path} removed")
             scan = _Scan(plan, motion, acquisition)
             limits = device.config.motion
@@ -330,8 +344,14 @@ class ScanService:
                 on_event=self._events,
                 on_failure=lambda: self._worker_failed(scan),
                 on_red=lambda: self._mismatch_red(scan),
+                on_lines=None if self.live_lines is None else self.live_lines.append,
             )
+            if self.live_lines is not None:
+                self.live_lines.reset(plan.columns, scan=str(plan.path), lines_planned=plan.frames)
             self._start_stream(scan, plan.rows, plan.columns)
+            if background is not None:
+                assert self.background is not None
+                self.background.note_saved(background, str(plan.path))
             with self._lock:
                 self._scan = scan
             for note in plan.notes:
@@ -377,7 +397,7 @@ class ScanService:
 
         return apply
 
-    def _recorder(self, plan: ScanPlan) -> TdiRecorder:
+    def _recorder(self, plan: ScanPlan, background: Background | None = None) -> TdiRecorder:
         sensor = self.sensor
         request = plan.request
         scan_meta = request.model_dump(exclude={"out"})
@@ -393,6 +413,8 @@ class ScanService:
                     "timing": plan.timing.model_dump(),
                     "scan": scan_meta,
                 },
+                background_dn=None if background is None else background.pixels,
+                background_attrs=None if background is None else background.recording_attrs(),
             )
         except (RecordingError, ValueError) as exc:
             raise BadRequest(str(exc)) from None
@@ -423,6 +445,7 @@ class ScanService:
             stream.remove_consumer(pipeline.consumer)
             scan.state = "failed"
             pipeline.abort(FINISH_TIMEOUT_S)
+            self._live_end("failed")
             raise
         scan.state = "running"
         scan.started_mono, scan.started_cpu = time.monotonic(), time.process_time()
@@ -483,7 +506,12 @@ class ScanService:
             if scan.state != "failed":
                 scan.state = final
             scan.done.set()
+        self._live_end(scan.state)
         self.device.acquisition.release(scan.acquisition)
+
+    def _live_end(self, state: str) -> None:
+        if self.live_lines is not None:
+            self.live_lines.end(state)
 
     def _close_file(self, scan: _Scan, state: str) -> None:
         stats = self.stream.stats().model_dump()

@@ -43,8 +43,11 @@ from camd.daemon.errors import (
     SessionError,
 )
 from camd.daemon.models import (
+    LIVE_LINES_MAX,
     AcquisitionInfo,
+    BackgroundStatus,
     ChannelLatest,
+    ControlActivity,
     ControlInfo,
     DaemonInfo,
     DeviceLinkStats,
@@ -77,7 +80,8 @@ from camd.link import (
     Response,
     Unsolicited,
 )
-from camd.pipeline.live import LiveTap
+from camd.pipeline.background import BackgroundCapture
+from camd.pipeline.live import LiveLines, LiveTap
 from camd.protocol import Dictionary, FrameType, load_dictionary
 from camd.protocol.dictionary import FieldValue
 
@@ -120,14 +124,31 @@ class DeviceSession:
         self.sensor = SensorService(
             device, lambda regmap: backends.register_bridge(config, regmap, device.link)
         )
+        # The live view's background: captured from any stream, stored in every recording
+        # (stream, stare, wheel, scan) started while it is ready.
+        self.background = BackgroundCapture()
         self.stream = StreamService(
-            device, self.sensor, lambda: backends.frame_stream_backend(config)
+            device,
+            self.sensor,
+            lambda: backends.frame_stream_backend(config),
+            background=self.background,
         )
         # The live view's tap stays on every stream (stare, stream, scan, wheel).
         self.live = LiveTap()
         self.stream.add_consumer(self.live)
+        self.stream.add_consumer(self.background)
         self.motion = MotionService(device, self.sensor)
-        self.scan = ScanService(device, self.sensor, self.stream, self.motion, self.sim)
+        # The live view's waterfall: the newest integrated lines of the running or last scan.
+        self.live_lines = LiveLines(LIVE_LINES_MAX)
+        self.scan = ScanService(
+            device,
+            self.sensor,
+            self.stream,
+            self.motion,
+            self.sim,
+            background=self.background,
+            live_lines=self.live_lines,
+        )
         self.wheel = WheelService(device, self.sensor, self.stream)
         self.control = Control(
             device.acquisition, lambda level, source, message: self._event(level, source, message)
@@ -237,12 +258,19 @@ class DeviceSession:
         holder = self.control.holder()
         if holder is None:
             return ControlInfo(holder=None, since_t_s=None, why=None, expires_t_s=None, you=client)
+        said = self.control.activity()
+        activity = (
+            None
+            if said is None or said.client != holder.client
+            else ControlActivity(text=said.text, done=said.done, total=said.total, t_s=said.t_s)
+        )
         return ControlInfo(
             holder=holder.client,
             since_t_s=holder.since_t_s,
             why=holder.why,
             expires_t_s=holder.expires_t_s,
             you=client,
+            activity=activity,
         )
 
     def acquisition_info(self) -> AcquisitionInfo | None:
@@ -473,6 +501,50 @@ class DeviceSession:
                 note += f"; registers back at their defaults: {', '.join(changed)}"
         self._event("info", "api", f"camera reset{note}")
         return self.status()
+
+    # -- the live view's background -------------------------------------------------------------
+
+    def background_status(self) -> BackgroundStatus:
+        """The background's state (a capture whose stream has ended fails here)."""
+        capture = self.background
+        if capture.snapshot().state == "capturing" and not self.stream.streaming:
+            capture.fail(
+                "the stream ended",
+                "capture again while something streams (`camctl stream --start`, a stare or a "
+                "scan)",
+            )
+        snap = capture.snapshot()
+        ready = snap.background
+        return BackgroundStatus(
+            state=snap.state,
+            frames_wanted=snap.frames_wanted,
+            frames_done=snap.frames_done,
+            rows=snap.rows,
+            cols=snap.cols,
+            mode=snap.mode,
+            stages=snap.stages,
+            first_counter=snap.first_counter,
+            last_counter=snap.last_counter,
+            captured_t_s=None if ready is None else ready.captured_t_s,
+            seq=None if ready is None else ready.seq,
+            mean_dn=None if ready is None else ready.mean_dn,
+            std_dn=None if ready is None else ready.std_dn,
+            saved_to=list(snap.saved_to),
+            error=snap.error,
+        )
+
+    def capture_background(self, frames: int) -> BackgroundStatus:
+        """Average the next ``frames`` frames of the running stream; returns at once. Refused
+        (409, nothing changed: a ready background stays) when nothing streams."""
+        self._require(Request.LIVE_BACKGROUND)
+        self.background.start(frames)
+        self._event("info", "api", f"live-view background: averaging the next {frames} frames")
+        return self.background_status()
+
+    def clear_background(self) -> BackgroundStatus:
+        """Drop the background (and stop a capture)."""
+        self.background.clear()
+        return self.background_status()
 
     # -- internals: requests and state ----------------------------------------------------------
 

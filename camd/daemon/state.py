@@ -29,6 +29,7 @@ motion_move                     yes
 motion_stop                     yes   yes        yes
 wheel_read                      yes   yes        yes
 wheel_set                       yes
+live_background                       yes
 ================  ============  ====  =========  =====
 
 Register reads are harmless at any time the camera answers; writes and training change what the
@@ -38,6 +39,7 @@ in front of the camera, so it is legal while streaming. The stage moves on reque
 idle (a scan drives it itself while streaming); stopping it, and its emergency stop, are always
 allowed while the camera answers. The filter wheel's speed and delay compensation change only
 when idle (a wheel acquisition streams, and is a ``stream_start``); reading it is harmless.
+Capturing the live view's background averages frames of the running stream, so it needs one.
 """
 
 from __future__ import annotations
@@ -79,6 +81,7 @@ class Request(StrEnum):
     MOTION_STOP = "motion_stop"
     WHEEL_READ = "wheel_read"
     WHEEL_SET = "wheel_set"
+    LIVE_BACKGROUND = "live_background"
 
 
 class Trigger(StrEnum):
@@ -116,11 +119,12 @@ LEGAL: dict[Request, frozenset[State]] = {
     Request.MOTION_STOP: frozenset({State.IDLE, State.STREAMING, State.FAULT}),
     Request.WHEEL_READ: frozenset({State.IDLE, State.STREAMING, State.FAULT}),
     Request.WHEEL_SET: frozenset({State.IDLE}),
+    Request.LIVE_BACKGROUND: frozenset({State.STREAMING}),
 }
 
 HOW_TO_LEAVE: dict[State, str] = {
     State.DISCONNECTED: "start the camera (or `camd sim`) or check the cable and the port name",
-    State.IDLE: "wait until the current operation ends",
+    State.IDLE: "start a stream (`camctl stream --start`), a stare or a scan",
     State.STREAMING: "stop the stream first (`camctl stream --stop`)",
     State.FAULT: "send `camctl reset` (and fix the cause first)",
 }
@@ -145,6 +149,7 @@ _WHAT: dict[Request, str] = {
     Request.MOTION_STOP: "stop the stage",
     Request.WHEEL_READ: "read the filter wheel",
     Request.WHEEL_SET: "change the filter wheel's speed or compensation",
+    Request.LIVE_BACKGROUND: "capture a live-view background (it averages streamed frames)",
 }
 
 # (state, trigger) -> next state. A pair not listed leaves the state unchanged: e.g. a red limit

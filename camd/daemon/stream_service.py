@@ -42,6 +42,7 @@ from camd.daemon.sensor_service import SensorService
 from camd.daemon.state import Request, Trigger
 from camd.daemon.transaction import Apply
 from camd.link.frame_stream import FrameStream, ReceivedFrame, StreamError
+from camd.pipeline.background import Background, BackgroundCapture
 from camd.protocol.stream import HEADER_BYTES
 from camd.store.recording import FrameRecorder, RecordingError, check_new_file
 
@@ -75,10 +76,17 @@ class StreamService:
     """Start, stop and watch the camera's frame stream; record it on request."""
 
     def __init__(
-        self, device: DeviceAccess, sensor: SensorService, usb_backend: Callable[[], Any]
+        self,
+        device: DeviceAccess,
+        sensor: SensorService,
+        usb_backend: Callable[[], Any],
+        *,
+        background: BackgroundCapture | None = None,
     ) -> None:
         self.device = device
         self.sensor = sensor
+        # The live view's background: stored in every recording started while it is ready.
+        self.background = background
         self.config = device.config.stream
         self._usb_backend = usb_backend
         self.streaming = False
@@ -367,8 +375,9 @@ class StreamService:
         with self._lock:
             reader = self._open_reader()
         recorder = None
+        background = self.background.ready() if self.background is not None else None
         if recorder_path is not None:
-            recorder = self._new_recorder(recorder_path, request, stages, start)
+            recorder = self._new_recorder(recorder_path, request, stages, start, background)
         with self._lock:
             self._finished.clear()
             self._recording = None
@@ -395,6 +404,9 @@ class StreamService:
                 recorder_path.unlink(missing_ok=True)  # nothing was recorded: leave no file
             raise
         reader.expect_first(int(values["first_counter"]))
+        if recorder_path is not None and background is not None:
+            assert self.background is not None
+            self.background.note_saved(background, str(recorder_path))
         if start is None:
             info = {
                 "mode": str(values["mode"]),
@@ -452,9 +464,11 @@ class StreamService:
         request: StreamStartRequest,
         stages: int,
         start: StreamStart | None = None,
+        background: Background | None = None,
     ) -> FrameRecorder:
-        """A new recording with the camera's metadata, made before the stream starts so that
-        its first frame is recorded too; the frames set its geometry."""
+        """A new recording with the camera's metadata (and the live view's ``background``, if
+        one is ready), made before the stream starts so that its first frame is recorded too;
+        the frames set its geometry."""
         sensor = self.sensor
         stream: dict[str, Any] = {
             "frames_requested": request.frames,
@@ -473,6 +487,8 @@ class StreamService:
                     "timing": sensor.timing().model_dump(),
                     "stream": stream,
                 },
+                background_dn=None if background is None else background.pixels,
+                background_attrs=None if background is None else background.recording_attrs(),
             )
         except RecordingError as exc:
             raise BadRequest(str(exc)) from None

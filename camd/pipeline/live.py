@@ -1,4 +1,4 @@
-"""The live view's tap on the frame stream: the newest frame, at most a screen's rate.
+"""The live view's taps: the newest frame of every stream, and the newest lines of a scan.
 
 ``LiveTap`` is a stream consumer that stays attached to every stream (stare, stream, scan,
 wheel). It runs on the stream's dispatcher thread, so it must cost next to nothing: a frame
@@ -6,14 +6,21 @@ arriving sooner than ``1 / max_rate_hz`` after the last one kept is only counted
 a frame that is kept is copied once (the reader reuses its buffers) and published as the
 ``latest`` ``LiveFrame``. Viewers (the HTTP and WebSocket endpoints) read that frame or wait
 for a newer one; however many there are, the acquisition does the same work.
+
+``LiveLines`` keeps the newest integrated lines of the running (or last) TDI scan for the live
+view's waterfall: a ring of ``capacity`` float32 rows with each line's index, completeness flag
+and stages used. The TDI worker appends each block of lines it makes with one copy into the
+ring; viewers ask for the lines newer than the last index they have, or wait for them.
 """
 
 from __future__ import annotations
 
+import bisect
 import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -116,3 +123,218 @@ class LiveTap:
             )
             latest = self._latest
         return latest if latest is not None and latest.seq > seq else None
+
+
+LINES_CAPACITY = 2048
+"""Lines ``LiveLines`` keeps by default: a screen's height of waterfall, and then some."""
+
+
+@dataclass(frozen=True, slots=True)
+class LiveLinesChunk:
+    """Lines of one scan newer than an index, as ``LiveLines.since`` gives them (copies)."""
+
+    scan: str  # what the scan is called (the daemon gives its file)
+    scan_seq: int  # scans seen so far, this one included (1, 2, ...): a new one restarts indices
+    cols: int
+    data: npt.NDArray[np.float32]  # (n, cols), oldest first
+    index: npt.NDArray[np.int64]  # (n,) each line's index (= its frame's; lost frames have none)
+    complete: npt.NDArray[np.bool_]  # (n,) all M stages contributed
+    stages_used: npt.NDArray[np.int32]  # (n,)
+    skipped: int  # lines newer than ``after`` that are not here: left the ring, or cut by max
+    lines_done: int  # lines the scan has made so far
+    lines_planned: int  # lines it will make (0: until stopped)
+    state: str  # "running" until the scan ends, then how it ended
+
+    @property
+    def n(self) -> int:
+        return int(self.index.shape[0])
+
+    def meta(self) -> dict[str, Any]:
+        """Everything but the line data, as plain values (the endpoint sends it as JSON)."""
+        return {
+            "scan": self.scan,
+            "scan_seq": self.scan_seq,
+            "first_index": int(self.index[0]) if self.n else None,
+            "n": self.n,
+            "cols": self.cols,
+            "index": self.index.tolist(),
+            "complete": self.complete.tolist(),
+            "stages_used": self.stages_used.tolist(),
+            "skipped": self.skipped,
+            "lines_done": self.lines_done,
+            "lines_planned": self.lines_planned,
+            "state": self.state,
+            "dtype": "<f4",
+        }
+
+
+class LiveLines:
+    """The newest ``capacity`` lines of the running (or last) scan (module docstring).
+
+    ``reset`` at each scan's start, ``append`` from the TDI worker (one copy into the ring, no
+    per-line work), ``end`` when the scan ends; ``since`` and ``wait_newer`` from any thread.
+    Line indices must increase; they may jump (frames lost on the way have no line). To count
+    exactly the lines a late viewer missed, the first index and line number of every run of
+    consecutive indices are kept (one pair per gap in the scan).
+    """
+
+    def __init__(self, capacity: int = LINES_CAPACITY) -> None:
+        if capacity < 1:
+            raise ValueError(f"capacity must be at least 1 line, got {capacity}")
+        self.capacity = capacity
+        self._cond = threading.Condition()
+        self._scan: str | None = None
+        self._scan_seq = 0
+        self._version = 0  # changes at each reset and end: wakes waiting viewers
+        self._lines_planned = 0
+        self._state = "none"
+        self._cols = 0
+        self._data = np.zeros((0, 0), dtype=np.float32)
+        self._index = np.zeros(capacity, dtype=np.int64)
+        self._complete = np.zeros(capacity, dtype=np.bool_)
+        self._stages = np.zeros(capacity, dtype=np.int32)
+        self._total = 0  # lines appended to this scan
+        self._run_index: list[int] = []  # first index of each run of consecutive indices
+        self._run_line: list[int] = []  # its line number (0, 1, ... in appending order)
+
+    @property
+    def scan(self) -> str | None:
+        """The scan whose lines these are (None before the first)."""
+        with self._cond:
+            return self._scan
+
+    def reset(self, cols: int, *, scan: str, lines_planned: int = 0) -> None:
+        """A new scan of ``cols``-column lines starts: forget the last one's lines."""
+        if cols < 1:
+            raise ValueError(f"cols must be at least 1, got {cols}")
+        with self._cond:
+            if self._data.shape != (self.capacity, cols):
+                self._data = np.zeros((self.capacity, cols), dtype=np.float32)
+            self._cols = cols
+            self._scan, self._lines_planned, self._state = scan, max(0, lines_planned), "running"
+            self._scan_seq += 1
+            self._version += 1
+            self._total = 0
+            self._run_index, self._run_line = [], []
+            self._cond.notify_all()
+
+    def end(self, state: str) -> None:
+        """The scan has ended (``state``: "done", "stopped", "failed")."""
+        with self._cond:
+            self._state = state
+            self._version += 1
+            self._cond.notify_all()
+
+    def append(
+        self,
+        data: npt.NDArray[Any],
+        index: npt.NDArray[Any],
+        complete: npt.NDArray[Any],
+        stages_used: npt.NDArray[Any],
+    ) -> None:
+        """Add F lines (a ``TdiBlock``'s arrays: data (F, cols), index, complete, stages_used),
+        converted to float32 as they are copied into the ring. ValueError for a wrong shape or
+        an index not above the last one, before anything is kept."""
+        lines = np.asarray(data)
+        idx = np.asarray(index)
+        n = int(idx.shape[0]) if idx.ndim == 1 else -1
+        if n == 0:
+            return
+        with self._cond:
+            if self._scan is None:
+                raise ValueError("LiveLines.append before reset: no scan has started")
+            if (
+                lines.shape != (n, self._cols)
+                or np.shape(complete) != (n,)
+                or np.shape(stages_used) != (n,)
+            ):
+                raise ValueError(
+                    f"append takes F lines of {self._cols} columns with F indices, flags and "
+                    f"stage counts; got data {lines.shape}, index {idx.shape}, complete "
+                    f"{np.shape(complete)}, stages_used {np.shape(stages_used)}"
+                )
+            last = self._run_last_index()
+            steps = np.diff(idx)
+            if (last is not None and int(idx[0]) <= last) or bool((steps <= 0).any()):
+                raise ValueError(
+                    f"line indices must increase: got {int(idx[0])}..{int(idx[-1])} after {last}"
+                )
+            # Runs of consecutive indices: one per jump (the engine's blocks have none inside).
+            starts = [0] if last is None or int(idx[0]) != last + 1 else []
+            starts += (np.flatnonzero(steps != 1) + 1).tolist()
+            for i in starts:
+                self._run_index.append(int(idx[i]))
+                self._run_line.append(self._total + i)
+            # Into the ring, wrapping at its end: the newest ``keep`` lines (all of them unless
+            # the block is longer than the ring), float32 by the assignment's cast.
+            keep = min(n, self.capacity)
+            first = (self._total + n - keep) % self.capacity
+            head = min(keep, self.capacity - first)  # rows that fit before the ring's end
+            pieces = [(slice(first, first + head), slice(n - keep, n - keep + head))]
+            if head < keep:
+                pieces.append((slice(0, keep - head), slice(n - keep + head, n)))
+            flags, stages = np.asarray(complete), np.asarray(stages_used)
+            for dst, src in pieces:
+                self._data[dst] = lines[src]
+                self._index[dst] = idx[src]
+                self._complete[dst] = flags[src]
+                self._stages[dst] = stages[src]
+            self._total += n
+            self._cond.notify_all()
+
+    def since(self, after: int, max_lines: int = LINES_CAPACITY) -> LiveLinesChunk | None:
+        """The newest lines with index > ``after`` (at most ``max_lines``, the newest ones),
+        with how many such lines are left out; None before the first scan."""
+        if max_lines < 1:
+            raise ValueError(f"max_lines must be at least 1, got {max_lines}")
+        with self._cond:
+            if self._scan is None:
+                return None
+            total = self._total
+            newer = total - self._lines_upto(after)
+            n = min(newer, max_lines, self.capacity)
+            rows = np.arange(total - n, total) % self.capacity
+            return LiveLinesChunk(
+                scan=self._scan,
+                scan_seq=self._scan_seq,
+                cols=self._cols,
+                data=self._data[rows],
+                index=self._index[rows],
+                complete=self._complete[rows],
+                stages_used=self._stages[rows],
+                skipped=newer - n,
+                lines_done=total,
+                lines_planned=self._lines_planned,
+                state=self._state,
+            )
+
+    def wait_newer(self, after: int, timeout_s: float) -> bool:
+        """Wait until there is a line with index > ``after``, or a scan starts or ends, for at
+        most ``timeout_s``; True if there is such a line then."""
+        with self._cond:
+            version = self._version
+            self._cond.wait_for(
+                lambda: self._newest_beyond(after) or self._version != version, timeout_s
+            )
+            return self._newest_beyond(after)
+
+    # -- internals (with the lock held) ---------------------------------------------------------
+
+    def _run_last_index(self) -> int | None:
+        if not self._run_index:
+            return None
+        return self._run_index[-1] + (self._total - self._run_line[-1]) - 1
+
+    def _newest_beyond(self, after: int) -> bool:
+        last = self._run_last_index()
+        return last is not None and last > after
+
+    def _lines_upto(self, after: int) -> int:
+        """How many of the scan's lines have an index <= ``after``."""
+        run = bisect.bisect_right(self._run_index, after) - 1
+        if run < 0:
+            return 0
+        end = self._run_line[run + 1] if run + 1 < len(self._run_line) else self._total
+        return self._run_line[run] + min(
+            after - self._run_index[run] + 1, end - self._run_line[run]
+        )

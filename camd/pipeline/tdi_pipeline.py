@@ -14,7 +14,9 @@ It knows nothing of the daemon: what it has to say goes through callbacks, all c
 worker thread (so they must not block on the worker): ``on_event(level, source, message)`` for
 the event log, ``on_failure()`` once the worker has failed (a full disk, an engine error: the
 rest of the stream is drained unused and the file keeps what it has), ``on_red()`` once, when
-the mismatch first reaches the red limit. ``progress()`` is a consistent-enough snapshot for
+the mismatch first reaches the red limit, ``on_lines(data, index, complete, stages_used)`` with
+each block of lines once the file has it (the live view's waterfall: ``camd.pipeline.live``; an
+error there is logged, never fails the scan). ``progress()`` is a consistent-enough snapshot for
 status requests from any thread.
 """
 
@@ -26,6 +28,10 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
 
 from camd.pipeline.batcher import Batcher
 from camd.pipeline.messages import Batch, End, Gap, Message, StageChange
@@ -39,6 +45,9 @@ FINISH_TIMEOUT_S = 60.0  # longest ``finish`` waits for the worker to write what
 EVENT_LEVELS: dict[Level, str] = {"ok": "info", "yellow": "warning", "red": "error"}
 
 EventCallback = Callable[[str, str, str], None]  # (level, source, message)
+LinesCallback = Callable[
+    [npt.NDArray[Any], npt.NDArray[np.int64], npt.NDArray[np.bool_], npt.NDArray[np.int32]], None
+]  # (data, index, complete, stages_used) of a block of lines, as TdiBlock has them
 
 
 @dataclass(frozen=True, slots=True)
@@ -86,12 +95,15 @@ class TdiPipeline:
         on_event: EventCallback | None = None,
         on_failure: Callable[[], None] | None = None,
         on_red: Callable[[], None] | None = None,
+        on_lines: LinesCallback | None = None,
     ) -> None:
         self._engine = engine
         self._recorder = recorder
         self._on_event = on_event or (lambda level, source, message: None)
         self._on_failure = on_failure or (lambda: None)
         self._on_red = on_red or (lambda: None)
+        self._on_lines = on_lines
+        self._lines_failed = False  # on_lines raised once: logged, not called again
         self._queue: queue.Queue[Message] = queue.Queue()
         self._batcher = Batcher(rows, engine.width, self._queue)
         self._mismatch = (
@@ -272,6 +284,12 @@ class TdiPipeline:
         self._frames_in += batch.n
         self._lines += batch.n
         self._complete_lines += int(block.complete.sum())
+        if self._on_lines is not None and not self._lines_failed:
+            try:
+                self._on_lines(block.data, block.index, block.complete, block.stages_used)
+            except Exception:  # the live view must never cost the scan
+                log.exception("on_lines failed; no more lines for the live view in this scan")
+                self._lines_failed = True
 
     def _note_stages(self, index: int, stages: int) -> None:
         self._recorder.note_stage_change(index, stages)

@@ -50,6 +50,7 @@ class SensorTiming:
     offset: int | str | None
     readout_mode: int | str | None
     test_pattern: int | str | None
+    exposure_register: str | None  # the value name that sets exposure_lines (its role)
 
     def as_dict(self) -> dict[str, Any]:
         """Plain JSON-ready values, keyed by field name."""
@@ -126,6 +127,7 @@ def sensor_timing(regmap: RegisterMap, value: ValueOf) -> SensorTiming:
         offset=_setting(regmap, "offset", value),
         readout_mode=_setting(regmap, "readout_mode", value),
         test_pattern=_setting(regmap, "test_pattern", value),
+        exposure_register=regmap.role("exposure_lines"),
     )
 
 

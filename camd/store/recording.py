@@ -11,6 +11,10 @@ One file per recording::
     /payload_crc32     (N,) uint32   the device's CRC of the payload, to re-check the pixels
     /gap_before        (N,) uint32   frames missing just before this one
     /profile, /registers, /timing, /stream   groups whose attributes hold the metadata
+    /background        group, only in a recording started while the live view had a background:
+                       /background/mean_dn (rows, cols) float32, its attributes say how it was
+                       captured (frames, rows, cols, mode, stages, first_counter, last_counter,
+                       captured_utc); see ``write_background``
 
 Root attributes: ``format`` ("camd-recording"), ``format_version``, ``mode``, ``bits``,
 ``rows``, ``cols``, ``line_period_s``, ``created_utc``, ``camd_version``, ``frames_expected``.
@@ -39,6 +43,7 @@ from camd.protocol.stream import FrameHeader, StreamMode, crc32
 FORMAT = "camd-recording"
 FORMAT_VERSION = 1
 METADATA_GROUPS = ("profile", "registers", "timing", "stream")
+BACKGROUND_GROUP = "background"
 _PER_FRAME: dict[str, npt.DTypeLike] = {
     "frame_counter": np.uint32,
     "timestamp_ns": np.uint64,
@@ -77,6 +82,14 @@ def check_new_file(path: Path, planned_bytes: int = 0) -> None:
             f"the recording needs about {planned_bytes / 1e6:.1f} MB but {folder} has "
             f"{free / 1e6:.1f} MB free; free some space, choose another disk, or record less"
         )
+
+
+def write_background(parent: h5py.Group, mean_dn: npt.ArrayLike, attrs: Mapping[str, Any]) -> None:
+    """Store a background (the mean of N frames, DN) as ``parent``'s group ``background``: the
+    image as the float32 dataset ``mean_dn``, ``attrs`` (flattened) as the group's attributes."""
+    group = parent.create_group(BACKGROUND_GROUP)
+    group.create_dataset("mean_dn", data=np.asarray(mean_dn, dtype=np.float32))
+    group.attrs.update(flatten_attrs(attrs))
 
 
 def camd_version() -> str:
@@ -129,7 +142,7 @@ class FrameRecorder:
     starts) and never overwrites an existing file. The frame geometry (rows, columns, bits,
     mode, line period) is taken from the first frame's header unless given; a later frame of
     another shape is refused. ``metadata`` maps group name (profile, registers, timing, stream)
-    to a dict.
+    to a dict. ``background_dn`` (with ``background_attrs``) is stored as ``/background``.
     """
 
     def __init__(
@@ -143,6 +156,8 @@ class FrameRecorder:
         bits: int | None = None,
         mode: StreamMode | str | None = None,
         line_period_s: float | None = None,
+        background_dn: npt.ArrayLike | None = None,
+        background_attrs: Mapping[str, Any] | None = None,
     ) -> None:
         self.path = Path(path)
         if self.path.exists():
@@ -174,6 +189,8 @@ class FrameRecorder:
             self._file.create_group(group).attrs.update(
                 flatten_attrs((metadata or {}).get(group, {}))
             )
+        if background_dn is not None:
+            write_background(self._file, background_dn, background_attrs or {})
         self.rows = self.cols = 0
         self._frames: Any = None
         self._columns: dict[str, Any] = {}

@@ -13,6 +13,8 @@ One file per scan, appended to while the scan runs::
     /profile, /registers, /timing, /scan   groups whose attributes hold the metadata
     /counters       group whose attributes hold the scan's counters (written by ``close``)
     /motion_loop    group of 1-D datasets: the closed loop's polls (written by ``close``, if any)
+    /background     group, if given: the live view's background (``mean_dn`` float32 image and
+                    its attributes, as in ``camd.store.recording.write_background``)
 
 Root attributes: ``format`` ("camd-tdi-scan"), ``format_version``, ``mode`` ("sum" or "mean"),
 ``width``, ``created_utc``, ``camd_version``, ``lines``, ``complete_lines`` and ``finished``
@@ -50,6 +52,7 @@ from camd.store.recording import (
     camd_version,
     flatten_attrs,
     unflatten_attrs,
+    write_background,
 )
 
 FORMAT = "camd-tdi-scan"
@@ -151,6 +154,7 @@ class TdiRecorder:
     appended since the last flush, so a reader in another process is never more than a chunk
     behind; ``flush()`` makes everything so far visible at once. ``close(attributes)`` writes
     the final attributes; a ``with`` block closes the recorder whatever happens inside.
+    ``background_dn`` (with ``background_attrs``) is stored as ``/background``.
     """
 
     def __init__(
@@ -161,6 +165,8 @@ class TdiRecorder:
         mode: str,
         metadata: Mapping[str, Mapping[str, Any]],
         chunk_lines: int = 256,
+        background_dn: npt.ArrayLike | None = None,
+        background_attrs: Mapping[str, Any] | None = None,
     ) -> None:
         self.path = Path(path)
         if mode not in MODES:
@@ -222,6 +228,8 @@ class TdiRecorder:
             ) from None
         try:
             self._create(metadata)
+            if background_dn is not None:  # before SWMR: an SWMR writer cannot add datasets
+                write_background(self._file, background_dn, background_attrs or {})
             self._file.swmr_mode = True
             self._file.flush()
         except BaseException:

@@ -18,3 +18,10 @@ SWAGGER_UI_VERSION = "5.35.0"
 
 SWAGGER_UI_URL = "/static/vendor/swagger-ui"
 """Where the daemon serves it."""
+
+UPLOT_VERSION = "1.6.32"
+"""The uPlot shipped in ``static/vendor/uplot`` (the live view's plots; its README says how to
+update it)."""
+
+LIVE_PAGE = STATIC_DIR / "live" / "index.html"
+"""The live view, served at ``/live``; its scripts and styles sit beside it in ``static/live``."""

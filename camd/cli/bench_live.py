@@ -1,0 +1,714 @@
+"""``camd bench live``: is acquisition slowed by live viewers?
+
+One daemon on the simulated hr400 streams continuously (area mode, exposure 1 line: the
+shortest frame period the window allows, ``rows`` line periods, so that its 2048 columns
+come at the sensor's full pixel rate; the simulator replaying a bank of rendered
+frames so that the host, not the renderer, is the limit). Rounds A (no viewer) and B (N viewers
+on the live view) alternate on that one stream (A B, then B A, ...); in each the daemon's own
+stream counters (GET /api/v1/stream) give the frames and bytes it received per second, and the
+frames lost and overrun. The figure is the median over the rounds of B / A, with its spread.
+
+Viewers:
+
+- ``ws``: threads with the ``websockets`` client, each consuming the live WebSocket as a page
+  does: JSON description, then the pixels, decoded to uint16, min and max for the contrast.
+  They offer permessage-deflate as browsers do (``--no-deflate``: they do not).
+- ``browser``: N pages of ``/live`` in Debian's chromium, driven by Playwright (a test extra:
+  imported only then). Each page counts the frames it receives (``window.camdLive``); the
+  bench reads the counts and does not listen to the pages' WebSocket (which would have the
+  browser copy every frame to Playwright).
+
+A frame's cost to the stream does not depend on its pixels, and a viewer's only through their
+number, so the frame bank's repeats change nothing measured.
+
+CPUs (``--pin``, the default on a machine with two or more): the simulated camera is a process
+on the host here, but the real one is not, so it gets CPU 0 to itself, as if it were outside
+the PC, and the daemon and the viewers share the others, as they would on a test PC. Without
+pinning, on two cores, a viewer's CPU is taken from the simulator, and B / A measures how
+the simulator slows down, not the host's acquisition (``--no-pin`` shows it).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import os
+import statistics
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Any, Protocol
+from urllib.parse import quote
+
+from camd.web.chromium import CHROMIUM_ARGS, chromium_path
+
+PROFILE = "hr400"  # the register names below are hr400's
+DEFAULT_ROUNDS = 5
+DEFAULT_SECONDS = 3.0
+DEFAULT_VIEWERS = 3
+DEFAULT_ROWS = 16
+DEFAULT_BANK = 16
+EXPOSURE_LINES = 1  # below the window's rows: frames follow each other every `rows` lines
+SETTLE_S = 0.5  # before each measurement, after the viewers are up
+VIEWER_START_TIMEOUT_S = 60.0
+GOAL = 0.95
+LIVE_WS = "/api/v1/live/ws"
+LIVE_PAGE = "/live"
+INSTALL_BROWSER = (
+    "install the test extra (pip install -e '.[test]') and Debian's chromium "
+    "(apt-get install chromium; or set CAMD_CHROMIUM to its executable)"
+)
+
+
+class BenchError(RuntimeError):
+    """The bench cannot run or a viewer failed; the message says what to change."""
+
+
+def add_parser(which: Any) -> None:
+    """Register ``camd bench live`` on the ``camd bench`` subparsers."""
+    p = which.add_parser(
+        "live",
+        help="stream ingest with live viewers attached vs none",
+        description="Stream ingest of the daemon (frames and MB received per second) with N live "
+        "viewers attached (B) against none (A), in alternating rounds on one continuous stream "
+        "of the simulated hr400; prints the median B/A.",
+    )
+    p.add_argument(
+        "--rounds", type=int, default=DEFAULT_ROUNDS, help=f"A/B rounds ({DEFAULT_ROUNDS})"
+    )
+    p.add_argument(
+        "--seconds",
+        type=float,
+        default=DEFAULT_SECONDS,
+        help=f"measured time of each A and each B (default {DEFAULT_SECONDS:g})",
+    )
+    p.add_argument(
+        "--viewers", type=int, default=DEFAULT_VIEWERS, help=f"viewers in B ({DEFAULT_VIEWERS})"
+    )
+    p.add_argument(
+        "--viewer-kind",
+        choices=("ws", "browser"),
+        default=None,
+        help="ws: WebSocket clients consuming frames as a page does; browser: pages of /live in "
+        "chromium (Playwright). Default: browser when chromium and playwright are found, else ws",
+    )
+    p.add_argument(
+        "--rows",
+        type=int,
+        default=DEFAULT_ROWS,
+        help=f"window rows x 2048 columns (default {DEFAULT_ROWS}: a frame rate above what the "
+        "host can take)",
+    )
+    p.add_argument(
+        "--frame-bank",
+        type=int,
+        default=DEFAULT_BANK,
+        help=f"frames the simulator renders and replays ({DEFAULT_BANK})",
+    )
+    p.add_argument("--page", default=LIVE_PAGE, help=f"the page browser viewers open ({LIVE_PAGE})")
+    p.add_argument(
+        "--no-deflate",
+        action="store_true",
+        help="ws viewers do not offer permessage-deflate (browsers do)",
+    )
+    p.add_argument(
+        "--pin",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="the simulated camera on CPU 0 alone, the daemon and the viewers on the others, "
+        "as on a test PC with the camera outside it (default: on with 2 CPUs or more)",
+    )
+    p.add_argument("--json", action="store_true", help="print one JSON document")
+
+
+# -- which viewers --------------------------------------------------------------------------
+
+
+def browser_missing() -> str | None:
+    """Why browser viewers cannot run here (None: they can)."""
+    try:
+        import playwright.sync_api  # noqa: F401
+    except ImportError:
+        return "the playwright package is not installed"
+    if chromium_path() is None:
+        return "no chromium found"
+    return None
+
+
+def default_kind() -> tuple[str, str]:
+    """The viewer kind to use without ``--viewer-kind``, and why."""
+    missing = browser_missing()
+    if missing is None:
+        return "browser", "chromium and playwright found"
+    return "ws", f"{missing}: WebSocket viewers instead; for browser viewers, {INSTALL_BROWSER}"
+
+
+# -- viewers --------------------------------------------------------------------------------
+
+
+class Viewers(Protocol):
+    """N viewers of one daemon's live view, attached for a B round and detached after it."""
+
+    def attach(self) -> None:
+        """Attach them all; return once each has received a frame (BenchError otherwise)."""
+
+    def counts(self) -> list[int]:
+        """Frames each viewer has received since it was attached."""
+
+    def pause(self, seconds: float) -> None:
+        """Wait ``seconds`` while the viewers run."""
+
+    def detach(self) -> None:
+        """Close them (BenchError if one failed while attached)."""
+
+    def close(self) -> None:
+        """Release everything (after the last round)."""
+
+
+class _WsViewer:
+    """One thread consuming the live WebSocket as a page does."""
+
+    def __init__(self, url: str, deflate: bool, name: str) -> None:
+        self.url = url
+        self.deflate = deflate
+        self.frames = 0
+        self.bytes = 0
+        self.error: str | None = None
+        self.contrast = (0, 0)  # the last frame's min and max
+        self.first = threading.Event()
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self._run, name=name, daemon=True)
+
+    def _run(self) -> None:
+        import numpy as np
+        from websockets.sync.client import connect
+
+        try:
+            with connect(
+                self.url,
+                open_timeout=VIEWER_START_TIMEOUT_S,
+                max_size=None,  # a frame may be several MB
+                compression="deflate" if self.deflate else None,
+            ) as ws:
+                meta: dict[str, Any] | None = None
+                while not self.stop.is_set():
+                    try:
+                        message = ws.recv(timeout=0.25)
+                    except TimeoutError:
+                        continue
+                    if isinstance(message, str):
+                        meta = json.loads(message)
+                        continue
+                    if meta is None:
+                        raise BenchError("the live WebSocket sent pixels before their description")
+                    pixels = np.frombuffer(message, dtype="<u2").reshape(meta["rows"], meta["cols"])
+                    self.contrast = (int(pixels.min()), int(pixels.max()))
+                    self.frames += 1
+                    self.bytes += len(message)
+                    self.first.set()
+        except Exception as exc:
+            self.error = f"{type(exc).__name__}: {exc}"
+            self.first.set()
+
+
+class WsViewers:
+    """``ws`` viewers: one thread each (module docstring)."""
+
+    def __init__(self, ws_url: str, n: int, *, deflate: bool) -> None:
+        self.ws_url = ws_url
+        self.n = n
+        self.deflate = deflate
+        self._viewers: list[_WsViewer] = []
+
+    def attach(self) -> None:
+        self._viewers = [
+            _WsViewer(self.ws_url, self.deflate, f"camd-bench-viewer-{i}") for i in range(self.n)
+        ]
+        for viewer in self._viewers:
+            viewer.thread.start()
+        deadline = time.monotonic() + VIEWER_START_TIMEOUT_S
+        for i, viewer in enumerate(self._viewers):
+            if not viewer.first.wait(max(0.0, deadline - time.monotonic())):
+                self.detach()
+                raise BenchError(
+                    f"viewer {i + 1} received no frame from {self.ws_url} within "
+                    f"{VIEWER_START_TIMEOUT_S:g} s"
+                )
+            if viewer.error is not None:
+                self.detach()
+                raise BenchError(f"viewer {i + 1} of {self.ws_url}: {viewer.error}")
+
+    def counts(self) -> list[int]:
+        return [v.frames for v in self._viewers]
+
+    def pause(self, seconds: float) -> None:
+        time.sleep(seconds)
+
+    def detach(self) -> None:
+        for viewer in self._viewers:
+            viewer.stop.set()
+        for viewer in self._viewers:
+            viewer.thread.join(10.0)
+        errors = [f"viewer {i + 1}: {v.error}" for i, v in enumerate(self._viewers) if v.error]
+        self._viewers = []
+        if errors:
+            raise BenchError("; ".join(errors))
+
+    def close(self) -> None:
+        if self._viewers:
+            self.detach()
+
+
+class BrowserViewers:
+    """``browser`` viewers: pages of the live page in one headless chromium (Playwright)."""
+
+    def __init__(self, page_url: str, n: int) -> None:
+        try:
+            from playwright.sync_api import sync_playwright
+        except ImportError:
+            raise BenchError(
+                f"browser viewers need the playwright package: {INSTALL_BROWSER}; "
+                "or use --viewer-kind ws"
+            ) from None
+        path = chromium_path()
+        if path is None:
+            raise BenchError(f"no chromium found for browser viewers: {INSTALL_BROWSER}")
+        self.page_url = page_url
+        self.n = n
+        self._playwright = sync_playwright().start()
+        try:
+            self._browser = self._playwright.chromium.launch(
+                executable_path=path, args=CHROMIUM_ARGS
+            )
+        except Exception:
+            self._playwright.stop()
+            raise
+        self._contexts: list[Any] = []
+        self._pages: list[Any] = []
+        self._frames: list[int] = []
+        self._errors: list[str] = []
+
+    def _watch(self, i: int, page: Any) -> None:
+        # Only errors and crashes: listening to the page's WebSocket would have the browser
+        # copy every frame to Playwright over the DevTools protocol, a cost no user's browser
+        # has. The page counts its own frames (window.camdLive.framesReceived).
+        page.on("pageerror", lambda exc: self._errors.append(f"page {i + 1}: {exc}"))
+        page.on("crash", lambda _page: self._errors.append(f"page {i + 1} crashed"))
+
+    def attach(self) -> None:
+        self._frames = [0] * self.n
+        self._errors = []
+        for i in range(self.n):
+            context = self._browser.new_context(viewport={"width": 1280, "height": 900})
+            self._contexts.append(context)
+            page = context.new_page()
+            self._pages.append(page)
+            self._watch(i, page)
+            response = page.goto(self.page_url, timeout=VIEWER_START_TIMEOUT_S * 1e3)
+            if response is None or not response.ok:
+                status = "no answer" if response is None else f"HTTP {response.status}"
+                self.detach_quietly()
+                raise BenchError(
+                    f"the live page {self.page_url} answered {status}: does this daemon serve "
+                    "it? (--page names another; --viewer-kind ws needs no page)"
+                )
+        deadline = time.monotonic() + VIEWER_START_TIMEOUT_S
+        while min(self.counts()) == 0:
+            if time.monotonic() > deadline:
+                silent = [str(i + 1) for i, n in enumerate(self._frames) if n == 0]
+                errors = f" (page errors: {'; '.join(self._errors)})" if self._errors else ""
+                self.detach_quietly()
+                raise BenchError(
+                    f"page(s) {', '.join(silent)} of {self.page_url} received no frame on "
+                    f"{LIVE_WS} within {VIEWER_START_TIMEOUT_S:g} s{errors}"
+                )
+            self._pages[0].wait_for_timeout(100)  # runs Playwright's event loop
+
+    def counts(self) -> list[int]:
+        self._frames = [
+            int(page.evaluate("window.camdLive?.framesReceived ?? 0")) for page in self._pages
+        ]
+        return list(self._frames)
+
+    def pause(self, seconds: float) -> None:
+        self._pages[0].wait_for_timeout(seconds * 1e3)
+
+    def detach_quietly(self) -> None:
+        for context in self._contexts:
+            with contextlib.suppress(Exception):  # already gone with its page
+                context.close()
+        self._contexts, self._pages = [], []
+
+    def detach(self) -> None:
+        errors = list(self._errors)
+        self.detach_quietly()
+        if errors:
+            raise BenchError("; ".join(errors))
+
+    def close(self) -> None:
+        self.detach_quietly()
+        try:
+            self._browser.close()
+        finally:
+            self._playwright.stop()
+
+
+# -- measuring ------------------------------------------------------------------------------
+
+
+def _descendants(pid: int) -> list[int]:
+    from camd.cli.bench_scan import _children
+
+    out: list[int] = []
+    for child in _children(pid):
+        out += [child, *_descendants(child)]
+    return out
+
+
+def _pin(pid: int, cpus: set[int]) -> None:
+    """Every thread of ``pid`` onto ``cpus`` (threads started later inherit it)."""
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        with contextlib.suppress(ProcessLookupError, FileNotFoundError):
+            os.sched_setaffinity(int(task.name), cpus)
+
+
+def pin_cpus(daemon_pid: int) -> dict[str, list[int]]:
+    """The simulated camera (the daemon's child processes) on CPU 0, the daemon and this
+    process (the viewers, and the browser it starts later) on the others (module docstring)."""
+    cpus = sorted(os.sched_getaffinity(0))
+    if len(cpus) < 2:
+        raise BenchError(f"--pin needs two CPUs or more, this process may use {cpus}; use --no-pin")
+    camera, host = {cpus[0]}, set(cpus[1:])
+    for pid in _descendants(daemon_pid):
+        _pin(pid, camera)
+    _pin(daemon_pid, host)
+    _pin(os.getpid(), host)
+    return {"camera": sorted(camera), "host": sorted(host)}
+
+
+class _Cpu:
+    """CPU seconds of the daemon, its simulator and the viewers (this process and, for browser
+    viewers, the driver and chromium it started), read from /proc."""
+
+    def __init__(self, daemon_pid: int) -> None:
+        self.daemon_pid = daemon_pid
+
+    def sample(self) -> dict[str, dict[int, float]]:
+        from camd.cli.bench_scan import _cpu_s
+
+        daemon_tree = [self.daemon_pid, *_descendants(self.daemon_pid)]
+        viewers = [p for p in _descendants(os.getpid()) if p not in daemon_tree]
+        groups = {
+            "daemon": [self.daemon_pid],
+            "sim": daemon_tree[1:],
+            "viewers": viewers,
+        }
+        sample: dict[str, dict[int, float]] = {}
+        for name, pids in groups.items():
+            sample[name] = {}
+            for pid in pids:
+                cpu = _cpu_s(pid)
+                if cpu is not None:
+                    sample[name][pid] = cpu
+        own = os.times()
+        sample["viewers"][os.getpid()] = own.user + own.system
+        return sample
+
+    @staticmethod
+    def load(before: dict[str, dict[int, float]], after: dict[str, dict[int, float]],
+             wall_s: float) -> dict[str, float]:  # fmt: skip
+        """Cores used per group between two samples (processes present in both)."""
+        return {
+            name: round(
+                sum(after[name][p] - before[name][p] for p in after[name] if p in before[name])
+                / wall_s,
+                3,
+            )
+            for name in before
+        }
+
+
+def _phase(client: Any, cpu: _Cpu, viewers: Viewers | None, seconds: float) -> dict[str, Any]:
+    """One A (viewers None) or B phase: the daemon's ingest over ``seconds``."""
+    if viewers is not None:
+        viewers.attach()
+    try:
+        (viewers.pause if viewers is not None else time.sleep)(SETTLE_S)
+        s0 = client.stream()
+        c0 = cpu.sample()
+        v0 = viewers.counts() if viewers is not None else []
+        t0 = time.monotonic()
+        (viewers.pause if viewers is not None else time.sleep)(seconds)
+        s1 = client.stream()
+        c1 = cpu.sample()
+        v1 = viewers.counts() if viewers is not None else []
+        wall_s = time.monotonic() - t0
+    finally:
+        if viewers is not None:
+            viewers.detach()
+    if not s1["streaming"]:
+        raise BenchError("the stream stopped during the bench; see the daemon's log")
+    a, b = s0["stats"], s1["stats"]
+    span_s = b["elapsed_s"] - a["elapsed_s"]  # the daemon's clock, first to last frame
+    frames = b["frames"] - a["frames"]
+    if frames <= 0 or span_s <= 0:
+        raise BenchError(f"the daemon received no frame in {seconds:g} s")
+    return {
+        "frames": frames,
+        "frames_per_s": frames / span_s,
+        "mbyte_per_s": (b["bytes"] - a["bytes"]) / span_s / 1e6,
+        "lost": b["lost"] - a["lost"],
+        "overruns": b["overruns"] - a["overruns"],
+        "corrupt": b["corrupt"] - a["corrupt"],
+        "short": b["short"] - a["short"],
+        "seconds": span_s,
+        "cpu_cores": _Cpu.load(c0, c1, wall_s),
+        "viewer_frames_per_s": [
+            round((n1 - n0) / wall_s, 2) for n0, n1 in zip(v0, v1, strict=True)
+        ],
+    }
+
+
+def bench_live(
+    *,
+    rounds: int = DEFAULT_ROUNDS,
+    seconds: float = DEFAULT_SECONDS,
+    viewers: int = DEFAULT_VIEWERS,
+    viewer_kind: str | None = None,
+    rows: int = DEFAULT_ROWS,
+    frame_bank: int = DEFAULT_BANK,
+    page: str = LIVE_PAGE,
+    deflate: bool = True,
+    pin: bool | None = None,
+    progress: Any = None,
+) -> dict[str, Any]:
+    """Run the bench and return its figures (module docstring). ``progress(text)``, if given,
+    is called with a line per phase."""
+    from camd.cli._daemon_proc import DaemonProcess
+    from camd.client import CamdClient
+
+    if pin is None:
+        pin = len(os.sched_getaffinity(0)) >= 2
+    why = "--viewer-kind " + viewer_kind if viewer_kind else ""
+    if viewer_kind is None:
+        viewer_kind, why = default_kind()
+    token = os.environ.get("CAMD_TOKEN", "")  # the daemon takes it too (docs/config.md)
+    query = f"?token={quote(token, safe='')}" if token else ""
+    say = progress or (lambda text: None)
+    load_before = os.getloadavg()[0]
+    with tempfile.TemporaryDirectory(prefix="camd-bench-live-") as tmp:
+        config = Path(tmp) / "camd.toml"
+        config.write_text(
+            f'[sensor]\nname = "{PROFILE}"\n'
+            f'[sim]\nprofile = "{PROFILE}"\nframe_bank = {frame_bank}\nscene = "bars"\n'
+        )
+        with DaemonProcess(tmp, extra_args=["--config", str(config)]) as daemon:
+            client = CamdClient(daemon.url, timeout_s=60, client="camd bench live")
+            group: Viewers | None = None
+            try:
+                client.wait_ready(60)
+                pinned = pin_cpus(daemon.pid) if pin else None
+                client.write_registers(
+                    {"WIN_START": 0, "WIN_ROWS": rows, "EXPOSURE": EXPOSURE_LINES}
+                )
+                timing = client.timing()
+                ws_url = daemon.url.replace("http", "ws", 1) + LIVE_WS + query
+                if viewer_kind == "browser":
+                    group = BrowserViewers(daemon.url + page + query, viewers)
+                else:
+                    group = WsViewers(ws_url, viewers, deflate=deflate)
+                start = client.start_stream(0, mode="area")
+                deadline = time.monotonic() + 60
+                while client.stream()["stats"]["frames"] == 0:
+                    if time.monotonic() > deadline:
+                        raise BenchError("the stream delivered no frame within 60 s")
+                    time.sleep(0.1)
+                time.sleep(1.0)  # past the frame bank's rendering
+                results = []
+                for r in range(rounds):
+                    order = "AB" if r % 2 == 0 else "BA"
+                    phases: dict[str, dict[str, Any]] = {}
+                    for name in order:
+                        say(f"round {r + 1}/{rounds}: {name}")
+                        viewing = group if name == "B" else None
+                        phases[name] = _phase(client, _Cpu(daemon.pid), viewing, seconds)
+                    results.append({
+                        "round": r + 1, "order": order, "A": phases["A"], "B": phases["B"],
+                        "ratio": phases["B"]["frames_per_s"] / phases["A"]["frames_per_s"],
+                        "ratio_mbyte_s": phases["B"]["mbyte_per_s"] / phases["A"]["mbyte_per_s"],
+                    })  # fmt: skip
+                client.stop_stream()
+            finally:
+                if group is not None:
+                    group.close()
+                client.close()
+    return _summary(
+        results, start=dict(start), timing=dict(timing), kind=viewer_kind, why=why,
+        viewers=viewers, seconds=seconds, frame_bank=frame_bank, deflate=deflate,
+        loadavg=[load_before, os.getloadavg()[0]], pinned=pinned,
+    )  # fmt: skip
+
+
+def _summary(results: list[dict[str, Any]], *, start: dict[str, Any], timing: dict[str, Any],
+             kind: str, why: str, viewers: int, seconds: float, frame_bank: int,
+             deflate: bool, loadavg: list[float],
+             pinned: dict[str, list[int]] | None) -> dict[str, Any]:  # fmt: skip
+    ratios = [r["ratio"] for r in results]
+    a_fps = statistics.median(r["A"]["frames_per_s"] for r in results)
+    paced = 1.0 / float(start["frame_period_s"])
+    rows, cols = int(start["rows"]), int(start["cols"])
+
+    def median_of(phase: str, key: str) -> float:
+        return statistics.median(float(r[phase][key]) for r in results)
+
+    def median_cpu(phase: str, group: str) -> float:
+        return round(statistics.median(float(r[phase]["cpu_cores"][group]) for r in results), 3)
+
+    ratio = statistics.median(ratios)
+    return {
+        "viewer_kind": kind,
+        "viewer_kind_why": why,
+        "viewers": viewers,
+        "deflate_offered": deflate if kind == "ws" else None,
+        "rounds": len(results),
+        "seconds": seconds,
+        "stream": {
+            "profile": PROFILE,
+            "mode": start["mode"],
+            "rows": rows,
+            "cols": cols,
+            "frame_bytes": 2 * rows * cols + 64,
+            "exposure_lines": EXPOSURE_LINES,
+            "line_period_s": float(timing["line_period_s"]),
+            "frame_period_s": float(start["frame_period_s"]),
+            "paced_frames_per_s": paced,
+            "frame_bank": frame_bank,
+        },
+        # The host took less than the camera sent: its ingest, not the camera, is the limit.
+        "host_bound": a_fps < 0.95 * paced,
+        "a_frames_per_s": a_fps,
+        "b_frames_per_s": median_of("B", "frames_per_s"),
+        "a_mbyte_per_s": median_of("A", "mbyte_per_s"),
+        "b_mbyte_per_s": median_of("B", "mbyte_per_s"),
+        "ratio": ratio,
+        "ratio_min": min(ratios),
+        "ratio_max": max(ratios),
+        "ratio_mbyte_s": statistics.median(r["ratio_mbyte_s"] for r in results),
+        "goal": GOAL,
+        "met": ratio >= GOAL,
+        "lost": {p: sum(r[p]["lost"] for r in results) for p in "AB"},
+        "overruns": {p: sum(r[p]["overruns"] for r in results) for p in "AB"},
+        "viewer_frames_per_s": statistics.median(
+            f for r in results for f in r["B"]["viewer_frames_per_s"]
+        ),
+        "cpu_cores": {p: {g: median_cpu(p, g) for g in ("daemon", "sim", "viewers")} for p in "AB"},
+        "per_round": results,
+        "loadavg": loadavg,  # 1-minute load average before and after the run
+        "pinned": pinned,  # CPUs of the simulated camera and of the host's side, or None
+        "cpus": os.cpu_count(),
+    }
+
+
+# -- the command ----------------------------------------------------------------------------
+
+
+def render(result: dict[str, Any]) -> str:
+    """The table ``camd bench live`` prints."""
+    s = result["stream"]
+    kind = result["viewer_kind"]
+    what = (
+        "WebSocket clients (websockets; permessage-deflate "
+        + ("offered, as browsers do" if result["deflate_offered"] else "not offered")
+        + ")"
+        if kind == "ws"
+        else "chromium pages of the live page (Playwright)"
+    )
+    lines = [
+        f"live viewers: {result['viewers']} {kind} viewers, {what}; {result['viewer_kind_why']}",
+        f"stream: {s['profile']} {s['mode']} {s['rows']} x {s['cols']} "
+        f"({s['frame_bytes'] / 1e3:.1f} kB frames), exposure {s['exposure_lines']} line, "
+        f"frame period {s['frame_period_s'] * 1e6:.1f} us = {s['paced_frames_per_s']:.0f} "
+        f"frames/s from the simulated camera (frame bank {s['frame_bank']}); "
+        f"{result['rounds']} rounds of {result['seconds']:g} s, A/B alternated",
+        (
+            f"CPUs: the simulated camera on {result['pinned']['camera']}, the daemon and the "
+            f"viewers on {result['pinned']['host']} (--pin)"
+            if result["pinned"]
+            else "CPUs: not pinned (--no-pin): the simulated camera shares them with the host"
+        ),
+        "",
+        f"{'round':>5} {'order':>5} {'A fr/s':>8} {'A MB/s':>7} {'B fr/s':>8} {'B MB/s':>7} "
+        f"{'B/A':>6} {'lost A/B':>9} {'ovr A/B':>8} {'viewer fr/s':>12} {'daemon CPU A/B':>15}",
+    ]
+    for r in result["per_round"]:
+        a, b = r["A"], r["B"]
+        views = b["viewer_frames_per_s"]
+        lines.append(
+            f"{r['round']:>5} {r['order']:>5} {a['frames_per_s']:>8.1f} {a['mbyte_per_s']:>7.1f} "
+            f"{b['frames_per_s']:>8.1f} {b['mbyte_per_s']:>7.1f} {r['ratio']:>6.3f} "
+            f"{a['lost']:>4}/{b['lost']:<4} {a['overruns']:>3}/{b['overruns']:<4} "
+            f"{statistics.median(views) if views else 0:>12.1f} "
+            f"{a['cpu_cores']['daemon']:>7.2f}/{b['cpu_cores']['daemon']:<7.2f}"
+        )
+    cpu = result["cpu_cores"]
+    bound = (
+        f"host-bound: A took {result['a_frames_per_s'] / s['paced_frames_per_s']:.0%} of the "
+        "camera's rate"
+        if result["host_bound"]
+        else "not host-bound: the host kept up with the camera in A, so B/A shows only a "
+        "slowdown below the camera's rate (fewer --rows make it host-bound)"
+    )
+    lines += [
+        "",
+        f"median A {result['a_frames_per_s']:.1f} frames/s {result['a_mbyte_per_s']:.1f} MB/s, "
+        f"B {result['b_frames_per_s']:.1f} frames/s {result['b_mbyte_per_s']:.1f} MB/s; "
+        f"lost A/B {result['lost']['A']}/{result['lost']['B']}, overruns "
+        f"{result['overruns']['A']}/{result['overruns']['B']}; {bound}",
+        f"CPU cores A -> B: daemon {cpu['A']['daemon']:.2f} -> {cpu['B']['daemon']:.2f}, "
+        f"simulator {cpu['A']['sim']:.2f} -> {cpu['B']['sim']:.2f}, viewers "
+        f"{cpu['B']['viewers']:.2f}; each viewer got {result['viewer_frames_per_s']:.1f} "
+        "frames/s (median)",
+        f"load average {result['loadavg'][0]:.2f} before, {result['loadavg'][1]:.2f} after "
+        f"({result['cpus']} CPUs)",
+        f"ratio B/A (frames/s): median {result['ratio']:.3f}, rounds {result['ratio_min']:.3f} "
+        f".. {result['ratio_max']:.3f}; goal >= {result['goal']:g}: "
+        + ("met" if result["met"] else "NOT met"),
+    ]
+    return "\n".join(lines)
+
+
+def run(args: argparse.Namespace) -> int:
+    """``camd bench live``: the table, or one JSON document with --json."""
+    if args.rounds < 1 or args.viewers < 1 or not args.seconds > 0:
+        print(
+            "camd bench live: --rounds and --viewers must be >= 1, --seconds > 0", file=sys.stderr
+        )
+        return 2
+    if not 1 <= args.rows <= 2048 or args.frame_bank < 0:
+        print("camd bench live: --rows must be 1..2048, --frame-bank >= 0", file=sys.stderr)
+        return 2
+    if not args.page.startswith("/"):
+        print(f"camd bench live: --page must be a path such as {LIVE_PAGE}", file=sys.stderr)
+        return 2
+
+    from camd.cli._daemon_proc import DaemonStartError
+    from camd.client import CamdError
+
+    def progress(text: str) -> None:
+        if not args.json:
+            print(f"  {text}", file=sys.stderr, flush=True)
+
+    try:
+        result = bench_live(
+            rounds=args.rounds, seconds=args.seconds, viewers=args.viewers,
+            viewer_kind=args.viewer_kind, rows=args.rows, frame_bank=args.frame_bank,
+            page=args.page, deflate=not args.no_deflate, pin=args.pin, progress=progress,
+        )  # fmt: skip
+    except (BenchError, DaemonStartError, CamdError) as exc:
+        print(f"camd bench live: {exc}", file=sys.stderr)
+        return 1
+    print(json.dumps(result) if args.json else render(result))
+    return 0

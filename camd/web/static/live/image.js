@@ -1,0 +1,274 @@
+// The live image: the newest frame's real values (uint16), an optional background (float32
+// mean of N frames) subtracted, contrast and colour map, and a nearest-neighbour zoom and pan
+// so that pixels stay pixels. Everything the readout and the plots show comes from the real
+// values, never from the 8-bit display image.
+
+export const ZOOMS = [1, 2, 3, 4, 6, 8, 12, 16];
+
+function clamp(v, lo, hi) {
+  return v < lo ? lo : v > hi ? hi : v;
+}
+
+// mean, std, min, max of a typed array
+export function statistics(values) {
+  const n = values.length;
+  if (n === 0) return null;
+  let sum = 0, sum2 = 0, min = Infinity, max = -Infinity;
+  for (let i = 0; i < n; i++) {
+    const v = values[i];
+    sum += v;
+    sum2 += v * v;
+    if (v < min) min = v;
+    if (v > max) max = v;
+  }
+  const mean = sum / n;
+  return { mean, std: Math.sqrt(Math.max(sum2 / n - mean * mean, 0)), min, max, n };
+}
+
+// A histogram of `bins` equal bins over [lo, hi] (the last bin includes hi).
+export function histogram(values, lo, hi, bins) {
+  const counts = new Float64Array(bins);
+  const scale = hi > lo ? bins / (hi - lo) : 0;
+  for (let i = 0; i < values.length; i++) {
+    counts[clamp(Math.floor((values[i] - lo) * scale), 0, bins - 1)]++;
+  }
+  return counts;
+}
+
+// The value below which `fraction` of the values lie, from a fine histogram over [lo, hi].
+function percentileFrom(counts, lo, hi, fraction) {
+  let total = 0;
+  for (const c of counts) total += c;
+  const wanted = fraction * total;
+  let running = 0;
+  const width = (hi - lo) / counts.length;
+  for (let i = 0; i < counts.length; i++) {
+    running += counts[i];
+    if (running >= wanted) return lo + (i + 0.5) * width;
+  }
+  return hi;
+}
+
+export class ImageView {
+  constructor(canvas, colormaps) {
+    this.canvas = canvas;
+    this.ctx = canvas.getContext("2d");
+    this.colormaps = colormaps;
+    this.lut = null;
+    this.setColormap(Object.keys(colormaps)[0]);
+    this.offscreen = document.createElement("canvas");
+    this.offCtx = this.offscreen.getContext("2d");
+    this.frame = null; // { meta, data: Uint16Array, rows, cols }
+    this.background = null; // { meta, data: Float32Array, rows, cols }
+    this.subtract = false;
+    this.subtracted = null; // Float32Array for the current frame, when subtracting
+    this.zoom = 1;
+    this.originRow = 0;
+    this.originCol = 0;
+    this.contrastMode = "p01";
+    this.manual = [0, 4095];
+    this.range = [0, 1];
+    this.rawStats = null;
+    this.subStats = null;
+    this.profileLine = null; // [[row, col], [row, col]] of a drawn line, image pixels
+    this.profileMark = null; // {kind: "row"|"column", index}
+  }
+
+  setColormap(name) {
+    const table = this.colormaps[name];
+    const lut = new Uint32Array(256);
+    const little = new Uint8Array(new Uint32Array([1]).buffer)[0] === 1;
+    for (let i = 0; i < 256; i++) {
+      const [r, g, b] = table[i];
+      lut[i] = little ? (0xff << 24) | (b << 16) | (g << 8) | r : (r << 24) | (g << 16) | (b << 8) | 0xff;
+    }
+    this.lut = lut;
+    this.colormapName = name;
+  }
+
+  // The values on screen: raw, or raw - background when subtracting a matching background.
+  displayValues() {
+    return this.subtracted ?? this.frame?.data ?? null;
+  }
+
+  backgroundMatches() {
+    const f = this.frame, b = this.background;
+    return f !== null && b !== null && f.rows === b.rows && f.cols === b.cols;
+  }
+
+  setFrame(meta, buffer) {
+    let data = new Uint16Array(buffer);
+    if (new Uint8Array(new Uint16Array([1]).buffer)[0] !== 1) {
+      // The daemon sends little-endian; a big-endian browser swaps.
+      const view = new DataView(buffer);
+      data = Uint16Array.from({ length: data.length }, (_, i) => view.getUint16(2 * i, true));
+    }
+    this.frame = { meta, data, rows: meta.rows, cols: meta.cols };
+    this.refresh();
+  }
+
+  setBackground(background) {
+    this.background = background;
+    this.refresh();
+  }
+
+  // Recompute the subtracted values, statistics and contrast, and redraw.
+  refresh() {
+    const f = this.frame;
+    if (f === null) return;
+    this.rawStats = statistics(f.data);
+    this.subtracted = null;
+    this.subStats = null;
+    if (this.backgroundMatches()) {
+      const bg = this.background.data;
+      const sub = new Float32Array(f.data.length);
+      for (let i = 0; i < sub.length; i++) sub[i] = f.data[i] - bg[i];
+      this.subStats = statistics(sub);
+      if (this.subtract) this.subtracted = sub;
+    }
+    this.computeRange();
+    this.renderOffscreen();
+    this.draw();
+  }
+
+  computeRange() {
+    const values = this.displayValues();
+    const stats = this.subtracted ? this.subStats : this.rawStats;
+    if (values === null || stats === null) return;
+    let lo = stats.min, hi = stats.max;
+    if (this.contrastMode === "manual") {
+      [lo, hi] = this.manual;
+    } else if (this.contrastMode !== "minmax" && hi > lo) {
+      const fine = histogram(values, stats.min, stats.max, 4096);
+      const cut = this.contrastMode === "p1" ? 0.01 : 0.001;
+      lo = percentileFrom(fine, stats.min, stats.max, cut);
+      hi = percentileFrom(fine, stats.min, stats.max, 1 - cut);
+    }
+    if (!(hi > lo)) hi = lo + 1;
+    this.range = [lo, hi];
+  }
+
+  renderOffscreen() {
+    const f = this.frame;
+    const values = this.displayValues();
+    if (this.offscreen.width !== f.cols || this.offscreen.height !== f.rows) {
+      this.offscreen.width = f.cols;
+      this.offscreen.height = f.rows;
+    }
+    const image = this.offCtx.createImageData(f.cols, f.rows);
+    const pixels = new Uint32Array(image.data.buffer);
+    const [lo, hi] = this.range;
+    const scale = 255 / (hi - lo);
+    const lut = this.lut;
+    for (let i = 0; i < values.length; i++) {
+      const level = (values[i] - lo) * scale;
+      pixels[i] = lut[level <= 0 ? 0 : level >= 255 ? 255 : level | 0];
+    }
+    this.offCtx.putImageData(image, 0, 0);
+  }
+
+  // Canvas size in CSS pixels (the readout's unit) and the device pixel ratio.
+  size() {
+    const rect = this.canvas.getBoundingClientRect();
+    return { width: rect.width, height: rect.height, dpr: window.devicePixelRatio || 1 };
+  }
+
+  // Zoom and the image pixel at the view's top left, kept so that the view stays on the image.
+  setView(zoom, originRow, originCol) {
+    this.zoom = zoom;
+    const f = this.frame;
+    if (f !== null) {
+      const { width, height } = this.size();
+      originRow = clamp(originRow, 0, Math.max(f.rows - Math.floor(height / zoom), 0));
+      originCol = clamp(originCol, 0, Math.max(f.cols - Math.floor(width / zoom), 0));
+    }
+    this.originRow = Math.max(0, Math.round(originRow));
+    this.originCol = Math.max(0, Math.round(originCol));
+    this.draw();
+  }
+
+  draw() {
+    const { width, height, dpr } = this.size();
+    const w = Math.round(width * dpr), h = Math.round(height * dpr);
+    if (this.canvas.width !== w || this.canvas.height !== h) {
+      this.canvas.width = w;
+      this.canvas.height = h;
+    }
+    const ctx = this.ctx;
+    ctx.setTransform(1, 0, 0, 1, 0, 0);
+    ctx.fillStyle = "#000";
+    ctx.fillRect(0, 0, w, h);
+    if (this.frame === null) return;
+    const s = this.zoom * dpr;
+    ctx.imageSmoothingEnabled = false;
+    ctx.setTransform(s, 0, 0, s, -this.originCol * s, -this.originRow * s);
+    ctx.drawImage(this.offscreen, 0, 0);
+    ctx.setTransform(1, 0, 0, 1, 0, 0);
+    this.drawOverlay(ctx, s);
+  }
+
+  // The profile's line (or row/column) over the image, in screen space.
+  drawOverlay(ctx, s) {
+    const toX = (col) => (col + 0.5 - this.originCol) * s;
+    const toY = (row) => (row + 0.5 - this.originRow) * s;
+    ctx.strokeStyle = "rgba(79, 195, 247, 0.9)";
+    ctx.lineWidth = 1;
+    ctx.beginPath();
+    if (this.profileLine !== null) {
+      const [[r0, c0], [r1, c1]] = this.profileLine;
+      ctx.moveTo(toX(c0), toY(r0));
+      ctx.lineTo(toX(c1), toY(r1));
+    } else if (this.profileMark !== null) {
+      const { kind, index } = this.profileMark;
+      if (kind === "row") {
+        ctx.moveTo(0, toY(index));
+        ctx.lineTo(this.canvas.width, toY(index));
+      } else {
+        ctx.moveTo(toX(index), 0);
+        ctx.lineTo(toX(index), this.canvas.height);
+      }
+    }
+    ctx.stroke();
+  }
+
+  // Image pixel under a point given in CSS pixels from the canvas's top left (null off image).
+  pixelAt(x, y) {
+    const f = this.frame;
+    if (f === null) return null;
+    const col = this.originCol + Math.floor(x / this.zoom);
+    const row = this.originRow + Math.floor(y / this.zoom);
+    if (row < 0 || col < 0 || row >= f.rows || col >= f.cols) return null;
+    const i = row * f.cols + col;
+    const raw = f.data[i];
+    const sub = this.backgroundMatches() ? raw - this.background.data[i] : null;
+    return { row, col, raw, sub };
+  }
+
+  // Values along the profile: row, column or a drawn line (nearest pixel per step).
+  profile(kind, index) {
+    const f = this.frame;
+    const values = this.displayValues();
+    if (f === null) return null;
+    if (kind === "line" && this.profileLine !== null) {
+      const [[r0, c0], [r1, c1]] = this.profileLine;
+      const steps = Math.max(Math.abs(r1 - r0), Math.abs(c1 - c0), 1);
+      const x = [], y = [];
+      for (let k = 0; k <= steps; k++) {
+        const r = Math.round(r0 + ((r1 - r0) * k) / steps);
+        const c = Math.round(c0 + ((c1 - c0) * k) / steps);
+        x.push(k);
+        y.push(values[r * f.cols + c]);
+      }
+      return { x, y, label: `line (${r0},${c0})-(${r1},${c1}), px` };
+    }
+    if (kind === "row") {
+      const r = clamp(index, 0, f.rows - 1);
+      const y = Array.from(values.subarray(r * f.cols, (r + 1) * f.cols));
+      return { x: y.map((_, i) => i), y, label: `row ${r}: column` };
+    }
+    const c = clamp(index, 0, f.cols - 1);
+    const y = [];
+    for (let r = 0; r < f.rows; r++) y.push(values[r * f.cols + c]);
+    return { x: y.map((_, i) => i), y, label: `column ${c}: row` };
+  }
+}
