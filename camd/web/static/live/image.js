@@ -49,6 +49,36 @@ function percentileFrom(counts, lo, hi, fraction) {
   return hi;
 }
 
+// One pass over raw uint16 values: their histogram by value (into `counts`, 65536 bins), from
+// which the statistics, percentiles and plotted histogram follow without another pass.
+function countValues(data, counts) {
+  counts.fill(0);
+  for (let i = 0; i < data.length; i++) counts[data[i]]++;
+  let min = -1, max = -1, sum = 0, sum2 = 0;
+  for (let v = 0; v < counts.length; v++) {
+    const c = counts[v];
+    if (c === 0) continue;
+    if (min < 0) min = v;
+    max = v;
+    sum += c * v;
+    sum2 += c * v * v;
+  }
+  const n = data.length;
+  const mean = sum / n;
+  return { mean, std: Math.sqrt(Math.max(sum2 / n - mean * mean, 0)), min, max, n };
+}
+
+// The value below which `fraction` of the counted values lie (whole DN).
+function percentileOfCounts(counts, n, fraction) {
+  const wanted = fraction * n;
+  let running = 0;
+  for (let v = 0; v < counts.length; v++) {
+    running += counts[v];
+    if (running >= wanted) return v;
+  }
+  return counts.length - 1;
+}
+
 export class ImageView {
   constructor(canvas, colormaps) {
     this.canvas = canvas;
@@ -69,6 +99,8 @@ export class ImageView {
     this.manual = [0, 4095];
     this.range = [0, 1];
     this.rawStats = null;
+    this.rawCounts = new Uint32Array(65536); // the frame's values counted (countValues)
+    this.imageData = null; // reused while the frame size stays
     this.subStats = null;
     this.profileLine = null; // [[row, col], [row, col]] of a drawn line, image pixels
     this.profileMark = null; // {kind: "row"|"column", index}
@@ -116,12 +148,13 @@ export class ImageView {
   refresh() {
     const f = this.frame;
     if (f === null) return;
-    this.rawStats = statistics(f.data);
+    this.rawStats = countValues(f.data, this.rawCounts);
     this.subtracted = null;
     this.subStats = null;
     if (this.backgroundMatches()) {
       const bg = this.background.data;
-      const sub = new Float32Array(f.data.length);
+      if (this.subBuffer?.length !== f.data.length) this.subBuffer = new Float32Array(f.data.length);
+      const sub = this.subBuffer; // reused frame after frame: no garbage at 20 frames a second
       for (let i = 0; i < sub.length; i++) sub[i] = f.data[i] - bg[i];
       this.subStats = statistics(sub);
       if (this.subtract) this.subtracted = sub;
@@ -139,10 +172,15 @@ export class ImageView {
     if (this.contrastMode === "manual") {
       [lo, hi] = this.manual;
     } else if (this.contrastMode !== "minmax" && hi > lo) {
-      const fine = histogram(values, stats.min, stats.max, 4096);
       const cut = this.contrastMode === "p1" ? 0.01 : 0.001;
-      lo = percentileFrom(fine, stats.min, stats.max, cut);
-      hi = percentileFrom(fine, stats.min, stats.max, 1 - cut);
+      if (this.subtracted === null) {
+        lo = percentileOfCounts(this.rawCounts, stats.n, cut);
+        hi = percentileOfCounts(this.rawCounts, stats.n, 1 - cut);
+      } else {
+        const fine = histogram(values, stats.min, stats.max, 4096);
+        lo = percentileFrom(fine, stats.min, stats.max, cut);
+        hi = percentileFrom(fine, stats.min, stats.max, 1 - cut);
+      }
     }
     if (!(hi > lo)) hi = lo + 1;
     this.range = [lo, hi];
@@ -155,7 +193,10 @@ export class ImageView {
       this.offscreen.width = f.cols;
       this.offscreen.height = f.rows;
     }
-    const image = this.offCtx.createImageData(f.cols, f.rows);
+    if (this.imageData === null || this.imageData.width !== f.cols || this.imageData.height !== f.rows) {
+      this.imageData = this.offCtx.createImageData(f.cols, f.rows);
+    }
+    const image = this.imageData;
     const pixels = new Uint32Array(image.data.buffer);
     const [lo, hi] = this.range;
     const scale = 255 / (hi - lo);
@@ -242,6 +283,18 @@ export class ImageView {
     const raw = f.data[i];
     const sub = this.backgroundMatches() ? raw - this.background.data[i] : null;
     return { row, col, raw, sub };
+  }
+
+  // The displayed values in `bins` equal bins from their min to their max: [counts, lo, hi].
+  displayHistogram(bins) {
+    const stats = this.subtracted ? this.subStats : this.rawStats;
+    if (stats === null) return null;
+    const { min, max } = stats;
+    if (this.subtracted !== null) return [histogram(this.subtracted, min, max, bins), min, max];
+    const counts = new Float64Array(bins);
+    const scale = bins / (max - min + 1);
+    for (let v = min; v <= max; v++) counts[Math.floor((v - min) * scale)] += this.rawCounts[v];
+    return [counts, min, max + 1];
   }
 
   // Values along the profile: row, column or a drawn line (nearest pixel per step).

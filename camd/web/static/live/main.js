@@ -2,7 +2,7 @@
 // daemon's status, and the controls (enabled only while this page holds control).
 
 import { API, ApiError, CLIENT, binary, del, get, post } from "./api.js";
-import { ImageView, ZOOMS, histogram } from "./image.js";
+import { ImageView, ZOOMS } from "./image.js";
 import { Plots } from "./plots.js";
 import { Waterfall } from "./waterfall.js";
 
@@ -77,11 +77,9 @@ function updateStats() {
 }
 
 function updatePlots() {
-  const values = view.displayValues();
-  if (values === null) return;
-  const stats = view.subtracted ? view.subStats : view.rawStats;
-  const counts = histogram(values, stats.min, stats.max, 256);
-  plots.showHistogram(counts, stats.min, stats.max);
+  const shown = view.displayHistogram(256);
+  if (shown === null) return;
+  plots.showHistogram(...shown);
   const [lo, hi] = view.range;
   $("hist-note").textContent = `display ${fmt(lo)} .. ${fmt(hi)} DN`;
   if (view.contrastMode !== "manual") {
