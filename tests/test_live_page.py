@@ -133,6 +133,8 @@ def test_without_the_token_the_page_is_refused_and_says_how(bench: Bench) -> Non
         assert http.get("/live?token=wrong").status_code == 401
         opened = http.get(f"/live?token={TOKEN}", follow_redirects=False)
         assert opened.status_code == 303 and opened.headers["location"] == "/live"
+        named = http.get(f"/live?client=bench+2&token={TOKEN}", follow_redirects=False)
+        assert named.headers["location"] == "/live?client=bench+2"  # the rest kept, encoded
         assert "camd_token=" in opened.headers["set-cookie"]
         assert "HttpOnly" in opened.headers["set-cookie"]
         assert "SameSite=strict" in opened.headers["set-cookie"]

@@ -14,6 +14,7 @@ import json
 import logging
 from collections.abc import Awaitable, Callable, Iterable
 from typing import Any
+from urllib.parse import urlencode
 
 import anyio
 from fastapi import Depends, FastAPI, Header, Query, Request, WebSocket, WebSocketDisconnect
@@ -292,7 +293,7 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
         address bar and the history)."""
         if "token" in request.query_params:
             rest = [(k, v) for k, v in request.query_params.multi_items() if k != "token"]
-            query = "&".join(f"{k}={v}" for k, v in rest)
+            query = urlencode(rest)
             return RedirectResponse(f"/live?{query}" if query else "/live", status_code=303)
         return FileResponse(web.LIVE_PAGE, headers={"Cache-Control": "no-cache"})
 
