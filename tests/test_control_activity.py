@@ -142,10 +142,13 @@ def test_a_takeover_clears_it(clients: tuple[CamdClient, CamdClient]) -> None:
 @pytest.mark.parametrize(
     ("body", "words"),
     [
-        ({"text": "a", "done": 3, "total": 2}, "total: 2 is not valid; use null or an integer"),
-        ({"text": "two\nlines"}, "text: 'two\\nlines' is not valid; use 1 to 200 printable"),
-        ({"text": "x" * 201}, "is not valid; use 1 to 200 printable characters"),
-        ({"text": ""}, "text: '' is not valid; use 1 to 200 printable"),
+        (
+            {"text": "a", "done": 3, "total": 2},
+            "total: 2 is not valid (done = 3 is more than total = 2); use null or an integer >= 0",
+        ),
+        ({"text": "two\nlines"}, "text: 'two\\nlines' is not valid (text must be printable"),
+        ({"text": "x" * 201}, "is not valid; use a string of 1 to 200 characters (printable"),
+        ({"text": ""}, "text: '' is not valid; use a string of 1 to 200 characters"),
         ({"text": "a", "done": -1}, "done: -1 is out of range; use null or an integer >= 0"),
         ({"text": "a", "step": 1}, "step: unknown parameter"),
     ],

@@ -300,8 +300,7 @@ def test_with_nothing_streaming_a_capture_is_refused_with_how_to_start_one(url: 
             answer = http.post(f"{API}/live/background", json={"frames": frames})
             assert answer.status_code == 400, answer.text
             assert answer.json()["error"].startswith(
-                f"frames: {frames} is out of range; use an integer in 1..1000 for a live-view "
-                "background"
+                f"frames: {frames} is out of range; use an integer in 1..1000"
             )
 
 

@@ -324,10 +324,13 @@ def test_after_max_and_skipped_add_up(url: str, followed: Followed) -> None:
     [
         ({"max": 0}, "max: '0' is out of range; use an integer in 1..2048 (lines)"),
         ({"max": 2049}, "max: '2049' is out of range; use an integer in 1..2048"),
-        ({"after": -2}, "after: '-2' is out of range; use a line index >= -1 for live/lines"),
-        ({"timeout_s": 6}, "timeout_s: '6' is out of range; use seconds: 0..5 for live/lines"),
-        ({"timeout_s": -1}, "timeout_s: '-1' is out of range; use seconds: 0..5"),
-        ({"after": "last"}, "after: 'last' is not valid; use a line index >= -1"),
+        ({"after": -2}, "after: '-2' is out of range; use an integer >= -1 (the last line index"),
+        (
+            {"timeout_s": 6},
+            "timeout_s: '6' is out of range; use a number in 0..5 (with no line newer",
+        ),
+        ({"timeout_s": -1}, "timeout_s: '-1' is out of range; use a number in 0..5"),
+        ({"after": "last"}, "after: 'last' is not valid; use an integer >= -1"),
     ],
 )
 def test_bad_parameters_are_refused_naming_the_range(

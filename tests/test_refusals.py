@@ -321,7 +321,7 @@ ROWS = [
     # -- the filter wheel -------------------------------------------------------------------------
     pytest.param(
         Row(http("PUT", "/wheel/speed", {"speed_deg_s": 400}), "bad_request",
-            "use a wheel speed in deg/s from 0 (stopped) to 360"),
+            "use a number in 0..360 (a wheel speed in deg/s"),
         id="wheel-speed-out-of-range",
     ),
     pytest.param(
@@ -360,7 +360,7 @@ ROWS = [
         id="campaign-unknown",
     ),
     pytest.param(
-        Row(bad_campaign, "exit 1",
+        Row(bad_campaign, "exit 2",
             "nothing was done: correct the campaign's parameters (or their quick overrides)"),
         id="campaign-with-a-bad-parameter",
     ),

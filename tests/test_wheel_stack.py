@@ -271,7 +271,7 @@ def test_bad_requests_are_refused_before_anything_is_written(client: CamdClient)
     assert registers(client) == before
     with pytest.raises(CamdError) as info:
         client.set_wheel_speed(400.0)
-    assert info.value.http_status == 400 and "0 (stopped) to 360" in info.value.message
+    assert info.value.http_status == 400 and "use a number in 0..360" in info.value.message
 
 
 def test_a_wheel_acquisition_streams_like_a_counted_stream(

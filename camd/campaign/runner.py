@@ -48,7 +48,9 @@ from camd.campaign.spec import (
     StareAcquire,
     SweepStep,
     WheelAcquire,
+    check_campaign,
     resolve,
+    sweep_values,
 )
 from camd.client import CamdClient, CamdError
 
@@ -195,8 +197,14 @@ class CampaignRunner:
         done (the message names the step), CampaignInterrupted when stopped early. A step that
         its parameters make invalid is refused before the daemon is touched (``_preflight``).
         """
-        self._preflight(self.spec.steps, dict(self.parameters))
-        self.raw_dir.mkdir(parents=True, exist_ok=True)
+        self._preflight()
+        try:
+            self.raw_dir.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise CampaignError(
+                f"cannot create the output directory {self.raw_dir}: {exc.strerror or exc}; "
+                "choose another --out"
+            ) from None
         self._load_state()
         self._check_camera()
         self._steps_total = self._count(self.spec.steps, self.parameters)
@@ -301,36 +309,16 @@ class CampaignRunner:
             level.results[name] = [inner.results.get(name) for inner in per_iteration]
 
     def _sweep_values(self, step: SweepStep, names: dict[str, Any]) -> list[Any]:
-        values = resolve(step.values, names)
-        if not isinstance(values, list) or not values:
-            raise CampaignError(
-                f"step {step.id!r}: values: {step.values!r} must give a non-empty list, "
-                f"got {values!r}"
-            )
-        return values
+        try:
+            return sweep_values(step, names)
+        except CampaignError as exc:
+            raise CampaignError(f"step {step.id!r}: {exc}") from None
 
-    def _preflight(self, steps: list[Any], names: dict[str, Any]) -> None:
+    def _preflight(self) -> None:
         """Substitute the parameters into every step (every sweep value too) and validate it,
-        so that a bad parameter refuses the campaign before its baseline changes the camera. A
-        step that names a result measured by an earlier step is checked when it runs."""
-        for step in steps:
-            if isinstance(step, SweepStep):
-                try:
-                    values = self._sweep_values(step, names)
-                except KeyError:
-                    continue  # swept over a measured result
-                for value in values:
-                    self._preflight(step.steps, {**names, step.parameter: value})
-                continue
-            try:
-                _resolved(step, names)
-            except KeyError:
-                continue  # names a result measured before it
-            except CampaignError as exc:
-                raise CampaignError(
-                    f"{exc}\nnothing was done: correct the campaign's parameters (or their quick "
-                    "overrides) that this step uses"
-                ) from None
+        so that a bad parameter refuses the campaign before its baseline changes the camera
+        (``check_campaign``; camctl has done it already, naming the file)."""
+        check_campaign(self.spec, f"campaign {self.spec.name}", quick=self.quick)
 
     def _count(self, steps: list[Any], names: dict[str, Any]) -> int:
         total = 0

@@ -39,10 +39,13 @@ from __future__ import annotations
 
 import re
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+if TYPE_CHECKING:
+    from camd.sensor.regmap import FieldSpec, GroupSpec, RegisterMap, RegisterSpec
 
 __all__ = [
     "AcquireStep",
@@ -57,8 +60,11 @@ __all__ = [
     "Step",
     "SweepStep",
     "TableSpec",
+    "check_campaign",
     "load_campaign",
+    "register_map_of",
     "resolve",
+    "sweep_values",
 ]
 
 NAME = r"^[a-z][a-z0-9_]*$"
@@ -74,10 +80,19 @@ Ref = Annotated[str, Field(pattern=WHOLE_REF)]
 
 # Counts in the daemon's own ranges, so that a parameter out of them refuses the campaign
 # before it starts (the runner checks every step with its parameters first), not at its step.
-Frames = Annotated[int, Field(ge=1, le=0xFFFFFFFF)]
-Stages = Annotated[int, Field(ge=1, le=4096)]
-Lines = Annotated[int, Field(ge=0, le=10_000_000)]
-Passes = Annotated[int, Field(ge=1, le=1000)]
+RANGES: dict[str, tuple[int, int]] = {
+    "frames": (1, 0xFFFFFFFF),
+    "stages": (1, 4096),
+    "lines": (0, 10_000_000),
+    "passes": (1, 1000),
+    "seed": (0, 0xFFFFFFFF),
+}
+"""The valid range of each count, by key: the schema's bounds and its error messages."""
+
+Frames = Annotated[int, Field(ge=RANGES["frames"][0], le=RANGES["frames"][1])]
+Stages = Annotated[int, Field(ge=RANGES["stages"][0], le=RANGES["stages"][1])]
+Lines = Annotated[int, Field(ge=RANGES["lines"][0], le=RANGES["lines"][1])]
+Passes = Annotated[int, Field(ge=RANGES["passes"][0], le=RANGES["passes"][1])]
 
 
 class CampaignError(ValueError):
@@ -310,7 +325,7 @@ class CampaignSpec(_Model):
     name: str = Field(pattern=NAME)
     description: str = ""
     profile: str = Field(pattern=NAME, description="camera profile (config/profiles/NAME.toml)")
-    seed: int = Field(default=0, ge=0, le=0xFFFFFFFF)
+    seed: int = Field(default=0, ge=RANGES["seed"][0], le=RANGES["seed"][1])
     parameters: dict[str, Any] = Field(default_factory=dict)
     quick: dict[str, Any] = Field(
         default_factory=dict, description="parameter overrides for --quick (CI-sized runs)"
@@ -345,40 +360,62 @@ def load_campaign(path: str | Path) -> CampaignSpec:
     except ValidationError as exc:
         raise CampaignError(_explain(path, doc, exc)) from None
     _check_semantics(path, spec)
+    _check_register_names(path, spec)
     return spec
 
 
-def _explain(path: Path, doc: dict[str, Any], exc: ValidationError) -> str:
-    """pydantic's errors as ``file: steps[1] (id 'x'): key: message`` lines."""
-    lines = []
+def _explain(path: Path, doc: Any, exc: ValidationError, prefix: str = "") -> str:
+    """pydantic's errors as ``file: steps[1] (id 'x'): key: message`` lines, one per key (the
+    most telling of a union's alternatives), each saying what to give instead. ``prefix`` names
+    the step when ``doc`` is one step."""
+    found: dict[str, tuple[int, str]] = {}
     for err in exc.errors():
-        loc = list(err["loc"])
         where: list[str] = []
         node: Any = doc
-        i = 0
-        while i < len(loc):
-            part = loc[i]
+        leaf = ""
+        for part in err["loc"]:
             if isinstance(part, int) and isinstance(node, list):
                 node = node[part] if part < len(node) else None
                 step_id = node.get("id") if isinstance(node, dict) else None
                 label = f"[{part}]" + (f" (id {step_id!r})" if step_id else "")
-                where[-1] = where[-1] + label if where else label
+                if where:
+                    where[-1] += label
+                else:
+                    where.append(label)
             elif isinstance(node, dict) and part in node:
                 node = node[part]
                 where.append(str(part))
+                leaf = str(part)
             elif part in ("configure", "sweep", "acquire", "measure", "check"):
                 pass  # the discriminated union's tag: not a key of the file
-            else:
+            elif isinstance(node, dict) and err["type"] in ("missing", "extra_forbidden"):
                 where.append(str(part))
                 node = None
-            i += 1
-        message = err["msg"]
-        if err["type"] == "extra_forbidden":
-            message = "unknown key (a typo?); docs/campaigns.md lists the keys"
-        elif err["type"] == "missing":
-            message = "missing key"
-        lines.append(f"{path}: {'.'.join(where) or '(top level)'}: {message}")
-    return "\n".join(lines)
+            # else: a union's alternative or the discriminated union's tag, not a key
+        key = ".".join(where) or "(top level)"
+        rank, message = _message(err, leaf)
+        if key not in found or rank < found[key][0]:
+            found[key] = (rank, message)
+    head = f"{path}: {prefix}" + (": " if prefix else "")
+    return "\n".join(f"{head}{key}: {message}" for key, (_, message) in found.items())
+
+
+def _message(err: Any, leaf: str) -> tuple[int, str]:
+    """(rank, text) of one pydantic error: range errors first, then others, type mismatches of
+    a union's alternatives last (a count given as -5 is out of range, not "not a ${ref}")."""
+    kind = err["type"]
+    if kind == "extra_forbidden":
+        return 0, "unknown key (a typo?); docs/campaigns.md lists the keys"
+    if kind == "missing":
+        return 0, "missing key"
+    if kind in ("greater_than_equal", "less_than_equal", "greater_than", "less_than"):
+        if leaf in RANGES:
+            lo, hi = RANGES[leaf]
+            return 0, f"{err['input']!r} is out of range; give {lo} .. {hi}"
+        return 0, f"{err['input']!r}: {err['msg']}"
+    if kind.endswith("_type") or kind.endswith("_parsing") or kind == "string_pattern_mismatch":
+        return 2, f"{err['input']!r}: {err['msg']}"
+    return 1, f"{err['msg']}"
 
 
 def _walk(steps: list[Any], where: str) -> list[tuple[str, Any]]:
@@ -485,3 +522,144 @@ def _lookup(names: dict[str, Any], ref: re.Match[str]) -> Any:
 
 def _text(value: Any) -> str:
     return format(value, "g") if isinstance(value, float) else str(value)
+
+
+# -- what can be checked without the daemon ------------------------------------------------------
+
+
+def register_map_of(path: str | Path, spec: CampaignSpec) -> RegisterMap:
+    """The register map of the campaign's profile's sensor; CampaignError if there is none."""
+    from camd.sensor.profile import load_profile
+    from camd.sensor.regmap import load_register_map
+
+    try:
+        return load_register_map(load_profile(spec.profile).sensor)
+    except (OSError, ValueError) as exc:
+        raise CampaignError(
+            f"{path}: profile: {exc}; name a camera profile of config/profiles/"
+        ) from None
+
+
+def _check_register_names(path: Path, spec: CampaignSpec) -> None:
+    """Every register a configure step names is one of the profile's sensor's that can be
+    written (``REG``, ``REG.field``, ``GROUP`` or an address)."""
+    configures = [(label, step) for label, step in _walk(spec.steps, "steps")
+                  if isinstance(step, ConfigureStep) and step.registers]  # fmt: skip
+    if not configures:
+        return
+    regmap = register_map_of(path, spec)
+    for label, step in configures:
+        for name in step.registers:
+            if "${" not in name:
+                _register_target(path, label, regmap, name)
+
+
+def _register_target(
+    path: str | Path, label: str, regmap: RegisterMap, name: str
+) -> tuple[RegisterSpec | GroupSpec, FieldSpec | None]:
+    from camd.sensor.regmap import GroupSpec
+
+    where = f"{path}: {label}: registers.{name}"
+    try:
+        try:
+            target: RegisterSpec | GroupSpec = regmap.register(int(name.strip(), 0))
+            field_spec: FieldSpec | None = None
+        except ValueError:
+            target, field_spec = regmap.resolve(name)
+    except ValueError as exc:  # RegisterAccessError
+        raise CampaignError(f"{where}: {exc}") from None
+    if not isinstance(target, GroupSpec) and not target.writable:
+        raise CampaignError(
+            f"{where}: {target.name} is read-only on the {regmap.sensor}; remove it from the "
+            "step (docs/sensors.md lists the writable registers)"
+        )
+    return target, field_spec
+
+
+def _check_register_values(
+    path: str | Path, label: str, regmap: RegisterMap, registers: dict[str, Any]
+) -> None:
+    """Each value against its register's, field's or group's range (what the daemon checks
+    first; combinations such as the window are checked by the daemon when the step runs)."""
+    from camd.sensor.regmap import GroupSpec
+
+    for name, given in registers.items():
+        target, field_spec = _register_target(path, label, regmap, name)
+        value = given
+        if isinstance(value, str):
+            try:
+                value = int(value.strip(), 0)
+            except ValueError:
+                value = value.strip()
+        try:
+            if isinstance(target, GroupSpec):
+                regmap.split_group(target, value)
+            elif field_spec is not None:
+                field_spec.to_raw(value, f"{target.name}.{field_spec.name}")
+            elif isinstance(value, str):
+                fields = ", ".join(f"{target.name}.{f.name}" for f in target.all_fields())
+                raise CampaignError(
+                    f"{path}: {label}: registers.{name}: {value!r} is not a number; give an "
+                    f"integer or set a field by name ({fields})"
+                )
+            else:
+                target.check_value(value)
+        except ValueError as exc:  # RegisterValueError
+            if isinstance(exc, CampaignError):
+                raise
+            raise CampaignError(f"{path}: {label}: registers.{name}: {exc}") from None
+
+
+def check_campaign(spec: CampaignSpec, path: str | Path, *, quick: bool) -> None:
+    """Everything that can be checked without the daemon, with the parameters (with ``quick``,
+    their overrides) substituted into every step and every sweep value: counts in their
+    ranges, register values in theirs. CampaignError names the file, the step (and the sweep
+    value) and what to give. A step that refers to a result measured before it is checked
+    when it runs."""
+    regmap: RegisterMap | None = None
+    fix = (
+        "nothing was done: correct the campaign's parameters (or their quick overrides) that "
+        "this step uses"
+    )
+
+    def walk(steps: list[Any], where: str, names: dict[str, Any], within: str) -> None:
+        nonlocal regmap
+        for i, step in enumerate(steps):
+            label = f"{where}[{i}] (id {step.id!r}){within}"
+            if isinstance(step, SweepStep):
+                try:
+                    values = sweep_values(step, names)
+                except KeyError:
+                    continue  # swept over a measured result
+                except CampaignError as exc:
+                    raise CampaignError(f"{path}: {label}: {exc}\n{fix}") from None
+                for value in values:
+                    walk(step.steps, f"{where}[{i}] (id {step.id!r}).steps",
+                         {**names, step.parameter: value},
+                         f"{within} with {step.parameter} = {_text(value)}")  # fmt: skip
+                continue
+            data = step.model_dump()
+            try:
+                resolved = type(step).model_validate(resolve(data, names))
+            except KeyError:
+                continue  # names a result measured before it
+            except ValidationError as exc:
+                raise CampaignError(
+                    _explain(Path(path), data, exc, prefix=label) + f"\n{fix}"
+                ) from None
+            if isinstance(resolved, ConfigureStep) and resolved.registers:
+                regmap = regmap or register_map_of(path, spec)
+                try:
+                    _check_register_values(path, label, regmap, resolved.registers)
+                except CampaignError as exc:
+                    raise CampaignError(f"{exc}\nnothing was done") from None
+
+    walk(spec.steps, "steps", dict(spec.parameters_for(quick)), "")
+
+
+def sweep_values(step: SweepStep, names: dict[str, Any]) -> list[Any]:
+    """The values a sweep runs over; KeyError if they are a result not measured yet."""
+    values = resolve(step.values, names)
+    if not isinstance(values, list) or not values:
+        raise CampaignError(f"values: {step.values!r} must give a non-empty list, got {values!r}")
+    return values

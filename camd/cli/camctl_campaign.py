@@ -7,12 +7,16 @@
 --url, or with ``--sim`` against a simulated camera of the campaign's profile that it starts
 itself (data and log in DIR/daemon). Progress goes to stderr. ``--json`` prints one document,
 ``{"campaign", "passed", "results", "report"}``. Exit status 1 when a check failed (after
-everything was written), 130 when interrupted (resume by running again).
+everything was written), 2 for an unknown campaign, an invalid file (checked whole first:
+``check_campaign``) or an unusable --out, with nothing done; 130 when interrupted (resume by
+running again).
 """
 
 from __future__ import annotations
 
 import argparse
+import os
+import re
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -56,15 +60,47 @@ def add_parsers(command: Callable[[str, str], argparse.ArgumentParser]) -> None:
     p.add_argument("--stop-after", metavar="STEP", help=argparse.SUPPRESS)  # tests: interrupt
 
 
-def _campaign_path(text: str) -> Path:
+def _campaign_path(text: str) -> Path | None:
+    """The campaign file ``text`` names: a file, or a shipped campaign's name (None: neither)."""
+    from camd.campaign.spec import NAME
+
     path = Path(text)
-    if path.suffix in (".yaml", ".yml") or path.exists():
+    if path.is_file():
         return path
-    return campaigns_dir() / f"{text}.yaml"
+    if re.fullmatch(NAME, text):
+        shipped = campaigns_dir() / f"{text}.yaml"
+        if shipped.is_file():
+            return shipped
+    return None
+
+
+def _shipped_names() -> str:
+    return ", ".join(p.stem for p in sorted(campaigns_dir().glob("*.yaml")))
+
+
+def check_out_dir(out_dir: Path) -> None:
+    """Make the output directory, or UsageError saying why it cannot be used and what to do."""
+    from camd.cli.camctl_sensor import UsageError
+
+    if out_dir.exists() and not out_dir.is_dir():
+        raise UsageError(
+            f"--out {out_dir}: exists and is not a directory; give a directory (a new one is made)"
+        )
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UsageError(
+            f"--out {out_dir}: cannot create the directory ({exc.strerror or exc}); give a "
+            "directory you may write to"
+        ) from None
+    if not os.access(out_dir, os.W_OK | os.X_OK):
+        raise UsageError(
+            f"--out {out_dir}: the directory is not writable; give a directory you may write to"
+        )
 
 
 def cmd_campaign(client: CamdClient, args: argparse.Namespace) -> Any:
-    from camd.campaign.spec import CampaignError, load_campaign
+    from camd.campaign.spec import CampaignError, check_campaign, load_campaign
     from camd.cli.camctl_sensor import CommandFailed, UsageError
 
     if args.action == "list":
@@ -72,19 +108,21 @@ def cmd_campaign(client: CamdClient, args: argparse.Namespace) -> Any:
     if not args.file or not args.out:
         raise UsageError("campaign run needs FILE and --out DIR")
     path = _campaign_path(args.file)
-    if not path.exists() and path.parent == campaigns_dir():
-        shipped = ", ".join(p.stem for p in sorted(campaigns_dir().glob("*.yaml")))
+    if path is None:
         raise UsageError(
             f"no campaign {args.file!r}: give a campaign YAML file, or one of the shipped "
-            f"campaigns (`camctl campaign list`): {shipped}"
+            f"campaigns (`camctl campaign list`): {_shipped_names()}"
         )
+    # The whole file, with the parameters substituted, before anything is done.
     try:
         spec = load_campaign(path)
+        check_campaign(spec, path, quick=args.quick)
     except CampaignError as exc:
         raise UsageError(str(exc)) from None
     out_dir = Path(args.out)
     if args.resume and not (out_dir / "state.json").exists():
         raise UsageError(f"--resume: {out_dir / 'state.json'} does not exist; nothing to resume")
+    check_out_dir(out_dir)
     try:
         doc = _run(None if args.sim else client, spec, out_dir, args)
     except CampaignError as exc:

@@ -12,8 +12,9 @@ import contextlib
 import hmac
 import json
 import logging
+import types
 from collections.abc import Awaitable, Callable, Iterable
-from typing import Any
+from typing import Any, Union, get_args, get_origin
 from urllib.parse import urlencode
 
 import anyio
@@ -27,10 +28,13 @@ from fastapi.responses import (
     RedirectResponse,
     Response,
 )
+from fastapi.routing import APIRoute
 from fastapi.staticfiles import StaticFiles
 from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metric
 from prometheus_client.registry import Collector, CollectorRegistry
+from pydantic import BaseModel
+from pydantic.fields import FieldInfo
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 import camd
@@ -105,6 +109,7 @@ from camd.daemon.models import (
     WheelCompensationRequest,
     WheelSpeedRequest,
     WheelStatus,
+    valid_values,
 )
 from camd.daemon.session import DeviceSession
 from camd.daemon.state import IllegalState, State
@@ -157,15 +162,79 @@ def error_response(status: int, code: str, message: str) -> JSONResponse:
     return JSONResponse(status_code=status, content={"error": message, "code": code})
 
 
-def _validation_message(exc: RequestValidationError) -> str:
-    """``"mode: 'foo' is not valid; use area or tdi"`` for each invalid parameter."""
+_UNION_TAGS = {"int", "float", "str", "bool", "none"}  # pydantic's loc parts for union members
+
+
+def _parameter(route: object, loc: list[str | int]) -> FieldInfo | None:
+    """The field of ``route``'s own request model (or query parameter) that ``loc`` names, so
+    that the valid values quoted are this endpoint's (several models share field names)."""
+    if not isinstance(route, APIRoute) or len(loc) < 2:
+        return None
+    where, path = loc[0], loc[1:]
+    if where == "query":
+        params = {p.alias: p.field_info for p in route.dependant.query_params}
+        return params.get(str(path[0])) if len(path) == 1 else None
+    if where != "body" or len(route.dependant.body_params) != 1:
+        return None
+    model: Any = route.dependant.body_params[0].field_info.annotation
+    field: FieldInfo | None = None
+    for part in path:
+        if get_origin(model) in (Union, types.UnionType):
+            args = [a for a in get_args(model) if a is not type(None)]
+            model = args[0] if len(args) == 1 else None
+        if get_origin(model) in (dict, list):  # an entry: its type, unconstrained
+            field = FieldInfo.from_annotation(get_args(model)[-1])
+        elif isinstance(model, type) and issubclass(model, BaseModel):
+            field = model.model_fields.get(str(part))
+        else:
+            return None
+        if field is None:
+            return None
+        model = field.annotation
+    return field
+
+
+def _what_it_is(value: object) -> str:
+    """The JSON type of a refused value, in words."""
+    if value is None:
+        return "null"
+    if isinstance(value, bool):
+        return "a boolean"
+    if isinstance(value, int):
+        return "an integer"
+    if isinstance(value, float):
+        return "a number with a fraction"
+    if isinstance(value, str):
+        return "a string"
+    return "a list" if isinstance(value, list) else "an object"
+
+
+def _validation_message(exc: RequestValidationError, route: object = None) -> str:
+    """``"stages: 0 is out of range; use an integer in 1..4096"`` for each invalid parameter:
+    the valid values read from the endpoint's own model (``valid_values``), with
+    ``ALLOWED``'s explanation where the type and constraints do not say enough."""
     parts = []
+    seen = set()
     for err in exc.errors():
-        loc = [str(p) for p in err.get("loc", ()) if p not in ("body", "query", "path")]
-        name = ".".join(loc)
+        loc: list[str | int] = list(err.get("loc", ()))
+        while len(loc) > 2 and loc[-1] in _UNION_TAGS:
+            loc.pop()  # values.GAIN.int -> values.GAIN
+        shown_loc = [str(p) for p in loc if p not in ("body", "query", "path")]
+        name = ".".join(shown_loc)
+        if name in seen:
+            continue  # one message per parameter (a union reports each member)
+        seen.add(name)
         kind = str(err.get("type", ""))
         value = err.get("input")
-        allowed = ALLOWED.get(loc[-1] if loc else "", "")
+        field = _parameter(route, loc)
+        # ALLOWED's explanation of the parameter, or of the one an entry belongs to
+        hint = next((ALLOWED[p] for p in reversed(shown_loc) if p in ALLOWED), "")
+        if field is not None and not hint and loc[0] == "query":
+            hint = field.description or ""  # its meaning on this endpoint
+        if field is not None:
+            allowed = valid_values(field) + (f" ({hint})" if hint else "")
+        else:
+            allowed = hint
         use = f"; use {allowed}" if allowed else ""
         if kind == "json_invalid":
             parts.append('the request body is not valid JSON; send e.g. {"count": 10}')
@@ -173,7 +242,7 @@ def _validation_message(exc: RequestValidationError) -> str:
             parts.append(f"{name}: is required{use}")
         elif kind == "extra_forbidden":
             parts.append(f"{name}: unknown parameter; remove it (check the spelling)")
-        elif kind in ("model_attributes_type", "dict_type"):
+        elif kind in ("model_attributes_type", "dict_type") and not name:
             shown = value.decode(errors="replace") if isinstance(value, bytes) else repr(value)
             parts.append(
                 f"the request body must be a JSON object (Content-Type: application/json), "
@@ -181,6 +250,13 @@ def _validation_message(exc: RequestValidationError) -> str:
             )
         elif kind in ("greater_than_equal", "less_than_equal", "greater_than", "less_than"):
             parts.append(f"{name}: {value!r} is out of range{use}")
+        elif kind == "finite_number":
+            parts.append(f"{name}: {value!r} is not a finite number{use}")
+        elif kind.endswith("_type"):
+            parts.append(f"{name}: {value!r} is {_what_it_is(value)}, the wrong type{use}")
+        elif kind == "value_error":  # a validator of the model: its reason
+            reason = str(err.get("msg", "")).removeprefix("Value error, ")
+            parts.append(f"{name}: {value!r} is not valid ({reason}){use}")
         else:
             parts.append(f"{name}: {value!r} is not valid{use}")
     return "; ".join(parts) or "invalid request"
@@ -367,7 +443,9 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
 
     @app.exception_handler(RequestValidationError)
     async def on_validation_error(request: Request, exc: RequestValidationError) -> JSONResponse:
-        return error_response(400, "bad_request", _validation_message(exc))
+        return error_response(
+            400, "bad_request", _validation_message(exc, request.scope.get("route"))
+        )
 
     @app.exception_handler(StarletteHTTPException)
     async def on_http_error(request: Request, exc: StarletteHTTPException) -> JSONResponse:

@@ -1,16 +1,18 @@
 """``camd serve``: run the daemon in the foreground (under systemd, Type=notify).
 
-Order of events: validate the config (exit 2 on error), bind the listening socket (so a port in
-use fails before anything is spawned), start the device session (the simulator too with
-``--sim``), serve HTTP with uvicorn, and once listening print exactly one line on stdout,
-``camd serving http://HOST:PORT`` with the actual port, and send READY=1. SIGTERM or SIGINT:
-STOPPING=1, finish the open requests, stop the session (terminating the simulator), exit 0.
+Order of events: validate the config and the data directory (exit 2 on error), bind the listening
+socket (exit 2 if the port is in use; so that it fails before anything is spawned), start the
+device session (the simulator too with ``--sim``), serve HTTP with uvicorn, and once listening
+print exactly one line on stdout, ``camd serving http://HOST:PORT`` with the actual port, and
+send READY=1. SIGTERM or SIGINT: STOPPING=1, finish the open requests, stop the session
+(terminating the simulator), exit 0.
 """
 
 from __future__ import annotations
 
 import argparse
 import logging
+import os
 import signal
 import socket
 import sqlite3
@@ -30,8 +32,10 @@ from camd.daemon.session import DeviceSession
 log = logging.getLogger("camd.serve")
 
 EXIT_OK = 0
-EXIT_RUNTIME = 1  # could not listen, could not start the camera session
-EXIT_CONFIG = 2  # the config or the command line is invalid
+EXIT_RUNTIME = 1  # could not start the camera session
+EXIT_CONFIG = (
+    2  # the config or the command line is invalid: also a port in use, an unusable data dir
+)
 GRACEFUL_SHUTDOWN_S = 5  # open HTTP requests get this long to finish after SIGTERM
 
 
@@ -143,6 +147,21 @@ def _setup_logging(level: str) -> None:
     )
 
 
+def data_dir_problem(path: Path) -> str | None:
+    """Why the data directory cannot be used (None if it can): checked before anything is bound
+    or spawned. A missing directory whose nearest existing parent is writable is fine (the
+    session creates it)."""
+    existing = path
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if not existing.is_dir():
+        return f"cannot use the data directory {path}: {existing} is not a directory"
+    if not os.access(existing, os.W_OK | os.X_OK):
+        what = "the data directory" if existing == path else f"its parent {existing}"
+        return f"cannot use the data directory {path}: {what} is not writable"
+    return None
+
+
 def run(args: argparse.Namespace) -> int:
     """Run the daemon until SIGTERM/SIGINT; return the exit status."""
     try:
@@ -163,6 +182,10 @@ def run(args: argparse.Namespace) -> int:
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, early_stop)
 
+    problem = data_dir_problem(config.daemon.data_dir)
+    if problem:
+        print(f"camd serve: {problem}; choose another with --data-dir", file=sys.stderr)
+        return EXIT_CONFIG
     host, port = config.api.host, config.api.port
     try:
         sock = _bind(host, port)
@@ -172,7 +195,7 @@ def run(args: argparse.Namespace) -> int:
             "process using the port or choose another with --port (0 = any free port)",
             file=sys.stderr,
         )
-        return EXIT_RUNTIME
+        return EXIT_CONFIG
     url = f"http://{url_host(host)}:{sock.getsockname()[1]}"
 
     session = DeviceSession(config)
@@ -185,13 +208,14 @@ def run(args: argparse.Namespace) -> int:
         return EXIT_CONFIG if exc.usage else EXIT_RUNTIME
     except (OSError, sqlite3.Error) as exc:
         print(
-            f"camd serve: cannot use the data directory {config.daemon.data_dir}: {exc}; "
-            "make it writable or choose another with --data-dir",
+            f"camd serve: cannot use the data directory {config.daemon.data_dir}: "
+            f"{getattr(exc, 'strerror', None) or exc}; make it writable or choose another "
+            "with --data-dir",
             file=sys.stderr,
         )
         session.stop()
         sock.close()
-        return EXIT_RUNTIME
+        return EXIT_CONFIG
 
     server = _Server(
         uvicorn.Config(

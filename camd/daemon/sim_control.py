@@ -213,9 +213,20 @@ class FirmwareSimulator(SimulatorControl):
         # Building a finely sampled scene takes the simulator seconds (e.g. an edge at
         # oversample=16): wait longer per attempt, and try more often, than for a command the
         # device answers at once. A re-send is answered from the device's record once built.
-        self.device.request(
-            "SIM_SET_SCENE", spec=spec, timeout_s=SCENE_TIMEOUT_S, retries=SCENE_RETRIES
-        )
+        try:
+            self.device.request(
+                "SIM_SET_SCENE", spec=spec, timeout_s=SCENE_TIMEOUT_S, retries=SCENE_RETRIES
+            )
+        except DeviceRejected as exc:
+            # The simulator answers a spec it cannot build with OUT_OF_RANGE and its reason:
+            # the user's mistake (400), not the device's.
+            if exc.name != "OUT_OF_RANGE":
+                raise
+            reason = str(exc).rpartition("SIM_SET_SCENE: ")[2] or str(exc)
+            raise BadRequest(
+                f"scene {spec!r} cannot be built: {reason}; correct the scene spec "
+                "(docs/simulator.md lists the kinds and their keys)"
+            ) from None
 
     def _do_set_seed(self, seed: int) -> None:
         self.device.request("SIM_SET_SEED", seed=seed)

@@ -1,0 +1,313 @@
+"""Every bad input to a POST/PUT endpoint gets a 400 that says what to change: one table.
+
+Each row is a request body that violates one field's constraint (its range, its values, its
+type, a NaN or infinity, a scene the simulator cannot build), the error code it must get, and
+fragments of the message that must name the valid values with their actual numbers: the
+range of *this* endpoint's model, since several models share a field name with different
+ranges (``frames``, ``stages``, ``speed_m_s``). The camera's state is read back from the
+device (``tests.device_snapshot``) before and after; the two must be equal, and the daemon
+must still answer.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import httpx
+import pytest
+
+from camd.client import CamdClient
+from tests.device_snapshot import snapshot
+from tests.test_trust import small_window_daemon
+
+API = "/api/v1"
+CLIENT = "bad-input"
+NAN = float("nan")
+INF = float("inf")
+
+
+@dataclass(frozen=True)
+class Row:
+    method: str
+    path: str
+    body: dict[str, Any]
+    fragments: tuple[str, ...]  # all in the message: the parameter, the valid values
+    code: str = "bad_request"
+    status: int = 400
+
+
+def row(method: str, path: str, body: dict[str, Any], *fragments: str) -> Row:
+    return Row(method, path, body, fragments)
+
+
+def scan(**body: Any) -> dict[str, Any]:
+    """A scan body that is valid but for what ``body`` changes."""
+    return {"stages": 4, "lines": 5, "out": "{tmp}/scan.h5", "line_period_s": 3e-3,
+            "drive_stage": False, **body}  # fmt: skip
+
+
+def p(row: Row, id: str) -> Any:
+    return pytest.param(row, id=id)
+
+
+ROWS = [
+    # -- control ----------------------------------------------------------------------------------
+    p(row("POST", "/control", {"ttl_s": 0}, "ttl_s: 0 is out of range",
+          "a number more than 0 and at most 86400"), "control-ttl-zero"),
+    p(row("POST", "/control", {"ttl_s": 86401}, "more than 0 and at most 86400"),
+      "control-ttl-too-long"),
+    p(row("POST", "/control", {"ttl_s": NAN}, "ttl_s: nan is not a finite number",
+          "more than 0 and at most 86400"), "control-ttl-nan"),
+    p(row("POST", "/control", {"ttl_s": "60"}, "ttl_s: '60' is a string, the wrong type",
+          "use a number more than 0"), "control-ttl-string"),
+    p(row("POST", "/control", {"force": "yes"}, "force: 'yes' is a string",
+          "use true or false"), "control-force-string"),
+    p(row("PUT", "/control/activity", {"text": ""}, "text:",
+          "a string of 1 to 200 characters (printable"), "activity-empty-text"),
+    p(row("PUT", "/control/activity", {"text": "a", "done": -1}, "done: -1 is out of range",
+          "null or an integer >= 0"), "activity-negative-done"),
+    p(row("PUT", "/control/activity", {"text": "a", "done": True}, "done: True is a boolean",
+          "null or an integer >= 0"), "activity-boolean-done"),
+    # -- ping -------------------------------------------------------------------------------------
+    p(row("POST", "/ping", {"count": 0}, "count: 0 is out of range", "an integer in 1..100000"),
+      "ping-count-zero"),
+    p(row("POST", "/ping", {"count": 100001}, "an integer in 1..100000"), "ping-count-too-many"),
+    p(row("POST", "/ping", {"count": True}, "count: True is a boolean, the wrong type",
+          "an integer in 1..100000"), "ping-count-boolean"),
+    p(row("POST", "/ping", {"count": "10"}, "count: '10' is a string",
+          "an integer in 1..100000"), "ping-count-numeric-string"),
+    p(row("POST", "/ping", {"count": 2.5}, "count: 2.5 is a number with a fraction",
+          "an integer in 1..100000"), "ping-count-fraction"),
+    p(row("POST", "/ping", {"size": 257}, "size: 257 is out of range",
+          "an integer in 0..256 (bytes)"), "ping-size-too-big"),
+    p(row("POST", "/ping", {"size": -1}, "an integer in 0..256"), "ping-size-negative"),
+    # -- live view background ---------------------------------------------------------------------
+    p(row("POST", "/live/background", {"frames": 0}, "frames: 0 is out of range",
+          "an integer in 1..1000"), "background-no-frames"),
+    p(row("POST", "/live/background", {"frames": 1001}, "an integer in 1..1000"),
+      "background-too-many-frames"),
+    # -- mode -------------------------------------------------------------------------------------
+    p(row("POST", "/mode", {"mode": "foo"}, "mode: 'foo' is not valid", "use area or tdi"),
+      "mode-unknown"),
+    p(row("POST", "/mode", {"mode": 1}, "mode: 1 is not valid", "use area or tdi"),
+      "mode-number"),
+    p(row("POST", "/mode", {}, "mode: is required", "use area or tdi"), "mode-missing"),
+    # -- registers --------------------------------------------------------------------------------
+    p(row("POST", "/registers", {"values": {}}, "values:", "a non-empty object"),
+      "registers-none"),
+    p(row("POST", "/registers", {"values": {"GAIN": True}}, "values.GAIN: True is a boolean",
+          "use an integer or a string (register name -> raw integer, or enum name"),
+      "registers-boolean-value"),
+    p(row("POST", "/wheel/acquire", {"channels": ["B01"]}, "channels.0: 'B01' is a string",
+          "use an integer (wheel channel numbers, each 0..12)"), "wheel-acquire-channel-name"),
+    p(row("PUT", "/registers/config", {"sensor": "hr400", "registers": {"GAIN": True}},
+          "registers.GAIN: True is a boolean, the wrong type", "use an integer"),
+      "registers-config-boolean-value"),
+    p(row("PUT", "/registers/config", {"sensor": "hr400"}, "registers: is required",
+          "an object"), "registers-config-missing-registers"),
+    p(row("POST", "/registers/diff", {"against": "factory"}, "against: 'factory' is not valid",
+          "use reset or values"), "registers-diff-against-unknown"),
+    # -- stream -----------------------------------------------------------------------------------
+    p(row("POST", "/stream/start", {"frames": -1}, "frames: -1 is out of range",
+          "an integer in 0..4294967295"), "stream-negative-frames"),
+    p(row("POST", "/stream/start", {"frames": 2**32}, "an integer in 0..4294967295"),
+      "stream-too-many-frames"),
+    p(row("POST", "/stream/start", {"frames": True}, "frames: True is a boolean",
+          "an integer in 0..4294967295"), "stream-boolean-frames"),
+    p(row("POST", "/stream/start", {"stages": 4097}, "stages: 4097 is out of range",
+          "null or an integer in 0..4096"), "stream-too-many-stages"),
+    p(row("POST", "/stream/start", {"mode": "median"}, "mode: 'median' is not valid",
+          "use area, tdi or null"), "stream-mode-unknown"),
+    p(row("POST", "/stream/start", {"binning": "4x4"}, "use off or 2x2"), "stream-binning"),
+    p(row("POST", "/stream/start", {"frames": 2, "timeout_s": 0}, "timeout_s: 0 is out of range",
+          "null or a number more than 0 and at most 86400"), "stream-timeout-zero"),
+    p(row("POST", "/stream/acquire", {"frames": -1}, "frames: -1 is out of range",
+          "an integer in 0..4294967295"), "stare-negative-frames"),
+    p(row("POST", "/stream/acquire", {"frames": 2, "stages": -1}, "stages: -1 is out of range",
+          "null or an integer in 0..4096"), "stare-negative-stages"),
+    p(row("POST", "/stream/acquire", {"frames": 2, "timeout_s": INF},
+          "timeout_s: inf is not a finite number", "more than 0 and at most 86400"),
+      "stare-infinite-timeout"),
+    # -- scan -------------------------------------------------------------------------------------
+    p(row("POST", "/scan/start", scan(stages=0), "stages: 0 is out of range",
+          "an integer in 1..4096"), "scan-no-stages"),
+    p(row("POST", "/scan/start", scan(stages=4097), "an integer in 1..4096"),
+      "scan-too-many-stages"),
+    p(row("POST", "/scan/start", scan(stages=True), "stages: True is a boolean",
+          "an integer in 1..4096"), "scan-boolean-stages"),
+    p(row("POST", "/scan/start", scan(lines=-1), "lines: -1 is out of range",
+          "an integer in 0..10000000"), "scan-negative-lines"),
+    p(row("POST", "/scan/start", scan(lines=10_000_001), "an integer in 0..10000000"),
+      "scan-too-many-lines"),
+    p(row("POST", "/scan/start", scan(lines="5"), "lines: '5' is a string",
+          "an integer in 0..10000000"), "scan-string-lines"),
+    p(row("POST", "/scan/start", scan(line_period_s=None, speed_m_s=0),
+          "speed_m_s: 0 is out of range", "null or a number more than 0 and at most 10"),
+      "scan-speed-zero"),
+    p(row("POST", "/scan/start", scan(line_period_s=None, speed_m_s=11),
+          "more than 0 and at most 10"), "scan-speed-too-fast"),
+    p(row("POST", "/scan/start", scan(line_period_s=None, speed_m_s=NAN),
+          "speed_m_s: nan is not a finite number", "more than 0 and at most 10"),
+      "scan-speed-nan"),
+    p(row("POST", "/scan/start", scan(line_period_s=0), "line_period_s: 0 is out of range",
+          "null or a number more than 0 and at most 10"), "scan-line-period-zero"),
+    p(row("POST", "/scan/start", scan(line_period_s=INF),
+          "line_period_s: inf is not a finite number", "more than 0 and at most 10"),
+      "scan-line-period-infinite"),
+    p(row("POST", "/scan/start", scan(dv_over_v=1.0), "dv_over_v: 1.0 is out of range",
+          "a number from -2 to below 1"), "scan-mismatch-one"),
+    p(row("POST", "/scan/start", scan(dv_over_v=-2.5), "a number from -2 to below 1"),
+      "scan-mismatch-too-negative"),
+    p(row("POST", "/scan/start", scan(out_bits=0), "out_bits: 0 is out of range",
+          "null or an integer in 1..32"), "scan-out-bits-zero"),
+    p(row("POST", "/scan/start", scan(out_bits=33), "null or an integer in 1..32"),
+      "scan-out-bits-too-many"),
+    p(row("POST", "/scan/start", scan(mode="median"), "mode: 'median' is not valid",
+          "use sum or mean"), "scan-mode-median"),
+    p(row("POST", "/scan/start", scan(rows_per_line=65), "a number in 0..64"),
+      "scan-rows-per-line"),
+    p(row("POST", "/scan/start", scan(cols_per_line=-65), "a number in -64..64"),
+      "scan-cols-per-line"),
+    p(row("POST", "/scan/start", scan(drive_stage="no"), "drive_stage: 'no' is a string",
+          "use true or false"), "scan-drive-stage-string"),
+    p(row("POST", "/scan/start", scan(scene="x" * 241),
+          "null or a string of at most 240 characters"), "scan-scene-too-long"),
+    p(row("POST", "/scan/start", scan(scene="nonsense"), "scene 'nonsense' cannot be built",
+          "unknown scene kind 'nonsense'; kinds: "), "scan-scene-unknown-kind"),
+    p(row("PUT", "/scan/stages", {"stages": 0}, "stages: 0 is out of range",
+          "an integer in 1..4096"), "scan-stages-zero"),
+    # -- the stage --------------------------------------------------------------------------------
+    p(row("POST", "/motion/enable", {"on": "yes"}, "on: 'yes' is a string", "true or false"),
+      "stage-enable-string"),
+    p(row("POST", "/motion/run", {"speed_m_s": NAN}, "speed_m_s: nan is not a finite number",
+          "a number in -10..10"), "stage-run-nan"),
+    p(row("POST", "/motion/run", {"speed_m_s": 11}, "speed_m_s: 11 is out of range",
+          "a number in -10..10"), "stage-run-too-fast"),
+    p(row("POST", "/motion/run", {}, "speed_m_s: is required", "a number in -10..10"),
+      "stage-run-no-speed"),
+    p(row("POST", "/motion/move", {"position_m": NAN}, "position_m: nan is not a finite number",
+          "a number in -100..100"), "stage-move-nan"),
+    p(row("POST", "/motion/move", {"position_m": -INF}, "position_m: -inf is not a finite",
+          "a number in -100..100"), "stage-move-minus-infinity"),
+    p(row("POST", "/motion/move", {"position_m": 101}, "position_m: 101 is out of range",
+          "a number in -100..100"), "stage-move-too-far"),
+    p(row("POST", "/motion/move", {"position_m": 0.2, "speed_m_s": 0},
+          "speed_m_s: 0 is out of range", "null or a number more than 0 and at most 10"),
+      "stage-move-speed-zero"),
+    p(row("POST", "/motion/move", {"position_m": 0.2, "speed_m_s": NAN},
+          "speed_m_s: nan is not a finite number", "more than 0 and at most 10"),
+      "stage-move-speed-nan"),
+    p(row("POST", "/motion/move", {"position_m": 0.2, "wait": 1}, "wait: 1 is an integer",
+          "use true or false"), "stage-move-wait-integer"),
+    p(row("POST", "/motion/home", {"wait": "true"}, "wait: 'true' is a string",
+          "use true or false"), "stage-home-wait-string"),
+    # -- the filter wheel -------------------------------------------------------------------------
+    p(row("PUT", "/wheel/speed", {"speed_deg_s": 361}, "speed_deg_s: 361 is out of range",
+          "a number in 0..360"), "wheel-speed-too-fast"),
+    p(row("PUT", "/wheel/speed", {"speed_deg_s": NAN}, "speed_deg_s: nan is not a finite",
+          "a number in 0..360"), "wheel-speed-nan"),
+    p(row("PUT", "/wheel/compensation", {"on": 1}, "on: 1 is an integer", "true or false"),
+      "wheel-compensation-integer"),
+    p(row("POST", "/wheel/acquire", {"channels": []}, "channels:", "a list of 1 to 13 items",
+          "each 0..12"), "wheel-acquire-no-channels"),
+    p(row("POST", "/wheel/acquire", {"channels": [1] * 14}, "a list of 1 to 13 items"),
+      "wheel-acquire-too-many-channels"),
+    p(row("POST", "/wheel/acquire", {"channels": [1], "passes": 0}, "passes: 0 is out of range",
+          "an integer in 1..1000"), "wheel-acquire-no-passes"),
+    p(row("POST", "/wheel/acquire", {"channels": [1], "passes": 1001}, "an integer in 1..1000"),
+      "wheel-acquire-too-many-passes"),
+    p(row("POST", "/wheel/acquire", {"channels": [1], "exposure_s": 31},
+          "exposure_s: 31 is out of range", "null or a number more than 0 and at most 30"),
+      "wheel-acquire-exposure-too-long"),
+    p(row("POST", "/wheel/acquire", {"channels": [1], "region": {"rows": 0, "cols": 4}},
+          "region.rows: 0 is out of range", "an integer in 1..4096"),
+      "wheel-acquire-region-no-rows"),
+    p(row("POST", "/wheel/acquire", {"channels": [1], "region": {"rows": 4, "cols": 4,
+                                                                 "row": 4096}},
+          "region.row: 4096 is out of range", "an integer in 0..4095"),
+      "wheel-acquire-region-row-beyond"),
+    p(row("POST", "/wheel/acquire", {"channels": [1], "timeout_s": 0},
+          "timeout_s: 0 is out of range", "null or a number more than 0 and at most 86400"),
+      "wheel-acquire-timeout-zero"),
+    # -- the simulator ----------------------------------------------------------------------------
+    p(row("PUT", "/sim/polarizer", {"angle_deg": 361}, "angle_deg: 361 is out of range",
+          "null or a number in 0..360"), "sim-polarizer-beyond-a-turn"),
+    p(row("PUT", "/sim/polarizer", {"angle_deg": NAN}, "angle_deg: nan is not a finite number",
+          "null or a number in 0..360"), "sim-polarizer-nan"),
+    p(row("PUT", "/sim/stage/faults", {"error": 0.2}, "error: 0.2 is out of range",
+          "a number in -0.1..0.1"), "sim-stage-error"),
+    p(row("PUT", "/sim/stage/faults", {"ripple": 0.3}, "a number in 0..0.2"),
+      "sim-stage-ripple"),
+    p(row("PUT", "/sim/stage/faults", {"jitter": -0.1}, "a number in 0..0.2"),
+      "sim-stage-jitter"),
+    p(row("PUT", "/sim/stage/faults", {"drift": 0.2}, "a number in -0.1..0.1"),
+      "sim-stage-drift"),
+    p(row("PUT", "/sim/stage/faults", {"load": 4}, "load: 4 is out of range",
+          "a number in 0..3"), "sim-stage-load"),
+    p(row("PUT", "/sim/scene", {"spec": ""}, "spec:", "a string of 1 to 240 characters"),
+      "sim-scene-empty"),
+    p(row("PUT", "/sim/scene", {"spec": "nonsense"}, "scene 'nonsense' cannot be built",
+          "unknown scene kind 'nonsense'; kinds: ", "correct the scene spec"),
+      "sim-scene-unknown-kind"),
+    p(row("PUT", "/sim/scene", {"spec": "bars:nokey=1"}, "scene 'bars:nokey=1' cannot be built",
+          "nokey"), "sim-scene-unknown-key"),
+    p(row("PUT", "/sim/seed", {"seed": -1}, "seed: -1 is out of range",
+          "an integer in 0..4294967295"), "sim-seed-negative"),
+    p(row("PUT", "/sim/seed", {"seed": 2**32}, "an integer in 0..4294967295"),
+      "sim-seed-too-big"),
+    p(row("PUT", "/sim/seed", {"seed": True}, "seed: True is a boolean",
+          "an integer in 0..4294967295"), "sim-seed-boolean"),
+    p(row("PUT", "/sim/stage", {"track": False, "speed_m_s": -1},
+          "speed_m_s: -1 is out of range", "a number in 0..10"), "sim-ideal-stage-backwards"),
+    p(row("PUT", "/sim/stage", {"track": "yes"}, "track: 'yes' is a string", "true or false"),
+      "sim-ideal-stage-track-string"),
+    p(row("POST", "/sim/fail-next", {"command": "PING", "error": "BUSY", "skip": -1},
+          "skip: -1 is out of range", "an integer in 0..65535"), "fail-next-negative-skip"),
+    p(row("POST", "/sim/fail-next", {"command": "PING", "error": "BUSY", "skip": 65536},
+          "an integer in 0..65535"), "fail-next-skip-too-big"),
+    p(row("POST", "/sim/fail-next", {"command": "PING", "duration_s": 601},
+          "duration_s: 601 is out of range", "null or a number more than 0 and at most 600"),
+      "fail-next-silence-too-long"),
+    p(row("POST", "/sim/fail-next", {"command": "", "error": "BUSY"}, "command:",
+          "a string of 1 to 40 characters"), "fail-next-empty-command"),
+]  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def daemon(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[str, CamdClient]]:
+    tmp = tmp_path_factory.mktemp("camd-bad-input")
+    with small_window_daemon(tmp) as url, CamdClient(url, client=CLIENT) as client:
+        client.set_mode("area")
+        client.enable_stage(True)
+        client.move_stage(0.3)  # mid-travel: a move that got through would show
+        yield url, client
+
+
+def test_the_table_covers_every_field_family() -> None:
+    assert len(ROWS) >= 60
+
+
+@pytest.mark.parametrize("row", ROWS)
+def test_bad_input_is_refused_with_the_valid_values(
+    daemon: tuple[str, CamdClient], tmp_path: Path, row: Row
+) -> None:
+    url, client = daemon
+    before = snapshot(client)
+    # json.dumps writes NaN and Infinity as JSON's common extension, as many clients do.
+    body = json.dumps(row.body).replace("{tmp}", str(tmp_path))
+    with httpx.Client(base_url=url, timeout=120, headers={"X-Camd-Client": CLIENT}) as h:
+        response = h.request(
+            row.method, f"{API}{row.path}", content=body,
+            headers={"Content-Type": "application/json"},
+        )  # fmt: skip
+        assert h.get(f"{API}/status").status_code == 200  # the daemon is alive
+    assert response.status_code == row.status, response.text
+    doc = response.json()
+    assert doc["code"] == row.code, doc
+    for fragment in row.fragments:
+        assert fragment in doc["error"], doc["error"]
+    assert snapshot(client) == before

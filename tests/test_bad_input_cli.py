@@ -1,0 +1,191 @@
+"""Bad input on the command line and in campaign files (issue 17): each case runs the real
+command, and gets the documented exit status (2: bad usage or invalid input), a one-line-ish
+message naming the fix, no traceback, and nothing created or changed."""
+
+from __future__ import annotations
+
+import socket
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import httpx
+import pytest
+import yaml
+
+from camd.cli._daemon_proc import DaemonProcess
+from camd.paths import config_dir
+from tests.test_camctl import NO_TOKEN, REPO_ROOT, camctl, camctl_env
+
+CAMPAIGNS = config_dir() / "campaigns"
+EXAMPLE = CAMPAIGNS / "example_stare.yaml"
+NO_DAEMON = "http://127.0.0.1:9"  # nothing listens: a command that got that far would exit 3
+
+
+def refused(proc: subprocess.CompletedProcess[str], code: int, *fragments: str) -> None:
+    assert proc.returncode == code, (proc.returncode, proc.stderr)
+    assert "Traceback" not in proc.stderr, proc.stderr
+    for fragment in fragments:
+        assert fragment in proc.stderr, proc.stderr
+
+
+def tree(root: Path) -> list[str]:
+    return sorted(str(p.relative_to(root)) for p in root.rglob("*"))
+
+
+# -- camctl campaign run: the file ---------------------------------------------------------------
+
+
+@pytest.mark.parametrize("name", ["nosuch", "nosuch.yaml", "sub/nosuch", "example_stare.yml"])
+def test_unknown_campaign_points_at_the_list(tmp_path: Path, name: str) -> None:
+    proc = camctl(NO_DAEMON, "campaign", "run", name, "--out", str(tmp_path / "out"))
+    refused(proc, 2, f"no campaign {name!r}", "`camctl campaign list`", "example_stare")
+    assert str(CAMPAIGNS) not in proc.stderr  # not where camd happens to be installed
+    assert tree(tmp_path) == []
+
+
+def edited(tmp_path: Path, edit: Any) -> Path:
+    doc = yaml.safe_load(EXAMPLE.read_text(encoding="utf-8"))
+    edit(doc)
+    path = tmp_path / "bad.yaml"
+    path.write_text(yaml.safe_dump(doc, sort_keys=False), encoding="utf-8")
+    return path
+
+
+def set_stare_frames(doc: dict[str, Any], frames: Any) -> None:
+    doc["steps"][2]["stare"]["frames"] = frames
+
+
+def sweep_over_frames(doc: dict[str, Any]) -> None:
+    doc["quick"]["photons"] = [6, -1]
+    doc["steps"][4]["steps"][1]["stare"]["frames"] = "${photons}"
+
+
+def set_registers(doc: dict[str, Any], registers: dict[str, Any]) -> None:
+    doc["steps"][0]["registers"] = registers
+
+
+@pytest.mark.parametrize(
+    ("edit", "fragments"),
+    [
+        (lambda d: set_stare_frames(d, -5),
+         ["steps[2] (id 'dark').stare.frames: -5 is out of range; give 1 .. 4294967295"]),
+        # A parameter (its --quick override) that makes a step invalid.
+        (lambda d: d["quick"].update(frames=-5),
+         ["steps[2] (id 'dark'): stare.frames: -5 is out of range; give 1 .. 4294967295",
+          "nothing was done: correct the campaign's parameters (or their quick overrides)"]),
+        # ... inside a sweep: the message names the sweep value.
+        (sweep_over_frames,
+         ["steps[4] (id 'light').steps[1] (id 'stare') with photons = -1: stare.frames: -1 is "
+          "out of range; give 1 .. 4294967295"]),
+        (lambda d: set_registers(d, {"NO_SUCH": 3}),
+         ["steps[0]", "registers.NO_SUCH: hr400 has no register named 'NO_SUCH'",
+          "`camctl reg dump` lists them"]),
+        (lambda d: set_registers(d, {"WIN_ROWS.nope": 3}),
+         ["registers.WIN_ROWS.nope: register WIN_ROWS has no field 'nope'; fields: rows"]),
+        (lambda d: set_registers(d, {"CHIP_ID": 3}),
+         ["registers.CHIP_ID: CHIP_ID is read-only on the hr400"]),
+        (lambda d: set_registers(d, {"WIN_ROWS": 100000}),
+         ["registers.WIN_ROWS: WIN_ROWS.rows: 100000 is out of range (valid: 1 .. 2048"]),
+        (lambda d: d.update(profile="no_such_camera"), ["profile: ", "no_such_camera"]),
+    ],
+    ids=["frames-literal", "frames-parameter", "frames-in-a-sweep", "unknown-register", "unknown-field",
+         "read-only-register", "register-value", "unknown-profile"],
+)  # fmt: skip
+@pytest.mark.parametrize("sim", [False, True], ids=["url", "sim"])
+def test_invalid_campaign_exits_2_before_anything_runs(
+    tmp_path: Path, edit: Any, fragments: list[str], sim: bool
+) -> None:
+    bad = edited(tmp_path, edit)
+    out = tmp_path / "out"
+    args = ["campaign", "run", str(bad), "--out", str(out), "--quick"]
+    proc = camctl(NO_DAEMON, *args, *(["--sim"] if sim else []))
+    refused(proc, 2, f"{bad}: ", *fragments)
+    assert not out.exists()  # no output directory, no daemon started for --sim
+    assert tree(tmp_path) == ["bad.yaml"]
+
+
+def test_every_shipped_campaign_passes_the_whole_check() -> None:
+    from camd.campaign.spec import check_campaign, load_campaign
+
+    for path in sorted(CAMPAIGNS.glob("*.yaml")):
+        spec = load_campaign(path)
+        check_campaign(spec, path, quick=False)
+        check_campaign(spec, path, quick=True)
+
+
+# -- camctl campaign run: --out ------------------------------------------------------------------
+
+
+def test_out_that_is_a_file_or_cannot_be_made_is_refused(tmp_path: Path) -> None:
+    file = tmp_path / "F"
+    file.write_text("mine\n")
+    for out, fragment in [
+        (file, f"--out {file}: exists and is not a directory; give a directory"),
+        (file / "sub", f"--out {file / 'sub'}: cannot create the directory"),
+        (Path("/proc/camd-no-such/out"), "--out /proc/camd-no-such/out: cannot create"),
+    ]:
+        proc = camctl(NO_DAEMON, "campaign", "run", "example_stare", "--out", str(out), "--quick")
+        refused(proc, 2, fragment, "give a directory")
+    assert file.read_text() == "mine\n"
+    assert tree(tmp_path) == ["F"]
+
+
+# -- recording into a missing directory: refused, as a scan is -----------------------------------
+
+
+@pytest.fixture(scope="module")
+def url(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+    with DaemonProcess(tmp_path_factory.mktemp("camd-bad-input"), env=NO_TOKEN) as daemon:
+        yield daemon.url
+
+
+def test_stare_into_a_missing_directory_is_refused_like_a_scan(url: str, tmp_path: Path) -> None:
+    missing = tmp_path / "no" / "dir"
+    fix = f"the directory {missing} does not exist; create it first (mkdir -p {missing})"
+    refused(camctl(url, "stare", "--frames", "2", "--out", str(missing / "s.h5")), 1, fix)
+    refused(camctl(url, "scan", "--stages", "4", "--lines", "5", "--out", str(missing / "t.h5")),
+            1, fix)  # fmt: skip
+    for path in ("/api/v1/stream/acquire", "/api/v1/stream/start"):
+        answer = httpx.post(url + path, json={"frames": 2, "record": str(missing / "s.h5")})
+        assert answer.status_code == 400, answer.text
+        assert answer.json()["code"] == "bad_request"
+        assert fix in answer.json()["error"]
+    assert tree(tmp_path) == []  # no directory was made
+    assert httpx.get(url + "/api/v1/status").json()["state"] == "idle"
+
+
+# -- camd serve ----------------------------------------------------------------------------------
+
+
+def serve(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "camd", "serve", "--sim", *args],
+        cwd=REPO_ROOT, env={**camctl_env(), **NO_TOKEN}, capture_output=True, text=True,
+        timeout=60, check=False,
+    )  # fmt: skip
+
+
+def test_serve_port_in_use_exits_2(tmp_path: Path) -> None:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        sock.listen()
+        port = sock.getsockname()[1]
+        proc = serve("--port", str(port), "--data-dir", str(tmp_path / "data"))
+    refused(proc, 2, f"cannot listen on 127.0.0.1:{port}", "choose another with --port")
+    assert len(proc.stderr.strip().splitlines()) == 1, proc.stderr
+    assert proc.stdout == ""
+    assert tree(tmp_path) == []  # refused before anything was made or spawned
+
+
+@pytest.mark.parametrize("under", ["file", "proc"])
+def test_serve_unusable_data_dir_exits_2(tmp_path: Path, under: str) -> None:
+    (tmp_path / "F").write_text("")
+    data = tmp_path / "F" / "data" if under == "file" else Path("/proc/camd-no-such/data")
+    proc = serve("--port", "0", "--data-dir", str(data))
+    refused(proc, 2, f"cannot use the data directory {data}", "choose another with --data-dir")
+    assert len(proc.stderr.strip().splitlines()) == 1, proc.stderr
+    assert proc.stdout == ""
+    assert tree(tmp_path) == ["F"]
