@@ -265,6 +265,14 @@ ROWS = [
           "speed_m_s: -1 is out of range", "a number in 0..10"), "sim-ideal-stage-backwards"),
     p(row("PUT", "/sim/stage", {"track": "yes"}, "track: 'yes' is a string", "true or false"),
       "sim-ideal-stage-track-string"),
+    # camd bench fuzz found it: the device's NAK (OUT_OF_RANGE) came back as a 502.
+    p(row("PUT", "/sim/stage", {"track": False}, "speed_m_s: 0.0 with track false",
+          "a fixed speed must be at least 1e-09 m/s"), "sim-ideal-stage-fixed-at-zero"),
+    p(row("PUT", "/sim/stage", {"track": False, "speed_m_s": 4e-122},
+          "a fixed speed must be at least 1e-09 m/s"), "sim-ideal-stage-fixed-below-f32"),
+    p(row("PUT", "/wheel/speed", {"speed_deg_s": 1.175494351e-38},
+          "is too slow to turn at", "use 0 (stop) or 1e-06 .. 360 deg/s"),
+      "wheel-speed-period-beyond-f32"),
     p(row("POST", "/sim/fail-next", {"command": "PING", "error": "BUSY", "skip": -1},
           "skip: -1 is out of range", "an integer in 0..65535"), "fail-next-negative-skip"),
     p(row("POST", "/sim/fail-next", {"command": "PING", "error": "BUSY", "skip": 65536},
@@ -311,3 +319,25 @@ def test_bad_input_is_refused_with_the_valid_values(
     for fragment in row.fragments:
         assert fragment in doc["error"], doc["error"]
     assert snapshot(client) == before
+
+
+def test_moving_a_homing_stage_is_a_400_not_the_devices_nak(
+    daemon: tuple[str, CamdClient],
+) -> None:
+    """camd bench fuzz found it: MOTOR_MOVE, MOTOR_SET_RATE and MOTOR_HOME while the stage
+    homes were the device's ILLEGAL_STATE NAK, a 502; now a 400 that says what to do."""
+    url, client = daemon
+    client.home_stage(wait=False)
+    try:
+        with httpx.Client(base_url=url, timeout=60, headers={"X-Camd-Client": CLIENT}) as h:
+            for path, body in (
+                ("/motion/move", {"position_m": 0.1}),
+                ("/motion/run", {"speed_m_s": 0.01}),
+                ("/motion/home", {"wait": False}),
+            ):
+                response = h.post(f"{API}{path}", json=body)
+                assert response.status_code == 400, response.text
+                assert response.json()["error"].startswith("the stage is homing;"), response.text
+    finally:
+        client.stop_stage()
+        client.move_stage(0.3)  # back where the table's rows expect it

@@ -20,7 +20,9 @@ against ``np.copyto`` of the same input bytes (the memory-bandwidth floor); it l
 
 ``camd bench scan`` (``camd.cli.bench_scan``): a scan through the daemon at the sensor's line
 rate. ``camd bench live`` (``camd.cli.bench_live``): the daemon's stream ingest with live
-viewers attached against none, in alternating rounds of the same run.
+viewers attached against none, in alternating rounds of the same run. ``camd bench fuzz``
+(``camd.cli.bench_fuzz``): the daemon's API fuzzed from its own /openapi.json (schemathesis),
+no baseline: counts of requests, status codes, server errors and hangs.
 """
 
 from __future__ import annotations
@@ -42,7 +44,7 @@ import serial
 import usb.core
 import usb.util
 
-from camd.cli import bench_live, bench_scan, bench_tdi
+from camd.cli import bench_fuzz, bench_live, bench_scan, bench_tdi
 from camd.link.frame_stream import FrameStream
 from camd.protocol import FrameType, encode_frame, load_dictionary
 from firmware_models.fx3_backend import PRODUCT_ID, VENDOR_ID, get_backend
@@ -94,6 +96,7 @@ def add_parser(sub: Any) -> None:
     bench_tdi.add_parser(which)
     bench_scan.add_parser(which)
     bench_live.add_parser(which)
+    bench_fuzz.add_parser(which)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -103,6 +106,8 @@ def run(args: argparse.Namespace) -> int:
         return bench_scan.run(args)
     if args.bench == "live":
         return bench_live.run(args)
+    if args.bench == "fuzz":
+        return bench_fuzz.run(args)
     if args.bench == "stream":
         return _run_stream(args)
     if args.count < 10:

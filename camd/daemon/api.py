@@ -138,6 +138,12 @@ _ERROR_RESPONSES: dict[int | str, dict[str, Any]] = {
 for _kind, _status, _code in ERROR_MAP:
     _ERROR_RESPONSES[_status] = {"model": ErrorResponse, "description": _code}
 
+# The live view's pixels: raw bytes, or 404 while there are none yet (no_frame, no_scan,
+# no_background).
+_FRAME_RESPONSES: dict[int | str, dict[str, Any]] = {
+    200: {"content": {"application/octet-stream": {}}},
+    404: {"model": ErrorResponse, "description": "nothing to show yet: the message says why"},
+}
 
 CLIENT_NAME_MAX = 100
 
@@ -555,7 +561,7 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
         f"{API}/live/frame",
         tags=["live"],
         response_class=Response,
-        responses={200: {"content": {"application/octet-stream": {}}}},
+        responses=_FRAME_RESPONSES,
     )
     def get_live_frame(
         after: int = Query(
@@ -656,7 +662,7 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
         f"{API}/live/background/frame",
         tags=["live"],
         response_class=Response,
-        responses={200: {"content": {"application/octet-stream": {}}}},
+        responses=_FRAME_RESPONSES,
     )
     def get_live_background_frame() -> Response:
         """The background: raw little-endian float32, row by row (DN, the mean of its frames);
@@ -687,7 +693,7 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
         f"{API}/live/lines",
         tags=["live"],
         response_class=Response,
-        responses={200: {"content": {"application/octet-stream": {}}}},
+        responses=_FRAME_RESPONSES,
     )
     def get_live_lines(
         after: int = Query(

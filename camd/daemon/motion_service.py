@@ -196,6 +196,11 @@ class MotionService:
             )
         if reading.state == "disabled":
             raise BadRequest("the stage motor is released; `camctl stage enable` first")
+        if reading.state == "homing":  # the device refuses (ILLEGAL_STATE): a 502 otherwise
+            raise BadRequest(
+                "the stage is homing; wait until it stands (`camctl stage` shows its state) "
+                "or stop it with `camctl stage stop`"
+            )
         return reading
 
     def _back_to(self, position_m: float) -> None:

@@ -31,6 +31,9 @@ from camd.daemon.models import (
 )
 from camd.daemon.state import Request
 
+# The simulator takes the speed as an f32 and refuses 0: anything below this would reach it as 0.
+MIN_FIXED_SPEED_M_S = 1e-9
+
 log = logging.getLogger(__name__)
 
 SCENE_TIMEOUT_S = 2.0  # per attempt: a lost frame on a lossy line costs this much
@@ -91,6 +94,11 @@ class SimulatorControl(abc.ABC):
     def set_ideal_stage(self, *, track: bool, speed_m_s: float) -> StageResponse:
         """The simulator's ideal scan stage: track the synchronous speed, or run at one."""
         self.device.require(Request.SIM)
+        if not track and not speed_m_s >= MIN_FIXED_SPEED_M_S:
+            raise BadRequest(
+                f"speed_m_s: {speed_m_s!r} with track false: a fixed speed must be at least "
+                f"{MIN_FIXED_SPEED_M_S:g} m/s; give speed_m_s (up to 10) or track true"
+            )
         response = self._do_set_ideal_stage(track, speed_m_s)
         self._ideal_stage = (track, speed_m_s)
         return response

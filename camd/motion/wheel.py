@@ -18,6 +18,7 @@ from camd.motion.wheel_profile import WheelProfile
 from camd.protocol.dictionary import f32_decimal
 
 MAX_SPEED_DEG_S = 360.0
+MIN_SPEED_DEG_S = 1e-6  # a turn in 11.4 years; slower is 0 for the device (f32 period)
 """The fastest speed WHEEL_SET_SPEED accepts (one revolution a second)."""
 
 
@@ -48,6 +49,11 @@ class FilterWheel(abc.ABC):
             raise WheelSpeedError(
                 f"wheel speed {speed_deg_s!r} deg/s is outside 0 .. {MAX_SPEED_DEG_S:g} deg/s "
                 "(0 stops the wheel)"
+            )
+        if 0.0 < speed_deg_s < MIN_SPEED_DEG_S:  # its period would not fit WHEEL_SET_SPEED
+            raise WheelSpeedError(
+                f"wheel speed {speed_deg_s!r} deg/s is too slow to turn at: use 0 (stop) or "
+                f"{MIN_SPEED_DEG_S:g} .. {MAX_SPEED_DEG_S:g} deg/s"
             )
 
     def set_speed(self, speed_deg_s: float) -> None:
