@@ -24,7 +24,7 @@ import os
 import socket
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import TYPE_CHECKING, Any, cast
 
 import httpx
@@ -89,6 +89,22 @@ def default_client_name() -> str:
 # pings strictly one at a time and a lost frame costs at most a few link timeouts of ~0.1 s, so
 # a long run must not be cut off by the client's ordinary per-request timeout.
 _PING_ALLOWANCE_S = 0.05
+
+# Waiting for a stage move or homing (``CamdClient.wait_stage``): the request that starts it
+# answers at once and the client polls GET /motion. The wait lasts the daemon's estimate of the
+# operation plus a margin; past that it goes on while the stage still makes progress, for at most
+# as long again (and at least STAGE_EXTRA_MIN_S), then fails naming what to do.
+STAGE_POLL_S = 0.2
+STAGE_MARGIN_MIN_S = 5.0  # at least this beyond the estimate
+STAGE_MARGIN_FRACTION = 0.1  # or this fraction of it, whichever is more
+STAGE_EXTRA_MIN_S = 30.0
+STAGE_STALL_S = 3.0  # past the estimate, no progress for this long is a stall
+STAGE_PROGRESS_M = 1e-6  # a change of position that counts as progress
+STAGE_WAIT_MAX_S = 600.0  # a daemon that gives no estimate (older camd): wait at most this
+STOPPED_STATES = frozenset({"idle", "disabled", "estop"})  # camd.motion.stage.STOPPED_STATES
+
+StageProgress = Callable[[MotionStatus], None]
+"""Called with each motion document polled while ``wait_stage`` waits."""
 
 
 # -- errors ---------------------------------------------------------------------------------------
@@ -441,19 +457,94 @@ class CamdClient:
         return cast(MotionStatus, self._json("POST", f"{API}/motion/run", json=body))
 
     def move_stage(
-        self, position_m: float, *, speed_m_s: float | None = None, wait: bool = True
+        self,
+        position_m: float,
+        *,
+        speed_m_s: float | None = None,
+        wait: bool = True,
+        progress: StageProgress | None = None,
     ) -> MotionStatus:
-        """Move to ``position_m`` (metres from home) and stop."""
-        body = {"position_m": position_m, "speed_m_s": speed_m_s, "wait": wait}
-        return cast(MotionStatus, self._json("POST", f"{API}/motion/move", json=body))
+        """Move to ``position_m`` (metres from home) and stop. The request answers at once;
+        with ``wait`` this then polls until the stage stands (``wait_stage``, which calls
+        ``progress`` with each motion document) and returns the last document."""
+        body = {"position_m": position_m, "speed_m_s": speed_m_s, "wait": False}
+        doc = cast(MotionStatus, self._json("POST", f"{API}/motion/move", json=body))
+        return self.wait_stage(doc, progress=progress) if wait else doc
 
     def stop_stage(self) -> MotionStatus:
         """Decelerate the stage to a stop."""
         return cast(MotionStatus, self._json("POST", f"{API}/motion/stop"))
 
-    def home_stage(self, *, wait: bool = True) -> MotionStatus:
-        """Find the home switch and zero the position there."""
-        return cast(MotionStatus, self._json("POST", f"{API}/motion/home", json={"wait": wait}))
+    def home_stage(
+        self, *, wait: bool = True, progress: StageProgress | None = None
+    ) -> MotionStatus:
+        """Find the home switch and zero the position there. The request answers at once;
+        with ``wait`` this then polls until homing has finished (``wait_stage``)."""
+        doc = cast(MotionStatus, self._json("POST", f"{API}/motion/home", json={"wait": False}))
+        return self.wait_stage(doc, progress=progress) if wait else doc
+
+    def wait_stage(
+        self,
+        started: MotionStatus | None = None,
+        *,
+        progress: StageProgress | None = None,
+        poll_s: float = STAGE_POLL_S,
+    ) -> MotionStatus:
+        """Poll GET /motion until the move or homing of ``started`` (the answer that started it;
+        default: the last one the daemon started) has finished and the stage stands; return
+        that motion document. ``progress`` is called with every document polled.
+
+        The wait follows the daemon's estimate (``operation.expected_duration_s``) plus a
+        margin (10 %, at least 5 s); a stage still making progress past that is waited for
+        longer, at most as long again (at least 30 s more). Raises CamdError ``timeout`` when
+        the stage has not finished by then, or stopped making progress, and ``stage_taken``
+        when another move, homing, jog or scan took the stage over; the stage is not stopped
+        (``camctl stage stop`` does that).
+        """
+        doc = self.motion() if started is None else started
+        op = doc.get("operation")
+        seq = None if op is None else op["seq"]
+        expected = None if op is None else op["expected_duration_s"]
+        begun = time.monotonic()
+        if expected is None:  # an older daemon gives no estimate: progress alone
+            soft = hard = begun + STAGE_WAIT_MAX_S
+        else:
+            soft = begun + expected + max(STAGE_MARGIN_MIN_S, STAGE_MARGIN_FRACTION * expected)
+            hard = soft + max(STAGE_EXTRA_MIN_S, expected)
+        last_position = doc["reading"]["position_m"]
+        moved_at = begun
+        while True:
+            if progress is not None:
+                progress(doc)
+            reading, now_op = doc["reading"], doc.get("operation")
+            if seq is not None and (now_op is None or now_op["seq"] != seq):
+                raise CamdError(
+                    f"the stage's {op['kind'] if op else 'move'} was taken over by another "
+                    f"command (the stage is {reading['state']} at "
+                    f"{reading['position_m'] * 1e3:.3f} mm); see `camctl stage` and "
+                    "`camctl events`; `camctl stage stop` stops it",
+                    "stage_taken",
+                )
+            finished = now_op is None or not now_op["active"]
+            if finished and reading["state"] in STOPPED_STATES:
+                return doc
+            now = time.monotonic()
+            if abs(reading["position_m"] - last_position) > STAGE_PROGRESS_M:
+                last_position, moved_at = reading["position_m"], now
+            stalled = now - moved_at > STAGE_STALL_S
+            if now > hard or (now > soft and stalled):
+                what = "homing" if op is not None and op["kind"] == "home" else "moving"
+                estimate = "" if expected is None else f" (expected {expected:.3g} s)"
+                why = "" if not stalled else f", without progress for {now - moved_at:.3g} s"
+                raise CamdError(
+                    f"the stage is still {reading['state']} at "
+                    f"{reading['position_m'] * 1e3:.3f} mm after {now - begun:.3g} s of "
+                    f"{what}{estimate}{why}; it was not stopped: `camctl stage` shows it, "
+                    "`camctl stage stop` stops it",
+                    "timeout",
+                )
+            time.sleep(poll_s)
+            doc = self.motion()
 
     def estop_stage(self) -> MotionStatus:
         """Emergency stop (no ramp, current cut) until ``enable_stage``."""

@@ -36,6 +36,12 @@ class LinkInfo(TypedDict):
     last_error: str | None
     # pid of the simulator this daemon spawned, while it runs
     sim_pid: int | None
+    # the spawned simulator: running, restarting (it died; waiting out the backoff or starting
+    # again), exited (not restarted: sim.restart = false), gave_up (too many failures in a row);
+    # null on hardware
+    sim_state: Literal["running", "restarting", "exited", "gave_up"] | None
+    # times the daemon restarted its simulator after it died; null on hardware
+    sim_restarts: int | None
 
 
 class DeviceStatus(TypedDict):
@@ -377,6 +383,9 @@ class StreamResponse(TypedDict):
     frames_sent: int | None
     # HDF5 file being (or last) recorded
     recording: str | None
+    # frames of the recording on disk: what the file keeps if the daemon dies now (flushed at least
+    # once a second; docs/stream.md "Crash safety")
+    frames_flushed: int
     stats: StreamStats
 
 
@@ -493,6 +502,9 @@ class ScanResponse(TypedDict):
     lines: int
     # lines with all M stages from consecutive frames
     complete_lines: int
+    # lines on disk: what the file keeps if the daemon dies now (flushed at least once a second;
+    # docs/stream.md "Crash safety")
+    lines_flushed: int
     # frames the stream never delivered
     lost_frames: int
     # [line index, stages] for the start and every change
@@ -551,6 +563,35 @@ class StageLimitsModel(TypedDict):
     accel_m_s2: float
 
 
+class StageOperationModel(TypedDict):
+    """The last move or homing started through the API, for a client to follow it (docs/motion.md,
+    "Waiting for a move or a homing"). Times are the device's clock."""
+
+    # numbers the moves and homings since the daemon started
+    seq: int
+    # move (to target_m) or home
+    kind: Literal["move", "home"]
+    # still under way: the stage is moving (homing) for this operation
+    active: bool
+    # commanded position when it started
+    start_m: float
+    # move: the target; home: null (0 once homed)
+    target_m: float | None
+    # move: cruise speed; home: the homing speed
+    speed_m_s: float
+    # the device's estimate of its duration
+    expected_duration_s: float
+    # device time when it started
+    started_time_s: float
+    # device time since it started, at this reading
+    elapsed_s: float
+    # expected_duration_s - elapsed_s, at least 0
+    remaining_s: float
+    # 0..1: move, distance covered of the whole; home, time elapsed of the expected (1 once
+    # finished)
+    fraction_done: float
+
+
 class MotionStatus(TypedDict):
     """GET /api/v1/motion: the stage, its limits and the synchronisation settings."""
 
@@ -566,6 +607,9 @@ class MotionStatus(TypedDict):
     yellow: float
     # M |dV/V| red limit
     red: float
+    # the last move or homing started through the API (null: none since the daemon started, or a
+    # scan or a jog took the stage since)
+    operation: StageOperationModel | None
 
 
 class SyncResponse(TypedDict):

@@ -21,6 +21,13 @@ sequence number after the 8-bit counter wrapped, or after the host restarted, st
 The record survives RESET, so a retried RESET is not executed twice. Events are not part of the
 record: they reported a state change that happened once.
 
+That it holds is measured, not assumed: the device also remembers the last
+``_RECENT_EXECUTED`` command frames it executed, and an execution of a frame equal to one of
+them counts ``executed_twice`` (SIM_GET_INJECTED). A command that legitimately repeats another
+frame byte for byte needs the 8-bit sequence number to come round, 256 commands later, far
+outside that window; only a host restarting at a random sequence number could, rarely, repeat
+a recent frame. 0 is expected on any line.
+
 Failures on purpose
 -------------------
 SIM_FAIL_NEXT arms one failure of a coming command (by opcode, after ``skip`` of them): a NAK
@@ -34,7 +41,7 @@ from __future__ import annotations
 import math
 import struct
 import threading
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, fields
 from typing import Any
@@ -71,6 +78,9 @@ from firmware_models.wheel import FilterWheel
 FW_VERSION = 0x0100  # 1.0, major * 256 + minor as GET_STATUS reports it
 _U32_WRAP = 2**32
 _SEQ_WRAP = 256
+# Executed command frames remembered to detect one executed twice (module docstring); far
+# below the 256 commands after which the host's sequence number repeats.
+_RECENT_EXECUTED = 32
 
 
 _Nak = Nak  # raised by a command handler to answer with a NAK
@@ -87,6 +97,7 @@ class LinkCounters:
     tx_frames: int = 0
     ignored: int = 0  # received frames of a type other than COMMAND
     silenced: int = 0  # received while silent (SIM_FAIL_NEXT silence): not seen, not answered
+    executed_twice: int = 0  # executions of a frame equal to a recently executed one
 
     def as_dict(self) -> dict[str, int]:
         """The counters by name."""
@@ -190,6 +201,7 @@ class FpgaModel:
         self.counters = LinkCounters()
         self.executions: Counter[int] = Counter()  # opcode -> commands executed (not replayed)
         self._record: _Record | None = None
+        self._recent: deque[Frame] = deque(maxlen=_RECENT_EXECUTED)  # executed command frames
         self._unsolicited_seq = 0
         self._fail_next: _FailNext | None = None
         self._silent_until_s = -math.inf  # transport clock; SIM_FAIL_NEXT silence
@@ -249,6 +261,9 @@ class FpgaModel:
         if self._fails_now(frame):
             return self._fail(frame, now_s)
         self.counters.executed += 1
+        if frame in self._recent:
+            self.counters.executed_twice += 1  # at-most-once broken (module docstring)
+        self._recent.append(frame)
         self.executions[frame.opcode] += 1
         response, events = self._execute(frame, now_s)
         if response.type == FrameType.NAK:
@@ -468,7 +483,8 @@ class FpgaModel:
     def _sim_get_injected(
         self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float
     ) -> _Outcome:
-        return _Outcome(spec.encode_response(**_wrap_u32(self.injector.counters())))
+        values = {**self.injector.counters(), "executed_twice": self.counters.executed_twice}
+        return _Outcome(spec.encode_response(**_wrap_u32(values)))
 
     def _sim_set_inject(
         self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float

@@ -333,7 +333,7 @@ class StreamCounters:
     sent: int = 0  # frames sent whole (including corrupted ones)
     bytes_sent: int = 0  # bytes of every transfer, whole or short
     dropped: int = 0  # injected: not sent
-    corrupted: int = 0  # injected: sent with one payload bit flipped
+    corrupted: int = 0  # injected: sent whole with one payload bit flipped
     shortened: int = 0  # injected: the transfer ended early
     stalls: int = 0  # injected: the endpoint halted; the frame in flight was lost
     undelivered: int = 0  # made while no host could take them (none connected, or halted)
@@ -624,12 +624,13 @@ class StreamEngine:
                 f"the source gave {len(payload)} payload bytes for a header saying "
                 f"{header.payload_bytes} (counter {header.counter})"
             )
+        corrupted = False
         if spec.frame_corrupt and rng.random() < spec.frame_corrupt:
             damaged = np.frombuffer(payload, dtype=np.uint8).copy()
             bit = int(rng.integers(0, damaged.size * 8))
             damaged[bit >> 3] ^= np.uint8(1 << (bit & 7))
             payload = damaged.data
-            c.corrupted += 1
+            corrupted = True
         parts: list[bytes | memoryview] = [head, payload]
         short = False
         if spec.frame_short and rng.random() < spec.frame_short:
@@ -641,10 +642,13 @@ class StreamEngine:
             c.undelivered += 1
             return False
         c.bytes_sent += sum(len(p) for p in parts)
+        # Each frame counts once: one both corrupted and cut short reaches the host short.
         if short:
             c.shortened += 1
         else:
             c.sent += 1
+            if corrupted:
+                c.corrupted += 1
         return True
 
 

@@ -334,6 +334,7 @@ ANSWERS: list[tuple[str, str]] = [
     ("background", "BackgroundStatus"),
     ("scan", "ScanResponse"),
     ("motion", "MotionStatus"),
+    ("move_stage", "MotionStatus"),
     ("sync", "SyncResponse"),
     ("stage_truth", "SimStageTruth"),
     ("set_stage", "StageResponse"),
@@ -383,6 +384,7 @@ def answers(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]
         client.start_scan(4, 20, out=str(tmp / "scan.h5"), quicklook=False)
         docs["scan"] = client.wait_scan(120)
         docs["motion"] = client.motion()
+        docs["move_stage"] = client.move_stage(0.61)  # with its operation (docs/motion.md)
         docs["sync"] = client.sync()
         docs["stage_truth"] = client.stage_truth()
         docs["set_stage"] = client.set_stage(track=True)
@@ -425,6 +427,7 @@ def test_the_answers_reach_the_nested_documents(answers: dict[str, Any]) -> None
     assert len(answers["wheel_acquire"]["frames"]) == 2
     assert answers["error"]["code"] == "bad_request"
     assert answers["background"]["state"] == "ready"
+    assert answers["move_stage"]["operation"]["kind"] == "move"
 
 
 def test_the_answers_show_every_typed_dict(answers: dict[str, Any]) -> None:

@@ -229,6 +229,7 @@ def test_link_counters(daemon: Daemon) -> None:
     assert dev["executed"] > 0 and dev["crc_errors"] == 0
     assert dev["injected"] == {
         "bit_errors": 0, "dropped_rx": 0, "dropped_tx": 0, "garbage_bursts": 0, "delayed": 0,
+        "executed_twice": 0,
     }  # fmt: skip
 
 
@@ -430,7 +431,9 @@ def test_bad_inject_spec_exits_2(tmp_path: Path) -> None:
 
 
 def test_simulator_killed_then_replaced(tmp_path: Path) -> None:
-    d = Daemon(tmp_path)
+    # Without supervision (tests/test_sim_supervisor.py has it): a simulator started by hand
+    # is picked up, as a camera powered up again would be.
+    d = Daemon(tmp_path, FAST.replace("[sim]\n", "[sim]\nrestart = false\n"))
     new_sim: subprocess.Popen[str] | None = None
     try:
         d.start()

@@ -213,7 +213,7 @@ def test_sim_get_injected_reports_the_injector(dictionary: Dictionary) -> None:
     for _ in range(20):
         injector.drop("tx")
     values = ack_values(dictionary, "SIM_GET_INJECTED", call(model, "SIM_GET_INJECTED"))
-    assert values == injector.counters()
+    assert values == {**injector.counters(), "executed_twice": 0}
     assert int(values["bit_errors"]) > 0 and int(values["dropped_tx"]) > 0
 
 
@@ -309,6 +309,35 @@ def test_same_frame_after_another_command_executes_again(
     model.handle(ping, 2.0)
     assert model.execution_count("PING") == 2
     assert model.counters.replayed == 0
+
+
+def test_executed_twice_counts_a_recent_frame_executed_again(
+    model: FpgaModel, dictionary: Dictionary
+) -> None:
+    # A retry answered from the record is no second execution.
+    ping = command_frame(dictionary, "PING", 7, data=b"x")
+    model.handle(ping, 1.0)
+    model.handle(ping, 1.1)
+    assert (model.counters.replayed, model.counters.executed_twice) == (1, 0)
+    # The same frame again after a newer command: stop-and-wait never does that within 256
+    # commands, so the device executed one command twice.
+    call(model, "GET_STATUS", seq=8)
+    model.handle(ping, 2.0)
+    assert model.counters.executed_twice == 1
+    values = ack_values(dictionary, "SIM_GET_INJECTED", call(model, "SIM_GET_INJECTED", seq=9))
+    assert values["executed_twice"] == 1
+
+
+def test_a_frame_repeated_after_the_sequence_wraps_is_not_executed_twice(
+    model: FpgaModel, dictionary: Dictionary
+) -> None:
+    status = command_frame(dictionary, "GET_STATUS", 0)
+    model.handle(status, 1.0)
+    for seq in range(1, 256):
+        call(model, "PING", seq=seq, data=b"y")
+    model.handle(status, 2.0)  # seq 0 again, 256 commands later: a new command
+    assert model.execution_count("GET_STATUS") == 2
+    assert model.counters.executed_twice == 0
 
 
 def test_nak_is_replayed_too(model: FpgaModel, dictionary: Dictionary) -> None:

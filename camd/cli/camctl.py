@@ -443,6 +443,16 @@ def status_table(doc: dict[str, Any], title: str | None = "camd status") -> Tabl
     )
     if link.get("last_error"):
         table.add_row("link error", Text(str(link["last_error"]), style="yellow"))
+    if link.get("sim_state") is not None:  # the simulated camera this daemon spawned
+        sim_state = str(link["sim_state"])
+        table.add_row(
+            "simulator",
+            Text(
+                f"{sim_state}, pid {link.get('sim_pid') or '-'}, "
+                f"restarts {link.get('sim_restarts') or 0}",
+                style="green" if sim_state == "running" else "yellow",
+            ),
+        )
     device = doc.get("device")
     if isinstance(device, dict):
         for key, value in device.items():

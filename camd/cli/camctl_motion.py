@@ -10,6 +10,11 @@
 ``sync --json`` prints one document whose first keys are the contract {"line_period_s",
 "row_time_s", "n_lines", "back_path_s", "m0", "stages", "sync_speed", "step_rate_hz",
 "dv_over_v", "m_dv_over_v"}.
+
+``stage move`` and ``stage home`` start the motion (the request answers at once) and wait for
+the stage to stand by polling its status (``CamdClient.wait_stage``), as long as the daemon's
+estimate of the operation says, with a progress bar on stderr when it is a terminal. Ctrl-C
+stops waiting, not the stage: it says so and how to stop it, and camctl exits with 130.
 """
 
 from __future__ import annotations
@@ -19,9 +24,11 @@ from collections.abc import Callable
 from typing import Any
 
 from rich.console import Console
+from rich.progress import BarColumn, Progress, TaskProgressColumn, TextColumn
 
 from camd.cli.camctl_stream import count_arg
 from camd.client import CamdClient
+from camd.client_types import MotionStatus, StageOperationModel
 
 SYNC_CONTRACT = (
     "line_period_s", "row_time_s", "n_lines", "back_path_s", "m0", "stages", "sync_speed",
@@ -92,12 +99,63 @@ def cmd_stage(client: CamdClient, args: argparse.Namespace) -> Any:
     if action == "run":
         return client.run_stage(args.value)
     if action == "move":
-        return client.move_stage(args.value, speed_m_s=args.speed_m_s, wait=not args.no_wait)
+        doc = client.move_stage(args.value, speed_m_s=args.speed_m_s, wait=False)
+        return doc if args.no_wait else _follow(client, doc)
     if action == "stop":
         return client.stop_stage()
     if action == "home":
-        return client.home_stage(wait=not args.no_wait)
+        doc = client.home_stage(wait=False)
+        return doc if args.no_wait else _follow(client, doc)
     return client.estop_stage()
+
+
+def _follow(client: CamdClient, doc: MotionStatus) -> MotionStatus:
+    """Wait for the move or homing ``doc`` started, with a progress bar on stderr when it is
+    a terminal; Ctrl-C stops the wait (the stage goes on) and says how to stop the stage."""
+    err = Console(stderr=True)
+    op = doc["operation"]
+    columns = [
+        TextColumn(f"stage {'home' if op is not None and op['kind'] == 'home' else 'move'}"),
+        BarColumn(),
+        TaskProgressColumn(),
+        TextColumn("{task.fields[where]}"),
+        TextColumn("{task.fields[left]}"),
+    ]
+    last = doc
+    try:
+        with Progress(*columns, console=err, transient=True, disable=not err.is_terminal) as bar:
+            task = bar.add_task("stage", total=100.0, where="", left="")
+
+            def progress(now: MotionStatus) -> None:
+                nonlocal last
+                last = now
+                where, left, done = _progress_fields(now)
+                bar.update(task, completed=100.0 * done, where=where, left=left)
+
+            return client.wait_stage(doc, progress=progress)
+    except KeyboardInterrupt:
+        reading = last["reading"]
+        err.print(
+            f"stopped waiting; the stage keeps {reading['state']} (at "
+            f"{reading['position_m'] * 1e3:.3f} mm when last seen): `camctl stage` shows it, "
+            "`camctl stage stop` stops it",
+            highlight=False,
+        )
+        raise
+
+
+def _progress_fields(doc: MotionStatus) -> tuple[str, str, float]:
+    """(position and target, time left, fraction done) of the operation in ``doc``."""
+    reading, op = doc["reading"], doc["operation"]
+    where = f"at {reading['position_m'] * 1e3:.3f} mm"
+    if op is None:
+        return where, "", 0.0
+    if op["target_m"] is not None:
+        where += f" -> {op['target_m'] * 1e3:.3f} mm"
+    else:
+        where += " -> home switch"
+    left = f"{op['remaining_s']:.0f} s left" if op["active"] else "done"
+    return where, left, op["fraction_done"]
 
 
 COMMANDS: dict[str, Callable[[CamdClient, argparse.Namespace], Any]] = {
@@ -142,6 +200,22 @@ def render_stage(out: Console, doc: Any, args: argparse.Namespace) -> None:
         f"limits {lim['low_m'] * 1e3:.1f} .. {lim['high_m'] * 1e3:.1f} mm, "
         f"{lim['max_speed_m_s'] * 1e3:.4g} mm/s, {lim['accel_m_s2']:.4g} m/s^2; closed loop "
         f"{doc['closed_loop']}, M |dV/V| limits {doc['yellow']:g} / {doc['red']:g}"
+    )
+    op = doc.get("operation")
+    if op is not None and op["active"]:
+        out.print(_operation_line(op))
+
+
+def _operation_line(op: StageOperationModel) -> str:
+    """``moving to 900.000 mm: 45 %, about 12 s left of 30 s`` for a running operation."""
+    what = (
+        "homing"
+        if op["target_m"] is None
+        else f"moving to {op['target_m'] * 1e3:.3f} mm at {op['speed_m_s'] * 1e3:.4g} mm/s"
+    )
+    return (
+        f"{what}: {op['fraction_done'] * 100:.0f} %, about {op['remaining_s']:.0f} s left of "
+        f"{op['expected_duration_s']:.3g} s (`camctl stage stop` stops it)"
     )
 
 

@@ -1,4 +1,4 @@
-"""``camd``: the server-side command (serve, sim, demo).
+"""``camd``: the server-side command (serve, sim, demo, bench, soak).
 
 Each subcommand lives in its own module with ``add_parser(subparsers)`` and ``run(args) -> int``.
 ``camd sim`` passes its arguments through to the simulator (``camd.cli.sim``), whose module is
@@ -19,6 +19,7 @@ _SUBCOMMANDS = {
     "serve": "camd.daemon.serve",
     "demo": "camd.cli.demo",
     "bench": "camd.cli.bench",
+    "soak": "camd.cli.soak",
 }
 
 

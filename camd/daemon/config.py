@@ -144,6 +144,41 @@ class SimSection(_Section):
         "headers): line-rate throughput tests on machines too small to render in real time; "
         "0 = render every frame",
     )
+    restart: bool = Field(
+        default=True,
+        description="restart the simulated camera when it dies (with backoff); false: leave it "
+        "dead, `camd sim --link PATH` reconnects one by hand",
+    )
+    restart_backoff_min_s: float = Field(
+        default=0.5, gt=0, le=60, description="wait before the first restart; doubles per failure"
+    )
+    restart_backoff_max_s: float = Field(
+        default=30.0, gt=0, le=3600, description="longest wait between restarts"
+    )
+    restart_stable_s: float = Field(
+        default=60.0,
+        gt=0,
+        le=86400,
+        description="a simulator up this long before it died was stable: the backoff and the "
+        "count of failures in a row start afresh",
+    )
+    restart_limit: int = Field(
+        default=5,
+        ge=1,
+        le=1000,
+        description="restarts in a row (each simulator dying or failing to start within "
+        "restart_stable_s) before the daemon gives up",
+    )
+
+    @model_validator(mode="after")
+    def _restart_backoff_order(self) -> SimSection:
+        if self.restart_backoff_min_s > self.restart_backoff_max_s:
+            raise ValueError(
+                f"restart_backoff_min_s ({self.restart_backoff_min_s}) is above "
+                f"restart_backoff_max_s ({self.restart_backoff_max_s}); make "
+                "restart_backoff_min_s <= restart_backoff_max_s"
+            )
+        return self
 
 
 class UsbSpiSection(_Section):

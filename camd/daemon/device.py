@@ -49,6 +49,7 @@ from camd.link import (
 from camd.protocol import Dictionary, EncodeError
 from camd.sensor.bridge import BridgeError
 from camd.sensor.regmap import RegisterAccessError, RegisterValueError
+from camd.store.journal import RecordingJournal
 
 log = logging.getLogger(__name__)
 
@@ -114,6 +115,8 @@ class DeviceAccess:
         self.link: CommandLink | None = None
         self.probe_error: str | None = None  # why the device is silent on an open port
         self.acquisition = AcquisitionSlot()
+        # The recordings open for writing, on disk: what a restart after a crash must repair.
+        self.recordings = RecordingJournal(config.daemon.data_dir / "open-recordings")
         self._events = events
         self._lock = FairLock()
         self._mode: str | None = None
@@ -171,7 +174,12 @@ class DeviceAccess:
     def disconnected_message(self) -> str:
         why = self.reason(State.DISCONNECTED, self.machine.snapshot.reason)
         hint = HOW_TO_LEAVE[State.DISCONNECTED]
-        if self.simulated:
+        if self.simulated and self.config.sim.restart:
+            hint += (
+                "; the daemon restarts its simulated camera when it dies (`camctl status`: "
+                "link.sim_state, link.sim_restarts; `camctl events` says why)"
+            )
+        elif self.simulated:
             hint += f"; to attach a new simulator: `camd sim --link {self.port}`"
         return f"no camera on {self.port} ({why}); {hint}"
 

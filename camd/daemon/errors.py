@@ -83,3 +83,14 @@ def with_note(exc: SessionError, note: str) -> SessionError:
         noted = type(exc)(message)
     noted.link_wait = exc.link_wait  # an enclosing request's undo needs the link too
     return noted
+
+
+def unreachable(exc: BaseException) -> str:
+    """Why a step of the shutdown could not be done, in a few words: "the camera is gone" for
+    a lost link, "the camera did not answer" for a silent one (both expected when the camera
+    stopped first), else the error itself."""
+    if isinstance(exc, Disconnected):
+        return "the camera is gone"
+    if isinstance(exc, DeviceTimeout):
+        return "the camera did not answer"
+    return str(exc)

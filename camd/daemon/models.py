@@ -168,6 +168,16 @@ class LinkInfo(BaseModel):
     sim_pid: int | None = Field(
         default=None, description="pid of the simulator this daemon spawned, while it runs"
     )
+    sim_state: Literal["running", "restarting", "exited", "gave_up"] | None = Field(
+        default=None,
+        description="the spawned simulator: running, restarting (it died; waiting out the "
+        "backoff or starting again), exited (not restarted: sim.restart = false), gave_up (too "
+        "many failures in a row); null on hardware",
+    )
+    sim_restarts: int | None = Field(
+        default=None,
+        description="times the daemon restarted its simulator after it died; null on hardware",
+    )
 
 
 class DeviceStatus(BaseModel):
@@ -560,6 +570,11 @@ class StreamResponse(BaseModel):
     first_counter: int
     frames_sent: int | None = Field(description="frames the device says it produced, once ended")
     recording: str | None = Field(description="HDF5 file being (or last) recorded")
+    frames_flushed: int = Field(
+        default=0,
+        description="frames of the recording on disk: what the file keeps if the daemon dies "
+        'now (flushed at least once a second; docs/stream.md "Crash safety")',
+    )
     stats: StreamStats
 
 
@@ -762,6 +777,11 @@ class ScanResponse(BaseModel):
     frames_requested: int
     lines: int = Field(description="TDI lines recorded so far")
     complete_lines: int = Field(description="lines with all M stages from consecutive frames")
+    lines_flushed: int = Field(
+        default=0,
+        description="lines on disk: what the file keeps if the daemon dies now (flushed at "
+        'least once a second; docs/stream.md "Crash safety")',
+    )
     lost_frames: int = Field(description="frames the stream never delivered")
     stage_changes: list[tuple[int, int]] = Field(
         description="[line index, stages] for the start and every change"
@@ -812,6 +832,28 @@ class StageLimitsModel(BaseModel):
     accel_m_s2: float
 
 
+class StageOperationModel(BaseModel):
+    """The last move or homing started through the API, for a client to follow it
+    (docs/motion.md, "Waiting for a move or a homing"). Times are the device's clock."""
+
+    seq: int = Field(description="numbers the moves and homings since the daemon started")
+    kind: Literal["move", "home"] = Field(description="move (to target_m) or home")
+    active: bool = Field(
+        description="still under way: the stage is moving (homing) for this operation"
+    )
+    start_m: float = Field(description="commanded position when it started")
+    target_m: float | None = Field(description="move: the target; home: null (0 once homed)")
+    speed_m_s: float = Field(description="move: cruise speed; home: the homing speed")
+    expected_duration_s: float = Field(description="the device's estimate of its duration")
+    started_time_s: float = Field(description="device time when it started")
+    elapsed_s: float = Field(description="device time since it started, at this reading")
+    remaining_s: float = Field(description="expected_duration_s - elapsed_s, at least 0")
+    fraction_done: float = Field(
+        description="0..1: move, distance covered of the whole; home, time elapsed of the "
+        "expected (1 once finished)"
+    )
+
+
 class MotionStatus(BaseModel):
     """GET /api/v1/motion: the stage, its limits and the synchronisation settings."""
 
@@ -822,6 +864,11 @@ class MotionStatus(BaseModel):
     closed_loop: str = Field(description="what a scan's closed loop trims, or off")
     yellow: float = Field(description="M |dV/V| yellow limit")
     red: float = Field(description="M |dV/V| red limit")
+    operation: StageOperationModel | None = Field(
+        default=None,
+        description="the last move or homing started through the API (null: none since the "
+        "daemon started, or a scan or a jog took the stage since)",
+    )
 
 
 class MotionEnableRequest(_Request):
@@ -843,13 +890,21 @@ class MotionMoveRequest(_Request):
     speed_m_s: float | None = Field(
         default=None, gt=0.0, le=10.0, description="cruise speed; null = the speed limit"
     )
-    wait: bool = Field(default=True, description="answer once the stage has stopped")
+    wait: bool = Field(
+        default=True,
+        description="answer once the stage has stopped (kept for old clients: a long move "
+        "holds the request; false answers at once, then poll GET /api/v1/motion)",
+    )
 
 
 class MotionHomeRequest(_Request):
     """POST /api/v1/motion/home."""
 
-    wait: bool = Field(default=True, description="answer once homing has finished")
+    wait: bool = Field(
+        default=True,
+        description="answer once homing has finished (kept for old clients; false answers at "
+        "once, then poll GET /api/v1/motion)",
+    )
 
 
 class SyncResponse(BaseModel):

@@ -9,15 +9,22 @@ Enabling and homing program the configured limits first: if the command after th
 limits in force before are put back (``camd.daemon.transaction.Apply``). A move or run whose
 answer is lost (a lost link, a silent camera) may have started: the stage is then stopped and
 put back where it stood, or at the speed it had.
+
+A move or a homing answers at once unless asked to wait (``wait``, kept for old clients): the
+service remembers the last one it started (``StageOperationModel`` in the motion document: its
+target, the device's estimate of its duration, how far it got), so that a client follows it by
+polling GET /api/v1/motion instead of holding a request open for as long as the stage runs.
 """
 
 from __future__ import annotations
 
 import contextlib
 import logging
+import threading
 import time
 from collections.abc import Iterator, Mapping
-from typing import Any
+from dataclasses import dataclass
+from typing import Any, Literal
 
 from camd.daemon.config import MotionSection
 from camd.daemon.device import DeviceAccess
@@ -26,6 +33,7 @@ from camd.daemon.models import (
     MotionMoveRequest,
     MotionStatus,
     StageLimitsModel,
+    StageOperationModel,
     StageReadingModel,
     SyncResponse,
 )
@@ -49,6 +57,59 @@ log = logging.getLogger(__name__)
 WAIT_MARGIN_S = 2.0  # beyond the device's own estimate, before a wait gives up
 BRAKE_TIMEOUT_S = 10.0  # longest a stage takes to decelerate to a stop
 POSITION_TOLERANCE_M = 1e-6  # a stage this close to where it stood is back
+DEVICE_CLOCK_BACK_S = 1.0  # a reading this much older than a move's start is another device's
+
+OperationKind = Literal["move", "home"]
+_RUNNING_STATE: dict[OperationKind, str] = {"move": "moving", "home": "homing"}
+
+
+@dataclass(slots=True)
+class _Operation:
+    """A move or homing started through the API (positions in m, device times in s)."""
+
+    seq: int
+    kind: OperationKind
+    start_m: float
+    target_m: float | None
+    speed_m_s: float
+    expected_duration_s: float
+    started_time_s: float
+    running_from_s: float  # device time of a reading taken after the command was answered
+    finished: bool = False
+
+    def report(self, reading: StageReading) -> StageOperationModel:
+        """The operation as of ``reading``; latches ``finished`` once the stage has left the
+        state the operation runs in (so that a later motion of the same kind cannot revive
+        it). A reading taken before the command went through (a status request racing it)
+        says nothing of it."""
+        if reading.time_s < self.started_time_s - DEVICE_CLOCK_BACK_S:
+            self.finished = True  # a new device: its clock started again
+        elif reading.time_s >= self.running_from_s and reading.state != _RUNNING_STATE[self.kind]:
+            self.finished = True  # stood, stopped or emergency-stopped
+        elapsed = max(0.0, reading.time_s - self.started_time_s)
+        expected = self.expected_duration_s
+        by_time = min(1.0, elapsed / expected) if expected > 0 else 1.0
+        if self.target_m is not None:  # a move: the distance covered
+            whole = abs(self.target_m - self.start_m)
+            covered = abs(reading.position_m - self.start_m)
+            fraction = min(1.0, covered / whole) if whole > POSITION_TOLERANCE_M else 1.0
+        elif self.finished:
+            fraction = 1.0 if reading.homed else by_time
+        else:
+            fraction = min(by_time, 0.99)  # homing: the switch, not the clock, ends it
+        return StageOperationModel(
+            seq=self.seq,
+            kind=self.kind,
+            active=not self.finished,
+            start_m=self.start_m,
+            target_m=self.target_m,
+            speed_m_s=self.speed_m_s,
+            expected_duration_s=expected,
+            started_time_s=self.started_time_s,
+            elapsed_s=elapsed,
+            remaining_s=0.0 if self.finished else max(0.0, expected - elapsed),
+            fraction_done=fraction,
+        )
 
 
 class MotionService:
@@ -58,6 +119,9 @@ class MotionService:
         self.device = device
         self.sensor = sensor
         self._profile: StageProfile | None = None
+        self._operation_lock = threading.Lock()
+        self._operation: _Operation | None = None  # the last move or homing, for status
+        self._operations = 0  # moves and homings started
 
     @property
     def config(self) -> MotionSection:
@@ -112,7 +176,8 @@ class MotionService:
         return StageLimits(low_m=low, high_m=high, max_speed_m_s=speed, accel_m_s2=accel)
 
     def program_limits(self) -> StageLimits:
-        """Program the configured limits into the FPGA (before any motion)."""
+        """Program the configured limits into the FPGA (before any motion: a scan's)."""
+        self._forget_operation()
         limits = self.limits_wanted()
         with self.stage_errors():
             self.stage.set_limits(limits)
@@ -123,6 +188,8 @@ class MotionService:
         with self.stage_errors():
             reading = self.stage.read()
             limits = self.stage.limits()
+        with self._operation_lock:
+            operation = None if self._operation is None else self._operation.report(reading)
         return MotionStatus(
             profile=self.profile.name,
             kind=self.profile.kind,
@@ -131,7 +198,36 @@ class MotionService:
             closed_loop=self.loop_mode(None),
             yellow=self.config.yellow,
             red=self.config.red,
+            operation=operation,
         )
+
+    def _start_operation(
+        self,
+        kind: OperationKind,
+        before: StageReading,
+        target_m: float | None,
+        speed_m_s: float,
+        duration_s: float,
+    ) -> None:
+        """Remember the move or homing just started (``before``: the stage as it stood)."""
+        after = self.read()
+        with self._operation_lock:
+            self._operations += 1
+            self._operation = _Operation(
+                seq=self._operations,
+                kind=kind,
+                start_m=before.position_m,
+                target_m=target_m,
+                speed_m_s=speed_m_s,
+                expected_duration_s=max(0.0, duration_s),
+                started_time_s=before.time_s,
+                running_from_s=after.time_s,
+            )
+
+    def _forget_operation(self) -> None:
+        """Another motion (a jog, a scan) takes the stage: no move or homing to follow."""
+        with self._operation_lock:
+            self._operation = None
 
     def enable(self, on: bool) -> MotionStatus:
         self.device.require(Request.MOTION_MOVE if on else Request.MOTION_STOP)
@@ -170,6 +266,7 @@ class MotionService:
         self.device.require(Request.MOTION_MOVE)
         self.check_speed(speed_m_s)
         was = self._check_not_stopped_hard().speed_m_s
+        self._forget_operation()
         stage = self.stage
 
         def run_at(speed: float) -> None:
@@ -224,7 +321,8 @@ class MotionService:
             )
         if request.speed_m_s is not None:
             self.check_speed(request.speed_m_s)
-        stood = self._check_not_stopped_hard().position_m
+        before = self._check_not_stopped_hard()
+        stood = before.position_m
         stage = self.stage
 
         def move() -> float:
@@ -238,6 +336,8 @@ class MotionService:
                 f"stage stopped and back at {stood * 1e3:.3f} mm",
             )
             apply.done()
+        speed = limits.max_speed_m_s if request.speed_m_s is None else request.speed_m_s
+        self._start_operation("move", before, request.position_m, speed, duration)
         if request.wait:
             self.wait_stopped(duration + WAIT_MARGIN_S)
         return self.status()
@@ -250,12 +350,14 @@ class MotionService:
 
     def home(self, wait: bool) -> MotionStatus:
         self.device.require(Request.MOTION_MOVE)
-        self._check_not_stopped_hard()
+        before = self._check_not_stopped_hard()
         with Apply("stage homing", self._events, source="motion") as apply:
             self._program_limits_if_idle(apply)
             with self.stage_errors():
                 duration = self.stage.home()
             apply.done()
+        speed = min(self.profile.home_speed_m_s.value, self.limits_wanted().max_speed_m_s)
+        self._start_operation("home", before, None, speed, duration)
         if wait:
             self.wait_stopped(duration + WAIT_MARGIN_S)
         self.log_event("info", "stage homing")

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from camd.daemon.errors import SessionError, unreachable
 from camd.daemon.motion_service import WAIT_MARGIN_S, MotionService
 from camd.daemon.scan_plan import StagePlan
 from camd.motion.closed_loop import (
@@ -204,6 +205,9 @@ class ScanMotion:
                 # On a clock, but a late poll (a slow link) moves the clock: no catch-up burst.
                 next_t = max(next_t + config.poll_period_s, time.monotonic())
                 self._stop.wait(max(0.0, next_t - time.monotonic()))
+        except SessionError as exc:  # the camera went away (or is going): one line, no trace
+            self.error = f"closed loop stopped: {unreachable(exc)}"
+            self.service.log_event("warning", f"{self.error}; the scan continues open loop")
         except Exception as exc:  # the scan goes on open loop; say so
             self.error = f"closed loop stopped: {exc}"
             log.exception("closed loop")
@@ -216,5 +220,9 @@ class ScanMotion:
             self._thread.join(5.0)
         try:
             self.service.stage.stop()
+        except SessionError as exc:
+            self.service.log_event(
+                "warning", f"stage not stopped after the scan: {unreachable(exc)}"
+            )
         except Exception as exc:
             self.service.log_event("warning", f"stopping the stage after the scan: {exc}")

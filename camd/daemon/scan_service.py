@@ -42,7 +42,7 @@ import numpy as np
 
 from camd.daemon.acquisition import Acquisition
 from camd.daemon.device import DeviceAccess
-from camd.daemon.errors import BadRequest, DeviceRejected
+from camd.daemon.errors import BadRequest, DeviceRejected, SessionError
 from camd.daemon.models import (
     ScanMotionInfo,
     ScanRequest,
@@ -71,6 +71,7 @@ from camd.motion.closed_loop import LinePeriodSetting
 from camd.pipeline import TdiPipeline
 from camd.pipeline.background import Background, BackgroundCapture
 from camd.pipeline.live import LiveLines
+from camd.store.journal import RecordingJournal
 from camd.store.quicklook import write_quicklook_png
 from camd.store.recording import RecordingError, check_new_file
 from camd.store.tdi_recording import TdiRecorder
@@ -79,6 +80,7 @@ from camd.tdi import stage_taps
 log = logging.getLogger(__name__)
 
 FINISH_TIMEOUT_S = 60.0
+SHUTDOWN_WAIT_S = 8.0  # at shutdown, how long the scan's finisher may take to end it
 QUICKLOOK_MAX_LINES = 8192
 
 
@@ -223,17 +225,37 @@ class ScanService:
         self.device.log_event("info", "scan", f"TDI stages -> {stages} from the next frame")
         return self._response(scan)
 
-    def close(self) -> None:
-        """Daemon shutdown: end a running scan and close its file."""
+    def stopping(self) -> None:
+        """Daemon shutdown, before the stream is ended: the running scan ends as stopped (not
+        done), whichever of its finisher and ``close`` gets there first."""
         scan = self._scan
         if scan is not None and not scan.done.is_set():
+            scan.stop_requested = True
+
+    def close(self, timeout_s: float = SHUTDOWN_WAIT_S) -> None:
+        """Daemon shutdown, after the stream was ended (``StreamService.shut_down``): the scan's
+        finisher ends it as a stopped scan (the pipeline drained, the closed loop and the stage
+        stopped, the file closed, the event with its line count), within ``timeout_s``; a scan
+        it has not ended by then is ended here."""
+        scan = self._scan
+        if scan is None or scan.done.is_set():
+            return
+        scan.stop_requested = True
+        finisher = scan.finisher
+        if finisher is not None and finisher is not threading.current_thread():
+            finisher.join(timeout_s)
+        if not scan.done.is_set():
+            self.device.log_event(
+                "warning", "scan", f"the scan did not end within {timeout_s:g} s; closing it"
+            )
             if scan.motion is not None:
                 scan.motion.finish()  # a stage must not run on without its daemon
             scan.pipeline.finish(flush=False)
             self._close_file(scan, scan.state)
             scan.done.set()
             self._live_end(scan.state)
-            self.device.acquisition.release(scan.acquisition)
+            scan.pipeline.release()  # tens of MB of batch buffers: not left to the collector
+        self.device.acquisition.release(scan.acquisition)
 
     # -- setting up -----------------------------------------------------------------------------
 
@@ -331,7 +353,9 @@ class ScanService:
                 motion.start()
             background = self.background.ready() if self.background is not None else None
             recorder = self._recorder(plan, background)
-            apply.undo_later(lambda: _discard(recorder), f"file {plan.path} removed")
+            apply.undo_later(
+                lambda: _discard(recorder, self.device.recordings), f"file {plan.path} removed"
+            )
             scan = _Scan(plan, motion, acquisition)
             limits = device.config.motion
             scan.pipeline = TdiPipeline(
@@ -403,7 +427,7 @@ class ScanService:
         scan_meta = request.model_dump(exclude={"out"})
         scan_meta.update(frames_requested=plan.frames, width=plan.columns)
         try:
-            return TdiRecorder(
+            recorder = TdiRecorder(
                 plan.path,
                 width=plan.columns,
                 mode=request.mode,
@@ -418,6 +442,15 @@ class ScanService:
             )
         except (RecordingError, ValueError) as exc:
             raise BadRequest(str(exc)) from None
+        journal = self.device.recordings
+        try:
+            journal.opened(plan.path, "scan")
+        except OSError as exc:
+            _discard(recorder, journal)
+            raise SessionError(
+                f"cannot note the scan in {journal.folder}: {exc}; check the data directory"
+            ) from None
+        return recorder
 
     def _start_stream(self, scan: _Scan, rows: int, cols: int) -> None:
         stream, pipeline = self.stream, scan.pipeline
@@ -462,12 +495,12 @@ class ScanService:
 
     def _worker_failed(self, scan: _Scan) -> None:
         scan.state, scan.error = "failed", scan.pipeline.error
-        threading.Thread(target=self._stop_quietly, daemon=True).start()
+        threading.Thread(target=self._stop_quietly, name="camd-scan-stop", daemon=True).start()
 
     def _mismatch_red(self, scan: _Scan) -> None:
         if self.device.config.motion.stop_on_red:
             scan.stop_requested = True
-            threading.Thread(target=self._stop_quietly, daemon=True).start()
+            threading.Thread(target=self._stop_quietly, name="camd-scan-stop", daemon=True).start()
 
     def _stop_quietly(self) -> None:
         try:
@@ -489,6 +522,9 @@ class ScanService:
         if scan.motion is not None:
             scan.motion.finish()
         final = "stopped" if scan.stop_requested else "done"
+        broken = stream.broken
+        if broken is not None and scan.state != "failed" and not scan.stop_requested:
+            scan.state, scan.error = "failed", f"the stream ended early: {broken}"
         if scan.state == "failed":
             final = "failed"
         self._close_file(scan, final)
@@ -507,6 +543,7 @@ class ScanService:
                 scan.state = final
             scan.done.set()
         self._live_end(scan.state)
+        scan.pipeline.release()  # tens of MB of batch buffers: not left to the collector
         self.device.acquisition.release(scan.acquisition)
 
     def _live_end(self, state: str) -> None:
@@ -546,9 +583,11 @@ class ScanService:
         try:
             scan.pipeline.recorder.close(attributes, datasets)
         except Exception as exc:
+            # The journal keeps the file: the next start repairs what can be repaired.
             log.exception("closing %s", scan.path)
             scan.state, scan.error = "failed", f"closing {scan.path}: {exc}"
             return
+        self.device.recordings.closed(scan.path)
         if scan.request.quicklook and progress.lines:
             try:
                 scan.quicklook = self._quicklook(scan.path)
@@ -612,6 +651,7 @@ class ScanService:
             frames_requested=scan.frames_requested,
             lines=progress.lines,
             complete_lines=progress.complete_lines,
+            lines_flushed=scan.pipeline.recorder.flushed_lines,
             lost_frames=self._lost_frames(scan, progress.frames_in, progress.gap_frames),
             stage_changes=list(progress.stage_changes),
             mode=scan.request.mode,
@@ -631,9 +671,10 @@ class ScanService:
         )
 
 
-def _discard(recorder: TdiRecorder) -> None:
+def _discard(recorder: TdiRecorder, journal: RecordingJournal) -> None:
     """Close and delete a scan file that never got a line (a scan that did not start)."""
     try:
         recorder.close({"state": "failed"}, {})
     finally:
         recorder.path.unlink(missing_ok=True)
+        journal.closed(recorder.path)

@@ -123,6 +123,11 @@ class SensorService:
 
         Returns True if the camera is streaming (the session then stops the stream).
         """
+        # The camera may have restarted (a power cycle, the simulator restarted): open the
+        # register bridge afresh (a USB-SPI bridge may have enumerated anew) and re-read the
+        # registers, which are at their power-on values then.
+        with self.device.device_op():
+            self.close()
         values = self.device.request("GET_SENSOR").values
         self.device_sensor = str(values["sensor"])
         self.trained = values["trained"] == "yes"
@@ -162,10 +167,13 @@ class SensorService:
         return False
 
     def close(self) -> None:
-        if self._bridge is not None:
-            self._bridge.close()
-            self._bridge = None
-            self._registers = None
+        """Close the register bridge (the next register access opens it again)."""
+        bridge, self._bridge, self._registers = self._bridge, None, None
+        if bridge is not None:
+            try:
+                bridge.close()
+            except Exception as exc:  # a bridge whose device went away may fail to let go
+                log.info("closing the register bridge: %s", exc)
 
     # -- registers ---------------------------------------------------------------------------------
 

@@ -67,6 +67,7 @@ from camd.daemon.models import (
 from camd.daemon.motion_service import MotionService
 from camd.daemon.scan_service import ScanService
 from camd.daemon.sensor_service import SensorService
+from camd.daemon.sim_supervisor import RestartPolicy, SimSupervisor
 from camd.daemon.simulator import SimulatorProcess
 from camd.daemon.state import Request, State, Trigger
 from camd.daemon.stream_service import StreamService
@@ -84,6 +85,7 @@ from camd.pipeline.background import BackgroundCapture
 from camd.pipeline.live import LiveLines, LiveTap
 from camd.protocol import Dictionary, FrameType, load_dictionary
 from camd.protocol.dictionary import FieldValue
+from camd.store.journal import recover_left_open
 
 log = logging.getLogger(__name__)
 
@@ -91,6 +93,22 @@ PROBE_RETRY_S = 1.0  # after a GET_STATUS probe went unanswered
 MAX_LOOP_SLEEP_S = 0.25  # the service loop wakes at least this often (stop, sim exit, probes)
 PING_ERRORS_MAX = 5
 PRUNE_PERIOD_S = 3600.0  # how often old telemetry samples are deleted
+
+
+THREAD_JOIN_S = 5.0  # at shutdown, the longest wait for one of camd's threads to end
+
+
+def _join_camd_threads(timeout_s: float) -> None:
+    """Wait (at most ``timeout_s`` in all) for camd's worker threads (named ``camd-*``) to end;
+    log those that do not: nothing of camd may run on while the interpreter exits."""
+    deadline = time.monotonic() + timeout_s
+    me = threading.current_thread()
+    for thread in threading.enumerate():
+        if thread is not me and thread.name.startswith("camd-"):
+            thread.join(max(0.0, deadline - time.monotonic()))
+    left = [t.name for t in threading.enumerate() if t.name.startswith("camd-") and t.is_alive()]
+    if left:
+        log.warning("still running at shutdown after %g s: %s", timeout_s, ", ".join(left))
 
 
 # -- the session ---------------------------------------------------------------------------------
@@ -105,6 +123,7 @@ class DeviceSession:
         self.channels: dict[str, str] = telemetry_channels()  # name -> unit
         self.checker = LimitChecker(config.telemetry.limits)
         self.sim_process: SimulatorProcess | None = None
+        self.sim_supervisor: SimSupervisor | None = None
         self.archive: TelemetryArchive | None = None
         self.device = DeviceAccess(config, self.dictionary, self._event)
         self.machine = self.device.machine
@@ -115,6 +134,7 @@ class DeviceSession:
         self._thread: threading.Thread | None = None
         self._unsubscribe: Any = None
         self._started_mono = time.monotonic()
+        self._stop_stage_on_connect = False  # a scan was cut off: see _recover_recordings
         self._poll_error: str | None = None
         self._last_values: dict[str, float] = {}
         self._red_lock = threading.Lock()
@@ -175,12 +195,14 @@ class DeviceSession:
         self.config.daemon.data_dir.mkdir(parents=True, exist_ok=True)
         self.archive = TelemetryArchive(self.config.archive_path)
         self._event("info", "daemon", f"camd {camd.__version__} started (pid {os.getpid()})")
+        self._recover_recordings()
         self.sim_process = backends.simulator_process(self.config)
         if self.sim_process is not None:
             self.config.sim_socket_dir.mkdir(mode=0o700, parents=True, exist_ok=True)
             info = self.sim_process.start()
             self._event("info", "daemon", f"simulated camera started: pid {info.get('pid')}, "
                         f"tty {info.get('tty')}, link {self.port}")  # fmt: skip
+            self.sim_supervisor = self._sim_supervisor(self.sim_process)
         cfg = self.config.link
         link = self.device.link = CommandLink(
             self.port,
@@ -197,32 +219,69 @@ class DeviceSession:
         self._thread = threading.Thread(target=self._service_loop, name="camd-service", daemon=True)
         self._thread.start()
 
+    def _recover_recordings(self) -> None:
+        """Repair the recordings a previous daemon left open (killed or crashed mid-write) and
+        say what was found; after a scan was cut off, the stage is stopped once the camera
+        answers (a real stage would otherwise run on to its limit)."""
+        for found in recover_left_open(self.device.recordings):
+            self._event("warning", "daemon", f"found at start: {found.describe()}")
+            if found.kind == "scan":
+                self._stop_stage_on_connect = True
+
+    def _stop_stage_left_running(self) -> None:
+        if not self._stop_stage_on_connect:
+            return
+        self._stop_stage_on_connect = False
+        try:
+            status = self.motion.stop()
+        except SessionError as exc:
+            self._event(
+                "warning", "motion", f"could not stop the stage after the cut-off scan: {exc}"
+            )
+            return
+        self._event(
+            "info",
+            "motion",
+            "a scan was cut off when the last daemon stopped: stage stopped at "
+            f"{status.reading.position_m * 1e3:.3f} mm",
+        )
+
     def abort(self) -> None:
         """Ask long operations (a ping run) to end early; called when shutdown begins."""
         self._stop.set()
         self._wake.set()
 
     def stop(self) -> None:
-        """Stop the loop, close the link, terminate the simulator, close the archive."""
+        """The ordered shutdown (docs/architecture.md, "Shutdown"), once the API has stopped
+        taking requests: the service loop (telemetry poller, simulator supervisor); the
+        acquisitions (the camera's stream stopped and ended on the host, its recording closed;
+        a scan finished, its closed loop and stage stopped, its file closed); the USB reader;
+        the archive; the links and the simulator; then every camd thread is joined. Each wait
+        is bounded; a camera already gone costs one warning line per step it prevents."""
         self.abort()
         if self._thread is not None:
-            self._thread.join(timeout=5.0)
+            self._thread.join(timeout=THREAD_JOIN_S)
             self._thread = None
         if self._unsubscribe is not None:
             self._unsubscribe()  # no "link lost" for our own close
             self._unsubscribe = None
+        self.scan.stopping()
+        self.stream.shut_down()
         self.scan.close()
         self.stream.close()
+        if self.archive is not None:
+            with contextlib.suppress(Exception):
+                self._event("info", "daemon", "camd stopped: acquisitions ended, files closed")
+            self.archive.close()
+            self.archive = None
         self.sensor.close()
         if self.link is not None:
             self.link.close()
         if self.sim_process is not None:
             self.sim_process.stop()
-        if self.archive is not None:
-            with contextlib.suppress(Exception):
-                self._event("info", "daemon", "camd stopped")
-            self.archive.close()
-            self.archive = None
+        if self.sim_supervisor is not None:
+            self.sim_supervisor.close(THREAD_JOIN_S)
+        _join_camd_threads(THREAD_JOIN_S)
 
     def __enter__(self) -> DeviceSession:
         self.start()
@@ -350,6 +409,10 @@ class DeviceSession:
                 connected=link is not None and link.connected,
                 last_error=link.last_error if link is not None else "not opened",
                 sim_pid=self.sim_process.pid if self.sim_process is not None else None,
+                sim_state=self.sim_supervisor.state if self.sim_supervisor is not None else None,
+                sim_restarts=(
+                    self.sim_supervisor.restarts if self.sim_supervisor is not None else None
+                ),
             ),
             device=device,
             daemon=DaemonInfo(version=camd.__version__, pid=os.getpid(), uptime_s=self.uptime_s),
@@ -499,6 +562,14 @@ class DeviceSession:
         else:
             if changed:
                 note += f"; registers back at their defaults: {', '.join(changed)}"
+        # The camera announces its restart with a BOOT event, which leads to a retrain; but an
+        # event is sent once and a lossy line may lose it: identify and retrain here, so that
+        # the camera is ready to image when the reset answers (the BOOT's probe then finds it
+        # trained).
+        try:
+            self.stream.on_connect(self.sensor.on_connect())
+        except SessionError as exc:
+            note += f"; the sensor check after the reset failed: {exc}"
         self._event("info", "api", f"camera reset{note}")
         return self.status()
 
@@ -664,6 +735,7 @@ class DeviceSession:
                 next_pet = now + pet_every_s
             try:
                 self._check_sim()
+                self.stream.check_reader()
                 if self._wants_probe() and now >= next_probe:
                     if self._probe():
                         next_poll = now  # a first sample right away, not a period later
@@ -702,11 +774,19 @@ class DeviceSession:
         # seen by a request can race with the reconnect that followed it.
         return self._probe_needed.is_set() or self.machine.state == State.DISCONNECTED
 
+    def _sim_supervisor(self, process: SimulatorProcess) -> SimSupervisor:
+        sim = self.config.sim
+        policy = RestartPolicy(
+            backoff_min_s=sim.restart_backoff_min_s,
+            backoff_max_s=sim.restart_backoff_max_s,
+            stable_s=sim.restart_stable_s,
+            limit=sim.restart_limit,
+        )
+        return SimSupervisor(process, policy, self._event, restart=sim.restart)
+
     def _check_sim(self) -> None:
-        if self.sim_process is not None:
-            report = self.sim_process.exit_report()
-            if report is not None:
-                self._event("error", "daemon", report)
+        if self.sim_supervisor is not None:
+            self.sim_supervisor.check()  # restarts a simulator that died (sim_supervisor.py)
 
     def _probe(self) -> bool:
         """GET_STATUS after a (re)connect or a BOOT; sets idle or fault. True if answered."""
@@ -738,6 +818,7 @@ class DeviceSession:
             except SessionError as exc:
                 self._event("warning", "sensor", f"sensor check after connect failed: {exc}")
             self._fire(Trigger.PROBE_IDLE, None)
+            self._stop_stage_left_running()
         if was == State.DISCONNECTED:
             self._event(
                 "info",

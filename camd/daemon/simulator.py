@@ -2,7 +2,9 @@
 
 ``SimulatorProcess`` runs ``python -m firmware_models --json --link ...`` with the sockets of
 the simulated USB devices, waits for its one JSON start line, and stops it (SIGTERM, then
-SIGKILL). The child gets SIGTERM when the daemon dies, even by SIGKILL (Linux).
+SIGKILL). The child gets SIGTERM when the daemon dies, even by SIGKILL (Linux). ``start`` may
+be called again after the child died: the same command, so the same options, pty link and
+sockets (``camd.daemon.sim_supervisor`` does that); never after ``stop``.
 """
 
 from __future__ import annotations
@@ -29,7 +31,11 @@ SIM_STOP_TIMEOUT_S = 5.0
 
 
 def _set_parent_death_signal() -> None:
-    """In the simulator child: receive SIGTERM when the daemon dies, even by SIGKILL."""
+    """In the simulator child: receive SIGTERM when the daemon dies, even by SIGKILL.
+
+    Linux sends it when the *thread* that forked the child ends, not only the process: start
+    the simulator from a thread that lives as long as the daemon (the main thread, or the
+    supervisor's restart thread)."""
     try:
         libc = ctypes.CDLL(None, use_errno=True)
         pr_set_pdeathsig = 1
@@ -84,12 +90,23 @@ class SimulatorProcess:
             self.command += ["--frame-bank", str(frame_bank)]
         self.info: dict[str, Any] = {}
         self._proc: subprocess.Popen[str] | None = None
-        self._exit_reported = False
+        self._lock = threading.Lock()  # start and stop: a stopped process is never started
+        self._stopped = False
 
     @property
     def pid(self) -> int | None:
         """The child's pid while it runs, else None."""
         return self._proc.pid if self._proc is not None and self._proc.poll() is None else None
+
+    @property
+    def last_pid(self) -> int | None:
+        """The pid of the last child started, running or not (None before the first start)."""
+        return self._proc.pid if self._proc is not None else None
+
+    @property
+    def stopped(self) -> bool:
+        """True once ``stop`` was called: the child's exit is then the daemon's own doing."""
+        return self._stopped
 
     def returncode(self) -> int | None:
         """The exit status once the child has exited (reaping it), else None."""
@@ -98,8 +115,49 @@ class SimulatorProcess:
     def start(self, timeout_s: float = SIM_START_TIMEOUT_S) -> dict[str, Any]:
         """Spawn the simulator and return its JSON start line as a dict.
 
-        Raises SimulatorError if it exits or stays silent for ``timeout_s`` (it is then killed).
+        Raises SimulatorError if it exits or stays silent for ``timeout_s`` (it is then killed),
+        or if ``stop`` was called (the daemon is shutting down).
         """
+        with self._lock:
+            if self._stopped:
+                raise SimulatorError("the simulated camera is not started: the daemon is stopping")
+            if self._proc is not None and self._proc.poll() is None:
+                raise RuntimeError(f"the simulated camera already runs (pid {self._proc.pid})")
+            self.info = {}
+            self._spawn()
+        proc = self._proc
+        assert proc is not None and proc.stdout is not None
+        lines: queue.Queue[str] = queue.Queue()
+        reader = threading.Thread(
+            target=self._drain, args=(proc.stdout, lines), name="sim-stdout", daemon=True
+        )
+        reader.start()
+        try:
+            line = lines.get(timeout=timeout_s)
+        except queue.Empty:
+            self.stop_child()
+            raise SimulatorError(
+                f"the simulated camera printed nothing within {timeout_s:g} s "
+                f"({' '.join(self.command)}); see its messages above"
+            ) from None
+        if not line:
+            code = proc.wait()
+            raise SimulatorError(
+                f"the simulated camera exited with status {code} before it was ready "
+                f"({' '.join(self.command)}); its messages above say why (check [sim] in the "
+                "config, e.g. the inject spec)",
+                usage=code == 2,
+            )
+        try:
+            self.info = json.loads(line)
+        except json.JSONDecodeError:
+            self.stop_child()
+            raise SimulatorError(
+                f"the simulated camera's start line is not JSON: {line.strip()!r}"
+            ) from None
+        return self.info
+
+    def _spawn(self) -> None:
         self.link_path.parent.mkdir(parents=True, exist_ok=True)
         env = dict(os.environ)
         # The child is not the service: it must not talk to systemd in our name.
@@ -120,36 +178,6 @@ class SimulatorProcess:
             env=env,
             preexec_fn=_set_parent_death_signal if sys.platform == "linux" else None,
         )
-        assert self._proc.stdout is not None
-        lines: queue.Queue[str] = queue.Queue()
-        reader = threading.Thread(
-            target=self._drain, args=(self._proc.stdout, lines), name="sim-stdout", daemon=True
-        )
-        reader.start()
-        try:
-            line = lines.get(timeout=timeout_s)
-        except queue.Empty:
-            self.stop()
-            raise SimulatorError(
-                f"the simulated camera printed nothing within {timeout_s:g} s "
-                f"({' '.join(self.command)}); see its messages above"
-            ) from None
-        if not line:
-            code = self._proc.wait()
-            raise SimulatorError(
-                f"the simulated camera exited with status {code} before it was ready "
-                f"({' '.join(self.command)}); its messages above say why (check [sim] in the "
-                "config, e.g. the inject spec)",
-                usage=code == 2,
-            )
-        try:
-            self.info = json.loads(line)
-        except json.JSONDecodeError:
-            self.stop()
-            raise SimulatorError(
-                f"the simulated camera's start line is not JSON: {line.strip()!r}"
-            ) from None
-        return self.info
 
     @staticmethod
     def _drain(stream: Any, lines: queue.Queue[str]) -> None:
@@ -161,27 +189,21 @@ class SimulatorProcess:
                 first = False
             else:
                 log.debug("sim: %s", line.rstrip())
+        stream.close()  # EOF: the child exited
         if first:
-            lines.put("")  # EOF before the start line: the child exited
-
-    def exit_report(self) -> str | None:
-        """Once, after the child exited on its own: a message saying so; else None."""
-        code = self.returncode()
-        if code is None or self._exit_reported:
-            return None
-        self._exit_reported = True
-        how = f"killed by signal {-code}" if code < 0 else f"exited with status {code}"
-        return (
-            f"the simulated camera (pid {self._proc.pid if self._proc else '?'}) {how}; "
-            f"it is not restarted: run `camd sim --link {self.link_path}` to reconnect"
-        )
+            lines.put("")  # before its start line
 
     def stop(self, timeout_s: float = SIM_STOP_TIMEOUT_S) -> None:
-        """Terminate the child (SIGTERM, then SIGKILL) and reap it."""
+        """Terminate the child (SIGTERM, then SIGKILL) and reap it; it is never started again."""
+        with self._lock:
+            self._stopped = True
+        self.stop_child(timeout_s)
+
+    def stop_child(self, timeout_s: float = SIM_STOP_TIMEOUT_S) -> None:
+        """Terminate the current child (SIGTERM, then SIGKILL) and reap it."""
         proc = self._proc
         if proc is None or proc.poll() is not None:
             return
-        self._exit_reported = True  # our own doing, not worth an error event
         proc.terminate()
         try:
             proc.wait(timeout=timeout_s)
@@ -189,3 +211,14 @@ class SimulatorProcess:
             log.warning("the simulated camera ignored SIGTERM for %g s; killing it", timeout_s)
             proc.kill()
             proc.wait()
+
+
+def describe_exit(code: int) -> str:
+    """How a child with exit status ``code`` (Popen's: negative for a signal) ended."""
+    if code < 0:
+        try:
+            name = signal.Signals(-code).name
+        except ValueError:
+            name = f"signal {-code}"
+        return f"was killed by {name}"
+    return f"exited with status {code}"

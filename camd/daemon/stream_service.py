@@ -32,7 +32,13 @@ from typing import Any, cast
 
 from camd.daemon.acquisition import Acquisition
 from camd.daemon.device import DeviceAccess
-from camd.daemon.errors import BadRequest, DeviceTimeout, Disconnected, SessionError
+from camd.daemon.errors import (
+    BadRequest,
+    DeviceTimeout,
+    Disconnected,
+    SessionError,
+    unreachable,
+)
 from camd.daemon.models import (
     StreamResponse,
     StreamStartRequest,
@@ -44,10 +50,12 @@ from camd.daemon.transaction import Apply
 from camd.link.frame_stream import FrameStream, ReceivedFrame, StreamError
 from camd.pipeline.background import Background, BackgroundCapture
 from camd.protocol.stream import HEADER_BYTES
+from camd.store.journal import close_recording
 from camd.store.recording import FrameRecorder, RecordingError, check_new_file
 
 log = logging.getLogger(__name__)
 
+ANNOUNCE_TIMEOUT_S = 5.0  # an ended stream's announcement (the daemon idle again) follows at once
 DRAIN_TIMEOUT_S = 5.0  # after the device's last frame: how long the reader may take to catch up
 LINK_LOST_GRACE_S = 1.0  # after LINK_LOST: how long STREAM_DONE may take to follow
 SETTLE_TIMEOUT_S = 30.0  # longest a START_STREAM exchange can take (with all its retries)
@@ -93,6 +101,11 @@ class StreamService:
         self._lock = threading.RLock()  # guards the stream's bookkeeping, not the device
         self._finished = threading.Event()
         self._finished.set()
+        # Set once an ended stream has also been announced (STREAM_STOPPED: the daemon idle
+        # again): an acquisition answers only then, so that its client may write registers at
+        # once.
+        self._announced = threading.Event()
+        self._announced.set()
         # Clear while a START_STREAM is in flight: a short stream's STREAM_DONE can overtake
         # the bookkeeping of its own start, and must wait for it.
         self._settled = threading.Event()
@@ -103,8 +116,11 @@ class StreamService:
         self._recording_to: tuple[FrameRecorder, Consumer] | None = None
         self._stream_consumer: Consumer | None = None  # acquire(consumer=...): this stream's
         self._recording: str | None = None
+        self._frames_flushed = 0  # of the last recording, once closed
         self._consumers: list[Consumer] = []
         self._claimed: Acquisition | None = None  # the slot this stream took (not a scan's)
+        self._reopen = False  # the camera (re)connected: open the USB device afresh
+        self._broken: str | None = None  # why the stream ended early (``_end_broken``)
         self._info: dict[str, Any] = {
             "mode": None,
             "rows": 0,
@@ -137,8 +153,16 @@ class StreamService:
     # -- lifecycle (called by the session) ---------------------------------------------------------
 
     def on_connect(self, device_streaming: bool) -> None:
-        """After a (re)connect: a stream nobody reads is stopped (its frames would be lost)."""
-        if not device_streaming or self.streaming:
+        """After a (re)connect or BOOT: a stream nobody reads is stopped (its frames would be
+        lost); a stream the camera no longer sends (it restarted) is ended; and the USB device
+        is opened afresh by the next stream (a camera that restarted enumerates anew: a handle
+        to the old one reads nothing)."""
+        with self._lock:
+            self._reopen = True
+            streaming = self.streaming
+        if streaming and not device_streaming:
+            self._end_broken("the camera stopped streaming: it restarted or reconnected")
+        if not device_streaming or streaming:
             return
         self.device.log_event(
             "warning",
@@ -147,6 +171,34 @@ class StreamService:
             "its frames). Start it again with `camctl stream`.",
         )
         self.device.request("STOP_STREAM")
+
+    def check_reader(self) -> None:
+        """From the service loop: end a stream whose USB reader stopped on an error (the
+        device went away: unplugged, powered off, the simulated camera died); its recording is
+        closed with what arrived. Lock-free until it finds one: a stream being drained holds
+        the lock for seconds, and the loop pets the watchdog."""
+        reader = self._reader
+        error = reader.error if reader is not None else None
+        if self.streaming and error is not None:
+            self._end_broken(f"the USB frame stream failed: {error}")
+
+    def _end_broken(self, why: str) -> None:
+        """End the running stream, once, because it cannot go on (``why``), on a thread of its
+        own (draining waits for the reader); ``acquire`` then fails with ``why``."""
+        with self._lock:
+            if not self.streaming or self._broken is not None:
+                return
+            self._broken = why
+            recording = self._recording
+        kept = (
+            f"; its recording {recording} is closed with the frames that arrived"
+            if recording
+            else ""
+        )
+        self.device.log_event("warning", "stream", f"the stream cannot go on: {why}{kept}")
+        threading.Thread(
+            target=self._finish, args=(None, None, why), name="camd-stream-finish", daemon=True
+        ).start()
 
     def on_event(self, name: str, values: dict[str, Any]) -> bool:
         """Handle a stream event (link reader thread); True if it was one."""
@@ -213,12 +265,35 @@ class StreamService:
         if self.streaming:
             self._finish(None, None, "reset")
 
+    @property
+    def broken(self) -> str | None:
+        """Why the current or last stream ended early because it could not go on (the camera
+        restarted or went away), None if it did not."""
+        return self._broken
+
+    def shut_down(self) -> None:
+        """Daemon shutdown, first step: stop the camera's stream if the link still answers,
+        then end it on the host (drained, its recording closed, a scan's finisher woken). A
+        camera that is gone is expected here: one line says what could not be done."""
+        if not self.streaming:
+            return
+        next_counter = frames_sent = None
+        try:
+            values = self.device.request("STOP_STREAM").values
+            next_counter, frames_sent = int(values["next_counter"]), int(values["frames_sent"])
+        except SessionError as exc:
+            self.device.log_event(
+                "warning", "stream", f"stream not stopped on the camera: {unreachable(exc)}"
+            )
+        self._finish(next_counter, frames_sent, "the daemon is stopping", settle=False)
+
     def close(self) -> None:
         """Daemon shutdown: stop reading, close any recording, release the USB device."""
         with self._lock:
             reader, self._reader = self._reader, None
             self.streaming = False
             self._finished.set()
+            self._announced.set()
             if reader is not None:
                 reader.stop()
                 self._detach_recorder(reader, reader.stats().as_dict())
@@ -261,6 +336,17 @@ class StreamService:
                 f"the camera did not finish {request.frames} frames within {timeout_s:.1f} s "
                 f"(frame period {period_s * 1e3:.3f} ms); the stream was stopped. Check "
                 "`camctl stream --status` and `camctl events`"
+            )
+        self._announced.wait(ANNOUNCE_TIMEOUT_S)
+        with self._lock:
+            broken, recording = self._broken, self._recording
+        if broken is not None:
+            stats = self._stats()
+            kept = f"; the recording {recording} is closed with them" if recording else ""
+            raise Disconnected(
+                f"the stream ended before its {request.frames} frames: {broken}; "
+                f"{stats.frames} frames delivered{kept}. Check `camctl status` and "
+                "`camctl events`, then acquire again"
             )
         return self._response()
 
@@ -380,7 +466,10 @@ class StreamService:
             recorder = self._new_recorder(recorder_path, request, stages, start, background)
         with self._lock:
             self._finished.clear()
+            self._announced.clear()
+            self._broken = None
             self._recording = None
+            self._frames_flushed = 0
             if recorder is not None:
                 self._attach_recorder(recorder, reader)
             if consumer is not None:
@@ -400,6 +489,7 @@ class StreamService:
                 self._detach_recorder(reader)
                 self._detach_stream_consumer(reader)
                 self._finished.set()
+                self._announced.set()
             if recorder_path is not None:
                 recorder_path.unlink(missing_ok=True)  # nothing was recorded: leave no file
             raise
@@ -478,7 +568,7 @@ class StreamService:
         if start is not None:
             stream.update({"start_command": start.command, **start.metadata})
         try:
-            return FrameRecorder(
+            recorder = FrameRecorder(
                 path,
                 frames_expected=request.frames,
                 metadata={
@@ -492,17 +582,49 @@ class StreamService:
             )
         except RecordingError as exc:
             raise BadRequest(str(exc)) from None
+        journal = self.device.recordings
+        try:
+            journal.opened(path, "recording")
+        except OSError as exc:
+            recorder.close()
+            path.unlink(missing_ok=True)
+            raise SessionError(
+                f"cannot note the recording in {journal.folder}: {exc}; check the data directory"
+            ) from None
+        return recorder
 
     def _attach_recorder(self, recorder: FrameRecorder, reader: FrameStream) -> None:
         def record(frame: ReceivedFrame) -> None:
-            recorder.add(
-                frame.header, frame.pixels, received_ns=frame.received_ns,
-                gap_before=frame.gap_before,
-            )  # fmt: skip
+            if recorder.failed is not None:
+                return  # said once; the stream is being stopped
+            try:
+                recorder.add(
+                    frame.header, frame.pixels, received_ns=frame.received_ns,
+                    gap_before=frame.gap_before,
+                )  # fmt: skip
+            except RecordingError as exc:
+                self._recording_failed(recorder, str(exc))
 
         self._recording_to = (recorder, record)
         self._recording = str(recorder.path)
+        self._frames_flushed = 0
         reader.add_consumer(record)
+
+    def _recording_failed(self, recorder: FrameRecorder, why: str) -> None:
+        """A frame could not be written (a full disk): say so once, stop the stream (not from
+        the reader's dispatch thread, which stopping joins); the daemon goes on serving."""
+        self.device.log_event(
+            "error", "stream", f"recording {recorder.path} stopped: {why}; stopping the stream"
+        )
+
+        def stop() -> None:
+            try:
+                if self.streaming:
+                    self.stop()
+            except SessionError as exc:
+                self.device.log_event("warning", "stream", f"could not stop the stream: {exc}")
+
+        threading.Thread(target=stop, name="camd-recording-failed", daemon=True).start()
 
     def _detach_recorder(self, reader: FrameStream, stats: dict[str, Any] | None = None) -> None:
         if self._recording_to is None:
@@ -510,7 +632,8 @@ class StreamService:
         recorder, record = self._recording_to
         self._recording_to = None
         reader.remove_consumer(record)
-        recorder.close(stats)
+        close_recording(recorder, stats, self.device.recordings, self.device.log_event)
+        self._frames_flushed = recorder.flushed
 
     def _detach_stream_consumer(self, reader: FrameStream) -> None:
         consumer, self._stream_consumer = self._stream_consumer, None
@@ -525,6 +648,12 @@ class StreamService:
             raise Disconnected(f"cannot open the frame stream: {exc}") from None
 
     def _opened_reader(self) -> FrameStream:
+        stale = self._reader
+        if stale is not None and (self._reopen or stale.error is not None):
+            # The camera reconnected, or its USB device went away under the last stream.
+            self._reader = None
+            self._close_reader(stale)
+        self._reopen = False
         if self._reader is None:
             reader = FrameStream(
                 vendor_id=self.config.vendor_id,
@@ -540,6 +669,17 @@ class StreamService:
                 reader.add_consumer(consumer)
             self._reader = reader
         return self._reader
+
+    @staticmethod
+    def _close_reader(reader: FrameStream) -> None:
+        """Release a reader's USB device, gone or not, and a simulated FX3's socket."""
+        try:
+            reader.close()
+        except Exception as exc:  # a device that went away may fail to let go
+            log.info("closing the old frame stream: %s", exc)
+        close_backend = getattr(reader.backend, "close", None)  # the simulated FX3's socket
+        if callable(close_backend):
+            close_backend()
 
     def _finish(
         self, next_counter: int | None, frames_sent: int | None, why: str, *, settle: bool = True
@@ -574,6 +714,7 @@ class StreamService:
             f"{stats.corrupt} corrupt, {stats.overruns} overruns, {stats.mbyte_per_s:.1f} MB/s",
         )
         self.device.fire(Trigger.STREAM_STOPPED, None)
+        self._announced.set()
 
     def stats(self) -> StreamStats:
         """The host's ingest counters of the current or last stream (no device traffic)."""
@@ -592,9 +733,13 @@ class StreamService:
     def _response(self) -> StreamResponse:
         with self._lock:
             info = dict(self._info)
+            recording_to = self._recording_to
             return StreamResponse(
                 streaming=self.streaming,
                 recording=self._recording,
+                frames_flushed=self._frames_flushed
+                if recording_to is None
+                else recording_to[0].flushed,
                 stats=self._stats(),
                 **cast(Any, info),
             )

@@ -97,6 +97,18 @@ class Batcher:
             if self._n == self.batch_frames or time.monotonic() - self._since > BATCH_MAX_AGE_S:
                 self._flush()
 
+    def release(self) -> None:
+        """The scan has ended: give the batch buffers back to the allocator now. (The scan's
+        objects refer to one another, so without this they would wait for a full garbage
+        collection, which a daemon may not run for many scans: tens of MB each.)"""
+        with self._lock:
+            self._buf, self._n = None, 0
+            while True:
+                try:
+                    self._free.get_nowait()
+                except queue.Empty:
+                    break
+
     def flush(self) -> None:
         """Queue the partial batch now (the stream has ended)."""
         with self._lock:

@@ -206,6 +206,21 @@ class TdiPipeline:
             self._batcher.flush()
         return self._end(timeout_s)
 
+    def release(self) -> None:
+        """After ``finish``: free the batch buffers and what is still queued, and drop the
+        callbacks (they refer back to the scan): the progress stays readable."""
+        if self.running:
+            return  # the worker still uses them
+        self._batcher.release()
+        while True:
+            try:
+                self._queue.get_nowait()
+            except queue.Empty:
+                break
+        self._on_event = lambda level, source, message: None
+        self._on_failure = self._on_red = lambda: None
+        self._on_lines = None
+
     def abort(self, timeout_s: float = FINISH_TIMEOUT_S) -> bool:
         """Give up (the stream did not start): what is queued is dropped, the worker ends."""
         self._failed = True

@@ -10,6 +10,8 @@ One file per recording::
     /stage_position    (N,) int32    scan-stage encoder count at frame start
     /payload_crc32     (N,) uint32   the device's CRC of the payload, to re-check the pixels
     /gap_before        (N,) uint32   frames missing just before this one
+    /frames_flushed    (1,) int64    how many frames are on disk: written after each flush has put
+                                     them there (docs/stream.md "Crash safety")
     /profile, /registers, /timing, /stream   groups whose attributes hold the metadata
     /background        group, only in a recording started while the live view had a background:
                        /background/mean_dn (rows, cols) float32, its attributes say how it was
@@ -17,7 +19,16 @@ One file per recording::
                        captured_utc); see ``write_background``
 
 Root attributes: ``format`` ("camd-recording"), ``format_version``, ``mode``, ``bits``,
-``rows``, ``cols``, ``line_period_s``, ``created_utc``, ``camd_version``, ``frames_expected``.
+``rows``, ``cols``, ``line_period_s``, ``created_utc``, ``camd_version``, ``frames_expected``,
+``finished`` (False until the recording is closed) and, once closed, ``frames``. A file whose
+writer died keeps ``finished`` False; the daemon that starts next repairs it and adds
+``interrupted`` and ``recovered_utc`` (``camd.store.durability``).
+
+The file is written in HDF5's SWMR mode (file format 1.10, readable by HDF5 1.10 and later):
+the frames' geometry comes with the first frame, the mode is switched on then, and the recorder
+flushes at least every ``flush_period_s`` while frames arrive, so that a reader in another
+process (``read_recording``, or ``h5py.File(path, "r", swmr=True)``) sees the frames up to the
+last flush and a killed writer loses only the frames since.
 Nested metadata is flattened to dotted attribute names (``adc.adc_bits``) so that any HDF5
 viewer shows it; ``read_recording`` puts it back together. ``None`` values are not stored.
 """
@@ -39,11 +50,13 @@ import numpy as np
 import numpy.typing as npt
 
 from camd.protocol.stream import FrameHeader, StreamMode, crc32
+from camd.store.durability import FLUSH_PERIOD_S, SpaceReserve, close_writer, write_failure
 
 FORMAT = "camd-recording"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # 2: SWMR (HDF5 1.10 format), /frames_flushed, the ``finished`` attribute
 METADATA_GROUPS = ("profile", "registers", "timing", "stream")
 BACKGROUND_GROUP = "background"
+_RESERVE_BYTES = 4 << 20  # space held back for finishing the file on a full disk
 _PER_FRAME: dict[str, npt.DTypeLike] = {
     "frame_counter": np.uint32,
     "timestamp_ns": np.uint64,
@@ -139,7 +152,9 @@ class FrameRecorder:
     """Appends streamed frames to a new HDF5 file; ``close(stats)`` finishes it.
 
     The file is created at once with its metadata (so a bad path fails before the stream
-    starts) and never overwrites an existing file. The frame geometry (rows, columns, bits,
+    starts) and never overwrites an existing file. Frames are flushed to disk at least every
+    ``flush_period_s`` (module docstring); a failed write (a full disk) raises RecordingError
+    saying so, and the recorder then refuses further frames (``failed`` says why). The frame geometry (rows, columns, bits,
     mode, line period) is taken from the first frame's header unless given; a later frame of
     another shape is refused. ``metadata`` maps group name (profile, registers, timing, stream)
     to a dict. ``background_dn`` (with ``background_attrs``) is stored as ``/background``.
@@ -158,6 +173,7 @@ class FrameRecorder:
         line_period_s: float | None = None,
         background_dn: npt.ArrayLike | None = None,
         background_attrs: Mapping[str, Any] | None = None,
+        flush_period_s: float = FLUSH_PERIOD_S,
     ) -> None:
         self.path = Path(path)
         if self.path.exists():
@@ -166,13 +182,25 @@ class FrameRecorder:
             )
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
-            self._file = h5py.File(self.path, "w-")
+            self._space = SpaceReserve(self.path, _RESERVE_BYTES)
         except OSError as exc:
+            raise RecordingError(
+                f"cannot create the recording {self.path}: {write_failure(self.path, exc)}"
+            ) from None
+        try:
+            # SWMR needs the 1.10 file format.
+            self._file = h5py.File(self.path, "w-", libver=("v110", "latest"))
+        except OSError as exc:
+            self._space.release()
             raise RecordingError(
                 f"cannot create the recording {self.path}: {exc}; check that the daemon's user "
                 "may write there"
             ) from None
         self.count = 0
+        self.flushed = 0  # frames on disk: what the file keeps if the writer dies now
+        self.failed: str | None = None  # why writing stopped (a full disk), None while it works
+        self._flush_period_s = flush_period_s
+        self._last_flush = time.monotonic()
         self._frames_expected = frames_expected
         # Host time of a frame = monotonic receive time + this offset (ns since 1970, UTC).
         self._unix_offset_ns = time.time_ns() - time.monotonic_ns()
@@ -183,6 +211,7 @@ class FrameRecorder:
                 "created_utc": dt.datetime.now(dt.UTC).isoformat(timespec="milliseconds"),
                 "camd_version": camd_version(),
                 "frames_expected": frames_expected,
+                "finished": False,
             }
         )
         for group in METADATA_GROUPS:
@@ -191,6 +220,7 @@ class FrameRecorder:
             )
         if background_dn is not None:
             write_background(self._file, background_dn, background_attrs or {})
+        self._file.flush()
         self.rows = self.cols = 0
         self._frames: Any = None
         self._columns: dict[str, Any] = {}
@@ -224,7 +254,11 @@ class FrameRecorder:
             name: f.create_dataset(name, shape=(0,), maxshape=(None,), dtype=dtype, chunks=(4096,))
             for name, dtype in _PER_FRAME.items()
         }
+        self._frames_flushed = f.create_dataset("frames_flushed", data=np.zeros(1, np.int64))
         self._reserve(max(self._frames_expected, 1))
+        # Every object exists now: from here on the file is only appended to, in SWMR mode.
+        f.swmr_mode = True
+        f.flush()
 
     def _reserve(self, frames: int) -> None:
         if frames <= self._capacity:
@@ -242,7 +276,48 @@ class FrameRecorder:
         received_ns: int,
         gap_before: int = 0,
     ) -> None:
-        """Append one frame (the pixels are copied into the file at once)."""
+        """Append one frame (the pixels are copied into the file at once); RecordingError if it
+        cannot be written (the message says why, e.g. a full disk)."""
+        if self.failed is not None:
+            raise RecordingError(self.failed)
+        try:
+            self._add(header, pixels, received_ns, gap_before)
+            if time.monotonic() - self._last_flush >= self._flush_period_s:
+                self.flush()
+        except RecordingError:
+            raise  # the caller's mistake (a frame of another shape): the file is fine
+        except (OSError, RuntimeError) as exc:  # h5py reports a failed flush as RuntimeError
+            self.failed = (
+                f"{write_failure(self.path, exc)}; the recording keeps the {self.flushed} "
+                "frames flushed before"
+            )
+            # Back to what is on disk, with the reserve's space, so that close() works.
+            self._space.release()
+            try:
+                self._trim(self._file, self.flushed)
+                self._file.flush()
+            except (OSError, RuntimeError):
+                pass  # close() tries again and says what it could not do
+            raise RecordingError(self.failed) from None
+
+    def flush(self) -> None:
+        """Put the frames so far on disk (where readers see them and a kill leaves them),
+        then their count (``/frames_flushed``)."""
+        if self._frames is None:
+            return
+        self._file.flush()
+        self._frames_flushed[0] = self.count
+        self._file.flush()
+        self.flushed = self.count
+        self._last_flush = time.monotonic()
+
+    def _add(
+        self,
+        header: FrameHeader,
+        pixels: npt.NDArray[np.uint16],
+        received_ns: int,
+        gap_before: int,
+    ) -> None:
         if self._frames is None:
             rows, cols = pixels.shape
             self._create(rows, cols, header.bits, header.mode, header.line_period_ns * 1e-9)
@@ -269,24 +344,64 @@ class FrameRecorder:
         self.count += 1
 
     def close(self, stream_stats: Mapping[str, Any] | None = None) -> Path:
-        """Trim to the frames received, store the stream's counters, close; return the path."""
+        """Trim to the frames received, store the stream's counters, mark the file finished,
+        close; return the path. After a failed write (``failed``), the file keeps the frames
+        flushed before it, ``finished`` stays False and ``error`` says why. RecordingError if
+        the file cannot even be closed that way (it then needs ``recover_file``)."""
         if not self._file:
             return self.path
-        if self._frames is None:
-            # No frame came: an empty recording, still readable.
-            self._file.attrs.update({"mode": "none", "bits": 0, "rows": 0, "cols": 0})
-            self._file.create_dataset("frames", shape=(0, 0, 0), dtype=np.uint16)
-            for name, dtype in _PER_FRAME.items():
-                self._file.create_dataset(name, shape=(0,), dtype=dtype)
-        else:
-            self._frames.resize(self.count, axis=0)
-            for column in self._columns.values():
-                column.resize(self.count, axis=0)
-        self._file.attrs["frames"] = self.count
-        if stream_stats:
-            self._file["stream"].attrs.update(flatten_attrs(stream_stats))
-        self._file.close()
+        count = self.count if self.failed is None else self.flushed
+        self.failed = close_writer(self._file, self.path, self.failed, self._space)
+        if self.failed is not None:
+            # Keep what is on disk, say why it ends there; the file stays unfinished.
+            try:
+                with h5py.File(self.path, "r+") as f:
+                    self._trim(f, count)
+                    f.attrs.update({"frames": count, "error": self.failed})
+            except OSError:
+                raise RecordingError(
+                    f"{self.failed}; {self.path} is left unfinished (camd repairs it when it "
+                    "starts again; h5py.File(path, 'r', swmr=True) reads it now)"
+                ) from None
+            return self.path  # finished = False and the error say it ended early
+        # An SWMR writer may not add or change attributes: reopen the file to finish it.
+        try:
+            try:
+                f = h5py.File(self.path, "r+")
+            except BlockingIOError:
+                # A reader holds the file (and a shared lock on it): it sees the final
+                # attributes when it opens the file again.
+                f = h5py.File(self.path, "r+", locking=False)
+            with f:
+                self._finish(f, count, stream_stats)
+            self.flushed = count
+        except OSError as exc:
+            raise RecordingError(
+                f"{write_failure(self.path, exc)}; {self.path} keeps its {count} frames but is "
+                "not marked finished"
+            ) from None
         return self.path
+
+    @staticmethod
+    def _trim(f: h5py.File, count: int) -> None:
+        if "frames" in f:
+            for name in ("frames", *_PER_FRAME):
+                f[name].resize(count, axis=0)
+            f["frames_flushed"][0] = count
+
+    def _finish(self, f: h5py.File, count: int, stream_stats: Mapping[str, Any] | None) -> None:
+        if "frames" not in f:
+            # No frame came: an empty recording, still readable.
+            f.attrs.update({"mode": "none", "bits": 0, "rows": 0, "cols": 0})
+            f.create_dataset("frames", shape=(0, 0, 0), dtype=np.uint16)
+            for name, dtype in _PER_FRAME.items():
+                f.create_dataset(name, shape=(0,), dtype=dtype)
+            f.create_dataset("frames_flushed", data=np.zeros(1, np.int64))
+        else:
+            self._trim(f, count)
+        f.attrs.update({"frames": count, "finished": True})
+        if stream_stats:
+            f["stream"].attrs.update(flatten_attrs(stream_stats))
 
     def __enter__(self) -> FrameRecorder:
         return self
@@ -318,8 +433,11 @@ class Recording:
 def read_recording(path: Path | str) -> Recording:
     """Read a whole recording into memory; RecordingError if it is not one."""
     path = Path(path)
+    if not path.is_file():
+        raise RecordingError(f"{path} does not exist (or is not a file); check the path")
     try:
-        f = h5py.File(path, "r")
+        # SWMR read: also a recording still being written, or one whose writer died.
+        f = h5py.File(path, "r", swmr=True)
     except OSError as exc:
         raise RecordingError(f"cannot open {path} as HDF5: {exc}") from None
     with f:
@@ -331,8 +449,11 @@ def read_recording(path: Path | str) -> Recording:
                 f"{path} is recording format {version}; this camd reads up to {FORMAT_VERSION}: "
                 "upgrade camd"
             )
-        frames = np.asarray(f["frames"][...], dtype=np.uint16)
-        columns = {name: np.asarray(f[name][...]) for name in _PER_FRAME}
+        n = len(f["frames"])
+        if "frames_flushed" in f and not bool(f.attrs.get("finished", True)):
+            n = min(n, int(f["frames_flushed"][0]))  # beyond it: not on disk yet
+        frames = np.asarray(f["frames"][:n], dtype=np.uint16)
+        columns = {name: np.asarray(f[name][:n]) for name in _PER_FRAME}
         attrs = unflatten_attrs(dict(f.attrs))
         meta = {group: unflatten_attrs(dict(f[group].attrs)) for group in METADATA_GROUPS}
     return Recording(path, frames, columns, attrs, meta)

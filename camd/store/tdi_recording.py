@@ -10,6 +10,8 @@ One file per scan, appended to while the scan runs::
     /stage_position (L,) int32    the stage encoder count latched at the line's frame start
     /m_dv_over_v    (L,) float32  M dV/V the line saw (docs/motion.md; NaN where unknown)
     /stage_changes  (K, 2) int64  [line index, stages]: the scan's first M, then every change of M
+    /lines_flushed  (1,) int64    how many lines are on disk: written after each flush has put them
+                                  there (docs/stream.md "Crash safety")
     /profile, /registers, /timing, /scan   groups whose attributes hold the metadata
     /counters       group whose attributes hold the scan's counters (written by ``close``)
     /motion_loop    group of 1-D datasets: the closed loop's polls (written by ``close``, if any)
@@ -26,17 +28,19 @@ Reading a scan while it is written: the file is written in HDF5 single-writer/mu
 (SWMR) mode (file format 1.10, readable by HDF5 1.10 and later). Another process opens it with
 ``read_tdi_scan`` or ``h5py.File(path, "r", swmr=True)`` (a plain ``h5py.File(path, "r")`` is
 refused while the scan is open: "file is already open for write") and sees every line up to the
-recorder's last flush, which is at most ``chunk_lines`` lines behind; a line appended after it may
-still read as zeros. An SWMR writer may only grow datasets, so the root attributes ``lines``,
+recorder's last flush, which is at most ``chunk_lines`` lines or ``flush_period_s`` behind; a
+line appended after it may still read as zeros (``read_tdi_scan`` stops at ``/lines_flushed``). An SWMR writer may only grow datasets, so the root attributes ``lines``,
 ``complete_lines``, ``finished``, the counters and ``close``'s attributes appear when the scan is
-closed: a live reader takes the number of lines from the datasets' lengths. If the writing process
-dies, the lines up to its last flush stay readable.
+closed: a live reader takes the number of lines from ``/lines_flushed``. If the writing process
+dies, the lines up to its last flush stay readable (``camd.store.durability``: the daemon repairs
+such a file when it starts again, so that plain HDF5 readers open it too).
 """
 
 from __future__ import annotations
 
 import datetime as dt
 import operator
+import time
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -46,6 +50,7 @@ import h5py
 import numpy as np
 import numpy.typing as npt
 
+from camd.store.durability import FLUSH_PERIOD_S, SpaceReserve, close_writer, write_failure
 from camd.store.recording import FORMAT as RECORDING_FORMAT
 from camd.store.recording import (
     RecordingError,
@@ -56,7 +61,7 @@ from camd.store.recording import (
 )
 
 FORMAT = "camd-tdi-scan"
-FORMAT_VERSION = 2  # 2: /stage_position, /m_dv_over_v and close()'s datasets
+FORMAT_VERSION = 3  # 2: /stage_position, /m_dv_over_v and close()'s datasets; 3: /lines_flushed
 MODES: dict[str, type[np.generic]] = {"sum": np.uint32, "mean": np.float32}
 METADATA_GROUPS = ("profile", "registers", "timing", "scan", "counters")
 # The per-line columns besides /lines, with their stored types.
@@ -70,7 +75,7 @@ _COLUMNS: dict[str, type[np.generic]] = {
 }
 # Columns a version-1 file lacks, and what a reader fills them with.
 _ADDED_IN_2: dict[str, float] = {"stage_position": 0, "m_dv_over_v": np.nan}
-_DATASETS = frozenset({"lines", "stage_changes", *_COLUMNS})
+_DATASETS = frozenset({"lines", "stage_changes", "lines_flushed", *_COLUMNS})
 _RESERVED_ROOT = frozenset(
     {
         "format",
@@ -85,6 +90,7 @@ _RESERVED_ROOT = frozenset(
     }
 )
 _COLUMN_CHUNK = 4096  # lines per chunk of the 1-D columns
+_RESERVE_MIN_BYTES = 4 << 20  # the least space held back for finishing the file on a full disk
 _UINT32_MAX = 2**32 - 1
 _INT64 = np.iinfo(np.int64)
 
@@ -151,8 +157,10 @@ class TdiRecorder:
     and never overwrites an existing file. ``metadata`` maps group name (profile, registers,
     timing, scan, or any other) to a dict; the groups profile, registers, timing, scan and
     counters always exist. The recorder flushes itself whenever ``chunk_lines`` lines have been
-    appended since the last flush, so a reader in another process is never more than a chunk
-    behind; ``flush()`` makes everything so far visible at once. ``close(attributes)`` writes
+    appended since the last flush or ``flush_period_s`` has passed since it, so a reader in
+    another process (or the file after a crash) is never more than a chunk or a period behind;
+    ``flush()`` makes everything so far visible (and durable against a kill) at once. A failed
+    write (a full disk) raises RecordingError saying so; the lines flushed before stay readable. ``close(attributes)`` writes
     the final attributes; a ``with`` block closes the recorder whatever happens inside.
     ``background_dn`` (with ``background_attrs``) is stored as ``/background``.
     """
@@ -165,6 +173,7 @@ class TdiRecorder:
         mode: str,
         metadata: Mapping[str, Mapping[str, Any]],
         chunk_lines: int = 256,
+        flush_period_s: float = FLUSH_PERIOD_S,
         background_dn: npt.ArrayLike | None = None,
         background_attrs: Mapping[str, Any] | None = None,
     ) -> None:
@@ -210,8 +219,18 @@ class TdiRecorder:
         self._dtype = dtype
         self._chunk_lines = chunk_lines
         self._flushed_lines = 0
+        self._flush_period_s = flush_period_s
+        self._last_flush = time.monotonic()
         self._stage_change_count = 0
         self._closed = False
+        self.failed: str | None = None  # why writing stopped (a full disk), None while it works
+        try:
+            # What closing the file needs if the disk fills up: the metadata and the chunk cache.
+            self._space = SpaceReserve(self.path, _RESERVE_MIN_BYTES + 2 * chunk_bytes)
+        except OSError as exc:
+            raise RecordingError(
+                f"cannot create the TDI scan {self.path}: {write_failure(self.path, exc)}"
+            ) from None
         try:
             # SWMR needs the 1.10 file format; the chunk cache holds two chunks of lines so that
             # appending a few lines at a time never rewrites a whole chunk on disk.
@@ -222,6 +241,7 @@ class TdiRecorder:
                 rdcc_nbytes=max(1 << 20, 2 * chunk_bytes),
             )
         except OSError as exc:
+            self._space.release()
             raise RecordingError(
                 f"cannot create the TDI scan {self.path}: {exc}; check that the daemon's user "
                 "may write there"
@@ -235,6 +255,7 @@ class TdiRecorder:
         except BaseException:
             self._file.close()
             self.path.unlink(missing_ok=True)
+            self._space.release()
             raise
 
     def _create(self, metadata: Mapping[str, Mapping[str, Any]]) -> None:
@@ -277,6 +298,7 @@ class TdiRecorder:
         self._stage_changes = f.create_dataset(
             "stage_changes", shape=(0, 2), maxshape=(None, 2), dtype=np.int64, chunks=(256, 2)
         )
+        self._lines_flushed = f.create_dataset("lines_flushed", data=np.zeros(1, dtype=np.int64))
 
     def _check_open(self) -> None:
         if self._closed:
@@ -326,6 +348,8 @@ class TdiRecorder:
         (default 0) and the M dV/V each line saw (default NaN). F = 0 does nothing. ValueError
         for a wrong shape, type or range, before anything is written."""
         self._check_open()
+        if self.failed is not None:
+            raise RecordingError(self.failed)
         lines = self._line_data(data)
         n = lines.shape[0]
         line_index = _int_column("index", index, n, int(_INT64.min), int(_INT64.max), np.int64)
@@ -354,16 +378,38 @@ class TdiRecorder:
         if n == 0:
             return
         start, stop = self.lines, self.lines + n
-        self._lines.resize(stop, axis=0)
-        for column in self._columns.values():
-            column.resize(stop, axis=0)
-        self._lines[start:stop] = lines
-        for name, values in columns.items():
-            self._columns[name][start:stop] = values
+        try:
+            self._lines.resize(stop, axis=0)
+            for column in self._columns.values():
+                column.resize(stop, axis=0)
+            self._lines[start:stop] = lines
+            for name, values in columns.items():
+                self._columns[name][start:stop] = values
+        except (OSError, RuntimeError) as exc:  # h5py reports a failed flush as RuntimeError
+            raise self._failed(exc) from None
         self.lines = stop
         self.complete_lines += int(np.count_nonzero(done))
-        if self.lines - self._flushed_lines >= self._chunk_lines:
+        if (
+            self.lines - self._flushed_lines >= self._chunk_lines
+            or time.monotonic() - self._last_flush >= self._flush_period_s
+        ):
             self.flush()
+
+    def _failed(self, exc: BaseException) -> RecordingError:
+        """Writing failed (a full disk): release the reserve and go back to what is on disk,
+        so that the file can still be closed; the RecordingError to raise."""
+        self.failed = (
+            f"{write_failure(self.path, exc)}; the scan file keeps the {self._flushed_lines} "
+            "lines flushed before"
+        )
+        self._space.release()
+        try:
+            for dataset in (self._lines, *self._columns.values()):
+                dataset.resize(self._flushed_lines, axis=0)
+            self._file.flush()
+        except (OSError, RuntimeError):
+            pass  # close() tries again and says what it could not do
+        return RecordingError(self.failed)
 
     def note_stage_change(self, line_index: SupportsIndex, stages: SupportsIndex) -> None:
         """Record that from line ``line_index`` on the scan sums ``stages`` stages.
@@ -380,10 +426,23 @@ class TdiRecorder:
         self._stage_change_count = k + 1
 
     def flush(self) -> None:
-        """Write everything appended so far to the file, where readers see it."""
+        """Write everything appended so far to the file, where readers see it and where it
+        survives the writer's death; then the count of lines on disk (``/lines_flushed``)."""
         self._check_open()
-        self._file.flush()
+        try:
+            self._file.flush()
+            # Only now are the lines on disk: the count follows in a second, small flush.
+            self._lines_flushed[0] = self.lines
+            self._file.flush()
+        except (OSError, RuntimeError) as exc:
+            raise self._failed(exc) from None
         self._flushed_lines = self.lines
+        self._last_flush = time.monotonic()
+
+    @property
+    def flushed_lines(self) -> int:
+        """Lines on disk: what the file keeps if the writer dies now."""
+        return self._flushed_lines
 
     def close(
         self,
@@ -414,7 +473,11 @@ class TdiRecorder:
             else:
                 root[name] = value
         self._closed = True
-        self._file.close()
+        self.failed = close_writer(self._file, self.path, self.failed, self._space)
+        if self.failed is not None:
+            # Only the flushed lines are surely on disk: keep those, say why it ends there.
+            self.lines = self._flushed_lines
+            root["error"] = self.failed
         # An SWMR writer may not add or change attributes: reopen the finished file to do it.
         try:
             try:
@@ -429,6 +492,11 @@ class TdiRecorder:
                 "complete, its lines/complete_lines/counters attributes are missing"
             ) from None
         with f:
+            if self.failed is not None:
+                for name in ("lines", *_COLUMNS):
+                    f[name].resize(self.lines, axis=0)
+                f["lines_flushed"][0] = self.lines
+                self.complete_lines = int(np.count_nonzero(f["complete"][: self.lines]))
             f.attrs.update(
                 {"lines": self.lines, "complete_lines": self.complete_lines, "finished": True}
             )
@@ -512,6 +580,8 @@ def read_tdi_scan(path: Path | str) -> TdiScan:
             # every one of them has.
             present = [name for name in _COLUMNS if name in f or name not in _ADDED_IN_2]
             n = min(len(f[name]) for name in ("lines", *present))
+            if "lines_flushed" in f and not bool(f.attrs.get("finished", False)):
+                n = min(n, int(f["lines_flushed"][0]))  # beyond it: not on disk yet
             lines = np.asarray(f["lines"][:n])
             columns = {
                 name: (

@@ -1,0 +1,264 @@
+"""``camd soak``: a long mixed workload on a lossy line (a benchmark, not a test).
+
+It starts its own ``camd serve --sim`` on loopback with line faults (bit errors, dropped frames
+on the RS-422 link, frame faults on the USB stream), runs pings, telemetry and status reads,
+register writes verified by read-back, short streams, stares recorded to HDF5 and re-checked
+against the device's CRCs, short TDI scans and a quick campaign for ``--minutes``, and prints:
+commands sent, failed and executed twice (the last from the simulated device's own count),
+frames lost against frames injected, and the daemon's RSS, open file descriptors and threads
+at the start (after a warm-up of one item of each kind) and at the end, with a sample every
+``--sample-s``. The exit status is 0 whenever the soak ran, whatever the figures; a verdict
+line per criterion says how they compare with what is expected. The workload itself is
+``camd.cli.soak_workload``; docs/cli.md describes every option and the JSON document.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import shutil
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any
+
+DEFAULT_MINUTES = 60.0
+DEFAULT_BER = 1e-4
+DEFAULT_DROP = 0.01
+DEFAULT_FRAME_FAULTS = 0.002
+DEFAULT_SAMPLE_S = 60.0
+
+VERDICTS = (
+    ("failed_commands_0", "failed commands = 0"),
+    ("executed_twice_0", "commands executed twice = 0"),
+    ("lost_equals_injected", "frames lost = frames injected"),
+    ("rss_growth_below_5pct", "daemon RSS growth < 5 %"),
+    ("fds_flat", "daemon open file descriptors flat"),
+    ("threads_flat", "daemon threads flat"),
+)
+
+
+def _positive_or_zero(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not (math.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"must be a number >= 0, got {text}")
+    return value
+
+
+def _positive(text: str) -> float:
+    value = _positive_or_zero(text)
+    if value == 0:
+        raise argparse.ArgumentTypeError("must be > 0")
+    return value
+
+
+def add_parser(sub: Any) -> None:
+    """Register ``camd soak`` (called by camd.cli.camd_main)."""
+    p: argparse.ArgumentParser = sub.add_parser(
+        "soak",
+        help="long mixed workload on a lossy simulated line: failures, losses, resources",
+        description="Start the daemon on the simulated camera with a lossy line and run a mixed "
+        "workload (pings, telemetry, register writes, streams, stares, scans, a campaign) for "
+        "--minutes; print commands sent/failed/executed twice, frames lost against injected, "
+        "and the daemon's RSS, file descriptors and threads at the start and the end. A "
+        "benchmark: exit status 0 whenever it ran.",
+    )
+    p.add_argument(
+        "--minutes", type=_positive_or_zero, default=DEFAULT_MINUTES, metavar="N",
+        help=f"how long the mixed workload runs after the warm-up (default {DEFAULT_MINUTES:g}; "
+        "a fraction is fine, 0 = the warm-up only)",
+    )  # fmt: skip
+    p.add_argument("--seed", type=int, default=0, help="seed of the mix and of the simulator (0)")
+    p.add_argument(
+        "--ber", type=_positive_or_zero, default=DEFAULT_BER,
+        help=f"bit error rate on the command link (default {DEFAULT_BER:g})",
+    )  # fmt: skip
+    p.add_argument(
+        "--drop", type=_positive_or_zero, default=DEFAULT_DROP,
+        help=f"probability a command-link frame is dropped (default {DEFAULT_DROP:g})",
+    )  # fmt: skip
+    p.add_argument(
+        "--frame-faults", type=_positive_or_zero, default=DEFAULT_FRAME_FAULTS, metavar="P",
+        help="USB stream: probability of each of frame_drop, frame_corrupt, frame_short per "
+        f"frame, and P/4 of frame_stall (default {DEFAULT_FRAME_FAULTS:g}; 0 = none)",
+    )  # fmt: skip
+    p.add_argument(
+        "--inject", default="", metavar="SPEC",
+        help="more simulator faults, key=value,... (docs/simulator.md), added to or overriding "
+        "the above, e.g. garbage=0.001,delay_ms=2",
+    )  # fmt: skip
+    p.add_argument(
+        "--sample-s", type=_positive, default=DEFAULT_SAMPLE_S, metavar="S",
+        help=f"sample the daemon's resources every S seconds (default {DEFAULT_SAMPLE_S:g})",
+    )  # fmt: skip
+    p.add_argument(
+        "--timeout", type=_positive, default=60.0, metavar="S",
+        help="seconds to wait for each API answer (default 60)",
+    )  # fmt: skip
+    p.add_argument(
+        "--out", type=Path, metavar="DIR",
+        help="work directory (new or empty; default a temporary one): the daemon's data and "
+        "log, recordings until checked, campaigns",
+    )  # fmt: skip
+    p.add_argument(
+        "--keep", action="store_true", help="keep the work directory (removed by default)"
+    )
+    p.add_argument("--json", action="store_true", help="print one JSON document on stdout")
+
+
+def run(args: argparse.Namespace) -> int:
+    """``camd soak``: 0 if the soak ran (whatever the figures), 1 if it could not, 2 for bad
+    options, 130 when interrupted."""
+    from camd.cli.soak_workload import Soak, SoakAborted, SoakSettings, build_inject
+
+    try:
+        inject = build_inject(args.ber, args.drop, args.frame_faults, args.inject)
+    except ValueError as exc:
+        print(f"camd soak: error: {exc}", file=sys.stderr)
+        return 2
+    if args.out is not None:
+        out: Path = args.out
+        if out.exists() and (not out.is_dir() or any(out.iterdir())):
+            print(
+                f"camd soak: error: --out {out}: exists and is not an empty directory; give a "
+                "new or empty directory (it is removed afterwards unless --keep)",
+                file=sys.stderr,
+            )
+            return 2
+        try:
+            out.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            print(f"camd soak: error: --out {out}: {exc.strerror or exc}", file=sys.stderr)
+            return 2
+        work = out.resolve()
+    else:
+        work = Path(tempfile.mkdtemp(prefix="camd-soak-"))
+    settings = SoakSettings(
+        minutes=args.minutes, seed=args.seed, inject=inject, work_dir=work,
+        sample_s=args.sample_s, timeout_s=args.timeout,
+    )  # fmt: skip
+
+    def progress(line: str) -> None:
+        print(line, file=sys.stderr, flush=True)
+
+    try:
+        doc = Soak(settings, progress).run()
+    except SoakAborted as exc:
+        print(f"camd soak: error: {exc}", file=sys.stderr)
+        if not args.keep:
+            print(f"camd soak: the work directory {work} is kept for the log", file=sys.stderr)
+        return 1
+    doc["work_dir"] = str(work)
+    doc["kept"] = bool(args.keep or doc["error"] or doc["commands"]["failed_checks"])
+    if not doc["kept"]:
+        shutil.rmtree(work, ignore_errors=True)
+    if args.json:
+        print(json.dumps(doc))
+    else:
+        render(doc)
+    if doc["interrupted"]:
+        return 130
+    return 1 if doc["error"] else 0
+
+
+def render(doc: dict[str, Any]) -> None:
+    """The final table and the verdicts, on stdout."""
+    w = doc["workload"]
+    c = doc["commands"]
+    f = doc["frames"]
+    r = doc["resources"]
+    print(
+        f"camd soak: {doc['seconds'] / 60:.1f} min ({doc['warmup_s']:.0f} s warm-up), seed "
+        f"{doc['seed']}, line faults {doc['inject'] or 'none'}"
+    )
+    if doc["interrupted"]:
+        print("INTERRUPTED: the figures cover the run up to Ctrl-C")
+    if doc["error"]:
+        print(f"ERROR: {doc['error']}")
+    print()
+    print(f"{'workload':12} {'runs':>6} {'failed':>6} {'seconds':>9}")
+    for kind, k in w["kinds"].items():
+        print(f"{kind:12} {k['runs']:6d} {k['failed']:6d} {k['seconds']:9.1f}")
+    print(f"{'all':12} {w['items']:6d} {sum(k['failed'] for k in w['kinds'].values()):6d}")
+    print()
+    ans = c["answered"]
+    host = c["link_host"]
+    dev = c["link_device"]
+    print(
+        f"commands: {c['sent']} API requests sent ({ans['2xx']} 2xx, {ans['4xx']} 4xx, "
+        f"{ans['5xx']} 5xx, {ans['no_answer']} unanswered)"
+    )
+    print(
+        f"  failed {c['failed']} (requests {c['failed_requests']}, workload checks "
+        f"{c['failed_checks']}, device commands unanswered {c['device_unanswered']})"
+    )
+    print(
+        f"  executed twice {_text(c['executed_twice'])} (the simulated device's count); device "
+        f"commands {_text(c['device_commands'])}: link frames sent {host.get('sent', '?')}, "
+        f"retries {host.get('retries', '?')}, timeouts {host.get('timeouts', '?')}; device "
+        f"executed {dev.get('executed', '?')}, replayed {dev.get('replayed', '?')} from its record"
+    )
+    if c["recoveries"]:
+        print(
+            "  recoveries after a failure: "
+            + ", ".join(f"{k} x{v}" for k, v in sorted(c["recoveries"].items()))
+            + " (train: the sensor's LVDS link was found untrained)"
+        )
+    for error in c["errors"]:
+        print(f"  error: {error}")
+    print()
+    h = f["host"]
+    d = f["device"]
+    print(
+        f"frames: {f['acquisitions']} acquisitions, {f['requested']} frames asked for, "
+        f"{f['delivered']} delivered"
+    )
+    print(
+        f"  lost {f['lost']} (host: lost {h['lost']}, corrupt {h['corrupt']}, short "
+        f"{h['short']}, overruns {h['overruns']}; stalls {h['stalls']}, out of order "
+        f"{h['out_of_order']})"
+    )
+    print(
+        f"  injected {_text(f['injected'])} (device: "
+        + ", ".join(f"{k} {v}" for k, v in d.items() if k not in ("bytes_sent",))
+        + f"): {'equal' if f['equal'] else 'NOT equal'}"
+    )
+    print()
+    print(f"{'daemon':10} {'t (min)':>8} {'RSS (MB)':>9} {'fds':>5} {'threads':>8} {'items':>6}")
+    for s in r["series"]:
+        p = s["daemon"] or {}
+        print(
+            f"{s['what']:10} {s['t_min']:8.1f} {p.get('rss_kb', 0) / 1024:9.1f} "
+            f"{p.get('fds', '?'):>5} {p.get('threads', '?'):>8} {s['items']:6d}"
+        )
+    g = r["growth_pct"]
+    print(
+        f"growth start -> end: RSS {_pct(g['rss_kb'])}, fds {_pct(g['fds'])}, threads "
+        f"{_pct(g['threads'])}"
+    )
+    sims = [s["simulator"] for s in r["series"] if s["simulator"]]
+    if sims:
+        print(
+            f"simulator (for information): RSS {sims[0]['rss_kb'] / 1024:.1f} -> "
+            f"{sims[-1]['rss_kb'] / 1024:.1f} MB, threads {sims[0]['threads']} -> "
+            f"{sims[-1]['threads']}"
+        )
+    print()
+    for key, text in VERDICTS:
+        print(f"verdict: {text}: {'yes' if doc['verdict'][key] else 'NO'}")
+    if doc["kept"]:
+        print(f"work directory kept: {doc['work_dir']}; daemon log {doc['daemon']['log']}")
+    else:
+        print(f"work directory {doc['work_dir']} removed (--keep keeps it)")
+
+
+def _text(value: object) -> str:
+    return "?" if value is None else str(value)
+
+
+def _pct(value: float | None) -> str:
+    return "?" if value is None else f"{value:+.2f} %"

@@ -1,0 +1,614 @@
+"""The workload of ``camd soak`` (``camd.cli.soak``): a daemon on a lossy simulated line, a mixed
+stream of requests through ``CamdClient``, and the counts that say whether it held up.
+
+``Soak.run()`` starts ``camd serve --sim`` (``DaemonProcess``, loopback, a 32-row hr400 window),
+runs every workload kind once as a warm-up, takes the daemon's resources as the start, then runs
+kinds drawn from a seeded weighted mix until the time is up, sampling the resources every
+``sample_s``; the end sample follows the last item. Every HTTP request goes through one
+``_CountingClient`` (the campaign's too), which counts answers by class.
+
+Sources of the figures:
+
+- commands: the soak's API requests (counted here), the command link's host counters and the
+  device's (``GET /api/v1/link``, deltas over the run), and ``executed_twice`` from the
+  simulated device itself (SIM_GET_INJECTED, firmware_models/fpga.py: an executed command
+  frame equal to one of the last 32 executed);
+- frames: each acquisition's host counters (the stream/stare answer, the scan's ``stream``, the
+  ``stream`` metadata of a campaign's recordings) against the simulator's stream engine
+  (``GET /api/v1/sim/stream``, deltas over the run);
+- resources: ``/proc/PID/status`` (VmRSS, Threads) and ``/proc/PID/fd`` of the daemon (and of
+  the simulator, for information).
+"""
+
+from __future__ import annotations
+
+import collections
+import contextlib
+import os
+import random
+import shutil
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, cast
+
+import httpx
+
+from camd.cli._daemon_proc import DaemonProcess
+from camd.client import CamdClient, CamdError
+
+__all__ = [
+    "KINDS",
+    "SoakAborted",
+    "SoakSettings",
+    "build_inject",
+    "proc_sample",
+]
+
+# Workload kinds, in warm-up order, and their weights in the random mix after it.
+KINDS = ("ping", "telemetry", "registers", "stream", "stare", "scan", "campaign")
+WEIGHTS = {
+    "ping": 3, "telemetry": 3, "registers": 3, "stream": 2, "stare": 2, "scan": 2, "campaign": 1,
+}  # fmt: skip
+WINDOW_ROWS = 32  # a small window keeps frames cheap for the simulator's renderer
+CAMPAIGN = "example_stare"  # run --quick
+DEFAULT_GAIN = 0x0040  # hr400 reset values (config/sensors/hr400.toml)
+DEFAULT_OFFSET = 100
+SCAN_TIMEOUT_S = 120.0
+# The stream engine's counters of frames made but never delivered whole, by cause.
+INJECTED_KINDS = ("dropped", "corrupted", "shortened", "stalls", "undelivered")
+# The host's counters of frames of a stream never delivered (docs/stream.md: each counter of a
+# stream is exactly one of delivered, lost, corrupt, short, overruns).
+MISSING_KINDS = ("lost", "corrupt", "short", "overruns")
+ERRORS_KEPT = 20
+
+
+class SoakAborted(RuntimeError):
+    """The soak could not go on (the daemon did not start or died); the message says why."""
+
+
+def build_inject(ber: float, drop: float, frame_faults: float, extra: str = "") -> dict[str, float]:
+    """The simulator's ``--inject`` keys: the line's ``ber`` and ``drop``; ``frame_faults``
+    each for frame_drop, frame_corrupt and frame_short, a quarter of it for frame_stall (a
+    stall also loses the frames made until the host clears the halt); then ``extra``
+    (``key=value,...``) added or overriding."""
+    keys: dict[str, float] = {"ber": ber, "drop": drop}
+    if frame_faults > 0:
+        keys.update(
+            frame_drop=frame_faults,
+            frame_corrupt=frame_faults,
+            frame_short=frame_faults,
+            frame_stall=frame_faults / 4,
+        )
+    for part in extra.split(","):
+        part = part.strip()
+        if not part:
+            continue
+        key, sep, value = part.partition("=")
+        if not sep:
+            raise ValueError(f"--inject: {part!r} is not key=value (e.g. garbage=0.001)")
+        try:
+            keys[key.strip()] = float(value)
+        except ValueError:
+            raise ValueError(f"--inject: {key.strip()}={value!r} is not a number") from None
+    return {k: v for k, v in keys.items() if v != 0}
+
+
+def inject_text(keys: dict[str, float]) -> str:
+    """``key=value,...`` as ``--inject`` takes it."""
+    return ",".join(f"{k}={v:g}" for k, v in keys.items())
+
+
+def proc_sample(pid: int | None) -> dict[str, int] | None:
+    """RSS (kB), open file descriptors and threads of process ``pid`` (Linux /proc), or None
+    when it cannot be read (gone, not Linux)."""
+    if pid is None:
+        return None
+    try:
+        status = Path(f"/proc/{pid}/status").read_text(encoding="utf-8")
+        fds = len(os.listdir(f"/proc/{pid}/fd"))
+    except OSError:
+        return None
+    fields: dict[str, str] = {}
+    for line in status.splitlines():
+        key, _, value = line.partition(":")
+        fields[key] = value.strip()
+    try:
+        return {
+            "rss_kb": int(fields["VmRSS"].split()[0]),
+            "fds": fds,
+            "threads": int(fields["Threads"]),
+        }
+    except (KeyError, ValueError, IndexError):
+        return None
+
+
+@dataclass
+class SoakSettings:
+    """What ``camd soak`` was asked for."""
+
+    minutes: float
+    seed: int
+    inject: dict[str, float]
+    work_dir: Path
+    sample_s: float = 60.0
+    timeout_s: float = 60.0
+
+
+@dataclass
+class _KindStats:
+    runs: int = 0
+    failed: int = 0
+    seconds: float = 0.0
+
+
+@dataclass
+class _Frames:
+    acquisitions: int = 0
+    produced_requested: int = 0
+    delivered: int = 0
+    host: collections.Counter[str] = field(default_factory=collections.Counter)
+
+
+class _CountingClient(CamdClient):
+    """``CamdClient`` counting every HTTP request it makes, by how it was answered."""
+
+    def __init__(self, url: str, *, timeout_s: float, client: str) -> None:
+        super().__init__(url, timeout_s=timeout_s, client=client, token="")
+        self.counts: collections.Counter[str] = collections.Counter()
+        self.errors: list[str] = []
+
+    def _request(self, method: str, path: str, **kwargs: Any) -> httpx.Response:
+        self.counts["sent"] += 1
+        try:
+            response = super()._request(method, path, **kwargs)
+        except CamdError as exc:
+            status = exc.http_status
+            key = "no_answer" if status is None else "5xx" if status >= 500 else "4xx"
+            self.counts[key] += 1
+            self.note(f"{method} {path}: HTTP {status or '-'} {exc.code}: {exc.message}")
+            raise
+        self.counts["2xx"] += 1
+        return response
+
+    def note(self, text: str) -> None:
+        """Keep the first ``ERRORS_KEPT`` failure texts."""
+        if len(self.errors) < ERRORS_KEPT:
+            self.errors.append(" ".join(text.split())[:400])
+
+
+class CheckFailed(Exception):
+    """A workload item's own check failed (read-back, CRC, a campaign check)."""
+
+
+class Soak:
+    """One soak run (module docstring). ``progress`` gets a line of text now and then."""
+
+    def __init__(self, settings: SoakSettings, progress: Callable[[str], None]) -> None:
+        self.s = settings
+        self.progress = progress
+        self.rng = random.Random(settings.seed)
+        self.kinds: dict[str, _KindStats] = {k: _KindStats() for k in KINDS}
+        self.frames = _Frames()
+        self.check_failures = 0
+        self.recoveries: collections.Counter[str] = collections.Counter()
+        self.items = 0
+        self.samples: list[dict[str, Any]] = []
+        self.t0 = 0.0
+        self.daemon: DaemonProcess | None = None
+        self.client: _CountingClient | None = None
+        self.sim_pid: int | None = None
+        self.link_before: dict[str, Any] = {}
+        self.link_after: dict[str, Any] = {}
+        self.sim_before: dict[str, int] = {}
+        self.sim_after: dict[str, int] = {}
+        self.line_period_s = 0.0
+        self.interrupted = False
+        self.error: str | None = None
+        self.started_s = 0.0
+        self.warmup_s = 0.0
+
+    # -- the run --------------------------------------------------------------------------------
+
+    def run(self) -> dict[str, Any]:
+        """Run the soak; the result document (``camd.cli.soak`` prints it). SoakAborted if the
+        daemon does not start; a daemon lost later ends the run early with ``error`` set."""
+        from camd.cli._daemon_proc import DaemonStartError
+
+        data = self.s.work_dir / "daemon"
+        config = self.s.work_dir / "camd.toml"
+        config.write_text(
+            f'[sim]\nprofile = "hr400"\nseed = {self.s.seed}\n[sensor]\nname = "hr400"\n',
+            encoding="utf-8",
+        )
+        self.daemon = DaemonProcess(
+            data,
+            inject=inject_text(self.s.inject),
+            extra_args=["--config", str(config)],
+            env={"CAMD_TOKEN": ""},
+        )
+        try:
+            self.daemon.start()
+        except DaemonStartError as exc:
+            raise SoakAborted(f"the daemon did not start: {exc}") from None
+        try:
+            try:
+                self._run_on_daemon()
+            except KeyboardInterrupt:
+                self.interrupted = True
+            except SoakAborted as exc:
+                self.error = str(exc)
+            except CamdError as exc:  # the set-up itself failed
+                self.error = f"{exc.message} (API code {exc.code})"
+            self._collect_end()
+        finally:
+            if self.client is not None:
+                self.client.close()
+            self.daemon.stop()
+        return self.result()
+
+    def _collect_end(self) -> None:
+        """The end sample and the final counters, if the run did not get to take them."""
+        if self.client is None or self.daemon is None or not self.daemon.running:
+            return
+        try:
+            if self.t0 and not any(s["what"] == "end" for s in self.samples):
+                self._sample("end")
+            if not self.link_after:
+                self.link_after = self._link()
+            if not self.sim_after:
+                self.sim_after = self._sim_stats()
+        except CamdError as exc:
+            self.error = self.error or f"the final counters could not be read: {exc.message}"
+
+    def _run_on_daemon(self) -> None:
+        assert self.daemon is not None
+        self.client = client = _CountingClient(
+            self.daemon.url, timeout_s=self.s.timeout_s, client="camd-soak"
+        )
+        status = client.wait_ready(60.0)
+        self.sim_pid = (status.get("link") or {}).get("sim_pid")
+        client.write_registers({"WIN_ROWS": WINDOW_ROWS})
+        self.line_period_s = float(client.timing()["line_period_s"])
+        self.link_before = self._link()
+        self.sim_before = self._sim_stats()
+        self.t0 = time.monotonic()
+        deadline = self.t0 + self.s.minutes * 60.0
+        self.progress(
+            f"soak: daemon pid {self.daemon.pid} at {self.daemon.url}, simulator pid "
+            f"{self.sim_pid}, line faults {inject_text(self.s.inject) or 'none'}; warm-up: one "
+            f"of each kind ({', '.join(KINDS)})"
+        )
+        for kind in KINDS:
+            self._item(kind)
+        self.warmup_s = time.monotonic() - self.t0
+        self._sample("start")
+        next_sample = time.monotonic() + self.s.sample_s
+        names = list(WEIGHTS)
+        weights = [WEIGHTS[k] for k in names]
+        while time.monotonic() < deadline:
+            self._item(self.rng.choices(names, weights)[0])
+            if time.monotonic() >= next_sample:
+                self._sample("periodic")
+                next_sample += self.s.sample_s
+        self._collect_end()
+
+    def _alive(self) -> None:
+        assert self.daemon is not None
+        if not self.daemon.running:
+            raise SoakAborted(
+                f"the daemon exited (status {self.daemon.stop()}) during the soak; its log is "
+                f"{self.daemon.log_path}"
+            )
+
+    def _sim_stats(self) -> dict[str, int]:
+        assert self.client is not None
+        return dict(cast(Mapping[str, int], self.client.sim_stream_stats()))
+
+    def _link(self) -> dict[str, Any]:
+        assert self.client is not None
+        return dict(self.client.link())
+
+    def _item(self, kind: str) -> None:
+        """Run one workload item of ``kind``; count it, never raise for its failure."""
+        assert self.client is not None
+        stats = self.kinds[kind]
+        stats.runs += 1
+        self.items += 1
+        started = time.monotonic()
+        try:
+            getattr(self, f"_do_{kind}")()
+        except Exception as exc:  # CamdError, CheckFailed, or a bug: a failed item
+            stats.failed += 1
+            if not isinstance(exc, CamdError):  # the client noted those already
+                self.check_failures += 1
+                self.client.note(f"{kind}: {type(exc).__name__}: {exc}")
+            self._alive()
+            self._recover(str(exc))
+        finally:
+            stats.seconds += time.monotonic() - started
+
+    def _recover(self, why: str) -> None:
+        """After a failed item: nothing left streaming or scanning, control given back, and
+        the sensor's LVDS link trained again if that is what failed (counted in
+        ``recoveries``), so that one failure does not fail every acquisition after it."""
+        assert self.client is not None
+        undo: list[Callable[[], object]] = [
+            self.client.stop_scan, self.client.stop_stream, self.client.release_control,
+        ]  # fmt: skip
+        if "LINK_UNTRAINED" in why:
+            undo.append(self.client.train)
+            self.recoveries["train"] += 1
+        for action in undo:
+            with contextlib.suppress(CamdError):
+                action()
+
+    # -- the workload kinds ---------------------------------------------------------------------
+
+    def _do_ping(self) -> None:
+        assert self.client is not None
+        count = self.rng.randint(10, 50)
+        # Payloads up to 64 bytes, the size of the daemon's own commands: at BER 1e-4 a
+        # 256-byte frame is hit in 19 % of its crossings each way, and the link's 6 attempts
+        # then fail about once in 250 pings, a figure of the line, not of the daemon.
+        doc = self.client.ping(count=count, size=self.rng.choice((0, 16, 64)))
+        if doc["failed"] or doc["ok"] != count:
+            raise CheckFailed(
+                f"{doc['failed']} of {count} pings failed: {'; '.join(doc['errors'])}"
+            )
+
+    def _do_telemetry(self) -> None:
+        assert self.client is not None
+        c = self.client
+        c.status()
+        latest = c.telemetry()["latest"]
+        if latest:
+            channel = self.rng.choice(sorted(latest))
+            c.history(channel, since_s=-60.0, limit=100)
+        c.events(limit=20)
+        c.link()
+        c.timing()
+        c.stream()
+        c.scan()
+        c.motion()
+        c.sim_stream_stats()
+        c.metrics()
+
+    def _do_registers(self) -> None:
+        assert self.client is not None
+        c = self.client
+        wanted = {
+            "GAIN": (self.rng.randint(0, 3) << 8) | self.rng.randint(32, 255),
+            "OFFSET": self.rng.randint(0, 1023),
+        }
+        for values in (wanted, {"GAIN": DEFAULT_GAIN, "OFFSET": DEFAULT_OFFSET}):
+            c.write_registers(dict(values))
+            for name, value in values.items():
+                got = c.read_register(name)["value"]
+                if got != value:
+                    raise CheckFailed(f"{name} reads back {got} after writing {value}")
+
+    def _do_stream(self) -> None:
+        assert self.client is not None
+        frames = self.rng.randint(100, 400)
+        stages = self.rng.choice((4, 8, 16, WINDOW_ROWS))
+        doc = self.client.acquire(frames, mode="tdi", stages=stages, timeout_s=60.0)
+        self._count_frames(frames, dict(doc["stats"]))
+
+    def _do_stare(self) -> None:
+        from camd.store.recording import read_recording
+
+        assert self.client is not None
+        frames = self.rng.randint(5, 30)
+        path = self._new_file(f"stare-{self.items}.h5")
+        doc = self.client.acquire(frames, mode="area", record=str(path), timeout_s=60.0)
+        stats = dict(doc["stats"])
+        self._count_frames(frames, stats)
+        recording = read_recording(path)
+        bad = recording.crc_mismatches()
+        if bad or len(recording.frames) != stats["frames"]:
+            raise CheckFailed(
+                f"{path}: {len(recording.frames)} frames read back for {stats['frames']} "
+                f"delivered, {len(bad)} differing from the device's CRC (file kept)"
+            )
+        path.unlink()
+
+    def _do_scan(self) -> None:
+        assert self.client is not None
+        c = self.client
+        stages = self.rng.choice((1, 8, 16, WINDOW_ROWS))
+        lines = self.rng.randint(100, 400)
+        quicklook = self.rng.random() < 0.5
+        path = self._new_file(f"scan-{self.items}.h5")
+        c.start_scan(
+            stages, lines, out=str(path), line_period_s=WINDOW_ROWS * self.line_period_s,
+            quicklook=quicklook, drive_stage=False,
+        )  # fmt: skip
+        doc = c.wait_scan(SCAN_TIMEOUT_S)
+        self._count_frames(int(doc["frames_requested"]), dict(doc["stream"]))
+        if doc["state"] != "done":
+            raise CheckFailed(f"scan {path} ended {doc['state']}: {doc['error']} (file kept)")
+        path.unlink(missing_ok=True)
+        path.with_suffix(".png").unlink(missing_ok=True)
+
+    def _do_campaign(self) -> None:
+        from camd.campaign.runner import CampaignRunner
+        from camd.campaign.spec import CampaignError, load_campaign
+        from camd.cli.camctl_campaign import campaigns_dir
+        from camd.store.recording import read_recording
+
+        assert self.client is not None
+        out = self.s.work_dir / f"campaign-{self.items}"
+        spec = load_campaign(campaigns_dir() / f"{CAMPAIGN}.yaml")
+        try:
+            outcome = CampaignRunner(self.client, spec, out, quick=True, sim=True).run()
+            passed, why = outcome.passed, "a check failed"
+        except CampaignError as exc:
+            passed, why = False, str(exc)
+        finally:
+            # Its stares' host counters are in the recordings it made.
+            for path in sorted((out / "raw").glob("*.h5")):
+                stream = read_recording(path).metadata.get("stream", {})
+                self._count_frames(int(stream.get("frames_requested", 0)), stream)
+            # The campaign seeds the simulator per step: vary the faults that follow it.
+            self.client.set_sim_seed(self.rng.randrange(2**31))
+        if not passed:
+            raise CheckFailed(f"campaign {CAMPAIGN} --quick failed: {why} (kept in {out})")
+        shutil.rmtree(out)
+
+    # -- bookkeeping ----------------------------------------------------------------------------
+
+    def _new_file(self, name: str) -> Path:
+        path = self.s.work_dir / "files" / name
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.unlink(missing_ok=True)
+        return path
+
+    def _count_frames(self, requested: int, stats: dict[str, Any]) -> None:
+        f = self.frames
+        f.acquisitions += 1
+        f.produced_requested += requested
+        f.delivered += int(stats.get("frames", 0))
+        for key in (*MISSING_KINDS, "stalls", "out_of_order"):
+            f.host[key] += int(stats.get(key, 0))
+
+    def _sample(self, what: str) -> None:
+        assert self.daemon is not None
+        doc: dict[str, Any] = {
+            "what": what,
+            "t_min": round((time.monotonic() - self.t0) / 60.0, 3),
+            "items": self.items,
+            "daemon": proc_sample(self.daemon.pid),
+            "simulator": proc_sample(self.sim_pid),
+        }
+        self.samples.append(doc)
+        self.progress(self._progress_line(doc))
+
+    def _progress_line(self, sample: dict[str, Any]) -> str:
+        assert self.client is not None
+        d = sample["daemon"] or {}
+        f = self.frames
+        missing = sum(f.host[k] for k in MISSING_KINDS)
+        failed = self._failed_requests() + self.check_failures
+        return (
+            f"[{sample['t_min']:6.1f} min] {sample['what']:8} items {self.items:5d}, "
+            f"requests {self.client.counts['sent']:6d}, failed {failed}, frames "
+            f"{f.delivered} delivered {missing} missing; daemon RSS "
+            f"{d.get('rss_kb', 0) / 1024:.1f} MB, fds {d.get('fds', '?')}, threads "
+            f"{d.get('threads', '?')}"
+        )
+
+    def _failed_requests(self) -> int:
+        assert self.client is not None
+        counts = self.client.counts
+        return counts["4xx"] + counts["5xx"] + counts["no_answer"]
+
+    # -- the result -----------------------------------------------------------------------------
+
+    def result(self) -> dict[str, Any]:
+        """The result document (docs/cli.md, ``camd soak``)."""
+        client, daemon = self.client, self.daemon
+        counts = client.counts if client is not None else collections.Counter[str]()
+        host = _delta(self.link_before.get("host"), self.link_after.get("host"))
+        device_b = self.link_before.get("device") or {}
+        device_a = self.link_after.get("device") or {}
+        device = _delta(
+            {k: v for k, v in device_b.items() if isinstance(v, int)},
+            {k: v for k, v in device_a.items() if isinstance(v, int)},
+        )
+        # Since the simulator started: the set-up and the warm-up count too.
+        twice = (device_a.get("injected") or {}).get("executed_twice")
+        executed_twice = int(twice) if twice is not None else None
+        injected = _delta(self.sim_before, self.sim_after)
+        f = self.frames
+        missing = sum(f.host[k] for k in MISSING_KINDS)
+        injected_total = sum(injected.get(k, 0) for k in INJECTED_KINDS) if injected else None
+        unanswered = host.get("failed", 0) if host else 0
+        failed_requests = counts["4xx"] + counts["5xx"] + counts["no_answer"]
+        failed_total = failed_requests + self.check_failures + unanswered
+        resources = self._resources()
+        start, end = resources["start"], resources["end"]
+        growth = resources["growth_pct"]
+        frames_equal = injected_total is not None and missing == injected_total
+        verdict = {
+            "failed_commands_0": failed_total == 0 and bool(host),
+            "executed_twice_0": executed_twice == 0,
+            "lost_equals_injected": frames_equal,
+            "rss_growth_below_5pct": growth.get("rss_kb") is not None and growth["rss_kb"] < 5.0,
+            "fds_flat": bool(start and end and end["fds"] <= start["fds"]),
+            "threads_flat": bool(start and end and end["threads"] <= start["threads"]),
+        }
+        return {
+            "minutes": self.s.minutes,
+            "seconds": round(time.monotonic() - self.t0, 1) if self.t0 else 0.0,
+            "warmup_s": round(self.warmup_s, 1),
+            "seed": self.s.seed,
+            "inject": inject_text(self.s.inject),
+            "interrupted": self.interrupted,
+            "error": self.error,
+            "daemon": {
+                "url": daemon.url if daemon is not None and daemon.exit_code is None else None,
+                "pid": daemon.pid if daemon is not None else None,
+                "sim_pid": self.sim_pid,
+                "log": str(daemon.log_path) if daemon is not None else None,
+                "exit_code": daemon.exit_code if daemon is not None else None,
+            },
+            "workload": {
+                "items": self.items,
+                "kinds": {
+                    k: {"runs": v.runs, "failed": v.failed, "seconds": round(v.seconds, 2)}
+                    for k, v in self.kinds.items()
+                },
+            },
+            "commands": {
+                "sent": counts["sent"],
+                "answered": {k: counts[k] for k in ("2xx", "4xx", "5xx", "no_answer")},
+                "failed": failed_total,
+                "failed_requests": failed_requests,
+                "failed_checks": self.check_failures,
+                "device_unanswered": unanswered,
+                "executed_twice": executed_twice,
+                "recoveries": dict(self.recoveries),
+                "device_commands": (host.get("acked", 0) + host.get("nacked", 0) + unanswered)
+                if host
+                else None,
+                "link_host": host,
+                "link_device": device,
+                "errors": list(client.errors) if client is not None else [],
+            },
+            "frames": {
+                "acquisitions": f.acquisitions,
+                "requested": f.produced_requested,
+                "delivered": f.delivered,
+                "host": {k: f.host[k] for k in (*MISSING_KINDS, "stalls", "out_of_order")},
+                "lost": missing,
+                "injected": injected_total,
+                "device": injected,
+                "equal": frames_equal,
+            },
+            "resources": resources,
+            "verdict": verdict,
+        }
+
+    def _resources(self) -> dict[str, Any]:
+        start = next((s["daemon"] for s in self.samples if s["what"] == "start"), None)
+        end = next((s["daemon"] for s in self.samples if s["what"] == "end"), None)
+        growth: dict[str, float | None] = {}
+        for key in ("rss_kb", "fds", "threads"):
+            if start and end and start[key]:
+                growth[key] = round(100.0 * (end[key] - start[key]) / start[key], 2)
+            else:
+                growth[key] = None
+        return {"start": start, "end": end, "growth_pct": growth, "series": self.samples}
+
+
+def _delta(before: dict[str, Any] | None, after: dict[str, Any] | None) -> dict[str, int]:
+    """after - before of the integer counters both have ({} if either is missing)."""
+    if not before or not after:
+        return {}
+    return {
+        k: int(after[k]) - int(before[k])
+        for k in after
+        if k in before and isinstance(after[k], int) and isinstance(before[k], int)
+    }

@@ -1,0 +1,211 @@
+"""The daemon's recordings survive it: ``kill -9`` in the middle of a scan and of a stare, then
+a new daemon on the same data directory; and a disk that fills up under a running recording.
+
+Each test runs a real ``camd serve --sim`` (the simulated camera through the same code paths)
+and opens the files afterwards with plain h5py and camd's readers.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+import pytest
+
+from camd.cli._daemon_proc import DaemonProcess
+from camd.client import CamdClient
+from camd.store.durability import reserve_path
+from camd.store.recording import read_recording
+from camd.store.tdi_recording import read_tdi_scan
+from tests.crash_support import fill_disk, small_disk
+
+REPO_ROOT = str(Path(__file__).resolve().parent.parent)
+NO_TOKEN = {"CAMD_TOKEN": ""}
+WAIT_S = 120.0  # generous: the suite runs on a busy 2-core machine
+
+pytestmark = pytest.mark.slow
+
+
+def _wait_for(what: str, check: Callable[[], Any], timeout_s: float = WAIT_S) -> Any:
+    deadline = time.monotonic() + timeout_s
+    while True:
+        value = check()
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            raise AssertionError(f"waited {timeout_s:g} s for {what}")
+        time.sleep(0.1)
+
+
+@contextmanager
+def _daemon(data: Path) -> Iterator[tuple[DaemonProcess, CamdClient]]:
+    daemon = DaemonProcess(data, env=NO_TOKEN, start_timeout_s=WAIT_S).start()
+    client = CamdClient(daemon.url, timeout_s=60)
+    try:
+        client.wait_ready(WAIT_S)
+        yield daemon, client
+    finally:
+        client.close()
+        daemon.stop()
+
+
+def _kill9(daemon: DaemonProcess) -> None:
+    os.kill(daemon.pid, signal.SIGKILL)
+    _wait_for("the daemon to die", lambda: not daemon.running)
+
+
+def _event(client: CamdClient, text: str) -> dict[str, Any]:
+    """The first event whose message contains ``text`` (waiting for it)."""
+
+    def find() -> dict[str, Any] | None:
+        for event in client.events(limit=500)["events"]:
+            if text in event["message"]:
+                return dict(event)
+        return None
+
+    found: dict[str, Any] = _wait_for(f"an event with {text!r}", find)
+    return found
+
+
+def test_a_daemon_killed_mid_scan_leaves_a_file_that_the_next_one_repairs(
+    tmp_path: Path,
+) -> None:
+    data, out = tmp_path / "data", tmp_path / "scan.h5"
+    with _daemon(data) as (daemon, client):
+        client.start_scan(8, 0, out=str(out), quicklook=False)  # until stopped
+        flushed = _wait_for(
+            "500 lines on disk", lambda: (n := client.scan()["lines_flushed"]) >= 500 and n
+        )
+        _kill9(daemon)
+    # What the dead daemon left: readable by SWMR readers, marked unfinished.
+    scan = read_tdi_scan(out)
+    n = len(scan.lines)
+    assert n >= flushed
+    assert scan.attrs["finished"] is False
+    assert np.all(np.diff(scan.line_index) > 0) and scan.stages_used.max() == 8
+    assert int(scan.lines[scan.complete].min()) > 0  # every complete line holds the scene
+    with pytest.raises(OSError, match="already open for write"):
+        h5py.File(out, "r")
+
+    with _daemon(data) as (_, client):
+        found = _event(client, f"found at start: scan {out} was left open")
+        assert found["level"] == "warning"
+        assert f": {n} lines kept, marked incomplete (finished = False)" in found["message"]
+        assert "stage stopped at" in _event(client, "a scan was cut off")["message"]
+        assert client.status()["state"] == "idle"
+        assert client.motion()["reading"]["state"] in ("idle", "disabled")
+        assert client.scan()["state"] == "none"  # the new daemon runs nothing
+    with h5py.File(out, "r") as f:  # repaired: any HDF5 reader opens it now
+        assert f["lines"].shape[0] == n == f.attrs["lines"]
+        assert f.attrs["finished"] is np.False_ and "killed" in f.attrs["interrupted"]
+    assert np.array_equal(read_tdi_scan(out).lines, scan.lines)
+    assert not reserve_path(out).exists()
+    assert list((data / "open-recordings").glob("*.json")) == []
+
+
+def _camctl(url: str, *args: str) -> subprocess.Popen[str]:
+    env = {k: v for k, v in os.environ.items() if k not in ("CAMD_URL", "CAMD_TOKEN")}
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (REPO_ROOT, env.get("PYTHONPATH")) if p)
+    return subprocess.Popen(
+        [sys.executable, "-m", "camd.cli.camctl", "--url", url, *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
+
+
+def test_a_daemon_killed_mid_stare_leaves_a_file_that_the_next_one_repairs(
+    tmp_path: Path,
+) -> None:
+    data, out = tmp_path / "data", tmp_path / "stare.h5"
+    with _daemon(data) as (daemon, client):
+        stare = _camctl(daemon.url, "stare", "--frames", "400", "--out", str(out))
+        try:
+            flushed = _wait_for(
+                "20 frames on disk",
+                lambda: (n := client.stream()["frames_flushed"]) >= 20 and n,
+            )
+            _kill9(daemon)
+            _, err = stare.communicate(timeout=WAIT_S)
+        finally:
+            if stare.poll() is None:
+                stare.kill()
+                stare.wait()
+        assert stare.returncode != 0 and err.strip()  # camctl says the daemon went away
+    rec = read_recording(out)
+    n = len(rec.frames)
+    assert n >= flushed and rec.attrs["finished"] is False
+    assert rec.crc_mismatches() == []  # every kept frame is the camera's, bit for bit
+    assert np.all(np.diff(rec.columns["frame_counter"].astype(np.int64)) >= 1)
+
+    with _daemon(data) as (_, client):
+        found = _event(client, f"found at start: recording {out} was left open")
+        assert f": {n} of 400 frames kept, marked incomplete" in found["message"]
+        assert client.status()["state"] == "idle"
+        assert client.stream()["streaming"] is False
+        # The camera works: a new stare records.
+        again = client.acquire(5, mode="area", record=str(tmp_path / "after.h5"))
+        assert again["stats"]["frames"] == 5
+    with h5py.File(out, "r") as f:
+        assert f["frames"].shape[0] == n == f.attrs["frames"]
+    assert read_recording(tmp_path / "after.h5").attrs["finished"] is True
+
+
+def test_a_full_disk_stops_a_stare_and_the_daemon_keeps_serving(tmp_path: Path) -> None:
+    data = tmp_path / "data"
+    # 2.2 MB frames, flushed once a second: room for a few seconds of them.
+    with small_disk(tmp_path / "small", 400) as disk, _daemon(data) as (_, client):
+        out = disk / "stare.h5"
+        client.start_stream(0, mode="area", record=str(out))
+        _wait_for("5 frames on disk", lambda: client.stream()["frames_flushed"] >= 5)
+        fill_disk(disk)
+        _wait_for("the stream to stop", lambda: not client.stream()["streaming"])
+        event = _event(client, f"recording {out} stopped")
+        assert event["level"] == "error"
+        assert f"the disk holding {disk} is full (No space left on device)" in event["message"]
+        assert "stopping the stream" in event["message"]
+        kept = client.stream()["frames_flushed"]
+        # The daemon goes on: it answers, its camera streams (to another disk), it archives.
+        assert client.ping(3)["ok"] == 3
+        _wait_for("idle", lambda: client.status()["state"] == "idle")
+        other = client.acquire(4, mode="area", record=str(tmp_path / "other.h5"))
+        assert other["stats"]["frames"] == 4
+        assert len(client.history("fpga_temp_degc")["value"]) > 0
+        rec = read_recording(out)
+        assert len(rec.frames) == kept >= 5
+        assert rec.attrs["finished"] is False and "is full" in rec.attrs["error"]
+        assert rec.crc_mismatches() == []
+        with h5py.File(out, "r") as f:  # closed properly: any reader opens it
+            assert f.attrs["frames"] == kept
+        assert not reserve_path(out).exists()
+        assert list((data / "open-recordings").glob("*.json")) == []
+
+
+def test_a_full_disk_stops_a_scan_and_the_daemon_keeps_serving(tmp_path: Path) -> None:
+    data = tmp_path / "data"
+    with small_disk(tmp_path / "small", 48) as disk, _daemon(data) as (_, client):
+        out = disk / "scan.h5"
+        client.start_scan(8, 0, out=str(out), quicklook=False, drive_stage=False)
+        _wait_for("200 lines on disk", lambda: client.scan()["lines_flushed"] >= 200)
+        fill_disk(disk)
+        _wait_for("the scan to end", lambda: client.scan()["state"] not in ("running",))
+        status = client.scan()
+        assert status["state"] == "failed"
+        assert f"the disk holding {disk} is full" in (status["error"] or "")
+        _wait_for("idle", lambda: client.status()["state"] == "idle")
+        assert client.ping(3)["ok"] == 3
+        scan = read_tdi_scan(out)
+        assert len(scan.lines) == scan.attrs["lines"] == status["lines_flushed"] >= 200
+        assert scan.attrs["state"] == "failed" and "No space left" in scan.attrs["error"]
+        assert np.all(np.diff(scan.line_index) > 0)
+        assert not reserve_path(out).exists()

@@ -1,0 +1,270 @@
+"""Recordings survive their writer: a kill -9 keeps every flushed frame or line, a full disk
+ends the recording with a readable file, and a file left open is repaired (camd.store).
+
+The daemon-level versions (a daemon killed mid-scan and mid-stare, then started again; a disk
+filling up under a running daemon) are in tests/test_crash_daemon.py.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from camd.protocol.stream import FrameFlags, FrameHeader, StreamMode, crc32
+from camd.store.durability import INTERRUPTED, recover_file, reserve_path
+from camd.store.journal import RecordingJournal, recover_left_open
+from camd.store.recording import FrameRecorder, RecordingError, read_recording
+from camd.store.tdi_recording import TdiRecorder, read_tdi_scan
+from tests.crash_support import fill_disk, small_disk
+
+ROOT = Path(__file__).resolve().parent.parent
+WIDTH = 512
+ROWS, COLS = 16, 64
+
+# A writer that appends until killed and prints, after each append, how many lines (frames)
+# are on disk: the parent kills it and then requires at least that many in the file.
+WRITER = """
+import sys, time
+import numpy as np
+from camd.store.tdi_recording import TdiRecorder
+from camd.store.recording import FrameRecorder
+from camd.protocol.stream import FrameFlags, FrameHeader, StreamMode, crc32
+kind, path = sys.argv[1], sys.argv[2]
+WIDTH, ROWS, COLS = (int(a) for a in sys.argv[3:6])
+if kind == "scan":
+    rec = TdiRecorder(path, width=WIDTH, mode="sum", metadata={"scan": {"lines": 0}},
+                      chunk_lines=100000, flush_period_s=0.02)
+    i = 0
+    while True:
+        n = 7
+        index = np.arange(i, i + n)
+        data = (index[:, None] * 3 + np.arange(WIDTH)[None, :]).astype(np.uint32)
+        rec.append(data, index=index, stages_used=np.full(n, 4), complete=np.ones(n, bool))
+        i += n
+        print(rec.flushed_lines, flush=True)
+        time.sleep(0.001)
+else:
+    rec = FrameRecorder(path, frames_expected=100000, flush_period_s=0.02)
+    i = 0
+    while True:
+        pixels = ((np.arange(ROWS * COLS) + i) % 4096).astype(np.uint16).reshape(ROWS, COLS)
+        header = FrameHeader(counter=i, timestamp_ns=i * 1000, line_period_ns=1000,
+            rows=ROWS, cols=COLS, bits=12, mode=StreamMode.AREA, stages=0,
+            stage_position=0, flags=FrameFlags(0), payload_bytes=pixels.nbytes,
+            payload_crc32=crc32(pixels.astype("<u2").tobytes()))
+        rec.add(header, pixels, received_ns=time.monotonic_ns())
+        i += 1
+        print(rec.flushed, flush=True)
+        time.sleep(0.001)
+"""
+
+
+def _env() -> dict[str, str]:
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT), env.get("PYTHONPATH")]))
+    return env
+
+
+def _kill_writer_after(kind: str, path: Path, flushed_at_least: int) -> int:
+    """Run the writer until it has flushed ``flushed_at_least``, kill -9 it; the last flushed
+    count it printed."""
+    proc = subprocess.Popen(
+        [sys.executable, "-c", WRITER, kind, str(path), *(str(v) for v in (WIDTH, ROWS, COLS))],
+        stdout=subprocess.PIPE,
+        text=True,
+        env=_env(),
+    )
+    assert proc.stdout is not None
+    last = 0
+    try:
+        for line in proc.stdout:
+            last = int(line)
+            if last >= flushed_at_least:
+                break
+        proc.send_signal(signal.SIGKILL)
+        # Lines printed before the kill landed count too: read what is left.
+        rest = proc.stdout.read()
+        for line in rest.split():
+            last = max(last, int(line))
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        proc.wait(timeout=60)
+    assert proc.returncode == -signal.SIGKILL
+    return last
+
+
+def test_a_scan_whose_writer_is_killed_keeps_every_flushed_line(tmp_path: Path) -> None:
+    path = tmp_path / "scan.h5"
+    flushed = _kill_writer_after("scan", path, 300)
+    # Before repair: HDF5 refuses a plain open (the writer's flags), the SWMR reader works.
+    with pytest.raises(OSError, match="already open for write"):
+        h5py.File(path, "r")
+    scan = read_tdi_scan(path)
+    n = len(scan.lines)
+    assert n >= flushed >= 300
+    assert scan.attrs["finished"] is False
+    assert np.array_equal(scan.line_index, np.arange(n))
+    expected = (np.arange(n)[:, None] * 3 + np.arange(WIDTH)[None, :]).astype(np.uint32)
+    assert np.array_equal(scan.lines, expected)
+    assert reserve_path(path).exists()  # the dead writer's space reserve
+
+    # The daemon's start-up repair, through the journal.
+    journal = RecordingJournal(tmp_path / "open-recordings")
+    journal.opened(path, "scan")
+    found = recover_left_open(journal)
+    assert len(found) == 1 and found[0].recovered is not None
+    recovered = found[0].recovered
+    assert (recovered.kind, recovered.count) == ("scan", n)
+    assert f"{n} lines kept, marked incomplete" in found[0].describe()
+    assert journal.entries() == [] and not reserve_path(path).exists()
+    with h5py.File(path, "r") as f:  # now any HDF5 reader opens it
+        assert f["lines"].shape == (n, WIDTH) and len(f["line_index"]) == n
+        assert f["lines_flushed"][0] == n
+        assert f.attrs["finished"] is np.False_ and f.attrs["lines"] == n
+        assert f.attrs["interrupted"] == INTERRUPTED and "recovered_utc" in f.attrs
+    assert np.array_equal(read_tdi_scan(path).lines, expected)
+
+
+def test_a_recording_whose_writer_is_killed_keeps_every_flushed_frame(tmp_path: Path) -> None:
+    path = tmp_path / "stare.h5"
+    flushed = _kill_writer_after("recording", path, 40)
+    rec = read_recording(path)
+    n = len(rec.frames)
+    assert n >= flushed >= 40
+    assert rec.attrs["finished"] is False and rec.attrs["frames_expected"] == 100000
+    assert np.array_equal(rec.columns["frame_counter"], np.arange(n))
+    assert rec.crc_mismatches() == []  # every kept frame's pixels are the device's
+    recovered = recover_file(path)
+    assert recovered is not None and (recovered.kind, recovered.count) == ("recording", n)
+    assert recovered.expected == 100000
+    with h5py.File(path, "r") as f:
+        assert f["frames"].shape == (n, ROWS, COLS) and f.attrs["frames"] == n
+        assert f.attrs["interrupted"] == INTERRUPTED
+    again = read_recording(path)
+    assert np.array_equal(again.frames, rec.frames)
+    assert recover_file(path) is not None  # idempotent: still unfinished, nothing lost
+    assert len(read_recording(path).frames) == n
+
+
+def test_a_closed_file_needs_no_repair_and_a_missing_one_is_reported(tmp_path: Path) -> None:
+    done = tmp_path / "done.h5"
+    with TdiRecorder(done, width=WIDTH, mode="sum", metadata={}) as rec:
+        rec.append(
+            np.ones((3, WIDTH), np.uint32),
+            index=np.arange(3),
+            stages_used=np.full(3, 2),
+            complete=np.ones(3, bool),
+        )
+    assert not reserve_path(done).exists()
+    assert recover_file(done) is None
+    journal = RecordingJournal(tmp_path / "journal")
+    journal.opened(done, "scan")
+    journal.opened(tmp_path / "never.h5", "recording")
+    found = {f.path.name: f for f in recover_left_open(journal)}
+    assert found["done.h5"].recovered is None and found["done.h5"].problem is None
+    assert "closed after all" in found["done.h5"].describe()
+    assert found["never.h5"].problem == "the file is gone (removed, or never written)"
+    assert journal.entries() == []
+    assert read_tdi_scan(done).attrs["finished"] is True
+
+
+def _header(i: int, pixels: np.ndarray) -> FrameHeader:
+    return FrameHeader(
+        counter=i,
+        timestamp_ns=i,
+        line_period_ns=1000,
+        rows=pixels.shape[0],
+        cols=pixels.shape[1],
+        bits=16,
+        mode=StreamMode.AREA,
+        stages=0,
+        stage_position=0,
+        flags=FrameFlags(0),
+        payload_bytes=pixels.nbytes,
+        payload_crc32=crc32(pixels.astype("<u2").tobytes()),
+    )
+
+
+def test_a_full_disk_ends_a_recording_with_a_readable_file(tmp_path: Path) -> None:
+    with small_disk(tmp_path / "small", 24) as disk:
+        path = disk / "frames.h5"
+        rec = FrameRecorder(path, flush_period_s=0.0)
+        rng = np.random.default_rng(1)
+        frames = []
+        with pytest.raises(RecordingError) as failure:
+            for i in range(10_000):  # 256 KiB frames: the disk is full long before
+                pixels = rng.integers(0, 65535, (256, 512), dtype=np.uint16)
+                frames.append(pixels)
+                rec.add(_header(i, pixels), pixels, received_ns=i)
+        message = str(failure.value)
+        assert f"the disk holding {disk} is full (No space left on device)" in message
+        assert f"keeps the {rec.flushed} frames flushed before" in message
+        with pytest.raises(RecordingError, match="is full"):  # and it stays refused
+            rec.add(_header(0, frames[0]), frames[0], received_ns=0)
+        rec.close({"frames": 1})
+        assert not reserve_path(path).exists()
+        with h5py.File(path, "r") as f:  # a plain reader: closed properly
+            assert f.attrs["finished"] is np.False_ and "is full" in f.attrs["error"]
+        kept = read_recording(path)
+        assert len(kept.frames) == rec.flushed > 10
+        assert kept.crc_mismatches() == []
+        assert np.array_equal(kept.frames, np.stack(frames[: rec.flushed]))
+
+
+def test_a_full_disk_ends_a_scan_with_a_readable_file(tmp_path: Path) -> None:
+    with small_disk(tmp_path / "small", 24) as disk:
+        path = disk / "scan.h5"
+        rec = TdiRecorder(path, width=2048, mode="sum", metadata={}, chunk_lines=64)
+        lines = 0
+        with pytest.raises(RecordingError, match="is full"):
+            while True:
+                index = np.arange(lines, lines + 50)
+                data = (index[:, None] + np.arange(2048)[None, :]).astype(np.uint32)
+                rec.append(
+                    data, index=index, stages_used=np.full(50, 8), complete=np.ones(50, bool)
+                )
+                lines += 50
+        assert rec.flushed_lines > 100
+        rec.close({"state": "failed"})
+        scan = read_tdi_scan(path)
+        n = rec.flushed_lines
+        assert scan.attrs["lines"] == n == len(scan.lines) and scan.attrs["state"] == "failed"
+        assert "No space left on device" in scan.attrs["error"]
+        assert np.array_equal(
+            scan.lines, (np.arange(n)[:, None] + np.arange(2048)).astype(np.uint32)
+        )
+        with h5py.File(path, "r") as f:
+            assert f["lines_flushed"][0] == n
+
+
+def test_the_filler_helper_fills_the_disk(tmp_path: Path) -> None:
+    with small_disk(tmp_path / "small", 4) as disk:
+        written = fill_disk(disk)
+        assert 3 << 20 <= written <= 4 << 20
+        assert os.statvfs(disk).f_bavail == 0
+
+
+def test_the_journal_survives_a_restart_and_names_each_file_once(tmp_path: Path) -> None:
+    folder = tmp_path / "open-recordings"
+    first = RecordingJournal(folder)
+    first.opened(tmp_path / "a.h5", "scan")
+    first.opened(tmp_path / "a.h5", "scan")  # the same file twice: one entry
+    first.opened(tmp_path / "b.h5", "recording")
+    first.closed(tmp_path / "b.h5")
+    entries = RecordingJournal(folder).entries()
+    assert [record["path"] for _, record in entries] == [str(tmp_path / "a.h5")]
+    record = entries[0][1]
+    assert record["kind"] == "scan" and int(record["pid"]) == os.getpid()
+    assert json.loads(entries[0][0].read_text())["opened_utc"].endswith("+00:00")
+    # an unreadable entry is dropped with a warning, not fatal
+    (folder / "junk.json").write_text("{not json")
+    assert len(RecordingJournal(folder).entries()) == 1
