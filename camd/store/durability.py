@@ -190,7 +190,7 @@ class Recovered:
 
     @property
     def unit(self) -> str:
-        """ "frames" or "lines"."""
+        """What the count counts: "frames" (a recording) or "lines" (a scan)."""
         return "frames" if self.kind == "recording" else "lines"
 
     def describe(self) -> str:
@@ -202,8 +202,8 @@ class Recovered:
         )
 
 
-def _count_and_datasets(f: h5py.File) -> tuple[str, str, int, int, list[str]]:
-    """(kind, counter, flushed count, planned count, per-element datasets) of an open file."""
+def _count_and_datasets(f: h5py.File) -> tuple[str, int, int, list[str]]:
+    """(kind, flushed count, planned count, per-element datasets) of an open file."""
     fmt = f.attrs.get("format")
     if isinstance(fmt, bytes):
         fmt = fmt.decode(errors="replace")
@@ -231,7 +231,7 @@ def _count_and_datasets(f: h5py.File) -> tuple[str, str, int, int, list[str]]:
         count = min(count, int(np.asarray(f[counter])[0]))
     if first not in f:
         count = 0
-    return kind, counter, count, expected, per_element
+    return kind, count, expected, per_element
 
 
 def recover_file(path: Path, reason: str = INTERRUPTED) -> Recovered | None:
@@ -242,7 +242,7 @@ def recover_file(path: Path, reason: str = INTERRUPTED) -> Recovered | None:
     with open_for_repair(path) as f:
         if bool(f.attrs.get("finished", False)):
             return None
-        kind, _counter, count, expected, datasets = _count_and_datasets(f)
+        kind, count, expected, datasets = _count_and_datasets(f)
         longest = max((len(f[name]) for name in datasets), default=0)
         for name in datasets:
             f[name].resize(count, axis=0)
