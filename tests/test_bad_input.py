@@ -34,13 +34,13 @@ INF = float("inf")
 class Row:
     method: str
     path: str
-    body: dict[str, Any]
+    body: dict[str, Any] | list[Any] | str  # a str is sent as it is (not JSON-encoded)
     fragments: tuple[str, ...]  # all in the message: the parameter, the valid values
     code: str = "bad_request"
     status: int = 400
 
 
-def row(method: str, path: str, body: dict[str, Any], *fragments: str) -> Row:
+def row(method: str, path: str, body: dict[str, Any] | list[Any] | str, *fragments: str) -> Row:
     return Row(method, path, body, fragments)
 
 
@@ -72,6 +72,61 @@ ROWS = [
           "null or an integer >= 0"), "activity-negative-done"),
     p(row("PUT", "/control/activity", {"text": "a", "done": True}, "done: True is a boolean",
           "null or an integer >= 0"), "activity-boolean-done"),
+    # -- the request itself -----------------------------------------------------------------------
+    p(row("POST", "/stream/start", "frames=2", "the request body is not valid JSON",
+          'send e.g. {"count": 10}'), "body-not-json"),
+    p(row("POST", "/stream/start", [1, 2], "the request body must be a JSON object",
+          "not [1, 2]"), "body-a-list"),
+    p(row("POST", "/stream/start", {"frames": 2, "nosuch": 1}, "nosuch: unknown parameter",
+          "remove it (check the spelling)"), "stream-unknown-parameter"),
+    p(row("POST", "/mode", {"mode": "tdi", "extra": 1}, "extra: unknown parameter",
+          "remove it"), "mode-unknown-parameter"),
+    p(row("POST", "/control", {"ttl_s": -5}, "ttl_s: -5 is out of range",
+          "a number more than 0 and at most 86400"), "control-ttl-negative"),
+    p(row("PUT", "/control/activity", {"text": "x" * 201}, "a string of 1 to 200 characters"),
+      "activity-text-too-long"),
+    p(row("PUT", "/control/activity", {"text": "a\x07b"}, "text must be printable",
+          "no newlines or tabs"), "activity-control-character"),
+    p(row("PUT", "/control/activity", {"text": "a", "done": 3, "total": 2},
+          "done = 3 is more than total = 2", "an integer >= 0 (at least done)"),
+      "activity-done-beyond-total"),
+    p(row("POST", "/ping", {"count": 1, "size": 1.5}, "size: 1.5 is a number with a fraction",
+          "an integer in 0..256 (bytes)"), "ping-size-fraction"),
+    p(row("POST", "/live/background", {"frames": True}, "frames: True is a boolean",
+          "an integer in 1..1000"), "background-boolean-frames"),
+    # -- register values, checked against the sensor's register map ------------------------------
+    p(row("POST", "/registers", {"values": {"NOSUCH": 1}}, "hr400 has no register named 'NOSUCH'",
+          "`camctl reg dump` lists them"), "registers-unknown-name"),
+    p(row("POST", "/registers", {"values": {"GAIN": 70000}},
+          "GAIN: 0x11170 (70000) does not fit 16 bits", "valid: 0 .. 0xFFFF"),
+      "registers-value-too-big"),
+    p(row("POST", "/registers", {"values": {"GAIN": -1}}, "GAIN: -1 does not fit 16 bits",
+          "valid: 0 .. 0xFFFF"), "registers-value-negative"),
+    p(row("POST", "/registers", {"values": {"GAIN": "NOTANENUM"}},
+          "GAIN: 'NOTANENUM' is not a number", "give an integer (e.g. 0x0040)"),
+      "registers-value-not-a-number"),
+    p(row("POST", "/registers", {"values": {"CHIP_ID": 1}}, "CHIP_ID (0x00) is read-only",
+          "it cannot be written"), "registers-read-only"),
+    p(row("POST", "/registers", {"values": {"WIN_ROWS": 0}}, "WIN_ROWS.rows: 0 is out of range",
+          "valid: 1 .. 2048"), "registers-field-out-of-range"),
+    p(row("PUT", "/registers/config", {"sensor": "nosuch", "registers": {}},
+          "a configuration for sensor 'nosuch', but this camera's sensor is 'hr400'",
+          "`camctl reg save FILE`"), "registers-config-other-sensor"),
+    p(row("PUT", "/registers/config", {"sensor": "hr400", "registers": {"NOSUCH": 1}},
+          "registers.NOSUCH: hr400 has no register named 'NOSUCH'", "remove it"),
+      "registers-config-unknown-register"),
+    # -- output files -----------------------------------------------------------------------------
+    p(row("POST", "/scan/start", scan(out="/nonexistent/dir/s.h5"),
+          "the directory /nonexistent/dir does not exist", "mkdir -p /nonexistent/dir"),
+      "scan-out-directory-missing"),
+    p(row("POST", "/scan/start", scan(out="relative.h5"), "out path 'relative.h5' is relative",
+          "give an absolute path"), "scan-out-relative"),
+    p(row("POST", "/scan/start", scan(out="{tmp}"), "already exists",
+          "choose another file or remove it"), "scan-out-exists"),
+    p(row("POST", "/scan/start", scan(speed_m_s=0.01), "give either speed_m_s or line_period_s",
+          "not both"), "scan-speed-and-line-period"),
+    p(row("POST", "/scan/start", scan(quicklook="yes"), "quicklook: 'yes' is a string",
+          "use true or false"), "scan-quicklook-string"),
     # -- ping -------------------------------------------------------------------------------------
     p(row("POST", "/ping", {"count": 0}, "count: 0 is out of range", "an integer in 1..100000"),
       "ping-count-zero"),
@@ -205,7 +260,21 @@ ROWS = [
           "use true or false"), "stage-move-wait-integer"),
     p(row("POST", "/motion/home", {"wait": "true"}, "wait: 'true' is a string",
           "use true or false"), "stage-home-wait-string"),
+    p(row("POST", "/motion/move", {"position_m": "0.2"}, "position_m: '0.2' is a string",
+          "a number in -100..100"), "stage-move-string"),
+    p(row("POST", "/motion/move", {"position_m": 5}, "outside the soft limits [0.0, 1.2] m",
+          "widen stage.low_limit_m / high_limit_m"), "stage-move-beyond-soft-limit"),
     # -- the filter wheel -------------------------------------------------------------------------
+    p(row("PUT", "/wheel/speed", {"speed_deg_s": -1}, "speed_deg_s: -1 is out of range",
+          "a number in 0..360 (a wheel speed in deg/s, 0 stops the wheel)"),
+      "wheel-speed-negative"),
+    p(row("PUT", "/wheel/speed", {}, "speed_deg_s: is required", "a number in 0..360"),
+      "wheel-speed-missing"),
+    p(row("POST", "/wheel/acquire", {"channels": [13]}, "channel 13 does not exist",
+          "choose channels from 0 to 12"), "wheel-acquire-channel-beyond"),
+    p(row("POST", "/wheel/acquire", {"channels": [1], "exposure_s": NAN},
+          "exposure_s: nan is not a finite number", "more than 0 and at most 30"),
+      "wheel-acquire-exposure-nan"),
     p(row("PUT", "/wheel/speed", {"speed_deg_s": 361}, "speed_deg_s: 361 is out of range",
           "a number in 0..360"), "wheel-speed-too-fast"),
     p(row("PUT", "/wheel/speed", {"speed_deg_s": NAN}, "speed_deg_s: nan is not a finite",
@@ -238,6 +307,16 @@ ROWS = [
           "null or a number in 0..360"), "sim-polarizer-beyond-a-turn"),
     p(row("PUT", "/sim/polarizer", {"angle_deg": NAN}, "angle_deg: nan is not a finite number",
           "null or a number in 0..360"), "sim-polarizer-nan"),
+    p(row("PUT", "/sim/polarizer", {"angle_deg": "90"}, "angle_deg: '90' is a string",
+          "null or a number in 0..360"), "sim-polarizer-string"),
+    p(row("PUT", "/sim/stage/faults", {"error": NAN}, "error: nan is not a finite number",
+          "a number in -0.1..0.1"), "sim-stage-error-nan"),
+    p(row("POST", "/sim/fail-next", {"command": "NOSUCH", "error": "BUSY"},
+          "command: 'NOSUCH' is not a command of config/protocol.toml", "use one of PING"),
+      "fail-next-unknown-command"),
+    p(row("POST", "/sim/fail-next", {"command": "PING", "error": "NOSUCH"},
+          "error: 'NOSUCH' is not an error of config/protocol.toml", "BUSY"),
+      "fail-next-unknown-error"),
     p(row("PUT", "/sim/stage/faults", {"error": 0.2}, "error: 0.2 is out of range",
           "a number in -0.1..0.1"), "sim-stage-error"),
     p(row("PUT", "/sim/stage/faults", {"ripple": 0.3}, "a number in 0..0.2"),
@@ -296,7 +375,7 @@ def daemon(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[str, Camd
 
 
 def test_the_table_covers_every_field_family() -> None:
-    assert len(ROWS) >= 60
+    assert len(ROWS) >= 120
 
 
 @pytest.mark.parametrize("row", ROWS)
@@ -306,7 +385,8 @@ def test_bad_input_is_refused_with_the_valid_values(
     url, client = daemon
     before = snapshot(client)
     # json.dumps writes NaN and Infinity as JSON's common extension, as many clients do.
-    body = json.dumps(row.body).replace("{tmp}", str(tmp_path))
+    raw = row.body if isinstance(row.body, str) else json.dumps(row.body)
+    body = raw.replace("{tmp}", str(tmp_path))
     with httpx.Client(base_url=url, timeout=120, headers={"X-Camd-Client": CLIENT}) as h:
         response = h.request(
             row.method, f"{API}{row.path}", content=body,

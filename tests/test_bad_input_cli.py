@@ -16,7 +16,9 @@ import pytest
 import yaml
 
 from camd.cli._daemon_proc import DaemonProcess
+from camd.client import CamdClient
 from camd.paths import config_dir
+from tests.device_snapshot import snapshot
 from tests.test_camctl import NO_TOKEN, REPO_ROOT, camctl, camctl_env
 
 CAMPAIGNS = config_dir() / "campaigns"
@@ -155,6 +157,72 @@ def test_stare_into_a_missing_directory_is_refused_like_a_scan(url: str, tmp_pat
         assert fix in answer.json()["error"]
     assert tree(tmp_path) == []  # no directory was made
     assert httpx.get(url + "/api/v1/status").json()["state"] == "idle"
+
+
+# -- camctl's arguments: one table ------------------------------------------------------------------
+
+# (arguments, exit status, fragments of stderr). Status 2: camctl refused the value itself;
+# 1: the daemon refused it (camctl passes its message on). Either way the device is unchanged.
+CAMCTL_ROWS = [
+    (["ping", "--count", "0"], 2, ["argument --count: must be from 1 to 100000, got 0"]),
+    (["ping", "--size", "300"], 2, ["argument --size: must be from 0 to 256, got 300"]),
+    (["ping", "--count", "abc"], 2, ["argument --count: 'abc' is not an integer"]),
+    (["mode", "median"], 2, ["invalid choice: 'median' (choose from 'area', 'tdi')"]),
+    (["reg", "write", "GAIN=-1"], 1, ["GAIN: -1 does not fit 16 bits (valid: 0 .. 0xFFFF)"]),
+    (["reg", "write", "GAIN=70000"], 1, ["GAIN: 0x11170 (70000) does not fit 16 bits"]),
+    (["reg", "write", "NOSUCH=1"], 1,
+     ["hr400 has no register named 'NOSUCH'", "`camctl reg dump` lists them"]),
+    (["reg", "write", "CHIP_ID=1"], 1, ["CHIP_ID (0x00) is read-only; it cannot be written"]),
+    (["reg", "write", "GAIN"], 2, ["'GAIN' is not NAME=VALUE; e.g. WIN_ROWS=534"]),
+    (["reg", "read", "NOSUCH"], 1, ["hr400 has no register named 'NOSUCH'"]),
+    (["reg", "load", "{tmp}/none.toml"], 2,
+     ["cannot read {tmp}/none.toml: No such file or directory",
+      "give a file saved by `camctl reg save`"]),
+    (["stage", "move", "nan"], 2, ["argument X: must be a finite number, got nan"]),
+    (["stage", "run", "inf"], 2, ["argument X: must be a finite number, got inf"]),
+    (["stage", "move", "5"], 1,
+     ["position 5.0 m is outside the soft limits [0.0, 1.2] m",
+      "widen stage.low_limit_m / high_limit_m"]),
+    (["stage", "run", "11"], 1, ["speed_m_s: 11.0 is out of range; use a number in -10..10"]),
+    (["stage", "move"], 2, ["stage move needs a value: the position in m from home"]),
+    (["scan", "--stages", "0", "--lines", "5", "--out", "{tmp}/s.h5"], 2,
+     ["--stages must be at least 1"]),
+    (["scan", "--stages", "4", "--lines", "-1", "--out", "{tmp}/s.h5"], 2,
+     ["argument --lines: '-1' is not a whole number >= 0"]),
+    (["scan", "--stages", "4", "--rows-per-line", "inf", "--out", "{tmp}/s.h5"], 2,
+     ["argument --rows-per-line: must be a finite number, got inf"]),
+    (["stream", "--frames", "0"], 2,
+     ["--frames must be at least 1 (use --start --frames 0 to stream on)"]),
+    (["stare", "--frames", "-1", "--out", "{tmp}/s.h5"], 2,
+     ["argument --frames: '-1' is not a whole number >= 0"]),
+    (["wheel", "speed", "-1"], 2, ["'-1' is not a speed in deg/s from 0 to 360"]),
+    (["wheel", "speed", "400"], 2, ["'400' is not a speed in deg/s from 0 to 360"]),
+    (["control", "take", "--ttl-s", "0"], 2, ["argument --ttl-s: must be > 0, got 0"]),
+    (["sim", "scene", "nonsense"], 1,
+     ["unknown scene kind 'nonsense'", "correct the scene spec (docs/simulator.md"]),
+    (["sim", "stage-faults", "--load", "nan"], 2,
+     ["argument --load: must be a finite number, got nan"]),
+    (["stages", "0"], 2, ["stages must be at least 1"]),
+    (["sync", "--speed-m-s", "0"], 1,
+     ["speed_m_s: 0.0 is out of range; use null or a number more than 0 and at most 10"]),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("args", "status", "fragments"),
+    CAMCTL_ROWS,
+    ids=["-".join(a.strip("-") for a in row[0][:3] if "{" not in a) for row in CAMCTL_ROWS],
+)
+def test_camctl_refuses_bad_arguments_and_changes_nothing(
+    url: str, tmp_path: Path, args: list[str], status: int, fragments: list[str]
+) -> None:
+    with CamdClient(url, client="bad-input-cli", token="") as client:
+        before = snapshot(client)
+        proc = camctl(url, *(a.replace("{tmp}", str(tmp_path)) for a in args))
+        refused(proc, status, *(f.replace("{tmp}", str(tmp_path)) for f in fragments))
+        assert proc.stdout == ""  # nothing on stdout with an error
+        assert snapshot(client) == before
+    assert tree(tmp_path) == []  # no file made
 
 
 # -- camd serve ----------------------------------------------------------------------------------

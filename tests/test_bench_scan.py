@@ -15,9 +15,12 @@ pytestmark = pytest.mark.exclusive
 
 
 def test_bench_scan_reports_a_lossless_scan_against_the_line_rate() -> None:
-    result = bench_scan(profile="hr400", stages=8, lines=60, frame_bank=4)
+    # 31 frames: fewer than the daemon's queue holds ([stream] queue_frames = 32), so a busy
+    # machine's slow consumer can delay them but never overrun the queue (losing them is what
+    # the real-time benchmark measures, not what this test is about).
+    result = bench_scan(profile="hr400", stages=8, lines=24, frame_bank=4)
     assert result["state"] == "done" and result["width"] == 2048
-    assert (result["lines"], result["complete_lines"], result["lost_frames"]) == (67, 60, 0)
+    assert (result["lines"], result["complete_lines"], result["lost_frames"]) == (31, 24, 0)
     assert result["overruns"] == 0
     assert result["line_rate_hz"] == pytest.approx(25e6 / (513 * 8), rel=1e-6)
     assert result["lines_per_s_over_line_rate"] == pytest.approx(
@@ -25,5 +28,5 @@ def test_bench_scan_reports_a_lossless_scan_against_the_line_rate() -> None:
     )
     assert result["input_mpix_per_s"] == pytest.approx(result["lines_per_s"] * 8 * 2048 / 1e6)
     # The simulator rendered 4 frames and replayed them: it made exactly the frames asked for.
-    assert result["sim"]["produced"] == result["sim"]["sent"] == 67
+    assert result["sim"]["produced"] == result["sim"]["sent"] == 31
     assert result["frame_bank"] == 4

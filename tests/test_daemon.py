@@ -38,6 +38,11 @@ poll_period_s = 0.2
 reconnect_min_s = 0.05
 reconnect_max_s = 0.3
 """
+# FAST plus a 2 s wait for each attempt on the link (appended: FAST's last table is [link]).
+# The config's 0.1 s is for a real line; on a busy machine a starved simulator can take longer
+# than that to answer, which would count as a retry (or, six times over, a failed command).
+PATIENT = FAST + "timeout_s = 2.0\n"
+LINK_TIMEOUT_S = 2.0
 
 
 def child_env() -> dict[str, str]:
@@ -107,7 +112,7 @@ class Daemon:
         assert r.status_code == 200, r.text
         return cast(dict[str, Any], r.json())
 
-    def wait_state(self, state: str, timeout_s: float = 10.0) -> dict[str, Any]:
+    def wait_state(self, state: str, timeout_s: float = 30.0) -> dict[str, Any]:
         return wait_for(lambda: self.status(), lambda s: s["state"] == state, timeout_s)
 
 
@@ -126,7 +131,7 @@ def wait_for(
 
 @pytest.fixture(scope="module")
 def daemon(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Daemon]:
-    d = Daemon(tmp_path_factory.mktemp("daemon"))
+    d = Daemon(tmp_path_factory.mktemp("daemon"), PATIENT)
     try:
         d.start()
         d.wait_state("idle")
@@ -166,7 +171,9 @@ def test_ping_fifty(daemon: Daemon) -> None:
     p = r.json()
     assert (p["count"], p["ok"], p["failed"], p["retries"], p["errors"]) == (50, 50, 0, 0, [])
     rtt = p["rtt_ms"]
-    assert 0 < rtt["p50"] <= rtt["p99"] <= rtt["max"] < 1000
+    # No retries, so each answer came within one attempt's wait (in ms; a second of slack for
+    # a busy machine to get from the answer to the clock).
+    assert 0 < rtt["p50"] <= rtt["p99"] <= rtt["max"] < 1000 * (LINK_TIMEOUT_S + 1)
 
 
 def test_ping_defaults_without_a_body(daemon: Daemon) -> None:
@@ -178,7 +185,7 @@ def test_ping_defaults_without_a_body(daemon: Daemon) -> None:
 
 def test_telemetry_changes_and_is_archived(daemon: Daemon) -> None:
     first = wait_for(
-        lambda: daemon.get(f"{API}/telemetry").json(), lambda d: d["latest"], timeout_s=5
+        lambda: daemon.get(f"{API}/telemetry").json(), lambda d: d["latest"], timeout_s=30
     )
     assert first["archive"] == str(daemon.data_dir / "telemetry.sqlite")
     latest = first["latest"]
@@ -189,17 +196,24 @@ def test_telemetry_changes_and_is_archived(daemon: Daemon) -> None:
     second = wait_for(
         lambda: daemon.get(f"{API}/telemetry").json(),
         lambda d: d["latest"]["uptime_s"]["t_s"] > latest["uptime_s"]["t_s"],
-        timeout_s=5,
+        timeout_s=30,
     )
     assert second["latest"]["uptime_s"]["value"] > latest["uptime_s"]["value"]
     assert second["samples"] > first["samples"]
 
-    db = sqlite3.connect(f"file:{first['archive']}?mode=ro", uri=True)
-    try:
-        sources = dict(db.execute("SELECT source, count(*) FROM samples GROUP BY source"))
-        n_events = db.execute("SELECT count(*) FROM events").fetchone()[0]
-    finally:
-        db.close()
+    def archived() -> tuple[dict[str, int], int]:
+        db = sqlite3.connect(f"file:{first['archive']}?mode=ro", uri=True)
+        try:
+            sources = dict(db.execute("SELECT source, count(*) FROM samples GROUP BY source"))
+            n_events = db.execute("SELECT count(*) FROM events").fetchone()[0]
+        finally:
+            db.close()
+        return sources, n_events
+
+    # Packets and polls come on their own threads: wait for one of each, however busy.
+    sources, n_events = wait_for(
+        archived, lambda a: a[0].get("tlm", 0) > 0 and a[0].get("poll", 0) > 0, timeout_s=30
+    )
     assert sources.get("tlm", 0) > 0 and sources.get("poll", 0) > 0, sources
     assert n_events > 0
 
@@ -208,10 +222,11 @@ def test_telemetry_changes_and_is_archived(daemon: Daemon) -> None:
     ).json()
     assert h["channel"] == "fpga_temp_degc" and h["unit"] == "degC"
     assert 1 <= len(h["t_s"]) == len(h["value"]) <= 5 and h["t_s"] == sorted(h["t_s"])
+    asked_at = time.time()  # the daemon's "60 s ago" is later than asked_at - 60, however slow
     recent = daemon.get(
         f"{API}/telemetry/history", params={"channel": "uptime_s", "since_s": -60}
     ).json()
-    assert recent["t_s"] and min(recent["t_s"]) >= time.time() - 61
+    assert recent["t_s"] and min(recent["t_s"]) >= asked_at - 61
 
 
 def test_mode_tdi_then_status_shows_it(daemon: Daemon) -> None:
@@ -223,7 +238,12 @@ def test_mode_tdi_then_status_shows_it(daemon: Daemon) -> None:
 
 
 def test_link_counters(daemon: Daemon) -> None:
-    doc = daemon.get(f"{API}/link").json()
+    # Under xdist this may be the first test on a fresh daemon: wait for a telemetry packet.
+    doc = wait_for(
+        lambda: daemon.get(f"{API}/link").json(),
+        lambda d: d["host"]["telemetry"] > 0,
+        timeout_s=30,
+    )
     assert doc["host"]["sent"] > 0 and doc["host"]["acked"] > 0 and doc["host"]["telemetry"] > 0
     dev = doc["device"]
     assert dev["executed"] > 0 and dev["crc_errors"] == 0
@@ -241,7 +261,12 @@ def test_events_newest_last(daemon: Daemon) -> None:
 
 
 def test_metrics(daemon: Daemon) -> None:
-    text = daemon.get("/metrics").text
+    # Under xdist this may be the first test on a fresh daemon: wait for a first sample.
+    text = wait_for(
+        lambda: daemon.get("/metrics").text,
+        lambda t: 'camd_telemetry_value{channel="fpga_temp_degc"' in t,
+        timeout_s=30,
+    )
     assert 'camd_state{state="idle"} 1.0' in text
     assert 'camd_state{state="fault"} 0.0' in text
     assert "camd_link_sent_total" in text and "camd_link_crc_errors_total" in text
@@ -291,7 +316,7 @@ def test_unknown_endpoint_is_a_json_error(daemon: Daemon) -> None:
 
 def test_red_limit_fault_refuses_mode_until_reset(tmp_path: Path) -> None:
     # vcc_io_v is ~3.3 V: limits around 0 V make every sample red.
-    tight = FAST + "[telemetry.limits.vcc_io_v]\nyellow = [0.0, 0.1]\nred = [0.0, 0.2]\n"
+    tight = PATIENT + "[telemetry.limits.vcc_io_v]\nyellow = [0.0, 0.1]\nred = [0.0, 0.2]\n"
     d = Daemon(tmp_path, tight)
     try:
         d.start()
@@ -311,8 +336,17 @@ def test_red_limit_fault_refuses_mode_until_reset(tmp_path: Path) -> None:
         assert r.status_code == 200, r.text
         after = r.json()
         assert after["state"] == "idle" and after["mode"] == "area"
-        # Still red but acknowledged by the reset: no new fault until it recovers.
-        time.sleep(0.6)
+        # Still red but acknowledged by the reset: no new fault until it recovers. Three red
+        # samples taken after the reset (not a fixed sleep, which a busy daemon could sleep
+        # through without taking any) have been checked against the limits.
+        reset_at = time.time()
+        wait_for(
+            lambda: d.get(
+                f"{API}/telemetry/history", params={"channel": "vcc_io_v", "since_s": reset_at}
+            ).json()["t_s"],
+            lambda t_s: len(t_s) >= 3,
+            timeout_s=30,
+        )
         assert d.status()["state"] == "idle"
         assert d.post(f"{API}/mode", json={"mode": "tdi"}).json() == {"mode": "tdi"}
         assert 'camd_state{state="idle"} 1.0' in d.get("/metrics").text
@@ -325,12 +359,14 @@ def test_red_limit_fault_refuses_mode_until_reset(tmp_path: Path) -> None:
 
 
 def test_ping_over_a_lossy_line_counts_retries(tmp_path: Path) -> None:
-    d = Daemon(tmp_path, FAST + "timeout_s = 0.02\n", "--inject", "drop=0.05")  # under [link]
+    # 50 ms attempts, 40 retries: a lost frame costs 50 ms, a busy machine's late answer is a
+    # replay (2 s per command before a failure), so every ping must get through.
+    d = Daemon(tmp_path, FAST + "timeout_s = 0.05\nretries = 40\n", "--inject", "drop=0.05")
     try:
         d.start()
         d.wait_state("idle")
         p = d.post(f"{API}/ping", json={"count": 200}).json()
-        assert p["ok"] + p["failed"] == 200 and p["ok"] >= 198, p
+        assert p["ok"] == 200 and p["failed"] == 0, p
         assert p["retries"] > 0
         injected = d.get(f"{API}/link").json()["device"]["injected"]
         assert injected["dropped_rx"] + injected["dropped_tx"] > 0
@@ -430,10 +466,13 @@ def test_bad_inject_spec_exits_2(tmp_path: Path) -> None:
 # -- the simulator dies; a new one is picked up --------------------------------------------------------
 
 
+NOTICE_S = 20.0  # the bound on noticing a dead or a new simulator (reconnect_max_s is 0.3 s)
+
+
 def test_simulator_killed_then_replaced(tmp_path: Path) -> None:
     # Without supervision (tests/test_sim_supervisor.py has it): a simulator started by hand
     # is picked up, as a camera powered up again would be.
-    d = Daemon(tmp_path, FAST.replace("[sim]\n", "[sim]\nrestart = false\n"))
+    d = Daemon(tmp_path, PATIENT.replace("[sim]\n", "[sim]\nrestart = false\n"))
     new_sim: subprocess.Popen[str] | None = None
     try:
         d.start()
@@ -441,12 +480,13 @@ def test_simulator_killed_then_replaced(tmp_path: Path) -> None:
         sim_pid = s["link"]["sim_pid"]
         os.kill(sim_pid, signal.SIGKILL)
 
+        # Noticed promptly (normally well under a second); NOTICE_S leaves a busy machine room.
         t0 = time.monotonic()
-        s = d.wait_state("disconnected", timeout_s=5)
-        assert time.monotonic() - t0 < 5
+        s = d.wait_state("disconnected", timeout_s=NOTICE_S)
+        assert time.monotonic() - t0 < NOTICE_S
         assert s["device"] is None and s["link"]["connected"] is False
         # The pty closes a moment before the killed child can be reaped.
-        wait_for(lambda: d.status(), lambda s: s["link"]["sim_pid"] is None, timeout_s=2)
+        wait_for(lambda: d.status(), lambda s: s["link"]["sim_pid"] is None, timeout_s=NOTICE_S)
 
         port = str(d.data_dir / "sim" / "camera.tty")
         message = error_of(d.post(f"{API}/ping", json={"count": 1}), 503, "disconnected")
@@ -459,7 +499,7 @@ def test_simulator_killed_then_replaced(tmp_path: Path) -> None:
         events = wait_for(
             lambda: d.get(f"{API}/events").json()["events"],
             lambda evs: any("not restarted" in e["message"] for e in evs),
-            timeout_s=5,
+            timeout_s=NOTICE_S,
         )
         assert any(e["message"].startswith("state idle -> disconnected") for e in events)
 
@@ -474,8 +514,8 @@ def test_simulator_killed_then_replaced(tmp_path: Path) -> None:
         assert info["link"] == port
 
         t0 = time.monotonic()
-        s = d.wait_state("idle", timeout_s=5)
-        assert time.monotonic() - t0 < 5
+        s = d.wait_state("idle", timeout_s=NOTICE_S)
+        assert time.monotonic() - t0 < NOTICE_S
         assert s["device"]["boot_count"] >= 1
         assert s["link"]["sim_pid"] is None  # not ours: the daemon never restarts a simulator
         assert d.post(f"{API}/ping", json={"count": 5}).json()["ok"] == 5

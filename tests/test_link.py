@@ -83,6 +83,14 @@ class Peer:
                 os.close(fd)
 
 
+def wait_until(predicate: Callable[[], bool], timeout_s: float = 30.0) -> None:
+    """Poll ``predicate`` until true; fail after ``timeout_s`` (generous: the machine is busy)."""
+    deadline = time.monotonic() + timeout_s
+    while not predicate():
+        assert time.monotonic() < deadline, f"gave up after {timeout_s} s"
+        time.sleep(0.01)
+
+
 def ack(frame: Frame, payload: bytes | None = None) -> bytes:
     body = frame.payload if payload is None else payload
     return encode_frame(FrameType.ACK, frame.seq, frame.opcode, body)
@@ -94,11 +102,13 @@ def make_link(tmp_path: Path) -> Iterator[Callable[..., tuple[CommandLink, Peer]
 
     def make(answer: Answer, **kwargs: object) -> tuple[CommandLink, Peer]:
         peer = Peer(answer, tmp_path)
-        opts: dict[str, object] = {"timeout_s": 0.05, "retries": 3, "reconnect_min_s": 0.02}
+        # A 5 s attempt: the peer thread answers within it however busy the machine, so an
+        # answered command takes one attempt. Tests of timeouts pass their own timeout_s.
+        opts: dict[str, object] = {"timeout_s": 5.0, "retries": 3, "reconnect_min_s": 0.02}
         opts.update(kwargs)
         link = CommandLink(str(peer.link_path), **opts)  # type: ignore[arg-type]
         link.open()
-        assert link.wait_connected(2.0), link.last_error
+        assert link.wait_connected(30.0), link.last_error
         made.append((link, peer))
         return link, peer
 
@@ -123,7 +133,9 @@ def test_ping_echo_and_counters(make_link: Callable[..., tuple[CommandLink, Peer
 
 def test_retry_resends_identical_frame(make_link: Callable[..., tuple[CommandLink, Peer]]) -> None:
     # Answer only the third copy: the link must have sent the same bytes three times.
-    link, peer = make_link(lambda f, n: [ack(f)] if n == 3 else [])
+    # 1 s attempts: the two unanswered ones time out, and the peer thread has a whole second
+    # to answer the third, however busy the machine (a later answer would mean a 4th attempt).
+    link, peer = make_link(lambda f, n: [ack(f)] if n == 3 else [], timeout_s=1.0)
     r = link.request("PING", data=b"x")
     assert r.attempts == 3
     assert len(peer.received) == 3 and len({f.encode() for f in peer.received}) == 1
@@ -132,9 +144,11 @@ def test_retry_resends_identical_frame(make_link: Callable[..., tuple[CommandLin
 
 
 def test_timeout_after_all_retries(make_link: Callable[..., tuple[CommandLink, Peer]]) -> None:
-    link, peer = make_link(lambda f, n: [], retries=2)
+    link, peer = make_link(lambda f, n: [], timeout_s=0.05, retries=2)
     with pytest.raises(CommandTimeout, match=r"PING: no answer .* after 3 attempt\(s\) of 50 ms"):
         link.request("PING", data=b"")
+    # The last copy was written 50 ms before the give-up; the peer thread may read it later.
+    wait_until(lambda: len(peer.received) >= 3)
     assert len(peer.received) == 3
     c = link.counters()
     assert (c["failed"], c["timeouts"], c["retries"]) == (1, 3, 2)
@@ -163,8 +177,14 @@ def test_bad_values_refused_before_sending(
         link.request("SET_MODE", mode="staring")
     with pytest.raises(EncodeError, match=re.escape("PING.data: 257 bytes is too long")):
         link.request("PING", data=bytes(257))
-    time.sleep(0.05)
-    assert peer.received == [] and link.counters()["sent"] == 0
+    assert link.counters()["sent"] == 0
+    # A PING after the refusals: once it is answered, anything sent before it has been read
+    # by the peer (the pty keeps order), so "nothing else sent" needs no waiting window.
+    r = link.request("PING", data=b"after")
+    assert [f.encode() for f in peer.received] == [
+        encode_frame(FrameType.COMMAND, r.seq, PING, b"after")
+    ]
+    assert link.counters()["sent"] == 1
 
 
 def test_stale_answer_is_not_taken_for_the_next_command(
@@ -175,7 +195,8 @@ def test_stale_answer_is_not_taken_for_the_next_command(
     link, _ = make_link(lambda f, n: [ack(f), ack(f)])
     for i in range(20):
         assert link.request("PING", data=bytes([i])).values["data"] == bytes([i])
-    time.sleep(0.05)
+    # The last duplicate may come in after its command returned: wait for it.
+    wait_until(lambda: link.counters()["stale"] >= 20)
     assert link.counters()["stale"] == 20
 
 
@@ -186,12 +207,19 @@ def test_garbage_and_telemetry_interleave(
     values = {f.name: 1 for f in hk.fields}
     tlm = encode_frame(FrameType.TELEMETRY, 0, hk.opcode, hk.encode(**values))
     evt = encode_frame(FrameType.EVENT, 0, D.event("MODE_CHANGED").opcode, b"\x01")
-    link, _ = make_link(lambda f, n: [b"\xeb\x90\x07junk", tlm, ack(f)[:5], ack(f)[5:] + evt])
+    # The answer comes in two writes; a busy machine may hold the peer thread between them
+    # longer than the default 33 ms frame timeout, which would flush the half-answer. A 5 s
+    # frame timeout keeps this test about the interleaving (the flush is tested below).
+    link, _ = make_link(
+        lambda f, n: [b"\xeb\x90\x07junk", tlm, ack(f)[:5], ack(f)[5:] + evt],
+        frame_timeout_s=5.0,
+    )
     got: list[Message] = []
     link.subscribe(got.append)
     for i in range(5):
         assert link.request("PING", data=bytes([i])).attempts == 1
-    time.sleep(0.05)
+    # The last event follows the last answer: wait for it rather than for a fixed time.
+    wait_until(lambda: link.counters()["events"] >= 5)
     unsolicited = [m for m in got if isinstance(m, Unsolicited)]
     assert [m.name for m in unsolicited] == ["HOUSEKEEPING", "MODE_CHANGED"] * 5
     assert unsolicited[1].values == {"mode": "tdi"}
@@ -205,14 +233,16 @@ def test_stalled_length_field_is_flushed(
     # A header whose length field says 1000 bytes, then silence: the idle flush must drop it
     # and the real answer that follows must still be found, on the first attempt.
     fake = b"\xeb\x90\x02\x00\x01\x03\xe8"
-    link, _ = make_link(lambda f, n: [fake + ack(f)], timeout_s=0.2)
+    # The flush comes after the 33 ms frame timeout, whenever the reader thread gets to it; a
+    # 5 s attempt keeps a busy machine's late flush from costing a second attempt.
+    link, _ = make_link(lambda f, n: [fake + ack(f)], timeout_s=5.0)
     r = link.request("PING", data=b"after")
     assert r.values["data"] == b"after" and r.attempts == 1
 
 
 def test_port_loss_is_reported_and_reopened(tmp_path: Path) -> None:
     peer = Peer(lambda f, n: [ack(f)], tmp_path)
-    link = CommandLink(str(peer.link_path), timeout_s=0.05, retries=1, reconnect_min_s=0.02)
+    link = CommandLink(str(peer.link_path), timeout_s=0.05, retries=40, reconnect_min_s=0.02)
     changes: list[ConnectionChange] = []
     link.subscribe(lambda m: changes.append(m) if isinstance(m, ConnectionChange) else None)
     link.open()

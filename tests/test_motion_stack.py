@@ -214,15 +214,28 @@ def test_mtf_at_nyquist_follows_the_smear_model(client: CamdClient, tmp_path: Pa
     needs dV/V = s / M - T_row / T."""
     skew = T_ROW_S / T_LINE_S
     measured = {}
+    eq8 = {}
     for smear in (0, 1, 2):
         path = tmp_path / f"smear{smear}.h5"
         doc = scan(client, path, lines=300, closed_loop=True, dv_over_v=smear / STAGES - skew)
         # The monitor reports M dV/V against the synchronous speed: s - M T_row / T.
         assert doc["mismatch_rms"] == pytest.approx(abs(smear - STAGES * skew), abs=0.1)
         measured[smear] = edge_mtf(path)
+        # Eq 8 at the smear each line really had (its M dV/V from the encoder, plus the
+        # rolling shutter's M T_row / T), not the one asked for: the closed loop holds the
+        # speed to a few per cent, and on a busy machine its corrections come later, so
+        # the smear of a line can be 1.07 pixels where 1 was asked (sinc(0.535) = 0.60,
+        # not 0.64). The loop's own accuracy is the mismatch check above.
+        tdi = read_tdi_scan(path)
+        seen = tdi.m_dv_over_v[tdi.complete].astype(np.float64)
+        seen = seen[np.isfinite(seen)]
+        assert seen.size > 100
+        eq8[smear] = float(np.mean(np.sinc((seen + STAGES * skew) / 2)))
     mtf0, err0, _ = measured[0]
-    # Eq 8 alone, as a ratio (the detector and scene terms cancel): 0.637 and 0.
-    assert measured[1][0] / mtf0 == pytest.approx(2 / math.pi, abs=0.03)
+    # Eq 8 alone, as a ratio (the detector and scene terms cancel): 0.637 and 0 at the smears
+    # asked for, and the lines' own smears must give about that.
+    assert eq8[1] / eq8[0] == pytest.approx(2 / math.pi, abs=0.05)
+    assert measured[1][0] / mtf0 == pytest.approx(eq8[1] / eq8[0], abs=0.03)
     assert measured[2][0] / mtf0 < 0.05
     # Eq 3 at Nyquist: sinc(q / 2p) (q = sqrt(fill factor) pixels), sinc(T_int / 2 T_L) (the
     # image moves during each frame's exposure), times the simulated scene's own cells (1/4

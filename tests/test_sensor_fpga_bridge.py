@@ -34,7 +34,9 @@ class Rig:
         tty = self.server.open()
         self.thread = threading.Thread(target=self.server.serve, daemon=True)
         self.thread.start()
-        self.link = CommandLink(tty, timeout_s=0.02, retries=10)
+        # 20 ms attempts keep injected losses cheap; 100 retries (2 s) keep a busy machine's
+        # late answers from failing a command.
+        self.link = CommandLink(tty, timeout_s=0.02, retries=100)
         self.link.open()
         self.link.wait_connected(5.0)
         self.bridge = FpgaBridge(self.link)

@@ -35,9 +35,9 @@ def _count(value: Any) -> int:
 
 @pytest.fixture(scope="module")
 def soak_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str, dict[str, Any]]:
-    """One short soak: --minutes 0 is the warm-up alone, one item of each kind."""
+    """One short soak: --minutes 0 --warmup-minutes 0 is one item of each kind."""
     work = tmp_path_factory.mktemp("soak") / "work"
-    proc = _soak("--minutes", "0", "--json", "--out", str(work))
+    proc = _soak("--minutes", "0", "--warmup-minutes", "0", "--json", "--out", str(work))
     assert proc.returncode == 0, proc.stderr
     return work, proc.stderr, json.loads(proc.stdout)
 
@@ -54,7 +54,7 @@ def test_a_short_soak_runs_every_kind_and_reports_every_figure(
     assert "warm-up" in stderr and "start" in stderr  # progress on stderr
 
     assert doc["error"] is None and doc["interrupted"] is False
-    assert doc["seed"] == 0 and doc["minutes"] == 0
+    assert doc["seed"] == 0 and doc["minutes"] == 0 and doc["warmup_minutes"] == 0
     assert "ber=0.0001" in doc["inject"] and "frame_drop=0.002" in doc["inject"]
     kinds = doc["workload"]["kinds"]
     assert set(kinds) == set(KINDS)
@@ -95,6 +95,15 @@ def test_a_short_soak_runs_every_kind_and_reports_every_figure(
     assert set(resources["growth_pct"]) == {"rss_kb", "fds", "threads"}
     whats = [s["what"] for s in resources["series"]]
     assert (whats[0], whats[-1]) == ("start", "end")
+    # Two samples (start, end): one each side; the growth is that of their RSS.
+    assert resources["rss_samples"] == 1
+    assert resources["rss_median_kb"] == {
+        "start": resources["start"]["rss_kb"], "end": resources["end"]["rss_kb"],
+    }  # fmt: skip
+    rss = resources["rss_median_kb"]
+    assert resources["growth_pct"]["rss_kb"] == round(
+        100.0 * (rss["end"] - rss["start"]) / rss["start"], 2
+    )
 
     assert set(doc["verdict"]) == {
         "failed_commands_0", "executed_twice_0", "lost_equals_injected",
@@ -124,6 +133,7 @@ def test_the_table_has_a_verdict_per_criterion(
         (["--inject", "garbage"], "is not key=value"),
         (["--inject", "garbage=lots"], "is not a number"),
         (["--minutes", "-1"], "must be a number >= 0"),
+        (["--warmup-minutes", "nan"], "must be a number >= 0"),
         (["--sample-s", "0"], "must be > 0"),
     ],
 )

@@ -79,8 +79,11 @@ def test_two_scans_at_once_one_runs_and_the_status_shows_it(url: str, tmp_path: 
     lock = threading.Lock()
     barrier = threading.Barrier(2)
 
+    # 25 ms lines: the scan runs 5 s, so the other request comes while it runs however late
+    # a busy machine sends it (at the window's own line period, 200 lines take 0.1 s).
     def start(path: Path) -> None:
-        body = {"stages": 4, "lines": 200, "out": str(path), "drive_stage": False}
+        body = {"stages": 4, "lines": 200, "out": str(path), "drive_stage": False,
+                "line_period_s": 0.025}  # fmt: skip
         with httpx.Client(base_url=url, timeout=60) as http:
             barrier.wait()
             response = http.post("/api/v1/scan/start", json=body)

@@ -123,16 +123,6 @@ def _int_range(lo: int, hi: int) -> Callable[[str], int]:
     return parse
 
 
-def _float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if value != value or value in (float("inf"), float("-inf")):
-        raise argparse.ArgumentTypeError(f"must be a finite number, got {text}")
-    return value
-
-
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``camctl`` (also used by docs and tests)."""
     parser = argparse.ArgumentParser(
@@ -178,7 +168,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--since-s",
-        type=_float,
+        type=camctl_stream.finite_number,
         metavar="T",
         help="with --history: only samples from Unix time T on; a negative T means T seconds "
         "before now (e.g. --since-s -60)",

@@ -26,7 +26,7 @@ from typing import Any
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TaskProgressColumn, TextColumn
 
-from camd.cli.camctl_stream import count_arg
+from camd.cli.camctl_stream import count_arg, finite_number
 from camd.client import CamdClient
 from camd.client_types import MotionStatus, StageOperationModel
 
@@ -37,23 +37,16 @@ SYNC_CONTRACT = (
 STAGE_ACTIONS = ("status", "enable", "disable", "run", "move", "stop", "home", "estop")
 
 
-def _number(text: str) -> float:
-    try:
-        return float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-
-
 def add_parsers(command: Callable[[str, str], argparse.ArgumentParser]) -> None:
     """Add the motion commands through camctl's ``command(name, help)`` factory."""
     p = command(
         "sync", "open-loop scan synchronisation: line period, window, stage speed, step rate"
     )
     how = p.add_mutually_exclusive_group()
-    how.add_argument("--line-period-s", type=_number, metavar="T", help="TDI line period")
-    how.add_argument("--speed-m-s", type=_number, metavar="V", help="stage speed")
+    how.add_argument("--line-period-s", type=finite_number, metavar="T", help="TDI line period")
+    how.add_argument("--speed-m-s", type=finite_number, metavar="V", help="stage speed")
     p.add_argument(
-        "--with-speed-m-s", type=_number, metavar="V", dest="with_speed",
+        "--with-speed-m-s", type=finite_number, metavar="V", dest="with_speed",
         help="with --line-period-s: the stage speed actually set (its mismatch is reported)",
     )  # fmt: skip
     p.add_argument("--stages", type=count_arg, metavar="M", help="TDI stages (default M0)")
@@ -61,9 +54,9 @@ def add_parsers(command: Callable[[str, str], argparse.ArgumentParser]) -> None:
 
     p = command("stage", "the scan stage: status, enable, run, move, stop, home, estop")
     p.add_argument("action", nargs="?", default="status", choices=STAGE_ACTIONS)
-    p.add_argument("value", nargs="?", type=_number, metavar="X",
+    p.add_argument("value", nargs="?", type=finite_number, metavar="X",
                    help="run: speed in m/s (signed); move: position in m from home")  # fmt: skip
-    p.add_argument("--speed-m-s", type=_number, metavar="V", help="move: cruise speed")
+    p.add_argument("--speed-m-s", type=finite_number, metavar="V", help="move: cruise speed")
     p.add_argument("--no-wait", action="store_true", help="move/home: answer at once")
 
 

@@ -27,7 +27,7 @@ from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
 from camd.cli.camctl_sensor import CommandFailed, UsageError
-from camd.cli.camctl_stream import count_arg
+from camd.cli.camctl_stream import count_arg, finite_number
 from camd.client import CamdClient
 from camd.client_types import ScanResponse
 
@@ -35,13 +35,6 @@ CONTRACT = (
     "file", "lines", "complete_lines", "lost_frames", "stages", "mismatch_max", "mismatch_rms",
 )  # fmt: skip
 POLL_S = 0.25
-
-
-def _number(text: str) -> float:
-    try:
-        return float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
 
 
 def add_parsers(command: Callable[[str, str], argparse.ArgumentParser]) -> None:
@@ -58,17 +51,19 @@ def add_parsers(command: Callable[[str, str], argparse.ArgumentParser]) -> None:
     p.add_argument("--out", type=Path, metavar="FILE", help="new HDF5 file (default: data dir)")
     how = p.add_mutually_exclusive_group()
     how.add_argument(
-        "--speed-m-s", type=_number, metavar="V", help="stage speed; sets the line period"
+        "--speed-m-s", type=finite_number, metavar="V", help="stage speed; sets the line period"
     )
-    how.add_argument("--line-period-s", type=_number, metavar="T", help="TDI line period to set")
+    how.add_argument(
+        "--line-period-s", type=finite_number, metavar="T", help="TDI line period to set"
+    )
     p.add_argument("--mode", choices=("sum", "mean"), default="sum", help="sum (eq 12) or mean")
     p.add_argument("--out-bits", type=count_arg, metavar="N", help="clip sums to 2^N - 1 (eq 12)")
     p.add_argument(
-        "--rows-per-line", type=_number, default=1.0, metavar="R",
+        "--rows-per-line", type=finite_number, default=1.0, metavar="R",
         help="rows the image moves per line: 2 = every other row, 1.02 = 2%% mismatch",
     )  # fmt: skip
     p.add_argument(
-        "--cols-per-line", type=_number, default=0.0, metavar="C",
+        "--cols-per-line", type=finite_number, default=0.0, metavar="C",
         help="columns of drift per line (tan of the drift angle)",
     )  # fmt: skip
     p.add_argument("--reverse", action="store_true", help="the scene moves from row 1 to row M")
@@ -81,7 +76,7 @@ def add_parsers(command: Callable[[str, str], argparse.ArgumentParser]) -> None:
         "--closed-loop", action="store_true", help="closed loop even if off in config"
     )
     p.add_argument(
-        "--dv-over-v", type=_number, default=0.0, metavar="X",
+        "--dv-over-v", type=finite_number, default=0.0, metavar="X",
         help="deliberate mismatch: the stage runs at (1 - X) x synchronous (e.g. 0.01)",
     )  # fmt: skip
     p.add_argument(

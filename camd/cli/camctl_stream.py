@@ -18,6 +18,7 @@ daemon: FILE is made absolute on this machine, so camctl and camd must share the
 from __future__ import annotations
 
 import argparse
+import math
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -40,6 +41,17 @@ def count_arg(text: str) -> int:
         value = -1
     if value < 0:
         raise argparse.ArgumentTypeError(f"{text!r} is not a whole number >= 0")
+    return value
+
+
+def finite_number(text: str) -> float:
+    """argparse type: a finite number (nan and inf are refused here, not by the daemon)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"must be a finite number, got {text}")
     return value
 
 
@@ -103,7 +115,7 @@ def add_parsers(command: Callable[[str, str], argparse.ArgumentParser]) -> None:
         ("drift", "relative speed drift per second of running"),
         ("load", "load torque / pull-out torque (above 1 the motor misses steps)"),
     ):
-        sp.add_argument(f"--{key}", type=float, default=0.0, metavar="X", help=meaning)
+        sp.add_argument(f"--{key}", type=finite_number, default=0.0, metavar="X", help=meaning)
     action("stage-truth", "the stepper stage's true position, speed and missed steps")
 
 

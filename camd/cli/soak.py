@@ -6,7 +6,8 @@ register writes verified by read-back, short streams, stares recorded to HDF5 an
 against the device's CRCs, short TDI scans and a quick campaign for ``--minutes``, and prints:
 commands sent, failed and executed twice (the last from the simulated device's own count),
 frames lost against frames injected, and the daemon's RSS, open file descriptors and threads
-at the start (after a warm-up of one item of each kind) and at the end, with a sample every
+at the start (after a warm-up: one item of each kind, then the mix for ``--warmup-minutes``) and
+at the end, with a sample every
 ``--sample-s``. The exit status is 0 whenever the soak ran, whatever the figures; a verdict
 line per criterion says how they compare with what is expected. The workload itself is
 ``camd.cli.soak_workload``; docs/cli.md describes every option and the JSON document.
@@ -24,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 DEFAULT_MINUTES = 60.0
+DEFAULT_WARMUP_MINUTES = 5.0
 DEFAULT_BER = 1e-4
 DEFAULT_DROP = 0.01
 DEFAULT_FRAME_FAULTS = 0.002
@@ -71,6 +73,11 @@ def add_parser(sub: Any) -> None:
         "--minutes", type=_positive_or_zero, default=DEFAULT_MINUTES, metavar="N",
         help=f"how long the mixed workload runs after the warm-up (default {DEFAULT_MINUTES:g}; "
         "a fraction is fine, 0 = the warm-up only)",
+    )  # fmt: skip
+    p.add_argument(
+        "--warmup-minutes", type=_positive_or_zero, default=DEFAULT_WARMUP_MINUTES, metavar="W",
+        help="after one item of each kind, run the mix this long before the start sample "
+        f"(default {DEFAULT_WARMUP_MINUTES:g}: the daemon's RSS levels off in the first minutes)",
     )  # fmt: skip
     p.add_argument("--seed", type=int, default=0, help="seed of the mix and of the simulator (0)")
     p.add_argument(
@@ -139,7 +146,7 @@ def run(args: argparse.Namespace) -> int:
         work = Path(tempfile.mkdtemp(prefix="camd-soak-"))
     settings = SoakSettings(
         minutes=args.minutes, seed=args.seed, inject=inject, work_dir=work,
-        sample_s=args.sample_s, timeout_s=args.timeout,
+        sample_s=args.sample_s, timeout_s=args.timeout, warmup_minutes=args.warmup_minutes,
     )  # fmt: skip
 
     def progress(line: str) -> None:
@@ -236,9 +243,15 @@ def render(doc: dict[str, Any]) -> None:
             f"{p.get('fds', '?'):>5} {p.get('threads', '?'):>8} {s['items']:6d}"
         )
     g = r["growth_pct"]
+    med = r["rss_median_kb"]
+    rss_text = (
+        f"{_pct(g['rss_kb'])} ({med['start'] / 1024:.1f} -> {med['end'] / 1024:.1f} MB, medians "
+        f"of the first and last {r['rss_samples']} samples)"
+        if med["start"] and med["end"]
+        else _pct(g["rss_kb"])
+    )
     print(
-        f"growth start -> end: RSS {_pct(g['rss_kb'])}, fds {_pct(g['fds'])}, threads "
-        f"{_pct(g['threads'])}"
+        f"growth start -> end: RSS {rss_text}, fds {_pct(g['fds'])}, threads {_pct(g['threads'])}"
     )
     sims = [s["simulator"] for s in r["series"] if s["simulator"]]
     if sims:

@@ -2,8 +2,9 @@
 stream of requests through ``CamdClient``, and the counts that say whether it held up.
 
 ``Soak.run()`` starts ``camd serve --sim`` (``DaemonProcess``, loopback, a 32-row hr400 window),
-runs every workload kind once as a warm-up, takes the daemon's resources as the start, then runs
-kinds drawn from a seeded weighted mix until the time is up, sampling the resources every
+runs every workload kind once and then the mix for ``warmup_minutes`` as a warm-up, takes the
+daemon's resources as the start, then runs kinds drawn from a seeded weighted mix until the time
+is up, sampling the resources every
 ``sample_s``; the end sample follows the last item. Every HTTP request goes through one
 ``_CountingClient`` (the campaign's too), which counts answers by class.
 
@@ -27,6 +28,7 @@ import contextlib
 import os
 import random
 import shutil
+import statistics
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -62,6 +64,7 @@ INJECTED_KINDS = ("dropped", "corrupted", "shortened", "stalls", "undelivered")
 # stream is exactly one of delivered, lost, corrupt, short, overruns).
 MISSING_KINDS = ("lost", "corrupt", "short", "overruns")
 ERRORS_KEPT = 20
+RSS_SAMPLES = 5  # RSS growth: median of the first 5 samples against that of the last 5
 
 
 class SoakAborted(RuntimeError):
@@ -134,6 +137,7 @@ class SoakSettings:
     work_dir: Path
     sample_s: float = 60.0
     timeout_s: float = 60.0
+    warmup_minutes: float = 0.0
 
 
 @dataclass
@@ -274,19 +278,27 @@ class Soak:
         self.link_before = self._link()
         self.sim_before = self._sim_stats()
         self.t0 = time.monotonic()
-        deadline = self.t0 + self.s.minutes * 60.0
         self.progress(
             f"soak: daemon pid {self.daemon.pid} at {self.daemon.url}, simulator pid "
             f"{self.sim_pid}, line faults {inject_text(self.s.inject) or 'none'}; warm-up: one "
-            f"of each kind ({', '.join(KINDS)})"
+            f"of each kind ({', '.join(KINDS)}), then the mix for {self.s.warmup_minutes:g} min"
         )
         for kind in KINDS:
             self._item(kind)
-        self.warmup_s = time.monotonic() - self.t0
-        self._sample("start")
-        next_sample = time.monotonic() + self.s.sample_s
         names = list(WEIGHTS)
         weights = [WEIGHTS[k] for k in names]
+        # The daemon's RSS climbs for the first minutes of a mixed workload (the allocator's
+        # arenas, HDF5's and numpy's caches, thread stacks touched for the first time) and then
+        # levels off: measured 251 MB after one item of each kind, 396 MB at 5 min, 404 MB at
+        # 40 min. Growth is measured from after that climb, or a leak could hide in it or a
+        # plateau read as one.
+        warmup_end = time.monotonic() + self.s.warmup_minutes * 60.0
+        while time.monotonic() < warmup_end:
+            self._item(self.rng.choices(names, weights)[0])
+        self.warmup_s = time.monotonic() - self.t0
+        self._sample("start")
+        deadline = time.monotonic() + self.s.minutes * 60.0
+        next_sample = time.monotonic() + self.s.sample_s
         while time.monotonic() < deadline:
             self._item(self.rng.choices(names, weights)[0])
             if time.monotonic() >= next_sample:
@@ -542,6 +554,7 @@ class Soak:
         return {
             "minutes": self.s.minutes,
             "seconds": round(time.monotonic() - self.t0, 1) if self.t0 else 0.0,
+            "warmup_minutes": self.s.warmup_minutes,
             "warmup_s": round(self.warmup_s, 1),
             "seed": self.s.seed,
             "inject": inject_text(self.s.inject),
@@ -594,13 +607,27 @@ class Soak:
     def _resources(self) -> dict[str, Any]:
         start = next((s["daemon"] for s in self.samples if s["what"] == "start"), None)
         end = next((s["daemon"] for s in self.samples if s["what"] == "end"), None)
+        # RSS at one instant swings by tens of MB with the buffers of whatever acquisition is
+        # live (a scan's batches are 64 MB): compare the medians of the first and the last
+        # RSS_SAMPLES samples instead of two instants. Descriptors and threads are exact.
+        series = [s["daemon"] for s in self.samples if s["daemon"]]
+        k = max(1, min(RSS_SAMPLES, len(series) // 2))
+        rss_start = statistics.median(d["rss_kb"] for d in series[:k]) if series else None
+        rss_end = statistics.median(d["rss_kb"] for d in series[-k:]) if series else None
         growth: dict[str, float | None] = {}
-        for key in ("rss_kb", "fds", "threads"):
+        if rss_start and rss_end:
+            growth["rss_kb"] = round(100.0 * (rss_end - rss_start) / rss_start, 2)
+        else:
+            growth["rss_kb"] = None
+        for key in ("fds", "threads"):
             if start and end and start[key]:
                 growth[key] = round(100.0 * (end[key] - start[key]) / start[key], 2)
             else:
                 growth[key] = None
-        return {"start": start, "end": end, "growth_pct": growth, "series": self.samples}
+        return {
+            "start": start, "end": end, "rss_median_kb": {"start": rss_start, "end": rss_end},
+            "rss_samples": k, "growth_pct": growth, "series": self.samples,
+        }  # fmt: skip
 
 
 def _delta(before: dict[str, Any] | None, after: dict[str, Any] | None) -> dict[str, int]:

@@ -215,6 +215,12 @@ def _what_it_is(value: object) -> str:
     return "a list" if isinstance(value, list) else "an object"
 
 
+def _shown(value: object, loc: list[str | int]) -> str:
+    """A rejected value as the user wrote it: a query parameter's number arrives as the text
+    of the URL ("0.0"), which quoted would read as a string given where a number was due."""
+    return value if loc[:1] == ["query"] and isinstance(value, str) else repr(value)
+
+
 def _validation_message(exc: RequestValidationError, route: object = None) -> str:
     """``"stages: 0 is out of range; use an integer in 1..4096"`` for each invalid parameter:
     the valid values read from the endpoint's own model (``valid_values``), with
@@ -255,9 +261,9 @@ def _validation_message(exc: RequestValidationError, route: object = None) -> st
                 f"not {shown}"
             )
         elif kind in ("greater_than_equal", "less_than_equal", "greater_than", "less_than"):
-            parts.append(f"{name}: {value!r} is out of range{use}")
+            parts.append(f"{name}: {_shown(value, loc)} is out of range{use}")
         elif kind == "finite_number":
-            parts.append(f"{name}: {value!r} is not a finite number{use}")
+            parts.append(f"{name}: {_shown(value, loc)} is not a finite number{use}")
         elif kind.endswith("_type"):
             parts.append(f"{name}: {value!r} is {_what_it_is(value)}, the wrong type{use}")
         elif kind == "value_error":  # a validator of the model: its reason

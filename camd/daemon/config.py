@@ -66,6 +66,13 @@ class DaemonSection(_Section):
         description="directory for the telemetry archive and the simulator's link (~ is expanded)",
     )
     log_level: LogLevel = Field(default="info", description="logging threshold")
+    malloc_arenas: int = Field(
+        default=2,
+        ge=0,
+        le=64,
+        description="glibc malloc arenas at most (0 = glibc's default, 8 per core): few keep a "
+        "long-running daemon's memory from fragmenting",
+    )
 
     @field_validator("data_dir", mode="after")
     @classmethod

@@ -23,7 +23,7 @@ from typing import Any
 
 import uvicorn
 
-from camd.daemon import notify
+from camd.daemon import heap, notify
 from camd.daemon.api import create_app
 from camd.daemon.config import Config, ConfigError, load_config, with_overrides
 from camd.daemon.errors import SimulatorError
@@ -198,6 +198,8 @@ def run(args: argparse.Namespace) -> int:
         return EXIT_CONFIG
     url = f"http://{url_host(host)}:{sock.getsockname()[1]}"
 
+    # Before any thread starts: arenas made before the limit stay (camd/daemon/heap.py).
+    heap.limit_arenas(config.daemon.malloc_arenas)
     session = DeviceSession(config)
     try:
         session.start()

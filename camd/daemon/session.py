@@ -31,7 +31,7 @@ from typing import Any, cast
 import numpy as np
 
 import camd
-from camd.daemon import backends, notify
+from camd.daemon import backends, heap, notify
 from camd.daemon.config import HOUSEKEEPING_PACKET, Config, telemetry_channels
 from camd.daemon.control import ANONYMOUS, Control
 from camd.daemon.device import DeviceAccess
@@ -93,6 +93,7 @@ PROBE_RETRY_S = 1.0  # after a GET_STATUS probe went unanswered
 MAX_LOOP_SLEEP_S = 0.25  # the service loop wakes at least this often (stop, sim exit, probes)
 PING_ERRORS_MAX = 5
 PRUNE_PERIOD_S = 3600.0  # how often old telemetry samples are deleted
+HEAP_TRIM_PERIOD_S = 30.0  # how often the C heap's free pages go back to the system (heap.py)
 
 
 THREAD_JOIN_S = 5.0  # at shutdown, the longest wait for one of camd's threads to end
@@ -726,7 +727,7 @@ class DeviceSession:
     def _service_loop(self) -> None:
         watchdog_s = notify.watchdog_interval_s()
         pet_every_s = watchdog_s / 2 if watchdog_s else None
-        next_pet = next_poll = next_probe = next_prune = time.monotonic()
+        next_pet = next_poll = next_probe = next_prune = next_trim = time.monotonic()
         while not self._stop.is_set():
             now = time.monotonic()
             if pet_every_s is not None and now >= next_pet:
@@ -744,6 +745,9 @@ class DeviceSession:
                 if now >= next_prune:
                     next_prune = now + PRUNE_PERIOD_S
                     self._prune()
+                if now >= next_trim:
+                    next_trim = now + HEAP_TRIM_PERIOD_S
+                    heap.give_back()
                 if now >= next_poll:
                     # Skip missed periods instead of bursting to catch up.
                     next_poll = max(next_poll + self.config.telemetry.poll_period_s, now)

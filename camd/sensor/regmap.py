@@ -465,9 +465,10 @@ class RegisterSpec(BaseModel):
             only = self.fields[0]
             return only.to_raw(value, f"{self.name}.{only.name}")
         if not 0 <= value <= self.mask:
+            # A negative value has no hex form a user would recognise ("0x-1").
+            shown = f"0x{value:X} ({value})" if value >= 0 else f"{value}"
             raise RegisterValueError(
-                f"{where}: 0x{value:X} ({value}) does not fit {self.width} bits "
-                f"(valid: 0 .. 0x{self.mask:X})"
+                f"{where}: {shown} does not fit {self.width} bits (valid: 0 .. 0x{self.mask:X})"
             )
         stray = value & ~self.fields_mask if self.fields else 0
         if stray:
