@@ -86,6 +86,14 @@ def camctl_piped(url: str, *args: str) -> subprocess.CompletedProcess[str]:
     )
 
 
+def ctrl_c_as_at_a_terminal() -> None:
+    """In the child: SIGINT back to its default, so that Python turns it into Ctrl-C's
+    KeyboardInterrupt. A suite started in the background of a non-interactive shell (a CI
+    runner's, `pytest &`) has SIGINT ignored, the child would inherit that, and Python leaves
+    an ignored SIGINT ignored."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def camctl_on_pty(
     url: str, *args: str, on_output: Callable[[subprocess.Popen[bytes], str], None] | None = None
 ) -> tuple[int, str]:
@@ -95,8 +103,9 @@ def camctl_on_pty(
     master, slave = os.openpty()
     fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 40, 160, 0, 0))
     proc = subprocess.Popen(
-        camctl_cmd(url, *args), stdin=slave, stdout=slave, stderr=slave, env=plain_env()
-    )
+        camctl_cmd(url, *args), stdin=slave, stdout=slave, stderr=slave, env=plain_env(),
+        preexec_fn=ctrl_c_as_at_a_terminal,
+    )  # fmt: skip
     os.close(slave)
     raw = b""
     deadline = time.monotonic() + 120
