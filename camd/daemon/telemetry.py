@@ -41,6 +41,7 @@ CREATE TABLE IF NOT EXISTS events (
     source  TEXT NOT NULL,  -- link, device, limits, daemon, api
     message TEXT NOT NULL
 );
+CREATE INDEX IF NOT EXISTS events_by_time ON events (t_s);
 """
 
 
@@ -207,7 +208,11 @@ class TelemetryArchive:
         """The newest ``limit`` events, newest last."""
         with self._lock:
             rows = self._db.execute(
-                "SELECT t_s, level, source, message FROM events ORDER BY id DESC LIMIT ?", (limit,)
+                # By time, not by arrival: threads stamp their events before they take the
+                # lock to archive them, so on a busy machine arrival order can be a few ms off
+                # (seen: 3.7 ms), and device events carry the device's own time.
+                "SELECT t_s, level, source, message FROM events ORDER BY t_s DESC, id DESC LIMIT ?",
+                (limit,),
             ).fetchall()
         rows.reverse()
         return [Event(*row) for row in rows]
