@@ -57,7 +57,10 @@ class Rig:
         self.server.start()
         self.engine = StreamEngine(bank, server=self.server)
         self.bank = bank
-        kwargs: dict[str, object] = {"timeout_s": 0.2, **stream_kwargs}
+        # A queue deeper than any run's frames: these tests count the faults injected, and a
+        # consumer starved on a busy machine would add overruns to them (the fourth loaded run
+        # saw 26 in 300 frames at the default 32). The overrun test sets its own small queue.
+        kwargs: dict[str, object] = {"timeout_s": 0.2, "queue_frames": 1024, **stream_kwargs}
         self.stream = FrameStream(backend=get_backend(path), **kwargs)  # type: ignore[arg-type]
         self.stream.open()
         # Frames made before the server has taken this host's connection would go nowhere

@@ -1,7 +1,7 @@
 """The daemon's C heap (glibc malloc): a few arenas, and free memory given back to the system.
 
-glibc gives each thread that allocates while another holds an arena a new arena, up to eight
-per core, and an arena keeps what its threads freed. The daemon runs many short-lived threads
+glibc gives a new thread its own malloc arena, up to eight per core (tests/test_heap.py: eight
+threads, nine heaps), and an arena keeps what its threads freed. The daemon runs many short-lived threads
 (the API's worker threads, one per acquisition and finisher), and numpy's frame and batch
 buffers come and go in them, so over hours the arenas multiply and fragment: `camd soak`
 measured the daemon's RSS at 396 MB after its warm-up and 402 to 433 MB 20 minutes later, with
