@@ -15,7 +15,7 @@ pytestmark = pytest.mark.exclusive
 
 
 def test_bench_scan_reports_a_lossless_scan_against_the_line_rate() -> None:
-    # 31 frames: fewer than the daemon's queue holds ([stream] queue_frames = 32), so a busy
+    # 31 frames: fewer than the daemon's queue holds ([stream] queue_mb: thousands), so a busy
     # machine's slow consumer can delay them but never overrun the queue (losing them is what
     # the real-time benchmark measures, not what this test is about).
     result = bench_scan(profile="hr400", stages=8, lines=24, frame_bank=4)

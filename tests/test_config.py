@@ -106,6 +106,8 @@ def test_out_of_range_names_the_range(tmp_path: Path) -> None:
     assert "api.port" in msg and "70000" in msg and "0 <= port <= 65535" in msg
     msg = error_of(tmp_path, "[link]\ntimeout_s = 0\n")
     assert "link.timeout_s" in msg and "0 < timeout_s <= 60" in msg
+    msg = error_of(tmp_path, "[stream]\nqueue_mb = 0\n")
+    assert "stream.queue_mb" in msg and "0 < queue_mb <= 65536" in msg
 
 
 def test_bad_enum_lists_the_choices(tmp_path: Path) -> None:

@@ -306,6 +306,33 @@ def test_every_fault_at_once_adds_up(rig: Rig) -> None:
 # -- the queue ------------------------------------------------------------------------------------
 
 
+class StallThenBurst:
+    """A consumer stuck in frame 0's callback until ``release`` is set; ``burst()`` starts
+    the stream, sends frame 0, then 19 more at once, and waits until 15 were overruns (a
+    4-frame queue is full)."""
+
+    def __init__(self, rig: Rig, release: threading.Event) -> None:
+        self.rig, self.release = rig, release
+        self.entered = threading.Event()
+        self.slots_at_start = 0
+        rig.stream.add_consumer(self.consume)
+
+    def consume(self, frame: ReceivedFrame) -> None:
+        self.entered.set()
+        assert self.release.wait(10.0)
+
+    def burst(self) -> None:
+        rig = self.rig
+        rig.stream.start(max_frame_bytes=FRAME_BYTES)
+        self.slots_at_start = rig.stream.allocated_slots
+        rig.engine.start(1, 0.0, pace=False)
+        assert self.entered.wait(10.0)  # the dispatcher is stuck in frame 0's callbacks
+        assert rig.engine.wait_idle(10.0)
+        rig.engine.start(19, 0.0, pace=False)
+        assert rig.engine.wait_idle(10.0)
+        assert wait_until(lambda: rig.stream.stats().overruns == 15)
+
+
 @pytest.mark.parametrize(
     ("policy", "delivered", "gaps"),
     [
@@ -317,21 +344,10 @@ def test_overruns_with_a_slow_consumer(
     sock_path: Path, bank: BankSource, policy: str, delivered: list[int], gaps: list[int]
 ) -> None:
     rig = Rig(sock_path, bank, queue_frames=4, overflow=policy, overflow_wait_s=0.001)
-    entered, release = threading.Event(), threading.Event()
-
-    def slow(frame: ReceivedFrame) -> None:
-        entered.set()
-        assert release.wait(10.0)
-
-    rig.stream.add_consumer(slow)
+    release = threading.Event()
+    slow = StallThenBurst(rig, release)
     try:
-        rig.stream.start(max_frame_bytes=FRAME_BYTES)
-        rig.engine.start(1, 0.0, pace=False)
-        assert entered.wait(10.0)  # the dispatcher is stuck in frame 0's callbacks
-        assert rig.engine.wait_idle(10.0)
-        rig.engine.start(19, 0.0, pace=False)
-        assert rig.engine.wait_idle(10.0)
-        assert wait_until(lambda: rig.stream.stats().overruns == 15)
+        slow.burst()
         release.set()
         rig.stream.expect_end(20)
         assert rig.stream.wait_drained(10.0)
@@ -340,6 +356,58 @@ def test_overruns_with_a_slow_consumer(
         assert [g.gap_before for g in rig.got] == gaps
         assert [g.index for g in rig.got] == [0, 1, 2, 3, 4]
         assert (stats.overruns, stats.lost, stats.frames) == (15, 0, 5)
+        assert rig.bit_exact()
+    finally:
+        release.set()
+        rig.close()
+
+
+SLOT_BYTES = 4096  # FRAME_BYTES + 1, rounded up to whole 1024-byte packets
+
+
+def test_queue_bytes_caps_the_queue_to_the_slots_that_fit() -> None:
+    stream = FrameStream(queue_frames=65536, queue_bytes=256_000_000)
+    assert stream.queue_capacity(33_792) == 7575  # hr400, 8 stages: 256 MB // 33 KiB slots
+    assert stream.queue_capacity(4096) == 62500
+    capped = FrameStream(queue_frames=4096, queue_bytes=256_000_000)
+    assert capped.queue_capacity(33_792) == 4096  # the daemon's defaults: queue_frames caps
+    assert stream.queue_capacity(1 << 30) == 2  # a frame bigger than the budget: still 2
+    assert FrameStream(queue_frames=32).queue_capacity(1 << 30) == 32  # no budget: frames
+    with pytest.raises(ValueError, match="queue_bytes = 0 must be at least 1"):
+        FrameStream(queue_bytes=0)
+
+
+def test_slots_are_allocated_as_the_queue_grows_and_given_back_at_stop(
+    sock_path: Path, bank: BankSource
+) -> None:
+    # A byte budget of 4.5 slots: a queue of 4 frames, whatever queue_frames allows.
+    rig = Rig(
+        sock_path,
+        bank,
+        queue_frames=1024,
+        queue_bytes=SLOT_BYTES * 4 + SLOT_BYTES // 2,
+        overflow_wait_s=0.001,
+    )
+    release = threading.Event()
+    slow = StallThenBurst(rig, release)
+    try:
+        slow.burst()
+        assert slow.slots_at_start == 3  # the reader's, the dispatcher's, one queued
+        assert rig.stream._slot_bytes == SLOT_BYTES
+        # 4 queued + the dispatcher's + the reader's: the queue's length plus two, no more.
+        assert rig.stream.allocated_slots == 6
+        release.set()
+        rig.stream.expect_end(20)
+        assert rig.stream.wait_drained(10.0)
+        assert [g.counter for g in rig.got] == [0, 1, 2, 3, 4]
+        assert rig.bit_exact()
+        rig.stream.stop()
+        assert rig.stream.allocated_slots == 3  # the burst's three went back
+        # The next run starts from the kept three and streams as before.
+        rig.stream.remove_consumer(slow.consume)
+        rig.got.clear()
+        stats = rig.run(50)
+        assert (stats.frames, stats.lost, stats.overruns) == (50, 0, 0)
         assert rig.bit_exact()
     finally:
         release.set()

@@ -160,7 +160,7 @@ def cmd_stream(client: CamdClient, args: argparse.Namespace) -> Any:
         raise CommandFailed(
             doc,
             f"{doc['lost']} lost, {doc['corrupt']} corrupt, {doc['overruns']} overrun frames; "
-            "check `camctl events` and the USB cabling, or raise [stream] queue_frames",
+            "check `camctl events` and the USB cabling, or raise [stream] queue_mb",
         )
     return doc
 

@@ -240,8 +240,19 @@ class StreamSection(_Section):
     )
     vendor_id: int = Field(default=0x04B4, ge=0, le=0xFFFF, description="USB vendor id")
     product_id: int = Field(default=0x00F1, ge=0, le=0xFFFF, description="USB product id")
+    queue_mb: float = Field(
+        default=256.0,
+        gt=0,
+        le=65536,
+        description="memory budget, MB (1e6 bytes), of the frames buffered between the reader "
+        "and consumers; it is taken only while a consumer falls behind",
+    )
     queue_frames: int = Field(
-        default=32, ge=2, le=4096, description="frames buffered between the reader and consumers"
+        default=4096,
+        ge=2,
+        le=65536,
+        description="most frames buffered between the reader and consumers, whatever queue_mb "
+        "would hold",
     )
     overflow: Literal["drop_newest", "drop_oldest"] = Field(
         default="drop_newest",

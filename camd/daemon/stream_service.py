@@ -660,6 +660,7 @@ class StreamService:
                 product_id=self.config.product_id,
                 backend=self._usb_backend(),
                 queue_frames=self.config.queue_frames,
+                queue_bytes=round(self.config.queue_mb * 1e6),
                 overflow=self.config.overflow,
                 read_bytes=self.config.read_bytes,
                 timeout_s=self.config.timeout_s,

@@ -58,6 +58,9 @@ ENDPOINT_IN = 0x81
 INTERFACE = 0
 NO_DATA_WARNING_S = 5.0
 OVERFLOW_WAIT_S = 0.01
+# Frame slots allocated when a stream starts (and kept across runs): the reader's, the
+# dispatcher's and one queued. More are allocated only when the queue grows past that.
+INITIAL_SLOTS = 3
 _MAX_CONSECUTIVE_ERRORS = 10
 
 Overflow = Literal["drop_newest", "drop_oldest"]
@@ -136,9 +139,13 @@ Consumer = Callable[[ReceivedFrame], None]
 class FrameStream:
     """Reads window frames from the camera's bulk IN endpoint and hands them to consumers.
 
-    ``queue_frames``: frames buffered between reader and dispatcher; when it is full, the
-    reader waits up to ``overflow_wait_s`` for a place, then ``overflow`` says which frame goes:
-    "drop_newest" (the arriving one) or "drop_oldest" (counted as ``overruns``).
+    ``queue_frames``: frames buffered between reader and dispatcher; ``queue_bytes``, if given,
+    caps that further to the frames whose slots fit in that many bytes (at least 2), so the
+    queue holds the same time of stream for small and large windows. Slots are allocated as
+    the queue first grows and, past the first few, released by ``stop()``: memory is only
+    taken while a consumer is really behind. When the queue is full, the reader waits up to
+    ``overflow_wait_s`` for a place, then ``overflow`` says which frame goes: "drop_newest"
+    (the arriving one) or "drop_oldest" (counted as ``overruns``).
     ``read_bytes``: bytes per bulk read; 0 (default) reads a whole frame per read (zero copy);
     a positive value, a multiple of the endpoint's packet size, makes frames span several
     reads (each read is then copied into the slot). ``timeout_s``: each bulk read's timeout;
@@ -154,6 +161,7 @@ class FrameStream:
         product_id: int = PRODUCT_ID,
         backend: Any = None,
         queue_frames: int = 32,
+        queue_bytes: int | None = None,
         overflow: Overflow = "drop_newest",
         read_bytes: int = 0,
         timeout_s: float = 1.0,
@@ -162,6 +170,8 @@ class FrameStream:
     ) -> None:
         if queue_frames < 1:
             raise ValueError(f"queue_frames = {queue_frames} must be at least 1")
+        if queue_bytes is not None and queue_bytes < 1:
+            raise ValueError(f"queue_bytes = {queue_bytes} must be at least 1 (None: no cap)")
         if overflow not in OVERFLOW_POLICIES:
             raise ValueError(f"overflow = {overflow!r}: use one of {', '.join(OVERFLOW_POLICIES)}")
         if read_bytes < 0:
@@ -172,6 +182,8 @@ class FrameStream:
         self.product_id = product_id
         self.backend = backend
         self.queue_frames = queue_frames
+        self.queue_bytes = queue_bytes
+        self._capacity = queue_frames  # frames the queue holds this run: see start()
         self.overflow = overflow
         self.read_bytes = read_bytes
         self.timeout_s = timeout_s
@@ -345,6 +357,18 @@ class FrameStream:
     def running(self) -> bool:
         return self._reader is not None
 
+    def queue_capacity(self, slot_bytes: int) -> int:
+        """Frames the queue holds for slots of ``slot_bytes``: ``queue_frames``, capped to
+        what ``queue_bytes`` holds (never under 2)."""
+        if self.queue_bytes is None:
+            return self.queue_frames
+        return max(2, min(self.queue_frames, self.queue_bytes // slot_bytes))
+
+    @property
+    def allocated_slots(self) -> int:
+        """Frame slots allocated now (the queue's high-water mark plus two, this run)."""
+        return len(self._slots)
+
     def start(self, *, max_frame_bytes: int) -> None:
         """Reset the counters and start reading frames of up to ``max_frame_bytes`` (header
         included)."""
@@ -359,10 +383,14 @@ class FrameStream:
         self._max_frame_bytes = max_frame_bytes
         p = self._packet_bytes
         slot_bytes = (max_frame_bytes + 1 + p - 1) // p * p
-        slots = self.queue_frames + 2  # queued + the reader's + the dispatcher's
-        if slot_bytes != self._slot_bytes or len(self._slots) != slots:
-            self._slots = [_Slot(slot_bytes) for _ in range(slots)]
+        self._capacity = self.queue_capacity(slot_bytes)
+        if slot_bytes != self._slot_bytes:
+            self._slots = []
             self._slot_bytes = slot_bytes
+        # The reader's and the dispatcher's slots, and one queued: the rest come as the queue
+        # grows (_enqueue), up to queued + 2.
+        while len(self._slots) < min(INITIAL_SLOTS, self._capacity + 2):
+            self._slots.append(_Slot(slot_bytes))
         self._free = list(self._slots)
         with self._lock:
             self._queue.clear()
@@ -399,6 +427,9 @@ class FrameStream:
         self._reader = self._dispatcher = None
         with self._lock:
             self._t_stop = time.monotonic()
+        # A burst's slots go back to the allocator; the first few are kept for the next run.
+        del self._slots[INITIAL_SLOTS:]
+        self._free = list(self._slots)
 
     def expect_end(self, next_counter: int) -> None:
         """The device says the stream ended before ``next_counter``: frames after the last one
@@ -605,14 +636,15 @@ class FrameStream:
     def _enqueue(self, slot: _Slot, header: FrameHeader, received_ns: int) -> _Slot:
         """Queue the frame (lock held); the overflow policy decides when the queue is full."""
         q = self._queue
-        if len(q) >= self.queue_frames and self.overflow_wait_s > 0:
+        capacity = self._capacity
+        if len(q) >= capacity and self.overflow_wait_s > 0:
             # A short, bounded wait: it also hands the dispatcher the GIL, which a reader
             # working through a backlog (reads that never block) would otherwise keep.
             self._cond.wait_for(
-                lambda: len(q) < self.queue_frames or self._stopping.is_set(),
+                lambda: len(q) < capacity or self._stopping.is_set(),
                 self.overflow_wait_s,
             )
-        if len(q) >= self.queue_frames:
+        if len(q) >= capacity:
             self._stats.overruns += 1
             if self.overflow == "drop_newest":
                 return slot  # this frame is dropped: the slot is reused
@@ -620,7 +652,13 @@ class FrameStream:
             self._free.append(old_slot)
         q.append((slot, header, received_ns))
         self._cond.notify_all()
-        return self._free.pop()  # never empty: see the slot count in start()
+        if not self._free:
+            # Never more than queued + the reader's + the dispatcher's: the queue is at most
+            # capacity long here, so this slot count stays within capacity + 2.
+            grown = _Slot(self._slot_bytes)
+            self._slots.append(grown)
+            return grown
+        return self._free.pop()
 
     def _in_sequence(self, counter: int) -> bool:
         """Account for ``counter`` (lock held): lost frames before it; False if it goes back."""
