@@ -183,7 +183,8 @@ class FpgaModel:
         self.motor = MotorController(
             stage_profile, seed=seed or 0, faults=_stage_faults(stage_profile, self.injector.spec)
         )
-        self.imaging_path.encoder_at = self.motor.encoder_count
+        self.imaging_path.encoder_at = self.motor.encoder_counts
+        self.imaging_path.encoder_revision = lambda: self.motor.revision
         # The filter wheel turns from power-on at its nominal speed (config/wheel.toml).
         self.wheel = FilterWheel(load_wheel_profile(), t_s=0.0)
         self.wheel_compensation = False

@@ -42,7 +42,7 @@ from camd.protocol.stream import (
     FrameHeader,
     StreamMode,
     crc32,
-    encode_header,
+    pack_header,
 )
 from firmware_models.fx3_wire import (
     MSG,
@@ -58,6 +58,13 @@ from firmware_models.usb_device import UnixSocketServer
 log = logging.getLogger(__name__)
 
 _SEND_TICK_S = 0.25  # how often a blocked send looks whether it should give up
+# A paced stream makes and sends the frames due within BLOCK_S together, in one system call
+# (at the hr400's fastest line rate, 41 us per frame, one call per frame would be the limit);
+# a block goes out when its last frame is due, so no frame leaves early and none more than
+# BLOCK_S late. An unpaced stream sends MAX_BLOCK_FRAMES at a time (3 buffers each: well
+# under the kernel's 1024 per sendmsg).
+BLOCK_S = 1e-3
+MAX_BLOCK_FRAMES = 64
 
 
 # -- the simulator's end of the socket ------------------------------------------------------
@@ -158,8 +165,22 @@ class StreamSocketServer(UnixSocketServer):
         The parts go out with ``sendmsg`` (scatter-gather), so header and pixels are never
         joined into a new buffer. ``abort()`` is asked while the host does not read; True
         gives up the transfer (the connection is closed: it cannot be resynchronised)."""
-        length = sum(len(p) for p in parts)
-        return self._send([MSG.pack(MSG_TRANSFER, length), *parts], abort=abort, halt=False)
+        return self.send_transfers([parts], abort=abort)
+
+    def send_transfers(
+        self,
+        transfers: Sequence[Sequence[bytes | memoryview]],
+        *,
+        abort: Callable[[], bool] | None = None,
+    ) -> bool:
+        """Send several transfers, in order, in as few ``sendmsg`` calls as the socket takes
+        (one system call for a block of frames instead of one per frame); False if no host
+        took them (then none of them counts as delivered: the connection is gone)."""
+        message: list[bytes | memoryview] = []
+        for parts in transfers:
+            message.append(MSG.pack(MSG_TRANSFER, sum(len(p) for p in parts)))
+            message.extend(parts)
+        return self._send(message, abort=abort, halt=False)
 
     def stall(self) -> bool:
         """Halt the bulk endpoint (a STALL message); False if no host is connected."""
@@ -363,14 +384,17 @@ class StreamEngine:
     pixels. Each frame goes out as one transfer (header + pixels by scatter-gather, no copy).
     ``pace=True`` sends frames on a clock of ``period_s`` in wall time (a source more than a
     period late moves the clock, so a slower source just makes the stream slower, without
-    bursts; nothing is dropped for that); frames made while no host can
+    bursts; nothing is dropped for that). Frames due within ``BLOCK_S`` of each other are made
+    and sent together when the last of them is due, in one system call (``MAX_BLOCK_FRAMES``
+    at a time unpaced): a line rate of tens of kHz is not a system call per frame. Frames
+    made while no host can
     take them (none connected, or the endpoint halted) are discarded and counted
     ``undelivered``, and the next frame sent carries DEVICE_OVERFLOW. ``pace=False`` sends as
     fast as the host reads, and waits (making nothing) while no host can take frames.
 
     A counted stream (``frames > 0``) ends by itself after that many frames, the last one
-    flagged LAST (its header CRC recomputed). ``stop()`` ends a stream after the frame in
-    progress. Either way ``on_done(frames_produced, next_counter)`` is called once, from the
+    flagged LAST (its header CRC recomputed). ``stop()`` ends a stream after the frames in
+    progress (a block: the frames already made go out). Either way ``on_done(frames_produced, next_counter)`` is called once, from the
     engine's thread, after the stream's last frame went out (unless ``stop(notify=False)``).
 
     Faults (``inject``, read per frame so it may be replaced at any time; rates per frame,
@@ -550,8 +574,15 @@ class StreamEngine:
         with self._cond:
             self._cond.wait_for(lambda: stream.stop or self._closing, timeout_s)
 
+    def _block_frames(self, stream: _Stream) -> int:
+        """How many frames to make and send together: those due within BLOCK_S (at least
+        one), or MAX_BLOCK_FRAMES when the host sets the pace."""
+        if not stream.pace or stream.period_s <= 0:
+            return MAX_BLOCK_FRAMES
+        return max(1, min(MAX_BLOCK_FRAMES, int(BLOCK_S / stream.period_s)))
+
     def _stream(self, stream: _Stream) -> None:
-        due = time.monotonic()
+        due = time.monotonic()  # when the next frame is due (paced streams)
         overflow = False  # frames were undelivered since the last one sent
         while True:
             if not stream.pace:
@@ -562,94 +593,141 @@ class StreamEngine:
                         break
                     if server is None:
                         self._wait(stream, 0.05)
-            elif stream.period_s > 0:
+            count = self._block_frames(stream)
+            if stream.pace and stream.period_s > 0:
+                # A block goes out when its last frame is due: no frame leaves before its time.
+                last_due = due + (count - 1) * stream.period_s
                 now = time.monotonic()
-                if due > now:
-                    self._wait(stream, due - now)
-                elif now - due > stream.period_s:
+                if last_due > now:
+                    self._wait(stream, last_due - now)
+                elif now - last_due > stream.period_s:
                     # More than a period late (a slow render): the schedule moves, so the frames
                     # after it do not come in a burst to catch up.
-                    due = now
-            with self._cond:
-                if stream.stop or self._closing:
-                    return
-                if stream.frames and stream.produced >= stream.frames:
-                    return
-                counter = self.next_counter
-                self.next_counter = (counter + 1) % U32_WRAP
-                stream.next_counter = self.next_counter
-                stream.produced += 1
-                self.counters.produced += 1
-                last = stream.frames > 0 and stream.produced == stream.frames
-            source = self.source
-            assert source is not None
-            header, pixels = source(counter)
-            # On a clock, like the sensor: the sleep's wake-up latency does not accumulate.
-            # Read after the source, which may have changed the period (``set_period``).
-            due += stream.period_s
-            sent = self._send_frame(header, pixels, last=last, overflow=overflow)
-            if sent is not None:
-                overflow = not sent
+                    due = now - (count - 1) * stream.period_s
+            block: list[tuple[FrameHeader, np.ndarray, bool, InjectSpec]] = []
+            ended = False
+            for _ in range(count):
+                with self._cond:
+                    if stream.stop or self._closing:
+                        ended = True
+                        break
+                    if stream.frames and stream.produced >= stream.frames:
+                        ended = True
+                        break
+                    counter = self.next_counter
+                    self.next_counter = (counter + 1) % U32_WRAP
+                    stream.next_counter = self.next_counter
+                    stream.produced += 1
+                    self.counters.produced += 1
+                    last = stream.frames > 0 and stream.produced == stream.frames
+                source = self.source
+                assert source is not None
+                header, pixels = source(counter)
+                # On a clock, like the sensor: the sleep's wake-up latency does not accumulate.
+                # Read after the source, which may have changed the period (``set_period``).
+                due += stream.period_s
+                # The faults in force when the frame was made (``inject`` may change any time).
+                block.append((header, pixels, last, self.inject))
+            if block:
+                overflow = self._send_block(stream, block, overflow)
+            if ended:
+                return
 
-    def _send_frame(
-        self, header: FrameHeader, pixels: np.ndarray, *, last: bool, overflow: bool
-    ) -> bool | None:
-        """Send one frame with the faults; True sent, False undelivered, None lost to a fault."""
+    def _send_block(
+        self,
+        stream: _Stream,
+        block: list[tuple[FrameHeader, np.ndarray, bool, InjectSpec]],
+        overflow: bool,
+    ) -> bool:
+        """Send a block of frames with the faults, in one ``sendmsg`` where nothing comes
+        between them; return whether frames went undelivered since the last one sent (the
+        next frame sent then carries DEVICE_OVERFLOW)."""
         server = self.server
         c = self.counters
-        if server is None or not server.ready:
-            c.undelivered += 1
-            return False
-        spec, rng = self.inject, self._rng
-        if spec.frame_drop and rng.random() < spec.frame_drop:
-            c.dropped += 1
-            return None
-        if spec.frame_stall and rng.random() < spec.frame_stall:
-            if not server.stall():
+        rng = self._rng
+        transfers: list[list[bytes | memoryview]] = []
+        kinds: list[tuple[bool, bool, int]] = []  # (cut short, corrupted, bytes) per transfer
+
+        def flush() -> bool:
+            """Send the transfers gathered so far; count them sent, or all undelivered."""
+            if not transfers:
+                return True
+            assert server is not None
+            sent = server.send_transfers(transfers, abort=self._abort_send)
+            for short, corrupted, nbytes in kinds:
+                if not sent:
+                    c.undelivered += 1
+                    continue
+                c.bytes_sent += nbytes
+                # Each frame counts once: one both corrupted and cut short reaches the host short.
+                if short:
+                    c.shortened += 1
+                else:
+                    c.sent += 1
+                    if corrupted:
+                        c.corrupted += 1
+            transfers.clear()
+            kinds.clear()
+            return sent
+
+        for header, pixels, last, spec in block:
+            if not stream.pace and server is not None:
+                # As fast as the host reads: a halt in the block (an injected stall) waits
+                # for the host's clear, as it would before the next frame is made.
+                while not server.wait_ready(0.05) and not (stream.stop or self._closing):
+                    pass
+            if server is None or not server.ready:
                 c.undelivered += 1
-                return False
-            c.stalls += 1
-            return None
-        flags = header.flags
-        if overflow:
-            flags |= FrameFlags.DEVICE_OVERFLOW
-        if last:
-            flags |= FrameFlags.LAST
-        if flags != header.flags:
-            header = dataclasses.replace(header, flags=flags)
-        head = encode_header(header)
-        payload = pixels.data.cast("B")
-        if len(payload) != header.payload_bytes:
-            raise ValueError(
-                f"the source gave {len(payload)} payload bytes for a header saying "
-                f"{header.payload_bytes} (counter {header.counter})"
-            )
-        corrupted = False
-        if spec.frame_corrupt and rng.random() < spec.frame_corrupt:
-            damaged = np.frombuffer(payload, dtype=np.uint8).copy()
-            bit = int(rng.integers(0, damaged.size * 8))
-            damaged[bit >> 3] ^= np.uint8(1 << (bit & 7))
-            payload = damaged.data
-            corrupted = True
-        parts: list[bytes | memoryview] = [head, payload]
-        short = False
-        if spec.frame_short and rng.random() < spec.frame_short:
-            total = HEADER_BYTES + len(payload)
-            keep = int(rng.integers(1, total))  # 1 .. total - 1
-            parts = [head[:keep], payload[: max(0, keep - HEADER_BYTES)]]
-            short = True
-        if not server.send_transfer(parts, abort=self._abort_send):
-            c.undelivered += 1
-            return False
-        c.bytes_sent += sum(len(p) for p in parts)
-        # Each frame counts once: one both corrupted and cut short reaches the host short.
-        if short:
-            c.shortened += 1
-        else:
-            c.sent += 1
-            if corrupted:
-                c.corrupted += 1
-        return True
+                overflow = True
+                continue
+            if spec.frame_drop and rng.random() < spec.frame_drop:
+                c.dropped += 1
+                continue
+            if spec.frame_stall and rng.random() < spec.frame_stall:
+                # The frames before it go out first: the halt comes after them on the wire.
+                if not flush():
+                    overflow = True
+                if not server.stall():
+                    c.undelivered += 1
+                    overflow = True
+                    continue
+                c.stalls += 1
+                continue
+            flags = header.flags
+            if overflow:
+                flags |= FrameFlags.DEVICE_OVERFLOW
+            if last:
+                flags |= FrameFlags.LAST
+            if flags != header.flags:
+                header = dataclasses.replace(header, flags=flags)
+            # Checked when the source made it (frame_header); the flags added are known ones.
+            head = pack_header(header)
+            payload = pixels.data.cast("B")
+            if len(payload) != header.payload_bytes:
+                raise ValueError(
+                    f"the source gave {len(payload)} payload bytes for a header saying "
+                    f"{header.payload_bytes} (counter {header.counter})"
+                )
+            corrupted = False
+            if spec.frame_corrupt and rng.random() < spec.frame_corrupt:
+                damaged = np.frombuffer(payload, dtype=np.uint8).copy()
+                bit = int(rng.integers(0, damaged.size * 8))
+                damaged[bit >> 3] ^= np.uint8(1 << (bit & 7))
+                payload = damaged.data
+                corrupted = True
+            parts: list[bytes | memoryview] = [head, payload]
+            short = False
+            if spec.frame_short and rng.random() < spec.frame_short:
+                total = HEADER_BYTES + len(payload)
+                keep = int(rng.integers(1, total))  # 1 .. total - 1
+                parts = [head[:keep], payload[: max(0, keep - HEADER_BYTES)]]
+                short = True
+            transfers.append(parts)
+            kinds.append((short, corrupted, sum(len(p) for p in parts)))
+            overflow = False
+        if not flush():
+            overflow = True
+        return overflow
 
 
 # -- ready-made frames ----------------------------------------------------------------------

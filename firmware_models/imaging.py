@@ -40,6 +40,11 @@ from firmware_models.sensor import SensorModel
 from firmware_models.sensor_link import SensorLink
 
 NS_PER_S = 1_000_000_000
+# Encoder counts are looked up for the frames starting within this much model time of the one
+# being made, at most ENCODER_BLOCK_FRAMES of them: one stage look-up costs about the same for
+# one time as for 32, and a command in between (a new revision) makes the rest looked up again.
+ENCODER_AHEAD_S = 2e-3
+ENCODER_BLOCK_FRAMES = 32
 
 
 class StreamRefused(ValueError):
@@ -82,8 +87,13 @@ class ImagingPipeline:
         self.engine = engine
         self.lock = lock
         self.geometry: StreamGeometry | None = None
-        # Stage encoder count at a device time, latched into each frame header (None: 0).
-        self.encoder_at: Callable[[float], int] | None = None
+        # Stage encoder counts at device times, latched into each frame header (None: 0), and
+        # the revision of what the stage was commanded: counts looked up at one revision hold
+        # until it changes.
+        self.encoder_at: Callable[[Sequence[float]], list[int]] | None = None
+        self.encoder_revision: Callable[[], int] = lambda: 0
+        self._encoder_ahead: dict[float, int] = {}  # frame start time -> its count
+        self._encoder_ahead_revision = -1
         # Start time of frame k (row 0's reset) for the frame made next, and k.
         self._next_k = 0
         self._next_start_s = 0.0
@@ -98,6 +108,8 @@ class ImagingPipeline:
         # Replay: render the first ``frame_bank`` frames of a stream, then send them again in a
         # loop (fresh headers), for throughput tests at line rates the renderer cannot reach.
         self.frame_bank = 0
+        # Benchmarks: frames as fast as the host takes them, not on the sensor's clock.
+        self.unpaced = False
         self._bank: dict[int, tuple[npt.NDArray[np.uint16], FrameFlags]] = {}
 
     @property
@@ -170,7 +182,7 @@ class ImagingPipeline:
         self.engine.start(
             frames=frames,
             period_s=timing.frame_period_s,
-            pace=schedule_s is None,
+            pace=schedule_s is None and not self.unpaced,
             first_counter=geometry.first_counter,
         )
         return geometry
@@ -260,9 +272,29 @@ class ImagingPipeline:
         if self.encoder_at is None:
             return 0
         with self.lock:
-            count = int(self.encoder_at(start_s))
+            revision = self.encoder_revision()
+            count = self._encoder_ahead.get(start_s)
+            if count is None or revision != self._encoder_ahead_revision:
+                count = self._look_up_encoder(start_s, revision)
         # The header field is a signed 32-bit count; an encoder wraps like the hardware's.
         return (count + (1 << 31)) % (1 << 32) - (1 << 31)
+
+    def _look_up_encoder(self, start_s: float, revision: int) -> int:
+        """The encoder count at ``start_s``, looked up with those of the frames that follow
+        it within ENCODER_AHEAD_S at the present frame period: one stage look-up for a block
+        of frames (docs/simulator.md, "Speed"). A frame finds its count again only at the
+        same revision (no command since) and at exactly the start time predicted, the sum
+        ``_frame_start`` makes, so the counts are those a look-up per frame would give."""
+        assert self.encoder_at is not None
+        period = self._period_s
+        n = 1 if period <= 0 else max(1, min(ENCODER_BLOCK_FRAMES, int(ENCODER_AHEAD_S / period)))
+        times = [start_s]
+        for _ in range(n - 1):
+            times.append(times[-1] + period)
+        counts = self.encoder_at(times)
+        self._encoder_ahead = dict(zip(times, counts, strict=True))
+        self._encoder_ahead_revision = revision
+        return counts[0]
 
     def _render(
         self, t_s: float, geometry: StreamGeometry, registers: SensorModel

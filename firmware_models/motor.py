@@ -42,7 +42,7 @@ the whole i32 range).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -218,6 +218,7 @@ class MotorController:
         self._driver: Literal["disabled", "enabled", "estop"] = "disabled"
         self._plan: _Plan | None = None
         self._epochs = [_Epoch(t0_s, 0.0, 0.0, homed=False)]
+        self._epoch_changes = 0  # see ``revision``
         self._events: list[tuple[float, Event]] = []
         self._last_t = t0_s
         self._handlers: dict[str, Callable[..., dict[str, Any]]] = {
@@ -259,10 +260,31 @@ class MotorController:
 
     def encoder_count(self, t_s: float) -> int:
         """The encoder count at ``t_s`` (what the FPGA latches into a frame header)."""
+        return self.encoder_counts([t_s])[0]
+
+    def encoder_counts(self, times_s: Sequence[float]) -> list[int]:
+        """``encoder_count`` at each of ``times_s``, in one look-up of the stage (a block of
+        frames' latches at once: one vectorised call costs about what one scalar call does)."""
         with self.stage.lock:
-            epoch = self._epoch_at(t_s)
-            counts = self.stage.encoder_counts(np.array([t_s]), epoch.reference_m)
-            return int(counts[0])
+            times = np.asarray(times_s, dtype=np.float64)
+            references = {self._epoch_at(float(t)).reference_m for t in times}
+            if len(references) == 1:
+                return [int(c) for c in self.stage.encoder_counts(times, references.pop())]
+            # A homing's trip among them: each time with its own epoch's reference.
+            return [
+                int(
+                    self.stage.encoder_counts(np.array([t]), self._epoch_at(float(t)).reference_m)[
+                        0
+                    ]
+                )
+                for t in times
+            ]
+
+    @property
+    def revision(self) -> int:
+        """Changes whenever a command changed what the stage does or where the encoder counts
+        from: encoder counts looked up at one revision stay true until it changes."""
+        return self.stage.revision + self._epoch_changes
 
     def homed(self, t_s: float) -> bool:
         return self._epoch_at(t_s).homed
@@ -599,6 +621,7 @@ class MotorController:
                     plan.segments = plan.home_run
                     plan.trip_s = None
                     self._epochs = [e for e in self._epochs if e.t_s <= t_s]
+                    self._epoch_changes += 1
                 self._start(t_s, plan)
 
     def sim_set_stage_faults(
@@ -656,6 +679,7 @@ class MotorController:
         """Forget the motion in progress (and a homing reference not yet reached)."""
         self._plan = None
         self._epochs = [e for e in self._epochs if e.t_s <= t_s]
+        self._epoch_changes += 1
 
     def _start(self, t_s: float, plan: _Plan) -> None:
         """Command ``plan`` from ``t_s``: set the stage's profile, predict stops and stalls."""
@@ -716,6 +740,7 @@ class MotorController:
         plan.trip_s = trip
         plan.segments = [*[s for s in run if s.t0_s < trip], *back]
         self._epochs.append(_Epoch(trip, p_trip, level, homed=True))
+        self._epoch_changes += 1
         self.stage.set_profile(trip, back)
         plan.checked_until_s = trip
         self._look_ahead(plan, trip)

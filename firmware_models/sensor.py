@@ -49,6 +49,9 @@ class SensorModel:
         self._values: dict[int, int] = {}
         self._latched: dict[int, int] = {}  # address -> value written while its group was held
         self.version = 0  # counts register changes (the imaging path notices them)
+        # timing() of the registers at a version: every frame asks, and the registers that
+        # set it change only when a command writes them.
+        self._timing: tuple[int, SensorTiming] | None = None
         self.power_on_reset()
 
     def snapshot(self) -> SensorModel:
@@ -146,7 +149,12 @@ class SensorModel:
 
     def timing(self) -> SensorTiming:
         """Line period, exposure, frame time, TDI line period the registers set now."""
-        return sensor_timing(self.regmap, self.value)
+        cached = self._timing
+        if cached is not None and cached[0] == self.version:
+            return cached[1]
+        timing = sensor_timing(self.regmap, self.value)
+        self._timing = (self.version, timing)
+        return timing
 
     @property
     def window_start_row(self) -> int:
@@ -217,6 +225,7 @@ class SensorModel:
             for reg in self.regmap.group_registers(group):
                 if reg.address in self._latched:
                     self._values[reg.address] = self._latched.pop(reg.address)
+                    self.version += 1
 
     def _raise_role_flag(self, role: str) -> None:
         name = self.regmap.role(role)

@@ -382,6 +382,9 @@ class StepperStage:
         with self.lock:
             if faults is None:
                 faults = self.faults if hasattr(self, "_fault_list") else StageFaults()
+            # Counts changes of what was commanded (reset, profile, faults): a look-up made
+            # at one revision stays true until the next.
+            self.revision = getattr(self, "revision", 0) + 1
             self.t0_s = float(t0_s)
             self._segments = _Segments()
             self._segments.replace_from(
@@ -412,12 +415,14 @@ class StepperStage:
             t_s = self._at_least_start(t_s)
             self._truncate(t_s)
             self._segments.replace_from(t_s, segments)
+            self.revision += 1
 
     def set_faults(self, t_s: float, faults: StageFaults) -> None:
         """Change the imperfections from ``t_s`` on (from the next grid cell)."""
         with self.lock:
             t_s = self._at_least_start(t_s)
             self._truncate(t_s)
+            self.revision += 1
             while len(self._fault_t) > 1 and self._fault_t[-1] >= t_s:
                 self._fault_t.pop()
                 self._fault_list.pop()

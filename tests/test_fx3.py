@@ -32,6 +32,7 @@ from camd.protocol.stream import (
     decode_header,
     payload_ok,
 )
+from firmware_models import fx3
 from firmware_models.fx3 import BankSource, StreamEngine, StreamSocketServer
 from firmware_models.fx3_backend import (
     EP_IN,
@@ -324,6 +325,30 @@ def test_paced_frames_without_a_host_are_undelivered(
     engine.start(2, 0.001, pace=True)
     h = decode_header(read_transfer(dev))
     assert h.counter == 5 and not h.flags & FrameFlags.DEVICE_OVERFLOW
+    engine.close()
+
+
+def test_a_fast_paced_stream_goes_in_blocks_none_early(
+    server: StreamSocketServer, bank: BankSource, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Blocks of 0.2 s (BLOCK_S is 1 ms; longer here so that the times tell): 10 ms frames go
+    # twenty to a block, each block sent when its last frame is due. All arrive, in order,
+    # and none before its time: frame 19 (the first block's last) is due 0.19 s after the
+    # start, frame 39 0.39 s (blocks sent when their first frame is due would have frame 0
+    # out at once). Lower bounds only: a busy machine makes frames later, never earlier.
+    monkeypatch.setattr(fx3, "BLOCK_S", 0.2)
+    engine = StreamEngine(bank, server=server)
+    _backend, dev = connected(server)
+    started = time.monotonic()
+    engine.start(40, 0.01, pace=True)
+    arrived = []
+    for _ in range(40):
+        counter = decode_header(read_transfer(dev)).counter
+        arrived.append((counter, time.monotonic() - started))
+    assert [c for c, _ in arrived] == list(range(40))
+    assert arrived[0][1] >= 0.19 and arrived[20][1] >= 0.39
+    assert engine.wait_idle(30.0)
+    assert (engine.counters.sent, engine.counters.undelivered) == (40, 0)
     engine.close()
 
 

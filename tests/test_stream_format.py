@@ -24,6 +24,7 @@ from camd.protocol import (
     frame_header,
     payload_ok,
 )
+from camd.protocol.stream import pack_header
 
 ROOT = Path(__file__).resolve().parents[1]
 STREAM_MD = ROOT / "docs" / "stream.md"
@@ -89,6 +90,20 @@ def test_header_bytes_match_the_hand_written_layout() -> None:
     assert crc32_bitwise(wire[:60]) == struct.unpack_from("<I", wire, 60)[0]
     assert struct.calcsize("<4sHHIQIHHBBHiIII12xI") == 64
     assert decode_header(wire) == h
+
+
+def test_pack_header_is_encode_header_without_the_checks() -> None:
+    h = example_header()
+    assert pack_header(h) == encode_header(h) == bytes.fromhex(EXAMPLE_HEADER_HEX)
+    flagged = dataclasses.replace(h, flags=h.flags | FrameFlags.LAST)  # as the FX3 adds it
+    assert pack_header(flagged) == encode_header(flagged)
+    assert decode_header(pack_header(flagged)).flags & FrameFlags.LAST
+    # It checks nothing: the payload size no longer matches, and only encode_header says so.
+    wrong = dataclasses.replace(h, payload_bytes=h.payload_bytes + 2)
+    with pytest.raises(StreamFormatError, match="payload_bytes is 14"):
+        encode_header(wrong)
+    with pytest.raises(StreamFormatError, match="payload_bytes is 14"):
+        decode_header(pack_header(wrong))
 
 
 def test_docs_worked_example_is_what_the_code_sends() -> None:

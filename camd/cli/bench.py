@@ -44,7 +44,8 @@ import serial
 import usb.core
 import usb.util
 
-from camd.cli import bench_fuzz, bench_live, bench_scan, bench_tdi
+from camd.cli import bench_fuzz, bench_live, bench_pipeline, bench_scan, bench_sim, bench_tdi
+from camd.cli.bench_streamer import FrameStreamer
 from camd.link.frame_stream import FrameStream
 from camd.protocol import FrameType, encode_frame, load_dictionary
 from firmware_models.fx3_backend import PRODUCT_ID, VENDOR_ID, get_backend
@@ -95,6 +96,8 @@ def add_parser(sub: Any) -> None:
     stream.add_argument("--json", action="store_true", help="print one JSON document")
     bench_tdi.add_parser(which)
     bench_scan.add_parser(which)
+    bench_pipeline.add_parser(which)
+    bench_sim.add_parser(which)
     bench_live.add_parser(which)
     bench_fuzz.add_parser(which)
 
@@ -104,6 +107,10 @@ def run(args: argparse.Namespace) -> int:
         return bench_tdi.run(args)
     if args.bench == "scan":
         return bench_scan.run(args)
+    if args.bench == "sim":
+        return bench_sim.run(args)
+    if args.bench == "pipeline":
+        return bench_pipeline.run(args)
     if args.bench == "live":
         return bench_live.run(args)
     if args.bench == "fuzz":
@@ -218,43 +225,6 @@ def _run_stream(args: argparse.Namespace) -> int:
     return 0
 
 
-class _Streamer:
-    """``python -m firmware_models.fx3`` in its own process, as the simulator is in production."""
-
-    def __init__(self, socket_path: Path, rows: int, cols: int) -> None:
-        self.proc = subprocess.Popen(
-            [
-                sys.executable,
-                "-m",
-                "firmware_models.fx3",
-                "--socket",
-                str(socket_path),
-                "--rows",
-                str(rows),
-                "--cols",
-                str(cols),
-            ],
-            stdin=subprocess.PIPE,
-            stdout=subprocess.PIPE,
-            text=True,
-        )
-        assert self.proc.stdout is not None
-        line = self.proc.stdout.readline()
-        if not line:
-            self.proc.wait(timeout=5)
-            raise RuntimeError(f"the simulated FX3 exited with status {self.proc.returncode}")
-        self.ready: dict[str, Any] = json.loads(line)
-
-    def close(self) -> dict[str, Any]:
-        """End the process (closing its stdin); its engine counters."""
-        assert self.proc.stdin is not None and self.proc.stdout is not None
-        self.proc.stdin.close()
-        out = self.proc.stdout.read()
-        self.proc.wait(timeout=10)
-        lines = out.strip().splitlines()
-        return json.loads(lines[-1]) if lines else {}
-
-
 def bare_bulk_mbyte_s(socket_path: Path, frame_bytes: int, seconds: float) -> dict[str, Any]:
     """Bulk reads of whole transfers into one buffer, no parsing: the transport's floor."""
     backend = get_backend(socket_path)
@@ -315,7 +285,7 @@ def bench_stream(
     ingests: list[dict[str, Any]] = []
     with tempfile.TemporaryDirectory(prefix="camd-bench-") as tmp:
         sock = Path(tmp) / "fx3.sock"
-        streamer = _Streamer(sock, rows, cols)
+        streamer = FrameStreamer(sock, rows, cols)
         try:
             for _ in range(rounds):
                 bases.append(bare_bulk_mbyte_s(sock, frame_bytes, seconds / rounds))

@@ -61,6 +61,8 @@ class Progress:
     gap_frames: int  # frames lost, corrupt, overrun or dropped inside the scan
     dropped_frames: int  # frames the batcher gave up (wrong geometry, worker too far behind)
     tdi_cpu_s: float  # CPU time of the worker thread
+    engine_cpu_s: float  # of which in the TDI engine (push_many), on the worker thread
+    record_cpu_s: float  # of which in the mismatch and the HDF5 append
     stage_changes: tuple[tuple[int, int], ...]  # (line index, M): the first M, then each change
     mismatch_max: float | None  # largest |M dV/V| of a complete line, pixels
     mismatch_rms: float | None  # RMS |M dV/V| over the complete lines, pixels
@@ -120,6 +122,7 @@ class TdiPipeline:
         # Written by the worker thread only; read by ``progress``.
         self._lines = self._complete_lines = self._frames_in = self._gap_frames = 0
         self._tdi_cpu_s = 0.0
+        self._engine_cpu_s = self._record_cpu_s = 0.0
         self._stage_changes: list[tuple[int, int]] = []
 
     # -- what the caller uses -------------------------------------------------------------------
@@ -180,6 +183,8 @@ class TdiPipeline:
             gap_frames=self._gap_frames,
             dropped_frames=self._batcher.dropped,
             tdi_cpu_s=self._tdi_cpu_s,
+            engine_cpu_s=self._engine_cpu_s,
+            record_cpu_s=self._record_cpu_s,
             stage_changes=tuple(self._stage_changes),
             mismatch_max=None if tracker is None else tracker.max,
             mismatch_rms=None if tracker is None else tracker.rms,
@@ -274,10 +279,13 @@ class TdiPipeline:
 
     def _push(self, batch: Batch) -> None:
         engine = self._engine
+        t_engine = time.thread_time()
         try:
             block = engine.push_many(batch.frames)
         finally:
             self._batcher.recycle(batch.pixels)
+        t_record = time.thread_time()
+        self._engine_cpu_s += t_record - t_engine
         mismatch = None
         if self._mismatch is not None:
             result = self._mismatch.add(
@@ -296,6 +304,7 @@ class TdiPipeline:
             stage_position=batch.encoder,
             m_dv_over_v=mismatch,
         )
+        self._record_cpu_s += time.thread_time() - t_record
         self._frames_in += batch.n
         self._lines += batch.n
         self._complete_lines += int(block.complete.sum())

@@ -132,6 +132,12 @@ def encode_header(h: FrameHeader) -> bytes:
     if int(h.flags) & ~_KNOWN_FLAGS:
         raise StreamFormatError(f"flags = 0x{int(h.flags):X} has bits outside 0x{_KNOWN_FLAGS:X}")
     _check_semantics(h)
+    return pack_header(h)
+
+
+def pack_header(h: FrameHeader) -> bytes:
+    """``encode_header`` without its checks, for a header known to be valid (made by
+    ``frame_header``, its flags since changed to known ones): a sender's per-frame path."""
     body = _BODY.pack(
         MAGIC,
         VERSION,
