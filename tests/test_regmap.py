@@ -417,3 +417,10 @@ def test_field_and_map_models_can_be_built_in_code() -> None:
     assert reg.decode(5) == {"rows_minus_1": 5}
     data = HR400.model_dump()
     assert RegisterMap.model_validate(data) == HR400
+
+
+def test_role_write_is_role_count_inverted_bias_included() -> None:
+    # The MT9M001 holds rows - 1 (bias 1): 8 rows are raw 7; the HR400's WIN_ROWS has no bias.
+    assert load_register_map("mt9m001").role_write("window_rows", 8) == ("ROW_SIZE.rows_minus_1", 7)
+    assert load_register_map("hr400").role_write("window_rows", 8) == ("WIN_ROWS", 8)
+    assert load_register_map("mt9m001").role_write("back_path", 0) is None  # it has none

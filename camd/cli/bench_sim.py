@@ -90,11 +90,9 @@ def _set_window(fpga: Any, rows: int) -> None:
     regmap = fpga.regmap
     writes: dict[str, int | str] = {}
     for role, count in (("window_rows", rows), ("exposure_lines", 1), ("back_path", 0)):
-        name = regmap.role(role)
-        if name is None:
-            continue
-        _, spec = regmap.resolve(name)
-        writes[name] = count - (spec.bias if spec is not None else 0)
+        write = regmap.role_write(role, count)
+        if write is not None:
+            writes[write[0]] = write[1]
     SensorRegisters(regmap, _SensorBridge(fpga)).write(writes)  # type: ignore[arg-type]
 
 

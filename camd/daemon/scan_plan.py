@@ -179,11 +179,9 @@ def window_writes(
     writes: dict[str, int | str] = {}
 
     def put(role: str, count: int) -> None:
-        name = regmap.role(role)
-        if name is None:
-            return
-        _, spec = regmap.resolve(name)
-        writes[name] = count - (spec.bias if spec is not None else 0)
+        write = regmap.role_write(role, count)
+        if write is not None:
+            writes[write[0]] = write[1]
 
     if n_lines != now.window_rows:
         put("window_rows", n_lines)

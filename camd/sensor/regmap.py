@@ -751,6 +751,15 @@ class RegisterMap(BaseModel):
         _, field_spec = self.resolve(name)
         return field_spec.count(raw) if field_spec is not None else raw
 
+    def role_write(self, role: str, count: int) -> tuple[str, int] | None:
+        """(value name, raw value) that sets a numeric role to the counted quantity ``count``
+        (raw = count - the field's bias: ``role_count``'s inverse); None if absent."""
+        name = self.role(role)
+        if name is None:
+            return None
+        _, field_spec = self.resolve(name)
+        return name, count - (field_spec.bias if field_spec is not None else 0)
+
     def is_soft_reset(self, reg: RegisterSpec, value: int) -> bool:
         """Whether writing ``value`` to ``reg`` resets every register (``soft_reset``)."""
         if self.soft_reset is None:
