@@ -11,7 +11,8 @@ import argparse
 
 import pytest
 
-from camd.cli.bench_pipeline import last_level_cache_bytes, line_rate_hz, measure, run
+from camd.cli.bench_common import last_level_cache_bytes
+from camd.cli.bench_pipeline import line_rate_hz, measure, run
 from camd.protocol.stream import HEADER_BYTES
 
 # Real-time streaming: alone under xdist (tests/conftest.py).

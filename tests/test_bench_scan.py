@@ -30,3 +30,9 @@ def test_bench_scan_reports_a_lossless_scan_against_the_line_rate() -> None:
     # The simulator rendered 4 frames and replayed them: it made exactly the frames asked for.
     assert result["sim"]["produced"] == result["sim"]["sent"] == 31
     assert result["frame_bank"] == 4
+    # The daemon's memory, read from /proc: no mark (the scan is shorter than 5000 lines), the
+    # peak at least what was seen while polling, which is at least the end's.
+    rss = result["daemon_rss_kib"]
+    assert rss["at_5000_lines"] is None
+    assert rss["peak"] >= rss["max_polled"] >= 10_000
+    assert rss["end"] > 10_000

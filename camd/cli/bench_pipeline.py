@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import statistics
 import tempfile
 import threading
@@ -25,6 +24,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from camd.cli.bench_common import beyond_cache_bytes, last_level_cache_bytes, machine, thread_cpu_s
 
 DEFAULT_PROFILES = ("hr400",)
 DEFAULT_STAGES = 96
@@ -63,28 +64,6 @@ def add_parser(which: Any) -> None:
     p.add_argument("--json", action="store_true", help="print one JSON document")
 
 
-def last_level_cache_bytes() -> int | None:
-    """The largest CPU cache this machine reports (Linux sysfs), or None."""
-    sizes = []
-    for index in Path("/sys/devices/system/cpu/cpu0/cache").glob("index*"):
-        try:
-            text = (index / "size").read_text().strip()
-        except OSError:
-            continue
-        units = {"K": 1 << 10, "M": 1 << 20, "G": 1 << 30}
-        if text and text[-1] in units and text[:-1].isdigit():
-            sizes.append(int(text[:-1]) * units[text[-1]])
-        elif text.isdigit():
-            sizes.append(int(text))
-    return max(sizes) if sizes else None
-
-
-def thread_cpu_s(native_id: int) -> float:
-    """User + system CPU seconds of one thread of this process (Linux /proc)."""
-    fields = Path(f"/proc/self/task/{native_id}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-
-
 def _threads() -> dict[str, int]:
     """Native ids of the pipeline's named threads."""
     ids = {t.name: t.native_id for t in threading.enumerate() if t.native_id is not None}
@@ -118,8 +97,7 @@ def measure(
     rate_hz, cols = line_rate_hz(profile, stages)
     frame_bytes = HEADER_BYTES + 2 * stages * cols
     if bank_mb <= 0:
-        cache = last_level_cache_bytes()
-        bank_mb = 2 * cache / 1e6 if cache else BANK_MB_MIN
+        bank_mb = beyond_cache_bytes(int(BANK_MB_MIN * 1e6)) / 1e6
     bank_mb = min(max(bank_mb, frame_bytes / 1e6), BANK_MB_MAX)
     bank = max(1, round(bank_mb * 1e6 / frame_bytes))
     samples: list[dict[str, float]] = []
@@ -230,7 +208,12 @@ def run(args: argparse.Namespace) -> int:
         for p in profiles
     ]
     if args.json:
-        print(json.dumps({"cases": cases, "last_level_cache_bytes": last_level_cache_bytes()}))
+        doc = {
+            "cases": cases,
+            "last_level_cache_bytes": last_level_cache_bytes(),
+            "machine": machine(),
+        }
+        print(json.dumps(doc))
         return 0
     for c in cases:
         us = c["cpu_us_per_frame"]

@@ -63,6 +63,21 @@ def _children(pid: int) -> list[int]:
     return kids
 
 
+RSS_MARK_LINES = 5000
+"""Lines at which the daemon's memory is noted, to compare with the end of a long scan."""
+
+
+def _status_kib(pid: int, field: str) -> int | None:
+    """A ``kB`` field of ``/proc/PID/status`` (``VmRSS``, ``VmHWM``), or None."""
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith(field + ":"):
+                return int(line.split()[1])
+    except (OSError, ValueError, IndexError):
+        return None
+    return None
+
+
 def bench_scan(*, profile: str, stages: int, lines: int, frame_bank: int) -> dict[str, Any]:
     """Run the scan and return the figures (see the module docstring)."""
     from camd.cli._daemon_proc import DaemonProcess
@@ -88,8 +103,25 @@ def bench_scan(*, profile: str, stages: int, lines: int, frame_bank: int) -> dic
                 stages, lines, out=str(Path(tmp) / "scan.h5"), line_period_s=period_s,
                 quicklook=False, drive_stage=False,
             )  # fmt: skip
-            doc = client.wait_scan(timeout_s=60 + 4 * (lines + stages) * period_s)
+            # Poll (as wait_scan does) and note the daemon's memory on the way: at
+            # RSS_MARK_LINES lines, and its largest over the scan.
+            deadline = started + 60 + 4 * (lines + stages) * period_s
+            rss_mark: int | None = None
+            rss_max = 0
+            while True:
+                doc = client.scan()
+                rss = _status_kib(daemon.pid, "VmRSS") or 0
+                rss_max = max(rss_max, rss)
+                if rss_mark is None and int(doc.get("lines") or 0) >= RSS_MARK_LINES:
+                    rss_mark = rss
+                if doc["state"] not in ("starting", "running"):
+                    break
+                if time.monotonic() > deadline:
+                    raise RuntimeError(f"the scan did not end in {deadline - started:.0f} s")
+                time.sleep(0.5)
             wall_s = time.monotonic() - started
+            rss_end = _status_kib(daemon.pid, "VmRSS")
+            rss_peak = _status_kib(daemon.pid, "VmHWM")
             after = [_cpu_s(daemon.pid), *(_cpu_s(p) for p in sims)]
             sim_stats = client.sim_stream_stats()
             client.close()
@@ -126,6 +158,14 @@ def bench_scan(*, profile: str, stages: int, lines: int, frame_bank: int) -> dic
         "frame_bank": frame_bank,
         "sim": dict(sim_stats),
         "state": doc["state"],
+        # The daemon's resident memory (KiB): at RSS_MARK_LINES lines (None if the scan was
+        # shorter), the largest seen while polling, at the end, and the kernel's peak.
+        "daemon_rss_kib": {
+            f"at_{RSS_MARK_LINES}_lines": rss_mark,
+            "max_polled": rss_max,
+            "end": rss_end,
+            "peak": rss_peak,
+        },
         "loadavg": list(os.getloadavg()),
     }
 
@@ -154,5 +194,12 @@ def run(args: argparse.Namespace) -> int:
         f"lost {result['lost_frames']}, overruns {result['overruns']}; CPU: daemon "
         f"{result['daemon_cpu_load']:.2f} core (TDI worker {result['tdi_cpu_load']:.3f}), "
         f"simulator {'?' if sim is None else f'{sim:.2f}'} core"
+    )
+    rss = result["daemon_rss_kib"]
+    mark = rss[f"at_{RSS_MARK_LINES}_lines"]
+    print(
+        f"daemon memory: {'-' if mark is None else f'{mark / 1024:.1f} MiB'} at "
+        f"{RSS_MARK_LINES} lines, {rss['max_polled'] / 1024:.1f} MiB the most seen, "
+        f"{(rss['end'] or 0) / 1024:.1f} MiB at the end, peak {(rss['peak'] or 0) / 1024:.1f} MiB"
     )
     return 0

@@ -1,25 +1,23 @@
-"""``camd bench tdi``: the TDI engine against ``np.copyto`` of the same bytes and a naive loop.
+"""``camd bench tdi``: the TDI engine against ``np.copyto`` of the same bytes, on the same threads.
 
-In one run, on the same frames (uint16, random 12-bit, a frame set far larger than the L3 cache),
-for each shape (M stages x N columns) and for integer (``rows_per_line = 1``) and fractional
-(``rows_per_line = 1.02``) TDI:
+For each shape (M stages x N columns) and each path:
 
-- **engine**: ``TdiEngine.push_many`` over the frame set in blocks of ``--block`` frames, as the
-  daemon feeds it;
-- **batch**: ``tdi_batch`` on the whole frame set;
-- **naive**: a straightforward per-line numpy loop (line k = the sum over i of
-  ``frames[k - i, i]``, gathered by fancy indexing), on a window of lines that moves through the
-  frame set; on the fractional path it interpolates each stage in float32 with the engine's
-  1/256-pixel weights, so its result is close to the engine's but not bit-identical;
-- **copy**: ``np.copyto`` of the whole frame set into a preallocated array (the memory-bandwidth
-  baseline);
-- **push x1**: ``TdiEngine.push`` one frame per call, on a few hundred frames (an extra figure:
-  the same work plus one call, and no threads' share of a block, per frame).
+- **integer**: ``rows_per_line = 1`` (the synchronous scan), ``TdiEngine.push_many`` in blocks
+  of the daemon's own batch size (``camd.pipeline.batcher.batch_frames_for``);
+- **fractional**: ``rows_per_line = 1.02`` (a 2 % velocity mismatch: every stage interpolated
+  between two rows), ``push_many`` likewise;
+- **drift**: ``cols_per_line = 0.02`` (a drift angle of 1.15 degrees: every stage interpolated
+  between two columns), ``push_many`` likewise;
+- **push**: ``rows_per_line = 1``, ``TdiEngine.push`` one frame per call (a live stream that
+  hands over frames one at a time).
 
-Every figure is Gpix/s of *input* (frames x rows x N per second, the same definition for all).
-The methods alternate in rounds, each method running whole passes until it has spent
-``seconds / rounds`` in the round, so that a slow spell of this shared machine hits all of them;
-the median of the rounds is reported and the ratios are ratios of medians.
+The baseline is ``np.copyto`` of the same frame set into a preallocated array, on as many
+threads as the engine has (``--threads``, default 1): the memory-bandwidth floor of touching
+the same input bytes. The frame set of each path is larger than the machine's last-level cache
+(twice it, read from sysfs, and at least 256 MB), so neither side runs from cache. Baseline and
+engine alternate (A B, B A, ...) in ``--rounds`` rounds of ``--seconds`` each, whole passes; the
+figure is Gpix/s of *input* (frames x rows x N per second), and the ratio is the median of the
+rounds' own engine/copy ratios.
 
 Before anything is timed the engine's output (``push_many`` in blocks, and ``push`` on the first
 frames) is compared with ``tdi_batch``: a fast but wrong engine fails the bench (exit status 1).
@@ -28,20 +26,29 @@ frames) is compared with ``tdi_batch``: a fast but wrong engine fails the bench 
 from __future__ import annotations
 
 import argparse
-import importlib
 import importlib.metadata
+import itertools
 import json
-import math
-import os
-import platform
-import statistics
 import sys
 import time
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 import numpy.typing as npt
+
+from camd.cli.bench_common import (
+    DEFAULT_ROUNDS,
+    MIN_ROUND_S,
+    add_round_options,
+    alternate,
+    beyond_cache_bytes,
+    choice_list,
+    machine,
+    rate_over,
+)
 
 if TYPE_CHECKING:
     from camd.tdi import TdiEngine
@@ -50,32 +57,35 @@ Frames = npt.NDArray[np.uint16]
 KernelName = Literal["auto", "numba", "numpy"]
 
 SHAPES: tuple[tuple[int, int], ...] = ((96, 2048), (32, 4096))
-"""(stages M, width N) measured by default: the issue's two shapes."""
+"""(stages M, width N) measured by default."""
 
-FRACTIONAL_ROWS_PER_LINE = 1.02
-"""The fractional path's ``rows_per_line``: a 2 % velocity mismatch."""
 
-TARGETS = {
-    "integer_engine_over_copy": 1.0,
-    "fractional_engine_over_copy": 0.5,
-    "integer_floor": 0.7,
+@dataclass(frozen=True)
+class PathSpec:
+    """One way of running the engine: its geometry and whether it is fed one frame a call."""
+
+    rows_per_line: float = 1.0
+    cols_per_line: float = 0.0
+    one_frame_per_call: bool = False
+
+
+PATHS: dict[str, PathSpec] = {
+    "integer": PathSpec(),
+    "fractional": PathSpec(rows_per_line=1.02),
+    "drift": PathSpec(cols_per_line=0.02),
+    "push": PathSpec(one_frame_per_call=True),
 }
-"""The issue's targets for engine / copy (below ``integer_floor`` the issue is not done)."""
+"""The paths measured, in order."""
 
-METHODS = ("copy", "engine", "batch", "naive", "push")
-"""The order of the methods within a round."""
+TARGETS = {"integer": 1.3, "fractional": 0.8, "drift": 0.7, "push": 0.9}
+"""Goals for engine / copy of the same bytes on the same (one) thread: integer TDI reads each
+pixel once and writes 1/M of it, so it can beat a copy, which reads and writes every pixel."""
+
+MIN_FRAME_SET_BYTES = 256 << 20
+"""The smallest frame set, whatever the cache: 256 MiB."""
 
 PUSH_FRAMES = 256
-"""Frames per pass of the push-one-frame-per-call figure."""
-
-ROUNDS = 9
-"""Rounds of the alternation: short turns (``seconds / ROUNDS`` each) so that a slow spell of a
-shared machine is spread over all the methods; an odd count, so the median is one of them."""
-
-NAIVE_LINES = 32
-"""Output lines per pass of the naive loop."""
-
-DEFAULT_FRAMES_MB = 320.0
+"""Frames per pass of the push path (the pass moves on through the frame set)."""
 
 
 class TdiMismatch(RuntimeError):
@@ -86,25 +96,30 @@ def add_parser(which: Any) -> None:
     """Register ``camd bench tdi`` on the ``camd bench`` subparsers."""
     tdi = which.add_parser(
         "tdi",
-        help="TDI engine vs np.copyto of the same bytes and a naive numpy loop",
-        description="The streaming TDI engine, tdi_batch and a naive per-line numpy loop against "
-        "np.copyto of the same input bytes, in Gpix/s of input, for integer and fractional "
-        "rows_per_line.",
+        help="TDI engine vs np.copyto of the same bytes on the same threads",
+        description="The TDI engine's integer, fractional, drift and push-one-frame paths "
+        "against np.copyto of the same input bytes on the same number of threads, in Gpix/s "
+        "of input, A/B alternated, on frame sets larger than the last-level cache.",
+    )
+    add_round_options(tdi)
+    tdi.add_argument(
+        "--threads",
+        type=int,
+        default=1,
+        help="threads of the engine and of the copy (default 1)",
     )
     tdi.add_argument(
-        "--seconds",
-        type=float,
-        default=1.0,
-        help="measured time per method, shape and path (default 1.0)",
-    )
-    tdi.add_argument(
-        "--block", type=int, default=256, help="frames per push_many call (default 256)"
+        "--block",
+        type=int,
+        default=0,
+        help="frames per push_many call (default 0: the daemon's batch for the frame size)",
     )
     tdi.add_argument(
         "--frames-mb",
         type=float,
-        default=DEFAULT_FRAMES_MB,
-        help=f"size of each frame set in MB (default {DEFAULT_FRAMES_MB:g}; L3 is far smaller)",
+        default=0.0,
+        help="size of each frame set in MB (default 0: twice the last-level cache, at least "
+        "256 MiB)",
     )
     tdi.add_argument(
         "--kernel",
@@ -119,6 +134,13 @@ def add_parser(which: Any) -> None:
         metavar="MxN[,MxN...]",
         help="stages x width to measure (default 96x2048,32x4096)",
     )
+    tdi.add_argument(
+        "--paths",
+        type=_parse_paths,
+        default=tuple(PATHS),
+        metavar="P[,P...]",
+        help="paths to measure (default integer,fractional,drift,push)",
+    )
     tdi.add_argument("--json", action="store_true", help="print one JSON document")
 
 
@@ -132,18 +154,33 @@ def _parse_shapes(text: str) -> tuple[tuple[int, int], ...]:
     return tuple(shapes)
 
 
+def _parse_paths(text: str) -> tuple[str, ...]:
+    return choice_list(text, tuple(PATHS), "path")
+
+
 def run(args: argparse.Namespace) -> int:
     """``camd bench tdi``: exit status 0, 1 if the engine disagrees with tdi_batch, 2 on usage."""
-    if not args.seconds > 0 or args.block < 1 or not args.frames_mb > 0:
+    if (
+        not args.seconds > 0
+        or args.rounds < 1
+        or args.threads < 1
+        or args.block < 0
+        or args.frames_mb < 0
+    ):
         print(
-            "camd bench tdi: --seconds and --frames-mb must be > 0, --block >= 1", file=sys.stderr
+            "camd bench tdi: --seconds must be > 0, --rounds and --threads >= 1, --block and "
+            "--frames-mb >= 0 (0: the default)",
+            file=sys.stderr,
         )
         return 2
     progress = None if args.json else _progress
     try:
         result = bench_tdi(
             shapes=args.shapes,
+            paths=args.paths,
             seconds=args.seconds,
+            rounds=args.rounds,
+            threads=args.threads,
             block=args.block,
             frames_mb=args.frames_mb,
             kernel=args.kernel,
@@ -163,60 +200,13 @@ def _progress(text: str) -> None:
     print(text, file=sys.stderr, flush=True)
 
 
-# -- the methods --------------------------------------------------------------------------------
+# -- the frames and the check -------------------------------------------------------------------
 
 
 def make_frames(count: int, rows: int, width: int, seed: int = 0) -> Frames:
     """(count, rows, width) uint16 random 12-bit frames, contiguous."""
     rng = np.random.default_rng(seed)
     return rng.integers(0, 4096, size=(count, rows, width), dtype=np.uint16)
-
-
-def naive_integer(frames: Frames, first: int, count: int, stages: int) -> npt.NDArray[np.uint32]:
-    """Lines ``first .. first + count - 1`` (each >= stages - 1) the straightforward way."""
-    idx = np.arange(stages)
-    out = np.empty((count, frames.shape[2]), dtype=np.uint32)
-    for j in range(count):
-        k = first + j
-        out[j] = frames[k - idx, idx].sum(axis=0, dtype=np.uint32)
-    return out
-
-
-def naive_weights(
-    stages: int, rows_per_line: float, rows: int
-) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.intp], npt.NDArray[np.float32]]:
-    """Per stage: the row, the next row and its weight, in 1/256 pixel as docs/tdi.md rounds it."""
-    from camd.tdi import FIXED_POINT_ONE as one
-
-    r0 = np.empty(stages, dtype=np.intp)
-    w = np.empty(stages, dtype=np.float32)
-    for i in range(stages):
-        y = i * rows_per_line
-        whole = math.floor(y)
-        weight = math.floor((y - whole) * one + 0.5)
-        if weight == one:
-            whole, weight = whole + 1, 0
-        r0[i], w[i] = whole, weight / one
-    return r0, np.minimum(r0 + 1, rows - 1), w
-
-
-def naive_fractional(
-    frames: Frames,
-    first: int,
-    count: int,
-    taps: tuple[npt.NDArray[np.intp], npt.NDArray[np.intp], npt.NDArray[np.float32]],
-) -> npt.NDArray[np.uint32]:
-    """Lines the straightforward way with linear interpolation in float32 (not bit-identical)."""
-    r0, r1, w = taps
-    idx = np.arange(len(r0))
-    w1 = w[:, None]
-    w0 = np.float32(1) - w1
-    out = np.empty((count, frames.shape[2]), dtype=np.uint32)
-    for j in range(count):
-        k = first + j
-        line = (w0 * frames[k - idx, r0] + w1 * frames[k - idx, r1]).sum(axis=0)
-        out[j] = np.rint(line)
-    return out
 
 
 def _blocks(
@@ -233,10 +223,10 @@ def _blocks(
 
 def verify_engine(
     engine: TdiEngine, push_engine: TdiEngine, frames: Frames, block: int, label: str, **batch: Any
-) -> npt.NDArray[Any]:
+) -> None:
     """Compare ``engine`` (push_many in blocks) and ``push_engine`` (push, on the first frames)
     with ``tdi_batch(frames, **batch)``; raise TdiMismatch on any difference. Both engines must
-    be fresh (or reset). Returns tdi_batch's lines."""
+    be fresh (or reset)."""
     from camd.tdi import tdi_batch
 
     ref, ref_complete = tdi_batch(frames, **batch)
@@ -261,222 +251,199 @@ def verify_engine(
             break
     if problems:
         raise TdiMismatch(f"{label}: " + "; ".join(problems) + " (a wrong engine is not timed)")
-    return np.asarray(ref)
 
 
 # -- the measurement ------------------------------------------------------------------------------
 
 
-def _measure(
-    passes: dict[str, Callable[[], int]], seconds: float, rounds: int
-) -> dict[str, list[float]]:
-    """Run the methods in turn, ``rounds`` times, each for whole passes until it has spent
-    ``seconds / rounds`` in the round; per method the Gpix/s of each round."""
-    quantum = seconds / rounds
-    gpix: dict[str, list[float]] = {name: [] for name in passes}
-    for _ in range(rounds):
-        for name, one_pass in passes.items():
-            pixels = 0
-            t0 = time.perf_counter()
-            while True:
-                pixels += one_pass()
-                elapsed = time.perf_counter() - t0
-                if elapsed >= quantum:
-                    break
-            gpix[name].append(pixels / elapsed / 1e9)
-    return gpix
+def threaded_copy(dst: Frames, src: Frames, pool: ThreadPoolExecutor | None, threads: int) -> None:
+    """``np.copyto(dst, src)`` cut into ``threads`` contiguous parts run on ``pool``
+    (``np.copyto`` releases the GIL); one call on this thread without a pool."""
+    if pool is None or threads <= 1:
+        np.copyto(dst, src)
+        return
+    parts = np.linspace(0, len(src), threads + 1).astype(int)
+    futures = [
+        pool.submit(np.copyto, dst[lo:hi], src[lo:hi])
+        for lo, hi in itertools.pairwise(parts)
+        if hi > lo
+    ]
+    for f in futures:
+        f.result()
 
 
 def bench_path(
     *,
     stages: int,
     width: int,
-    frame_count: int,
-    rows_per_line: float,
+    path: str,
+    frames: Frames,
     seconds: float,
+    rounds: int,
+    threads: int,
     block: int,
     kernel: KernelName,
-    rounds: int = ROUNDS,
     make_engine: Callable[..., TdiEngine] | None = None,
-    progress: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
-    """One shape, one path: verify the engine, then time the five methods on the same frames.
+    """One shape, one path: verify the engine on ``frames``, then copy (A) and engine (B)
+    alternated. ``make_engine(stages, width, **geometry)`` builds the engines (default
+    ``TdiEngine``), so that a caller can check that a wrong engine is caught."""
+    from camd.tdi import TdiEngine
 
-    ``make_engine(stages, width, rows_per_line=..., kernel=...)`` builds the engines (default
-    ``TdiEngine``), so that a caller can check that a wrong engine is caught.
-    """
-    from camd.tdi import TdiEngine, tdi_batch
-
+    spec = PATHS[path]
+    geometry: dict[str, Any] = {
+        "rows_per_line": spec.rows_per_line,
+        "cols_per_line": spec.cols_per_line,
+        "kernel": kernel,
+        "threads": threads,
+    }
     build: Callable[..., TdiEngine] = TdiEngine if make_engine is None else make_engine
-    integer = float(rows_per_line).is_integer()
-    engine = build(stages, width, rows_per_line=rows_per_line, kernel=kernel)
-    push_engine = build(stages, width, rows_per_line=rows_per_line, kernel=kernel)
-    rows = int(engine.rows_needed)
-    label = f"{stages} x {width}, rows_per_line {rows_per_line:g}, kernel {engine.kernel}"
-    if progress:
-        progress(f"  {label}: {frame_count} frames of {rows} x {width}")
-    frames = make_frames(frame_count, rows, width)
-    frame_pixels = rows * width
-    batch_kw: dict[str, Any] = {"stages": stages, "rows_per_line": rows_per_line, "kernel": kernel}
-
-    # Warm-up, untimed: compiles the kernels, faults in every page, checks the bits.
-    ref = verify_engine(engine, push_engine, frames, block, label, **batch_kw)
+    engine = build(stages, width, **geometry)
+    push_engine = build(stages, width, **geometry)
+    count, rows = int(frames.shape[0]), int(frames.shape[1])
+    label = f"{stages} x {width} {path} (kernel {engine.kernel}, {threads} thread(s))"
+    # Untimed: compiles the kernels, faults in every page, checks the bits.
+    verify_engine(engine, push_engine, frames, block, label, stages=stages, **geometry)
     dst = np.empty_like(frames)
-    np.copyto(dst, frames)
-    lines = frame_count - stages + 1  # lines whose every stage has a frame
-    naive_lines = min(NAIVE_LINES, lines)
-    taps = naive_weights(stages, rows_per_line, rows)
+    pool = ThreadPoolExecutor(threads, thread_name_prefix="bench-copy") if threads > 1 else None
+    threaded_copy(dst, frames, pool, threads)
+    frame_pixels = rows * width
+    cursor = [0]
 
-    def naive(first: int, count: int) -> npt.NDArray[np.uint32]:
-        if integer:
-            return naive_integer(frames, first, count, stages)
-        return naive_fractional(frames, first, count, taps)
+    def copy_pass() -> float:
+        threaded_copy(dst, frames, pool, threads)
+        return float(count * frame_pixels)
 
-    check = (
-        naive(stages - 1, naive_lines).astype(np.int64) - ref[stages - 1 : stages - 1 + naive_lines]
-    )
-    naive_max_diff = int(np.abs(check).max())
-    if integer and naive_max_diff:
-        raise RuntimeError(f"{label}: the naive loop disagrees with tdi_batch (a bench bug)")
-
-    cursor = {"naive": 0, "push": 0}
-
-    def copy_pass() -> int:
-        np.copyto(dst, frames)
-        return frame_count * frame_pixels
-
-    def engine_pass() -> int:
+    def engine_pass() -> float:
         engine.reset()
-        for s in range(0, frame_count, block):
+        for s in range(0, count, block):
             engine.push_many(frames[s : s + block])
-        return frame_count * frame_pixels
+        return float(count * frame_pixels)
 
-    def batch_pass() -> int:
-        tdi_batch(frames, **batch_kw)
-        return frame_count * frame_pixels
+    push_frames = min(PUSH_FRAMES, count)
 
-    def naive_pass() -> int:
-        start = cursor["naive"]
-        cursor["naive"] = (start + naive_lines) % (lines - naive_lines + 1)
-        naive(stages - 1 + start, naive_lines)
-        return naive_lines * frame_pixels
-
-    push_frames = min(PUSH_FRAMES, frame_count)
-
-    def push_pass() -> int:
-        start = cursor["push"]
-        cursor["push"] = (start + push_frames) % (frame_count - push_frames + 1)
+    def push_pass() -> float:
+        start = cursor[0]
+        cursor[0] = (start + push_frames) % (count - push_frames + 1)
         for frame in frames[start : start + push_frames]:
             push_engine.push(frame)
-        return push_frames * frame_pixels
+        return float(push_frames * frame_pixels)
 
-    passes = {
-        "copy": copy_pass,
-        "engine": engine_pass,
-        "batch": batch_pass,
-        "naive": naive_pass,
-        "push": push_pass,
-    }
-    gpix = _measure(passes, seconds, rounds)
-    med = {name: statistics.median(values) for name, values in gpix.items()}
+    subject = push_pass if spec.one_frame_per_call else engine_pass
+    try:
+        rounds_ab = alternate(
+            lambda: rate_over(copy_pass, seconds) / 1e9,
+            lambda: rate_over(subject, seconds) / 1e9,
+            rounds,
+        )
+    finally:
+        if pool is not None:
+            pool.shutdown()
+    summary = rounds_ab.summary()
+    target = TARGETS[path]
     return {
-        "rows_per_line": rows_per_line,
+        "rows_per_line": spec.rows_per_line,
+        "cols_per_line": spec.cols_per_line,
+        "subject": "push" if spec.one_frame_per_call else "push_many",
         "rows": rows,
-        "frames": frame_count,
-        "frame_set_mb": frames.nbytes / 1e6,
-        "engine_gpix_s": med["engine"],
-        "batch_gpix_s": med["batch"],
-        "naive_gpix_s": med["naive"],
-        "copy_gpix_s": med["copy"],
-        "push_gpix_s": med["push"],
-        "engine_over_copy": med["engine"] / med["copy"],
-        "engine_over_naive": med["engine"] / med["naive"],
-        "batch_over_copy": med["batch"] / med["copy"],
-        "rounds_gpix_s": {name: [round(v, 3) for v in values] for name, values in gpix.items()},
-        "naive_lines_per_pass": naive_lines,
-        "naive_max_abs_diff_dn": naive_max_diff,
-        "push_frames_per_pass": push_frames,
-        "state_bytes": int(getattr(engine, "state_bytes", 0)),
+        "frames": count,
+        "frame_set_mb": round(frames.nbytes / 1e6, 1),
+        "block": 1 if spec.one_frame_per_call else block,
+        "copy_gpix_s": summary["a"],
+        "engine_gpix_s": summary["b"],
+        "over_copy": summary["ratio"],
+        "over_copy_range": summary["ratio_range"],
+        "rounds_copy_gpix_s": summary["rounds_a"],
+        "rounds_engine_gpix_s": summary["rounds_b"],
+        "target": target,
+        "met": summary["ratio"] >= target,
     }
 
 
-def frame_count_for(stages: int, width: int, frames_mb: float) -> int:
-    """Frames in a set of about ``frames_mb`` MB of the largest (fractional) frames; at least
-    2 M so that lines with every stage exist."""
-    from camd.tdi.taps import stage_taps
-
-    rows = stage_taps(stages, width, rows_per_line=FRACTIONAL_ROWS_PER_LINE).rows_needed
-    return max(2 * stages, int(frames_mb * 1e6 // (rows * width * 2)))
+def frame_set_bytes(frames_mb: float) -> int:
+    """The size of each frame set: ``frames_mb`` MB if given, else beyond the cache."""
+    if frames_mb > 0:
+        return int(frames_mb * 1e6)
+    return beyond_cache_bytes(MIN_FRAME_SET_BYTES)
 
 
 def bench_tdi(
     *,
     shapes: Sequence[tuple[int, int]] = SHAPES,
-    seconds: float = 1.0,
-    block: int = 256,
-    frames_mb: float = DEFAULT_FRAMES_MB,
+    paths: Sequence[str] = tuple(PATHS),
+    seconds: float = MIN_ROUND_S,
+    rounds: int = DEFAULT_ROUNDS,
+    threads: int = 1,
+    block: int = 0,
+    frames_mb: float = 0.0,
     kernel: KernelName = "auto",
-    rounds: int = ROUNDS,
     make_engine: Callable[..., TdiEngine] | None = None,
     progress: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
-    """The whole bench: for every shape the integer and the fractional path; one document."""
-    resolved, threads = _engine_setup(kernel)
-    load_before = os.getloadavg()[0]
+    """The whole bench: every path of every shape; one document."""
+    from camd.pipeline.batcher import batch_frames_for
+    from camd.tdi import TdiEngine
+
+    set_bytes = frame_set_bytes(frames_mb)
+    resolved = TdiEngine(1, 1, kernel=kernel).kernel
+    before = machine()
     doc_shapes = []
+    t0 = time.perf_counter()
     for stages, width in shapes:
-        count = frame_count_for(stages, width, frames_mb)
-        entry: dict[str, Any] = {"stages": stages, "width": width}
-        for name, rpl in (("integer", 1.0), ("fractional", FRACTIONAL_ROWS_PER_LINE)):
-            entry[name] = bench_path(
+        entry: dict[str, Any] = {"stages": stages, "width": width, "paths": {}}
+        cache: dict[int, Frames] = {}
+        for path in paths:
+            spec = PATHS[path]
+            rows = TdiEngine(
+                stages,
+                width,
+                rows_per_line=spec.rows_per_line,
+                cols_per_line=spec.cols_per_line,
+                kernel="numpy",
+            ).rows_needed
+            count = max(2 * stages, PUSH_FRAMES, set_bytes // (rows * width * 2))
+            if rows not in cache:
+                cache.clear()  # one frame set in memory at a time (with its copy)
+                cache[rows] = make_frames(count, rows, width)
+            path_block = block or batch_frames_for(rows, width)
+            if progress:
+                progress(
+                    f"  {stages} x {width} {path}: {count} frames of {rows} x {width} "
+                    f"({cache[rows].nbytes / 1e6:.0f} MB), blocks of {path_block}"
+                )
+            entry["paths"][path] = bench_path(
                 stages=stages,
                 width=width,
-                frame_count=count,
-                rows_per_line=rpl,
+                path=path,
+                frames=cache[rows],
                 seconds=seconds,
-                block=block,
-                kernel=kernel,
                 rounds=rounds,
+                threads=threads,
+                block=path_block,
+                kernel=kernel,
                 make_engine=make_engine,
-                progress=progress,
             )
-        entry["rows"] = entry["integer"]["rows"]
-        entry["frames"] = count
         doc_shapes.append(entry)
     met = {
-        "integer_engine_over_copy": all(
-            s["integer"]["engine_over_copy"] >= TARGETS["integer_engine_over_copy"]
-            for s in doc_shapes
-        ),
-        "fractional_engine_over_copy": all(
-            s["fractional"]["engine_over_copy"] >= TARGETS["fractional_engine_over_copy"]
-            for s in doc_shapes
-        ),
-        "integer_floor": all(
-            s["integer"]["engine_over_copy"] >= TARGETS["integer_floor"] for s in doc_shapes
-        ),
+        path: all(s["paths"][path]["met"] for s in doc_shapes if path in s["paths"])
+        for path in paths
     }
     return {
         "shapes": doc_shapes,
-        "targets": dict(TARGETS),
+        "targets": {p: TARGETS[p] for p in paths},
         "met": met,
         "kernel": resolved,
         "threads": threads,
         "numba": _numba_version(),
         "numpy": np.__version__,
-        "cpu": _cpu(),
-        "cpus": os.cpu_count(),
-        # The 1-minute load average before and after: other work on a shared machine slows the
-        # engine's threads more than the one-thread copy.
-        "loadavg": [round(load_before, 2), round(os.getloadavg()[0], 2)],
+        "machine": before,
+        # The load average after, too: other work on a shared machine shows in the rounds.
+        "loadavg_after": machine()["loadavg"],
         "seconds": seconds,
         "rounds": rounds,
-        "block": block,
-        "frames_mb": frames_mb,
+        "frame_set_bytes": set_bytes,
+        "wall_s": round(time.perf_counter() - t0, 1),
     }
-
-
-# -- the machine ----------------------------------------------------------------------------------
 
 
 def _numba_version() -> str | None:
@@ -484,26 +451,6 @@ def _numba_version() -> str | None:
         return importlib.metadata.version("numba")
     except importlib.metadata.PackageNotFoundError:
         return None
-
-
-def _engine_setup(kernel: KernelName) -> tuple[str, int]:
-    """The kernel ``kernel`` resolves to (``auto``: numba when it imports) and the engine's
-    thread count."""
-    from camd.tdi import TdiEngine
-
-    probe = TdiEngine(1, 1, kernel=kernel)
-    return str(probe.kernel), int(probe.threads)
-
-
-def _cpu() -> str:
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8") as f:
-            for line in f:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
 
 
 # -- human output ---------------------------------------------------------------------------------
@@ -516,57 +463,50 @@ def _print_human(result: dict[str, Any]) -> None:
 
     out = Console(highlight=False, soft_wrap=False, width=max(120, Console().width))
     table = Table(
-        title=f"TDI, Gpix/s of input (kernel {result['kernel']}, {result['threads']} thread(s); "
-        f"medians of {result['rounds']} rounds, {result['seconds']:g} s per method)",
+        title=f"TDI engine vs np.copyto of the same bytes, Gpix/s of input (kernel "
+        f"{result['kernel']}, {result['threads']} thread(s) each; {result['rounds']} rounds of "
+        f"{result['seconds']:g} s a side, A/B alternated)",
         box=box.SIMPLE_HEAVY,
         show_edge=False,
         title_justify="left",
     )
-    table.add_column("M x N")
-    table.add_column("rows/line", justify="right")
-    table.add_column("frames", justify="right")
-    for name in (
-        "copy",
-        "engine",
-        "batch",
-        "naive",
-        "push x1",
-        "eng/copy",
-        "eng/naive",
-        "batch/copy",
+    for name, justify in (
+        ("M x N", "left"),
+        ("path", "left"),
+        ("frames x rows", "right"),
+        ("block", "right"),
+        ("copy", "right"),
+        ("engine", "right"),
+        ("engine/copy", "right"),
+        ("range", "right"),
+        ("goal", "right"),
+        ("", "left"),
     ):
-        table.add_column(name, justify="right")
+        table.add_column(name, justify=justify)  # type: ignore[arg-type]
     for s in result["shapes"]:
-        for path in ("integer", "fractional"):
-            r = s[path]
+        for path, r in s["paths"].items():
+            low, high = r["over_copy_range"]
             table.add_row(
                 f"{s['stages']} x {s['width']}",
-                f"{r['rows_per_line']:g}",
+                path,
                 f"{r['frames']} x {r['rows']}",
-                *(f"{r[k + '_gpix_s']:.2f}" for k in ("copy", "engine", "batch", "naive", "push")),
-                f"{r['engine_over_copy']:.2f}",
-                f"{r['engine_over_naive']:.1f}",
-                f"{r['batch_over_copy']:.2f}",
+                str(r["block"]),
+                f"{r['copy_gpix_s']:.2f}",
+                f"{r['engine_gpix_s']:.2f}",
+                f"{r['over_copy']:.2f}",
+                f"{low:.2f}-{high:.2f}",
+                f">= {r['target']:g}",
+                "met" if r["met"] else "NOT met",
             )
     out.print(table)
+    m = result["machine"]
+    cache = m["last_level_cache_bytes"]
     out.print(
-        f"engine: push_many in blocks of {result['block']} frames; batch: tdi_batch on the whole "
-        f"set; push x1: push() one frame per call, {PUSH_FRAMES} frames a pass (an extra "
-        "figure); naive: a per-line numpy loop (fractional: float32 interpolation, not "
-        "bit-identical); copy: np.copyto of the same input bytes (one thread). Every engine "
-        "output was checked against tdi_batch, bit for bit, before timing. Load average "
-        f"before / after: {result['loadavg'][0]:g} / {result['loadavg'][1]:g}."
+        f"integer: rows_per_line 1; fractional: 1.02; drift: cols_per_line 0.02; push: push() "
+        f"one frame per call. Frame sets of {result['frame_set_bytes'] / 1e6:.0f} MB (last-level "
+        f"cache {cache / 2**20:.0f} MiB); every engine output was checked against tdi_batch, "
+        f"bit for bit, before timing. {m['cpu']}, {m['cpus']} cpus, load average "
+        f"{m['loadavg'][0]:g} before, {result['loadavg_after'][0]:g} after."
+        if cache
+        else f"Frame sets of {result['frame_set_bytes'] / 1e6:.0f} MB (cache size unknown)."
     )
-    t = result["targets"]
-    for key, path, target in (
-        ("integer_engine_over_copy", "integer", t["integer_engine_over_copy"]),
-        ("fractional_engine_over_copy", "fractional", t["fractional_engine_over_copy"]),
-        ("integer_floor", "integer", t["integer_floor"]),
-    ):
-        got = ", ".join(
-            f"{s['stages']}x{s['width']} {s[path]['engine_over_copy']:.2f}"
-            for s in result["shapes"]
-        )
-        verdict = "met" if result["met"][key] else "NOT met"
-        what = "floor (below it the issue is not done)" if key == "integer_floor" else "target"
-        out.print(f"{path} engine/copy >= {target:g} {what}: {verdict} ({got})")

@@ -86,6 +86,7 @@ from camd.pipeline.live import LiveLines, LiveTap
 from camd.protocol import Dictionary, FrameType, load_dictionary
 from camd.protocol.dictionary import FieldValue
 from camd.store.journal import recover_left_open
+from camd.tdi import warm_up
 
 log = logging.getLogger(__name__)
 
@@ -219,6 +220,8 @@ class DeviceSession:
         self._stop.clear()
         self._thread = threading.Thread(target=self._service_loop, name="camd-service", daemon=True)
         self._thread.start()
+        # Compile (or load) the TDI kernels now rather than when the first scan starts.
+        threading.Thread(target=_warm_tdi, name="camd-tdi-warm-up", daemon=True).start()
 
     def _recover_recordings(self) -> None:
         """Repair the recordings a previous daemon left open (killed or crashed mid-write) and
@@ -850,3 +853,13 @@ class DeviceSession:
             self._poll_error = None
         self._record_sample(response.values, time.time(), "poll")
         self.stream.check_ended()
+
+
+def _warm_tdi() -> None:
+    """The TDI kernels loaded ahead of the first scan (``camd.tdi.warm_up``)."""
+    try:
+        seconds = warm_up()
+    except Exception:  # a scan would then compile them itself, and say why it cannot
+        log.exception("could not load the TDI kernels ahead of the first scan")
+    else:
+        log.info("TDI kernels ready in %.2f s", seconds)

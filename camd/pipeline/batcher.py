@@ -27,6 +27,11 @@ BATCH_MAX_AGE_S = 0.1  # a partial batch older than this goes to the engine (pro
 CONSUMER_WAIT_S = 5.0  # longest the consumer waits for a free batch before giving up a frame
 
 
+def batch_frames_for(rows: int, cols: int) -> int:
+    """Frames in one batch of ``rows`` x ``cols`` frames: one ``push_many`` call of a scan."""
+    return max(1, min(MAX_BATCH_FRAMES, BATCH_BYTES // (2 * rows * cols)))
+
+
 class Batcher:
     """The stream consumer: copies frames into batches and queues them for the worker.
 
@@ -37,7 +42,7 @@ class Batcher:
 
     def __init__(self, rows: int, cols: int, work: queue.Queue[Message]) -> None:
         self.rows, self.cols = rows, cols
-        self.batch_frames = max(1, min(MAX_BATCH_FRAMES, BATCH_BYTES // (2 * rows * cols)))
+        self.batch_frames = batch_frames_for(rows, cols)
         self._free: queue.Queue[npt.NDArray[np.uint16]] = queue.Queue()
         for _ in range(BATCH_BUFFERS):
             self._free.put(np.empty((self.batch_frames, rows, cols), dtype=np.uint16))

@@ -396,3 +396,33 @@ def tdi_batch(
     )
     block = engine.push_many(arr)
     return block.data, block.complete
+
+
+def warm_up() -> float:
+    """Load (or compile) every kernel the engine can call, on tiny frames: the integer and the
+    interpolating kernels, with 32- and 64-bit accumulators, in ``push_many`` and ``push``.
+    Numba compiles a kernel on its first call for each argument type, a second or more per
+    kernel; a daemon calls this at start, on a thread of its own, so that the first scan does
+    not wait for it. Returns the seconds it took (about 0 once done)."""
+    import time
+
+    t0 = time.perf_counter()
+    if numba_available():
+        for stages, rows_per_line, cols_per_line in (
+            (2, 1.0, 0.0),
+            (2, 1.5, 0.0),
+            (2, 1.0, 0.5),
+            (300, 1.5, 0.0),  # over 256 stages: the 64-bit ring (docs/tdi.md)
+        ):
+            engine = TdiEngine(
+                stages,
+                4,
+                rows_per_line=rows_per_line,
+                cols_per_line=cols_per_line,
+                kernel="numba",
+                threads=1,
+            )
+            frames = np.zeros((2, engine.rows_needed, 4), dtype=np.uint16)
+            engine.push_many(frames)
+            engine.push(frames[0])
+    return time.perf_counter() - t0

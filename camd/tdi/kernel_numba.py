@@ -22,6 +22,9 @@ import numpy as np
 
 _JIT: dict[str, Any] = {"nogil": True, "cache": True, "boundscheck": False, "error_model": "numpy"}
 
+KERNELS = ("integer_rows", "general")
+"""The compiled kernels (``camd.tdi.warm_up`` compiles each ahead of the first scan)."""
+
 
 @numba.njit(**_JIT)  # type: ignore[untyped-decorator]
 def integer_rows(frames: Any, acc: Any, out: Any, rows: Any, first_index: int) -> None:

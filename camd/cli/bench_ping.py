@@ -1,0 +1,192 @@
+"""``camd bench ping``: the command round trip through the whole stack against a bare pty echo.
+
+Subject: PING through the daemon (``POST /api/v1/ping``, as ``camctl ping`` asks it): the
+daemon's CommandLink -> pyserial -> pty -> simulated FPGA -> back; the daemon times each PING.
+Baseline: the same frame bytes written to a pty and echoed back by a separate process, read
+through pyserial: the floor any pty transport can reach. Both are started once; then the two
+sides alternate (A B, B A, ...) in ``--rounds`` rounds of ``count / rounds`` round trips each,
+so that a slow spell of the machine falls on both; the ratio is the median of the rounds'
+camd / echo ratios of p50 (and of p99).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+import tty
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import serial
+
+from camd.cli.bench_common import (
+    DEFAULT_ROUNDS,
+    Alternation,
+    add_round_options,
+    alternate,
+    machine,
+)
+from camd.protocol import FrameType, encode_frame, load_dictionary
+
+# Echo peer for the baseline: a separate process, like the simulator, copying bytes back.
+_ECHO = """
+import os, sys
+fd = int(sys.argv[1])
+while True:
+    try:
+        data = os.read(fd, 65536)
+    except OSError:
+        break
+    if not data:
+        break
+    os.write(fd, data)
+"""
+
+MIN_PER_ROUND = 10
+
+
+def add_parser(which: Any) -> None:
+    """Register ``camd bench ping`` on the ``camd bench`` subparsers."""
+    ping = which.add_parser(
+        "ping",
+        help="command round trip vs a bare pty echo",
+        description="Round trip of PING through the daemon and the simulated camera, against a "
+        "bare pty echo of the same bytes by a separate process, alternated in rounds.",
+    )
+    ping.add_argument(
+        "--count", type=int, default=2000, help="round trips per side, in all (default 2000)"
+    )
+    ping.add_argument("--size", type=int, default=16, help="PING payload bytes, 0..256 (16)")
+    add_round_options(ping, seconds=False)
+    ping.add_argument("--json", action="store_true", help="print one JSON document")
+
+
+def run(args: argparse.Namespace) -> int:
+    """``camd bench ping``: exit status 0, 2 on a bad option."""
+    if args.rounds < 1 or args.count < MIN_PER_ROUND * args.rounds or not 0 <= args.size <= 256:
+        print(
+            f"camd bench ping: --rounds must be >= 1, --count at least {MIN_PER_ROUND} per "
+            f"round ({MIN_PER_ROUND * max(1, args.rounds)} for {args.rounds} rounds), --size "
+            "0..256",
+            file=sys.stderr,
+        )
+        return 2
+    result = bench_ping(count=args.count, size=args.size, rounds=args.rounds)
+    if args.json:
+        print(json.dumps(result))
+        return 0
+    b, c = result["baseline"], result["camd"]
+    print(
+        f"PING round trip, {result['count']} commands of {args.size}-byte payload per side, "
+        f"{result['rounds']} rounds alternated"
+    )
+    print(f"  bare pty echo : p50 {b['p50_ms']:.3f} ms   p99 {b['p99_ms']:.3f} ms")
+    print(f"  camd (full)   : p50 {c['p50_ms']:.3f} ms   p99 {c['p99_ms']:.3f} ms")
+    low, high = result["ratio_p50_range"]
+    print(
+        f"  ratio camd/echo: p50 {result['ratio_p50']:.1f}x (rounds {low:.1f}-{high:.1f})   "
+        f"p99 {result['ratio_p99']:.1f}x; {result['failed']} failed"
+    )
+    return 0
+
+
+class PtyEcho:
+    """A pty whose other end a separate process echoes back, opened with pyserial."""
+
+    def __init__(self) -> None:
+        master, slave = os.openpty()
+        tty.setraw(slave)
+        self._proc = subprocess.Popen(
+            [sys.executable, "-c", _ECHO, str(master)], pass_fds=(master,)
+        )
+        os.close(master)
+        self._slave = slave
+        self._port = serial.Serial(os.ttyname(slave), timeout=1.0)
+
+    def rtt_s(self, frame: bytes, count: int) -> np.ndarray:
+        """Round-trip times of ``frame``, ``count`` times."""
+        rtt = np.empty(count)
+        for i in range(count):
+            t0 = time.perf_counter()
+            self._port.write(frame)
+            got = self._port.read(len(frame))
+            rtt[i] = time.perf_counter() - t0
+            if got != frame:
+                raise RuntimeError("pty echo returned different bytes; is the pty raw?")
+        return rtt
+
+    def close(self) -> None:
+        self._port.close()
+        os.close(self._slave)
+        self._proc.terminate()
+        self._proc.wait(timeout=5)
+
+
+def pty_echo_rtt_s(frame: bytes, count: int) -> np.ndarray:
+    """Round-trip times of ``frame`` through a pty to an echoing process and back."""
+    echo = PtyEcho()
+    try:
+        return echo.rtt_s(frame, count)
+    finally:
+        echo.close()
+
+
+def bench_ping(*, count: int, size: int, rounds: int = DEFAULT_ROUNDS) -> dict[str, Any]:
+    """Both sides, alternated; p50/p99 (ms) of each and the camd/baseline ratios."""
+    from camd.cli._daemon_proc import DaemonProcess
+    from camd.client import CamdClient
+
+    per_round = max(MIN_PER_ROUND, count // rounds)
+    opcode = load_dictionary().command("PING").opcode
+    frame = encode_frame(FrameType.COMMAND, 0, opcode, bytes(size))
+    base: list[tuple[float, float]] = []
+    subject: list[tuple[float, float]] = []
+    failed = 0
+
+    with tempfile.TemporaryDirectory(prefix="camd-bench-") as tmp, DaemonProcess(Path(tmp)) as d:
+        client = CamdClient(d.url)
+        echo = PtyEcho()
+        try:
+            client.ping(count=MIN_PER_ROUND, size=size)  # warm: connection, link, simulator
+            echo.rtt_s(frame, MIN_PER_ROUND)
+
+            def echo_round() -> float:
+                rtt = echo.rtt_s(frame, per_round) * 1e3
+                base.append((float(np.percentile(rtt, 50)), float(np.percentile(rtt, 99))))
+                return base[-1][0]
+
+            def camd_round() -> float:
+                nonlocal failed
+                doc = client.ping(count=per_round, size=size)
+                failed += doc["failed"]
+                rtt = doc["rtt_ms"]
+                if rtt["p50"] is None or rtt["p99"] is None:
+                    raise RuntimeError(f"no PING came back: {doc['errors']}")
+                subject.append((rtt["p50"], rtt["p99"]))
+                return rtt["p50"]
+
+            p50 = alternate(echo_round, camd_round, rounds)
+        finally:
+            echo.close()
+    p99 = Alternation(a=[b[1] for b in base], b=[s[1] for s in subject])
+    s50, s99 = p50.summary(), p99.summary()
+    return {
+        "count": per_round * rounds,
+        "size": size,
+        "rounds": rounds,
+        "failed": failed,
+        "camd": {"p50_ms": s50["b"], "p99_ms": s99["b"]},
+        "baseline": {"p50_ms": s50["a"], "p99_ms": s99["a"]},
+        "ratio_p50": s50["ratio"],
+        "ratio_p99": s99["ratio"],
+        "ratio_p50_range": s50["ratio_range"],
+        "ratio_p99_range": s99["ratio_range"],
+        "rounds_p50_ms": {"baseline": s50["rounds_a"], "camd": s50["rounds_b"]},
+        "machine": machine(),
+    }
