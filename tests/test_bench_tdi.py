@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import statistics
-from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
@@ -17,7 +16,6 @@ from camd.cli.bench_tdi import (
     TdiMismatch,
     bench_tdi,
     frame_set_bytes,
-    threaded_copy,
     verify_engine,
 )
 from camd.cli.camd_main import main
@@ -61,7 +59,6 @@ def _check_path(r: dict[str, Any], path: str, stages: int, width: int) -> None:
 def test_document_has_every_path_and_consistent_numbers(kernel: str) -> None:
     doc = bench_tdi(shapes=SHAPES, seconds=0.02, rounds=ROUNDS, frames_mb=2, kernel=kernel)  # type: ignore[arg-type]
     assert doc["kernel"] == kernel
-    assert doc["threads"] == 1
     assert (
         doc["targets"] == TARGETS == {"integer": 1.3, "fractional": 0.8, "drift": 0.7, "push": 0.9}
     )
@@ -75,29 +72,6 @@ def test_document_has_every_path_and_consistent_numbers(kernel: str) -> None:
     # "met" per path follows from every shape's figure.
     for path in PATHS:
         assert doc["met"][path] == all(s["paths"][path]["met"] for s in doc["shapes"])
-
-
-def test_threads_apply_to_the_engine_and_the_copy() -> None:
-    doc = bench_tdi(
-        shapes=((6, 64),),
-        paths=("integer",),
-        seconds=0.02,
-        rounds=1,
-        threads=2,
-        frames_mb=1,
-        kernel="numpy",
-    )
-    assert doc["threads"] == 2
-    assert doc["met"].keys() == {"integer"}
-
-
-def test_threaded_copy_is_a_copy() -> None:
-    src = np.random.default_rng(3).integers(0, 65535, size=(7, 5, 9), dtype=np.uint16)
-    for threads in (1, 3):
-        dst = np.zeros_like(src)
-        with ThreadPoolExecutor(threads) as pool:
-            threaded_copy(dst, src, pool, threads)
-        assert np.array_equal(dst, src)
 
 
 def test_the_frame_set_is_beyond_the_cache_unless_sized() -> None:
@@ -130,8 +104,8 @@ def test_cli_human_says_whether_goals_are_met(capsys: pytest.CaptureFixture[str]
 
 def test_cli_refuses_bad_options(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["bench", "tdi", "--seconds", "0"]) == 2
-    assert main(["bench", "tdi", "--threads", "0"]) == 2
-    assert "--rounds and --threads >= 1" in capsys.readouterr().err
+    assert main(["bench", "tdi", "--rounds", "0"]) == 2
+    assert "--rounds >= 1" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main(["bench", "tdi", "--shapes", "96by2048"])
     with pytest.raises(SystemExit):

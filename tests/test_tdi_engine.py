@@ -1010,13 +1010,13 @@ def test_fractional_column_shift_corrects_drift(
 @pytest.mark.parametrize("kernel", KERNELS)
 @pytest.mark.parametrize("rows_per_line", [1.0, 1.1])
 def test_state_is_o_m_n_whatever_the_scan_length(kernel: str, rows_per_line: float) -> None:
-    """Single-threaded: state_bytes after 10 frames = after 10000 single pushes = after
-    push_many of 5000 more, and it is the ring of M partial sums, M x N x 4 bytes (uint32)."""
+    """state_bytes after 10 frames = after 10000 single pushes = after push_many of 5000 more,
+    and it is the ring of M partial sums, M x N x 4 bytes (uint32)."""
     m, n = 16, 64
     rows = rows_needed(m, rows_per_line)
     rng = np.random.default_rng(5)
     frames = rng.integers(0, 4096, size=(64, rows, n), dtype=np.uint16)
-    eng = TdiEngine(stages=m, width=n, kernel=kernel, rows_per_line=rows_per_line, threads=1)
+    eng = TdiEngine(stages=m, width=n, kernel=kernel, rows_per_line=rows_per_line)
     for i in range(10):
         eng.push(frames[i % 64])
     after_10 = eng.state_bytes
@@ -1029,26 +1029,6 @@ def test_state_is_o_m_n_whatever_the_scan_length(kernel: str, rows_per_line: flo
     eng.gap(3)
     eng.push(frames[0])
     assert eng.state_bytes == after_10
-
-
-@pytest.mark.parametrize("kernel", KERNELS)
-def test_threaded_state_is_bounded_by_the_thread_count(kernel: str) -> None:
-    """With threads, a long push_many uses one extra ring per extra part: the state is then
-    at most threads x M x N x 4 bytes, and longer scans (more and bigger push_many calls) do
-    not grow it any further. (O(M x N) whatever the scan length, docs/tdi.md "Kernels".)"""
-    m, n, threads = 64, 64, 3
-    ring = m * n * 4
-    frames = np.random.default_rng(6).integers(0, 4096, size=(3100, m, n), dtype=np.uint16)
-    eng = TdiEngine(stages=m, width=n, kernel=kernel, threads=threads)
-    eng.push_many(frames[:10])
-    assert eng.state_bytes == ring
-    eng.push_many(frames)  # 3100 frames of 64 x 64 pixels x 64 stages: 3 threaded parts
-    grown = eng.state_bytes
-    assert ring <= grown <= threads * ring
-    for _ in range(2):
-        eng.push_many(frames)
-        eng.push_many(frames[:1500])
-    assert eng.state_bytes == grown
 
 
 # == 7. bigger cases ==============================================================================
@@ -1083,7 +1063,7 @@ def test_integer_path_m96_12bit_matches_direct(
         assert_same(twin, want, "twin")
 
 
-THREADED = [
+LONG = [
     pytest.param({}, id="integer"),
     pytest.param({"rows_per_line": 1.07, "cols_per_line": -0.23, "reverse": True}, id="fractional"),
     pytest.param({"cols_per_line": 1, "mode": "mean"}, id="shift-mean"),
@@ -1091,11 +1071,11 @@ THREADED = [
 
 
 @pytest.mark.parametrize("kernel", KERNELS)
-@pytest.mark.parametrize("geometry", THREADED)
-def test_threaded_push_many_matches_direct(kernel: str, geometry: dict[str, Any]) -> None:
-    """A push_many long enough to be cut into parts on 3 threads (M = 64, N = 64, 3200
-    frames), after a short call and a lost frame, then single pushes: the same bits as the
-    direct strided-diagonal sum, and tdi_batch on 3 threads agrees with 1 thread."""
+@pytest.mark.parametrize("geometry", LONG)
+def test_long_push_many_matches_direct(kernel: str, geometry: dict[str, Any]) -> None:
+    """A long push_many (M = 64, N = 64, 3200 frames: every kernel's groups and edges many
+    times over), after a short call and a lost frame, then single pushes: the same bits as the
+    direct strided-diagonal sum; tdi_batch agrees with the engine fed in pieces."""
     m, n = 64, 64
     rows = rows_needed(
         m,
@@ -1105,7 +1085,7 @@ def test_threaded_push_many_matches_direct(kernel: str, geometry: dict[str, Any]
     )
     rng = np.random.default_rng(64)
     frames = rng.integers(0, 65536, size=(3210, rows, n), dtype=np.uint16)
-    eng = TdiEngine(stages=m, width=n, kernel=kernel, threads=3, **geometry)
+    eng = TdiEngine(stages=m, width=n, kernel=kernel, **geometry)
     first = as_block(eng.push_many(frames[:5]))
     eng.gap(1)
     middle = as_block(eng.push_many(frames[5:3205]))
@@ -1113,15 +1093,16 @@ def test_threaded_push_many_matches_direct(kernel: str, geometry: dict[str, Any]
     got = concat_blocks([first, middle, last])
     index = [*range(5), *range(6, 3211)]
     want = reference_lines(frames, index, m, **geometry)
-    assert_same(got, want, f"{kernel} threaded")
+    assert_same(got, want, f"{kernel} long")
     # lines 6, 7, 8 have frames 0-4 and their own (and 7, 8 theirs since) but never frame 5
     assert got.stages_used[5:8].tolist() == [6, 7, 8]
     # the first complete line is 69: its stages 69 - 63 = 6 .. 69 are all after frame 5
     assert got.complete.tolist().index(True) == 68 and got.index[68] == 69
-    one, c1 = tdi_batch(frames, m, kernel=kernel, threads=1, **geometry)
-    three, c3 = tdi_batch(frames, m, kernel=kernel, threads=3, **geometry)
-    assert np.array_equal(one, three) and np.array_equal(c1, c3)
-    assert one.dtype == three.dtype
+    whole, complete = tdi_batch(frames, m, kernel=kernel, **geometry)
+    pieces = TdiEngine(stages=m, width=n, kernel=kernel, **geometry)
+    parts = [as_block(pieces.push_many(frames[a:b])) for a, b in ((0, 1), (1, 2000), (2000, 3210))]
+    assert np.array_equal(concat_blocks(parts).data, whole)
+    assert np.array_equal(concat_blocks(parts).complete, complete)
 
 
 @pytest.mark.parametrize("kernel", KERNELS)

@@ -1,4 +1,4 @@
-"""``camd bench tdi``: the TDI engine against ``np.copyto`` of the same bytes, on the same threads.
+"""``camd bench tdi``: the TDI engine against ``np.copyto`` of the same bytes, on one thread each.
 
 For each shape (M stages x N columns) and each path:
 
@@ -11,9 +11,8 @@ For each shape (M stages x N columns) and each path:
 - **push**: ``rows_per_line = 1``, ``TdiEngine.push`` one frame per call (a live stream that
   hands over frames one at a time).
 
-The baseline is ``np.copyto`` of the same frame set into a preallocated array, on as many
-threads as the engine has (``--threads``, default 1): the memory-bandwidth floor of touching
-the same input bytes. The frame set of each path is larger than the machine's last-level cache
+The baseline is ``np.copyto`` of the same frame set into a preallocated array, on one thread as
+the engine is: the memory-bandwidth floor of touching the same input bytes. The frame set of each path is larger than the machine's last-level cache
 (twice it, read from sysfs, and at least 256 MB), so neither side runs from cache. Baseline and
 engine alternate (A B, B A, ...) in ``--rounds`` rounds of ``--seconds`` each, whole passes; the
 figure is Gpix/s of *input* (frames x rows x N per second), and the ratio is the median of the
@@ -27,12 +26,10 @@ from __future__ import annotations
 
 import argparse
 import importlib.metadata
-import itertools
 import json
 import sys
 import time
 from collections.abc import Callable, Sequence
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Literal
 
@@ -96,18 +93,12 @@ def add_parser(which: Any) -> None:
     """Register ``camd bench tdi`` on the ``camd bench`` subparsers."""
     tdi = which.add_parser(
         "tdi",
-        help="TDI engine vs np.copyto of the same bytes on the same threads",
+        help="TDI engine vs np.copyto of the same bytes, one thread each",
         description="The TDI engine's integer, fractional, drift and push-one-frame paths "
-        "against np.copyto of the same input bytes on the same number of threads, in Gpix/s "
+        "against np.copyto of the same input bytes, one thread each, in Gpix/s "
         "of input, A/B alternated, on frame sets larger than the last-level cache.",
     )
     add_round_options(tdi)
-    tdi.add_argument(
-        "--threads",
-        type=int,
-        default=1,
-        help="threads of the engine and of the copy (default 1)",
-    )
     tdi.add_argument(
         "--block",
         type=int,
@@ -160,15 +151,9 @@ def _parse_paths(text: str) -> tuple[str, ...]:
 
 def run(args: argparse.Namespace) -> int:
     """``camd bench tdi``: exit status 0, 1 if the engine disagrees with tdi_batch, 2 on usage."""
-    if (
-        not args.seconds > 0
-        or args.rounds < 1
-        or args.threads < 1
-        or args.block < 0
-        or args.frames_mb < 0
-    ):
+    if not args.seconds > 0 or args.rounds < 1 or args.block < 0 or args.frames_mb < 0:
         print(
-            "camd bench tdi: --seconds must be > 0, --rounds and --threads >= 1, --block and "
+            "camd bench tdi: --seconds must be > 0, --rounds >= 1, --block and "
             "--frames-mb >= 0 (0: the default)",
             file=sys.stderr,
         )
@@ -180,7 +165,6 @@ def run(args: argparse.Namespace) -> int:
             paths=args.paths,
             seconds=args.seconds,
             rounds=args.rounds,
-            threads=args.threads,
             block=args.block,
             frames_mb=args.frames_mb,
             kernel=args.kernel,
@@ -256,22 +240,6 @@ def verify_engine(
 # -- the measurement ------------------------------------------------------------------------------
 
 
-def threaded_copy(dst: Frames, src: Frames, pool: ThreadPoolExecutor | None, threads: int) -> None:
-    """``np.copyto(dst, src)`` cut into ``threads`` contiguous parts run on ``pool``
-    (``np.copyto`` releases the GIL); one call on this thread without a pool."""
-    if pool is None or threads <= 1:
-        np.copyto(dst, src)
-        return
-    parts = np.linspace(0, len(src), threads + 1).astype(int)
-    futures = [
-        pool.submit(np.copyto, dst[lo:hi], src[lo:hi])
-        for lo, hi in itertools.pairwise(parts)
-        if hi > lo
-    ]
-    for f in futures:
-        f.result()
-
-
 def bench_path(
     *,
     stages: int,
@@ -280,7 +248,6 @@ def bench_path(
     frames: Frames,
     seconds: float,
     rounds: int,
-    threads: int,
     block: int,
     kernel: KernelName,
     make_engine: Callable[..., TdiEngine] | None = None,
@@ -295,23 +262,21 @@ def bench_path(
         "rows_per_line": spec.rows_per_line,
         "cols_per_line": spec.cols_per_line,
         "kernel": kernel,
-        "threads": threads,
     }
     build: Callable[..., TdiEngine] = TdiEngine if make_engine is None else make_engine
     engine = build(stages, width, **geometry)
     push_engine = build(stages, width, **geometry)
     count, rows = int(frames.shape[0]), int(frames.shape[1])
-    label = f"{stages} x {width} {path} (kernel {engine.kernel}, {threads} thread(s))"
+    label = f"{stages} x {width} {path} (kernel {engine.kernel})"
     # Untimed: compiles the kernels, faults in every page, checks the bits.
     verify_engine(engine, push_engine, frames, block, label, stages=stages, **geometry)
     dst = np.empty_like(frames)
-    pool = ThreadPoolExecutor(threads, thread_name_prefix="bench-copy") if threads > 1 else None
-    threaded_copy(dst, frames, pool, threads)
+    np.copyto(dst, frames)
     frame_pixels = rows * width
     cursor = [0]
 
     def copy_pass() -> float:
-        threaded_copy(dst, frames, pool, threads)
+        np.copyto(dst, frames)
         return float(count * frame_pixels)
 
     def engine_pass() -> float:
@@ -330,15 +295,11 @@ def bench_path(
         return float(push_frames * frame_pixels)
 
     subject = push_pass if spec.one_frame_per_call else engine_pass
-    try:
-        rounds_ab = alternate(
-            lambda: rate_over(copy_pass, seconds) / 1e9,
-            lambda: rate_over(subject, seconds) / 1e9,
-            rounds,
-        )
-    finally:
-        if pool is not None:
-            pool.shutdown()
+    rounds_ab = alternate(
+        lambda: rate_over(copy_pass, seconds) / 1e9,
+        lambda: rate_over(subject, seconds) / 1e9,
+        rounds,
+    )
     summary = rounds_ab.summary()
     target = TARGETS[path]
     return {
@@ -373,7 +334,6 @@ def bench_tdi(
     paths: Sequence[str] = tuple(PATHS),
     seconds: float = MIN_ROUND_S,
     rounds: int = DEFAULT_ROUNDS,
-    threads: int = 1,
     block: int = 0,
     frames_mb: float = 0.0,
     kernel: KernelName = "auto",
@@ -418,7 +378,6 @@ def bench_tdi(
                 frames=cache[rows],
                 seconds=seconds,
                 rounds=rounds,
-                threads=threads,
                 block=path_block,
                 kernel=kernel,
                 make_engine=make_engine,
@@ -433,7 +392,6 @@ def bench_tdi(
         "targets": {p: TARGETS[p] for p in paths},
         "met": met,
         "kernel": resolved,
-        "threads": threads,
         "numba": _numba_version(),
         "numpy": np.__version__,
         "machine": before,
@@ -464,7 +422,7 @@ def _print_human(result: dict[str, Any]) -> None:
     out = Console(highlight=False, soft_wrap=False, width=max(120, Console().width))
     table = Table(
         title=f"TDI engine vs np.copyto of the same bytes, Gpix/s of input (kernel "
-        f"{result['kernel']}, {result['threads']} thread(s) each; {result['rounds']} rounds of "
+        f"{result['kernel']}, one thread each; {result['rounds']} rounds of "
         f"{result['seconds']:g} s a side, A/B alternated)",
         box=box.SIMPLE_HEAVY,
         show_edge=False,

@@ -6,17 +6,13 @@ line counts as complete. The engine holds a ring of M open partial sums (O(M x N
 whatever the scan length) and a short list of recent lost-frame ranges, so that ``push``,
 ``push_many`` and ``tdi_batch`` give the same bits however the frames are split into calls.
 
-Kernels: ``kernel_numba`` (fused, compiled) or ``kernel_numpy`` (the plain reference). A long
-block is cut into parts done at the same time on all cores: each part after the first starts
-from an empty ring, and the first M - 1 lines of each part then get the partial sums the part
-before left open (integer sums, so the order of the additions does not change the bits).
+Kernels: ``kernel_numba`` (fused, compiled) or ``kernel_numpy`` (the plain reference). One
+thread: the kernels are bound by memory bandwidth, and a second thread measured 0.97-1.04x of one
+at the daemon's batch sizes (``camd bench tdi``), so the engine no longer splits blocks.
 """
 
 from __future__ import annotations
 
-import os
-import threading
-from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -29,21 +25,12 @@ from camd.tdi.taps import StageTaps, stage_taps
 Mode = Literal["sum", "mean"]
 Kernel = Literal["auto", "numba", "numpy"]
 
-_MIN_PIXELS_PER_PART = 1 << 22  # below ~4 Mpix a part costs less than handing it to a thread
-_pool_lock = threading.Lock()
-_pool: tuple[ThreadPoolExecutor, int] | None = None  # the shared pool and its size
 
+def _numba_kernels() -> Any:
+    """``camd.tdi.kernel_numba``, imported on first use (importing numba takes a while)."""
+    from camd.tdi import kernel_numba
 
-def _thread_pool(workers: int) -> ThreadPoolExecutor:
-    """One pool for every engine, grown on demand: threads are made once, not per block."""
-    global _pool
-    with _pool_lock:
-        if _pool is None or _pool[1] < workers:
-            _pool = (
-                ThreadPoolExecutor(max_workers=workers, thread_name_prefix="camd-tdi"),
-                workers,
-            )
-        return _pool[0]
+    return kernel_numba
 
 
 def numba_available() -> bool:
@@ -94,7 +81,6 @@ class TdiEngine:
         cols_per_line: float = 0.0,
         reverse: bool = False,
         kernel: Kernel = "auto",
-        threads: int | None = None,
     ) -> None:
         if mode not in ("sum", "mean"):
             raise ValueError(f"mode must be 'sum' or 'mean', got {mode!r}")
@@ -116,10 +102,9 @@ class TdiEngine:
             if kernel == "numpy" or (kernel == "auto" and not numba_available())
             else "numba"
         )
-        self.threads = max(1, threads if threads is not None else os.cpu_count() or 1)
         self._taps = self._make_taps(stages, width)
+        self._prepare()
         self._acc = self._new_ring()
-        self._spares: list[npt.NDArray[Any]] = []
         self._next = 0
         self._run_start = 0
         self._lost: list[tuple[int, int]] = []  # [start, stop) of recent lost frame indices
@@ -134,6 +119,22 @@ class TdiEngine:
             cols_per_line=self.cols_per_line,
             reverse=self.reverse,
         )
+
+    def _prepare(self) -> None:
+        """What every kernel call of this configuration needs, worked out once: the kernel
+        (whole rows; fractional rows; anything else) and its weights in the ring's type."""
+        taps = self._taps
+        acc_type = taps.accumulator
+        if taps.shifted:
+            self._path: Literal["integer", "rows", "general"] = "general"
+        else:
+            self._path = "integer" if taps.integer else "rows"
+        self._row_weight = taps.row_weight.astype(acc_type)
+        self._col_weight = taps.col_weight.astype(acc_type)
+        # The row below each stage's (its weight is 0 where that row is not there).
+        self._row_below = np.minimum(taps.row + 1, taps.rows_needed - 1)
+        self._one = acc_type(taps.one)
+        self._shift = taps.one.bit_length() - 1  # one is a power of two
 
     def _new_ring(self) -> npt.NDArray[Any]:
         return np.zeros((self._taps.stages, self._taps.width), dtype=self._taps.accumulator)
@@ -151,8 +152,8 @@ class TdiEngine:
         if stages == self._taps.stages:
             return
         self._taps = self._make_taps(stages, self._taps.width)
+        self._prepare()
         self._acc = self._new_ring()
-        self._spares = []
         self._run_start = self._next
         self._lost = []
 
@@ -178,8 +179,8 @@ class TdiEngine:
 
     @property
     def state_bytes(self) -> int:
-        """Memory the engine holds between calls (the ring and its spares)."""
-        return int(self._acc.nbytes + sum(s.nbytes for s in self._spares))
+        """Memory the engine holds between calls: the ring of M partial sums."""
+        return int(self._acc.nbytes)
 
     @property
     def taps(self) -> StageTaps:
@@ -214,19 +215,25 @@ class TdiEngine:
         self._next = stop
 
     def push(self, frame: npt.NDArray[Any]) -> TdiLine:
-        """One window frame (rows, N) in, its line out."""
+        """One window frame (rows, N) in, its line out (the same bits as ``push_many`` of one
+        frame, with less done per call: a live stream calls this at the frame rate)."""
         arr = np.asarray(frame)
         if arr.ndim != 2:
             raise ValueError(
                 f"push takes one frame of shape (rows, {self.width}), got shape {arr.shape}; "
                 "use push_many for a stack of frames"
             )
-        block = self.push_many(arr[np.newaxis])
+        index = self._next
+        raw = self._run(self._checked(arr[np.newaxis]), self._acc, index)
+        used = self._stages_used_by(index)
+        self._next = index + 1
+        if self._lost:
+            self._prune_lost()
         return TdiLine(
-            data=block.data[0],
-            index=int(block.index[0]),
-            stages_used=int(block.stages_used[0]),
-            complete=bool(block.complete[0]),
+            data=self._finish(raw, used)[0],
+            index=index,
+            stages_used=used,
+            complete=used == self._taps.stages,
         )
 
     def push_many(self, frames: npt.NDArray[Any]) -> TdiBlock:
@@ -234,7 +241,7 @@ class TdiEngine:
         stack = self._checked(frames)
         count = stack.shape[0]
         first = self._next
-        raw = self._accumulate(stack, first)
+        raw = self._run(stack, self._acc, first)
         index = np.arange(first, first + count, dtype=np.int64)
         used = self._stages_used(index)
         self._next = first + count
@@ -274,63 +281,30 @@ class TdiEngine:
             arr = arr.astype(np.uint16)
         return np.ascontiguousarray(arr)
 
-    def _accumulate(self, frames: npt.NDArray[np.uint16], first: int) -> npt.NDArray[Any]:
-        count = frames.shape[0]
-        stages = self._taps.stages
-        min_part = max(stages - 1, 1, _MIN_PIXELS_PER_PART // max(1, stages * self.width))
-        parts = min(self.threads, count // min_part)
-        if parts <= 1:
-            return self._run(frames, self._acc, first)
-        bounds = np.linspace(0, count, parts + 1).astype(int)
-        while len(self._spares) < parts - 1:
-            self._spares.append(self._new_ring())
-        rings = [self._acc, *self._spares[: parts - 1]]
-        pool = _thread_pool(parts - 1)
-        futures: list[Future[npt.NDArray[Any]]] = []
-        for p in range(1, parts):
-            lo, hi = int(bounds[p]), int(bounds[p + 1])
-            futures.append(pool.submit(self._run_fresh, frames[lo:hi], rings[p], first + lo))
-        outs = [self._run(frames[: bounds[1]], rings[0], first)]
-        outs.extend(f.result() for f in futures)
-        # The first M - 1 lines of each later part still lack the earlier part's stages,
-        # which that part left open in its ring.
-        for p in range(1, parts):
-            lo = int(bounds[p])
-            n = min(stages - 1, outs[p].shape[0])
-            outs[p][:n] += rings[p - 1][(first + lo + np.arange(n)) % stages]
-        # The last part's ring is the state now; the others become spares.
-        self._acc = rings[-1]
-        self._spares = [*rings[:-1], *self._spares[parts - 1 :]]
-        return np.concatenate(outs)
-
-    def _run_fresh(
-        self, frames: npt.NDArray[np.uint16], ring: npt.NDArray[Any], first: int
-    ) -> npt.NDArray[Any]:
-        ring[:] = 0
-        return self._run(frames, ring, first)
-
     def _run(
         self, frames: npt.NDArray[np.uint16], ring: npt.NDArray[Any], first: int
     ) -> npt.NDArray[Any]:
         taps = self._taps
         if self.kernel == "numpy":
             return kernel_numpy.accumulate(frames, ring, taps, first)
-        from camd.tdi import kernel_numba
-
+        kernels = _numba_kernels()
         out = np.empty((frames.shape[0], taps.width), dtype=ring.dtype)
-        if taps.integer and not taps.shifted:
-            kernel_numba.integer_rows(frames, ring, out, taps.row, first)
+        if self._path == "integer":
+            kernels.integer_rows(frames, ring, out, taps.row, first)
+        elif self._path == "rows":
+            kernels.fractional_rows(
+                frames, ring, out, taps.row, self._row_below, self._row_weight, self._one, first
+            )
         else:
-            acc_type = taps.accumulator
-            kernel_numba.general(
+            kernels.general(
                 frames,
                 ring,
                 out,
                 taps.row,
-                taps.row_weight.astype(acc_type),
+                self._row_weight,
                 taps.col,
-                taps.col_weight.astype(acc_type),
-                acc_type(taps.one),
+                self._col_weight,
+                self._one,
                 first,
             )
         return out
@@ -346,21 +320,33 @@ class TdiEngine:
             used -= np.clip(overlap, 0, None)
         return used.astype(np.int32)
 
+    def _stages_used_by(self, index: int) -> int:
+        """``_stages_used`` of one line, in plain integers (``push``)."""
+        lo = max(index - (self._taps.stages - 1), self._run_start)
+        used = index - lo + 1
+        for start, stop in self._lost:
+            used -= max(0, min(stop, index + 1) - max(start, lo))
+        return used
+
     def _prune_lost(self) -> None:
         horizon = self._next - self._taps.stages
         self._lost = [(a, b) for a, b in self._lost if b > horizon]
 
-    def _finish(self, raw: npt.NDArray[Any], used: npt.NDArray[np.int32]) -> npt.NDArray[Any]:
-        """Raw sums (in 1/one DN) to the output: clipped uint32 sums or float32 means."""
+    def _finish(self, raw: npt.NDArray[Any], used: npt.NDArray[np.int32] | int) -> npt.NDArray[Any]:
+        """Raw sums (in 1/one DN; ``raw`` is the kernel's own output, changed in place) to the
+        output: clipped uint32 sums or float32 means."""
         one = self._taps.one
         if self.mode == "mean":
-            scale = (used.astype(np.float64) * one)[:, np.newaxis]
+            scale = np.asarray(used, dtype=np.float64).reshape(-1, 1) * one
             mean: npt.NDArray[Any] = (raw / scale).astype(np.float32)
             return mean
-        sums = raw if one == 1 else (raw + (one // 2)) // one
+        if one != 1:
+            # round half up: (raw + one / 2) // one, one being a power of two
+            np.add(raw, one // 2, out=raw)
+            np.right_shift(raw, self._shift, out=raw)
         if self.out_bits is not None:
-            sums = np.minimum(sums, (1 << self.out_bits) - 1)
-        result: npt.NDArray[Any] = sums.astype(np.uint32, copy=False)
+            np.minimum(raw, (1 << self.out_bits) - 1, out=raw)
+        result: npt.NDArray[Any] = raw.astype(np.uint32, copy=False)
         return result
 
 
@@ -374,7 +360,6 @@ def tdi_batch(
     reverse: bool = False,
     *,
     kernel: Kernel = "auto",
-    threads: int | None = None,
 ) -> tuple[npt.NDArray[Any], npt.NDArray[np.bool_]]:
     """TDI of a whole stack of frames (F, rows, N) at once: ``(lines (F, N), complete (F,))``.
 
@@ -392,7 +377,6 @@ def tdi_batch(
         cols_per_line=cols_per_line,
         reverse=reverse,
         kernel=kernel,
-        threads=threads,
     )
     block = engine.push_many(arr)
     return block.data, block.complete
@@ -413,6 +397,7 @@ def warm_up() -> float:
             (2, 1.5, 0.0),
             (2, 1.0, 0.5),
             (300, 1.5, 0.0),  # over 256 stages: the 64-bit ring (docs/tdi.md)
+            (300, 1.0, 0.5),
         ):
             engine = TdiEngine(
                 stages,
@@ -420,7 +405,6 @@ def warm_up() -> float:
                 rows_per_line=rows_per_line,
                 cols_per_line=cols_per_line,
                 kernel="numba",
-                threads=1,
             )
             frames = np.zeros((2, engine.rows_needed, 4), dtype=np.uint16)
             engine.push_many(frames)

@@ -1,16 +1,20 @@
 """The fused numba TDI kernels: the same ring state and the same bits as ``kernel_numpy``.
 
-Why two kernels: the synchronous case (whole rows, no column shift) is memory-bound, so
+Why three kernels: the synchronous case (whole rows, no column shift) is memory-bound, so
 ``integer_rows`` adds four consecutive frames' rows into each open line in one pass (the open
-line is read and written once per four input rows, and the four input streams are sequential);
-everything else (fractional rows or columns, or a whole-column shift) goes through ``general``,
-one frame at a time, with the interpolation fused into the add. Both keep the ring semantics of
+line is read and written once per four input rows, and the four input streams are sequential).
+``fractional_rows`` (fractional rows, no column shift: a velocity mismatch) does the same with
+three frames, each stage interpolated between two rows (more input streams keep LLVM from
+vectorising: it checks every pair of pointers that might overlap, up to a limit). Everything
+else (columns shifted by a drift angle, whole or fractional) goes through ``general``, one frame
+at a time, with the interpolation fused into the add. Both keep the ring semantics of
 ``kernel_numpy``: the row of a line with no contribution yet is zero, and a finished line's row
 is zeroed when it leaves. Loops run over 0-based ranges of sliced rows so that LLVM sees
 unit-stride, non-negative indices and vectorises them.
 
-Compiled on first use and cached on disk (``cache=True``); ``nogil`` lets the engine run parts of
-a block on several threads.
+Compiled on first use and cached on disk (``cache=True``; ``camd.tdi.warm_up`` does it ahead of
+the first scan); ``nogil`` lets the daemon's other threads (the USB reader) run while a kernel
+does.
 """
 
 from __future__ import annotations
@@ -22,7 +26,7 @@ import numpy as np
 
 _JIT: dict[str, Any] = {"nogil": True, "cache": True, "boundscheck": False, "error_model": "numpy"}
 
-KERNELS = ("integer_rows", "general")
+KERNELS = ("integer_rows", "fractional_rows", "general")
 """The compiled kernels (``camd.tdi.warm_up`` compiles each ahead of the first scan)."""
 
 
@@ -95,6 +99,71 @@ def integer_rows(frames: Any, acc: Any, out: Any, rows: Any, first_index: int) -
             else:
                 for j in range(width):
                     a[j] += tmp[j]
+
+
+@numba.njit(**_JIT)  # type: ignore[untyped-decorator]
+def fractional_rows(
+    frames: Any,
+    acc: Any,
+    out: Any,
+    row: Any,
+    row_below: Any,
+    row_weight: Any,
+    one: Any,
+    first_index: int,
+) -> None:
+    """Fractional rows, no column shift: stage i adds ``(one - w) * frames[f][row[i]] + w *
+    frames[f][row_below[i]]`` (w = ``row_weight[i]``) to line ``first_index + f + i``, in units
+    of 1/``one`` DN (no rounding per stage: the weights are whole numbers). ``row_below`` is
+    ``row + 1``, or ``row`` itself where the weight is 0 and the row below is not there.
+    Three frames per pass over the open lines."""
+    count = frames.shape[0]
+    width = frames.shape[2]
+    stages = acc.shape[0]
+    for f in range(0, count, 3):
+        group = min(3, count - f)
+        k = first_index + f
+        for i in range(stages + group - 1):
+            a = acc[(k + i) % stages]
+            if group == 3 and 2 <= i <= stages - 1:
+                w0, w1, w2 = row_weight[i], row_weight[i - 1], row_weight[i - 2]
+                u0, u1, u2 = one - w0, one - w1, one - w2
+                p0, q0 = frames[f, row[i]], frames[f, row_below[i]]
+                p1, q1 = frames[f + 1, row[i - 1]], frames[f + 1, row_below[i - 1]]
+                p2, q2 = frames[f + 2, row[i - 2]], frames[f + 2, row_below[i - 2]]
+                if i == 2:
+                    o = out[f + 2]
+                    for j in range(width):
+                        o[j] = a[j] + (
+                            (u0 * p0[j] + w0 * q0[j])
+                            + (u1 * p1[j] + w1 * q1[j])
+                            + (u2 * p2[j] + w2 * q2[j])
+                        )
+                        a[j] = 0
+                else:
+                    for j in range(width):
+                        a[j] += (
+                            (u0 * p0[j] + w0 * q0[j])
+                            + (u1 * p1[j] + w1 * q1[j])
+                            + (u2 * p2[j] + w2 * q2[j])
+                        )
+                continue
+            # The group's edges (and groups of fewer than three frames): frame g of the group
+            # adds its stage i - g where that stage exists.
+            for g in range(group):
+                stage = i - g
+                if stage < 0 or stage > stages - 1:
+                    continue
+                w = row_weight[stage]
+                u = one - w
+                p, q = frames[f + g, row[stage]], frames[f + g, row_below[stage]]
+                for j in range(width):
+                    a[j] += u * p[j] + w * q[j]
+            if i < group:
+                o = out[f + i]
+                for j in range(width):
+                    o[j] = a[j]
+                    a[j] = 0
 
 
 @numba.njit(**_JIT)  # type: ignore[untyped-decorator]
