@@ -53,3 +53,12 @@ def test_bad_options_exit_2_with_the_fix(
     out = capsys.readouterr().out
     assert out.startswith("camd bench sim: ")
     assert {"stages": "--stages", "kinds": "--kinds", "seconds": "--seconds"}[option] in out
+
+
+def test_windows_are_kept_within_what_each_sensor_allows() -> None:
+    from camd.cli.bench_sim import window_rows_range
+
+    # The MT9M001 holds rows - 1 with a minimum of 2: its fewest window rows are 3.
+    assert window_rows_range("mt9m001") == (3, 1024)
+    assert window_rows_range("hr400") == (1, 2048)
+    assert window_rows_range("uvccd") == (1, 500)

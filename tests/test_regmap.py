@@ -423,4 +423,11 @@ def test_role_write_is_role_count_inverted_bias_included() -> None:
     # The MT9M001 holds rows - 1 (bias 1): 8 rows are raw 7; the HR400's WIN_ROWS has no bias.
     assert load_register_map("mt9m001").role_write("window_rows", 8) == ("ROW_SIZE.rows_minus_1", 7)
     assert load_register_map("hr400").role_write("window_rows", 8) == ("WIN_ROWS", 8)
+
+
+def test_a_biased_field_s_range_names_the_counted_quantity() -> None:
+    # Raw 2 .. 1023 of rows_minus_1 are 3 .. 1024 rows: the message must not say "2 .. 1023 row".
+    field = load_register_map("mt9m001").resolve("ROW_SIZE.rows_minus_1")[1]
+    assert field is not None
+    assert field.valid_range() == "2 .. 1023 (3 .. 1024 row)"
     assert load_register_map("mt9m001").role_write("back_path", 0) is None  # it has none

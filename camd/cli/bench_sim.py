@@ -30,7 +30,7 @@ from camd.cli.bench_common import thread_cpu_s
 from camd.protocol.stream import HEADER_BYTES
 
 DEFAULT_PROFILES = ("hr400", "ibis5", "ftf5066", "uvccd", "mt9m001")
-DEFAULT_STAGES = (8, 32, 96)
+DEFAULT_STAGES = (1, 8, 32, 96)  # 1: each profile's fastest line rate (the fewest rows)
 DEFAULT_BANK = 64
 WARM_UP_S = 0.5
 
@@ -51,7 +51,8 @@ def add_parser(which: Any) -> None:
     p.add_argument(
         "--stages",
         default=",".join(str(m) for m in DEFAULT_STAGES),
-        help="window rows M, comma-separated (default 8,32,96; capped at a sensor's rows)",
+        help="window rows M, comma-separated (default 1,8,32,96; within the rows a sensor's "
+        "window allows)",
     )
     p.add_argument(
         "--kinds",
@@ -168,10 +169,21 @@ def measure(profile: str, rows: int, kind: str, seconds: float) -> dict[str, Any
     }
 
 
-def _max_rows(profile: str) -> int:
+def window_rows_range(profile: str) -> tuple[int, int]:
+    """The fewest window rows the sensor's map allows (a rows-minus-1 field's minimum counts
+    its bias) and the sensor's rows."""
     from camd.sensor.profile import load_profile
+    from camd.sensor.regmap import load_register_map
 
-    return int(load_profile(profile).rows.value)
+    most = int(load_profile(profile).rows.value)
+    regmap = load_register_map(profile)
+    name = regmap.role("window_rows")
+    fewest = 1
+    if name is not None:
+        _, field = regmap.resolve(name)
+        if field is not None and field.min is not None:
+            fewest = field.count(field.min)
+    return max(1, fewest), most
 
 
 def run(args: argparse.Namespace) -> int:
@@ -192,8 +204,9 @@ def run(args: argparse.Namespace) -> int:
         return 2
     cases = []
     for profile in profiles:
-        rows = _max_rows(profile)
-        for m in sorted({min(m, rows) for m in stages}):
+        # M is capped at the sensor's rows and raised to the fewest its window allows.
+        fewest, most = window_rows_range(profile)
+        for m in sorted({min(max(m, fewest), most) for m in stages}):
             for kind in kinds:
                 cases.append(measure(profile, m, kind, args.seconds))
                 if not args.json:

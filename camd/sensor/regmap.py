@@ -271,8 +271,11 @@ class FieldSpec(BaseModel):
         """The accepted values, for error messages and docs."""
         if self.enum is not None:
             return "one of " + ", ".join(f"{k} ({v})" for k, v in self.enum.items())
+        # The physical range counts the bias: raw 2 .. 1023 of a rows-minus-1 field is 3 .. 1024
+        # rows.
         unit = (
-            f" ({self.lo * self.scale:g} .. {self.hi * self.scale:g} {self.unit})"
+            f" ({self.count(self.lo) * self.scale:g} .. {self.count(self.hi) * self.scale:g} "
+            f"{self.unit})"
             if self.unit
             else ""
         )
