@@ -27,7 +27,7 @@ import numpy as np
 
 from camd.cli.bench_common import beyond_cache_bytes, last_level_cache_bytes, machine, thread_cpu_s
 
-DEFAULT_PROFILES = ("hr400",)
+DEFAULT_PROFILES = ("hr400", "ibis5", "ftf5066", "uvccd", "mt9m001")
 DEFAULT_STAGES = 96
 DEFAULT_ROUNDS = 3
 WARM_UP_S = 1.0
@@ -48,7 +48,7 @@ def add_parser(which: Any) -> None:
     p.add_argument(
         "--profiles",
         default=",".join(DEFAULT_PROFILES),
-        help="camera profiles, comma-separated (default hr400)",
+        help="camera profiles, comma-separated (default all five shipped)",
     )
     p.add_argument(
         "--stages", type=int, default=DEFAULT_STAGES, help=f"M = window rows ({DEFAULT_STAGES})"
