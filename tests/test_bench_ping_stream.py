@@ -19,6 +19,7 @@ def test_ping_alternates_rounds_and_reports_the_median_ratio(
     assert main(["bench", "ping", "--count", "60", "--rounds", "3", "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
     assert doc["count"] == 60 and doc["rounds"] == 3 and doc["size"] == 16
+    assert doc["count_per_round"] == {"baseline": 20, "camd": 20}
     assert doc["failed"] == 0
     base, camd = doc["rounds_p50_ms"]["baseline"], doc["rounds_p50_ms"]["camd"]
     assert len(base) == len(camd) == 3 and min(base + camd) > 0
@@ -33,8 +34,22 @@ def test_ping_alternates_rounds_and_reports_the_median_ratio(
 
 def test_ping_refuses_too_few_round_trips_per_round(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["bench", "ping", "--count", "20", "--rounds", "3"]) == 2
-    assert "--count at least 10 per round (30 for 3 rounds)" in capsys.readouterr().err
+    assert "--count 0 (by time) or at least 10 per round (30 for 3 rounds)" in (
+        capsys.readouterr().err
+    )
     assert main(["bench", "ping", "--size", "300"]) == 2
+
+
+def test_ping_by_time_sizes_each_side_s_rounds_from_the_warm_up(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    # --count 0 (the default): each turn as many round trips as the warm-up says fit in
+    # --seconds; the echo is faster than the daemon, so it gets more of them.
+    assert main(["bench", "ping", "--seconds", "0.05", "--rounds", "1", "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    per_round = doc["count_per_round"]
+    assert 10 <= per_round["camd"] <= per_round["baseline"] <= 100_000
+    assert doc["count"] == per_round["camd"] and doc["failed"] == 0
 
 
 def test_stream_against_bare_reads_on_two_threads() -> None:

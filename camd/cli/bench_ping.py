@@ -3,10 +3,11 @@
 Subject: PING through the daemon (``POST /api/v1/ping``, as ``camctl ping`` asks it): the
 daemon's CommandLink -> pyserial -> pty -> simulated FPGA -> back; the daemon times each PING.
 Baseline: the same frame bytes written to a pty and echoed back by a separate process, read
-through pyserial: the floor any pty transport can reach. Both are started once; then the two
-sides alternate (A B, B A, ...) in ``--rounds`` rounds of ``count / rounds`` round trips each,
-so that a slow spell of the machine falls on both; the ratio is the median of the rounds'
-camd / echo ratios of p50 (and of p99).
+through pyserial: the floor any pty transport can reach. Both are started once and warmed;
+then the two sides alternate (A B, B A, ...) in ``--rounds`` rounds, so that a slow spell of the
+machine falls on both; the ratio is the median of the rounds' camd / echo ratios of p50 (and of
+p99). Each side's turn lasts about ``--seconds`` (as many round trips as the warm-up says fit),
+or ``--count / rounds`` round trips when ``--count`` is given.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ import serial
 
 from camd.cli.bench_common import (
     DEFAULT_ROUNDS,
+    MIN_ROUND_S,
     Alternation,
     add_round_options,
     alternate,
@@ -49,6 +51,8 @@ while True:
 """
 
 MIN_PER_ROUND = 10
+MAX_PER_ROUND = 100_000  # the API's most PINGs per request
+CALIBRATION = 200  # round trips timed per side to size the rounds
 
 
 def add_parser(which: Any) -> None:
@@ -60,31 +64,41 @@ def add_parser(which: Any) -> None:
         "bare pty echo of the same bytes by a separate process, alternated in rounds.",
     )
     ping.add_argument(
-        "--count", type=int, default=2000, help="round trips per side, in all (default 2000)"
+        "--count",
+        type=int,
+        default=0,
+        help="round trips per side, in all (default 0: as many as fit in --seconds a round)",
     )
     ping.add_argument("--size", type=int, default=16, help="PING payload bytes, 0..256 (16)")
-    add_round_options(ping, seconds=False)
+    add_round_options(ping)
     ping.add_argument("--json", action="store_true", help="print one JSON document")
 
 
 def run(args: argparse.Namespace) -> int:
     """``camd bench ping``: exit status 0, 2 on a bad option."""
-    if args.rounds < 1 or args.count < MIN_PER_ROUND * args.rounds or not 0 <= args.size <= 256:
+    fixed = args.count != 0
+    if (
+        args.rounds < 1
+        or (fixed and args.count < MIN_PER_ROUND * args.rounds)
+        or not args.seconds > 0
+        or not 0 <= args.size <= 256
+    ):
         print(
-            f"camd bench ping: --rounds must be >= 1, --count at least {MIN_PER_ROUND} per "
-            f"round ({MIN_PER_ROUND * max(1, args.rounds)} for {args.rounds} rounds), --size "
-            "0..256",
+            f"camd bench ping: --rounds must be >= 1, --seconds > 0, --count 0 (by time) or at "
+            f"least {MIN_PER_ROUND} per round ({MIN_PER_ROUND * max(1, args.rounds)} for "
+            f"{args.rounds} rounds), --size 0..256",
             file=sys.stderr,
         )
         return 2
-    result = bench_ping(count=args.count, size=args.size, rounds=args.rounds)
+    result = bench_ping(count=args.count, size=args.size, rounds=args.rounds, seconds=args.seconds)
     if args.json:
         print(json.dumps(result))
         return 0
     b, c = result["baseline"], result["camd"]
     print(
-        f"PING round trip, {result['count']} commands of {args.size}-byte payload per side, "
-        f"{result['rounds']} rounds alternated"
+        f"PING round trip, {args.size}-byte payload, {result['rounds']} rounds alternated of "
+        f"{result['count_per_round']['baseline']} echoes and {result['count_per_round']['camd']} "
+        "PINGs"
     )
     print(f"  bare pty echo : p50 {b['p50_ms']:.3f} ms   p99 {b['p99_ms']:.3f} ms")
     print(f"  camd (full)   : p50 {c['p50_ms']:.3f} ms   p99 {c['p99_ms']:.3f} ms")
@@ -137,12 +151,14 @@ def pty_echo_rtt_s(frame: bytes, count: int) -> np.ndarray:
         echo.close()
 
 
-def bench_ping(*, count: int, size: int, rounds: int = DEFAULT_ROUNDS) -> dict[str, Any]:
-    """Both sides, alternated; p50/p99 (ms) of each and the camd/baseline ratios."""
+def bench_ping(
+    *, count: int, size: int, rounds: int = DEFAULT_ROUNDS, seconds: float = MIN_ROUND_S
+) -> dict[str, Any]:
+    """Both sides, alternated; p50/p99 (ms) of each and the camd/baseline ratios. ``count``
+    round trips per side in all, or 0: each turn as many as fit in ``seconds``."""
     from camd.cli._daemon_proc import DaemonProcess
     from camd.client import CamdClient
 
-    per_round = max(MIN_PER_ROUND, count // rounds)
     opcode = load_dictionary().command("PING").opcode
     frame = encode_frame(FrameType.COMMAND, 0, opcode, bytes(size))
     base: list[tuple[float, float]] = []
@@ -153,17 +169,28 @@ def bench_ping(*, count: int, size: int, rounds: int = DEFAULT_ROUNDS) -> dict[s
         client = CamdClient(d.url)
         echo = PtyEcho()
         try:
-            client.ping(count=MIN_PER_ROUND, size=size)  # warm: connection, link, simulator
-            echo.rtt_s(frame, MIN_PER_ROUND)
+            # Warm (connection, link, simulator) and time both sides, to size the rounds.
+            t0 = time.perf_counter()
+            client.ping(count=CALIBRATION, size=size)
+            t1 = time.perf_counter()
+            echo.rtt_s(frame, CALIBRATION)
+            t2 = time.perf_counter()
+            if count:
+                echo_n = camd_n = max(MIN_PER_ROUND, count // rounds)
+            else:
+                echo_n, camd_n = (
+                    min(MAX_PER_ROUND, max(MIN_PER_ROUND, round(seconds * CALIBRATION / t)))
+                    for t in (t2 - t1, t1 - t0)
+                )
 
             def echo_round() -> float:
-                rtt = echo.rtt_s(frame, per_round) * 1e3
+                rtt = echo.rtt_s(frame, echo_n) * 1e3
                 base.append((float(np.percentile(rtt, 50)), float(np.percentile(rtt, 99))))
                 return base[-1][0]
 
             def camd_round() -> float:
                 nonlocal failed
-                doc = client.ping(count=per_round, size=size)
+                doc = client.ping(count=camd_n, size=size)
                 failed += doc["failed"]
                 rtt = doc["rtt_ms"]
                 if rtt["p50"] is None or rtt["p99"] is None:
@@ -177,7 +204,8 @@ def bench_ping(*, count: int, size: int, rounds: int = DEFAULT_ROUNDS) -> dict[s
     p99 = Alternation(a=[b[1] for b in base], b=[s[1] for s in subject])
     s50, s99 = p50.summary(), p99.summary()
     return {
-        "count": per_round * rounds,
+        "count": camd_n * rounds,
+        "count_per_round": {"baseline": echo_n, "camd": camd_n},
         "size": size,
         "rounds": rounds,
         "failed": failed,

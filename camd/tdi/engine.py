@@ -134,7 +134,9 @@ class TdiEngine:
         # The row below each stage's (its weight is 0 where that row is not there).
         self._row_below = np.minimum(taps.row + 1, taps.rows_needed - 1)
         self._one = acc_type(taps.one)
-        self._shift = taps.one.bit_length() - 1  # one is a power of two
+        # _finish rounds by a shift: one must be a power of two (docs/tdi.md, 1/256 pixel).
+        assert taps.one & (taps.one - 1) == 0, taps.one
+        self._shift = taps.one.bit_length() - 1
 
     def _new_ring(self) -> npt.NDArray[Any]:
         return np.zeros((self._taps.stages, self._taps.width), dtype=self._taps.accumulator)
