@@ -142,15 +142,6 @@ class PtyEcho:
         self._proc.wait(timeout=5)
 
 
-def pty_echo_rtt_s(frame: bytes, count: int) -> np.ndarray:
-    """Round-trip times of ``frame`` through a pty to an echoing process and back."""
-    echo = PtyEcho()
-    try:
-        return echo.rtt_s(frame, count)
-    finally:
-        echo.close()
-
-
 def bench_ping(
     *, count: int, size: int, rounds: int = DEFAULT_ROUNDS, seconds: float = MIN_ROUND_S
 ) -> dict[str, Any]:
@@ -201,6 +192,7 @@ def bench_ping(
             p50 = alternate(echo_round, camd_round, rounds)
         finally:
             echo.close()
+            client.close()
     p99 = Alternation(a=[b[1] for b in base], b=[s[1] for s in subject])
     s50, s99 = p50.summary(), p99.summary()
     return {
