@@ -28,8 +28,6 @@ def test_ping_alternates_rounds_and_reports_the_median_ratio(
     assert doc["ratio_p50_range"] == pytest.approx([min(ratios), max(ratios)], rel=1e-3)
     assert doc["camd"]["p50_ms"] == pytest.approx(statistics.median(camd), rel=1e-4)
     assert doc["baseline"]["p99_ms"] >= doc["baseline"]["p50_ms"]
-    # The whole stack (HTTP, daemon, link, pty, simulated FPGA) is no faster than a bare echo.
-    assert doc["camd"]["p50_ms"] > doc["baseline"]["p50_ms"]
 
 
 def test_ping_refuses_too_few_round_trips_per_round(capsys: pytest.CaptureFixture[str]) -> None:
