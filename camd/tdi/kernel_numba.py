@@ -4,13 +4,14 @@ Why three kernels: the synchronous case (whole rows, no column shift) is memory-
 ``integer_rows`` adds four consecutive frames' rows into each open line in one pass (the open
 line is read and written once per four input rows, and the four input streams are sequential).
 ``fractional_rows`` (fractional rows, no column shift: a velocity mismatch) does the same with
-three frames, each stage interpolated between two rows (more input streams keep LLVM from
-vectorising: it checks every pair of pointers that might overlap, up to a limit). Everything
-else (columns shifted by a drift angle, whole or fractional) goes through ``general``, one frame
-at a time, with the interpolation fused into the add. Both keep the ring semantics of
-``kernel_numpy``: the row of a line with no contribution yet is zero, and a finished line's row
-is zeroed when it leaves. Loops run over 0-based ranges of sliced rows so that LLVM sees
-unit-stride, non-negative indices and vectorises them.
+three frames, each stage interpolated between two rows. Four frames measured slower (0.55-0.70
+of a copy against about 0.9), probably because LLVM checks pointer pairs for overlap only up
+to a limit before it vectorises and nine pointers pass it (not confirmed in the machine code).
+Everything else (columns shifted by a drift angle, whole or fractional) goes through
+``general``, one frame at a time, with the interpolation fused into the add. All three keep the
+ring semantics of ``kernel_numpy``: the row of a line with no contribution yet is zero, and a
+finished line's row is zeroed when it leaves. Loops run over 0-based ranges of sliced rows so
+that LLVM sees unit-stride, non-negative indices and vectorises them.
 
 Compiled on first use and cached on disk (``cache=True``; ``camd.tdi.warm_up`` does it ahead of
 the first scan); ``nogil`` lets the daemon's other threads (the USB reader) run while a kernel
