@@ -282,3 +282,29 @@ def test_absent_port_reports_down_without_raising_on_open(tmp_path: Path) -> Non
         assert link.counters()["failed"] == 1
     finally:
         link.close()
+
+
+def test_a_port_closed_under_a_write_is_a_link_down(tmp_path: Path) -> None:
+    """The reader thread closes the port when the link is lost; a request writing at that
+    moment meets pyserial half-way through close() (descriptor None, port still marked open),
+    whose write then fails in select() with a TypeError. That is the link going down (seen as
+    a 500 on GET /status under load), not an internal error."""
+    import serial
+
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    port = serial.Serial(os.ttyname(slave), timeout=0.1)
+    link = CommandLink(str(tmp_path / "never-opened.tty"), timeout_s=0.1, retries=0)
+    try:
+        with link._state_lock:
+            link._serial = port
+        os.close(port.fd)
+        port.fd = None  # as serialposix.Serial.close leaves it before is_open goes False
+        assert port.is_open
+        with pytest.raises(LinkDown, match="check the cable"):
+            link.request("PING", data=b"x")
+        assert link.counters()["failed"] == 1
+    finally:
+        port.is_open = False
+        os.close(master)
+        os.close(slave)

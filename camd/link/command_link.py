@@ -327,6 +327,15 @@ class CommandLink:
         except (serial.SerialException, OSError) as exc:
             self._lost(f"write failed: {exc}")
             raise LinkDown(self._down_message()) from None
+        except (TypeError, ValueError):
+            # The reader thread lost the link and closed this port between the check above and
+            # the write: pyserial's close sets the descriptor to None before it marks the port
+            # closed, and its write then fails in select(). The link is down, not broken.
+            with self._state_lock:
+                closed = self._serial is not port or getattr(port, "fd", 0) is None
+            if not closed:
+                raise
+            raise LinkDown(self._down_message()) from None
 
     def _down_message(self) -> str:
         return (
