@@ -68,3 +68,16 @@ def test_the_machine_is_described() -> None:
     assert m["cpus"] >= 1 and len(m["loadavg"]) == 3 and m["cpu"]
     cache = m["last_level_cache_bytes"]
     assert cache is None or cache >= 1 << 16
+
+
+def test_proc_status_reads_this_process() -> None:
+    import os
+
+    pid = os.getpid()
+    # Threads, against the kernel's own list of this process's tasks.
+    assert bench_common.proc_status_int(pid, "Threads") == len(os.listdir(f"/proc/{pid}/task"))
+    rss = bench_common.proc_status_int(pid, "VmRSS")
+    peak = bench_common.proc_status_int(pid, "VmHWM")
+    assert rss is not None and peak is not None and 0 < rss <= peak
+    assert bench_common.proc_status_int(pid, "NoSuchField") is None
+    assert bench_common.proc_status_int(2**22 + 12345, "VmRSS") is None  # no such process

@@ -79,6 +79,19 @@ def beyond_cache_bytes(minimum_bytes: int, *, factor: int = 2) -> int:
     return max(minimum_bytes, factor * cache) if cache else minimum_bytes
 
 
+def proc_status_int(pid: int, field: str) -> int | None:
+    """The number of a ``/proc/PID/status`` field (``VmRSS`` and ``VmHWM`` in kB,
+    ``Threads``), or None when it cannot be read (the process gone, not Linux)."""
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text(encoding="utf-8").splitlines():
+            key, _, value = line.partition(":")
+            if key == field:
+                return int(value.split()[0])
+    except (OSError, ValueError, IndexError):
+        return None
+    return None
+
+
 def thread_cpu_s(native_id: int) -> float:
     """User + system CPU seconds of one thread of this process (Linux /proc)."""
     fields = Path(f"/proc/self/task/{native_id}/stat").read_text().rsplit(")", 1)[1].split()

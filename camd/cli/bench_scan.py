@@ -20,6 +20,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from camd.cli.bench_common import proc_status_int
+
 DEFAULT_LINES = 5000
 DEFAULT_STAGES = 96
 DEFAULT_BANK = 64
@@ -67,17 +69,6 @@ RSS_MARK_LINES = 5000
 """Lines at which the daemon's memory is noted, to compare with the end of a long scan."""
 
 
-def _status_kib(pid: int, field: str) -> int | None:
-    """A ``kB`` field of ``/proc/PID/status`` (``VmRSS``, ``VmHWM``), or None."""
-    try:
-        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-            if line.startswith(field + ":"):
-                return int(line.split()[1])
-    except (OSError, ValueError, IndexError):
-        return None
-    return None
-
-
 def bench_scan(*, profile: str, stages: int, lines: int, frame_bank: int) -> dict[str, Any]:
     """Run the scan and return the figures (see the module docstring)."""
     from camd.cli._daemon_proc import DaemonProcess
@@ -110,7 +101,7 @@ def bench_scan(*, profile: str, stages: int, lines: int, frame_bank: int) -> dic
             rss_max = 0
             while True:
                 doc = client.scan()
-                rss = _status_kib(daemon.pid, "VmRSS") or 0
+                rss = proc_status_int(daemon.pid, "VmRSS") or 0
                 rss_max = max(rss_max, rss)
                 if rss_mark is None and int(doc.get("lines") or 0) >= RSS_MARK_LINES:
                     rss_mark = rss
@@ -120,8 +111,8 @@ def bench_scan(*, profile: str, stages: int, lines: int, frame_bank: int) -> dic
                     raise RuntimeError(f"the scan did not end in {deadline - started:.0f} s")
                 time.sleep(0.5)
             wall_s = time.monotonic() - started
-            rss_end = _status_kib(daemon.pid, "VmRSS")
-            rss_peak = _status_kib(daemon.pid, "VmHWM")
+            rss_end = proc_status_int(daemon.pid, "VmRSS")
+            rss_peak = proc_status_int(daemon.pid, "VmHWM")
             after = [_cpu_s(daemon.pid), *(_cpu_s(p) for p in sims)]
             sim_stats = client.sim_stream_stats()
             client.close()

@@ -178,11 +178,8 @@ def window_rows_range(profile: str) -> tuple[int, int]:
     most = int(load_profile(profile).rows.value)
     regmap = load_register_map(profile)
     name = regmap.role("window_rows")
-    fewest = 1
-    if name is not None:
-        _, field = regmap.resolve(name)
-        if field is not None and field.min is not None:
-            fewest = field.count(field.min)
+    field = regmap.resolve(name)[1] if name is not None else None
+    fewest = field.count(field.lo) if field is not None else 1
     return max(1, fewest), most
 
 

@@ -38,6 +38,7 @@ from typing import Any, cast
 import httpx
 
 from camd.cli._daemon_proc import DaemonProcess
+from camd.cli.bench_common import proc_status_int
 from camd.client import CamdClient, CamdError
 
 __all__ = [
@@ -109,22 +110,14 @@ def proc_sample(pid: int | None) -> dict[str, int] | None:
     if pid is None:
         return None
     try:
-        status = Path(f"/proc/{pid}/status").read_text(encoding="utf-8")
         fds = len(os.listdir(f"/proc/{pid}/fd"))
     except OSError:
         return None
-    fields: dict[str, str] = {}
-    for line in status.splitlines():
-        key, _, value = line.partition(":")
-        fields[key] = value.strip()
-    try:
-        return {
-            "rss_kb": int(fields["VmRSS"].split()[0]),
-            "fds": fds,
-            "threads": int(fields["Threads"]),
-        }
-    except (KeyError, ValueError, IndexError):
+    rss_kb = proc_status_int(pid, "VmRSS")
+    threads = proc_status_int(pid, "Threads")
+    if rss_kb is None or threads is None:
         return None
+    return {"rss_kb": rss_kb, "fds": fds, "threads": threads}
 
 
 @dataclass
