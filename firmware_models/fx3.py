@@ -699,7 +699,7 @@ class StreamEngine:
             if last:
                 flags |= FrameFlags.LAST
             if flags != header.flags:
-                header = dataclasses.replace(header, flags=flags)
+                header = header._replace(flags=flags)
             # Checked when the source made it (frame_header); the flags added are known ones.
             head = pack_header(header)
             payload = pixels.data.cast("B")

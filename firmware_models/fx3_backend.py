@@ -146,6 +146,7 @@ class Fx3Backend(SimulatedUsbDevice):
         self._msg_view = memoryview(self._msg)
         self._msg_got = 0  # bytes of the next message header received so far
         self._remaining = 0  # bytes left in the current transfer
+        self._receive_timeout: tuple[socket.socket, int] | None = None  # SO_RCVTIMEO's (sock, ms)
         self._halted = False
         self._closed = False
         self.plugged = False
@@ -186,6 +187,7 @@ class Fx3Backend(SimulatedUsbDevice):
         if kind != MSG_READY:
             sock.close()
             raise StreamLinkError(f"stream socket protocol error: first message kind {kind}")
+        sock.settimeout(None)  # blocking: bulk reads time out by SO_RCVTIMEO
         with self._lock:
             self._sock = sock
             self._msg_got = 0
@@ -225,6 +227,19 @@ class Fx3Backend(SimulatedUsbDevice):
 
     # -- transfers ------------------------------------------------------------------------------
 
+    def _set_receive_timeout(self, sock: socket.socket, timeout_ms: int) -> None:
+        """Reads block in the kernel for at most ``timeout_ms`` (0: no limit), then fail with
+        EAGAIN: a timeout. One setsockopt when the read's timeout changes, instead of
+        Python's socket timeout, which costs an ioctl and a poll on every call."""
+        seconds, ms = divmod(max(0, timeout_ms), 1000)
+        try:
+            sock.setsockopt(
+                socket.SOL_SOCKET, socket.SO_RCVTIMEO, struct.pack("@ll", seconds, ms * 1000)
+            )
+        except OSError as exc:
+            raise self._lost(sock, f"cannot set the read timeout ({exc})") from None
+        self._receive_timeout = (sock, timeout_ms)
+
     def bulk_read(
         self, dev_handle: Handle, ep: int, intf: int, buff: array.array[int], timeout: int
     ) -> int:
@@ -241,6 +256,8 @@ class Fx3Backend(SimulatedUsbDevice):
         if view.format != "B":
             view = view.cast("B")
         with self._io_lock:
+            if self._receive_timeout != (sock, timeout):
+                self._set_receive_timeout(sock, timeout)
             try:
                 return self._read(sock, view, deadline)
             except _Gone as exc:
@@ -249,7 +266,7 @@ class Fx3Backend(SimulatedUsbDevice):
     def _read(self, sock: socket.socket, view: memoryview, deadline: float | None) -> int:
         if self._remaining == 0:
             while self._msg_got < MSG.size:
-                self._msg_got += self._recv(sock, self._msg_view[self._msg_got :], deadline)
+                self._msg_got += self._recv(sock, [self._msg_view[self._msg_got :]], deadline)
             self._msg_got = 0
             kind, length = MSG.unpack(self._msg)
             if kind == MSG_STALL:
@@ -262,25 +279,34 @@ class Fx3Backend(SimulatedUsbDevice):
                 return 0  # a zero-length packet: an empty transfer
             self._remaining = length
         want = min(len(view), self._remaining)
+        # A read that takes the rest of the transfer also takes whatever of the next message's
+        # header has arrived, in the same system call: one recvmsg per frame when the device
+        # is ahead of the host (it never waits for that header: it returns what is there).
+        takes_rest = want == self._remaining
         got = 0
         try:
             while got < want:
-                got += self._recv(sock, view[got:want], deadline)
+                buffers = [view[got:want]]
+                if takes_rest:
+                    buffers.append(self._msg_view)
+                n = self._recv(sock, buffers, deadline)
+                if n > want - got:
+                    self._msg_got = n - (want - got)
+                    n = want - got
+                got += n
         finally:
             # Bytes received by a read that then times out are gone, as on the hardware.
             self._remaining -= got
         return got
 
-    def _recv(self, sock: socket.socket, view: memoryview, deadline: float | None) -> int:
-        if deadline is None:
-            sock.settimeout(None)
-        else:
-            left = deadline - time.monotonic()
-            if left <= 0:
-                raise usb_error("timeout", "no data from the FX3 within the read's timeout")
-            sock.settimeout(left)
+    def _recv(self, sock: socket.socket, buffers: list[memoryview], deadline: float | None) -> int:
+        """One ``recvmsg_into`` on the blocking socket; the read's timeout is the socket's
+        receive timeout (SO_RCVTIMEO, set only when it changes: no system call per read), and
+        the deadline is checked between the calls of one read."""
+        if deadline is not None and time.monotonic() >= deadline:
+            raise usb_error("timeout", "no data from the FX3 within the read's timeout")
         try:
-            n = sock.recv_into(view)
+            n = sock.recvmsg_into(buffers)[0]
         except (TimeoutError, BlockingIOError):
             raise usb_error("timeout", "no data from the FX3 within the read's timeout") from None
         except OSError as exc:

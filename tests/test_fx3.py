@@ -211,6 +211,25 @@ def test_read_times_out_without_data(server: StreamSocketServer) -> None:
     assert exc.value.errno == errno.ETIMEDOUT
 
 
+def test_each_read_keeps_its_own_timeout(server: StreamSocketServer, bank: BankSource) -> None:
+    # The backend sets the socket's receive timeout only when a read asks for another one: a
+    # short timeout after a long one must still be the short one.
+    _backend, dev = connected(server)
+    with pytest.raises(usb.core.USBTimeoutError):
+        read_transfer(dev, timeout_ms=50)
+    engine = StreamEngine(bank, server=server)
+    engine.start(2, 0.0, pace=False)
+    assert [decode_header(read_transfer(dev, timeout_ms=20_000)).counter for _ in range(2)] == [
+        0,
+        1,
+    ]
+    t0 = time.monotonic()
+    with pytest.raises(usb.core.USBTimeoutError):
+        read_transfer(dev, timeout_ms=50)  # nothing more comes
+    assert time.monotonic() - t0 < 10.0  # not the 20 s of the reads before
+    engine.close()
+
+
 def test_stall_reads_epipe_until_the_halt_is_cleared(
     server: StreamSocketServer, bank: BankSource
 ) -> None:

@@ -387,6 +387,34 @@ def test_the_batcher_sends_frames_and_markers_in_stream_order(
     assert batcher.pending_stages is None and batcher.frames == 5 and batcher.dropped == 0
 
 
+@pytest.mark.parametrize(
+    "layout", ["as the stream gives them", "Fortran order", "big-endian", "int32", "large"]
+)
+def test_the_batcher_copies_every_layout_of_frame_exactly(
+    monkeypatch: pytest.MonkeyPatch, layout: str
+) -> None:
+    # Small frames are copied as bytes (the GIL kept), others by numpy: both must give the
+    # engine's rows of each frame, whatever the frame's memory layout or type.
+    monkeypatch.setattr(batcher_module, "BATCH_MAX_AGE_S", float("inf"))
+    cols = 40_000 if layout == "large" else COLS  # 4 rows x 40,000: 320 kB, over 64 KiB
+    frames = shifted_ramp(5, rows=6, cols=cols)
+    work: queue.Queue[Message] = queue.Queue()
+    batcher = Batcher(4, cols, work)
+    for k, frame in enumerate(frames):
+        given: npt.NDArray[Any] = frame
+        if layout == "Fortran order":
+            given = np.asfortranarray(frame)
+        elif layout == "big-endian":
+            given = frame.astype(">u2")
+        elif layout == "int32":
+            given = frame.astype(np.int32)
+        batcher(received(given, k))
+    batcher.flush()
+    batch = work.get_nowait()
+    assert isinstance(batch, Batch) and batch.n == 5
+    assert batch.frames.dtype == np.uint16 and np.array_equal(batch.frames, frames[:, :4])
+
+
 FORBIDDEN = ("camd.daemon", "camd.motion", "camd.sensor", "camd.cli", "camd.campaign",
              "camd.client")  # fmt: skip
 

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 import re
 import struct
 import zlib
@@ -24,7 +23,7 @@ from camd.protocol import (
     frame_header,
     payload_ok,
 )
-from camd.protocol.stream import pack_header
+from camd.protocol.stream import pack_header, payload_crc32
 
 ROOT = Path(__file__).resolve().parents[1]
 STREAM_MD = ROOT / "docs" / "stream.md"
@@ -82,6 +81,16 @@ def test_the_crc_is_zlib_crc32_as_defined() -> None:
     assert crc32_bitwise(EXAMPLE_PIXELS.tobytes()) == 0xF15187DD
 
 
+@pytest.mark.parametrize(
+    "nbytes", [0, 1, 4095, 4096, 4097, 8192 + 64, 65535, 65536, 65537, 200_000]
+)
+def test_payload_crc32_in_pieces_is_the_crc_of_the_whole(nbytes: int) -> None:
+    # Up to 64 KiB the dispatcher's CRC runs in 4 KiB pieces (each keeps Python's GIL): the
+    # pieces' chained CRC must be the CRC of the whole, at and around every piece boundary.
+    data = np.random.default_rng(nbytes).integers(0, 256, nbytes, dtype=np.uint8).tobytes()
+    assert payload_crc32(memoryview(data)) == zlib.crc32(data)
+
+
 def test_header_bytes_match_the_hand_written_layout() -> None:
     h = example_header()
     wire = encode_header(h)
@@ -95,11 +104,11 @@ def test_header_bytes_match_the_hand_written_layout() -> None:
 def test_pack_header_is_encode_header_without_the_checks() -> None:
     h = example_header()
     assert pack_header(h) == encode_header(h) == bytes.fromhex(EXAMPLE_HEADER_HEX)
-    flagged = dataclasses.replace(h, flags=h.flags | FrameFlags.LAST)  # as the FX3 adds it
+    flagged = h._replace(flags=h.flags | FrameFlags.LAST)  # as the FX3 adds it
     assert pack_header(flagged) == encode_header(flagged)
     assert decode_header(pack_header(flagged)).flags & FrameFlags.LAST
     # It checks nothing: the payload size no longer matches, and only encode_header says so.
-    wrong = dataclasses.replace(h, payload_bytes=h.payload_bytes + 2)
+    wrong = h._replace(payload_bytes=h.payload_bytes + 2)
     with pytest.raises(StreamFormatError, match="payload_bytes is 14"):
         encode_header(wrong)
     with pytest.raises(StreamFormatError, match="payload_bytes is 14"):
@@ -236,9 +245,7 @@ def test_each_corruption_is_refused_with_its_reason(wire: bytes, message: str) -
 
 
 def test_area_mode_has_no_stages() -> None:
-    wire = bytearray(
-        encode_header(dataclasses.replace(example_header(), mode=StreamMode.AREA, stages=0))
-    )
+    wire = bytearray(encode_header(example_header()._replace(mode=StreamMode.AREA, stages=0)))
     struct.pack_into("<H", wire, 30, 4)
     struct.pack_into("<I", wire, 60, zlib.crc32(wire[:60]))
     with pytest.raises(StreamFormatError, match="stages is 4 in area mode, expected 0"):
@@ -259,4 +266,4 @@ def test_area_mode_has_no_stages() -> None:
 )
 def test_encode_refuses_values_that_do_not_fit(change: dict[str, object], message: str) -> None:
     with pytest.raises(StreamFormatError, match=message):
-        encode_header(dataclasses.replace(example_header(), **change))  # type: ignore[arg-type]
+        encode_header(example_header()._replace(**change))  # type: ignore[arg-type]

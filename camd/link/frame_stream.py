@@ -8,7 +8,8 @@ its interface and runs two threads:
   allocation per frame), reassembly of frames that span several reads, header checks
   (``camd.protocol.stream.decode_header``), counter bookkeeping (lost, out of order), then a
   bounded queue with an explicit overflow policy: the reader never waits for consumers;
-- the dispatcher: the payload CRC (zlib-ng's crc32, ~50 GB/s, while the reader does the next read),
+- the dispatcher: the payload CRC (zlib-ng's crc32, ~50 GB/s, while the reader does the next read;
+  ``payload_crc32``: small payloads without a hand-over of the GIL),
   then every consumer callback, in counter order, with a zero-copy read-only view of the
   pixels; the slot is reused once every callback has returned: **consumers must copy what
   they keep**.
@@ -46,8 +47,8 @@ from camd.protocol.stream import (
     FrameFlags,
     FrameHeader,
     StreamFormatError,
-    crc32,
     decode_header,
+    payload_crc32,
 )
 
 log = logging.getLogger(__name__)
@@ -61,7 +62,19 @@ OVERFLOW_WAIT_S = 0.01
 # Frame slots allocated when a stream starts (and kept across runs): the reader's, the
 # dispatcher's and one queued. More are allocated only when the queue grows past that.
 INITIAL_SLOTS = 3
+# Small frames are dispatched in bursts: the dispatcher, woken by a first frame, waits up to
+# DISPATCH_WAIT_S for a burst of frames (up to DISPATCH_BURST_BYTES, at most DISPATCH_BURST
+# frames) before it delivers them. At tens of thousands of frames a second that is one
+# wake-up (and one hand-over of Python's GIL between the threads) per burst instead of
+# per frame; a frame waits at most DISPATCH_WAIT_S longer.
+DISPATCH_BURST = 16
+DISPATCH_BURST_BYTES = 256 << 10
+DISPATCH_WAIT_S = 0.002
 _MAX_CONSECUTIVE_ERRORS = 10
+# The flag values with LAST set: a set lookup, where ``flags & FrameFlags.LAST`` makes a flag.
+_WITH_LAST = frozenset(
+    FrameFlags(bits) for bits in range(1 << len(FrameFlags)) if bits & FrameFlags.LAST
+)
 
 Overflow = Literal["drop_newest", "drop_oldest"]
 OVERFLOW_POLICIES: tuple[Overflow, ...] = ("drop_newest", "drop_oldest")
@@ -123,11 +136,12 @@ class StreamStats:
 class _Slot:
     """A preallocated frame buffer: pyusb reads into ``buf``; numpy views alias it."""
 
-    __slots__ = ("buf", "pixels", "view")
+    __slots__ = ("buf", "header", "pixels", "view")
 
     def __init__(self, nbytes: int) -> None:
         self.buf = array.array("B", [0]) * nbytes
         self.view = memoryview(self.buf)
+        self.header = self.view[:HEADER_BYTES]
         pixels = np.frombuffer(self.buf, dtype="<u2", offset=HEADER_BYTES)
         pixels.flags.writeable = False  # consumers get read-only views
         self.pixels = pixels
@@ -203,6 +217,9 @@ class FrameStream:
         self._cond = threading.Condition(self._lock)
         self._queue: deque[tuple[_Slot, FrameHeader, int]] = deque()
         self._dispatching = False
+        self._reader_waiting = False  # the reader waits for a queue place (the dispatcher wakes it)
+        self._dispatcher_idle = False  # the dispatcher waits for frames (the reader wakes it)
+        self._burst = 1  # frames the dispatcher waits for, once woken: see start()
         self._stats = StreamStats()
         self._pixels = 0
         self._t_start = 0.0
@@ -384,6 +401,9 @@ class FrameStream:
         p = self._packet_bytes
         slot_bytes = (max_frame_bytes + 1 + p - 1) // p * p
         self._capacity = self.queue_capacity(slot_bytes)
+        self._burst = max(
+            1, min(DISPATCH_BURST, self._capacity, DISPATCH_BURST_BYTES // slot_bytes)
+        )
         if slot_bytes != self._slot_bytes:
             self._slots = []
             self._slot_bytes = slot_bytes
@@ -562,7 +582,8 @@ class FrameStream:
                 continue
             errors = 0
             last_data = time.monotonic()
-            self._count("reads")
+            # Only this thread writes ``reads``: no lock (a snapshot may be one read behind).
+            self._stats.reads += 1
             short_read = n < len(target)
             if discarding:
                 discarding = not short_read  # a short read (even of 0 bytes) ends the transfer
@@ -615,7 +636,7 @@ class FrameStream:
             self._broken("short", nbytes, None)
             return slot
         try:
-            header = decode_header(slot.view[:HEADER_BYTES])
+            header = decode_header(slot.header)
         except StreamFormatError as exc:
             self._broken("corrupt", nbytes, None, why=str(exc))
             return slot
@@ -628,9 +649,10 @@ class FrameStream:
             if not self._in_sequence(header.counter):
                 self._stats.out_of_order += 1
                 return slot
-            if header.flags & FrameFlags.LAST:
+            if header.flags in _WITH_LAST:
                 self._end = (header.counter + 1) % U32_WRAP
-            self._settle_end(idle=False)
+            if self._end is not None:
+                self._settle_end(idle=False)
             return self._enqueue(slot, header, received_ns)
 
     def _enqueue(self, slot: _Slot, header: FrameHeader, received_ns: int) -> _Slot:
@@ -640,10 +662,12 @@ class FrameStream:
         if len(q) >= capacity and self.overflow_wait_s > 0:
             # A short, bounded wait: it also hands the dispatcher the GIL, which a reader
             # working through a backlog (reads that never block) would otherwise keep.
+            self._reader_waiting = True
             self._cond.wait_for(
                 lambda: len(q) < capacity or self._stopping.is_set(),
                 self.overflow_wait_s,
             )
+            self._reader_waiting = False
         if len(q) >= capacity:
             self._stats.overruns += 1
             if self.overflow == "drop_newest":
@@ -651,7 +675,8 @@ class FrameStream:
             old_slot, _, _ = q.popleft()
             self._free.append(old_slot)
         q.append((slot, header, received_ns))
-        self._cond.notify_all()
+        if self._dispatcher_idle and (len(q) == 1 or len(q) >= self._burst):
+            self._cond.notify_all()
         if not self._free:
             # Never more than queued + the reader's + the dispatcher's: the queue is at most
             # capacity long here, so this slot count stays within capacity + 2.
@@ -745,22 +770,50 @@ class FrameStream:
 
     def _dispatch_loop(self) -> None:
         cond = self._cond
+        queue = self._queue
+        # The frame just handed to the consumers, accounted (counted, its slot freed) in the
+        # same lock section that takes the next one: one lock round per frame.
+        done: tuple[_Slot, FrameHeader | None] | None = None
         while True:
             with cond:
-                cond.wait_for(lambda: bool(self._queue) or self._reader_done)
-                if not self._queue:
-                    return  # the reader has stopped and everything was delivered
-                slot, header, received_ns = self._queue.popleft()
+                if done is not None:
+                    self._account(*done)
+                    done = None
+                if not queue:
+                    self._dispatching = False
+                    cond.notify_all()  # wait_drained, wait_frames
+                    self._dispatcher_idle = True
+                    cond.wait_for(lambda: bool(queue) or self._reader_done)
+                    if len(queue) < self._burst and not self._reader_done:
+                        cond.wait(DISPATCH_WAIT_S)  # for a burst: the reader wakes us at one
+                    self._dispatcher_idle = False
+                    if not queue:
+                        return  # the reader has stopped and everything was delivered
+                slot, header, received_ns = queue.popleft()
                 self._dispatching = True
                 consumers = self._consumers
-                cond.notify_all()  # a reader waiting for a queue place may go on
-            try:
-                self._deliver(slot, header, received_ns, consumers)
-            finally:
-                with cond:
-                    self._free.append(slot)
-                    self._dispatching = False
-                    cond.notify_all()
+                index = self._stats.frames
+                if self._reader_waiting:
+                    cond.notify_all()  # a reader waiting for a queue place may go on
+            done = (slot, None)
+            if self._deliver(slot, header, received_ns, consumers, index):
+                done = (slot, header)
+
+    def _account(self, slot: _Slot, header: FrameHeader | None) -> None:
+        """A frame went through the consumers (``header``; None: it was dropped, its payload
+        CRC mismatched): count it and free its slot (lock held)."""
+        self._free.append(slot)
+        s = self._stats
+        if header is None:
+            s.corrupt += 1
+            return
+        self._t_last_frame = time.monotonic()
+        s.frames += 1
+        s.bytes += header.frame_bytes
+        self._pixels += header.rows * header.cols
+        if s.first_counter is None:
+            s.first_counter = header.counter
+        s.last_counter = header.counter
 
     def _deliver(
         self,
@@ -768,28 +821,24 @@ class FrameStream:
         header: FrameHeader,
         received_ns: int,
         consumers: tuple[Consumer, ...],
-    ) -> None:
+        index: int,
+    ) -> bool:
+        """Check the payload CRC, then call every consumer; False if the CRC mismatched."""
         payload = slot.view[HEADER_BYTES : HEADER_BYTES + header.payload_bytes]
-        if crc32(payload) != header.payload_crc32:
-            with self._lock:
-                self._stats.corrupt += 1
+        if payload_crc32(payload) != header.payload_crc32:
             self.problem = f"frame {header.counter}: payload CRC mismatch"
-            return
+            return False
         last = self._last_delivered
         if last is None:
             # Before the first delivery, count from the first frame the reader saw (set before
             # this frame was queued): a rejected first frame is a gap too.
             first = self._first_seen if self._first_seen is not None else header.counter
             last = (first - 1) % U32_WRAP
-        gap = (header.counter - last - 1) % U32_WRAP
-        npix = header.rows * header.cols
-        with self._lock:
-            index = self._stats.frames
         frame = ReceivedFrame(
             header=header,
-            pixels=slot.pixels[:npix].reshape(header.rows, header.cols),
+            pixels=slot.pixels[: header.rows * header.cols].reshape(header.rows, header.cols),
             received_ns=received_ns,
-            gap_before=gap,
+            gap_before=(header.counter - last - 1) % U32_WRAP,
             index=index,
         )
         for cb in consumers:
@@ -800,12 +849,4 @@ class FrameStream:
                     self._stats.consumer_errors += 1
                 log.exception("frame stream: consumer %r failed on frame %d", cb, header.counter)
         self._last_delivered = header.counter
-        with self._lock:
-            self._t_last_frame = time.monotonic()
-            s = self._stats
-            s.frames += 1
-            s.bytes += header.frame_bytes
-            self._pixels += npix
-            if s.first_counter is None:
-                s.first_counter = header.counter
-            s.last_counter = header.counter
+        return True

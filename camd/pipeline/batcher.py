@@ -19,12 +19,14 @@ import numpy.typing as npt
 
 from camd.link.frame_stream import ReceivedFrame
 from camd.pipeline.messages import Batch, Gap, Message, StageChange
+from camd.protocol.stream import SMALL_PAYLOAD_BYTES
 
 BATCH_BYTES = 16 << 20  # frames per batch: about this many bytes, so one push_many amortises
 MAX_BATCH_FRAMES = 512
 BATCH_BUFFERS = 4  # batches in flight between the consumer and the worker
 BATCH_MAX_AGE_S = 0.1  # a partial batch older than this goes to the engine (progress, latency)
 CONSUMER_WAIT_S = 5.0  # longest the consumer waits for a free batch before giving up a frame
+_U16 = np.dtype(np.uint16)
 
 
 def batch_frames_for(rows: int, cols: int) -> int:
@@ -49,6 +51,12 @@ class Batcher:
         self._work = work
         self._lock = threading.Lock()
         self._buf: npt.NDArray[np.uint16] | None = None
+        self._buf_bytes = memoryview(b"")  # the batch buffer's bytes, while there is one
+        self._frame_bytes = 2 * rows * cols
+        # A small frame is copied as bytes, which keeps Python's GIL (numpy lets go of it,
+        # and taking it back from the stream's reader costs more than the copy; see
+        # camd.protocol.stream.payload_crc32); a large one by numpy, which lets the reader run.
+        self._copy_bytes = self._frame_bytes <= SMALL_PAYLOAD_BYTES
         self._counters = np.zeros(self.batch_frames, dtype=np.uint32)
         self._encoder = np.zeros(self.batch_frames, dtype=np.int32)
         self._n = 0
@@ -93,8 +101,14 @@ class Batcher:
                     # stream's dispatcher (and with it the USB reader) any longer.
                     self._drop()
                     return
+                self._buf_bytes = self._buf.data.cast("B")
                 self._since = time.monotonic()
-            self._buf[self._n] = pixels[: self.rows]
+            src = pixels if pixels.shape[0] == self.rows else pixels[: self.rows]
+            if self._copy_bytes and src.dtype == _U16 and src.flags.c_contiguous:
+                start = self._n * self._frame_bytes
+                self._buf_bytes[start : start + self._frame_bytes] = src.data.cast("B")
+            else:
+                self._buf[self._n] = src
             self._counters[self._n] = frame.header.counter
             self._encoder[self._n] = frame.header.stage_position
             self._n += 1
@@ -108,6 +122,7 @@ class Batcher:
         collection, which a daemon may not run for many scans: tens of MB each.)"""
         with self._lock:
             self._buf, self._n = None, 0
+            self._buf_bytes = memoryview(b"")
             while True:
                 try:
                     self._free.get_nowait()
@@ -130,3 +145,4 @@ class Batcher:
         n = self._n
         self._work.put(Batch(self._buf, n, self._counters[:n].copy(), self._encoder[:n].copy()))
         self._buf, self._n = None, 0
+        self._buf_bytes = memoryview(b"")
