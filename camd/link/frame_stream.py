@@ -136,7 +136,7 @@ class StreamStats:
 class _Slot:
     """A preallocated frame buffer: pyusb reads into ``buf``; numpy views alias it."""
 
-    __slots__ = ("buf", "header", "pixels", "view")
+    __slots__ = ("buf", "header", "pixels", "shaped", "view")
 
     def __init__(self, nbytes: int) -> None:
         self.buf = array.array("B", [0]) * nbytes
@@ -145,6 +145,14 @@ class _Slot:
         pixels = np.frombuffer(self.buf, dtype="<u2", offset=HEADER_BYTES)
         pixels.flags.writeable = False  # consumers get read-only views
         self.pixels = pixels
+        self.shaped = pixels[:0].reshape(0, 0)  # the last frame's (rows, cols) view
+
+    def frame_pixels(self, rows: int, cols: int) -> np.ndarray:
+        """The (rows, cols) view of the slot's pixels (kept: frames rarely change shape)."""
+        shaped = self.shaped
+        if shaped.shape != (rows, cols):
+            shaped = self.shaped = self.pixels[: rows * cols].reshape(rows, cols)
+        return shaped
 
 
 Consumer = Callable[[ReceivedFrame], None]
@@ -836,7 +844,7 @@ class FrameStream:
             last = (first - 1) % U32_WRAP
         frame = ReceivedFrame(
             header=header,
-            pixels=slot.pixels[: header.rows * header.cols].reshape(header.rows, header.cols),
+            pixels=slot.frame_pixels(header.rows, header.cols),
             received_ns=received_ns,
             gap_before=(header.counter - last - 1) % U32_WRAP,
             index=index,

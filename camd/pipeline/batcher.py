@@ -89,7 +89,8 @@ class Batcher:
                 self._work.put(StageChange(self._pending_stages))
                 self._pending_stages = None
             pixels = frame.pixels
-            if pixels.shape[0] < self.rows or pixels.shape[1] != self.cols:
+            rows, cols = pixels.shape
+            if rows < self.rows or cols != self.cols:
                 # Not this scan's geometry: the engine cannot use it; the line is lost.
                 self._drop()
                 return
@@ -103,17 +104,19 @@ class Batcher:
                     return
                 self._buf_bytes = self._buf.data.cast("B")
                 self._since = time.monotonic()
-            src = pixels if pixels.shape[0] == self.rows else pixels[: self.rows]
+            n = self._n
+            src = pixels if rows == self.rows else pixels[: self.rows]
             if self._copy_bytes and src.dtype == _U16 and src.flags.c_contiguous:
-                start = self._n * self._frame_bytes
+                start = n * self._frame_bytes
                 self._buf_bytes[start : start + self._frame_bytes] = src.data.cast("B")
             else:
-                self._buf[self._n] = src
-            self._counters[self._n] = frame.header.counter
-            self._encoder[self._n] = frame.header.stage_position
-            self._n += 1
+                self._buf[n] = src
+            header = frame.header
+            self._counters[n] = header.counter
+            self._encoder[n] = header.stage_position
+            self._n = n = n + 1
             self.frames += 1
-            if self._n == self.batch_frames or time.monotonic() - self._since > BATCH_MAX_AGE_S:
+            if n == self.batch_frames or time.monotonic() - self._since > BATCH_MAX_AGE_S:
                 self._flush()
 
     def release(self) -> None:
