@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import itertools
 
 import pytest
@@ -81,3 +82,11 @@ def test_proc_status_reads_this_process() -> None:
     assert rss is not None and peak is not None and 0 < rss <= peak
     assert bench_common.proc_status_int(pid, "NoSuchField") is None
     assert bench_common.proc_status_int(2**22 + 12345, "VmRSS") is None  # no such process
+
+
+def test_int_list_takes_whole_numbers_and_says_what_to_give() -> None:
+    assert bench_common.int_list("1,96", "--stages") == (1, 96)
+    assert bench_common.int_list(" 8 , 32 ,", "--stages") == (8, 32)
+    for bad in ("0,96", "x", "", "1.5"):
+        with pytest.raises(argparse.ArgumentTypeError, match="give whole numbers >= 1"):
+            bench_common.int_list(bad, "--stages")

@@ -8,6 +8,7 @@ rate).
 from __future__ import annotations
 
 import argparse
+import json
 
 import pytest
 
@@ -47,19 +48,33 @@ def test_a_case_takes_frames_through_every_stage_and_adds_up() -> None:
     assert len(case["rounds"]) == 2
 
 
+def test_each_m_is_raised_to_the_sensors_fewest_window_rows(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    # mt9m001's window is at least 3 rows: M = 1 (its fastest line rate) runs as 3, and a
+    # second M of 2 is the same case, run once.
+    args = argparse.Namespace(
+        profiles="mt9m001", stages=(1, 2), seconds=0.2, rounds=1, bank_mb=2.0, json=True
+    )
+    assert run(args) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert [(c["profile"], c["stages"]) for c in doc["cases"]] == [("mt9m001", 3)]
+    assert doc["cases"][0]["frames_in"] > 0
+
+
 def test_the_cache_size_is_read_from_the_machine() -> None:
     size = last_level_cache_bytes()
     assert size is None or size >= 1 << 16
 
 
 @pytest.mark.parametrize(
-    ("option", "value"), [("stages", 0), ("rounds", 0), ("seconds", 0.0), ("bank_mb", -1.0)]
+    ("option", "value"), [("stages", (0,)), ("rounds", 0), ("seconds", 0.0), ("bank_mb", -1.0)]
 )
 def test_bad_options_exit_2_with_the_ranges(
     option: str, value: object, capsys: pytest.CaptureFixture[str]
 ) -> None:
     args = argparse.Namespace(
-        profiles="hr400", stages=8, seconds=0.2, rounds=1, bank_mb=0.0, json=True
+        profiles="hr400", stages=(8,), seconds=0.2, rounds=1, bank_mb=0.0, json=True
     )
     setattr(args, option, value)
     assert run(args) == 2

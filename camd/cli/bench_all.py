@@ -103,7 +103,12 @@ BENCHES: tuple[Bench, ...] = (
     Bench("stream", (), ("--rounds", "3", "--seconds", "1"), _stream),
     Bench("tdi", (), ("--rounds", "3", "--seconds", "0.5", "--shapes", "96x2048"), _tdi),
     Bench("sim", (), ("--profiles", "hr400", "--stages", "8,96", "--seconds", "1"), _sim),
-    Bench("pipeline", (), ("--profiles", "hr400", "--rounds", "3", "--seconds", "1"), _pipeline),
+    Bench(
+        "pipeline",
+        (),
+        ("--profiles", "hr400", "--stages", "1,96", "--rounds", "3", "--seconds", "1"),
+        _pipeline,
+    ),
     Bench("scan", (), ("--lines", "2000"), _scan),
     Bench("live", (), ("--rounds", "3", "--seconds", "1.5"), _live),
     Bench("fuzz", (), ("--requests", "500"), _fuzz),

@@ -45,6 +45,19 @@ def add_round_options(parser: argparse.ArgumentParser, *, seconds: bool = True) 
     )
 
 
+def int_list(text: str, what: str) -> tuple[int, ...]:
+    """A comma-separated option value of whole numbers >= 1 (argparse's ``type``)."""
+    try:
+        values = tuple(int(v) for v in text.split(",") if v.strip())
+    except ValueError:
+        values = ()
+    if not values or min(values) < 1:
+        raise argparse.ArgumentTypeError(
+            f"{what} {text!r}: give whole numbers >= 1, comma-separated, e.g. 1,96"
+        )
+    return values
+
+
 def choice_list(text: str, choices: Sequence[str], what: str) -> tuple[str, ...]:
     """A comma-separated option value of names from ``choices`` (argparse's ``type``)."""
     names = tuple(n.strip() for n in text.split(",") if n.strip())
@@ -183,3 +196,17 @@ def alternate(
             result.b.append(measure_b())
             result.a.append(measure_a())
     return result
+
+
+def window_rows_range(profile: str) -> tuple[int, int]:
+    """The fewest window rows the sensor's map allows (a rows-minus-1 field's minimum counts
+    its bias) and the sensor's rows."""
+    from camd.sensor.profile import load_profile
+    from camd.sensor.regmap import load_register_map
+
+    most = int(load_profile(profile).rows.value)
+    regmap = load_register_map(profile)
+    name = regmap.role("window_rows")
+    field = regmap.resolve(name)[1] if name is not None else None
+    fewest = field.count(field.lo) if field is not None else 1
+    return max(1, fewest), most

@@ -25,10 +25,19 @@ from typing import Any
 
 import numpy as np
 
-from camd.cli.bench_common import beyond_cache_bytes, last_level_cache_bytes, machine, thread_cpu_s
+from camd.cli.bench_common import (
+    beyond_cache_bytes,
+    int_list,
+    last_level_cache_bytes,
+    machine,
+    thread_cpu_s,
+    window_rows_range,
+)
 
 DEFAULT_PROFILES = ("hr400", "ibis5", "ftf5066", "uvccd", "mt9m001")
-DEFAULT_STAGES = 96
+# 1: each profile's fastest line rate (its fewest window rows), where the host's cost per
+# frame counts most; 96: a full TDI window, where its cost per pixel does.
+DEFAULT_STAGES = (1, 96)
 DEFAULT_ROUNDS = 3
 WARM_UP_S = 1.0
 BANK_MB_MIN = 64  # the bank when the cache size cannot be read
@@ -51,7 +60,11 @@ def add_parser(which: Any) -> None:
         help="camera profiles, comma-separated (default all five shipped)",
     )
     p.add_argument(
-        "--stages", type=int, default=DEFAULT_STAGES, help=f"M = window rows ({DEFAULT_STAGES})"
+        "--stages",
+        type=lambda text: int_list(text, "--stages"),
+        default=DEFAULT_STAGES,
+        help="M = window rows, comma-separated (default 1,96; 1: the fastest line rate, raised "
+        "to the sensor's fewest window rows; M is capped at the sensor's rows)",
     )
     p.add_argument("--seconds", type=float, default=2.0, help="length of each round (2)")
     p.add_argument("--rounds", type=int, default=DEFAULT_ROUNDS, help="rounds, medians (3)")
@@ -196,17 +209,26 @@ def _sample_round(stream: Any, pipeline: Any, seconds: float) -> dict[str, float
 
 def run(args: argparse.Namespace) -> int:
     """``camd bench pipeline``: print the figures (one JSON document with --json)."""
-    if args.stages < 1 or args.rounds < 1 or not args.seconds > 0 or args.bank_mb < 0:
+    if min(args.stages) < 1 or args.rounds < 1 or not args.seconds > 0 or args.bank_mb < 0:
         print(
             "camd bench pipeline: --stages and --rounds must be >= 1, --seconds > 0, "
             "--bank-mb >= 0 (0: twice the last-level cache)"
         )
         return 2
     profiles = [p.strip() for p in args.profiles.split(",") if p.strip()]
-    cases = [
-        measure(p, args.stages, seconds=args.seconds, rounds=args.rounds, bank_mb=args.bank_mb)
-        for p in profiles
-    ]
+    cases = []
+    for profile in profiles:
+        fewest, most = window_rows_range(profile)
+        for stages in sorted({min(max(m, fewest), most) for m in args.stages}):
+            cases.append(
+                measure(
+                    profile,
+                    stages,
+                    seconds=args.seconds,
+                    rounds=args.rounds,
+                    bank_mb=args.bank_mb,
+                )
+            )
     if args.json:
         doc = {
             "cases": cases,

@@ -26,7 +26,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from camd.cli.bench_common import thread_cpu_s
+from camd.cli.bench_common import thread_cpu_s, window_rows_range
 from camd.protocol.stream import HEADER_BYTES
 
 DEFAULT_PROFILES = ("hr400", "ibis5", "ftf5066", "uvccd", "mt9m001")
@@ -167,20 +167,6 @@ def measure(profile: str, rows: int, kind: str, seconds: float) -> dict[str, Any
         "engine_cpu_cores": (cpu1 - cpu0) / elapsed,
         "seconds": elapsed,
     }
-
-
-def window_rows_range(profile: str) -> tuple[int, int]:
-    """The fewest window rows the sensor's map allows (a rows-minus-1 field's minimum counts
-    its bias) and the sensor's rows."""
-    from camd.sensor.profile import load_profile
-    from camd.sensor.regmap import load_register_map
-
-    most = int(load_profile(profile).rows.value)
-    regmap = load_register_map(profile)
-    name = regmap.role("window_rows")
-    field = regmap.resolve(name)[1] if name is not None else None
-    fewest = field.count(field.lo) if field is not None else 1
-    return max(1, fewest), most
 
 
 def run(args: argparse.Namespace) -> int:
