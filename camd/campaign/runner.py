@@ -1,6 +1,10 @@
 """Run a campaign against a daemon through ``camd.client`` only (docs/campaigns.md).
 
-``CampaignRunner(client, spec, out_dir).run()`` walks the steps in order. Every executed step
+``CampaignRunner(client, spec, out_dir).run()`` runs a YAML campaign, and
+``CampaignRunner(client, None, out_dir, plan=load_plan(path)).run()`` a Python one: either way
+a plan (``camd.campaign.plan``: a generator of steps and sweep markers; ``yaml_plan`` for the
+YAML steps) says what to do, and this runner does it, step by step, sending each step's
+outcome back to the plan. Every executed step
 instance (a step, or a step inside one iteration of a sweep: ``sweep_m[1]/stare``) is
 recorded in ``out_dir/state.json`` as soon as it completes, with its results, its check
 outcome or its raw file. Running again into the same directory resumes: recorded instances
@@ -34,8 +38,19 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
 
+from camd.campaign.acquisitions import run_acquisition
 from camd.campaign.baseline import apply_baseline, capture, restore
 from camd.campaign.measurements import MEASUREMENTS, Acquired
+from camd.campaign.plan import (
+    BeginIteration,
+    BeginSweep,
+    EndIteration,
+    EndSweep,
+    ExecutedStep,
+    Plan,
+    PlanCampaign,
+    yaml_plan,
+)
 from camd.campaign.spec import (
     AcquireStep,
     CampaignError,
@@ -70,9 +85,10 @@ class CampaignInterrupted(Exception):
 
 
 class Progress(Protocol):
-    """Told about each step instance as the run goes (camctl shows a rich progress bar)."""
+    """Told about each step instance as the run goes (camctl shows a rich progress bar);
+    ``total`` is None when a Python plan does not say how many steps it takes."""
 
-    def begin(self, total: int) -> None: ...
+    def begin(self, total: int | None) -> None: ...
 
     def step(self, key: str, title: str, *, replayed: bool) -> None: ...
 
@@ -80,7 +96,7 @@ class Progress(Protocol):
 
 
 class _NoProgress:
-    def begin(self, total: int) -> None:
+    def begin(self, total: int | None) -> None:
         pass
 
     def step(self, key: str, title: str, *, replayed: bool) -> None:
@@ -140,45 +156,77 @@ class _Level:
         raise KeyError(step_id)
 
 
+@dataclass
+class _OpenSweep:
+    """A sweep the plan has begun: its iterations' levels so far."""
+
+    begin: BeginSweep
+    key: str
+    iterations: list[_Level] = field(default_factory=list)
+
+
+@dataclass
+class _Scope:
+    """Where the plan is: the key prefix, the names ``${...}`` sees, the results' level, and
+    the sweep open at this level, if any."""
+
+    prefix: str
+    names: dict[str, Any]
+    level: _Level
+    sweep: _OpenSweep | None = None
+
+
 def instance_seed(seed: int, key: str) -> int:
     """The simulator seed of one step instance: the campaign's seed and the instance's key
     hashed to 32 bits (stable across runs and Python versions, unlike ``hash``)."""
     return zlib.crc32(f"{seed}/{key}".encode())
 
 
-def spec_digest(spec: CampaignSpec, quick: bool) -> str:
-    """What a state file must have been made by to be resumed: the campaign and --quick."""
-    text = json.dumps({"spec": spec.model_dump(mode="json"), "quick": quick}, sort_keys=True)
+def spec_digest(spec: CampaignSpec, quick: bool, source: str | None = None) -> str:
+    """What a state file must have been made by to be resumed: the campaign (a Python
+    campaign's ``source`` too) and --quick."""
+    doc: dict[str, Any] = {"spec": spec.model_dump(mode="json"), "quick": quick}
+    if source is not None:
+        doc["source"] = source
+    text = json.dumps(doc, sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()
 
 
 class CampaignRunner:
     """Runs ``spec`` through ``client`` into ``out_dir`` (see the module docstring).
 
-    ``sim`` says whether the daemon drives the simulated camera (None: ask the daemon);
-    ``stop_after`` (a step instance key or step id) stops the run once that instance has
-    completed, as an interrupt would (for tests and debugging).
+    ``plan``, a Python campaign (``camd.campaign.plan.load_plan``), replaces ``spec`` (give
+    None) by its header and its plan. ``sim`` says whether the daemon drives the simulated
+    camera (None: ask the daemon); ``stop_after`` (a step instance key or step id) stops the
+    run once that instance has completed, as an interrupt would (for tests and debugging).
     """
 
     def __init__(
         self,
         client: CamdClient,
-        spec: CampaignSpec,
+        spec: CampaignSpec | None,
         out_dir: str | os.PathLike[str],
         *,
+        plan: PlanCampaign | None = None,
         quick: bool = False,
         progress: Progress | None = None,
         sim: bool | None = None,
         stop_after: str | None = None,
     ) -> None:
+        if (spec is None) == (plan is None):
+            raise ValueError("give a YAML campaign's spec or a Python campaign's plan (one)")
+        if plan is not None:
+            spec = plan.spec
+        assert spec is not None
         self.client = client
-        self.spec = spec
+        self.plan = plan
+        self.spec: CampaignSpec = spec
         self.out_dir = Path(out_dir).resolve()
         self.quick = quick
         self.progress: Progress = progress if progress is not None else _NoProgress()
         self.sim = sim
         self.stop_after = stop_after
-        self.parameters = spec.parameters_for(quick)
+        self.parameters = self.spec.parameters_for(quick)
         self.state_path = self.out_dir / "state.json"
         self.raw_dir = self.out_dir / "raw"
         self._completed: dict[str, dict[str, Any]] = {}
@@ -186,7 +234,8 @@ class CampaignRunner:
         self._files: dict[str, str] = {}
         self.restored: list[str] = []  # the daemon's settings put back after the run
         self._step_number = 0  # step instances begun so far in this run
-        self._steps_total = 0
+        self._steps_total: int | None = 0
+        self._digest = spec_digest(self.spec, quick, None if plan is None else plan.source)
 
     # -- the run --------------------------------------------------------------------------------
 
@@ -207,7 +256,10 @@ class CampaignRunner:
             ) from None
         self._load_state()
         self._check_camera()
-        self._steps_total = self._count(self.spec.steps, self.parameters)
+        if self.plan is None:
+            self._steps_total = self._count(self.spec.steps, self.parameters)
+        else:
+            self._steps_total = self.plan.steps_in_run(dict(self.parameters))
         self._step_number = 0
         self.progress.begin(self._steps_total)
         top = _Level()
@@ -219,7 +271,7 @@ class CampaignRunner:
                 before = capture(self.client)
                 try:
                     apply_baseline(self.client, self.spec.baseline)
-                    self._run_steps(self.spec.steps, "", dict(self.parameters), top)
+                    self._drive(self._plan(), top)
                 except BaseException:
                     self._stop_device()
                     raise
@@ -257,31 +309,141 @@ class CampaignRunner:
             "assumptions": list(self.spec.assumptions),
         }
 
-    def _run_steps(
-        self, steps: list[Any], prefix: str, names: dict[str, Any], level: _Level
-    ) -> None:
-        for step in steps:
-            key = f"{prefix}{step.id}"
-            if isinstance(step, SweepStep):
-                self._sweep(step, key, names, level)
-                continue
-            record = self._completed.get(key)
-            replayed = record is not None and not isinstance(step, ConfigureStep)
-            self.progress.step(key, step.title or step.id, replayed=replayed)
-            self._step_number += 1
-            self._say(
-                f"step {self._step_number}/{self._steps_total} {step.kind} {key}"
-                + (" (replayed)" if replayed else ""),
-                self._step_number - 1,
+    def _plan(self) -> Plan:
+        """The plan to run: the Python campaign's, or the YAML steps' front end."""
+        parameters = dict(self.parameters)
+        if self.plan is None:
+            return yaml_plan(self.spec.steps, parameters)
+        plan = self.plan.plan(parameters)
+        if not hasattr(plan, "send"):
+            raise CampaignError(
+                f"{self.plan.path}: plan(parameters) must be a generator (a function that "
+                f"yields steps), not {type(plan).__name__}"
             )
-            if record is None or isinstance(step, ConfigureStep):
-                record = self._execute(step, key, names, level)
-                self._completed[key] = record
-                self._save_state()
-            self._apply(step, key, record, level)
-            self.progress.advance()
-            if self.stop_after in (key, step.id) and not replayed:
-                raise CampaignInterrupted(f"stopped after {key} (stop_after)")
+        return plan
+
+    def _drive(self, plan: Plan, top: _Level) -> None:
+        """Carry out the plan: each step executed (or replayed), its outcome sent back."""
+        scopes = [_Scope("", dict(self.parameters), top)]
+        seen: set[str] = set()
+        reply: Any = None
+        try:
+            while True:
+                try:
+                    instruction = plan.send(reply)
+                except StopIteration:
+                    break
+                reply = self._instruction(instruction, scopes, seen)
+        finally:
+            plan.close()  # a plan's own ``finally`` blocks run when the run stops early
+        if len(scopes) > 1 or scopes[0].sweep is not None:
+            raise CampaignError(
+                "the plan ended inside a sweep: every BeginSweep needs its iterations and an "
+                "EndSweep (use camd.campaign.plan.sweep)"
+            )
+
+    def _instruction(self, instruction: Any, scopes: list[_Scope], seen: set[str]) -> Any:
+        scope = scopes[-1]
+        if isinstance(instruction, BeginSweep):
+            key = self._new_key(scope, instruction.id, seen)
+            if scope.sweep is not None:
+                raise CampaignError(f"sweep {key}: begun inside sweep {scope.sweep.key}'s own "
+                                    "level, outside an iteration")  # fmt: skip
+            scope.sweep = _OpenSweep(instruction, key)
+            return None
+        if isinstance(instruction, BeginIteration):
+            sweep = scope.sweep
+            if sweep is None:
+                raise CampaignError("an iteration begun outside a sweep (BeginSweep first)")
+            i, values = len(sweep.iterations), sweep.begin.values
+            if (
+                instruction.index != i
+                or i >= len(values)
+                or not (instruction.value is values[i] or instruction.value == values[i])
+            ):
+                raise CampaignError(
+                    f"sweep {sweep.key}: iteration {instruction.index} ({instruction.value!r}) "
+                    f"out of order: expected iteration {i} of the {len(values)} values"
+                )
+            names = {**scope.names, sweep.begin.parameter: instruction.value}
+            scopes.append(_Scope(f"{sweep.key}[{i}]/", names, _Level(parent=scope.level)))
+            return None
+        if isinstance(instruction, EndIteration):
+            if len(scopes) == 1 or scope.sweep is not None:
+                raise CampaignError("EndIteration without an iteration in progress (or with a "
+                                    "sweep still open inside it)")  # fmt: skip
+            scopes.pop()
+            parent = scopes[-1]
+            assert parent.sweep is not None
+            parent.sweep.iterations.append(scope.level)
+            return None
+        if isinstance(instruction, EndSweep):
+            sweep = scope.sweep
+            if sweep is None or len(sweep.iterations) != len(sweep.begin.values):
+                raise CampaignError("EndSweep without a sweep whose iterations have all run")
+            self._close_sweep(sweep, scope.level)
+            scope.sweep = None
+            return None
+        if isinstance(instruction, ConfigureStep | AcquireStep | MeasureStep | CheckStep):
+            if scope.sweep is not None:
+                raise CampaignError(f"step {instruction.id}: inside sweep {scope.sweep.key} "
+                                    "but outside its iterations")  # fmt: skip
+            key = self._new_key(scope, instruction.id, seen)
+            return self._step(instruction, key, scope)
+        raise CampaignError(
+            f"the plan yielded {type(instruction).__name__}: a plan yields steps (configure, "
+            "acquire, measure, check) and sweep markers (camd.campaign.plan)"
+        )
+
+    @staticmethod
+    def _new_key(scope: _Scope, step_id: str, seen: set[str]) -> str:
+        key = f"{scope.prefix}{step_id}"
+        if key in seen:
+            raise CampaignError(
+                f"step {key}: its id is used twice at one level; give each step its own id "
+                "(state, files and results are named after it)"
+            )
+        seen.add(key)
+        return key
+
+    def _step(self, step: ExecutedStep, key: str, scope: _Scope) -> Any:
+        """Execute one step instance (or replay it), make its outcome visible; the reply to
+        the plan."""
+        record = self._completed.get(key)
+        replayed = record is not None and not isinstance(step, ConfigureStep)
+        self.progress.step(key, step.title or step.id, replayed=replayed)
+        self._step_number += 1
+        of = "" if self._steps_total is None else f"/{self._steps_total}"
+        self._say(
+            f"step {self._step_number}{of} {step.kind} {key}" + (" (replayed)" if replayed else ""),
+            self._step_number - 1,
+        )
+        if record is None or isinstance(step, ConfigureStep):
+            record = self._execute(step, key, scope.names, scope.level)
+            self._completed[key] = record
+            self._save_state()
+        self._apply(step, key, record, scope.level)
+        self.progress.advance()
+        if self.stop_after in (key, step.id) and not replayed:
+            raise CampaignInterrupted(f"stopped after {key} (stop_after)")
+        if isinstance(step, AcquireStep):
+            return record["doc"]
+        if isinstance(step, MeasureStep):
+            return dict(record["results"])
+        if isinstance(step, CheckStep):
+            return dict(record["check"])
+        return None
+
+    @staticmethod
+    def _close_sweep(sweep: _OpenSweep, level: _Level) -> None:
+        # A result measured inside the sweep becomes a list over its values, in order.
+        produced: list[str] = []
+        for inner in sweep.iterations:
+            produced += [n for n in inner.results if n not in produced]
+        if sweep.begin.record:
+            level.results[sweep.begin.parameter] = list(sweep.begin.values)
+        for name in produced:
+            level.results[name] = [inner.results.get(name) for inner in sweep.iterations]
 
     def _say(self, what: str, done: int) -> None:
         """Tell the daemon what the campaign is doing, for observers (GET /api/v1/control);
@@ -291,22 +453,6 @@ class CampaignRunner:
         )
         with contextlib.suppress(CamdError):
             self.client.set_activity(text[:ACTIVITY_TEXT_MAX], done, self._steps_total)
-
-    def _sweep(self, step: SweepStep, key: str, names: dict[str, Any], level: _Level) -> None:
-        values = self._sweep_values(step, names)
-        per_iteration: list[_Level] = []
-        for i, value in enumerate(values):
-            inner = _Level(parent=level)
-            self._run_steps(step.steps, f"{key}[{i}]/", {**names, step.parameter: value}, inner)
-            per_iteration.append(inner)
-        # A result measured inside the sweep becomes a list over its values, in order.
-        produced: list[str] = []
-        for inner in per_iteration:
-            produced += [n for n in inner.results if n not in produced]
-        if step.record:
-            level.results[step.parameter] = list(values)
-        for name in produced:
-            level.results[name] = [inner.results.get(name) for inner in per_iteration]
 
     def _sweep_values(self, step: SweepStep, names: dict[str, Any]) -> list[Any]:
         try:
@@ -430,6 +576,8 @@ class CampaignRunner:
                 raise CampaignError(f"step {key}: the scan failed: {doc['error']}")
         elif isinstance(step.polarization, PolarizationAcquire):
             doc = self._polarization(step.polarization, path)
+        elif step.custom is not None:
+            doc = run_acquisition(step.custom.kind, self.client, path, dict(step.custom.args))
         else:
             assert isinstance(step.wheel, WheelAcquire)
             w = step.wheel
@@ -565,7 +713,7 @@ class CampaignRunner:
             ) from None
         if state.get("format") != STATE_FORMAT or state.get("version") != STATE_VERSION:
             raise CampaignError(f"{self.state_path} is not a campaign state file; remove it")
-        if state.get("digest") != spec_digest(self.spec, self.quick):
+        if state.get("digest") != self._digest:
             raise CampaignError(
                 f"{self.state_path} was written by another version of campaign "
                 f"{state.get('campaign')!r} (or with{'out' if self.quick else ''} --quick): "
@@ -578,7 +726,7 @@ class CampaignRunner:
             "format": STATE_FORMAT,
             "version": STATE_VERSION,
             "campaign": self.spec.name,
-            "digest": spec_digest(self.spec, self.quick),
+            "digest": self._digest,
             "completed": self._completed,
         }
         tmp = self.state_path.with_suffix(".json.tmp")

@@ -197,32 +197,44 @@ class PolarizationAcquire(_Model):
     )
 
 
+class CustomAcquire(_Model):
+    """An acquisition kind registered in Python (``camd.campaign.acquisitions.acquisition``,
+    e.g. by a Python campaign's module): its name and its keyword arguments."""
+
+    kind: str = Field(pattern=NAME, description="a registered acquisition kind")
+    args: dict[str, Any] = Field(default_factory=dict, description="its keyword arguments")
+
+
+_ACQUIRE_KINDS = ("stare", "scan", "wheel", "polarization", "custom")
+
+
 class AcquireStep(_Step):
-    """Take data: exactly one of ``stare``, ``scan``, ``wheel`` or ``polarization``; recorded
-    under raw/."""
+    """Take data: exactly one of ``stare``, ``scan``, ``wheel``, ``polarization`` or
+    ``custom`` (a registered kind); recorded under raw/."""
 
     kind: Literal["acquire"]
     stare: StareAcquire | None = None
     scan: ScanAcquire | None = None
     wheel: WheelAcquire | None = None
     polarization: PolarizationAcquire | None = None
+    custom: CustomAcquire | None = None
 
     @model_validator(mode="after")
     def _exactly_one(self) -> AcquireStep:
-        kinds = ("stare", "scan", "wheel", "polarization")
-        given = [k for k in kinds if getattr(self, k) is not None]
+        given = [k for k in _ACQUIRE_KINDS if getattr(self, k) is not None]
         if len(given) != 1:
             raise ValueError(
-                "give exactly one of `stare`, `scan`, `wheel` or `polarization`, got "
+                "give exactly one of `stare`, `scan`, `wheel`, `polarization` or `custom`, got "
                 + (", ".join(given) if given else "none")
             )
         return self
 
     @property
     def how(self) -> str:
-        """``stare``, ``scan``, ``wheel`` or ``polarization``."""
-        kinds = ("stare", "scan", "wheel", "polarization")
-        return next(k for k in kinds if getattr(self, k) is not None)
+        """``stare``, ``scan``, ``wheel``, ``polarization`` or the custom kind's name."""
+        if self.custom is not None:
+            return self.custom.kind
+        return next(k for k in _ACQUIRE_KINDS if getattr(self, k) is not None)
 
 
 class MeasureStep(_Step):

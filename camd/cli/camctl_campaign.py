@@ -3,6 +3,8 @@
     camctl campaign run FILE --out DIR [--quick] [--sim] [--json]
     camctl campaign list
 
+FILE is a YAML campaign or a Python one (a ``.py`` module with CAMPAIGN and plan: see
+``camd.campaign.plan``), or the name of a shipped campaign.
 ``run`` runs (or, into a DIR holding a state file, resumes) a campaign against the daemon at
 --url, or with ``--sim`` against a simulated camera of the campaign's profile that it starts
 itself (data and log in DIR/daemon). Progress goes to stderr. ``--json`` prints one document,
@@ -28,6 +30,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from camd.client import CamdClient
 
 if TYPE_CHECKING:
+    from camd.campaign.plan import PlanCampaign
     from camd.campaign.runner import CampaignOutcome
     from camd.campaign.runner import Progress as StepProgress
     from camd.campaign.spec import CampaignSpec
@@ -48,7 +51,8 @@ def add_parsers(command: Callable[[str, str], argparse.ArgumentParser]) -> None:
     p.add_argument("action", choices=("run", "list"))
     p.add_argument(
         "file", nargs="?", metavar="FILE",
-        help="run: the campaign YAML, or the name of a shipped one (camctl campaign list)",
+        help="run: the campaign (YAML, or a Python plan .py), or the name of a shipped one "
+        "(camctl campaign list)",
     )  # fmt: skip
     p.add_argument("--out", metavar="DIR", help="run: output directory (resumes if it has state)")
     p.add_argument("--quick", action="store_true", help="run: the campaign's CI-sized overrides")
@@ -68,14 +72,22 @@ def _campaign_path(text: str) -> Path | None:
     if path.is_file():
         return path
     if re.fullmatch(NAME, text):
-        shipped = campaigns_dir() / f"{text}.yaml"
-        if shipped.is_file():
-            return shipped
+        for suffix in CAMPAIGN_SUFFIXES:
+            shipped = campaigns_dir() / f"{text}{suffix}"
+            if shipped.is_file():
+                return shipped
     return None
 
 
+CAMPAIGN_SUFFIXES = (".yaml", ".py")  # a YAML campaign, a Python plan
+
+
+def _shipped() -> list[Path]:
+    return sorted(p for p in campaigns_dir().iterdir() if p.suffix in CAMPAIGN_SUFFIXES)
+
+
 def _shipped_names() -> str:
-    return ", ".join(p.stem for p in sorted(campaigns_dir().glob("*.yaml")))
+    return ", ".join(p.stem for p in _shipped())
 
 
 def check_out_dir(out_dir: Path) -> None:
@@ -113,10 +125,19 @@ def cmd_campaign(client: CamdClient, args: argparse.Namespace) -> Any:
             f"no campaign {args.file!r}: give a campaign YAML file, or one of the shipped "
             f"campaigns (`camctl campaign list`): {_shipped_names()}"
         )
-    # The whole file, with the parameters substituted, before anything is done.
+    # The whole file, with the parameters substituted, before anything is done (a Python
+    # plan's steps are checked as it yields them).
+    plan = None
+    spec: CampaignSpec
     try:
-        spec = load_campaign(path)
-        check_campaign(spec, path, quick=args.quick)
+        if path.suffix == ".py":
+            from camd.campaign.plan import load_plan
+
+            plan = load_plan(path)
+            spec = plan.spec
+        else:
+            spec = load_campaign(path)
+            check_campaign(spec, path, quick=args.quick)
     except CampaignError as exc:
         raise UsageError(str(exc)) from None
     out_dir = Path(args.out)
@@ -124,7 +145,7 @@ def cmd_campaign(client: CamdClient, args: argparse.Namespace) -> Any:
         raise UsageError(f"--resume: {out_dir / 'state.json'} does not exist; nothing to resume")
     check_out_dir(out_dir)
     try:
-        doc = _run(None if args.sim else client, spec, out_dir, args)
+        doc = _run(None if args.sim else client, spec, plan, out_dir, args)
     except CampaignError as exc:
         raise CommandFailed({"campaign": spec.name, "error": str(exc)}, str(exc)) from None
     if not doc["passed"]:
@@ -139,7 +160,7 @@ def _public(doc: dict[str, Any]) -> dict[str, Any]:
 
 
 def _run(
-    client: CamdClient | None, spec: Any, out_dir: Path, args: argparse.Namespace
+    client: CamdClient | None, spec: Any, plan: Any, out_dir: Path, args: argparse.Namespace
 ) -> dict[str, Any]:
     """Run on ``client``'s daemon, or (None) on a simulated camera of the campaign's own."""
     from camd.campaign.runner import CampaignInterrupted, CampaignRunner
@@ -150,12 +171,12 @@ def _run(
             if client is None:
                 outcome = run_on_own_sim(
                     spec, out_dir, quick=args.quick, progress=progress, timeout_s=args.timeout,
-                    stop_after=args.stop_after,
+                    stop_after=args.stop_after, plan=plan,
                 )  # fmt: skip
             else:
                 outcome = CampaignRunner(
-                    client, spec, out_dir, quick=args.quick, progress=progress,
-                    stop_after=args.stop_after,
+                    client, None if plan is not None else spec, out_dir, plan=plan,
+                    quick=args.quick, progress=progress, stop_after=args.stop_after,
                 ).run()  # fmt: skip
         except CampaignInterrupted as exc:
             print(f"camctl: {exc}", file=sys.stderr)
@@ -177,9 +198,11 @@ def run_on_own_sim(
     progress: StepProgress | None = None,
     timeout_s: float = 30.0,
     stop_after: str | None = None,
+    plan: PlanCampaign | None = None,
 ) -> CampaignOutcome:
     """Start ``camd serve --sim`` with the campaign's profile and seed (data and log in
-    ``out_dir/daemon``), run the campaign on it, stop it. CampaignError if it does not start;
+    ``out_dir/daemon``), run the campaign (or the Python campaign ``plan``, whose header is
+    ``spec``) on it, stop it. CampaignError if it does not start;
     the runner's errors otherwise (``camd demo`` runs its campaigns this way too)."""
     from camd.campaign.runner import CampaignRunner
     from camd.campaign.spec import CampaignError
@@ -202,8 +225,8 @@ def run_on_own_sim(
         with CamdClient(daemon.url, timeout_s=timeout_s) as client:
             client.wait_ready(60.0)
             runner = CampaignRunner(
-                client, spec, out_dir, quick=quick, progress=progress, sim=True,
-                stop_after=stop_after,
+                client, None if plan is not None else spec, out_dir, plan=plan, quick=quick,
+                progress=progress, sim=True, stop_after=stop_after,
             )  # fmt: skip
             return runner.run()
     finally:
@@ -211,12 +234,13 @@ def run_on_own_sim(
 
 
 def _list() -> dict[str, Any]:
+    from camd.campaign.plan import load_plan
     from camd.campaign.spec import CampaignError, load_campaign
 
     found: list[dict[str, Any]] = []
-    for path in sorted(campaigns_dir().glob("*.yaml")):
+    for path in _shipped():
         try:
-            spec = load_campaign(path)
+            spec = load_plan(path).spec if path.suffix == ".py" else load_campaign(path)
             found.append({"name": spec.name, "profile": spec.profile, "file": str(path),
                           "description": " ".join(spec.description.split())})  # fmt: skip
         except CampaignError as exc:
@@ -243,7 +267,7 @@ class RichProgress:
     def __exit__(self, *exc: object) -> None:
         self._bar.stop()
 
-    def begin(self, total: int) -> None:
+    def begin(self, total: int | None) -> None:
         self._bar.update(self._task, total=total, completed=0)
 
     def step(self, key: str, title: str, *, replayed: bool) -> None:
