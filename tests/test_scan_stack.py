@@ -20,6 +20,7 @@ import pytest
 from camd.sensor.profile import load_profile
 from camd.store.tdi_recording import read_tdi_scan
 from camd.tdi import bin2x2
+from tests.nexus_support import nexus_plot
 from tests.test_camctl import camctl, camctl_json
 from tests.test_sensor_stack import serve
 
@@ -97,6 +98,20 @@ def test_scan_records_eq11_lines_with_flags_metadata_and_quicklook(
     assert scan.metadata["registers"]["WIN_ROWS"] == 12
     png = cv2.imread(str(doc["quicklook"]), cv2.IMREAD_UNCHANGED)
     assert png is not None and png.shape[:2] == (37, 2048)
+    # A NeXus viewer finds the lines as an image against line index and column, and the
+    # detector with the sensor and the TDI settings (docs/scan.md, "NeXus").
+    nexus = nexus_plot(out)
+    assert (nexus["signal"], nexus["shape"]) == ("lines", (37, 2048))
+    assert nexus["axes"] == [("line_index", (37,)), ("column", (2048,))]
+    assert np.array_equal(nexus["signal_values"], scan.lines)
+    assert nexus["axis_values"][0].tolist() == list(range(37))
+    det = nexus["detector"]
+    assert det["tdi_stages"] == (8, None) and det["tdi_window_rows"] == (12, None)
+    assert det["tdi_mode"] == ("sum", None) and det["local_name"] == ("hr400", None)
+    assert det["x_pixel_size"] == (profile.pitch_m.value, "m")
+    assert det["frame_time"][0] == pytest.approx(timing["tdi_line_period_s"])
+    assert det["frame_time"][1] == "s"
+    assert nexus["title"] == "TDI scan, hr400, M = 8, sum mode"
 
 
 def test_binned_scan_sums_binned_rows_at_twice_the_synchronous_speed(

@@ -15,6 +15,7 @@ import pytest
 
 from camd.client import CamdClient, CamdError
 from camd.store import read_recording
+from tests.nexus_support import nexus_plot
 from tests.test_camctl import camctl, camctl_json
 from tests.test_sensor_stack import serve
 
@@ -88,6 +89,17 @@ def test_stare_records_frames_bit_exactly_with_metadata(url: str, tmp_path: Path
     assert rec.metadata["stream"]["frames"] == 6 and rec.metadata["stream"]["lost"] == 0
     # Flags say the frames are a test pattern.
     assert all(int(f) & 0x2 for f in rec.columns["flags"])
+    # A NeXus viewer finds the frames as images against frame counter, row and column
+    # (docs/stream.md, "NeXus").
+    nexus = nexus_plot(tmp_path / "ramp.h5")
+    assert (nexus["signal"], nexus["shape"]) == ("frames", (6, ROWS, 2048))
+    assert nexus["axes"] == [("frame_counter", (6,)), ("row", (ROWS,)), ("column", (2048,))]
+    assert np.array_equal(nexus["signal_values"], rec.frames)
+    assert np.array_equal(nexus["axis_values"][0], rec.columns["frame_counter"])
+    det = nexus["detector"]
+    assert det["bit_depth_readout"] == (12, None) and det["local_name"] == ("hr400", None)
+    assert det["frame_time"][0] == pytest.approx(rec.attrs["line_period_s"])
+    assert nexus["title"] == f"frames, hr400, {ROWS} x 2048, area mode"
 
 
 def test_binned_stare_halves_the_frame_and_adds_two_bits(url: str, tmp_path: Path) -> None:

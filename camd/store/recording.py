@@ -17,6 +17,9 @@ One file per recording::
                        /background/mean_dn (rows, cols) float32, its attributes say how it was
                        captured (frames, rows, cols, mode, stages, first_counter, last_counter,
                        captured_utc); see ``write_background``
+    /entry             the NeXus entry (format 3; ``camd.store.nexus``): NXdata with /frames as
+                       its signal against frame_counter, row and column, NXdetector with the
+                       sensor, for viewers that know NeXus (silx, h5web, nexusformat)
 
 Root attributes: ``format`` ("camd-recording"), ``format_version``, ``mode``, ``bits``,
 ``rows``, ``cols``, ``line_period_s``, ``created_utc``, ``camd_version``, ``frames_expected``,
@@ -51,9 +54,12 @@ import numpy.typing as npt
 
 from camd.protocol.stream import FrameHeader, StreamMode, crc32
 from camd.store.durability import FLUSH_PERIOD_S, SpaceReserve, close_writer, write_failure
+from camd.store.nexus import Axis, profile_value, write_nexus
 
 FORMAT = "camd-recording"
-FORMAT_VERSION = 2  # 2: SWMR (HDF5 1.10 format), /frames_flushed, the ``finished`` attribute
+# 2: SWMR (HDF5 1.10 format), /frames_flushed, the ``finished`` attribute; 3: the NeXus entry
+# (camd.store.nexus). A reader needs neither: older files read as before.
+FORMAT_VERSION = 3
 METADATA_GROUPS = ("profile", "registers", "timing", "stream")
 BACKGROUND_GROUP = "background"
 _RESERVE_BYTES = 4 << 20  # space held back for finishing the file on a full disk
@@ -202,13 +208,15 @@ class FrameRecorder:
         self._flush_period_s = flush_period_s
         self._last_flush = time.monotonic()
         self._frames_expected = frames_expected
+        self._metadata = metadata or {}
         # Host time of a frame = monotonic receive time + this offset (ns since 1970, UTC).
         self._unix_offset_ns = time.time_ns() - time.monotonic_ns()
+        self._created_utc = dt.datetime.now(dt.UTC).isoformat(timespec="milliseconds")
         self._file.attrs.update(
             {
                 "format": FORMAT,
                 "format_version": FORMAT_VERSION,
-                "created_utc": dt.datetime.now(dt.UTC).isoformat(timespec="milliseconds"),
+                "created_utc": self._created_utc,
                 "camd_version": camd_version(),
                 "frames_expected": frames_expected,
                 "finished": False,
@@ -255,10 +263,44 @@ class FrameRecorder:
             for name, dtype in _PER_FRAME.items()
         }
         self._frames_flushed = f.create_dataset("frames_flushed", data=np.zeros(1, np.int64))
+        self._write_nexus(f, rows, cols, bits, mode_name, line_period_s)
         self._reserve(max(self._frames_expected, 1))
         # Every object exists now: from here on the file is only appended to, in SWMR mode.
         f.swmr_mode = True
         f.flush()
+
+    def _write_nexus(
+        self, f: h5py.File, rows: int, cols: int, bits: int, mode: str, line_period_s: float
+    ) -> None:
+        """The NeXus entry (camd.store.nexus): the frames against frame counter, row, column."""
+        profile = self._metadata.get("profile", {})
+        timing = self._metadata.get("timing", {})
+        stream = self._metadata.get("stream", {})
+        camera = profile.get("profile") or profile.get("sensor") or "camera"
+        stages = stream.get("stages") if mode == "tdi" else None
+        write_nexus(
+            f,
+            title=f"frames, {camera}, {rows} x {cols}, {mode} mode",
+            start_time=self._created_utc,
+            program=f"camd {camd_version()}",
+            instrument=str(camera),
+            detector={
+                "description": (profile.get("description"), ""),
+                "local_name": (profile.get("sensor"), ""),
+                "x_pixel_size": (profile_value(profile, "pitch_m"), "m"),
+                "y_pixel_size": (profile_value(profile, "pitch_m"), "m"),
+                "bit_depth_readout": (bits or None, ""),
+                "frame_time": (line_period_s or None, "s"),
+                "count_time": (timing.get("exposure_s"), "s"),
+                "tdi_stages": (stages, ""),
+            },
+            signal="frames",
+            axes=(
+                Axis("frame_counter", link="frame_counter", long_name="device frame counter"),
+                Axis("row", values=np.arange(rows), long_name="window row (pixel)"),
+                Axis("column", values=np.arange(cols), long_name="column (pixel)"),
+            ),
+        )
 
     def _reserve(self, frames: int) -> None:
         if frames <= self._capacity:
@@ -397,6 +439,7 @@ class FrameRecorder:
             for name, dtype in _PER_FRAME.items():
                 f.create_dataset(name, shape=(0,), dtype=dtype)
             f.create_dataset("frames_flushed", data=np.zeros(1, np.int64))
+            self._write_nexus(f, 0, 0, 0, "none", 0.0)
         else:
             self._trim(f, count)
         f.attrs.update({"frames": count, "finished": True})

@@ -17,9 +17,13 @@ One file per scan, appended to while the scan runs::
     /motion_loop    group of 1-D datasets: the closed loop's polls (written by ``close``, if any)
     /background     group, if given: the live view's background (``mean_dn`` float32 image and
                     its attributes, as in ``camd.store.recording.write_background``)
+    /entry          the NeXus entry (format 4; ``camd.store.nexus``): NXdata with /lines as
+                    its signal against line_index and column, NXdetector with the sensor and
+                    the TDI settings, for viewers that know NeXus (silx, h5web, nexusformat)
 
 Root attributes: ``format`` ("camd-tdi-scan"), ``format_version``, ``mode`` ("sum" or "mean"),
-``width``, ``created_utc``, ``camd_version``, ``lines``, ``complete_lines`` and ``finished``
+``width``, ``created_utc``, ``camd_version``, NeXus's ``NX_class`` and ``default``, ``lines``,
+``complete_lines`` and ``finished``
 (False, 0 and 0 until the scan is closed), plus whatever ``close`` is given. Nested metadata is
 flattened to dotted attribute names (``array.columns``) as in ``camd.store.recording``;
 ``read_tdi_scan`` puts it back together. ``None`` values are not stored.
@@ -51,6 +55,7 @@ import numpy as np
 import numpy.typing as npt
 
 from camd.store.durability import FLUSH_PERIOD_S, SpaceReserve, close_writer, write_failure
+from camd.store.nexus import ENTRY, Axis, profile_value, write_nexus
 from camd.store.recording import FORMAT as RECORDING_FORMAT
 from camd.store.recording import (
     RecordingError,
@@ -61,7 +66,9 @@ from camd.store.recording import (
 )
 
 FORMAT = "camd-tdi-scan"
-FORMAT_VERSION = 3  # 2: /stage_position, /m_dv_over_v and close()'s datasets; 3: /lines_flushed
+# 2: /stage_position, /m_dv_over_v and close()'s datasets; 3: /lines_flushed; 4: the NeXus
+# entry (camd.store.nexus). A reader needs none of these: older files read as before.
+FORMAT_VERSION = 4
 MODES: dict[str, type[np.generic]] = {"sum": np.uint32, "mean": np.float32}
 METADATA_GROUPS = ("profile", "registers", "timing", "scan", "counters")
 # The per-line columns besides /lines, with their stored types.
@@ -87,6 +94,8 @@ _RESERVED_ROOT = frozenset(
         "lines",
         "complete_lines",
         "finished",
+        "NX_class",  # the NeXus root's (camd.store.nexus)
+        "default",
     }
 )
 _COLUMN_CHUNK = 4096  # lines per chunk of the 1-D columns
@@ -110,10 +119,11 @@ def _store_attrs(node: h5py.Group, values: Mapping[str, Any], where: str) -> lis
 
 
 def _check_group_name(name: object, what: str) -> str:
-    if not isinstance(name, str) or not name or "/" in name or name in _DATASETS:
+    if not isinstance(name, str) or not name or "/" in name or name in _DATASETS or name == ENTRY:
         raise ValueError(
             f"{what} {name!r} cannot be an HDF5 group of a TDI scan: use a non-empty name "
-            f"without '/' that is not one of the datasets ({', '.join(sorted(_DATASETS))})"
+            f"without '/' that is not one of the datasets ({', '.join(sorted(_DATASETS))}) "
+            f"nor the NeXus entry ({ENTRY!r})"
         )
     return name
 
@@ -260,13 +270,14 @@ class TdiRecorder:
 
     def _create(self, metadata: Mapping[str, Mapping[str, Any]]) -> None:
         f = self._file
+        created_utc = dt.datetime.now(dt.UTC).isoformat(timespec="milliseconds")
         f.attrs.update(
             {
                 "format": FORMAT,
                 "format_version": FORMAT_VERSION,
                 "mode": self.mode,
                 "width": self.width,
-                "created_utc": dt.datetime.now(dt.UTC).isoformat(timespec="milliseconds"),
+                "created_utc": created_utc,
                 "camd_version": camd_version(),
                 "lines": 0,
                 "complete_lines": 0,
@@ -299,6 +310,41 @@ class TdiRecorder:
             "stage_changes", shape=(0, 2), maxshape=(None, 2), dtype=np.int64, chunks=(256, 2)
         )
         self._lines_flushed = f.create_dataset("lines_flushed", data=np.zeros(1, dtype=np.int64))
+        self._write_nexus(metadata, created_utc)
+
+    def _write_nexus(self, metadata: Mapping[str, Mapping[str, Any]], created_utc: str) -> None:
+        """The NeXus entry (camd.store.nexus): the lines against line index and column."""
+        profile = metadata.get("profile", {})
+        timing = metadata.get("timing", {})
+        scan = metadata.get("scan", {})
+        camera = profile.get("profile") or profile.get("sensor") or "camera"
+        stages = scan.get("stages")
+        write_nexus(
+            self._file,
+            title=f"TDI scan, {camera}"
+            + ("" if stages is None else f", M = {stages}")
+            + f", {self.mode} mode",
+            start_time=created_utc,
+            program=f"camd {camd_version()}",
+            instrument=str(camera),
+            detector={
+                "description": (profile.get("description"), ""),
+                "local_name": (profile.get("sensor"), ""),
+                "x_pixel_size": (profile_value(profile, "pitch_m"), "m"),
+                "y_pixel_size": (profile_value(profile, "pitch_m"), "m"),
+                "bit_depth_readout": (profile_value(profile, "output_bits"), ""),
+                "frame_time": (timing.get("tdi_line_period_s"), "s"),
+                "count_time": (timing.get("exposure_s"), "s"),
+                "tdi_stages": (stages, ""),
+                "tdi_mode": (self.mode, ""),
+                "tdi_window_rows": (timing.get("n_lines"), ""),
+            },
+            signal="lines",
+            axes=(
+                Axis("line_index", link="line_index", long_name="TDI line index"),
+                Axis("column", values=np.arange(self.width), long_name="column (pixel)"),
+            ),
+        )
 
     def _check_open(self) -> None:
         if self._closed:
@@ -598,7 +644,7 @@ def read_tdi_scan(path: Path | str) -> TdiScan:
         meta = {
             name: unflatten_attrs(dict(node.attrs))
             for name, node in f.items()
-            if isinstance(node, h5py.Group)
+            if isinstance(node, h5py.Group) and name != ENTRY
         }
     return TdiScan(
         path=path,
