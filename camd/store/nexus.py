@@ -32,7 +32,7 @@ import h5py
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["ENTRY", "Axis", "profile_value", "write_nexus"]
+__all__ = ["ENTRY", "Axis", "camera_name", "sensor_fields", "write_nexus"]
 
 ENTRY = "entry"  # the NeXus entry's group: reserved, never a metadata group
 
@@ -56,6 +56,22 @@ def profile_value(profile: Mapping[str, Any], key: str) -> Any:
     if isinstance(entry, Mapping):
         return entry.get("value")
     return entry
+
+
+def camera_name(profile: Mapping[str, Any]) -> str:
+    """The camera a file's profile metadata names (its profile, else its sensor)."""
+    return str(profile.get("profile") or profile.get("sensor") or "camera")
+
+
+def sensor_fields(profile: Mapping[str, Any]) -> dict[str, tuple[Any, str]]:
+    """The NXdetector fields a camera profile gives: description, sensor, pixel pitch."""
+    pitch_m = profile_value(profile, "pitch_m")
+    return {
+        "description": (profile.get("description"), ""),
+        "local_name": (profile.get("sensor"), ""),
+        "x_pixel_size": (pitch_m, "m"),
+        "y_pixel_size": (pitch_m, "m"),
+    }
 
 
 def write_nexus(

@@ -54,7 +54,7 @@ import numpy.typing as npt
 
 from camd.protocol.stream import FrameHeader, StreamMode, crc32
 from camd.store.durability import FLUSH_PERIOD_S, SpaceReserve, close_writer, write_failure
-from camd.store.nexus import Axis, profile_value, write_nexus
+from camd.store.nexus import Axis, camera_name, sensor_fields, write_nexus
 
 FORMAT = "camd-recording"
 # 2: SWMR (HDF5 1.10 format), /frames_flushed, the ``finished`` attribute; 3: the NeXus entry
@@ -276,19 +276,16 @@ class FrameRecorder:
         profile = self._metadata.get("profile", {})
         timing = self._metadata.get("timing", {})
         stream = self._metadata.get("stream", {})
-        camera = profile.get("profile") or profile.get("sensor") or "camera"
+        camera = camera_name(profile)
         stages = stream.get("stages") if mode == "tdi" else None
         write_nexus(
             f,
             title=f"frames, {camera}, {rows} x {cols}, {mode} mode",
             start_time=self._created_utc,
             program=f"camd {camd_version()}",
-            instrument=str(camera),
+            instrument=camera,
             detector={
-                "description": (profile.get("description"), ""),
-                "local_name": (profile.get("sensor"), ""),
-                "x_pixel_size": (profile_value(profile, "pitch_m"), "m"),
-                "y_pixel_size": (profile_value(profile, "pitch_m"), "m"),
+                **sensor_fields(profile),
                 "bit_depth_readout": (bits or None, ""),
                 "frame_time": (line_period_s or None, "s"),
                 "count_time": (timing.get("exposure_s"), "s"),

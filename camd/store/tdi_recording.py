@@ -55,7 +55,7 @@ import numpy as np
 import numpy.typing as npt
 
 from camd.store.durability import FLUSH_PERIOD_S, SpaceReserve, close_writer, write_failure
-from camd.store.nexus import ENTRY, Axis, profile_value, write_nexus
+from camd.store.nexus import ENTRY, Axis, camera_name, profile_value, sensor_fields, write_nexus
 from camd.store.recording import FORMAT as RECORDING_FORMAT
 from camd.store.recording import (
     RecordingError,
@@ -317,7 +317,7 @@ class TdiRecorder:
         profile = metadata.get("profile", {})
         timing = metadata.get("timing", {})
         scan = metadata.get("scan", {})
-        camera = profile.get("profile") or profile.get("sensor") or "camera"
+        camera = camera_name(profile)
         stages = scan.get("stages")
         write_nexus(
             self._file,
@@ -326,12 +326,9 @@ class TdiRecorder:
             + f", {self.mode} mode",
             start_time=created_utc,
             program=f"camd {camd_version()}",
-            instrument=str(camera),
+            instrument=camera,
             detector={
-                "description": (profile.get("description"), ""),
-                "local_name": (profile.get("sensor"), ""),
-                "x_pixel_size": (profile_value(profile, "pitch_m"), "m"),
-                "y_pixel_size": (profile_value(profile, "pitch_m"), "m"),
+                **sensor_fields(profile),
                 "bit_depth_readout": (profile_value(profile, "output_bits"), ""),
                 "frame_time": (timing.get("tdi_line_period_s"), "s"),
                 "count_time": (timing.get("exposure_s"), "s"),
