@@ -99,6 +99,8 @@ class _Scan:
         self.path = plan.path
         self.timing = plan.timing
         self.frames_requested = plan.frames
+        # The most window rows the line-period loop may set (None: no loop).
+        self.max_rows = None if plan.stage is None else plan.stage.max_lines
         self.motion = motion
         self.acquisition = acquisition  # released once the file is closed
         self.state = "starting"
@@ -457,16 +459,19 @@ class ScanService:
         pipeline.start()
         stream.add_consumer(pipeline.consumer)
         try:
+            # The line-period loop (started before the stream) changes the window's rows, up
+            # to the plan's: the stream's frames may be as large as that from any frame on.
+            trimmed = scan.motion is not None and scan.motion.mode == "line_period"
             info = stream.start(
                 StreamStartRequest(
                     frames=scan.frames_requested,
                     stages=scan.request.stages,
                     binning=scan.request.binning,
-                )
+                ),
+                max_rows=scan.max_rows if trimmed else None,
             )
-            # The line-period loop may already have changed the window's rows: more than the
-            # engine needs is fine (it uses the first ``rows``).
-            trimmed = scan.motion is not None and scan.motion.mode == "line_period"
+            # The loop may already have changed the window's rows: more than the engine needs
+            # is fine (it uses the first ``rows``).
             if info.cols != cols or (info.rows < rows if trimmed else info.rows != rows):
                 stream.stop()
                 raise DeviceRejected(

@@ -307,9 +307,11 @@ class StreamService:
         self.device.require(Request.STREAM_READ)
         return self._response()
 
-    def start(self, request: StreamStartRequest) -> StreamResponse:
-        """Start a stream and return at once (``frames = 0``: until ``stop``)."""
-        self._start(request, kind="stream")
+    def start(self, request: StreamStartRequest, *, max_rows: int | None = None) -> StreamResponse:
+        """Start a stream and return at once (``frames = 0``: until ``stop``). ``max_rows``:
+        the most window rows a frame of this stream may have, if the window may grow while it
+        runs (a scan's line-period loop): the reader's slots are sized for it."""
+        self._start(request, kind="stream", max_rows=max_rows)
         return self._response()
 
     def acquire(
@@ -375,6 +377,7 @@ class StreamService:
         consumer: Consumer | None = None,
         *,
         kind: str,
+        max_rows: int | None = None,
     ) -> None:
         # One start at a time: a second client's start waits here, then finds the slot taken
         # and is refused (Busy), never touching the running reader. A scan or a wheel run
@@ -394,7 +397,7 @@ class StreamService:
                 self._claimed = claimed  # before the start: its STREAM_DONE may come at once
             try:
                 with slot.applying(acquisition):
-                    self._start_locked(request, start, consumer)
+                    self._start_locked(request, start, consumer, max_rows)
             except BaseException:
                 with self._lock:
                     self._claimed = None
@@ -403,7 +406,11 @@ class StreamService:
                 raise
 
     def _start_locked(
-        self, request: StreamStartRequest, start: StreamStart | None, consumer: Consumer | None
+        self,
+        request: StreamStartRequest,
+        start: StreamStart | None,
+        consumer: Consumer | None,
+        max_rows: int | None = None,
     ) -> None:
         # Plan: everything checked before the camera is touched.
         device = self.device
@@ -422,7 +429,10 @@ class StreamService:
                     " or make the window taller"
                 )
         cols = self.sensor.window_columns()
-        max_frame_bytes = HEADER_BYTES + 2 * timing.window_rows * cols
+        # Frames as large as the window may become while the stream runs: a frame larger than
+        # the reader's slots would be refused as corrupt, every one of them.
+        rows = max(timing.window_rows, max_rows or 0)
+        max_frame_bytes = HEADER_BYTES + 2 * rows * cols
         recorder_path = self._record_path(request.record, request.frames * max_frame_bytes)
         # Apply: the mode, then the stream; a stream that does not start puts the mode back.
         with Apply("stream not started", self._events, source="stream") as apply:
