@@ -227,6 +227,7 @@ class FrameStream:
         self._dispatching = False
         self._reader_waiting = False  # the reader waits for a queue place (the dispatcher wakes it)
         self._dispatcher_idle = False  # the dispatcher waits for frames (the reader wakes it)
+        self._frame_watchers = 0  # threads in wait_frames (the dispatcher wakes them per frame)
         self._burst = 1  # frames the dispatcher waits for, once woken: see start()
         self._stats = StreamStats()
         self._pixels = 0
@@ -498,13 +499,17 @@ class FrameStream:
         """Wait until ``n`` frames were delivered since ``start``; False on timeout or if the
         reader failed (see ``error``)."""
         with self._cond:
-            return self._cond.wait_for(
-                lambda: (
-                    self._stats.frames >= n
-                    or (self._reader_done and not self._queue and not self._dispatching)
-                ),
-                timeout_s,
-            ) and (self._stats.frames >= n)
+            self._frame_watchers += 1  # the dispatcher then says when each frame is counted
+            try:
+                return self._cond.wait_for(
+                    lambda: (
+                        self._stats.frames >= n
+                        or (self._reader_done and not self._queue and not self._dispatching)
+                    ),
+                    timeout_s,
+                ) and (self._stats.frames >= n)
+            finally:
+                self._frame_watchers -= 1
 
     def stats(self) -> StreamStats:
         """A snapshot of the counters, with rates over the time since ``start``."""
@@ -801,8 +806,9 @@ class FrameStream:
                 self._dispatching = True
                 consumers = self._consumers
                 index = self._stats.frames
-                if self._reader_waiting:
-                    cond.notify_all()  # a reader waiting for a queue place may go on
+                if self._reader_waiting or self._frame_watchers:
+                    # A reader waiting for a queue place may go on; wait_frames sees the count.
+                    cond.notify_all()
             done = (slot, None)
             if self._deliver(slot, header, received_ns, consumers, index):
                 done = (slot, header)
