@@ -56,9 +56,12 @@ def test_bad_options_exit_2_with_the_fix(
 
 
 def test_windows_are_kept_within_what_each_sensor_allows() -> None:
-    from camd.cli.bench_sim import window_rows_range
+    from camd.cli.bench_common import window_rows_range, window_stages
 
     # The MT9M001 holds rows - 1 with a minimum of 2: its fewest window rows are 3.
     assert window_rows_range("mt9m001") == (3, 1024)
     assert window_rows_range("hr400") == (1, 2048)
     assert window_rows_range("uvccd") == (1, 500)
+    # Each M raised to the fewest rows, capped at the sensor's rows, each run once, in order.
+    assert window_stages("mt9m001", (96, 1, 2, 3)) == [3, 96]
+    assert window_stages("uvccd", (1, 8, 600, 500)) == [1, 8, 500]

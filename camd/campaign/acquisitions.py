@@ -22,6 +22,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from camd.campaign.spec import CampaignError
+
 if TYPE_CHECKING:
     from camd.client import CamdClient
 
@@ -51,8 +53,6 @@ def run_acquisition(
 ) -> dict[str, Any]:
     """Run the registered acquisition ``kind``; CampaignError naming the kinds known if it
     is not registered, TypeError if it does not return a document."""
-    from camd.campaign.spec import CampaignError
-
     fn = ACQUISITIONS.get(kind)
     if fn is None:
         known = ", ".join(sorted(ACQUISITIONS)) or "none"

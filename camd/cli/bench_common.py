@@ -210,3 +210,10 @@ def window_rows_range(profile: str) -> tuple[int, int]:
     field = regmap.resolve(name)[1] if name is not None else None
     fewest = field.count(field.lo) if field is not None else 1
     return max(1, fewest), most
+
+
+def window_stages(profile: str, stages: Sequence[int]) -> list[int]:
+    """The window rows to run each M of ``stages`` at on ``profile``, in order, each once: M
+    raised to the sensor's fewest window rows and capped at its rows (``window_rows_range``)."""
+    fewest, most = window_rows_range(profile)
+    return sorted({min(max(m, fewest), most) for m in stages})

@@ -31,7 +31,7 @@ from camd.cli.bench_common import (
     last_level_cache_bytes,
     machine,
     thread_cpu_s,
-    window_rows_range,
+    window_stages,
 )
 
 DEFAULT_PROFILES = ("hr400", "ibis5", "ftf5066", "uvccd", "mt9m001")
@@ -218,8 +218,7 @@ def run(args: argparse.Namespace) -> int:
     profiles = [p.strip() for p in args.profiles.split(",") if p.strip()]
     cases = []
     for profile in profiles:
-        fewest, most = window_rows_range(profile)
-        for stages in sorted({min(max(m, fewest), most) for m in args.stages}):
+        for stages in window_stages(profile, args.stages):
             cases.append(
                 measure(
                     profile,

@@ -26,7 +26,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from camd.cli.bench_common import thread_cpu_s, window_rows_range
+from camd.cli.bench_common import thread_cpu_s, window_stages
 from camd.protocol.stream import HEADER_BYTES
 
 DEFAULT_PROFILES = ("hr400", "ibis5", "ftf5066", "uvccd", "mt9m001")
@@ -187,9 +187,7 @@ def run(args: argparse.Namespace) -> int:
         return 2
     cases = []
     for profile in profiles:
-        # M is capped at the sensor's rows and raised to the fewest its window allows.
-        fewest, most = window_rows_range(profile)
-        for m in sorted({min(max(m, fewest), most) for m in stages}):
+        for m in window_stages(profile, stages):
             for kind in kinds:
                 cases.append(measure(profile, m, kind, args.seconds))
                 if not args.json:
