@@ -31,6 +31,8 @@ import httpx
 
 from camd.client_types import (
     BackgroundStatus,
+    CampaignJob,
+    CampaignJobsResponse,
     ControlInfo,
     EstopResponse,
     EventsResponse,
@@ -732,6 +734,45 @@ class CamdClient:
             renewer.close()
             with contextlib.suppress(CamdError):
                 self.release_control()
+
+    # -- campaign jobs (docs/campaigns.md, "Campaign jobs") ------------------------------------
+
+    def campaign_jobs(self) -> CampaignJobsResponse:
+        """Every campaign job the daemon knows, running or ended."""
+        return cast(CampaignJobsResponse, self._json("GET", f"{API}/campaigns/jobs"))
+
+    def campaign_job(self, job_id: int) -> CampaignJob:
+        """One campaign job (CamdError ``not_found`` if there is none)."""
+        return cast(CampaignJob, self._json("GET", f"{API}/campaigns/jobs/{job_id}"))
+
+    def start_campaign(
+        self, file: str, *, out: str | None = None, quick: bool = False
+    ) -> CampaignJob:
+        """Start a campaign job on the daemon (``file``: a path on the daemon's host or a
+        shipped campaign's name); returns at once with the job, which runs in the daemon's
+        worker. Needs control (or free control), which passes to the job's worker."""
+        body: dict[str, Any] = {"file": file, "quick": quick}
+        if out is not None:
+            body["out"] = out
+        # The daemon checks the campaign in a process of its own first: allow it some time.
+        timeout = httpx.Timeout(self.timeout_s, read=max(self.timeout_s, 90.0))
+        return cast(
+            CampaignJob, self._json("POST", f"{API}/campaigns/jobs", json=body, timeout=timeout)
+        )
+
+    def pause_campaign(self, job_id: int, *, force: bool = False) -> CampaignJob:
+        """Pause a running job (its acquisition is stopped and done again on resume)."""
+        path = f"{API}/campaigns/jobs/{job_id}/pause"
+        return cast(CampaignJob, self._json("POST", path, json={"force": force}))
+
+    def resume_campaign(self, job_id: int) -> CampaignJob:
+        """Run a paused (or interrupted, or failed-with-an-error) job on from its state."""
+        return cast(CampaignJob, self._json("POST", f"{API}/campaigns/jobs/{job_id}/resume"))
+
+    def abort_campaign(self, job_id: int, *, force: bool = False) -> CampaignJob:
+        """Abort a job (running: stopped as for a pause; paused: ended at once)."""
+        path = f"{API}/campaigns/jobs/{job_id}/abort"
+        return cast(CampaignJob, self._json("POST", path, json={"force": force}))
 
     def estop(self) -> EstopResponse:
         """Emergency stop (stage, acquisition, wheel): never refused."""

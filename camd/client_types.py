@@ -828,3 +828,57 @@ class WheelAcquireResponse(TypedDict):
     frames: list[WheelFrame]
     # the stream document: counters, recording
     stream: StreamResponse
+
+
+class CampaignJob(TypedDict):
+    """One campaign job: what runs, where its files go, how far it is."""
+
+    id: int
+    # the campaign's name
+    campaign: str
+    # the camera profile it is written for
+    profile: str
+    # the campaign file it runs
+    file: str
+    # its output directory: state, raw files, results, report
+    out_dir: str
+    quick: bool
+    # the client that started it (it may pause and abort)
+    started_by: str
+    state: Literal[
+        "running",
+        "pausing",
+        "paused",
+        "aborting",
+        "aborted",
+        "passed",
+        "failed",
+        "error",
+        "interrupted",
+    ]
+    # step instances in a run; null: not known ahead
+    steps: int | None
+    # steps done, as its worker last said
+    done: int | None
+    # what its worker last said it does
+    activity: str | None
+    # Unix time it was started
+    created_t_s: float
+    # a pause or abort asked for and not yet done (the worker reads it)
+    requested: Literal["pause", "abort"] | None
+    # its workers' wall time, summed over resumes
+    run_time_s: float
+    # workers started: 1, plus 1 per resume
+    runs: int
+    # why it paused, failed or ended
+    message: str | None
+    # every check passed (null until it has ended)
+    passed: bool | None
+    # its HTML report, once written
+    report: str | None
+
+
+class CampaignJobsResponse(TypedDict):
+    """GET /api/v1/campaigns/jobs."""
+
+    jobs: list[CampaignJob]

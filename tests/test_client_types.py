@@ -346,6 +346,8 @@ ANSWERS: list[tuple[str, str]] = [
     ("status", "StatusResponse"),
     ("estop", "EstopResponse"),
     ("release_control", "ControlInfo"),
+    ("campaign_job", "CampaignJob"),
+    ("campaign_jobs", "CampaignJobsResponse"),
     ("error", "ErrorResponse"),
 ]
 
@@ -397,6 +399,15 @@ def answers(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]
         docs["status"] = client.status()
         docs["estop"] = client.estop()
         docs["release_control"] = client.release_control()
+        # A campaign job (a short plan), followed to its end: its document then has them all.
+        plan = Path(__file__).parent / "plans" / "long_stare.py"
+        job = client.start_campaign(str(plan), quick=True)
+        deadline = time.monotonic() + 120
+        while job["state"] in ("running", "pausing", "aborting") and time.monotonic() < deadline:
+            time.sleep(0.1)
+            job = client.campaign_job(job["id"])
+        docs["campaign_job"] = job
+        docs["campaign_jobs"] = client.campaign_jobs()
         error = httpx.post(f"{daemon.url}/api/v1/ping", json={"count": 0}, timeout=30)
         assert error.status_code == 400
         docs["error"] = error.json()

@@ -23,23 +23,34 @@ i - 1 steps done of n); giving control back at the end clears it.
 
 Ctrl-C (KeyboardInterrupt) stops the step in progress (the stream or scan is stopped) and
 raises ``CampaignInterrupted``; everything completed before it is in the state file.
+
+Pause and abort (a campaign job of the daemon, ``camd.campaign.worker``): the runner asks its
+``interrupt`` hook before each step it executes, and again after an acquisition (whether it
+ended or failed: a pause stops the daemon's stream or scan, and a stopped acquisition is
+never recorded). ``"pause"`` raises ``CampaignPaused``, ``"abort"`` ``CampaignAborted``; both
+leave the state file as an interrupt does, so a resumed run executes the stopped step again.
+
+The daemon's settings before the first step are kept in ``settings_before.json`` until the run
+ends, so that a run resumed after a pause, a crash or a daemon restart puts back the settings
+the campaign found, not the ones it left.
 """
 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import hashlib
 import json
 import math
 import os
 import zlib
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
 
 from camd.campaign.acquisitions import run_acquisition
-from camd.campaign.baseline import apply_baseline, capture, restore
+from camd.campaign.baseline import Settings, apply_baseline, capture, restore
 from camd.campaign.measurements import MEASUREMENTS, Acquired
 from camd.campaign.plan import (
     BeginIteration,
@@ -69,7 +80,14 @@ from camd.campaign.spec import (
 )
 from camd.client import CamdClient, CamdError
 
-__all__ = ["CampaignInterrupted", "CampaignOutcome", "CampaignRunner", "Progress"]
+__all__ = [
+    "CampaignAborted",
+    "CampaignInterrupted",
+    "CampaignOutcome",
+    "CampaignPaused",
+    "CampaignRunner",
+    "Progress",
+]
 
 STATE_FORMAT = "camd-campaign-state"
 STATE_VERSION = 1
@@ -82,6 +100,14 @@ ACTIVITY_TEXT_MAX = 200  # the daemon's limit on an activity's text
 class CampaignInterrupted(Exception):
     """The run stopped before its end (Ctrl-C or ``stop_after``); the state file has every
     completed step, so running again into the same directory resumes."""
+
+
+class CampaignPaused(CampaignInterrupted):
+    """Paused on request (the ``interrupt`` hook said "pause"); resumable."""
+
+
+class CampaignAborted(CampaignInterrupted):
+    """Aborted on request (the ``interrupt`` hook said "abort")."""
 
 
 class Progress(Protocol):
@@ -199,6 +225,8 @@ class CampaignRunner:
     None) by its header and its plan. ``sim`` says whether the daemon drives the simulated
     camera (None: ask the daemon); ``stop_after`` (a step instance key or step id) stops the
     run once that instance has completed, as an interrupt would (for tests and debugging).
+    ``interrupt``, asked before each executed step and after each acquisition, returns None
+    to go on, "pause" or "abort" (module docstring).
     """
 
     def __init__(
@@ -212,6 +240,7 @@ class CampaignRunner:
         progress: Progress | None = None,
         sim: bool | None = None,
         stop_after: str | None = None,
+        interrupt: Callable[[], str | None] | None = None,
     ) -> None:
         if (spec is None) == (plan is None):
             raise ValueError("give a YAML campaign's spec or a Python campaign's plan (one)")
@@ -226,8 +255,10 @@ class CampaignRunner:
         self.progress: Progress = progress if progress is not None else _NoProgress()
         self.sim = sim
         self.stop_after = stop_after
+        self.interrupt = interrupt
         self.parameters = self.spec.parameters_for(quick)
         self.state_path = self.out_dir / "state.json"
+        self.settings_path = self.out_dir / "settings_before.json"
         self.raw_dir = self.out_dir / "raw"
         self._completed: dict[str, dict[str, Any]] = {}
         self._checks: list[dict[str, Any]] = []
@@ -268,7 +299,7 @@ class CampaignRunner:
             # camera between its steps (they may watch). It starts from its baseline and puts
             # back the daemon's settings when it ends, passed or failed.
             with self.client.holding_control(CONTROL_TTL_S):
-                before = capture(self.client)
+                before = self._settings_before()
                 try:
                     apply_baseline(self.client, self.spec.baseline)
                     self._drive(self._plan(), top)
@@ -286,6 +317,7 @@ class CampaignRunner:
         doc = self._results_doc(top)
         results_path = self.out_dir / "results.json"
         results_path.write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
+        self.settings_path.unlink(missing_ok=True)  # the run has ended: nothing to put back
         outcome = CampaignOutcome(doc, results_path)
         if report:
             from camd.campaign.report import write_report
@@ -419,7 +451,14 @@ class CampaignRunner:
             self._step_number - 1,
         )
         if record is None or isinstance(step, ConfigureStep):
-            record = self._execute(step, key, scope.names, scope.level)
+            self._checkpoint()
+            try:
+                record = self._execute(step, key, scope.names, scope.level)
+            except (CamdError, CampaignError):
+                self._checkpoint()  # stopped by a pause or an abort: not a failure of the step
+                raise
+            if isinstance(step, AcquireStep):
+                self._checkpoint()  # possibly cut short by the pause: done again on resume
             self._completed[key] = record
             self._save_state()
         self._apply(step, key, record, scope.level)
@@ -433,6 +472,34 @@ class CampaignRunner:
         if isinstance(step, CheckStep):
             return dict(record["check"])
         return None
+
+    def _checkpoint(self) -> None:
+        """Raise CampaignPaused or CampaignAborted if the ``interrupt`` hook asks for it."""
+        if self.interrupt is None:
+            return
+        asked = self.interrupt()
+        if asked == "pause":
+            raise CampaignPaused(
+                f"paused; {len(self._completed)} completed step(s) saved in {self.state_path}"
+            )
+        if asked == "abort":
+            raise CampaignAborted(
+                f"aborted; {len(self._completed)} completed step(s) saved in {self.state_path}"
+            )
+
+    def _settings_before(self) -> Settings:
+        """The settings to put back at the end: those this run (or the run it resumes) found
+        before its first step, kept on disk until the run ends."""
+        if self.settings_path.exists():
+            try:
+                return Settings(**json.loads(self.settings_path.read_text(encoding="utf-8")))
+            except (OSError, ValueError, TypeError):
+                pass  # unreadable: capture afresh (the settings now are the best guess left)
+        before = capture(self.client)
+        tmp = self.settings_path.with_suffix(".json.tmp")
+        tmp.write_text(json.dumps(dataclasses.asdict(before), indent=1) + "\n", encoding="utf-8")
+        os.replace(tmp, self.settings_path)
+        return before
 
     @staticmethod
     def _close_sweep(sweep: _OpenSweep, level: _Level) -> None:
@@ -574,6 +641,12 @@ class CampaignRunner:
             doc = dict(self.client.wait_scan(float(sc.timeout_s)))
             if doc.get("error"):
                 raise CampaignError(f"step {key}: the scan failed: {doc['error']}")
+            if doc.get("state") != "done":
+                raise CampaignError(
+                    f"step {key}: the scan ended {doc.get('state')} after {doc.get('lines')} of "
+                    f"{doc.get('lines_wanted')} lines (stopped by another client or an emergency stop); run "
+                    "the step again (`--resume`)"
+                )
         elif isinstance(step.polarization, PolarizationAcquire):
             doc = self._polarization(step.polarization, path)
         elif step.custom is not None:

@@ -336,6 +336,11 @@ class CampaignSpec(_Model):
 
     name: str = Field(pattern=NAME)
     description: str = ""
+    paper: str = Field(
+        default="",
+        max_length=40,
+        description="the paper it reproduces, as docs/physics.md cites it (e.g. YUAN13 §4)",
+    )
     profile: str = Field(pattern=NAME, description="camera profile (config/profiles/NAME.toml)")
     seed: int = Field(default=0, ge=RANGES["seed"][0], le=RANGES["seed"][1])
     parameters: dict[str, Any] = Field(default_factory=dict)

@@ -2,6 +2,16 @@
 
     camctl campaign run FILE --out DIR [--quick] [--sim] [--json]
     camctl campaign list
+    camctl campaign start FILE [--out DIR] [--quick] [--wait]
+    camctl campaign status [JOB]
+    camctl campaign pause|abort [JOB] [--force]
+    camctl campaign resume [JOB] [--wait]
+
+``start`` .. ``resume`` drive the daemon's campaign jobs ("Campaign jobs" in
+docs/campaigns.md): the campaign runs in the daemon's worker, not in camctl, so it outlives
+camctl, and a job paused, or cut off by a daemon restart, runs on from its state file. JOB
+defaults to the newest job. ``--wait`` follows the job with a progress bar until it ends or
+pauses (Ctrl-C leaves it running).
 
 FILE is a YAML campaign or a Python one (a ``.py`` module with CAMPAIGN and plan: see
 ``camd.campaign.plan``), or the name of a shipped campaign.
@@ -18,7 +28,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import re
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -38,52 +47,66 @@ if TYPE_CHECKING:
 __all__ = ["COMMANDS", "RENDER", "add_parsers", "campaigns_dir", "run_on_own_sim"]
 
 
+JOB_ACTIONS = ("start", "status", "pause", "resume", "abort")
+JOB_ENDED = ("paused", "aborted", "passed", "failed", "error", "interrupted")
+
+
 def campaigns_dir() -> Path:
     """The shipped campaigns: config/campaigns/ of the camd config dir."""
-    from camd.paths import config_dir
+    from camd.campaign.catalog import campaigns_dir as shipped_dir
 
-    return config_dir() / "campaigns"
+    return shipped_dir()
 
 
 def add_parsers(command: Callable[[str, str], argparse.ArgumentParser]) -> None:
     """Add ``campaign`` through camctl's ``command(name, help)`` factory."""
-    p = command("campaign", "run a scripted test campaign, or list the shipped ones")
-    p.add_argument("action", choices=("run", "list"))
+    p = command(
+        "campaign",
+        "run a scripted test campaign (here, or as a daemon job you can pause and resume), or "
+        "list the shipped ones",
+    )
+    p.add_argument("action", choices=(*JOB_ACTIONS, "run", "list"))
     p.add_argument(
-        "file", nargs="?", metavar="FILE",
-        help="run: the campaign (YAML, or a Python plan .py), or the name of a shipped one "
-        "(camctl campaign list)",
+        "file", nargs="?", metavar="FILE|JOB",
+        help="run, start: the campaign (YAML, or a Python plan .py), or the name of a shipped "
+        "one (camctl campaign list); status, pause, resume, abort: the job's number (default: "
+        "the newest job)",
     )  # fmt: skip
-    p.add_argument("--out", metavar="DIR", help="run: output directory (resumes if it has state)")
-    p.add_argument("--quick", action="store_true", help="run: the campaign's CI-sized overrides")
+    p.add_argument(
+        "--out", metavar="DIR",
+        help="run: output directory (resumes if it has state); start: output directory on the "
+        "daemon's host (default: its data directory's campaigns/<job>-<name>)",
+    )  # fmt: skip
+    p.add_argument(
+        "--quick", action="store_true", help="run, start: the campaign's CI-sized overrides"
+    )
     p.add_argument(
         "--sim", action="store_true",
         help="run: start a simulated camera with the campaign's profile and seed for this run",
     )  # fmt: skip
     p.add_argument("--resume", action="store_true", help="run: require a state file to resume")
+    p.add_argument(
+        "--wait", action="store_true",
+        help="start, resume: follow the job until it ends or pauses (Ctrl-C leaves it running)",
+    )  # fmt: skip
+    p.add_argument(
+        "--force", action="store_true",
+        help="pause, abort: a job another client started (logged)",
+    )  # fmt: skip
     p.add_argument("--stop-after", metavar="STEP", help=argparse.SUPPRESS)  # tests: interrupt
 
 
 def _campaign_path(text: str) -> Path | None:
     """The campaign file ``text`` names: a file, or a shipped campaign's name (None: neither)."""
-    from camd.campaign.spec import NAME
+    from camd.campaign.catalog import find_campaign
 
-    path = Path(text)
-    if path.is_file():
-        return path
-    if re.fullmatch(NAME, text):
-        for suffix in CAMPAIGN_SUFFIXES:
-            shipped = campaigns_dir() / f"{text}{suffix}"
-            if shipped.is_file():
-                return shipped
-    return None
-
-
-CAMPAIGN_SUFFIXES = (".yaml", ".py")  # a YAML campaign, a Python plan
+    return find_campaign(text)
 
 
 def _shipped() -> list[Path]:
-    return sorted(p for p in campaigns_dir().iterdir() if p.suffix in CAMPAIGN_SUFFIXES)
+    from camd.campaign.catalog import shipped
+
+    return shipped()
 
 
 def _shipped_names() -> str:
@@ -117,6 +140,8 @@ def cmd_campaign(client: CamdClient, args: argparse.Namespace) -> Any:
 
     if args.action == "list":
         return _list()
+    if args.action in JOB_ACTIONS:
+        return _job_action(client, args)
     if not args.file or not args.out:
         raise UsageError("campaign run needs FILE and --out DIR")
     path = _campaign_path(args.file)
@@ -234,19 +259,92 @@ def run_on_own_sim(
 
 
 def _list() -> dict[str, Any]:
-    from camd.campaign.plan import load_plan
-    from camd.campaign.spec import CampaignError, load_campaign
+    """The shipped campaigns: name, paper, camera, steps (full and --quick) and the measured
+    run times of both forms (config/campaigns/run_times.toml)."""
+    from camd.campaign.catalog import load_any, run_times
+    from camd.campaign.spec import CampaignError
 
+    times = run_times()
     found: list[dict[str, Any]] = []
     for path in _shipped():
+        entry: dict[str, Any] = {"name": path.stem, "file": str(path)}
         try:
-            spec = load_plan(path).spec if path.suffix == ".py" else load_campaign(path)
-            found.append({"name": spec.name, "profile": spec.profile, "file": str(path),
-                          "description": " ".join(spec.description.split())})  # fmt: skip
+            loaded = load_any(str(path))
+            spec = loaded.spec
+            entry.update(
+                name=spec.name, paper=spec.paper or None, profile=spec.profile,
+                steps=loaded.steps(False), steps_quick=loaded.steps(True),
+                description=" ".join(spec.description.split()),
+            )  # fmt: skip
         except CampaignError as exc:
-            found.append({"name": path.stem, "profile": None, "file": str(path),
-                          "description": f"INVALID: {exc}"})  # fmt: skip
+            entry.update(paper=None, profile=None, steps=None, steps_quick=None,
+                         description=f"INVALID: {exc}")  # fmt: skip
+        measured = times.get(str(entry["name"]), {})
+        entry["run_time_s"] = measured.get("full_s")
+        entry["run_time_quick_s"] = measured.get("quick_s")
+        found.append(entry)
     return {"campaigns": found}
+
+
+def _job_action(client: CamdClient, args: argparse.Namespace) -> Any:
+    """start, status, pause, resume, abort: the daemon's campaign jobs."""
+    from camd.cli.camctl_sensor import UsageError
+
+    if args.action == "start":
+        if not args.file:
+            raise UsageError("campaign start needs FILE (a campaign file or a shipped name)")
+        path = _campaign_path(args.file)
+        # A local file is sent by its absolute path (the daemon runs on this host, or the
+        # same path is there); anything else is passed as given, for the daemon to resolve.
+        file = str(path.resolve()) if path is not None and path.is_file() else args.file
+        out = None if args.out is None else str(Path(args.out).resolve())
+        job = client.start_campaign(file, out=out, quick=args.quick)
+        return _follow(client, job) if args.wait else job
+    if args.action == "status":
+        if args.file is None:
+            return client.campaign_jobs()
+        return client.campaign_job(_job_id(client, args.file))
+    job_id = _job_id(client, args.file)
+    if args.action == "pause":
+        return client.pause_campaign(job_id, force=args.force)
+    if args.action == "abort":
+        return client.abort_campaign(job_id, force=args.force)
+    job = client.resume_campaign(job_id)
+    return _follow(client, job) if args.wait else job
+
+
+def _job_id(client: CamdClient, text: str | None) -> int:
+    from camd.cli.camctl_sensor import UsageError
+
+    if text is None:
+        jobs = client.campaign_jobs()["jobs"]
+        if not jobs:
+            raise UsageError("the daemon has no campaign jobs; start one with "
+                             "`camctl campaign start NAME`")  # fmt: skip
+        return max(int(job["id"]) for job in jobs)
+    try:
+        return int(text)
+    except ValueError:
+        raise UsageError(f"JOB {text!r}: give a job's number (`camctl campaign status`)") from None
+
+
+def _follow(client: CamdClient, job: Any) -> Any:
+    """Poll the job until it ends or pauses, with a progress bar on stderr."""
+    import time
+
+    err = Console(stderr=True, highlight=False)
+    with Progress(
+        TextColumn(f"[bold]job {job['id']} {job['campaign']}[/]"), BarColumn(),
+        MofNCompleteColumn(), TextColumn("{task.description}"), TimeElapsedColumn(),
+        console=err,
+    ) as bar:  # fmt: skip
+        task = bar.add_task("", total=job["steps"])
+        while job["state"] not in JOB_ENDED:
+            bar.update(task, completed=job.get("done") or 0, description=job["state"])
+            time.sleep(0.5)
+            job = client.campaign_job(int(job["id"]))
+        bar.update(task, completed=job.get("done") or 0, description=job["state"])
+    return job
 
 
 class RichProgress:
@@ -283,12 +381,44 @@ COMMANDS: dict[str, Callable[[CamdClient, argparse.Namespace], Any]] = {
 }
 
 
+def _seconds(value: float | None) -> str:
+    if value is None:
+        return "-"
+    minutes, seconds = divmod(round(value), 60)
+    return f"{minutes} min {seconds:02d} s" if minutes else f"{seconds} s"
+
+
 def render_campaign(out: Console, doc: Any, args: argparse.Namespace) -> None:
+    from rich.table import Table
+
     if "campaigns" in doc:
-        for c in doc["campaigns"]:
-            out.print(f"[bold]{c['name']}[/] ({c['profile']}): {c['description']}")
         if not doc["campaigns"]:
             out.print(f"no campaigns in {campaigns_dir()}")
+            return
+        table = Table(
+            title="shipped campaigns: steps and measured run times (simulated camera), full "
+            "and --quick"
+        )
+        for column in ("name", "paper", "camera", "steps", "run", "quick"):
+            table.add_column(
+                column, justify="right" if column[0] in "sqr" else "left", no_wrap=True
+            )
+        for c in doc["campaigns"]:
+            steps = "-" if c["steps"] is None else f"{c['steps']} ({c['steps_quick']})"
+            table.add_row(
+                c["name"], c["paper"] or "-", c["profile"] or "INVALID", steps,
+                _seconds(c["run_time_s"]), _seconds(c["run_time_quick_s"]),
+            )  # fmt: skip
+        out.print(table)
+        return
+    if "jobs" in doc:
+        if not doc["jobs"]:
+            out.print("no campaign jobs; start one with `camctl campaign start NAME`")
+        for job in doc["jobs"]:
+            _render_job(out, job)
+        return
+    if "state" in doc and "out_dir" in doc:
+        _render_job(out, doc)
         return
     if "error" in doc:
         return
@@ -297,6 +427,22 @@ def render_campaign(out: Console, doc: Any, args: argparse.Namespace) -> None:
         f"campaign {doc['campaign']}: [{colour}]{'PASSED' if doc['passed'] else 'FAILED'}[/]; "
         f"report {doc['report']}"
     )
+
+
+def _render_job(out: Console, job: Any) -> None:
+    colour = {"passed": "green", "failed": "red", "error": "red", "aborted": "yellow",
+              "paused": "yellow"}.get(job["state"], "cyan")  # fmt: skip
+    steps = "" if job["steps"] is None else f" of {job['steps']}"
+    done = "" if job.get("done") is None else f", step {job['done']}{steps} done"
+    out.print(
+        f"job {job['id']} [bold]{job['campaign']}[/]{' (quick)' if job['quick'] else ''}: "
+        f"[{colour}]{job['state']}[/]{done}, {_seconds(job['run_time_s'])} run "
+        f"({job['runs']} run(s)), started by {job['started_by']}; {job['out_dir']}"
+    )
+    if job.get("message"):
+        out.print(f"  {job['message']}")
+    if job.get("report"):
+        out.print(f"  report {job['report']}")
 
 
 RENDER: dict[str, Callable[[Console, Any, argparse.Namespace], None]] = {

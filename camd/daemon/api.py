@@ -49,8 +49,10 @@ from camd.daemon.errors import (
     Disconnected,
     LinkUntrained,
     NoControl,
+    NotFound,
     NotInControl,
     SessionError,
+    WrongState,
 )
 from camd.daemon.models import (
     ALLOWED,
@@ -61,6 +63,10 @@ from camd.daemon.models import (
     ActivityRequest,
     BackgroundRequest,
     BackgroundStatus,
+    CampaignActionRequest,
+    CampaignJob,
+    CampaignJobsResponse,
+    CampaignStartRequest,
     ControlInfo,
     ControlRequest,
     ErrorResponse,
@@ -122,9 +128,11 @@ API = "/api/v1"
 # exception type -> (HTTP status, error code), as docs/api.md lists them
 ERROR_MAP: list[tuple[type[Exception], int, str]] = [
     (BadRequest, 400, "bad_request"),
+    (NotFound, 404, "not_found"),
     (IllegalState, 409, "illegal_state"),
     (LinkUntrained, 409, "link_untrained"),
     (Busy, 409, "busy"),
+    (WrongState, 409, "wrong_state"),
     (NoControl, 409, "no_control"),
     (NotInControl, 423, "not_in_control"),
     (DeviceRejected, 502, "device_nak"),
@@ -527,6 +535,60 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
         """Emergency stop of the stage (no ramp, current cut), the running acquisition and the
         filter wheel. Never refused, whoever asks and whatever holds control."""
         return session.estop()
+
+    @app.get(f"{API}/campaigns/jobs", response_model=CampaignJobsResponse, tags=["campaigns"])
+    def get_campaign_jobs() -> CampaignJobsResponse:
+        """Every campaign job this daemon knows (jobs.json in its data directory), running or
+        ended. Reading never needs control."""
+        return session.campaign_jobs()
+
+    @app.post(f"{API}/campaigns/jobs", response_model=CampaignJob, tags=["campaigns"])
+    def post_campaign_job(
+        body: CampaignStartRequest, client: str = Depends(requester)
+    ) -> CampaignJob:
+        """Start a campaign job: the campaign is loaded and checked whole in a worker process
+        first (400 with the reason if it cannot run; nothing is started), then its worker
+        starts and this returns at once. The requester's control (or free control) passes to
+        the worker, ``campaign-job-<id>``, for the run. 409 while an acquisition or another
+        job runs."""
+        return session.start_campaign(body, client)
+
+    @app.get(f"{API}/campaigns/jobs/{{job_id}}", response_model=CampaignJob, tags=["campaigns"])
+    def get_campaign_job(job_id: int) -> CampaignJob:
+        """One campaign job; 404 if there is none."""
+        return session.campaign_job(job_id)
+
+    @app.post(
+        f"{API}/campaigns/jobs/{{job_id}}/pause", response_model=CampaignJob, tags=["campaigns"]
+    )
+    def post_campaign_pause(
+        job_id: int, body: CampaignActionRequest, client: str = Depends(requester)
+    ) -> CampaignJob:
+        """Pause a running job: its acquisition is stopped at once (and done again on
+        resume), its worker stops at the step boundary, puts the daemon's settings back and
+        gives control back; the job is then ``paused``. Only its starter may, or anyone with
+        ``force``. 409 unless it runs."""
+        return session.pause_campaign(job_id, client, body.force)
+
+    @app.post(
+        f"{API}/campaigns/jobs/{{job_id}}/resume", response_model=CampaignJob, tags=["campaigns"]
+    )
+    def post_campaign_resume(job_id: int, client: str = Depends(requester)) -> CampaignJob:
+        """Resume a paused, interrupted or failed-with-an-error job from its state file: the
+        completed steps are replayed, the rest executed. Needs control, which passes to the
+        worker as at the start."""
+        return session.resume_campaign(job_id, client)
+
+    @app.post(
+        f"{API}/campaigns/jobs/{{job_id}}/abort", response_model=CampaignJob, tags=["campaigns"]
+    )
+    def post_campaign_abort(
+        job_id: int, body: CampaignActionRequest, client: str = Depends(requester)
+    ) -> CampaignJob:
+        """Abort a job: a running one is stopped as for a pause, then ends ``aborted``; a
+        paused one ends at once. Its files stay. Only its starter may, or anyone with
+        ``force``."""
+        return session.abort_campaign(job_id, client, body.force)
 
     @app.post(f"{API}/ping", response_model=PingResponse, tags=["link"])
     def post_ping(body: PingRequest | None = None) -> PingResponse:

@@ -270,8 +270,22 @@ def render_class(model: type[BaseModel], annotations: list[str] | None = None) -
         rendered = render_type(annotation, f"{model.__name__}.{key}")
         if annotations is not None:
             annotations.append(rendered)
-        lines.append(f"{INDENT}{key}: {rendered}")
+        lines += _field_lines(key, rendered)
     return lines
+
+
+def _field_lines(key: str, rendered: str) -> list[str]:
+    """``key: rendered``, a long ``Literal[...]`` split as ruff's formatter splits it (the
+    file must pass ``ruff format`` unchanged): its values on one indented line if they fit,
+    else one per line with a trailing comma."""
+    line = f"{INDENT}{key}: {rendered}"
+    inner = rendered.removeprefix("Literal[").removesuffix("]")
+    if len(line) <= LINE_LENGTH or not rendered.startswith("Literal[") or "[" in inner:
+        return [line]
+    head, tail = f"{INDENT}{key}: Literal[", f"{INDENT}]"
+    if len(INDENT * 2 + inner) <= LINE_LENGTH:
+        return [head, INDENT * 2 + inner, tail]
+    return [head, *(f"{INDENT * 2}{value}," for value in inner.split(", ")), tail]
 
 
 def render_client_types(models: Sequence[type[BaseModel]] | None = None) -> str:

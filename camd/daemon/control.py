@@ -159,6 +159,21 @@ class Control:
                 running.client = client
             return self._holder()  # type: ignore[return-value]
 
+    def hand_over(self, client: str, to: str, ttl_s: float) -> None:
+        """Give control to ``to`` for ``ttl_s``: ``client``'s own, or free control (a campaign
+        job's worker gets its starter's); NotInControl if another client holds it."""
+        with self._lock:
+            holder = self._holder()
+            if holder is not None and holder.client not in (client, to):
+                raise NotInControl(
+                    f"{holder.client} holds control since {_clock(holder.since_t_s)} "
+                    f"({holder.why}); you ({client}) cannot hand it over: wait, ask them, or "
+                    "take over with `camctl control take --force`"
+                )
+            now = self._clock()
+            self._lease = _Lease(to, now, now + ttl_s)
+            self._events("info", "control", f"{client} handed control to {to} for {ttl_s:g} s")
+
     def release(self, client: str) -> None:
         """Give back ``client``'s lease (harmless when it holds none); what it said it was
         doing goes with it."""

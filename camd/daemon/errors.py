@@ -43,6 +43,15 @@ class BadRequest(SessionError, ValueError):
     """A parameter is invalid (HTTP 400)."""
 
 
+class NotFound(SessionError, LookupError):
+    """What the request names does not exist (HTTP 404); the message lists what does."""
+
+
+class WrongState(SessionError):
+    """The request does not fit what its target is doing (HTTP 409): resuming a job that
+    runs, pausing one that has ended; the message says what would fit."""
+
+
 class LinkUntrained(SessionError):
     """Imaging refused: the sensor's LVDS link is not trained (HTTP 409)."""
 

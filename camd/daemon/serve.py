@@ -219,6 +219,10 @@ def run(args: argparse.Namespace) -> int:
         sock.close()
         return EXIT_CONFIG
 
+    # Campaign jobs' workers reach the API at this URL; jobs the last daemon was running when
+    # it stopped run on (their workers wait until the API answers).
+    session.campaigns.attach(url, config.api.token)
+    session.campaigns.resume_interrupted()
     server = _Server(
         uvicorn.Config(
             create_app(session, token=config.api.token),

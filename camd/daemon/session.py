@@ -32,11 +32,13 @@ import numpy as np
 
 import camd
 from camd.daemon import backends, heap, notify
+from camd.daemon.campaign_jobs import CampaignJobs, worker_client
 from camd.daemon.config import HOUSEKEEPING_PACKET, Config, telemetry_channels
 from camd.daemon.control import ANONYMOUS, Control
 from camd.daemon.device import DeviceAccess
 from camd.daemon.errors import (
     BadRequest,
+    Busy,
     DeviceRejected,
     DeviceTimeout,
     Disconnected,
@@ -46,6 +48,9 @@ from camd.daemon.models import (
     LIVE_LINES_MAX,
     AcquisitionInfo,
     BackgroundStatus,
+    CampaignJob,
+    CampaignJobsResponse,
+    CampaignStartRequest,
     ChannelLatest,
     ControlActivity,
     ControlInfo,
@@ -116,6 +121,11 @@ def _join_camd_threads(timeout_s: float) -> None:
 # -- the session ---------------------------------------------------------------------------------
 
 
+# A campaign's worker takes the requester's control for this long, renewing it as it runs
+# (camd.campaign.runner's lease).
+CAMPAIGN_CONTROL_TTL_S = 60.0
+
+
 class DeviceSession:
     """The daemon's view of one camera; see the module docstring."""
 
@@ -174,6 +184,11 @@ class DeviceSession:
         self.wheel = WheelService(device, self.sensor, self.stream)
         self.control = Control(
             device.acquisition, lambda level, source, message: self._event(level, source, message)
+        )
+        self.campaigns = CampaignJobs(
+            config.daemon.data_dir,
+            lambda level, source, message: self._event(level, source, message),
+            self._stop_acquisition_now,
         )
 
     # -- lifecycle ------------------------------------------------------------------------------
@@ -252,6 +267,7 @@ class DeviceSession:
 
     def abort(self) -> None:
         """Ask long operations (a ping run) to end early; called when shutdown begins."""
+        self.campaigns.stopping()
         self._stop.set()
         self._wake.set()
 
@@ -261,7 +277,9 @@ class DeviceSession:
         acquisitions (the camera's stream stopped and ended on the host, its recording closed;
         a scan finished, its closed loop and stage stopped, its file closed); the USB reader;
         the archive; the links and the simulator; then every camd thread is joined. Each wait
-        is bounded; a camera already gone costs one warning line per step it prevents."""
+        is bounded; a camera already gone costs one warning line per step it prevents.
+        A campaign job's worker is stopped first, to be resumed at the next start."""
+        self.campaigns.close()
         self.abort()
         if self._thread is not None:
             self._thread.join(timeout=THREAD_JOIN_S)
@@ -374,6 +392,54 @@ class DeviceSession:
             + (f"; could not stop {'; '.join(failed)}" if failed else ""),
         )
         return EstopResponse(stopped=stopped, failed=failed)
+
+    # -- campaign jobs (camd.daemon.campaign_jobs) -----------------------------------------------
+
+    def campaign_jobs(self) -> CampaignJobsResponse:
+        return CampaignJobsResponse(jobs=[self._job_doc(doc) for doc in self.campaigns.jobs()])
+
+    def campaign_job(self, job_id: int) -> CampaignJob:
+        return self._job_doc(self.campaigns.job(job_id))
+
+    def _job_doc(self, doc: dict[str, Any]) -> CampaignJob:
+        """The job with what its worker, holding control, last said it is doing."""
+        activity = self.control.activity()
+        if activity is not None and activity.client == worker_client(int(doc["id"])):
+            doc = {**doc, "activity": activity.text, "done": activity.done}
+        return CampaignJob.model_validate(doc)
+
+    def start_campaign(self, body: CampaignStartRequest, client: str) -> CampaignJob:
+        """Start a campaign job; the requester's control (or free control) goes to its worker.
+        Busy while an acquisition or another job runs."""
+        self.campaigns.refuse_if_active()  # before control: it names the job that runs
+        self.control.check(client, "start a campaign")
+        running = self.device.acquisition.active
+        if running is not None:
+            raise Busy(
+                f"a {running.kind} is running: a campaign starts from its own baseline; stop it "
+                "first (`camctl stream stop`, `camctl scan --stop`)"
+            )
+
+        def hand_over(job_id: int) -> None:
+            self.control.hand_over(client, worker_client(job_id), CAMPAIGN_CONTROL_TTL_S)
+
+        doc = self.campaigns.start(body.file, body.out, body.quick, client, hand_over)
+        return self._job_doc(doc)
+
+    def resume_campaign(self, job_id: int, client: str) -> CampaignJob:
+        self.campaigns.refuse_if_active()
+        self.control.check(client, "resume a campaign")
+
+        def hand_over(job_id: int) -> None:
+            self.control.hand_over(client, worker_client(job_id), CAMPAIGN_CONTROL_TTL_S)
+
+        return self._job_doc(self.campaigns.resume(job_id, client, hand_over))
+
+    def pause_campaign(self, job_id: int, client: str, force: bool) -> CampaignJob:
+        return self._job_doc(self.campaigns.pause(job_id, client, force=force))
+
+    def abort_campaign(self, job_id: int, client: str, force: bool) -> CampaignJob:
+        return self._job_doc(self.campaigns.abort(job_id, client, force=force))
 
     def _stop_acquisition_now(self) -> bool:
         # A scan first, through its own stop: stopping only its stream would end it "done".
