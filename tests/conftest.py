@@ -14,6 +14,11 @@ from hypothesis import settings
 # The browser fixtures (``browser``, ``page``) for the tests of the pages the daemon serves.
 pytest_plugins = ["tests.browser"]
 
+# The suite's daemons do not load the TDI kernels at start (daemon.tdi_warm_up, docs/config.md):
+# most never scan, and a scan loads them itself; about a second of a core per daemon saved.
+# tests/test_config.py starts one daemon with the warm-up, as shipped.
+os.environ.setdefault("CAMD_TDI_WARM_UP", "0")
+
 # No per-example deadline: CI machines are slow and shared; a slow example is not a failure.
 settings.register_profile("camd", deadline=None)
 settings.load_profile("camd")

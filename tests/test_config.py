@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import re
+import time
 from pathlib import Path
 from typing import Any
 
@@ -248,3 +249,33 @@ def test_simulator_sockets_move_out_of_a_deep_data_dir(tmp_path: Path) -> None:
     assert again.sim_socket_dir == deep.sim_socket_dir
     other = config_from_dict({"daemon": {"data_dir": str(deep_dir / "z")}}, env=NO_ENV)
     assert other.sim_socket_dir != deep.sim_socket_dir
+
+
+def test_tdi_warm_up_from_the_file_or_the_environment() -> None:
+    assert config_from_dict({}, env={}).daemon.tdi_warm_up is True  # as shipped
+    assert config_from_dict({}, env={"CAMD_TDI_WARM_UP": "0"}).daemon.tdi_warm_up is False
+    on = config_from_dict({"daemon": {"tdi_warm_up": False}}, env={"CAMD_TDI_WARM_UP": "1"})
+    assert on.daemon.tdi_warm_up is True  # the environment wins over the file
+    with pytest.raises(ConfigError, match=r"CAMD_TDI_WARM_UP='yes': give 0 or 1"):
+        config_from_dict({}, env={"CAMD_TDI_WARM_UP": "yes"})
+
+
+def test_a_daemon_with_the_warm_up_loads_the_tdi_kernels_at_start(tmp_path: Path) -> None:
+    """The shipped default, which the rest of the suite turns off (tests/conftest.py)."""
+    from camd.cli._daemon_proc import DaemonProcess
+    from camd.client import CamdClient
+
+    with DaemonProcess(tmp_path, env={"CAMD_TDI_WARM_UP": "1"}) as daemon:
+        with CamdClient(daemon.url) as client:
+            client.wait_ready(60.0)
+        deadline = time.monotonic() + 120.0
+        while "TDI kernels ready in" not in daemon.log_path.read_text():
+            assert time.monotonic() < deadline, daemon.log_path.read_text()[-2000:]
+            time.sleep(0.1)
+    cold = tmp_path / "cold"
+    with (
+        DaemonProcess(cold, env={"CAMD_TDI_WARM_UP": "0"}) as daemon,
+        CamdClient(daemon.url) as client,
+    ):
+        client.wait_ready(60.0)
+    assert "TDI kernels" not in (cold / "daemon.log").read_text()

@@ -31,6 +31,9 @@ from camd.protocol import load_dictionary
 from camd.sensor.regmap import list_sensors
 
 TOKEN_ENV = "CAMD_TOKEN"
+TDI_WARM_UP_ENV = "CAMD_TDI_WARM_UP"
+"""Environment variable that supplies ``daemon.tdi_warm_up`` ("0" or "1"; it wins over the
+file): the test suite's daemons, most of which never scan, set it to 0."""
 UNIX_SOCKET_PATH_MAX = 100  # bytes: sun_path is 108 on Linux, 104 on BSD, NUL included
 """Environment variable that supplies ``api.token`` (it wins over the file)."""
 
@@ -72,6 +75,12 @@ class DaemonSection(_Section):
         le=64,
         description="glibc malloc arenas at most (0 = glibc's default, 8 per core): few keep a "
         "long-running daemon's memory from fragmenting",
+    )
+
+    tdi_warm_up: bool = Field(
+        default=True,
+        description="load the TDI kernels when the daemon starts, so that the first scan does "
+        "not wait for them (about a second of one core); false: at the first scan",
     )
 
     @field_validator("data_dir", mode="after")
@@ -498,7 +507,8 @@ def default_config_path() -> Path:
 def load_config(path: Path | None = None, *, env: Mapping[str, str] | None = None) -> Config:
     """Read and validate a config file (None = the shipped config/camd.toml).
 
-    ``$CAMD_TOKEN`` (from ``env``, default os.environ) replaces ``api.token`` when set.
+    ``$CAMD_TOKEN`` (from ``env``, default os.environ) replaces ``api.token`` when set, and
+    ``$CAMD_TDI_WARM_UP`` (0 or 1) ``daemon.tdi_warm_up``.
     Raises ConfigError naming the file, the key path and what is allowed.
     """
     path = default_config_path() if path is None else Path(path)
@@ -524,6 +534,13 @@ def config_from_dict(
         api = merged.get("api", {})
         if isinstance(api, dict):
             merged["api"] = {**api, "token": token}
+    warm_up = env.get(TDI_WARM_UP_ENV, "")
+    if warm_up:
+        if warm_up not in ("0", "1"):
+            raise ConfigError(f"${TDI_WARM_UP_ENV}={warm_up!r}: give 0 or 1 (or unset it)")
+        daemon = merged.get("daemon", {})
+        if isinstance(daemon, dict):
+            merged["daemon"] = {**daemon, "tdi_warm_up": warm_up == "1"}
     try:
         return Config.model_validate(merged)
     except ValidationError as exc:

@@ -236,7 +236,8 @@ class DeviceSession:
         self._thread = threading.Thread(target=self._service_loop, name="camd-service", daemon=True)
         self._thread.start()
         # Compile (or load) the TDI kernels now rather than when the first scan starts.
-        threading.Thread(target=_warm_tdi, name="camd-tdi-warm-up", daemon=True).start()
+        if self.config.daemon.tdi_warm_up:
+            threading.Thread(target=_warm_tdi, name="camd-tdi-warm-up", daemon=True).start()
 
     def _recover_recordings(self) -> None:
         """Repair the recordings a previous daemon left open (killed or crashed mid-write) and
