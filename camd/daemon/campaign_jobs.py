@@ -44,7 +44,8 @@ JOBS_FORMAT = "camd-campaign-jobs"
 JOBS_VERSION = 1
 WORKER_MODULE = "camd.campaign.worker"
 CHECK_TIMEOUT_S = 60.0  # loading a campaign: imports and the file's own checks
-STOP_GRACE_S = 20.0  # a worker asked to stop gets this long before SIGKILL
+STOP_GRACE_S = 60.0  # a worker asked to stop gets this long before SIGKILL (a measure step
+# runs to its end first: the shipped ones take seconds)
 SHUTDOWN_WAIT_S = 5.0  # the daemon's stop waits this long for a worker after SIGTERM
 LOG_TAIL_CHARS = 600
 
@@ -286,8 +287,14 @@ class CampaignJobs:
                 )
             self.refuse_if_active()
             before_spawn(job_id)
+            was = job.state, job.message
             job.state, job.requested, job.message = "running", None, None
-            self._spawn(job)
+            try:
+                self._spawn(job)
+            except BaseException:
+                job.state, job.message = was  # refused: the job as it was
+                self._save()
+                raise
             self._events("info", "campaign", f"job {job_id}: resumed by {client}")
             return job.public()
 
@@ -382,7 +389,7 @@ class CampaignJobs:
         return tail[-LOG_TAIL_CHARS:] or "no output"
 
     def _kill_if_stuck(self, job_id: int) -> None:
-        """A worker that has not stopped STOP_GRACE_S after a pause or abort is stopped (a
+        """A worker that has not stopped STOP_GRACE_S after a pause or abort is killed (a
         measurement step runs to its end first; none takes that long on the shipped ones)."""
         deadline = time.monotonic() + STOP_GRACE_S
         while time.monotonic() < deadline:
