@@ -31,7 +31,9 @@ EXERCISED_ELSEWHERE = {
     "WHEEL_ACQUIRE": "wheel.delay (POST /api/v1/wheel/acquire sends WHEEL_ACQUIRE)",
     "MOTOR_HOME": "motion.home (destructive: homing redefines the stage's zero)",
 }
-SIM_SETTERS = "changes the simulated world; the daemon's /api/v1/sim endpoints send it"
+# SIM_SET_SEED and SIM_SET_INJECT: the simulator cannot report the value in force, so any
+# value sent would change it.
+SIM_SETTERS = "the value in force cannot be read back, so a valid request would change it"
 UNUSED_OPCODES = (0x00, 0x7F, 0xEF)  # no command of config/protocol.toml has them
 
 
@@ -130,19 +132,88 @@ def _not_sent(why: str) -> Evidence:
     return {"case": why, "sent_hex": None, "expected": None, "answer": None, "ok": True}
 
 
-def _reset(unit: Unit, spec: CommandSpec) -> Evidence:
-    client = unit.client
+@contextlib.contextmanager
+def _reset_after(unit: Unit) -> Iterator[None]:
+    """Reset the unit through the daemon after the block (POST /api/v1/reset: RESET, and the
+    daemon leaves its fault state, which a raw RESET does not make it do) and put back what a
+    reset changes: the mode (area after it), the sensor link's training (docs/protocol.md
+    0x04) and the register configuration."""
     mode = str(ack_values(unit, "GET_STATUS")["mode"])
     trained = ack_values(unit, "GET_SENSOR")["trained"] == "yes"
-    result = case("valid: RESET", send(unit, "RESET", fields={}), "ACK")
-    # A reset re-boots the FPGA: mode area and the sensor link untrained (docs/protocol.md
-    # 0x04); the daemon re-probes it. Put both back.
-    _wait_idle(unit)
-    if mode != "area":
-        client.set_mode(mode)
+    registers = unit.client.register_config()
+    try:
+        yield
+    finally:
+        _wait_idle(unit, fault_ok=True)  # the BOOT or FAULT event has reached the daemon
+        unit.client.reset()
+        _wait_idle(unit)
+        # The daemon's reset puts the sensor's registers at their defaults: put back the
+        # configuration the unit had (only if it differs: nothing is written otherwise).
+        if unit.client.register_config() != registers:
+            unit.client.load_register_config(registers)
+        if mode != "area":
+            unit.client.set_mode(mode)
+        if trained:
+            unit.client.train()
+
+
+def _reset(unit: Unit, spec: CommandSpec) -> Evidence:
+    with _reset_after(unit):
+        return case("valid: RESET", send(unit, "RESET", fields={}), "ACK")
+
+
+def _sim_set_fault(unit: Unit, spec: CommandSpec) -> Evidence:
+    code = unit.dictionary.error("INTERNAL").code
+    with _reset_after(unit):
+        result = case(f"valid: fault {code} (then RESET)",
+                      send(unit, spec.name, fields={"fault_code": code}), "ACK")  # fmt: skip
+        status = ack_values(unit, "GET_STATUS")
+        if result["ok"] and (status["device_state"] != "fault" or status["fault_code"] != code):
+            result |= {"ok": False, "detail": f"GET_STATUS then said {status['device_state']}, "
+                       f"fault code {status['fault_code']}"}  # fmt: skip
+        return result
+
+
+def _sim_reskew(unit: Unit, spec: CommandSpec) -> Evidence:
+    trained = ack_values(unit, "GET_SENSOR")["trained"] == "yes"
+    result = case("valid: new lane skews (then TRAIN)",
+                  send(unit, spec.name, fields={"seed": 1}), "ACK")  # fmt: skip
     if trained:
-        client.train()
+        unit.client.train()
     return result
+
+
+def _sim_settings(unit: Unit) -> dict[str, Any]:
+    return dict(unit.client.sim_settings())
+
+
+def _sim_set_scene(unit: Unit, spec: CommandSpec) -> Evidence:
+    scene = str(_sim_settings(unit)["scene"])
+    return case(f"valid: the scene in force ({scene!r})",
+                send(unit, spec.name, fields={"spec": scene}), "ACK")  # fmt: skip
+
+
+def _sim_set_stage(unit: Unit, spec: CommandSpec) -> Evidence:
+    ideal = _sim_settings(unit)["ideal_stage"]
+    fields = {"track": "yes" if ideal["track"] else "no", "speed_m_s": float(ideal["speed_m_s"])}
+    return case("valid: the ideal stage in force", send(unit, spec.name, fields=fields), "ACK")
+
+
+def _sim_set_stage_faults(unit: Unit, spec: CommandSpec) -> Evidence:
+    faults = {k: float(v) for k, v in _sim_settings(unit)["stage_faults"].items()}
+    return case("valid: the stage faults in force", send(unit, spec.name, fields=faults), "ACK")
+
+
+def _sim_set_polarizer(unit: Unit, spec: CommandSpec) -> Evidence:
+    angle = _sim_settings(unit)["polarizer_deg"]
+    fields = {"enable": "off", "angle_deg": 0.0} if angle is None else {
+        "enable": "on", "angle_deg": float(angle)}  # fmt: skip
+    return case("valid: the polariser as it is", send(unit, spec.name, fields=fields), "ACK")
+
+
+def _sim_fail_next(unit: Unit, spec: CommandSpec) -> Evidence:
+    fields = {"action": "off", "opcode": 1, "skip": 0, "error_code": 0, "duration_s": 0}
+    return case("valid: action off (disarm)", send(unit, spec.name, fields=fields), "ACK")
 
 
 def _set_mode(unit: Unit, spec: CommandSpec) -> Evidence:
@@ -287,6 +358,13 @@ _VALID: dict[str, Callable[[Unit, CommandSpec], Evidence]] = {
     "MOTOR_ESTOP": _motor_estop,
     "WHEEL_SET_SPEED": _wheel_set_speed,
     "WHEEL_COMPENSATION": _wheel_compensation,
+    "SIM_SET_FAULT": _sim_set_fault,
+    "SIM_RESKEW": _sim_reskew,
+    "SIM_SET_SCENE": _sim_set_scene,
+    "SIM_SET_STAGE": _sim_set_stage,
+    "SIM_SET_STAGE_FAULTS": _sim_set_stage_faults,
+    "SIM_SET_POLARIZER": _sim_set_polarizer,
+    "SIM_FAIL_NEXT": _sim_fail_next,
 }
 
 
@@ -340,11 +418,12 @@ def wait_stopped(unit: Unit, timeout_s: float = 10.0) -> None:
         time.sleep(0.05)
 
 
-def _wait_idle(unit: Unit, timeout_s: float = 10.0) -> None:
-    """Until the daemon has re-probed the unit after a reset (state idle again)."""
+def _wait_idle(unit: Unit, timeout_s: float = 10.0, *, fault_ok: bool = False) -> None:
+    """Until the daemon has re-probed the unit after a reset (state idle again; or fault)."""
     deadline = time.monotonic() + timeout_s
     time.sleep(0.1)  # the BOOT event reaches the daemon after RESET's acknowledge
-    while unit.client.status()["state"] != "idle":
+    wanted = ("idle", "fault") if fault_ok else ("idle",)
+    while unit.client.status()["state"] not in wanted:
         if time.monotonic() > deadline:
             raise CheckFailed(f"the daemon did not see the unit idle within {timeout_s:g} s", {})
         time.sleep(0.05)

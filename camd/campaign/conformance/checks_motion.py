@@ -156,6 +156,7 @@ def wheel_delay_check(unit: Unit) -> Evidence:
     client = unit.client
     wheel = client.wheel()
     compensation = bool(wheel["compensation"])
+    speed = float(wheel["speed_deg_s"])
     if ack_values(unit, "GET_SENSOR")["trained"] != "yes":
         client.train()
     # The channel two ahead of the one in front: its entry pulse is less than a third of a
@@ -163,9 +164,14 @@ def wheel_delay_check(unit: Unit) -> Evidence:
     count = len(wheel["channels"])
     channel = ((wheel["channel"] if wheel["channel"] is not None else 0) + 2) % count
     try:
+        # T_center holds at the nominal speed only (docs/wheel.md): measure there.
+        if speed != wheel["nominal_speed_deg_s"]:
+            client.set_wheel_speed(float(wheel["nominal_speed_deg_s"]))
         result = client.wheel_acquire([channel], compensated=True, timeout_s=30.0)
     finally:
         client.set_wheel_compensation(compensation)
+        if speed != wheel["nominal_speed_deg_s"]:
+            client.set_wheel_speed(speed)
     # The start angle from the frame's header as the daemon kept it: this check must not
     # depend on the payload CRC (a frame it rejects is not in ``result["frames"]``).
     headers = client.stream_headers()["frames"]
