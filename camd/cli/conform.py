@@ -15,6 +15,7 @@ options, 3 when no daemon answers.
 from __future__ import annotations
 
 import argparse
+import fnmatch
 import json
 import sys
 from pathlib import Path
@@ -76,8 +77,6 @@ def usage_problem(args: argparse.Namespace) -> str | None:
     from camd.campaign.conformance import check_ids
 
     ids = check_ids()
-    import fnmatch
-
     unknown = [o for o in args.only if not any(fnmatch.fnmatchcase(i, o) for i in ids)]
     if unknown:
         return f"--only {', '.join(unknown)}: no such check; the checks are {', '.join(ids)}"

@@ -46,7 +46,7 @@ class ConformanceResult:
         return [r.id for r in self.records if r.outcome == "fail"]
 
 
-def check_ids(client: CamdClient | None = None) -> list[str]:
+def check_ids() -> list[str]:
     """Every check id of the suite, in order (the plan needs only the dictionary)."""
     from camd.protocol import load_dictionary
 
