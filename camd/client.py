@@ -37,6 +37,7 @@ from camd.client_types import (
     EstopResponse,
     EventsResponse,
     HistoryResponse,
+    LinkCommandResponse,
     LinkResponse,
     ModeResponse,
     MotionStatus,
@@ -52,6 +53,7 @@ from camd.client_types import (
     SimStreamStats,
     StageResponse,
     StatusResponse,
+    StreamHeadersResponse,
     StreamResponse,
     SyncResponse,
     TelemetryResponse,
@@ -217,6 +219,30 @@ class CamdClient:
         body = {"count": count, "size": size}
         return cast(PingResponse, self._json("POST", f"{API}/ping", json=body, timeout=timeout))
 
+    def link_command(
+        self,
+        command: str | None = None,
+        *,
+        opcode: int | None = None,
+        fields: dict[str, int | float | str] | None = None,
+        payload: bytes | None = None,
+        repeat: bool = False,
+    ) -> LinkCommandResponse:
+        """Send one COMMAND frame (POST /api/v1/link/command): ``command`` by name with
+        ``fields`` (checked by the dictionary), or any ``opcode`` / ``payload`` unchecked; with
+        ``repeat`` the identical frame goes twice. Returns the ACK or NAK (both with repeat);
+        a NAK is an answer here, not an error. Needs control."""
+        body: dict[str, Any] = {"repeat": repeat}
+        if command is not None:
+            body["command"] = command
+        if opcode is not None:
+            body["opcode"] = opcode
+        if fields is not None:
+            body["fields"] = fields
+        if payload is not None:
+            body["payload_hex"] = payload.hex()
+        return cast(LinkCommandResponse, self._json("POST", f"{API}/link/command", json=body))
+
     def link(self) -> LinkResponse:
         """Host and device counters of the command link."""
         return cast(LinkResponse, self._json("GET", f"{API}/link"))
@@ -338,6 +364,11 @@ class CamdClient:
     def stop_stream(self) -> StreamResponse:
         """Stop the stream (harmless when not streaming)."""
         return cast(StreamResponse, self._json("POST", f"{API}/stream/stop"))
+
+    def stream_headers(self) -> StreamHeadersResponse:
+        """The headers of the first frames of the current or last stream, with the payload
+        CRC the host computed for each (frames the payload CRC rejected included)."""
+        return cast(StreamHeadersResponse, self._json("GET", f"{API}/stream/headers"))
 
     # -- the live view's background ------------------------------------------------------------
 

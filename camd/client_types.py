@@ -16,6 +16,43 @@ from __future__ import annotations
 from typing import Literal, TypedDict
 
 
+class LinkAnswer(TypedDict):
+    """One answer frame of POST /api/v1/link/command."""
+
+    type: Literal["ack", "nak"]
+    seq: int
+    payload_hex: str
+    # NAK: the error code; ACK: null
+    error_code: int | None
+    # NAK: the code's name in the dictionary
+    error_name: str | None
+    # NAK: the device's detail text
+    detail: str | None
+    # ACK: the response fields as the dictionary decodes them (bytes as hex); null for a NAK or when
+    # they do not decode (see decode_error)
+    values: dict[str, int | float | str] | None
+    # why the ACK payload did not decode; else null
+    decode_error: str | None
+
+
+class LinkCommandResponse(TypedDict):
+    """POST /api/v1/link/command: the frame sent and the device's answer(s)."""
+
+    # the opcode's name; null if the dictionary has none
+    command: str | None
+    opcode: int
+    # sequence number of the frame (both sends with repeat)
+    seq: int
+    # the payload sent
+    request_hex: str
+    # one per send: ACK or NAK
+    answers: list[LinkAnswer]
+    # frames written, retries after a timeout included
+    attempts: int
+    # from the first send to the last answer
+    rtt_s: float
+
+
 class ErrorResponse(TypedDict):
     """The body of every error response."""
 
@@ -387,6 +424,38 @@ class StreamResponse(TypedDict):
     # once a second; docs/stream.md "Crash safety")
     frames_flushed: int
     stats: StreamStats
+
+
+class StreamFrameHeader(TypedDict):
+    """One frame's header as the host received it (docs/stream.md "Frame format (version 1)"), with
+    the payload CRC the host computed."""
+
+    counter: int
+    # device clock, end of window row 0's exposure
+    timestamp_ns: int
+    line_period_ns: int
+    rows: int
+    cols: int
+    bits: int
+    mode: Literal["area", "tdi"]
+    stages: int
+    stage_position: int
+    flags: int
+    payload_bytes: int
+    # the header's payload CRC-32
+    payload_crc32: int
+    # CRC-32 of the payload as the host received it
+    payload_crc32_host: int
+
+
+class StreamHeadersResponse(TypedDict):
+    """GET /api/v1/stream/headers: the first frames of the current or last stream."""
+
+    # headers kept per stream (the first ones)
+    kept_max: int
+    # every frame whose header passed its checks, in order of arrival, including those the payload
+    # CRC then rejected
+    frames: list[StreamFrameHeader]
 
 
 class BackgroundStatus(TypedDict):

@@ -22,6 +22,7 @@ from types import FrameType
 
 from camd.protocol import load_dictionary
 from camd.sensor.profile import list_profiles
+from firmware_models.defects import DEFECTS, Defects
 from firmware_models.fpga import FpgaModel
 from firmware_models.fx3 import StreamSocketServer
 from firmware_models.inject import FaultInjector, InjectSpec
@@ -146,6 +147,14 @@ def build_parser(prog: str = "python -m firmware_models") -> argparse.ArgumentPa
         metavar="NAME",
         help="the scan stage's mechanics, config/stages/NAME.toml (default linear_rail)",
     )
+    parser.add_argument(
+        "--defect",
+        action="append",
+        default=[],
+        choices=sorted(DEFECTS),
+        metavar="NAME",
+        help="turn on a deliberate defect (repeatable; docs/conformance.md): " + ", ".join(DEFECTS),
+    )
     parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     parser.add_argument("--json", action="store_true", help="print the start line as JSON")
     return parser
@@ -174,6 +183,7 @@ def main(argv: list[str] | None = None, *, prog: str = "python -m firmware_model
         injector=FaultInjector(inject, seed=args.seed),
         sensor=args.profile,
         stage=args.stage,
+        defects=Defects.parse(args.defect),
     )
     if args.scene is not None:
         model.camera.set_scene(args.scene)

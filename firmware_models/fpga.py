@@ -63,6 +63,7 @@ from camd.protocol.dictionary import FieldValue, f32_decimal
 from camd.sensor.profile import load_profile
 from camd.sensor.regmap import RegisterMap, RegisterSpec, load_register_map
 from firmware_models.camera import CameraModel
+from firmware_models.defects import NONE, Defects
 from firmware_models.errors import Nak
 from firmware_models.fx3 import StreamEngine, StreamSocketServer
 from firmware_models.housekeeping import HousekeepingModel
@@ -152,8 +153,10 @@ class FpgaModel:
         injector: FaultInjector | None = None,
         sensor: str | RegisterMap = "hr400",
         stage: str | StageProfile = "linear_rail",
+        defects: Defects = NONE,
     ) -> None:
         self.dictionary = dictionary if dictionary is not None else load_dictionary()
+        self.defects = defects
         # Commands (pty thread) and the USB-SPI socket (its own thread) share the sensor.
         self.lock = threading.RLock()
         self.regmap = sensor if isinstance(sensor, RegisterMap) else load_register_map(sensor)
@@ -176,6 +179,11 @@ class FpgaModel:
             lock=self.lock,
         )
         self.stream.source = self.imaging_path.frame
+        self.stream.defects = self.imaging_path.defects = defects
+        # register_readback_off_by_one: the register whose reads are off (None: no defect).
+        self._off_by_one_address = (
+            _off_by_one_register(self.regmap) if defects.register_readback_off_by_one else None
+        )
         # The scan stage: a stepper the MOTOR_* commands drive. The target rides on it once
         # the motor has been enabled; until then (or after SIM_SET_STAGE) an ideal stage moves
         # it, tracking the line period, so a plain stream needs no motion set-up.
@@ -256,7 +264,8 @@ class FpgaModel:
             self.counters.ignored += 1
             return []
         record = self._record
-        if record is not None and record.command == frame:
+        # replay_executes: the record is never consulted, so a retry executes again.
+        if record is not None and record.command == frame and not self.defects.replay_executes:
             self.counters.replayed += 1
             return self._sent([record.response])
         if self._fails_now(frame):
@@ -538,7 +547,10 @@ class FpgaModel:
             raise _Nak(
                 "REG_WRITE_ONLY", f"REG_READ: register {reg.name} (0x{address:02X}) is write-only"
             )
-        return _Outcome(spec.encode_response(address=address, value=self.spi.read(address)))
+        value = self.spi.read(address)
+        if address == self._off_by_one_address:
+            value = (value + 1) & reg.mask  # register_readback_off_by_one
+        return _Outcome(spec.encode_response(address=address, value=value))
 
     def _reg_write(
         self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float
@@ -810,12 +822,14 @@ class FpgaModel:
                        "WHEEL_SET_SPEED first")  # fmt: skip
         frame, _, _ = self._wheel_timing()
         line = self.sensor.timing().line_period_s
+        # wheel_ignores_delay: the scheduler exposes at the entry pulse whatever is switched on.
+        delayed = self.wheel_compensation and not self.defects.wheel_ignores_delay
         starts: list[float] = []
         stamps: list[int] = []
         try:
             for _ in range(int(request["passes"])):
                 for channel in raw:
-                    start = self.wheel.exposure_schedule(channel, t, frame, self.wheel_compensation)
+                    start = self.wheel.exposure_schedule(channel, t, frame, delayed)
                     starts.append(start + line)  # row 0 resets one line into the frame
                     stamps.append(round(float(self.wheel.angle_deg(start)) * 1e4))
                     t = start + frame
@@ -948,6 +962,20 @@ class FpgaModel:
 
 
 # -- payload checks the codec leaves to the device -------------------------------------------
+
+
+def _off_by_one_register(regmap: RegisterMap) -> int:
+    """The register register_readback_off_by_one reads wrong: the ``offset`` role's, else the
+    ``gain`` role's (registers that set no timing, so only the read-back check sees it)."""
+    for role in ("offset", "gain"):
+        target = regmap.role(role)
+        if target is not None:
+            name = target.split(".")[0]
+            if regmap.has_register(name):
+                return regmap.register(name).address
+    raise ValueError(
+        f"register_readback_off_by_one: {regmap.sensor} has no offset or gain role to apply it to"
+    )
 
 
 def _length_bounds(fields_: list[FieldSpec]) -> tuple[int, int]:

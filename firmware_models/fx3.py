@@ -44,6 +44,7 @@ from camd.protocol.stream import (
     crc32,
     pack_header,
 )
+from firmware_models.defects import COUNTER_SKIP_EVERY, NONE, crc32c
 from firmware_models.fx3_wire import (
     MSG,
     MSG_CLEAR_HALT,
@@ -424,6 +425,8 @@ class StreamEngine:
         self.on_done = on_done
         self.counters = StreamCounters()
         self.next_counter = 0
+        self.defects = NONE  # deliberate defects (firmware_models.defects), off
+        self._counter_skew = 0  # stream_counter_skip: counter values skipped so far
         self._rng = np.random.default_rng(seed)
         self._cond = threading.Condition()
         self._pending: _Stream | None = None
@@ -700,6 +703,8 @@ class StreamEngine:
                 flags |= FrameFlags.LAST
             if flags != header.flags:
                 header = header._replace(flags=flags)
+            if self.defects.stream_counter_skip or self.defects.stream_crc_polynomial:
+                header = self._defective(header, pixels)
             # Checked when the source made it (frame_header); the flags added are known ones.
             head = pack_header(header)
             payload = pixels.data.cast("B")
@@ -728,6 +733,17 @@ class StreamEngine:
         if not flush():
             overflow = True
         return overflow
+
+    def _defective(self, header: FrameHeader, pixels: np.ndarray) -> FrameHeader:
+        """The header as a defective FX3 frames it (firmware_models.defects); the header CRC
+        is computed afterwards, by ``pack_header``, and so stays right."""
+        if self.defects.stream_counter_skip:
+            if header.counter % COUNTER_SKIP_EVERY == COUNTER_SKIP_EVERY - 1:
+                self._counter_skew += 1
+            header = header._replace(counter=(header.counter + self._counter_skew) % U32_WRAP)
+        if self.defects.stream_crc_polynomial:
+            header = header._replace(payload_crc32=crc32c(pixels.data.cast("B")))
+        return header
 
 
 # -- ready-made frames ----------------------------------------------------------------------

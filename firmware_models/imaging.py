@@ -35,6 +35,7 @@ import numpy.typing as npt
 from camd.protocol.stream import FrameFlags, FrameHeader, StreamMode, frame_header
 from camd.tdi.binning import bin2x2
 from firmware_models.camera import CameraModel
+from firmware_models.defects import FRAME_PERIOD_FACTOR, NONE
 from firmware_models.fx3 import StreamEngine
 from firmware_models.sensor import SensorModel
 from firmware_models.sensor_link import SensorLink
@@ -87,6 +88,7 @@ class ImagingPipeline:
         self.engine = engine
         self.lock = lock
         self.geometry: StreamGeometry | None = None
+        self.defects = NONE  # deliberate defects (firmware_models.defects), off
         # Stage encoder counts at device times, latched into each frame header (None: 0), and
         # the revision of what the stage was commanded: counts looked up at one revision hold
         # until it changes.
@@ -261,7 +263,10 @@ class ImagingPipeline:
             if period != self._period_s:
                 self._period_s = period
                 self.engine.set_period(period)
-            self._next_start_s = start + period
+            # frame_period_5pct: a slow line clock spaces the frames out; the firmware still
+            # believes (and stamps in the header) the period the registers set.
+            slow = FRAME_PERIOD_FACTOR if self.defects.frame_period_5pct else 1.0
+            self._next_start_s = start + period * slow
             self._next_k += 1
         return start, self._period_s
 

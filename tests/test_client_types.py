@@ -331,6 +331,8 @@ ANSWERS: list[tuple[str, str]] = [
     ("timing", "TimingResponse"),
     ("train", "TrainResponse"),
     ("acquire", "StreamResponse"),
+    ("stream_headers", "StreamHeadersResponse"),
+    ("link_command", "LinkCommandResponse"),
     ("background", "BackgroundStatus"),
     ("scan", "ScanResponse"),
     ("motion", "MotionStatus"),
@@ -376,6 +378,8 @@ def answers(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]
         docs["timing"] = client.timing()
         docs["train"] = client.train()
         docs["acquire"] = client.acquire(3, timeout_s=60)
+        docs["stream_headers"] = client.stream_headers()
+        docs["link_command"] = client.link_command("SET_MODE", fields={"mode": "area"}, repeat=True)
         client.start_stream(0)
         client.capture_background(2)
         deadline = time.monotonic() + 30
@@ -432,6 +436,8 @@ def test_the_answers_reach_the_nested_documents(answers: dict[str, Any]) -> None
     assert answers["scan"]["timing"] is not None and answers["scan"]["motion"] is not None
     assert answers["scan"]["stage_changes"] == [[0, 4]]  # a tuple in the model, a list in JSON
     assert answers["link"]["device"] is not None
+    assert len(answers["stream_headers"]["frames"]) == 3
+    assert [a["type"] for a in answers["link_command"]["answers"]] == ["ack", "ack"]
     assert answers["write_registers"]["written"][0]["name"] == "WIN_ROWS"
     assert "WIN_ROWS" in {d["name"] for d in answers["diff_registers"]["differences"]}
     assert answers["wheel_acquire"]["region"] == {"row": 0, "rows": 4, "col": 0, "cols": 8}

@@ -9,7 +9,8 @@ changes something is sent again on a quiet device between two device snapshots
 /api/v1/status and its process lives.
 
 Left out (``bench_fuzz.EXCLUDED``, the reasons printed in a failure): POST /reset (seconds each,
-undoes the rest), POST /sim/fail-next (fails the next command on purpose), POST /wheel/acquire
+undoes the rest), POST /sim/fail-next (fails the next command on purpose), POST /link/command
+(sends any frame to the camera by design), POST /wheel/acquire
 (waits for the wheel, seconds to minutes). Neutralised (``bench_fuzz.neutralise`` / ``undo``):
 acquisitions take at most 4 frames or 20 lines and write only into a scratch directory, moves
 and homing return at once, an emergency stop is followed by /motion/enable, control taken is

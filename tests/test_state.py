@@ -29,6 +29,7 @@ EXPECTED_LEGAL = {
     Request.TELEMETRY: {DIS, IDLE, STR, FLT},
     Request.EVENTS: {DIS, IDLE, STR, FLT},
     Request.PING: {IDLE, STR, FLT},
+    Request.LINK_COMMAND: {IDLE, FLT},
     Request.MODE: {IDLE},
     Request.RESET: {IDLE, STR, FLT},
     Request.REGISTERS_READ: {IDLE, STR, FLT},

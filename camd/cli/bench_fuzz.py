@@ -43,6 +43,9 @@ EXCLUDED: dict[tuple[str, str], str] = {
     ("POST", f"{API}/reset"): "resets the camera: seconds each, and undoes what the others set",
     ("POST", f"{API}/sim/fail-next"): "makes the next device command fail on purpose (a 5xx "
     "by design); its refusals are tested in tests/test_inject.py",
+    ("POST", f"{API}/link/command"): "sends any frame to the camera by design (RESET, "
+    "SIM_FAIL_NEXT, START_STREAM behind the daemon's back); the conformance suite and "
+    "tests/test_conformance.py test it",
     ("POST", f"{API}/wheel/acquire"): "waits for the wheel to turn to every channel, pass "
     "after pass: seconds to minutes per request (tests/test_wheel_stack.py covers it)",
 }

@@ -27,6 +27,7 @@ from rich.text import Text
 import camd
 from camd.cli import (
     camctl_campaign,
+    camctl_conform,
     camctl_motion,
     camctl_scan,
     camctl_sensor,
@@ -227,6 +228,7 @@ def build_parser() -> argparse.ArgumentParser:
     camctl_motion.add_parsers(command)
     camctl_wheel.add_parsers(command)
     camctl_campaign.add_parsers(command)
+    camctl_conform.add_parsers(command)
     return parser
 
 
@@ -361,6 +363,7 @@ _COMMANDS: dict[str, Callable[[CamdClient, argparse.Namespace], Any]] = {
     **camctl_motion.COMMANDS,
     **camctl_wheel.COMMANDS,
     **camctl_campaign.COMMANDS,
+    **camctl_conform.COMMANDS,
 }
 
 
@@ -654,6 +657,7 @@ _RENDER: dict[str, Callable[[Console, Any, argparse.Namespace], None]] = {
     **camctl_motion.RENDER,
     **camctl_wheel.RENDER,
     **camctl_campaign.RENDER,
+    **camctl_conform.RENDER,
 }
 
 

@@ -1,4 +1,4 @@
-"""``camd``: the server-side command (serve, sim, demo, bench, soak).
+"""``camd``: the server-side command (serve, sim, demo, bench, soak, conform).
 
 Each subcommand lives in its own module with ``add_parser(subparsers)`` and ``run(args) -> int``.
 ``camd sim`` passes its arguments through to the simulator (``camd.cli.sim``), whose module is
@@ -20,6 +20,7 @@ _SUBCOMMANDS = {
     "demo": "camd.cli.demo",
     "bench": "camd.cli.bench",
     "soak": "camd.cli.soak",
+    "conform": "camd.cli.conform",
 }
 
 

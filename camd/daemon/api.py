@@ -73,6 +73,8 @@ from camd.daemon.models import (
     EstopResponse,
     EventsResponse,
     HistoryResponse,
+    LinkCommandRequest,
+    LinkCommandResponse,
     LinkResponse,
     ModeRequest,
     ModeResponse,
@@ -104,6 +106,7 @@ from camd.daemon.models import (
     StageResponse,
     StagesRequest,
     StatusResponse,
+    StreamHeadersResponse,
     StreamResponse,
     StreamStartRequest,
     SyncResponse,
@@ -596,6 +599,19 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
         body = body or PingRequest()
         return session.ping(body.count, body.size)
 
+    @app.post(f"{API}/link/command", response_model=LinkCommandResponse, tags=["link"])
+    def post_link_command(
+        body: LinkCommandRequest, client: str = Depends(controlled("send a raw command"))
+    ) -> LinkCommandResponse:
+        """Send one COMMAND frame: a dictionary command with ``fields`` (checked by the
+        dictionary) or any ``opcode`` with any ``payload_hex`` (unchecked), and return the
+        device's ACK or NAK; ``repeat`` sends the identical frame again (same sequence number)
+        to test at-most-once execution. For conformance tests (docs/conformance.md): the
+        daemon's view of the camera is not updated, so put back what you change. Idle or in
+        fault only."""
+        with acting_as(client):
+            return session.link_command(body)
+
     @app.get(f"{API}/link", response_model=LinkResponse, tags=["link"])
     def get_link() -> LinkResponse:
         """Host and device counters of the command link."""
@@ -877,6 +893,12 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
     def get_stream() -> StreamResponse:
         """The current or last stream: geometry, mode and the host's ingest counters."""
         return session.stream.status()
+
+    @app.get(f"{API}/stream/headers", response_model=StreamHeadersResponse, tags=["stream"])
+    def get_stream_headers() -> StreamHeadersResponse:
+        """The headers of the first frames of the current or last stream, each with the
+        payload CRC the host computed, including frames the payload CRC rejected."""
+        return session.stream.headers()
 
     @app.post(f"{API}/stream/start", response_model=StreamResponse, tags=["stream"])
     def post_stream_start(

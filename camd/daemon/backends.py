@@ -44,6 +44,7 @@ def simulator_process(config: Config) -> SimulatorProcess | None:
         scene=sim.scene,
         frame_bank=sim.frame_bank,
         stage=config.stage.profile,
+        defects=tuple(sim.defects),
     )
 
 

@@ -152,6 +152,12 @@ class SimSection(_Section):
         description="scene in front of the simulated camera, e.g. 'bars:lux=3'; empty = the "
         "simulator's default flat field (docs/simulator.md lists the scene specs)",
     )
+    defects: list[str] = Field(
+        default_factory=list,
+        description="deliberate defects of the simulated camera, to prove the conformance "
+        "checks can fail (docs/conformance.md lists them and the checks each fails); empty = "
+        "a conforming camera",
+    )
     frame_bank: int = Field(
         default=0,
         ge=0,

@@ -56,6 +56,7 @@ log = logging.getLogger(__name__)
 DISTURBING = frozenset(
     {
         Request.MODE,
+        Request.LINK_COMMAND,
         Request.RESET,
         Request.REGISTERS_WRITE,
         Request.TRAIN,

@@ -34,6 +34,63 @@ class _Request(BaseModel):
     model_config = ConfigDict(extra="forbid", strict=True, allow_inf_nan=False)
 
 
+class LinkCommandRequest(_Request):
+    """POST /api/v1/link/command: one COMMAND frame, for conformance tests (docs/api.md)."""
+
+    command: str | None = Field(
+        default=None,
+        max_length=64,
+        description="a command of the dictionary by name (config/protocol.toml); or give opcode",
+    )
+    opcode: int | None = Field(
+        default=None, ge=0, le=255, description="the opcode byte, 0..255, any (or give command)"
+    )
+    fields: dict[str, int | float | str] | None = Field(
+        default=None,
+        description="request fields by name, encoded and range-checked by the dictionary "
+        "(needs command); bytes fields as hex strings",
+    )
+    payload_hex: str | None = Field(
+        default=None,
+        max_length=2 * 1024,
+        pattern=r"^([0-9a-fA-F]{2})*$",
+        description="the payload as hex, sent as it is, unchecked (0..1024 bytes); or fields",
+    )
+    repeat: bool = Field(
+        default=False,
+        description="send the identical frame (same sequence number) again after the answer, "
+        "as a retry after a lost answer would; both answers are returned",
+    )
+
+
+class LinkAnswer(BaseModel):
+    """One answer frame of POST /api/v1/link/command."""
+
+    type: Literal["ack", "nak"]
+    seq: int
+    payload_hex: str
+    error_code: int | None = Field(description="NAK: the error code; ACK: null")
+    error_name: str | None = Field(description="NAK: the code's name in the dictionary")
+    detail: str | None = Field(description="NAK: the device's detail text")
+    values: dict[str, int | float | str] | None = Field(
+        description="ACK: the response fields as the dictionary decodes them (bytes as hex); "
+        "null for a NAK or when they do not decode (see decode_error)"
+    )
+    decode_error: str | None = Field(description="why the ACK payload did not decode; else null")
+
+
+class LinkCommandResponse(BaseModel):
+    """POST /api/v1/link/command: the frame sent and the device's answer(s)."""
+
+    command: str | None = Field(description="the opcode's name; null if the dictionary has none")
+    opcode: int
+    seq: int = Field(description="sequence number of the frame (both sends with repeat)")
+    request_hex: str = Field(description="the payload sent")
+    answers: list[LinkAnswer] = Field(description="one per send: ACK or NAK")
+    attempts: int = Field(description="frames written, retries after a timeout included")
+    rtt_s: float = Field(description="from the first send to the last answer")
+
+
 class PingRequest(_Request):
     """POST /api/v1/ping."""
 
@@ -576,6 +633,35 @@ class StreamResponse(BaseModel):
         'now (flushed at least once a second; docs/stream.md "Crash safety")',
     )
     stats: StreamStats
+
+
+class StreamFrameHeader(BaseModel):
+    """One frame's header as the host received it (docs/stream.md "Frame format (version 1)"),
+    with the payload CRC the host computed."""
+
+    counter: int
+    timestamp_ns: int = Field(description="device clock, end of window row 0's exposure")
+    line_period_ns: int
+    rows: int
+    cols: int
+    bits: int
+    mode: Mode
+    stages: int
+    stage_position: int
+    flags: int
+    payload_bytes: int
+    payload_crc32: int = Field(description="the header's payload CRC-32")
+    payload_crc32_host: int = Field(description="CRC-32 of the payload as the host received it")
+
+
+class StreamHeadersResponse(BaseModel):
+    """GET /api/v1/stream/headers: the first frames of the current or last stream."""
+
+    kept_max: int = Field(description="headers kept per stream (the first ones)")
+    frames: list[StreamFrameHeader] = Field(
+        description="every frame whose header passed its checks, in order of arrival, "
+        "including those the payload CRC then rejected"
+    )
 
 
 # -- the live view's background ------------------------------------------------------------------

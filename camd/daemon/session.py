@@ -61,6 +61,9 @@ from camd.daemon.models import (
     EventItem,
     EventsResponse,
     HistoryResponse,
+    LinkAnswer,
+    LinkCommandRequest,
+    LinkCommandResponse,
     LinkInfo,
     LinkResponse,
     ModeResponse,
@@ -88,7 +91,14 @@ from camd.link import (
 )
 from camd.pipeline.background import BackgroundCapture
 from camd.pipeline.live import LiveLines, LiveTap
-from camd.protocol import Dictionary, FrameType, load_dictionary
+from camd.protocol import (
+    CommandSpec,
+    Dictionary,
+    Frame,
+    FrameType,
+    PayloadError,
+    load_dictionary,
+)
 from camd.protocol.dictionary import FieldValue
 from camd.store.journal import recover_left_open
 from camd.tdi import warm_up
@@ -546,6 +556,91 @@ class DeviceSession:
             errors=list(errors)[:PING_ERRORS_MAX],
         )
 
+    def link_command(self, body: LinkCommandRequest) -> LinkCommandResponse:
+        """Send one COMMAND frame as the request says and return the answer frames undecoded
+        and decoded (docs/api.md): for conformance tests of the device's own checks. The
+        daemon's view of the camera (mode, register copy, stage) is not updated; a client that
+        changes the camera with it puts it back."""
+        if (body.command is None) == (body.opcode is None):
+            raise BadRequest("give either command (a name in config/protocol.toml) or opcode")
+        if body.fields is not None and body.payload_hex is not None:
+            raise BadRequest("give either fields (encoded by the dictionary) or payload_hex")
+        spec: CommandSpec | None
+        if body.command is not None:
+            try:
+                spec = self.dictionary.command(body.command.upper())
+            except KeyError as exc:
+                raise BadRequest(str(exc.args[0])) from None
+            opcode = spec.opcode
+        else:
+            assert body.opcode is not None
+            opcode = body.opcode
+            found = self.dictionary.command_for_opcode(opcode)
+            if body.fields is not None and found is None:
+                raise BadRequest(
+                    f"opcode 0x{opcode:02X} is not in the dictionary: send payload_hex, not fields"
+                )
+            spec = found
+        if body.payload_hex is not None:
+            payload = bytes.fromhex(body.payload_hex)
+        elif spec is not None:
+            try:
+                fields = {
+                    name: bytes.fromhex(value)
+                    if isinstance(value, str) and _bytes_field(spec, name)
+                    else value
+                    for name, value in (body.fields or {}).items()
+                }
+                payload = spec.encode_request(**fields)
+            except (ValueError, TypeError) as exc:
+                raise BadRequest(f"{spec.name}: {exc}") from None
+        else:
+            payload = b""
+        self._require(Request.LINK_COMMAND)
+        with self.device.device_op() as link:
+            try:
+                exchange = link.exchange(opcode, payload, repeat=body.repeat)
+            except ValueError as exc:
+                raise BadRequest(str(exc)) from None
+        answers = [self._link_answer(spec, frame) for frame in exchange.answers]
+        return LinkCommandResponse(
+            command=None if spec is None else spec.name,
+            opcode=opcode,
+            seq=exchange.seq,
+            request_hex=payload.hex(),
+            answers=answers,
+            attempts=exchange.attempts,
+            rtt_s=exchange.rtt_s,
+        )
+
+    def _link_answer(self, spec: CommandSpec | None, frame: Frame) -> LinkAnswer:
+        """One answer frame in words: a NAK's code, name and detail; an ACK's fields."""
+        if frame.type == FrameType.NAK:
+            try:
+                code, detail = self.dictionary.decode_nak(frame.payload)
+            except PayloadError as exc:
+                code, detail = None, f"malformed NAK payload: {exc}"
+            name: str | None = None
+            if code is not None:
+                with contextlib.suppress(KeyError):
+                    name = self.dictionary.error(code).name
+            return LinkAnswer(type="nak", seq=frame.seq, payload_hex=frame.payload.hex(),
+                              error_code=code, error_name=name, detail=detail, values=None,
+                              decode_error=None)  # fmt: skip
+        values: dict[str, int | float | str] | None = None
+        problem: str | None = None
+        if spec is None:
+            problem = "the dictionary has no command with this opcode"
+        else:
+            try:
+                decoded = spec.decode_response(frame.payload)
+                values = {k: v.hex() if isinstance(v, bytes) else v for k, v in decoded.items()}
+            except PayloadError as exc:
+                problem = str(exc)
+        return LinkAnswer(type="ack", seq=frame.seq, payload_hex=frame.payload.hex(),
+                          error_code=None, error_name=None, detail=None, values=values,
+                          decode_error=problem)  # fmt: skip
+
     def link_stats(self) -> LinkResponse:
         """Host counters, and the device's (null when it cannot be asked)."""
         host = self.host_counters()
@@ -930,3 +1025,8 @@ def _warm_tdi() -> None:
         log.exception("could not load the TDI kernels ahead of the first scan")
     else:
         log.info("TDI kernels ready in %.2f s", seconds)
+
+
+def _bytes_field(spec: CommandSpec, name: str) -> bool:
+    """``name`` is a bytes field of ``spec``'s request (given as hex, sent as those bytes)."""
+    return any(f.name == name and f.type == "bytes" for f in spec.request)

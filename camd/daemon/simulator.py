@@ -60,6 +60,7 @@ class SimulatorProcess:
         scene: str = "",
         frame_bank: int = 0,
         stage: str = "linear_rail",
+        defects: tuple[str, ...] = (),
     ) -> None:
         self.link_path = link_path
         self.command = [
@@ -88,6 +89,8 @@ class SimulatorProcess:
             self.command += ["--scene", scene]
         if frame_bank:
             self.command += ["--frame-bank", str(frame_bank)]
+        for defect in defects:  # deliberate defects (docs/conformance.md)
+            self.command += ["--defect", defect]
         self.info: dict[str, Any] = {}
         self._proc: subprocess.Popen[str] | None = None
         self._lock = threading.Lock()  # start and stop: a stopped process is never started

@@ -15,6 +15,7 @@ link              yes           yes   yes        yes
 telemetry         yes           yes   yes        yes
 events            yes           yes   yes        yes
 ping                            yes   yes        yes
+link_command                    yes              yes
 mode                            yes
 reset                           yes   yes        yes
 registers_read                  yes   yes        yes
@@ -32,6 +33,8 @@ wheel_set                       yes
 live_background                       yes
 ================  ============  ====  =========  =====
 
+``link_command`` (one raw frame, for conformance tests) may change anything, so not while
+streaming; in fault, so that a faulty unit can be examined.
 Register reads are harmless at any time the camera answers; writes and training change what the
 sensor sends, so they wait until the stream stops. ``stream_read`` (the ingest counters) needs no
 device; ``sim`` (scene, stage, fault injection of the simulated camera) changes only the world
@@ -67,6 +70,7 @@ class Request(StrEnum):
     TELEMETRY = "telemetry"
     EVENTS = "events"
     PING = "ping"
+    LINK_COMMAND = "link_command"
     MODE = "mode"
     RESET = "reset"
     REGISTERS_READ = "registers_read"
@@ -105,6 +109,7 @@ LEGAL: dict[Request, frozenset[State]] = {
     Request.TELEMETRY: _ALWAYS,
     Request.EVENTS: _ALWAYS,
     Request.PING: frozenset({State.IDLE, State.STREAMING, State.FAULT}),
+    Request.LINK_COMMAND: frozenset({State.IDLE, State.FAULT}),
     Request.MODE: frozenset({State.IDLE}),
     Request.RESET: frozenset({State.IDLE, State.STREAMING, State.FAULT}),
     Request.REGISTERS_READ: frozenset({State.IDLE, State.STREAMING, State.FAULT}),
@@ -135,6 +140,7 @@ _WHAT: dict[Request, str] = {
     Request.TELEMETRY: "read telemetry",
     Request.EVENTS: "read events",
     Request.PING: "ping the camera",
+    Request.LINK_COMMAND: "send a raw command",
     Request.MODE: "change the imaging mode",
     Request.RESET: "reset the camera",
     Request.REGISTERS_READ: "read sensor registers",

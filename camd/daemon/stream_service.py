@@ -40,6 +40,8 @@ from camd.daemon.errors import (
     unreachable,
 )
 from camd.daemon.models import (
+    StreamFrameHeader,
+    StreamHeadersResponse,
     StreamResponse,
     StreamStartRequest,
     StreamStats,
@@ -47,9 +49,9 @@ from camd.daemon.models import (
 from camd.daemon.sensor_service import SensorService
 from camd.daemon.state import Request, Trigger
 from camd.daemon.transaction import Apply
-from camd.link.frame_stream import FrameStream, ReceivedFrame, StreamError
+from camd.link.frame_stream import HEADER_LOG, FrameStream, ReceivedFrame, StreamError
 from camd.pipeline.background import Background, BackgroundCapture
-from camd.protocol.stream import HEADER_BYTES
+from camd.protocol.stream import HEADER_BYTES, StreamMode
 from camd.store.journal import close_recording
 from camd.store.recording import FrameRecorder, RecordingError, check_new_file
 
@@ -306,6 +308,34 @@ class StreamService:
         """The current or last stream and its counters."""
         self.device.require(Request.STREAM_READ)
         return self._response()
+
+    def headers(self) -> StreamHeadersResponse:
+        """The first headers of the current or last stream (``FrameStream.header_log``)."""
+        self.device.require(Request.STREAM_READ)
+        with self._lock:
+            reader = self._reader
+        log_ = [] if reader is None else reader.header_log()
+        return StreamHeadersResponse(
+            kept_max=HEADER_LOG,
+            frames=[
+                StreamFrameHeader(
+                    counter=h.counter,
+                    timestamp_ns=h.timestamp_ns,
+                    line_period_ns=h.line_period_ns,
+                    rows=h.rows,
+                    cols=h.cols,
+                    bits=h.bits,
+                    mode="tdi" if h.mode == StreamMode.TDI else "area",
+                    stages=h.stages,
+                    stage_position=h.stage_position,
+                    flags=int(h.flags),
+                    payload_bytes=h.payload_bytes,
+                    payload_crc32=h.payload_crc32,
+                    payload_crc32_host=computed,
+                )
+                for h, computed in log_
+            ],
+        )
 
     def start(self, request: StreamStartRequest, *, max_rows: int | None = None) -> StreamResponse:
         """Start a stream and return at once (``frames = 0``: until ``stop``). ``max_rows``:

@@ -9,6 +9,7 @@ from camd.link.command_link import (
     LinkDown,
     LinkError,
     Message,
+    RawExchange,
     Response,
     Unsolicited,
 )
@@ -29,6 +30,7 @@ __all__ = [
     "LinkDown",
     "LinkError",
     "Message",
+    "RawExchange",
     "ReceivedFrame",
     "Response",
     "StreamError",

@@ -75,6 +75,16 @@ class Response:
 
 
 @dataclass(frozen=True, slots=True)
+class RawExchange:
+    """What ``CommandLink.exchange`` got: the answer frames (two with ``repeat``), undecoded."""
+
+    seq: int
+    answers: list[Frame]
+    attempts: int  # frames sent in all, retries included
+    rtt_s: float
+
+
+@dataclass(frozen=True, slots=True)
 class Unsolicited:
     """A telemetry packet or an event from the device."""
 
@@ -257,39 +267,97 @@ class CommandLink:
         """
         spec = self.dictionary.command(command)
         payload = spec.encode_request(**fields)
+        with self._request_lock:
+            seq = self._next_seq()
+            t0 = time.perf_counter()
+            frame, attempts = self._send(spec.name, seq, spec.opcode, payload, timeout_s, retries)
+            return self._finish(spec.name, frame, attempts, t0)
+
+    def exchange(
+        self,
+        opcode: int,
+        payload: bytes,
+        *,
+        repeat: bool = False,
+        timeout_s: float | None = None,
+        retries: int | None = None,
+    ) -> RawExchange:
+        """Send one COMMAND frame with any opcode and payload, unchecked by the dictionary, and
+        return the device's answer frames undecoded (ACK or NAK alike): for conformance tests
+        of the device's own checks (docs/conformance.md). With ``repeat`` the identical frame
+        (same sequence number) is sent once more after the answer, as a retry after a lost
+        answer would be; the device must answer it from its at-most-once record.
+
+        Raises CommandTimeout and LinkDown as ``request`` does; ValueError for a payload above
+        the frame's maximum."""
+        if not 0 <= opcode <= 0xFF:
+            raise ValueError(f"opcode {opcode} is not a byte (0 .. 255)")
+        if len(payload) > MAX_PAYLOAD:
+            raise ValueError(f"payload of {len(payload)} bytes; a frame carries 0 .. {MAX_PAYLOAD}")
+        try:
+            name = self.dictionary.command(opcode).name
+        except KeyError:
+            name = f"opcode 0x{opcode:02X}"
+        with self._request_lock:
+            seq = self._next_seq()
+            t0 = time.perf_counter()
+            answers = [self._send(name, seq, opcode, payload, timeout_s, retries)]
+            if repeat:
+                answers.append(self._send(name, seq, opcode, payload, timeout_s, retries))
+            rtt_s = time.perf_counter() - t0
+        for frame, _ in answers:
+            if frame.type == FrameType.NAK:
+                self._counters.nacked += 1
+            else:
+                self._counters.acked += 1
+        return RawExchange(seq, [frame for frame, _ in answers], sum(n for _, n in answers), rtt_s)
+
+    def _next_seq(self) -> int:
+        """The next command's sequence number (request lock held)."""
+        seq = self._seq
+        self._seq = (self._seq + 1) & 0xFF
+        return seq
+
+    def _send(
+        self,
+        name: str,
+        seq: int,
+        opcode: int,
+        payload: bytes,
+        timeout_s: float | None,
+        retries: int | None,
+    ) -> tuple[Frame, int]:
+        """Send one command frame (request lock held), retrying the identical frame until an
+        answer comes; (the answer, attempts)."""
         wait_s = self.timeout_s if timeout_s is None else timeout_s
         attempts_max = 1 + (self.retries if retries is None else retries)
-        with self._request_lock:
-            seq = self._seq
-            self._seq = (self._seq + 1) & 0xFF
-            wire = encode_frame(FrameType.COMMAND, seq, spec.opcode, payload)
-            pending = _Pending(seq, spec.opcode)
-            t0 = time.perf_counter()
-            try:
-                with self._state_lock:
-                    self._pending = pending
-                for attempt in range(1, attempts_max + 1):
-                    if attempt > 1:
-                        self._counters.retries += 1
-                    self._write(wire)
-                    # `done` is set by the first answer to any attempt, or by the link's loss.
-                    if pending.done.wait(wait_s):
-                        if pending.frame is None:
-                            raise LinkDown(self._down_message())
-                        return self._finish(spec.name, pending.frame, attempt, t0)
-                    self._counters.timeouts += 1
-            except LinkDown:
-                self._counters.failed += 1
-                raise
-            finally:
-                with self._state_lock:
-                    self._pending = None
+        wire = encode_frame(FrameType.COMMAND, seq, opcode, payload)
+        pending = _Pending(seq, opcode)
+        try:
+            with self._state_lock:
+                self._pending = pending
+            for attempt in range(1, attempts_max + 1):
+                if attempt > 1:
+                    self._counters.retries += 1
+                self._write(wire)
+                # `done` is set by the first answer to any attempt, or by the link's loss.
+                if pending.done.wait(wait_s):
+                    if pending.frame is None:
+                        raise LinkDown(self._down_message())
+                    return pending.frame, attempt
+                self._counters.timeouts += 1
+        except LinkDown:
             self._counters.failed += 1
-            raise CommandTimeout(
-                f"{spec.name}: no answer from the device on {self.port} after {attempts_max} "
-                f"attempt(s) of {wait_s * 1e3:.0f} ms; check the cable and that the camera is "
-                "powered, or raise link.timeout_s / link.retries in the config"
-            )
+            raise
+        finally:
+            with self._state_lock:
+                self._pending = None
+        self._counters.failed += 1
+        raise CommandTimeout(
+            f"{name}: no answer from the device on {self.port} after {attempts_max} "
+            f"attempt(s) of {wait_s * 1e3:.0f} ms; check the cable and that the camera is "
+            "powered, or raise link.timeout_s / link.retries in the config"
+        )
 
     def _finish(self, command: str, frame: Frame, attempts: int, t0: float) -> Response:
         rtt_s = time.perf_counter() - t0

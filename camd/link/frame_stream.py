@@ -70,6 +70,7 @@ INITIAL_SLOTS = 3
 DISPATCH_BURST = 16
 DISPATCH_BURST_BYTES = 256 << 10
 DISPATCH_WAIT_S = 0.002
+HEADER_LOG = 256  # headers kept per run for header_log() (docs/conformance.md)
 _MAX_CONSECUTIVE_ERRORS = 10
 # The flag values with LAST set: a set lookup, where ``flags & FrameFlags.LAST`` makes a flag.
 _WITH_LAST = frozenset(
@@ -240,6 +241,10 @@ class FrameStream:
         self._broken_before_first = 0  # broken transfers before the first good header
         self._last_delivered: int | None = None
         self._end: int | None = None  # expect_end's counter, until accounted
+        # The first HEADER_LOG headers of the run that passed the header checks, with the
+        # payload CRC the host computed (the frames a payload CRC rejected too): the evidence
+        # of docs/conformance.md's stream checks, which must not depend on the CRCs.
+        self._header_log: list[tuple[FrameHeader, int]] = []
         self._stopping = threading.Event()
         self._reader: threading.Thread | None = None
         self._dispatcher: threading.Thread | None = None
@@ -431,6 +436,7 @@ class FrameStream:
             self._broken_before_first = 0
             self._last_delivered = None
             self._end = None
+            self._header_log = []
             self._t_start = time.monotonic()
             self._t_stop = None
             self._t_last_frame = None
@@ -485,6 +491,12 @@ class FrameStream:
                     self._stats.lost += max(0, missing - self._broken_before_first)
                     self._broken_before_first = 0
             self._cond.notify_all()
+
+    def header_log(self) -> list[tuple[FrameHeader, int]]:
+        """The first ``HEADER_LOG`` frames of the run whose header passed its checks, in
+        order, each with the payload CRC-32 the host computed (it differs from the header's for
+        a frame the payload CRC rejected)."""
+        return list(self._header_log)
 
     def wait_drained(self, timeout_s: float) -> bool:
         """Wait until the stream's end (``expect_end``) is accounted and every queued frame is
@@ -839,7 +851,10 @@ class FrameStream:
     ) -> bool:
         """Check the payload CRC, then call every consumer; False if the CRC mismatched."""
         payload = slot.view[HEADER_BYTES : HEADER_BYTES + header.payload_bytes]
-        if payload_crc32(payload) != header.payload_crc32:
+        computed = payload_crc32(payload)
+        if len(self._header_log) < HEADER_LOG:  # only the dispatcher appends
+            self._header_log.append((header, computed))
+        if computed != header.payload_crc32:
             self.problem = f"frame {header.counter}: payload CRC mismatch"
             return False
         last = self._last_delivered
