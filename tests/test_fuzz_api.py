@@ -30,8 +30,10 @@ from tests.test_sensor_stack import serve
 
 pytest.importorskip("schemathesis")
 
-# Acquisitions stream frames: alone under xdist (tests/conftest.py).
-pytestmark = pytest.mark.exclusive
+# Not ``exclusive``: nothing here depends on keeping up with the camera. Its acquisitions take
+# at most 4 frames of a 16-row window, and a frame lost to a busy machine is counted in the
+# answer, not an error; the checks are the answers' codes and bodies, a generous timeout, and
+# device snapshots around refusals.
 
 REQUESTS = 500  # about 9 per operation; some 30-60 s on two cores
 
