@@ -7,6 +7,7 @@ other and with the sensor's timing (no threshold on a rate).
 from __future__ import annotations
 
 import argparse
+import os
 
 import pytest
 
@@ -32,7 +33,10 @@ def test_a_case_reports_frames_against_the_line_rate_m_rows_allow(kind: str) -> 
     assert case["mbyte_per_s"] == pytest.approx(
         case["frames_per_s"] * case["frame_bytes"] / 1e6, rel=0.05
     )
-    assert 0 < case["engine_cpu_cores"] <= 1.05
+    # One thread uses at most one core; Linux counts its CPU time in clock ticks, user and
+    # system apart, so two readings 0.3 s apart may be a few ticks off (1.062 seen once).
+    ticks_s = 3 / os.sysconf("SC_CLK_TCK")
+    assert 0 < case["engine_cpu_cores"] <= 1.0 + ticks_s / case["seconds"]
 
 
 def test_a_window_of_one_row_still_takes_two_line_periods() -> None:

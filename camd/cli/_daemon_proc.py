@@ -13,6 +13,7 @@ file in the data directory so that a chatty daemon never blocks on a full pipe::
 from __future__ import annotations
 
 import collections
+import json
 import os
 import re
 import subprocess
@@ -266,3 +267,24 @@ def _child_env(overrides: Mapping[str, str] | None) -> dict[str, str]:
     if overrides:
         env.update(overrides)
     return env
+
+
+def start_sim_daemon(
+    data_dir: Path, profile: str, *, seed: int | None = None, defects: Sequence[str] = ()
+) -> DaemonProcess:
+    """``camd serve --sim`` simulating camera ``profile`` (with ``seed`` and the deliberate
+    ``defects`` when given), its config, data and log in ``data_dir``; started. What
+    ``camctl campaign run --sim`` and ``camd conform --sim`` run on. DaemonStartError if it
+    does not start."""
+    data_dir.mkdir(parents=True, exist_ok=True)
+    lines = ["[sim]", f"profile = {json.dumps(profile)}"]
+    if seed is not None:
+        lines.append(f"seed = {int(seed)}")
+    if defects:
+        lines.append(f"defects = {json.dumps(list(defects))}")
+    lines += ["[sensor]", f"name = {json.dumps(profile)}"]
+    config = data_dir / "camd.toml"
+    config.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    daemon = DaemonProcess(data_dir, extra_args=["--config", str(config)], env={"CAMD_TOKEN": ""})
+    daemon.start()
+    return daemon

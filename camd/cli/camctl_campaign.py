@@ -231,19 +231,10 @@ def run_on_own_sim(
     the runner's errors otherwise (``camd demo`` runs its campaigns this way too)."""
     from camd.campaign.runner import CampaignRunner
     from camd.campaign.spec import CampaignError
-    from camd.cli._daemon_proc import DaemonProcess, DaemonStartError
+    from camd.cli._daemon_proc import DaemonStartError, start_sim_daemon
 
-    data = out_dir.resolve() / "daemon"
-    data.mkdir(parents=True, exist_ok=True)
-    config = data / "camd.toml"
-    config.write_text(
-        f'[sim]\nprofile = "{spec.profile}"\nseed = {spec.seed}\n'
-        f'[sensor]\nname = "{spec.profile}"\n',
-        encoding="utf-8",
-    )
-    daemon = DaemonProcess(data, extra_args=["--config", str(config)], env={"CAMD_TOKEN": ""})
     try:
-        daemon.start()
+        daemon = start_sim_daemon(out_dir.resolve() / "daemon", spec.profile, seed=spec.seed)
     except DaemonStartError as exc:
         raise CampaignError(f"the simulated camera did not start: {exc}") from None
     try:

@@ -111,19 +111,12 @@ def conform(client: CamdClient | None, args: argparse.Namespace) -> dict[str, An
 
     if client is not None:
         return run(client)
-    from camd.cli._daemon_proc import DaemonProcess, DaemonStartError
+    from camd.cli._daemon_proc import DaemonStartError, start_sim_daemon
 
-    data = out_dir.resolve() / "daemon"
-    data.mkdir(parents=True, exist_ok=True)
-    config = data / "camd.toml"
-    config.write_text(
-        f'[sim]\nprofile = "{args.profile}"\ndefects = {json.dumps(args.defect)}\n'
-        f'[sensor]\nname = "{args.profile}"\n',
-        encoding="utf-8",
-    )
-    daemon = DaemonProcess(data, extra_args=["--config", str(config)], env={"CAMD_TOKEN": ""})
     try:
-        daemon.start()
+        daemon = start_sim_daemon(
+            out_dir.resolve() / "daemon", args.profile, defects=list(args.defect or ())
+        )
     except DaemonStartError as exc:
         raise RuntimeError(f"the simulated camera did not start: {exc}") from None
     try:
