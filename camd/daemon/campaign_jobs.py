@@ -32,11 +32,13 @@ import sys
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
+
+from pydantic import ValidationError
 
 from camd.daemon.errors import BadRequest, Busy, NotFound, NotInControl, WrongState
+from camd.daemon.models import CampaignJob, CampaignJobState
 
 __all__ = ["ACTIVE", "CampaignJobs", "Job", "worker_client"]
 
@@ -53,7 +55,13 @@ LOG_TAIL_CHARS = 600
 ACTIVE = ("running", "pausing", "aborting")
 RESUMABLE = ("paused", "error", "interrupted")
 # worker exit status -> the job's state (camd.campaign.worker's exit statuses)
-EXIT_STATES = {0: "passed", 1: "failed", 3: "paused", 4: "aborted", 130: "interrupted"}
+EXIT_STATES: dict[int, CampaignJobState] = {
+    0: "passed",
+    1: "failed",
+    3: "paused",
+    4: "aborted",
+    130: "interrupted",
+}
 
 Events = Callable[[str, str, str], None]
 
@@ -63,34 +71,16 @@ def worker_client(job_id: int) -> str:
     return f"campaign-job-{job_id}"
 
 
-@dataclass
-class Job:
-    """One campaign job, as jobs.json keeps it and GET /api/v1/campaigns/jobs shows it."""
+class Job(CampaignJob):
+    """One campaign job as jobs.json keeps it: the API's document (``public``) and what only
+    the daemon needs, the worker's pid and start time and whether to resume at start."""
 
-    id: int
-    campaign: str
-    profile: str
-    file: str
-    out_dir: str
-    quick: bool
-    started_by: str
-    state: str
-    steps: int | None
-    created_t_s: float
-    requested: str | None = None  # "pause" or "abort", for the worker to see
-    run_time_s: float = 0.0  # the workers' wall time, summed over pauses and resumes
-    runs: int = 0  # workers started (1 + resumes)
-    message: str | None = None
-    passed: bool | None = None
-    report: str | None = None
     pid: int | None = None
     resume_on_start: bool = False
-    started_t_s: float | None = field(default=None)  # the running worker's start
+    started_t_s: float | None = None  # the running worker's start
 
     def public(self) -> dict[str, Any]:
-        doc = asdict(self)
-        for private in ("pid", "resume_on_start", "started_t_s"):
-            doc.pop(private)
+        doc = self.model_dump(exclude={"pid", "resume_on_start", "started_t_s"})
         if self.started_t_s is not None:  # the running worker's time so far
             doc["run_time_s"] = self.run_time_s + max(0.0, time.time() - self.started_t_s)
         return doc
@@ -187,6 +177,12 @@ class CampaignJobs:
                 state="running",
                 steps=checked.get("steps"),
                 created_t_s=time.time(),
+                requested=None,
+                run_time_s=0.0,
+                runs=0,
+                message=None,
+                passed=None,
+                report=None,
             )
             before_spawn(job_id)
             self._jobs[job_id] = job
@@ -244,7 +240,9 @@ class CampaignJobs:
                 return job.public()
         return self._ask(job_id, "abort", client, force)
 
-    def _ask(self, job_id: int, what: str, client: str, force: bool) -> dict[str, Any]:
+    def _ask(
+        self, job_id: int, what: Literal["pause", "abort"], client: str, force: bool
+    ) -> dict[str, Any]:
         with self._lock:
             job = self._get(job_id)
             if job.state == "aborting" or (job.state == "pausing" and what == "pause"):
@@ -478,15 +476,15 @@ class CampaignJobs:
         if doc.get("format") != JOBS_FORMAT or doc.get("version") != JOBS_VERSION:
             return
         for entry in doc.get("jobs", []):
-            with contextlib.suppress(TypeError):
-                job = Job(**entry)
+            with contextlib.suppress(ValidationError):
+                job = Job.model_validate(entry)
                 self._jobs[job.id] = job
 
     def _save(self) -> None:
         doc = {
             "format": JOBS_FORMAT,
             "version": JOBS_VERSION,
-            "jobs": [asdict(job) for job in self._jobs.values()],
+            "jobs": [job.model_dump() for job in self._jobs.values()],
         }
         self._dir.mkdir(parents=True, exist_ok=True)
         tmp = self._path.with_suffix(".json.tmp")
