@@ -222,15 +222,16 @@ def test_client_home_outlasts_the_request_timeout(client: CamdClient) -> None:
 
 def test_camctl_move_and_home_outlast_the_request_timeout(daemon: DaemonProcess) -> None:
     url = daemon.url
+    # 150 mm at 50 mm/s: 3 s, half as long again as the request timeout.
     with CamdClient(url) as client:
-        go_to(client, 0.44)
+        go_to(client, 0.29)
     piped = camctl_piped(url, "stage", "move", "0.14", "--speed-m-s", repr(SLOW_M_S))
     assert piped.returncode == 0, piped.stderr
     assert piped.stderr == ""  # not a terminal: no progress, nothing but the result
     assert piped.stdout.splitlines()[1].startswith("position 140.0000 mm (encoder 140.0000 mm)")
 
     with CamdClient(url) as client:
-        go_to(client, 0.44)
+        go_to(client, 0.29)
     code, shown = camctl_on_pty(url, "stage", "move", "0.14", "--speed-m-s", repr(SLOW_M_S))
     assert code == 0, shown
     # The progress bar: what, how far, where to, how long still.
