@@ -110,7 +110,9 @@ def _shipped() -> list[Path]:
 
 
 def _shipped_names() -> str:
-    return ", ".join(p.stem for p in _shipped())
+    from camd.campaign.catalog import shipped_names
+
+    return shipped_names()
 
 
 def check_out_dir(out_dir: Path) -> None:
@@ -135,7 +137,8 @@ def check_out_dir(out_dir: Path) -> None:
 
 
 def cmd_campaign(client: CamdClient, args: argparse.Namespace) -> Any:
-    from camd.campaign.spec import CampaignError, check_campaign, load_campaign
+    from camd.campaign.catalog import load_any
+    from camd.campaign.spec import CampaignError
     from camd.cli.camctl_sensor import CommandFailed, UsageError
 
     if args.action == "list":
@@ -152,19 +155,11 @@ def cmd_campaign(client: CamdClient, args: argparse.Namespace) -> Any:
         )
     # The whole file, with the parameters substituted, before anything is done (a Python
     # plan's steps are checked as it yields them).
-    plan = None
-    spec: CampaignSpec
     try:
-        if path.suffix == ".py":
-            from camd.campaign.plan import load_plan
-
-            plan = load_plan(path)
-            spec = plan.spec
-        else:
-            spec = load_campaign(path)
-            check_campaign(spec, path, quick=args.quick)
+        loaded = load_any(str(path), quick=args.quick)
     except CampaignError as exc:
         raise UsageError(str(exc)) from None
+    spec, plan = loaded.spec, loaded.plan
     out_dir = Path(args.out)
     if args.resume and not (out_dir / "state.json").exists():
         raise UsageError(f"--resume: {out_dir / 'state.json'} does not exist; nothing to resume")
