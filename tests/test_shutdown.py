@@ -1,7 +1,7 @@
 """The daemon's ordered shutdown: stopped in the middle of a scan, a stare and a stream, the way
 systemd stops it (SIGTERM to the whole process group, so the simulated camera dies with it),
-6 times each in the suite (CAMD_SHUTDOWN_RUNS=20 for the full run); and once each by SIGINT, by SIGTERM to the daemon alone, and after its camera
-died first.
+6 times each in the suite (CAMD_SHUTDOWN_RUNS=20 for the full run); and once each by SIGINT,
+by SIGTERM to the daemon alone, and after its camera died first.
 
 Every time: exit status 0, no traceback and no crash in the log, the file (if any) opens and
 holds exactly the lines or frames the log says were written, and the log's last line is the
@@ -28,7 +28,7 @@ from camd.store.recording import read_recording
 from camd.store.tdi_recording import read_tdi_scan
 
 REPO_ROOT = str(Path(__file__).resolve().parent.parent)
-RUNS = int(os.environ.get("CAMD_SHUTDOWN_RUNS", "6"))  # CAMD_SHUTDOWN_RUNS=20: the acceptance run
+RUNS = int(os.environ.get("CAMD_SHUTDOWN_RUNS", "6"))
 WAIT_S = 120.0  # generous: the suite runs on a busy 2-core machine
 # systemd's TimeoutStopSec in the shipped unit: the daemon must always stop within it.
 STOP_BOUND_S = float(

@@ -3,8 +3,8 @@
 A move or a homing answers at once with the device's estimate of its duration
 (``operation.expected_duration_s`` in the motion document); ``CamdClient.move_stage`` /
 ``home_stage`` and ``camctl stage move`` / ``home`` then poll GET /api/v1/motion until the stage
-stands, for as long as the estimate says. Here every move lasts 6 to 12 s on the simulated
-linear rail (config/stages/linear_rail.toml: 0.5 m/s^2 ramps, homing at 20 mm/s), three to six
+stands, for as long as the estimate says. Here every move lasts 3 to 12 s on the simulated
+linear rail (config/stages/linear_rail.toml: 0.5 m/s^2 ramps, homing at 20 mm/s), 1.5 to 6
 times the client's per-request timeout of 2 s, which the old blocking request could not
 outlast. camctl runs as a user runs it: piped (no progress, the same final output) and under a
 pseudo-terminal (a progress bar; Ctrl-C stops the wait, not the stage).
