@@ -235,6 +235,9 @@ class TelemetryResponse(TypedDict):
     samples: int
     # path of the SQLite archive
     archive: str
+    # why the archive cannot be written now (a full disk, a read-only or corrupt file), null while
+    # it can: the limits are still checked and the events kept in memory
+    archive_error: str | None
 
 
 class HistoryResponse(TypedDict):

@@ -10,7 +10,9 @@ from pathlib import Path
 import pytest
 
 from camd.daemon.config import ChannelLimits
-from camd.daemon.telemetry import Level, LimitChecker, TelemetryArchive, classify
+from camd.daemon.errors import ArchiveUnreadable
+from camd.daemon.telemetry import GuardedArchive, Level, LimitChecker, TelemetryArchive, classify
+from tests.crash_support import fill_disk, small_disk
 
 TEMP = ChannelLimits(yellow=(0.0, 70.0), red=(-20.0, 85.0))
 VOLT = ChannelLimits(yellow=(3.2, 3.4), red=(3.1, 3.5))
@@ -207,3 +209,80 @@ def test_prune_deletes_only_samples_older_than_the_cutoff(tmp_path: Path) -> Non
         assert arch.count() == 100
         assert min(t for (t,) in sqlite3.connect(path).execute("SELECT t_s FROM samples")) == 50.0
         assert [e.message for e in arch.events()] == ["kept"]
+
+
+# -- GuardedArchive: an archive on a disk that fills up and empties again -------------------------
+
+
+class _Clock:
+    def __init__(self) -> None:
+        self.t_s = 0.0
+
+    def __call__(self) -> float:
+        return self.t_s
+
+
+def test_a_full_disk_is_said_once_events_are_kept_and_archived_when_space_returns(
+    tmp_path: Path,
+) -> None:
+    """The archive on a real 1 MiB tmpfs filled to the last page: writes never raise, the
+    failure is said once, events are kept and shown, samples missed are counted, and once the
+    space is back (and a retry is due) the kept events are archived and the recovery said."""
+    said: list[tuple[str, str]] = []
+    clock = _Clock()
+    with small_disk(tmp_path / "disk", 1) as disk:
+        guard = GuardedArchive(
+            TelemetryArchive(disk / "telemetry.sqlite"),
+            lambda level, message: said.append((level, message)),
+            clock,
+        )
+        try:
+            guard.add_samples(1.0, {"a": 1.0}, "tlm", {"a": "V"})
+            guard.add_event("info", "test", "before", t_s=1.0)
+            assert guard.failing is None and said == []
+            fill_disk(disk)
+            # Samples each add rows: one of these finds the disk full (SQLite may still fit a
+            # few rows into pages it holds).
+            for i in range(2, 400):
+                guard.add_samples(float(i), {"a": float(i)}, "tlm", {"a": "V"})
+                if guard.failing is not None:
+                    break
+            assert guard.failing is not None and "full" in guard.failing, guard.failing
+            assert len(said) == 1 and said[0][0] == "warning"
+            assert "cannot be written" in said[0][1] and "limits are still checked" in said[0][1]
+            archived_before = guard.count()
+            for i in range(5):  # kept in memory, no retry due: no second warning
+                guard.add_event("error", "limits", f"red {i}", t_s=1000.0 + i)
+                guard.add_samples(1000.0 + i, {"a": 9.0}, "tlm", {"a": "V"})
+            assert len(said) == 1 and guard.count() == archived_before
+            shown = [e.message for e in guard.events(3)]
+            assert shown == ["red 2", "red 3", "red 4"]
+            clock.t_s += 10.0  # a retry is due, but the disk is still full
+            guard.add_event("error", "limits", "red 5", t_s=1005.0)
+            assert guard.failing is not None and len(said) == 1
+            (disk / "filler").unlink()
+            guard.add_samples(1006.0, {"a": 1.0}, "tlm", {"a": "V"})
+            assert guard.failing is not None  # the next retry is not due yet
+            clock.t_s += 10.0
+            guard.add_samples(1007.0, {"a": 1.0}, "tlm", {"a": "V"})
+            assert guard.failing is None
+            assert said[1][0] == "info" and "written again" in said[1][1]
+            assert " samples of that time are not" in said[1][1]
+            # Every event kept is in the file now, in time order.
+            archived = [e.message for e in guard.archive.events(100)]
+            assert archived[-6:] == [f"red {i}" for i in range(6)]
+            assert archived[0] == "before"
+        finally:
+            guard.close()
+
+
+def test_an_unreadable_archive_is_a_clear_error(tmp_path: Path) -> None:
+    path = tmp_path / "telemetry.sqlite"
+    guard = GuardedArchive(TelemetryArchive(path), lambda level, message: None)
+    guard.archive.close()  # what a corrupt file looks like to a read: sqlite3 raises
+    with pytest.raises(ArchiveUnreadable, match=r"cannot be read .* move it aside"):
+        guard.history("a")
+    with pytest.raises(ArchiveUnreadable):
+        guard.events(10)
+    guard.add_event("warning", "test", "kept", t_s=5.0)  # never raises
+    assert [e.message for e in guard.events(10)] == ["kept"]

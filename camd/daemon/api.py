@@ -42,6 +42,7 @@ from camd import web
 from camd.daemon.acquisition import acting_as
 from camd.daemon.control import ANONYMOUS
 from camd.daemon.errors import (
+    ArchiveUnreadable,
     BadRequest,
     Busy,
     DeviceRejected,
@@ -140,6 +141,7 @@ ERROR_MAP: list[tuple[type[Exception], int, str]] = [
     (NotInControl, 423, "not_in_control"),
     (DeviceRejected, 502, "device_nak"),
     (Disconnected, 503, "disconnected"),
+    (ArchiveUnreadable, 503, "archive_unreadable"),
     (DeviceTimeout, 504, "timeout"),
 ]
 

@@ -56,6 +56,11 @@ class LinkUntrained(SessionError):
     """Imaging refused: the sensor's LVDS link is not trained (HTTP 409)."""
 
 
+class ArchiveUnreadable(SessionError):
+    """The telemetry archive cannot be read (a corrupt file) (HTTP 503); its writes go on
+    failing quietly, the limits are still checked (camd.daemon.telemetry.GuardedArchive)."""
+
+
 class Busy(SessionError):
     """Refused because an acquisition (scan, stare, stream, wheel run) is running (HTTP 409);
     the message names it and the command that stops it."""

@@ -410,6 +410,11 @@ class TelemetryResponse(BaseModel):
     latest: dict[str, ChannelLatest]
     samples: int = Field(description="samples in the archive")
     archive: str = Field(description="path of the SQLite archive")
+    archive_error: str | None = Field(
+        default=None,
+        description="why the archive cannot be written now (a full disk, a read-only or corrupt "
+        "file), null while it can: the limits are still checked and the events kept in memory",
+    )
 
 
 class HistoryResponse(BaseModel):

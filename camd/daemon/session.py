@@ -79,7 +79,7 @@ from camd.daemon.sim_supervisor import RestartPolicy, SimSupervisor
 from camd.daemon.simulator import SimulatorProcess
 from camd.daemon.state import Request, State, Trigger
 from camd.daemon.stream_service import StreamService
-from camd.daemon.telemetry import LimitChecker, TelemetryArchive, classify
+from camd.daemon.telemetry import GuardedArchive, LimitChecker, TelemetryArchive, classify
 from camd.daemon.transaction import Apply
 from camd.daemon.wheel_service import WheelService
 from camd.link import (
@@ -146,7 +146,7 @@ class DeviceSession:
         self.checker = LimitChecker(config.telemetry.limits)
         self.sim_process: SimulatorProcess | None = None
         self.sim_supervisor: SimSupervisor | None = None
-        self.archive: TelemetryArchive | None = None
+        self.archive: GuardedArchive | None = None
         self.device = DeviceAccess(config, self.dictionary, self._event)
         self.machine = self.device.machine
 
@@ -159,6 +159,7 @@ class DeviceSession:
         self._stop_stage_on_connect = False  # a scan was cut off: see _recover_recordings
         self._poll_error: str | None = None
         self._last_values: dict[str, float] = {}
+        self._last_t_s: dict[str, float] = {}  # when each channel's last value was taken
         self._red_lock = threading.Lock()
         self._red_acknowledged: set[str] = set()
         device = self.device
@@ -220,7 +221,10 @@ class DeviceSession:
         data directory or the archive cannot be written.
         """
         self.config.daemon.data_dir.mkdir(parents=True, exist_ok=True)
-        self.archive = TelemetryArchive(self.config.archive_path)
+        self.archive = GuardedArchive(
+            TelemetryArchive(self.config.archive_path),
+            lambda level, message: self._event(level, "telemetry", message),
+        )
         self._event("info", "daemon", f"camd {camd.__version__} started (pid {os.getpid()})")
         self._recover_recordings()
         self.sim_process = backends.simulator_process(self.config)
@@ -655,19 +659,35 @@ class DeviceSession:
         return LinkResponse(host=host, device=device)
 
     def telemetry(self) -> TelemetryResponse:
-        """Latest archived value of every channel with its limit level, and the archive size."""
+        """Latest value of every channel with its limit level (this run's, from memory, so
+        that they stay current while the archive cannot be written; before the first sample,
+        the archive's), the archive's size and why it cannot be written, if it cannot."""
         archive = self._archive()
+        seen: dict[str, tuple[float, float]] = {
+            ch: (self._last_values[ch], self._last_t_s[ch])
+            for ch in list(self._last_t_s)
+            if ch in self._last_values
+        }
+        if len(seen) < len(self.channels):
+            with contextlib.suppress(SessionError):  # an unreadable archive: what we have
+                for channel, sample in archive.latest(self.channels).items():
+                    seen.setdefault(channel, (sample.value, sample.t_s))
         latest = {}
-        for channel, sample in archive.latest(self.channels).items():
+        for channel, (value, t_s) in seen.items():
             limits = self.config.telemetry.limits.get(channel)
-            level = classify(sample.value, limits).value if limits is not None else "ok"
+            level = classify(value, limits).value if limits is not None else "ok"
             latest[channel] = ChannelLatest(
-                value=sample.value,
-                unit=self.channels.get(channel, sample.unit),
-                t_s=sample.t_s,
+                value=value,
+                unit=self.channels.get(channel, ""),
+                t_s=t_s,
                 limit=cast(Any, level),
             )
-        return TelemetryResponse(latest=latest, samples=archive.count(), archive=str(archive.path))
+        return TelemetryResponse(
+            latest=latest,
+            samples=archive.count(),
+            archive=str(archive.path),
+            archive_error=archive.failing,
+        )
 
     def history(self, channel: str, since_s: float = 0.0, limit: int = 1000) -> HistoryResponse:
         """Archived samples of ``channel``, oldest first; ``since_s`` < 0 means "seconds ago"."""
@@ -785,7 +805,7 @@ class DeviceSession:
 
     # -- internals: requests and state ----------------------------------------------------------
 
-    def _archive(self) -> TelemetryArchive:
+    def _archive(self) -> GuardedArchive:
         if self.archive is None:
             raise RuntimeError("the session is not started")
         return self.archive
@@ -803,10 +823,7 @@ class DeviceSession:
         getattr(log, "error" if level == "error" else level)("%s: %s", source, message)
         archive = self.archive
         if archive is not None:
-            try:
-                archive.add_event(level, source, message, t_s)
-            except Exception:  # a full disk must not take the link thread down
-                log.exception("cannot archive event %r", message)
+            archive.add_event(level, source, message, t_s)  # never raises (GuardedArchive)
 
     # -- internals: link messages (reader thread) -----------------------------------------------
 
@@ -854,18 +871,22 @@ class DeviceSession:
             self._event("info", "device", f"{message.name} {dict(values)}", message.t_s)
 
     def _record_sample(self, values: Mapping[str, FieldValue], t_s: float, source: str) -> None:
+        """Limits first, then the archive: an archive that cannot be written (a full disk)
+        must not keep a red limit from tripping (``GuardedArchive`` never raises)."""
         numeric = {
             k: float(v)
             for k, v in values.items()
             if isinstance(v, int | float) and k in self.channels
         }
         self._last_values.update(numeric)
-        self._archive().add_samples(t_s, numeric, source, self.channels)
+        for channel in numeric:
+            self._last_t_s[channel] = t_s
         for change in self.checker.check(numeric, t_s):
             limits = self.config.telemetry.limits[change.channel]
             unit = self.channels.get(change.channel, "")
             self._event(change.level, "limits", change.message(limits, unit), t_s)
         self._check_red()
+        self._archive().add_samples(t_s, numeric, source, self.channels)
 
     def _check_red(self) -> None:
         """Trip to fault on a red channel that the operator has not acknowledged with a reset."""

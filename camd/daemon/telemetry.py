@@ -7,20 +7,29 @@ daemon's threads behind a lock: writes are a few rows per second, far below SQLi
 
 ``LimitChecker`` classifies each value as ok / yellow / red against the configured ranges and
 reports a ``LimitEvent`` only when a channel's level changes, not on every sample.
+
+``GuardedArchive`` is what the daemon writes through: an archive that cannot be written (a full
+disk, a read-only or corrupt file) must not silence the limits, so its writes never raise. The
+first failure is said once (a warning event), events are kept in memory meanwhile (and shown by
+``events``) and written when the archive takes writes again, which is tried at most every
+``RETRY_S``; samples of that time are not archived (the latest values stay in the daemon's
+memory), and the recovery is said with the gap's length.
 """
 
 from __future__ import annotations
 
+import collections
 import math
 import sqlite3
 import threading
 import time
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from enum import StrEnum
 from pathlib import Path
 
 from camd.daemon.config import ChannelLimits
+from camd.daemon.errors import ArchiveUnreadable
 
 SCHEMA = """
 CREATE TABLE IF NOT EXISTS samples (
@@ -306,3 +315,191 @@ class LimitChecker:
         """Forget the levels (a new device session starts from ok)."""
         with self._lock:
             self._levels.clear()
+
+
+# -- writes that never raise -------------------------------------------------------------------
+
+PENDING_EVENTS_MAX = 10_000  # events kept in memory while the archive cannot take them
+RETRY_S = 2.0  # a failing archive is tried again at most this often
+ARCHIVE_ERRORS = (sqlite3.Error, OSError)
+
+
+class GuardedArchive:
+    """The daemon's telemetry archive, whose writes never raise (module docstring).
+
+    ``notify(level, message)`` is told when writing starts to fail and when it works again;
+    it is called outside the guard's lock and may write an event (which is then kept in
+    memory). Reads of an archive that cannot be read raise ``ArchiveUnreadable``.
+    """
+
+    def __init__(
+        self,
+        archive: TelemetryArchive,
+        notify: Callable[[str, str], None],
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.archive = archive
+        self._notify = notify
+        self._clock = clock
+        self._lock = threading.Lock()
+        self._pending: collections.deque[Event] = collections.deque(maxlen=PENDING_EVENTS_MAX)
+        self._dropped_events = 0  # pending events pushed out of the full queue
+        self._failing: str | None = None
+        self._failed_since_t_s = 0.0
+        self._samples_missed = 0
+        self._next_try = 0.0
+
+    @property
+    def path(self) -> Path:
+        return self.archive.path
+
+    @property
+    def failing(self) -> str | None:
+        """Why the archive cannot be written now (None while it can)."""
+        return self._failing
+
+    def close(self) -> None:
+        """Write what is kept in memory if the archive takes it, then close it."""
+        with self._lock:
+            if self._pending:
+                self._try_flush()
+        self.archive.close()
+
+    # -- writing --------------------------------------------------------------------------------
+
+    def add_samples(
+        self, t_s: float, values: Mapping[str, float], source: str, units: Mapping[str, str]
+    ) -> None:
+        """Archive one sample of each channel, or count it as missed while the archive fails."""
+        said: tuple[str, str] | None = None
+        with self._lock:
+            if self._failing is not None and not self._retry_due():
+                self._samples_missed += 1
+                return
+            try:
+                self._try_flush()
+                self.archive.add_samples(t_s, values, source, units)
+            except ARCHIVE_ERRORS as exc:
+                self._samples_missed += 1
+                said = self._failed(exc)
+            else:
+                said = self._recovered()
+        if said is not None:
+            self._notify(*said)
+
+    def add_event(self, level: str, source: str, message: str, t_s: float | None = None) -> None:
+        """Archive an event, or keep it in memory until the archive takes it."""
+        event = Event(time.time() if t_s is None else t_s, level, source, message)
+        said: tuple[str, str] | None = None
+        with self._lock:
+            if self._failing is not None and not self._retry_due():
+                self._keep(event)
+                return
+            try:
+                self._try_flush()
+                self.archive.add_event(event.level, event.source, event.message, event.t_s)
+            except ARCHIVE_ERRORS as exc:
+                self._keep(event)
+                said = self._failed(exc)
+            else:
+                said = self._recovered()
+        if said is not None:
+            self._notify(*said)
+
+    def prune(self, before_t_s: float) -> int:
+        """Delete samples older than ``before_t_s`` (0 while the archive fails)."""
+        with self._lock:
+            if self._failing is not None:
+                return 0
+            try:
+                return self.archive.prune(before_t_s)
+            except ARCHIVE_ERRORS:
+                return 0  # the next write finds out and says so
+
+    def _keep(self, event: Event) -> None:
+        if len(self._pending) == self._pending.maxlen:
+            self._dropped_events += 1
+        self._pending.append(event)
+
+    def _retry_due(self) -> bool:
+        now = self._clock()
+        if now < self._next_try:
+            return False
+        self._next_try = now + RETRY_S
+        return True
+
+    def _try_flush(self) -> None:
+        """Write the events kept in memory, oldest first; each leaves the queue once written."""
+        while self._pending:
+            e = self._pending[0]
+            self.archive.add_event(e.level, e.source, e.message, e.t_s)
+            self._pending.popleft()
+
+    def _failed(self, exc: BaseException) -> tuple[str, str] | None:
+        first = self._failing is None
+        self._failing = f"{type(exc).__name__}: {exc}"
+        self._next_try = self._clock() + RETRY_S
+        if not first:
+            return None
+        self._failed_since_t_s = time.time()
+        return (
+            "warning",
+            f"telemetry archive {self.path} cannot be written ({self._failing}): free space "
+            "on its disk or check the file; meanwhile the limits are still checked, the latest "
+            "values and the events are kept in memory, and samples are not archived",
+        )
+
+    def _recovered(self) -> tuple[str, str] | None:
+        if self._failing is None:
+            return None
+        gap_s = time.time() - self._failed_since_t_s
+        missed, dropped = self._samples_missed, self._dropped_events
+        self._failing, self._samples_missed, self._dropped_events = None, 0, 0
+        lost = (
+            f"; {dropped} events were lost (more than {PENDING_EVENTS_MAX} kept)" if dropped else ""
+        )
+        return (
+            "info",
+            f"telemetry archive {self.path} written again after {gap_s:.0f} s: the events kept "
+            f"in memory are archived, {missed} samples of that time are not{lost}",
+        )
+
+    # -- reading --------------------------------------------------------------------------------
+
+    def events(self, limit: int = 100) -> list[Event]:
+        """The newest ``limit`` events, archived or kept in memory, newest last."""
+        with self._lock:
+            pending = list(self._pending)
+        try:
+            archived = self.archive.events(limit)
+        except ARCHIVE_ERRORS as exc:
+            if not pending:
+                raise _unreadable(self.path, exc) from None
+            archived = []
+        merged = sorted(archived + pending, key=lambda e: e.t_s)
+        return merged[-limit:] if limit > 0 else []
+
+    def latest(self, channels: Iterable[str] | None = None) -> dict[str, Sample]:
+        try:
+            return self.archive.latest(channels)
+        except ARCHIVE_ERRORS as exc:
+            raise _unreadable(self.path, exc) from None
+
+    def history(
+        self, channel: str, since_s: float = 0.0, limit: int = 1000
+    ) -> tuple[list[float], list[float]]:
+        try:
+            return self.archive.history(channel, since_s, limit)
+        except ARCHIVE_ERRORS as exc:
+            raise _unreadable(self.path, exc) from None
+
+    def count(self) -> int:
+        return self.archive.count()
+
+
+def _unreadable(path: Path, exc: BaseException) -> ArchiveUnreadable:
+    return ArchiveUnreadable(
+        f"the telemetry archive {path} cannot be read ({type(exc).__name__}: {exc}); the "
+        "latest values are in GET /api/v1/telemetry; check the file or move it aside, then "
+        "restart camd"
+    )

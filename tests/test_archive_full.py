@@ -1,0 +1,104 @@
+"""Limits before archives (docs/api.md, "Telemetry"): a daemon whose data disk is full still
+trips its red limit, says once that the archive cannot be written, shows the events it keeps
+in memory, and archives them when space returns. A real ``camd serve --sim`` on a small tmpfs.
+"""
+
+from __future__ import annotations
+
+import sqlite3
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from camd.cli._daemon_proc import DaemonProcess
+from camd.client import CamdClient
+from tests.crash_support import fill_disk, small_disk
+
+WAIT_S = 120.0  # generous: a busy 2-core machine
+# The simulated camera's uptime_s grows with time: a red limit at this many seconds is the
+# channel that crosses it while the test holds the disk full.
+RED_AT_UPTIME_S = 30.0
+
+pytestmark = pytest.mark.slow
+
+
+def _wait_for(what: str, check: Callable[[], Any], timeout_s: float = WAIT_S) -> Any:
+    deadline = time.monotonic() + timeout_s
+    while not (value := check()):
+        if time.monotonic() > deadline:
+            raise AssertionError(f"waited {timeout_s:g} s for {what}")
+        time.sleep(0.1)
+    return value
+
+
+def test_a_red_limit_trips_while_the_data_disk_is_full(tmp_path: Path) -> None:
+    config = tmp_path / "camd.toml"
+    config.write_text(
+        "[telemetry]\npoll_period_s = 0.2\n"
+        "[telemetry.limits.uptime_s]\n"
+        f"yellow = [0.0, {RED_AT_UPTIME_S}]\nred = [0.0, {RED_AT_UPTIME_S}]\n"
+    )
+    with small_disk(tmp_path / "disk", 16) as disk:
+        daemon = DaemonProcess(
+            disk, extra_args=["--config", str(config)], log_name="../daemon.log",
+            start_timeout_s=60.0,
+        )  # fmt: skip
+        with daemon, CamdClient(daemon.url) as client:
+            client.wait_ready(60.0)
+            fill_disk(disk)
+            broken = _wait_for(
+                "the archive to find the disk full",
+                lambda: client.telemetry()["archive_error"],
+            )
+            assert "full" in broken, broken
+            uptime = float(client.telemetry()["latest"]["uptime_s"]["value"])
+            assert uptime < RED_AT_UPTIME_S - 1.0, (
+                f"the camera's uptime reached {uptime:g} s before the disk was full: the test "
+                "cannot tell a red limit tripped on a full disk from one tripped before"
+            )
+            status = _wait_for(
+                "the red limit's fault", lambda: (s := client.status())["state"] == "fault" and s
+            )
+            assert "red limit: uptime_s" in str(status["reason"])
+            # The limit's event and the archive's warning are shown though not archived.
+            events = client.events(200)["events"]
+            warnings = [e for e in events if e["source"] == "telemetry"]
+            assert len(warnings) == 1 and "cannot be written" in warnings[0]["message"]
+            assert any(
+                e["source"] == "limits" and e["level"] == "error" and "uptime_s" in e["message"]
+                for e in events
+            )
+            # The latest values stay current while nothing is archived.
+            t0 = float(client.telemetry()["latest"]["uptime_s"]["t_s"])
+            _wait_for(
+                "a newer sample",
+                lambda: float(client.telemetry()["latest"]["uptime_s"]["t_s"]) > t0,
+            )
+            (disk / "filler").unlink()
+            _wait_for(
+                "the archive to take writes again", lambda: not client.telemetry()["archive_error"]
+            )
+            recovered = _wait_for(
+                "the recovery event",
+                lambda: [
+                    e for e in client.events(200)["events"]
+                    if e["source"] == "telemetry" and "written again" in e["message"]
+                ],
+            )  # fmt: skip
+            assert len(recovered) == 1
+            assert daemon.running
+        assert daemon.exit_code == 0
+        # The events kept in memory were archived: the file has the red limit's event.
+        db = sqlite3.connect(disk / "telemetry.sqlite")
+        try:
+            messages = [
+                m for (m,) in db.execute("SELECT message FROM events WHERE source = 'limits'")
+            ]
+        finally:
+            db.close()
+        assert any("uptime_s" in m and "red" in m for m in messages), messages
+        log = (tmp_path / "daemon.log").read_text()
+        assert "Traceback" not in log, log[-2000:]
