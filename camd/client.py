@@ -35,6 +35,7 @@ from camd.client_types import (
     CampaignJobsResponse,
     ControlInfo,
     EstopResponse,
+    EstopState,
     EventsResponse,
     HistoryResponse,
     LinkCommandResponse,
@@ -806,8 +807,17 @@ class CamdClient:
         return cast(CampaignJob, self._json("POST", path, json={"force": force}))
 
     def estop(self) -> EstopResponse:
-        """Emergency stop (stage, acquisition, wheel): never refused."""
+        """Emergency stop (stage, acquisition, wheel, campaign job): never refused; it latches
+        until ``release_estop``."""
         return cast(EstopResponse, self._json("POST", f"{API}/estop"))
+
+    def estop_state(self) -> EstopState:
+        """The emergency-stop latch."""
+        return cast(EstopState, self._json("GET", f"{API}/estop"))
+
+    def release_estop(self) -> EstopState:
+        """Release the emergency-stop latch (needs control, or free control)."""
+        return cast(EstopState, self._json("POST", f"{API}/estop/release"))
 
     def wait_ready(self, timeout_s: float = 10.0, *, poll_s: float = 0.1) -> StatusResponse:
         """Wait until the daemon answers and its camera is connected (state not

@@ -147,6 +147,32 @@ class AcquisitionInfo(TypedDict):
     running: bool
 
 
+class EstopState(TypedDict):
+    """GET /api/v1/estop, POST /api/v1/estop/release: the emergency-stop latch."""
+
+    # true from an emergency stop until a client with control releases it: nothing moves or acquires
+    # meanwhile (409 estop_latched)
+    latched: bool
+    # when this latch began (Unix time)
+    since_t_s: float | None
+    # the client that asked for the stop
+    by: str | None
+    # the newest emergency stop (Unix time)
+    last_t_s: float | None
+    # what the newest stop stopped
+    stopped: list[str]
+    # what it could not stop, with why
+    failed: list[str]
+    # emergency stops asked for on this data directory
+    count: int
+    # when the last latch was released
+    released_t_s: float | None
+    # who released it
+    released_by: str | None
+    # what to do to release it
+    how_to_release: str
+
+
 class StatusResponse(TypedDict):
     """GET /api/v1/status and POST /api/v1/reset."""
 
@@ -162,15 +188,18 @@ class StatusResponse(TypedDict):
     control: ControlInfo
     # the running acquisition, or the last started one (null before the first)
     acquisition: AcquisitionInfo | None
+    # the emergency-stop latch
+    estop: EstopState
 
 
 class EstopResponse(TypedDict):
-    """POST /api/v1/estop: what the emergency stop did."""
+    """POST /api/v1/estop: what the emergency stop did, and the latch it set."""
 
-    # what was stopped (acquisition, stage, wheel)
+    # what was stopped (stage, acquisition, wheel, campaign job)
     stopped: list[str]
     # what could not be stopped, with why
     failed: list[str]
+    latch: EstopState
 
 
 class RttMs(TypedDict):

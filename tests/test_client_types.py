@@ -347,6 +347,8 @@ ANSWERS: list[tuple[str, str]] = [
     ("events", "EventsResponse"),
     ("status", "StatusResponse"),
     ("estop", "EstopResponse"),
+    ("estop_state", "EstopState"),
+    ("release_estop", "EstopState"),
     ("release_control", "ControlInfo"),
     ("campaign_job", "CampaignJob"),
     ("campaign_jobs", "CampaignJobsResponse"),
@@ -402,6 +404,8 @@ def answers(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]
         docs["events"] = client.events(limit=20)
         docs["status"] = client.status()
         docs["estop"] = client.estop()
+        docs["estop_state"] = client.estop_state()
+        docs["release_estop"] = client.release_estop()
         docs["release_control"] = client.release_control()
         # A campaign job (a short plan), followed to its end: its document then has them all.
         plan = Path(__file__).parent / "plans" / "long_stare.py"

@@ -122,10 +122,17 @@ def test_an_emergency_stop_is_never_refused(clients: tuple[CamdClient, CamdClien
     assert "stage" in stop["stopped"] and stop["failed"] == []
     assert bob.motion()["reading"]["state"] == "estop"
     assert any(
-        e["message"].startswith("EMERGENCY STOP: stopped stage")
+        e["message"].startswith("EMERGENCY STOP by bob: stopped stage")
         for e in bob.events(limit=20)["events"]
     )
-    alice.enable_stage(True)  # clears the emergency stop
+    # It latched: nothing moves until someone with control releases it; bob does not hold it.
+    with pytest.raises(CamdError) as latched:
+        alice.enable_stage(True)
+    assert latched.value.code == "estop_latched" and latched.value.http_status == 409
+    assert "`camctl estop release`" in latched.value.message
+    refused(bob.release_estop)
+    assert alice.release_estop()["released_by"] == "alice"
+    alice.enable_stage(True)  # clears the stage's own emergency stop
     assert alice.motion()["reading"]["state"] == "idle"
 
 
@@ -168,3 +175,41 @@ def test_leases_expire_renew_and_pin_to_an_acquisition() -> None:
         control.check("alice", "stop the scan")
     slot.release(scan)
     control.check("alice", "stop the scan")
+
+
+def test_the_lease_events_say_what_is_true() -> None:
+    """A lease that expires (or is revoked) while its client's acquisition runs leaves that
+    client in control: the event says so, not "control is free"."""
+    now = [1000.0]
+    events: list[tuple[str, str, str]] = []
+    slot = AcquisitionSlot()
+    control = Control(slot, lambda *e: events.append(e), clock=lambda: now[0])
+    control.take("carol", 10.0)
+    with acting_as("carol"):
+        stare = slot.claim("stare", "300 frames")
+    now[0] += 11.0
+    holder = control.holder()
+    assert holder is not None and holder.client == "carol" and holder.expires_t_s is None
+    assert (
+        "info",
+        "control",
+        "control lease of carol expired; carol still holds control while the stare it started runs",
+    ) in events
+    slot.release(stare)
+    assert control.holder() is None
+
+
+def test_revoke_ends_a_lease_with_its_holders_life() -> None:
+    events: list[tuple[str, str, str]] = []
+    control = Control(AcquisitionSlot(), lambda *e: events.append(e))
+    control.take("campaign-job-3", 60.0)
+    control.set_activity("campaign-job-3", "step 2/8")
+    control.revoke("someone-else", "not the holder")  # harmless
+    assert control.holder() is not None and control.activity() is not None
+    control.revoke("campaign-job-3", "its worker exited with status -9")
+    assert control.holder() is None and control.activity() is None
+    assert events[-1] == (
+        "info",
+        "control",
+        "control of campaign-job-3 ended (its worker exited with status -9); control is free",
+    )

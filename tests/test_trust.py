@@ -155,4 +155,6 @@ def test_an_emergency_stop_ends_a_running_scan_stopped_with_its_file_closed(
         with h5py.File(scan["file"], "r") as f:  # no writer holds it open any more
             assert f.attrs["finished"] and f.attrs["state"] == "stopped"
             assert f["lines"].shape[0] == ended["lines"] > 0
+        assert client.estop_state()["latched"]
+        client.release_estop()  # nothing moves or acquires until then
         client.enable_stage(True)  # clears the stage's emergency stop

@@ -217,10 +217,20 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="with take: take control from the client that holds it (logged as an event)",
     )
-    command(
+    p = command(
         "estop",
-        "EMERGENCY STOP: the stage (no ramp, current cut), the running acquisition and the "
-        "filter wheel; never refused, whoever holds control",
+        "EMERGENCY STOP: the stage (no ramp, current cut), the running acquisition, the filter "
+        "wheel and a running campaign job (paused); never refused, whoever holds control. It "
+        "latches: nothing moves or acquires until released (`camctl estop release`)",
+    )
+    p.add_argument(
+        "action",
+        nargs="?",
+        choices=("stop", "status", "release"),
+        default="stop",
+        help="stop (default): the emergency stop; status: the latch; release: lift the latch "
+        "once the rig is checked (needs control; the stage stays disabled and the wheel stopped "
+        "until you start them)",
     )
     camctl_sensor.add_parsers(command)
     camctl_stream.add_parsers(command)
@@ -341,6 +351,10 @@ def _cmd_control(client: CamdClient, args: argparse.Namespace) -> Any:
 
 
 def _cmd_estop(client: CamdClient, args: argparse.Namespace) -> Any:
+    if args.action == "status":
+        return client.estop_state()
+    if args.action == "release":
+        return client.release_estop()
     doc = client.estop()
     if doc["failed"]:
         raise CommandFailed(doc, "could not stop " + "; ".join(doc["failed"]))
@@ -456,6 +470,8 @@ def status_table(doc: dict[str, Any], title: str | None = "camd status") -> Tabl
     daemon = doc.get("daemon") or {}
     for key, value in daemon.items():
         table.add_row(f"daemon.{key}", fmt_value(value))
+    if isinstance(doc.get("estop"), dict) and doc["estop"].get("latched"):
+        table.add_row("EMERGENCY STOP", estop_text(doc["estop"]))
     if isinstance(doc.get("control"), dict):
         table.add_row("control", control_text(doc["control"]))
     acquisition = doc.get("acquisition")
@@ -637,8 +653,34 @@ def _render_control(out: Console, doc: Any, args: argparse.Namespace) -> None:
     out.print(Text.assemble("control: ", control_text(doc)))
 
 
+def estop_text(latch: dict[str, Any]) -> Text:
+    """``LATCHED since 12:03:04 by alice@pc1 (stopped stage, wheel); release: ...`` in red, or
+    ``released ...`` / ``not latched``."""
+    if latch.get("latched"):
+        stopped = ", ".join(latch.get("stopped") or []) or "nothing"
+        failed = "; ".join(latch.get("failed") or [])
+        return Text(
+            f"LATCHED since {fmt_time(latch.get('since_t_s'))} by {latch.get('by')} (stopped "
+            f"{stopped}" + (f"; could not stop {failed}" if failed else "") + "): nothing "
+            f"moves or acquires; {latch.get('how_to_release')}",
+            style="bold red",
+        )
+    if latch.get("released_t_s") is not None:
+        return Text(
+            f"not latched (released at {fmt_time(latch.get('released_t_s'))} by "
+            f"{latch.get('released_by')})",
+            style="green",
+        )
+    return Text("not latched", style="green")
+
+
 def _render_estop(out: Console, doc: Any, args: argparse.Namespace) -> None:
-    out.print(Text(f"EMERGENCY STOP: stopped {', '.join(doc['stopped']) or 'nothing'}", "bold red"))
+    if args.action == "stop":
+        out.print(
+            Text(f"EMERGENCY STOP: stopped {', '.join(doc['stopped']) or 'nothing'}", "bold red")
+        )
+        doc = doc["latch"]
+    out.print(Text.assemble("emergency stop: ", estop_text(doc)))
 
 
 _RENDER: dict[str, Callable[[Console, Any, argparse.Namespace], None]] = {

@@ -48,6 +48,7 @@ from camd.daemon.errors import (
     DeviceRejected,
     DeviceTimeout,
     Disconnected,
+    EstopLatched,
     LinkUntrained,
     NoControl,
     NotFound,
@@ -72,6 +73,7 @@ from camd.daemon.models import (
     ControlRequest,
     ErrorResponse,
     EstopResponse,
+    EstopState,
     EventsResponse,
     HistoryResponse,
     LinkCommandRequest,
@@ -136,6 +138,7 @@ ERROR_MAP: list[tuple[type[Exception], int, str]] = [
     (IllegalState, 409, "illegal_state"),
     (LinkUntrained, 409, "link_untrained"),
     (Busy, 409, "busy"),
+    (EstopLatched, 409, "estop_latched"),
     (WrongState, 409, "wrong_state"),
     (NoControl, 409, "no_control"),
     (NotInControl, 423, "not_in_control"),
@@ -515,7 +518,7 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
         """Take control for ``ttl_s`` seconds, or renew it; 423 while another client holds
         it, unless ``force`` (a takeover, logged as an event)."""
         body = body or ControlRequest()
-        session.control.take(client, body.ttl_s, force=body.force)
+        session.take_control(client, body.ttl_s, force=body.force)
         return session.control_info(client)
 
     @app.delete(f"{API}/control", response_model=ControlInfo, tags=["control"])
@@ -536,10 +539,25 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
         return session.control_info(client)
 
     @app.post(f"{API}/estop", response_model=EstopResponse, tags=["control"])
-    def post_estop() -> EstopResponse:
-        """Emergency stop of the stage (no ramp, current cut), the running acquisition and the
-        filter wheel. Never refused, whoever asks and whatever holds control."""
-        return session.estop()
+    def post_estop(client: str = Depends(requester)) -> EstopResponse:
+        """Emergency stop of the stage (no ramp, current cut), the running acquisition, the
+        filter wheel and a running campaign job (paused). Never refused, whoever asks and
+        whatever holds control; it latches: nothing moves or acquires until a client with
+        control releases it (``POST /api/v1/estop/release``)."""
+        return session.estop(client)
+
+    @app.get(f"{API}/estop", response_model=EstopState, tags=["control"])
+    def get_estop() -> EstopState:
+        """The emergency-stop latch: whether it holds, since when, who asked, what was stopped."""
+        return session.estop_state()
+
+    @app.post(f"{API}/estop/release", response_model=EstopState, tags=["control"])
+    def post_estop_release(
+        client: str = Depends(controlled("release the emergency stop")),
+    ) -> EstopState:
+        """Release the latch (needs control, or free control); the stage stays disabled and the
+        wheel stopped until someone starts them. Harmless when not latched."""
+        return session.release_estop(client)
 
     @app.get(f"{API}/campaigns/jobs", response_model=CampaignJobsResponse, tags=["campaigns"])
     def get_campaign_jobs() -> CampaignJobsResponse:

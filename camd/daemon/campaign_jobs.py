@@ -16,6 +16,13 @@ run``, and supervises it. The worker holds control for the run under the client 
 - abort: as pause, then the job ends "aborted" (its files stay; it cannot be resumed).
 - a daemon that stops while a job runs stops the worker (SIGTERM) and, when it starts again,
   resumes the job; a worker left from a daemon that was killed is stopped first.
+- an emergency stop pauses the running job (``estop``): its acquisition is stopped, its
+  worker's control ends and it may not take control again, so it changes nothing more (not
+  even its closing "restore settings"); the job is "paused", and neither starts, resumes nor
+  resumes at the daemon's start until the emergency stop is released. Pausing, not aborting:
+  the steps done stay done, and the operator resumes it once the rig has been checked.
+- whenever a worker exits, however it ended (killed too), ``worker_ended`` is told at once, so
+  that its control ends with it.
 
 Every job is in ``<data_dir>/campaigns/jobs.json`` (rewritten atomically at each change), so
 a restarted daemon knows them all. One job runs at a time.
@@ -37,7 +44,15 @@ from typing import Any, Literal
 
 from pydantic import ValidationError
 
-from camd.daemon.errors import BadRequest, Busy, NotFound, NotInControl, WrongState
+from camd.daemon.errors import (
+    BadRequest,
+    Busy,
+    EstopLatched,
+    NotFound,
+    NotInControl,
+    WrongState,
+)
+from camd.daemon.estop import RELEASE_HINT
 from camd.daemon.models import CampaignJob, CampaignJobState
 
 __all__ = ["ACTIVE", "CampaignJobs", "Job", "worker_client"]
@@ -78,9 +93,10 @@ class Job(CampaignJob):
     pid: int | None = None
     resume_on_start: bool = False
     started_t_s: float | None = None  # the running worker's start
+    estopped: bool = False  # paused by an emergency stop: its worker may not hold control
 
     def public(self) -> dict[str, Any]:
-        doc = self.model_dump(exclude={"pid", "resume_on_start", "started_t_s"})
+        doc = self.model_dump(exclude={"pid", "resume_on_start", "started_t_s", "estopped"})
         if self.started_t_s is not None:  # the running worker's time so far
             doc["run_time_s"] = self.run_time_s + max(0.0, time.time() - self.started_t_s)
         return doc
@@ -95,12 +111,16 @@ class CampaignJobs:
         events: Events,
         stop_acquisition: Callable[[], object],
         *,
+        worker_ended: Callable[[int, str], None] = lambda job_id, why: None,
+        estop_latched: Callable[[], bool] = lambda: False,
         python: str = sys.executable,
     ) -> None:
         self._dir = data_dir / "campaigns"
         self._path = self._dir / "jobs.json"
         self._events = events
         self._stop_acquisition = stop_acquisition
+        self._worker_ended = worker_ended
+        self._estop_latched = estop_latched
         self._python = python
         self._lock = threading.RLock()
         self._jobs: dict[int, Job] = {}
@@ -158,6 +178,7 @@ class CampaignJobs:
         may refuse the start by raising."""
         with self._lock:
             self.refuse_if_active()
+            self._refuse_if_latched("start a campaign job")
             if self._url is None:
                 raise WrongState("campaign jobs start once the daemon serves its API; retry")
         checked = self.check(file, quick)
@@ -195,6 +216,47 @@ class CampaignJobs:
             self._events("info", "campaign", f"job {job_id}: campaign {job.campaign} started "
                          f"by {client} into {job.out_dir}")  # fmt: skip
             return job.public()
+
+    def _refuse_if_latched(self, wanted: str) -> None:
+        if self._estop_latched():
+            raise EstopLatched(
+                f"cannot {wanted}: the emergency stop is latched; nothing moves or acquires "
+                f"until it is released: {RELEASE_HINT}"
+            )
+
+    def refuse_control(self, client: str) -> None:
+        """NotInControl if ``client`` is the worker of a job that no longer runs, or that an
+        emergency stop paused: it may change nothing more, so it may not take control."""
+        with self._lock:
+            for job in self._jobs.values():
+                if client != worker_client(job.id):
+                    continue
+                if job.estopped or job.state not in ACTIVE:
+                    why = "an emergency stop paused it" if job.estopped else f"it is {job.state}"
+                    raise NotInControl(
+                        f"campaign job {job.id}'s worker may not take control: {why}; "
+                        f"`camctl campaign resume {job.id}` runs it on with a new worker"
+                    )
+
+    def estop(self) -> int | None:
+        """The emergency stop: the running job (if any) is to pause, its worker to change
+        nothing more (module docstring). The id of the job, or None."""
+        with self._lock:
+            active = [job for job in self._jobs.values() if job.state in ACTIVE]
+            if not active:
+                return None
+            job = active[0]
+            job.estopped = True
+            if job.state != "aborting":
+                job.requested, job.state = "pause", "pausing"
+            job.message = "paused by an emergency stop"
+            self._save()
+            self._events("warning", "campaign", f"job {job.id}: paused by the emergency stop")
+        threading.Thread(
+            target=self._kill_if_stuck, args=(job.id,), name=f"camd-job-{job.id}-grace",
+            daemon=True,
+        ).start()  # fmt: skip
+        return job.id
 
     def refuse_if_active(self) -> None:
         """Busy, naming the job, while one runs (one job runs at a time)."""
@@ -284,6 +346,7 @@ class CampaignJobs:
                     + ("" if job.state in ACTIVE else "; start the campaign again as a new job")
                 )
             self.refuse_if_active()
+            self._refuse_if_latched(f"resume campaign job {job_id}")
             before_spawn(job_id)
             was = job.state, job.message
             job.state, job.requested, job.message = "running", None, None
@@ -329,7 +392,7 @@ class CampaignJobs:
             )  # fmt: skip
         self._procs[job.id] = proc
         job.pid, job.runs, job.started_t_s = proc.pid, job.runs + 1, time.time()
-        job.resume_on_start = False
+        job.resume_on_start, job.estopped = False, False
         self._save()
         threading.Thread(
             target=self._watch, args=(job.id, proc), name=f"camd-job-{job.id}", daemon=True
@@ -360,6 +423,14 @@ class CampaignJobs:
                 )
             if job.state == "aborted" or job.requested == "abort":
                 job.state = "aborted"
+            elif job.estopped and job.state != "passed":
+                # Whatever the cut-off worker made of it (a refused request is an error to
+                # it), the job is paused: resumable once the emergency stop is released.
+                job.state = "paused"
+                job.message = (
+                    "paused by an emergency stop: release it (`camctl estop release`), then "
+                    f"`camctl campaign resume {job_id}`"
+                )
             job.requested = None
             self._save()
             self._events(
@@ -367,6 +438,8 @@ class CampaignJobs:
                 "campaign",
                 f"job {job_id}: {job.state}" + (f" ({job.message})" if job.message else ""),
             )
+        # Outside the lock: the session ends the worker's control (and its acquisition).
+        self._worker_ended(job_id, f"its worker exited with status {code}")
 
     @staticmethod
     def _outcome(job: Job) -> dict[str, Any] | None:
@@ -422,6 +495,13 @@ class CampaignJobs:
                         job.state, job.requested = "paused", None
                     elif job.state == "aborting":
                         job.state, job.requested = "aborted", None
+                    elif self._estop_latched():
+                        job.state, job.requested, job.resume_on_start = "interrupted", None, False
+                        job.message = (
+                            "not resumed at start: the emergency stop is latched; release it "
+                            f"(`camctl estop release`), then `camctl campaign resume {job.id}`"
+                        )
+                        self._events("warning", "campaign", f"job {job.id}: {job.message}")
                     else:
                         job.state, job.requested, job.message = "running", None, None
                         self._spawn(job)

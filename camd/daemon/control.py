@@ -101,10 +101,13 @@ class Control:
         lease = self._lease
         now = self._clock()
         if lease is not None and lease.expires_t_s <= now:
+            self._lease = None
             self._events(
-                "info", "control", f"control lease of {lease.client} expired; control is free"
+                "info",
+                "control",
+                f"control lease of {lease.client} expired; {self._after(lease.client)}",
             )
-            self._lease = lease = None
+            lease = None
         if lease is not None:
             return Holder(lease.client, lease.since_t_s, "lease", lease.expires_t_s)
         running = self._acquisition.active
@@ -184,6 +187,26 @@ class Control:
                 self._events("info", "control", f"{client} released control")
             if self._activity is not None and self._activity.client == client:
                 self._activity = None
+
+    def revoke(self, client: str, why: str) -> None:
+        """End ``client``'s lease because its holder's life ended (a campaign job's worker
+        exited, or an emergency stop paused its job); harmless when it holds none."""
+        with self._lock:
+            lease = self._lease
+            if lease is not None and lease.client == client:
+                self._lease = None
+                self._events(
+                    "info", "control", f"control of {client} ended ({why}); {self._after(client)}"
+                )
+            if self._activity is not None and self._activity.client == client:
+                self._activity = None
+
+    def _after(self, client: str) -> str:
+        """Who holds control once ``client``'s lease has gone, in words (the lock held)."""
+        running = self._acquisition.active
+        if running is not None and running.client:
+            return f"{running.client} still holds control while the {running.kind} it started runs"
+        return "control is free"
 
     def activity(self) -> Activity | None:
         """What the holder last said it is doing (None: nothing, or no longer the holder)."""

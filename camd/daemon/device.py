@@ -28,6 +28,7 @@ from camd.daemon.errors import (
     DeviceTimeout,
     Disconnected,
 )
+from camd.daemon.estop import EstopLatch
 from camd.daemon.state import (
     HOW_TO_LEAVE,
     IllegalState,
@@ -66,6 +67,10 @@ DISTURBING = frozenset(
     }
 )
 """Requests refused (Busy) while an acquisition runs or sets itself up."""
+
+LATCHED_OUT = frozenset({Request.STREAM_START, Request.MOTION_MOVE})
+"""Requests refused while the emergency stop is latched (camd.daemon.estop); the wheel's
+speed is refused there only when it would turn the wheel (``WheelService``)."""
 
 EventSink = Callable[[str, str, str, float | None], None]
 """``(level, source, message, t_s)``: log and archive one event (t_s None: now)."""
@@ -116,6 +121,11 @@ class DeviceAccess:
         self.link: CommandLink | None = None
         self.probe_error: str | None = None  # why the device is silent on an open port
         self.acquisition = AcquisitionSlot()
+        # Nothing moves or acquires while an emergency stop is latched (kept across restarts).
+        self.estop = EstopLatch(
+            config.daemon.data_dir / "estop.json",
+            lambda level, source, message: events(level, source, message, None),
+        )
         # The recordings open for writing, on disk: what a restart after a crash must repair.
         self.recordings = RecordingJournal(config.daemon.data_dir / "open-recordings")
         self._events = events
@@ -144,6 +154,8 @@ class DeviceAccess:
         """Raise Disconnected or IllegalState unless ``request`` is legal now; Busy, naming
         it, when a running acquisition is what makes it illegal."""
         snap = self.machine.snapshot
+        if request in LATCHED_OUT:
+            self.estop.check(describe(request))
         if snap.state == State.DISCONNECTED and not is_legal(request, snap.state):
             raise Disconnected(self.disconnected_message())
         if request in DISTURBING or not is_legal(request, snap.state):
@@ -224,7 +236,10 @@ class DeviceAccess:
                 raise DeviceRejected(str(exc), type(exc).__name__) from None
 
     def request(self, command: str, **fields: Any) -> Response:
-        """One device request through the FIFO lock, errors mapped to SessionErrors."""
+        """One device request through the FIFO lock, errors mapped to SessionErrors; a command
+        that starts motion or acquisition is refused while the emergency stop is latched
+        (EstopLatched), whatever checks the request that sends it passed before the stop."""
+        self.estop.check_command(command, fields)
         with self.device_op() as link:
             return link.request(command, **fields)
 

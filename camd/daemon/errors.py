@@ -61,6 +61,11 @@ class ArchiveUnreadable(SessionError):
     failing quietly, the limits are still checked (camd.daemon.telemetry.GuardedArchive)."""
 
 
+class EstopLatched(SessionError):
+    """Motion or acquisition refused: the emergency stop is latched until a client with
+    control releases it (HTTP 409; camd.daemon.estop)."""
+
+
 class Busy(SessionError):
     """Refused because an acquisition (scan, stare, stream, wheel run) is running (HTTP 409);
     the message names it and the command that stops it."""

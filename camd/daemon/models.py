@@ -333,6 +333,24 @@ class AcquisitionInfo(BaseModel):
     running: bool
 
 
+class EstopState(BaseModel):
+    """GET /api/v1/estop, POST /api/v1/estop/release: the emergency-stop latch."""
+
+    latched: bool = Field(
+        description="true from an emergency stop until a client with control releases it: "
+        "nothing moves or acquires meanwhile (409 estop_latched)"
+    )
+    since_t_s: float | None = Field(description="when this latch began (Unix time)")
+    by: str | None = Field(description="the client that asked for the stop")
+    last_t_s: float | None = Field(description="the newest emergency stop (Unix time)")
+    stopped: list[str] = Field(description="what the newest stop stopped")
+    failed: list[str] = Field(description="what it could not stop, with why")
+    count: int = Field(description="emergency stops asked for on this data directory")
+    released_t_s: float | None = Field(description="when the last latch was released")
+    released_by: str | None = Field(description="who released it")
+    how_to_release: str = Field(description="what to do to release it")
+
+
 class StatusResponse(BaseModel):
     """GET /api/v1/status and POST /api/v1/reset."""
 
@@ -346,13 +364,17 @@ class StatusResponse(BaseModel):
     acquisition: AcquisitionInfo | None = Field(
         description="the running acquisition, or the last started one (null before the first)"
     )
+    estop: EstopState = Field(description="the emergency-stop latch")
 
 
 class EstopResponse(BaseModel):
-    """POST /api/v1/estop: what the emergency stop did."""
+    """POST /api/v1/estop: what the emergency stop did, and the latch it set."""
 
-    stopped: list[str] = Field(description="what was stopped (acquisition, stage, wheel)")
+    stopped: list[str] = Field(
+        description="what was stopped (stage, acquisition, wheel, campaign job)"
+    )
     failed: list[str] = Field(description="what could not be stopped, with why")
+    latch: EstopState
 
 
 class RttMs(BaseModel):

@@ -26,6 +26,7 @@ import random
 import threading
 import time
 from collections.abc import Mapping
+from dataclasses import asdict
 from typing import Any, cast
 
 import numpy as np
@@ -44,6 +45,7 @@ from camd.daemon.errors import (
     Disconnected,
     SessionError,
 )
+from camd.daemon.estop import RELEASE_HINT
 from camd.daemon.models import (
     LIVE_LINES_MAX,
     AcquisitionInfo,
@@ -58,6 +60,7 @@ from camd.daemon.models import (
     DeviceLinkStats,
     DeviceStatus,
     EstopResponse,
+    EstopState,
     EventItem,
     EventsResponse,
     HistoryResponse,
@@ -113,6 +116,7 @@ HEAP_TRIM_PERIOD_S = 30.0  # how often the C heap's free pages go back to the sy
 
 
 THREAD_JOIN_S = 5.0  # at shutdown, the longest wait for one of camd's threads to end
+SHUTDOWN_ENDING_S = 15.0  # ... for the acquisition to end and a job's worker to stop (abort)
 
 
 def _join_camd_threads(timeout_s: float) -> None:
@@ -162,6 +166,8 @@ class DeviceSession:
         self._last_t_s: dict[str, float] = {}  # when each channel's last value was taken
         self._red_lock = threading.Lock()
         self._red_acknowledged: set[str] = set()
+        self._ending: threading.Thread | None = None  # abort's: acquisitions and job ended
+        self._ending_lock = threading.Lock()
         device = self.device
         self.sim = backends.simulator_control(device)
         self.sensor = SensorService(
@@ -200,6 +206,8 @@ class DeviceSession:
             config.daemon.data_dir,
             lambda level, source, message: self._event(level, source, message),
             self._stop_acquisition_now,
+            worker_ended=self._worker_ended,
+            estop_latched=lambda: self.device.estop.latched,
         )
 
     # -- lifecycle ------------------------------------------------------------------------------
@@ -281,10 +289,27 @@ class DeviceSession:
         )
 
     def abort(self) -> None:
-        """Ask long operations (a ping run) to end early; called when shutdown begins."""
+        """Shutdown has begun (SIGTERM or SIGINT, before uvicorn's grace for open requests):
+        ask long operations to end now, so that the requests waiting on them (a ping run, a
+        stare's request waiting for its frames, a campaign worker's) answer within the grace
+        instead of being cancelled at its end. The running acquisition is ended and a campaign
+        job's worker stopped on a thread of their own (``stop`` waits for it)."""
         self.campaigns.stopping()
         self._stop.set()
         self._wake.set()
+        with self._ending_lock:
+            if self._ending is None:
+                self._ending = threading.Thread(
+                    target=self._end_for_shutdown, name="camd-shutdown", daemon=True
+                )
+                self._ending.start()
+
+    def _end_for_shutdown(self) -> None:
+        for step in (self.scan.stopping, self.stream.shut_down, self.campaigns.close):
+            try:
+                step()
+            except Exception:  # the ordered stop tries again and says what it could not do
+                log.exception("ending %s at shutdown failed", step.__qualname__)
 
     def stop(self) -> None:
         """The ordered shutdown (docs/architecture.md, "Shutdown"), once the API has stopped
@@ -294,8 +319,11 @@ class DeviceSession:
         the archive; the links and the simulator; then every camd thread is joined. Each wait
         is bounded; a camera already gone costs one warning line per step it prevents.
         A campaign job's worker is stopped first, to be resumed at the next start."""
-        self.campaigns.close()
         self.abort()
+        ending = self._ending
+        if ending is not None:
+            ending.join(SHUTDOWN_ENDING_S)
+        self.campaigns.close()
         if self._thread is not None:
             self._thread.join(timeout=THREAD_JOIN_S)
             self._thread = None
@@ -383,30 +411,93 @@ class DeviceSession:
             running=current.active,
         )
 
-    def estop(self) -> EstopResponse:
-        """Emergency stop, never refused: the stage (no ramp, motor current cut), the running
-        acquisition (its stream stopped; a scan's file is closed as stopped) and the filter
-        wheel. Each is tried whatever the others did; what failed is said, not raised."""
+    def estop(self, client: str = ANONYMOUS) -> EstopResponse:
+        """Emergency stop, never refused, and latched (camd.daemon.estop): first the latch, so
+        that nothing racing the stop can start motion or acquisition again; then the stage (no
+        ramp, motor current cut), the running acquisition (its stream stopped; a scan's file is
+        closed as stopped), the filter wheel and the campaign job (paused, its worker's control
+        ended). Each is tried whatever the others did; what failed is said, not raised."""
+        self.device.estop.engage(client)
         stopped: list[str] = []
         failed: list[str] = []
         for what, action in (
             ("stage", self.motion.emergency_stop_now),
             ("acquisition", self._stop_acquisition_now),
             ("wheel", self.wheel.stop_now),
+            ("campaign job", self._pause_job_for_estop),
         ):
             try:
                 if action():
                     stopped.append(what)
             except Exception as exc:  # keep stopping the others
                 failed.append(f"{what}: {exc}")
+        self.device.estop.stopped(stopped, failed)
         level = "error" if failed else "warning"
         self._event(
             level,
             "api",
-            f"EMERGENCY STOP: stopped {', '.join(stopped) or 'nothing'}"
-            + (f"; could not stop {'; '.join(failed)}" if failed else ""),
+            f"EMERGENCY STOP by {client}: stopped {', '.join(stopped) or 'nothing'}"
+            + (f"; could not stop {'; '.join(failed)}" if failed else "")
+            + f"; latched: nothing moves or acquires until it is released ({RELEASE_HINT})",
         )
-        return EstopResponse(stopped=stopped, failed=failed)
+        return EstopResponse(stopped=stopped, failed=failed, latch=self.estop_state())
+
+    def estop_state(self) -> EstopState:
+        """The emergency-stop latch (no device traffic)."""
+        return EstopState.model_validate(
+            {**asdict(self.device.estop.record()), "how_to_release": RELEASE_HINT}
+        )
+
+    def release_estop(self, client: str) -> EstopState:
+        """Lift the latch (the caller has control); the stage stays disabled and the wheel
+        stopped until someone starts them. Harmless when not latched."""
+        if self.device.estop.release(client):
+            self._event(
+                "warning",
+                "api",
+                f"emergency stop released by {client}: motion and acquisition may start again; "
+                "the stage stays disabled until `camctl stage enable`, the wheel stopped until "
+                "`camctl wheel speed`, a paused campaign job paused until `camctl campaign resume`",
+            )
+        return self.estop_state()
+
+    def _pause_job_for_estop(self) -> bool:
+        job_id = self.campaigns.estop()
+        if job_id is None:
+            return False
+        # Its worker changes nothing more (not even its closing "restore settings"): its
+        # control ends here, and it may not take control again (take_control).
+        self.control.revoke(worker_client(job_id), "the emergency stop paused its job")
+        return True
+
+    def _hold_estop(self) -> None:
+        """The camera answered (a connect, a reboot) while the latch holds: it may have
+        powered up turning its wheel; stop the wheel and the stage again."""
+        if not self.device.estop.latched:
+            return
+        done = []
+        for what, action in (
+            ("stage", self.motion.emergency_stop_now),
+            ("wheel", self.wheel.stop_now),
+        ):
+            try:
+                action()
+                done.append(what)
+            except SessionError as exc:
+                self._event("error", "estop", f"could not stop the {what} again: {exc}")
+        if done:
+            self._event(
+                "warning",
+                "estop",
+                f"the camera answered while the emergency stop is latched: {' and '.join(done)} "
+                f"stopped again; {RELEASE_HINT}",
+            )
+
+    def take_control(self, client: str, ttl_s: float, *, force: bool = False) -> None:
+        """Take or renew a lease (``Control.take``); a campaign job's worker whose job no
+        longer runs (paused by an emergency stop, ended) may not take it back."""
+        self.campaigns.refuse_control(client)
+        self.control.take(client, ttl_s, force=force)
 
     # -- campaign jobs (camd.daemon.campaign_jobs) -----------------------------------------------
 
@@ -456,6 +547,16 @@ class DeviceSession:
     def abort_campaign(self, job_id: int, client: str, force: bool) -> CampaignJob:
         return self._job_doc(self.campaigns.abort(job_id, client, force=force))
 
+    def _worker_ended(self, job_id: int, why: str) -> None:
+        """A job's worker has exited, however it ended: its control ends with it, and an
+        acquisition it left running (a killed worker) is stopped: nobody will read it."""
+        client = worker_client(job_id)
+        running = self.device.acquisition.active
+        if running is not None and running.client == client:
+            with contextlib.suppress(Exception):
+                self._stop_acquisition_now()
+        self.control.revoke(client, why)
+
     def _stop_acquisition_now(self) -> bool:
         # A scan first, through its own stop: stopping only its stream would end it "done".
         if self.scan.request_stop():
@@ -503,6 +604,7 @@ class DeviceSession:
             daemon=DaemonInfo(version=camd.__version__, pid=os.getpid(), uptime_s=self.uptime_s),
             control=self.control_info(client),
             acquisition=self.acquisition_info(),
+            estop=self.estop_state(),
         )
 
     def ping(self, count: int = 10, size: int = 16) -> PingResponse:
@@ -601,6 +703,7 @@ class DeviceSession:
         else:
             payload = b""
         self._require(Request.LINK_COMMAND)
+        self.device.estop.check_raw(None if spec is None else spec.name)
         with self.device.device_op() as link:
             try:
                 exchange = link.exchange(opcode, payload, repeat=body.repeat)
@@ -1009,6 +1112,7 @@ class DeviceSession:
                 self._event("warning", "sensor", f"sensor check after connect failed: {exc}")
             self._fire(Trigger.PROBE_IDLE, None)
             self._stop_stage_left_running()
+            self._hold_estop()
         if was == State.DISCONNECTED:
             self._event(
                 "info",

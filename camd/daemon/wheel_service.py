@@ -160,7 +160,10 @@ class WheelService:
 
     def set_speed(self, speed_deg_s: float) -> WheelStatus:
         """Turn the wheel at ``speed_deg_s`` (0 stops it). If the answer is lost, the wheel may
-        have changed speed: the speed before is put back (``Apply``)."""
+        have changed speed: the speed before is put back (``Apply``). Turning it is refused
+        while the emergency stop is latched; stopping it never is."""
+        if speed_deg_s != 0.0:
+            self.device.estop.check("turn the filter wheel")
         self.device.require(Request.WHEEL_SET)
         wheel = self.wheel
         try:

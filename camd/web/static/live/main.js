@@ -340,6 +340,20 @@ function showControl(status) {
     : "";
 }
 
+// The emergency-stop latch: a red banner with how to release it, while it holds.
+function showEstop(status) {
+  const latch = status.estop;
+  $("estop-latched").hidden = !latch.latched;
+  if (!latch.latched) return;
+  const since = new Date(latch.since_t_s * 1000).toLocaleTimeString();
+  const failed = latch.failed.length ? `; could not stop ${latch.failed.join("; ")}` : "";
+  $("estop-why").textContent = `since ${since} by ${latch.by} (stopped ${latch.stopped.join(", ") || "nothing"}${failed})`;
+  const holder = status.control.holder;
+  const mayRelease = holder === null || holder === status.control.you;
+  $("estop-release").disabled = !mayRelease;
+  $("estop-release-why").textContent = mayRelease ? "" : `${holder} holds control: they release it, or take control first`;
+}
+
 async function showAcquisition(status) {
   const acq = status.acquisition;
   const progress = $("scan-progress");
@@ -432,6 +446,7 @@ async function pollStatus() {
         page.modeShown = true;
       }
       showControl(status);
+      showEstop(status);
       await showAcquisition(status);
       showTelemetry(await get("/telemetry"));
       showEvents(await get("/events?limit=40"));
@@ -475,7 +490,17 @@ $("release-control").addEventListener("click", async () => {
   page.status = await get("/status");
   showControl(page.status);
 });
-$("estop").addEventListener("click", () => act("emergency stop", () => post("/estop")));
+$("estop").addEventListener("click", async () => {
+  await act("emergency stop", () => post("/estop"));
+  page.status = await get("/status");
+  showEstop(page.status);
+});
+$("estop-release").addEventListener("click", async () => {
+  if (!confirm("Release the emergency stop? Motion and acquisition may start again.")) return;
+  await act("release the emergency stop", () => post("/estop/release"));
+  page.status = await get("/status");
+  showEstop(page.status);
+});
 $("ctl-mode-set").addEventListener("click", () => act(`set mode ${$("ctl-mode").value}`, () => post("/mode", { mode: $("ctl-mode").value })));
 $("ctl-exposure-set").addEventListener("click", async () => {
   const lines = Number($("ctl-exposure").value);
