@@ -778,12 +778,12 @@ class CamdClient:
         return cast(CampaignJob, self._json("GET", f"{API}/campaigns/jobs/{job_id}"))
 
     def start_campaign(
-        self, file: str, *, out: str | None = None, quick: bool = False
+        self, campaign: str, *, out: str | None = None, quick: bool = False
     ) -> CampaignJob:
-        """Start a campaign job on the daemon (``file``: a path on the daemon's host or a
-        shipped campaign's name); returns at once with the job, which runs in the daemon's
-        worker. Needs control (or free control), which passes to the job's worker."""
-        body: dict[str, Any] = {"file": file, "quick": quick}
+        """Start a campaign job on the daemon (``campaign``: a campaign's name in the daemon's
+        campaign directories, never a path); returns at once with the job, which runs in the
+        daemon's worker. Needs control (or free control), which passes to the job's worker."""
+        body: dict[str, Any] = {"campaign": campaign, "quick": quick}
         if out is not None:
             body["out"] = out
         # The daemon checks the campaign in a process of its own first: allow it some time.

@@ -32,10 +32,16 @@ pytestmark = pytest.mark.slow
 
 
 def _config(data: Path) -> list[str]:
-    """The daemon's config: the simulated camera of the plan's profile and seed."""
+    """The daemon's config: the simulated camera of the plan's profile and seed; the test
+    plans (tests/plans) and ``data/own-campaigns`` as the operator's campaign directories."""
     data.mkdir(parents=True, exist_ok=True)
+    (data / "own-campaigns").mkdir(exist_ok=True)
     path = data / "camd.toml"
-    path.write_text('[sim]\nprofile = "hr400"\nseed = 11\n[sensor]\nname = "hr400"\n')
+    path.write_text(
+        '[sim]\nprofile = "hr400"\nseed = 11\n[sensor]\nname = "hr400"\n'
+        f"[campaigns]\ndirs = [{json.dumps(str(PLAN.parent))}, "
+        f"{json.dumps(str(data / 'own-campaigns'))}]\n"
+    )
     return ["--config", str(path)]
 
 
@@ -93,7 +99,7 @@ def reference(daemon: DaemonProcess) -> bytes:
     """results.json of an uninterrupted job."""
     with CamdClient(daemon.url) as client:
         client.wait_ready(60.0)
-        job = client.start_campaign(str(PLAN))
+        job = client.start_campaign(PLAN.stem)
         assert job["state"] == "running" and job["steps"] == 8 and job["runs"] == 1
         done = _ended(client, job["id"])
     assert done["state"] == "passed" and done["passed"] is True, done
@@ -105,7 +111,7 @@ def test_pause_inside_an_acquisition_then_resume_gives_the_uninterrupted_results
     daemon: DaemonProcess, reference: bytes
 ) -> None:
     with CamdClient(daemon.url) as client:
-        job = client.start_campaign(str(PLAN))
+        job = client.start_campaign(PLAN.stem)
         _inside_acquisition(client, job["id"], "stare1")
         assert client.pause_campaign(job["id"])["state"] == "pausing"
         done = _ended(client, job["id"])
@@ -132,7 +138,7 @@ def test_pause_inside_an_acquisition_then_resume_gives_the_uninterrupted_results
 
 def test_abort_ends_the_job_and_keeps_its_files(daemon: DaemonProcess, reference: bytes) -> None:
     with CamdClient(daemon.url) as client:
-        job = client.start_campaign(str(PLAN))
+        job = client.start_campaign(PLAN.stem)
         _inside_acquisition(client, job["id"], "stare0")
         # Another client may not abort it; with --force it may (logged).
         other = _camctl(daemon.url, "campaign", "abort", str(job["id"]), client="someone@else")
@@ -155,12 +161,12 @@ def test_abort_ends_the_job_and_keeps_its_files(daemon: DaemonProcess, reference
 
 
 def test_refusals_change_nothing(daemon: DaemonProcess, reference: bytes, tmp_path: Path) -> None:
-    bad = tmp_path / "bad.yaml"
+    bad = daemon.data_dir / "own-campaigns" / "bad.yaml"
     bad.write_text("name: bad\nprofile: hr400\nsteps: []\n")
     with CamdClient(daemon.url) as client:
         before = client.campaign_jobs()["jobs"]
         with pytest.raises(CamdError) as invalid:
-            client.start_campaign(str(bad))
+            client.start_campaign(bad.stem)
         assert invalid.value.http_status == 400 and "steps" in invalid.value.message
         with pytest.raises(CamdError) as unknown:
             client.start_campaign("no_such_campaign")
@@ -168,7 +174,7 @@ def test_refusals_change_nothing(daemon: DaemonProcess, reference: bytes, tmp_pa
         assert "no campaign 'no_such_campaign'" in unknown.value.message
         assert "example_stare" in unknown.value.message  # the shipped ones are listed
         with pytest.raises(CamdError) as relative:
-            client.start_campaign(str(PLAN), out="relative/dir")
+            client.start_campaign(PLAN.stem, out="relative/dir")
         assert relative.value.http_status == 400 and "absolute path" in relative.value.message
         assert not Path("relative").exists()
         with pytest.raises(CamdError) as missing:
@@ -176,9 +182,9 @@ def test_refusals_change_nothing(daemon: DaemonProcess, reference: bytes, tmp_pa
         assert missing.value.http_status == 404 and "no campaign job 999" in missing.value.message
         assert client.campaign_jobs()["jobs"] == before
         # One job at a time; and a client that does not hold control cannot start one.
-        job = client.start_campaign(str(PLAN), quick=True)
+        job = client.start_campaign(PLAN.stem, quick=True)
         with pytest.raises(CamdError) as busy:
-            client.start_campaign(str(PLAN))
+            client.start_campaign(PLAN.stem)
         assert busy.value.http_status == 409
         assert f"campaign job {job['id']} (long_stare) is running" in busy.value.message
         assert _ended(client, job["id"])["state"] == "passed"
@@ -186,12 +192,49 @@ def test_refusals_change_nothing(daemon: DaemonProcess, reference: bytes, tmp_pa
             other.take_control(60.0)
             try:
                 with pytest.raises(CamdError) as locked:
-                    client.start_campaign(str(PLAN))
+                    client.start_campaign(PLAN.stem)
             finally:
                 other.release_control()
         assert locked.value.http_status == 423
         assert "cannot start a campaign: someone@else holds control" in locked.value.message
         assert len(client.campaign_jobs()["jobs"]) == len(before) + 1
+
+
+def test_a_job_runs_no_file_a_client_names(daemon: DaemonProcess, tmp_path: Path) -> None:
+    """A campaign job names a campaign of the daemon's campaign directories by name: a path
+    (absolute, relative, with ..), a name with a slash or a suffix, an over-long name are each
+    refused 400 before anything is loaded, so the Python file is never imported."""
+    marker = tmp_path / "imported"
+    evil = tmp_path / "evil_plan.py"
+    evil.write_text(f"open({str(marker)!r}, 'w').write('ran as the daemon')\n")
+    (daemon.data_dir / "own-campaigns" / "linked").mkdir(exist_ok=True)
+    names = [
+        str(evil),
+        "evil_plan.py",
+        f"../../{tmp_path.name}/evil_plan",
+        "own-campaigns/evil_plan",
+        "Long_Stare",
+        "x" * 5000,
+        "long_stare\x00",
+    ]
+    with CamdClient(daemon.url) as client:
+        before = client.campaign_jobs()["jobs"]
+        for name in names:
+            with pytest.raises(CamdError) as refused:
+                client.start_campaign(name)
+            error = refused.value
+            assert error.http_status == 400, (name, error)
+            if len(name) <= 100:
+                assert "give a campaign's name" in error.message and "not a path" in error.message
+                assert "[campaigns] dirs" in error.message
+        assert client.campaign_jobs()["jobs"] == before
+    assert not marker.exists()
+    # camctl says how to go on with a file: put it in a campaign directory, or run it here.
+    proc = _camctl(daemon.url, "campaign", "start", str(evil))
+    assert proc.returncode != 0
+    assert "takes a campaign's name, not a file" in proc.stderr
+    assert f"`camctl campaign run {evil}`" in proc.stderr
+    assert not marker.exists()
 
 
 def test_a_daemon_restart_resumes_the_running_job(tmp_path: Path, reference: bytes) -> None:
@@ -202,7 +245,7 @@ def test_a_daemon_restart_resumes_the_running_job(tmp_path: Path, reference: byt
         CamdClient(first.url) as client,
     ):
         client.wait_ready(60.0)
-        job = client.start_campaign(str(PLAN))
+        job = client.start_campaign(PLAN.stem)
         _inside_acquisition(client, job["id"], "stare1")
     # The daemon has stopped (SIGTERM) and stopped the worker: the job waits for the next one.
     stored = json.loads((data / "campaigns" / "jobs.json").read_text())["jobs"]

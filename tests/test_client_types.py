@@ -408,8 +408,7 @@ def answers(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]
         docs["release_estop"] = client.release_estop()
         docs["release_control"] = client.release_control()
         # A campaign job (a short plan), followed to its end: its document then has them all.
-        plan = Path(__file__).parent / "plans" / "long_stare.py"
-        job = client.start_campaign(str(plan), quick=True)
+        job = client.start_campaign("example_stare", quick=True)
         deadline = time.monotonic() + 120
         while job["state"] in ("running", "pausing", "aborting") and time.monotonic() < deadline:
             time.sleep(0.1)

@@ -99,7 +99,7 @@ def test_the_latch_refuses_motion_and_acquisition_until_someone_with_control_rel
             "raw START_STREAM": lambda: alice.link_command(
                 "START_STREAM", fields={"frames": 1, "stages": 1, "binning": "off"}
             ),
-            "campaign": lambda: alice.start_campaign(str(PLAN), quick=True),
+            "campaign": lambda: alice.start_campaign(PLAN.stem, quick=True),
         }
         messages = {what: _latched(alice, call) for what, call in refused.items()}
         assert messages["stream"].startswith("cannot start a stream: the emergency stop is latched")
@@ -174,7 +174,7 @@ def test_an_emergency_stop_during_a_campaign_job_pauses_it_and_nothing_moves_aft
 ) -> None:
     with CamdClient(daemon.url, client="erin") as client:
         nominal = float(client.wheel()["nominal_speed_deg_s"])
-        job = client.start_campaign(str(PLAN))
+        job = client.start_campaign(PLAN.stem)
 
         def acquiring() -> bool:
             doc = client.campaign_job(job["id"])
@@ -224,7 +224,7 @@ def test_an_emergency_stop_during_a_campaign_job_pauses_it_and_nothing_moves_aft
 
 def test_a_killed_worker_gives_control_back_at_once(daemon: DaemonProcess) -> None:
     with CamdClient(daemon.url, client="frank") as client:
-        job = client.start_campaign(str(PLAN))
+        job = client.start_campaign(PLAN.stem)
         _wait(
             "the job to be inside an acquisition",
             lambda: (
@@ -350,7 +350,7 @@ def test_sigterm_during_a_campaign_job_is_clean(tmp_path: Path) -> None:
     daemon = DaemonProcess(data, extra_args=_config(data), start_timeout_s=60.0)
     with daemon, CamdClient(daemon.url) as client:
         client.wait_ready(60.0)
-        job = client.start_campaign(str(ENDLESS))
+        job = client.start_campaign(ENDLESS.stem)
         _wait(
             "the job to be inside its stare",
             lambda: (

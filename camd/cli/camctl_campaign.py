@@ -67,10 +67,11 @@ def add_parsers(command: Callable[[str, str], argparse.ArgumentParser]) -> None:
     )
     p.add_argument("action", choices=(*JOB_ACTIONS, "run", "list"))
     p.add_argument(
-        "file", nargs="?", metavar="FILE|JOB",
-        help="run, start: the campaign (YAML, or a Python plan .py), or the name of a shipped "
-        "one (camctl campaign list); status, pause, resume, abort: the job's number (default: "
-        "the newest job)",
+        "file", nargs="?", metavar="FILE|NAME|JOB",
+        help="run: the campaign (YAML, or a Python plan .py), or the name of a shipped one "
+        "(camctl campaign list); start: the campaign's name in the daemon's campaign "
+        "directories ([campaigns] dirs, then the shipped ones), never a path; status, pause, "
+        "resume, abort: the job's number (default: the newest job)",
     )  # fmt: skip
     p.add_argument(
         "--out", metavar="DIR",
@@ -278,13 +279,17 @@ def _job_action(client: CamdClient, args: argparse.Namespace) -> Any:
 
     if args.action == "start":
         if not args.file:
-            raise UsageError("campaign start needs FILE (a campaign file or a shipped name)")
-        path = _campaign_path(args.file)
-        # A local file is sent by its absolute path (the daemon runs on this host, or the
-        # same path is there); anything else is passed as given, for the daemon to resolve.
-        file = str(path.resolve()) if path is not None and path.is_file() else args.file
+            raise UsageError("campaign start needs NAME (a campaign in the daemon's directories)")
+        if "/" in args.file or Path(args.file).suffix in (".yaml", ".py"):
+            # The daemon runs no file a client names (it would run it with its own rights).
+            raise UsageError(
+                f"campaign start takes a campaign's name, not a file ({args.file}): the daemon "
+                "runs only the campaigns in its campaign directories; put the file in one of "
+                "them ([campaigns] dirs in the daemon's camd.toml) and start it by name, or run "
+                f"it here, in camctl's own process: `camctl campaign run {args.file}`"
+            )
         out = None if args.out is None else str(Path(args.out).resolve())
-        job = client.start_campaign(file, out=out, quick=args.quick)
+        job = client.start_campaign(args.file, out=out, quick=args.quick)
         return _follow(client, job) if args.wait else job
     if args.action == "status":
         if args.file is None:

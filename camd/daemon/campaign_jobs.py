@@ -26,6 +26,12 @@ run``, and supervises it. The worker holds control for the run under the client 
 
 Every job is in ``<data_dir>/campaigns/jobs.json`` (rewritten atomically at each change), so
 a restarted daemon knows them all. One job runs at a time.
+
+The daemon runs no code a client names: a job names its campaign by name, and the daemon looks
+it up in the operator's campaign directories (``[campaigns] dirs``, in order) and then in the
+shipped ones (``find``); a path is refused before anything is loaded or imported. A Python plan
+is code run with the daemon's rights, so only the operator (who writes the config) decides
+which files may be run.
 """
 
 from __future__ import annotations
@@ -33,12 +39,13 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, Literal
 
@@ -54,6 +61,7 @@ from camd.daemon.errors import (
 )
 from camd.daemon.estop import RELEASE_HINT
 from camd.daemon.models import CampaignJob, CampaignJobState
+from camd.paths import config_dir
 
 __all__ = ["ACTIVE", "CampaignJobs", "Job", "worker_client"]
 
@@ -65,6 +73,8 @@ STOP_GRACE_S = 60.0  # a worker asked to stop gets this long before SIGKILL (a m
 # runs to its end first: the shipped ones take seconds)
 SHUTDOWN_WAIT_S = 5.0  # the daemon's stop waits this long for a worker after SIGTERM
 LOG_TAIL_CHARS = 600
+CAMPAIGN_NAME = re.compile(r"[a-z][a-z0-9_]{0,99}")  # a campaign's name (its file's stem)
+CAMPAIGN_SUFFIXES = (".yaml", ".py")  # a YAML campaign, a Python plan
 
 # The states of a job; ACTIVE ones have (or are about to have) a worker.
 ACTIVE = ("running", "pausing", "aborting")
@@ -113,6 +123,7 @@ class CampaignJobs:
         *,
         worker_ended: Callable[[int, str], None] = lambda job_id, why: None,
         estop_latched: Callable[[], bool] = lambda: False,
+        campaign_dirs: Sequence[Path] = (),
         python: str = sys.executable,
     ) -> None:
         self._dir = data_dir / "campaigns"
@@ -121,6 +132,8 @@ class CampaignJobs:
         self._stop_acquisition = stop_acquisition
         self._worker_ended = worker_ended
         self._estop_latched = estop_latched
+        # The operator's campaigns first (they may override a shipped one by name).
+        self.campaign_dirs = [*campaign_dirs, config_dir() / "campaigns"]
         self._python = python
         self._lock = threading.RLock()
         self._jobs: dict[int, Job] = {}
@@ -146,10 +159,44 @@ class CampaignJobs:
         """Where the workers find the API (known once the daemon has bound its socket)."""
         self._url, self._token = url, token
 
+    def available(self) -> list[str]:
+        """The campaigns a job may name: every campaign file's name in the directories."""
+        names: set[str] = set()
+        for folder in self.campaign_dirs:
+            with contextlib.suppress(OSError):
+                names.update(
+                    p.stem
+                    for p in folder.iterdir()
+                    if p.suffix in CAMPAIGN_SUFFIXES and CAMPAIGN_NAME.fullmatch(p.stem)
+                )
+        return sorted(names)
+
+    def find(self, name: str) -> Path:
+        """The campaign file ``name`` names: the first ``name.yaml`` or ``name.py`` of the
+        campaign directories. BadRequest (nothing loaded) for anything but a known name."""
+        dirs = ", ".join(str(d) for d in self.campaign_dirs)
+        known = ", ".join(self.available()) or "none"
+        if not CAMPAIGN_NAME.fullmatch(name):
+            raise BadRequest(
+                f"campaign {_cut(name)!r}: give a campaign's name (lowercase letters, digits "
+                "and _, as `camctl campaign list` shows them), not a path: the daemon runs only "
+                f"the campaigns in its campaign directories ({dirs}); put yours in a directory "
+                f"of [campaigns] dirs in camd.toml. Campaigns here: {known}"
+            )
+        for folder in self.campaign_dirs:
+            for suffix in CAMPAIGN_SUFFIXES:
+                path = folder / f"{name}{suffix}"
+                if path.is_file():
+                    return path.resolve()
+        raise BadRequest(
+            f"no campaign {name!r} in the daemon's campaign directories ({dirs}); campaigns "
+            f"here: {known}; add yours to a directory of [campaigns] dirs in camd.toml"
+        )
+
     def check(self, file: str, quick: bool) -> dict[str, Any]:
-        """Load and check the campaign ``file`` (a path on this host or a shipped campaign's
-        name) in a worker, without running it: {"file", "campaign", "profile", "steps"};
-        BadRequest with the worker's reason when it is not a valid campaign."""
+        """Load and check the campaign file ``file`` (found by ``find``) in a worker, without
+        running it: {"file", "campaign", "profile", "steps"}; BadRequest with the worker's
+        reason when it is not a valid campaign."""
         argv = [self._python, "-m", WORKER_MODULE, "check", file] + (["--quick"] if quick else [])
         try:
             done = subprocess.run(argv, capture_output=True, timeout=CHECK_TIMEOUT_S, check=False)
@@ -166,22 +213,22 @@ class CampaignJobs:
 
     def start(
         self,
-        file: str,
+        campaign: str,
         out_dir: str | None,
         quick: bool,
         client: str,
         before_spawn: Callable[[int], None] = lambda job_id: None,
     ) -> dict[str, Any]:
-        """Check the campaign, then start a worker for it: the new job's document. Busy while
-        another job runs; BadRequest for an invalid campaign or output directory (nothing is
-        written then). ``before_spawn(job_id)`` (the session hands control to the worker)
-        may refuse the start by raising."""
+        """Find the campaign by name (``find``), check it, then start a worker for it: the new
+        job's document. Busy while another job runs; BadRequest for an unknown or invalid
+        campaign or output directory (nothing is written then). ``before_spawn(job_id)`` (the
+        session hands control to the worker) may refuse the start by raising."""
         with self._lock:
             self.refuse_if_active()
             self._refuse_if_latched("start a campaign job")
             if self._url is None:
                 raise WrongState("campaign jobs start once the daemon serves its API; retry")
-        checked = self.check(file, quick)
+        checked = self.check(str(self.find(campaign)), quick)
         with self._lock:
             self.refuse_if_active()
             job_id = max(self._jobs, default=0) + 1
@@ -605,3 +652,8 @@ def _stop_leftover(pid: int, job_id: int) -> None:
         time.sleep(0.05)
     with contextlib.suppress(ProcessLookupError):
         os.kill(pid, signal.SIGKILL)
+
+
+def _cut(text: str, limit: int = 80) -> str:
+    """``text`` as a message may quote it: at most ``limit`` characters."""
+    return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"

@@ -449,6 +449,26 @@ class TelemetrySection(_Section):
         return value
 
 
+class CampaignsSection(_Section):
+    """[campaigns]: where the daemon's campaign jobs come from."""
+
+    dirs: list[Path] = Field(
+        default_factory=list,
+        description="directories of the operator's own campaigns (YAML files and Python plans), "
+        "searched in order before the shipped ones; a campaign job names a campaign found "
+        "here (or a shipped one) by its name, never by a path (~ is expanded; absolute)",
+    )
+
+    @field_validator("dirs", mode="after")
+    @classmethod
+    def _absolute(cls, value: list[Path]) -> list[Path]:
+        out = [Path(os.path.expandvars(os.path.expanduser(str(p)))) for p in value]
+        relative = [str(p) for p in out if not p.is_absolute()]
+        if relative:
+            raise ValueError(f"give absolute directories, not {', '.join(relative)}")
+        return out
+
+
 class Config(_Section):
     """The whole daemon configuration."""
 
@@ -461,6 +481,7 @@ class Config(_Section):
     telemetry: TelemetrySection = Field(default_factory=TelemetrySection)
     stage: StageSection = Field(default_factory=StageSection)
     motion: MotionSection = Field(default_factory=MotionSection)
+    campaigns: CampaignsSection = Field(default_factory=CampaignsSection)
 
     @model_validator(mode="after")
     def _sim_matches_sensor(self) -> Config:

@@ -1264,11 +1264,12 @@ CampaignJobState = Literal[
 class CampaignStartRequest(_Request):
     """POST /api/v1/campaigns/jobs."""
 
-    file: str = Field(
+    campaign: str = Field(
         min_length=1,
-        max_length=4096,
-        description="the campaign: a YAML file or a Python plan on the daemon's host, or the name "
-        "of a shipped campaign (`camctl campaign list`)",
+        max_length=100,
+        description="the campaign's name (lowercase letters, digits, _): one of the daemon's "
+        "campaign directories ([campaigns] dirs in camd.toml, then the shipped ones; "
+        "`camctl campaign list`); never a path: the daemon runs no file a client names",
     )
     out: str | None = Field(
         default=None,

@@ -208,6 +208,7 @@ class DeviceSession:
             self._stop_acquisition_now,
             worker_ended=self._worker_ended,
             estop_latched=lambda: self.device.estop.latched,
+            campaign_dirs=config.campaigns.dirs,
         )
 
     # -- lifecycle ------------------------------------------------------------------------------
@@ -529,7 +530,7 @@ class DeviceSession:
         def hand_over(job_id: int) -> None:
             self.control.hand_over(client, worker_client(job_id), CAMPAIGN_CONTROL_TTL_S)
 
-        doc = self.campaigns.start(body.file, body.out, body.quick, client, hand_over)
+        doc = self.campaigns.start(body.campaign, body.out, body.quick, client, hand_over)
         return self._job_doc(doc)
 
     def resume_campaign(self, job_id: int, client: str) -> CampaignJob:
