@@ -7,6 +7,7 @@ against the soak's criteria, and nothing here depends on time.
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -16,6 +17,7 @@ import pytest
 
 from camd.cli.soak import render
 from camd.cli.soak_workload import KINDS, build_inject
+from tests.crash_support import REQUIRE_MOUNT
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -159,3 +161,30 @@ def test_build_inject_spreads_the_frame_fault_rate() -> None:
         "frame_short": 0.004, "frame_stall": 0.001, "garbage": 0.001,
     }  # fmt: skip
     assert build_inject(0, 0, 0) == {}
+
+
+def test_a_short_edge_soak_stops_fills_and_checks_everything(tmp_path: Path) -> None:
+    """``camd soak --edges`` for 40 s: emergency stops during campaign jobs, the data disk
+    filled once and emptied, every figure reported, and the daemon holding up to all of it."""
+    if not REQUIRE_MOUNT and os.geteuid() != 0:
+        pytest.skip("camd soak --edges mounts a tmpfs: root only (CI runs as root)")
+    work = tmp_path / "edges"
+    proc = _soak(
+        "--edges", "--minutes", "0.7", "--estop-every-s", "12", "--disk-fills", "1",
+        "--fill-hold-s", "8", "--json", "--out", str(work),
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    doc = json.loads(proc.stdout)
+    counts = doc["counts"]
+    assert _count(counts["estops"]) >= 1 and counts["estop_checks"] >= 10 * counts["estops"]
+    assert counts["refused_while_latched"] == counts["estops"]
+    assert counts["disk_filled"] == 1 and counts["disk_emptied"] == 1
+    assert _count(counts["jobs_started"]) >= 1 and _count(doc["files"]["checked"]) >= 1
+    assert doc["violations"] == [] and doc["files"]["unopenable"] == []
+    assert doc["files"]["journal_left"] == []
+    assert doc["crashes"] == 0 and doc["daemon"]["exit_code"] == 0
+    assert doc["requests"]["5xx"] == 0
+    assert doc["verdict"] == {
+        "crashes_0": True, "motion_after_estop_0": True, "files_openable": True, "no_5xx": True,
+    }  # fmt: skip
+    assert "data disk filled" in proc.stderr and "emergency stop: job" in proc.stderr

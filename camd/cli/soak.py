@@ -115,6 +115,30 @@ def add_parser(sub: Any) -> None:
         "--keep", action="store_true", help="keep the work directory (removed by default)"
     )
     p.add_argument("--json", action="store_true", help="print one JSON document on stdout")
+    edges = p.add_argument_group(
+        "--edges", "the soak at the edges (root only): a small data disk filled and emptied, "
+        "campaign jobs and emergency stops (docs/cli.md, camd soak --edges)"
+    )  # fmt: skip
+    edges.add_argument(
+        "--edges", action="store_true",
+        help="run the edge soak instead of the mixed workload on a lossy line",
+    )  # fmt: skip
+    edges.add_argument(
+        "--disk-mb", type=int, default=64, metavar="MB",
+        help="size of the tmpfs mounted as the daemon's data disk (default 64)",
+    )  # fmt: skip
+    edges.add_argument(
+        "--estop-every-s", type=_positive, default=180.0, metavar="S",
+        help="an emergency stop about every S seconds, inside a job's acquisition (default 180)",
+    )  # fmt: skip
+    edges.add_argument(
+        "--disk-fills", type=int, default=2, metavar="N",
+        help="how many times the data disk is filled and emptied (default 2)",
+    )  # fmt: skip
+    edges.add_argument(
+        "--fill-hold-s", type=_positive, default=120.0, metavar="S",
+        help="how long the disk stays full each time (default 120)",
+    )  # fmt: skip
 
 
 def run(args: argparse.Namespace) -> int:
@@ -144,6 +168,8 @@ def run(args: argparse.Namespace) -> int:
         work = out.resolve()
     else:
         work = Path(tempfile.mkdtemp(prefix="camd-soak-"))
+    if args.edges:
+        return _run_edges(args, work)
     settings = SoakSettings(
         minutes=args.minutes, seed=args.seed, inject=inject, work_dir=work,
         sample_s=args.sample_s, timeout_s=args.timeout, warmup_minutes=args.warmup_minutes,
@@ -170,6 +196,97 @@ def run(args: argparse.Namespace) -> int:
     if doc["interrupted"]:
         return 130
     return 1 if doc["error"] else 0
+
+
+def _run_edges(args: argparse.Namespace, work: Path) -> int:
+    """``camd soak --edges`` (camd.cli.soak_edges)."""
+    from camd.cli.soak_edges import EdgeSettings, EdgeSoak
+    from camd.cli.soak_workload import SoakAborted
+
+    if args.disk_mb < 16 or args.disk_fills < 0:
+        print(
+            "camd soak: error: --disk-mb takes 16 or more (the daemon's files need room), "
+            "--disk-fills 0 or more",
+            file=sys.stderr,
+        )
+        return 2
+    settings = EdgeSettings(
+        minutes=args.minutes, seed=args.seed, work_dir=work, disk_mb=args.disk_mb,
+        estop_every_s=args.estop_every_s, disk_fills=args.disk_fills,
+        fill_hold_s=args.fill_hold_s, timeout_s=args.timeout,
+    )  # fmt: skip
+
+    def progress(line: str) -> None:
+        print(line, file=sys.stderr, flush=True)
+
+    try:
+        doc = EdgeSoak(settings, progress).run()
+    except SoakAborted as exc:
+        print(f"camd soak --edges: error: {exc}", file=sys.stderr)
+        return 1
+    doc["work_dir"] = str(work)
+    doc["kept"] = bool(args.keep or doc["error"] or not all(doc["verdict"].values()))
+    if not doc["kept"]:
+        shutil.rmtree(work, ignore_errors=True)
+    if args.json:
+        print(json.dumps(doc))
+    else:
+        render_edges(doc)
+    if doc["interrupted"]:
+        return 130
+    return 1 if doc["error"] else 0
+
+
+def render_edges(doc: dict[str, Any]) -> None:
+    """The edge soak's figures and verdicts, on stdout."""
+    c = doc["counts"]
+    f = doc["files"]
+    r = doc["requests"]
+    print(
+        f"camd soak --edges: {doc['seconds'] / 60:.1f} min, seed {doc['seed']}, data disk "
+        f"{doc['disk_mb']} MiB"
+    )
+    if doc["interrupted"]:
+        print("INTERRUPTED: the figures cover the run up to Ctrl-C")
+    if doc["error"]:
+        print(f"ERROR: {doc['error']}")
+    print(
+        f"emergency stops {c.get('estops', 0)} (during campaign jobs; {c.get('estop_checks', 0)} "
+        f"checks that nothing moved, {c.get('refused_while_latched', 0)} wheel starts refused "
+        f"while latched); jobs started {c.get('jobs_started', 0)}, resumed "
+        f"{c.get('jobs_resumed', 0)}"
+    )
+    print(
+        f"data disk filled {c.get('disk_filled', 0)} times and emptied {c.get('disk_emptied', 0)}; "
+        f"recordings {c.get('recordings', 0)} ({c.get('recordings_ok', 0)} ok, "
+        f"{c.get('refused_disk_full', 0)} refused or cut by the full disk)"
+    )
+    print(
+        f"requests {r['sent']}: {r['2xx']} 2xx, {r['4xx']} 4xx, {r['5xx']} 5xx, "
+        f"{r['no_answer']} unanswered; other counts: "
+        + ", ".join(f"{k} {v}" for k, v in c.items() if k.startswith(("refused_", "jobs_")))
+    )
+    print(
+        f"files: {f.get('checked', 0)} HDF5 files opened, {len(f.get('unopenable', []))} could "
+        f"not be; journal entries left {len(f.get('journal_left', []))}"
+    )
+    print(
+        f"daemon: crashes {doc['crashes']}, exit status {doc['daemon']['exit_code']}, "
+        f"tracebacks in its log {doc['daemon']['tracebacks_in_log']}"
+    )
+    for line in doc["violations"][:20]:
+        print(f"  VIOLATION: {line}")
+    for line in f.get("unopenable", [])[:20]:
+        print(f"  UNOPENABLE: {line}")
+    names = {
+        "crashes_0": "no crash",
+        "motion_after_estop_0": "no motion after an emergency stop without a release",
+        "files_openable": "every file openable",
+        "no_5xx": "no 5xx answer",
+    }
+    for key, ok in doc["verdict"].items():
+        print(f"{'PASS' if ok else 'FAIL'}: {names.get(key, key)}")
+    print(f"work directory: {doc['work_dir']}{' (kept)' if doc['kept'] else ' (removed)'}")
 
 
 def render(doc: dict[str, Any]) -> None:
