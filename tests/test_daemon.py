@@ -73,7 +73,8 @@ class Daemon:
                     "--sim", "--port", "0", "--data-dir", str(self.data_dir), *extra]  # fmt: skip
         self.proc: subprocess.Popen[str] | None = None
         self.url = ""
-        self.http = httpx.Client(timeout=30.0)
+        # Named, as camctl's requests are: a bodyless POST without it is refused (docs/api.md).
+        self.http = httpx.Client(timeout=30.0, headers={"X-Camd-Client": "test-daemon"})
 
     def start(self) -> Daemon:
         with open(self.stderr_path, "w") as err:

@@ -29,6 +29,8 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from camd.daemon.control import ANONYMOUS
+
 if TYPE_CHECKING:
     from schemathesis import APIOperation, Case
 
@@ -107,9 +109,11 @@ def undo(case: Case[Any]) -> list[tuple[str, str, dict[str, Any] | None]]:
 
 
 def _client_header(case: Case[Any]) -> dict[str, str]:
+    """The case's client, named: an undo without a body needs the header (a bodyless POST
+    without it is refused, docs/api.md), and "anonymous" is who a request without one is."""
     headers: Mapping[str, Any] = case.headers or {}
-    name = next((v for k, v in headers.items() if k.lower() == "x-camd-client"), None)
-    return {"X-Camd-Client": str(name)} if name is not None else {}
+    name = next((v for k, v in headers.items() if k.lower() == "x-camd-client"), ANONYMOUS)
+    return {"X-Camd-Client": str(name)}
 
 
 def fuzz(

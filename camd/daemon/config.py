@@ -16,6 +16,7 @@ import tomllib
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Literal
+from urllib.parse import urlsplit
 
 from pydantic import (
     BaseModel,
@@ -55,6 +56,24 @@ def is_loopback(host: str) -> bool:
         return ipaddress.ip_address(host.strip("[]")).is_loopback
     except ValueError:
         return False  # a host name other than localhost may resolve to anything
+
+
+def normal_origin(origin: str) -> str:
+    """A web origin as browsers write it in the Origin header (``http://host:port``, lower case,
+    the default port left out); ValueError naming what is wrong if ``origin`` is not one."""
+    example = "write it as a browser's Origin header does, e.g. http://lab-pc:8080"
+    try:
+        parts = urlsplit(origin.strip())
+        port = parts.port
+    except ValueError:
+        raise ValueError(f"{origin!r} is not an origin; {example}") from None
+    if parts.scheme not in ("http", "https") or not parts.hostname:
+        raise ValueError(f"{origin!r} is not an origin (http or https and a host); {example}")
+    if parts.path not in ("", "/") or parts.query or parts.fragment or parts.username:
+        raise ValueError(f"{origin!r} has more than scheme, host and port; {example}")
+    host = f"[{parts.hostname}]" if ":" in parts.hostname else parts.hostname
+    default = {"http": 80, "https": 443}[parts.scheme]
+    return f"{parts.scheme}://{host}" + (f":{port}" if port not in (None, default) else "")
 
 
 class _Section(BaseModel):
@@ -98,6 +117,30 @@ class ApiSection(_Section):
     token: str = Field(
         default="", description="bearer token required from clients; empty = none (loopback only)"
     )
+    allowed_origins: list[str] = Field(
+        default_factory=list,
+        description="web pages of other origins (scheme://host[:port]) that may use the API and "
+        "the live WebSocket from a browser; the daemon's own pages always may",
+    )
+    max_body_bytes: int = Field(
+        default=65536,
+        ge=1024,
+        le=1 << 30,
+        description="largest request body taken, bytes; a longer one is refused (413) unread",
+    )
+    request_timeout_s: float = Field(
+        default=10.0,
+        gt=0,
+        le=3600,
+        description="a request's headers and body must arrive within this; a client that sends "
+        "half a request is disconnected then",
+    )
+
+    @field_validator("allowed_origins", mode="after")
+    @classmethod
+    def _origins(cls, value: list[str]) -> list[str]:
+        # Compared with what browsers send in Origin: scheme, host and port only, lower case.
+        return [normal_origin(origin) for origin in value]
 
     @model_validator(mode="after")
     def _token_for_remote(self) -> ApiSection:

@@ -6,22 +6,31 @@ device session (the simulator too with ``--sim``), serve HTTP with uvicorn, and 
 print exactly one line on stdout, ``camd serving http://HOST:PORT`` with the actual port, and
 send READY=1. SIGTERM or SIGINT: STOPPING=1, finish the open requests, stop the session
 (terminating the simulator), exit 0.
+
+uvicorn runs with ``TimedH11Protocol`` (a client must send each request within
+``api.request_timeout_s``) and the log handlers filter every record through ``RedactSecrets``
+(the token never reaches the log).
 """
 
 from __future__ import annotations
 
 import argparse
+import asyncio
+import json
 import logging
 import os
+import re
 import signal
 import socket
 import sqlite3
 import sys
 from pathlib import Path
 from types import FrameType
-from typing import Any
+from typing import Any, cast
 
+import h11
 import uvicorn
+from uvicorn.protocols.http.h11_impl import H11Protocol
 
 from camd.daemon import heap, notify
 from camd.daemon.api import create_app
@@ -138,13 +147,160 @@ class _Server(uvicorn.Server):
         self.session.abort()  # a long ping run must not hold the shutdown
 
 
-def _setup_logging(level: str) -> None:
+class TimedH11Protocol(H11Protocol):
+    """uvicorn's HTTP/1.1 protocol with a deadline on each request's arrival.
+
+    uvicorn times out a keep-alive connection between requests, but not a request that is
+    being sent: a client that sends half its headers, or a body shorter than its
+    Content-Length, or nothing at all after connecting, holds its connection (and the memory
+    of what it sent) for ever. Here a client has ``request_timeout_s`` (``api.request_timeout_s``)
+    from the moment the daemon waits for a request (the connection opened, or the previous
+    answer went out) until the request is complete, headers and body; trickling bytes does not
+    extend it. Then a client that had sent part of a request gets a 408 with the API's error
+    body, and the connection is closed. While the daemon works on a complete request (a stare
+    may take minutes), no deadline runs. A subclass, not a middleware: the headers are the
+    server's to read, and the app sees a request only once they are in.
+    """
+
+    request_timeout_s = 10.0  # set on the subclass that `timed_protocol` makes
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        self._deadline: asyncio.TimerHandle | None = None
+        self._seen_state: object = h11.IDLE  # the client's side of h11's state machine
+        self._upgraded = False  # a WebSocket's now: no HTTP request on it to wait for
+        super().connection_made(cast(asyncio.Transport, transport))  # a stream's, from asyncio
+        self._watch_request()
+
+    def data_received(self, data: bytes) -> None:
+        super().data_received(data)
+        self._watch_request()
+
+    def on_response_complete(self) -> None:
+        super().on_response_complete()
+        self._watch_request()
+
+    def handle_websocket_upgrade(self, event: h11.Request) -> None:
+        # The WebSocket protocol takes the connection over; h11 here still waits for the
+        # upgrade request's end, which never comes through this object.
+        self._upgraded = True
+        self._cancel_deadline()
+        super().handle_websocket_upgrade(event)
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        self._cancel_deadline()
+        super().connection_lost(exc)
+
+    def _cancel_deadline(self) -> None:
+        if self._deadline is not None:
+            self._deadline.cancel()
+            self._deadline = None
+
+    def _watch_request(self) -> None:
+        """Run the deadline while the daemon waits for (the rest of) a request; a new one gets
+        a fresh deadline, a complete one none."""
+        if self._upgraded:
+            return
+        state = self.conn.their_state
+        waiting = state in (h11.IDLE, h11.SEND_BODY)
+        new_request = state is h11.IDLE and self._seen_state is not h11.IDLE
+        self._seen_state = state
+        if not waiting or new_request:
+            self._cancel_deadline()
+        if waiting and self._deadline is None and not self.transport.is_closing():
+            self._deadline = self.loop.call_later(self.request_timeout_s, self._timed_out)
+
+    def _timed_out(self) -> None:
+        self._deadline = None
+        if self.transport.is_closing():
+            return
+        state = self.conn.their_state
+        cycle = self.cycle if state is h11.SEND_BODY else None
+        if state is h11.SEND_BODY:
+            partial = cycle is not None and not cycle.response_started
+        else:  # between requests: part of the next one's headers, or nothing
+            partial = bool(self.conn.trailing_data[0])
+        if cycle is not None:
+            cycle.disconnected = True  # the app's answer, if it ever comes, goes nowhere
+            cycle.message_event.set()  # and a read of the body ends
+        if partial:
+            self.transport.write(self._timeout_answer())
+        log.debug(
+            "closed a connection from %s: its request was not complete within %g s",
+            self.client,
+            self.request_timeout_s,
+        )
+        self.transport.close()
+
+    def _timeout_answer(self) -> bytes:
+        body = json.dumps(
+            {
+                "error": f"the request was not complete within {self.request_timeout_s:g} s "
+                "(api.request_timeout_s): its headers or its body stopped coming; the "
+                "connection is closed",
+                "code": "request_timeout",
+            }
+        ).encode()
+        head = (
+            "HTTP/1.1 408 Request Timeout\r\ncontent-type: application/json\r\n"
+            f"content-length: {len(body)}\r\nconnection: close\r\n\r\n"
+        )
+        return head.encode() + body
+
+
+def timed_protocol(request_timeout_s: float) -> type[TimedH11Protocol]:
+    """The HTTP protocol class uvicorn is to use, with this request timeout."""
+    return type("TimedH11Protocol", (TimedH11Protocol,), {"request_timeout_s": request_timeout_s})
+
+
+# A token in a logged URL (?token=, the camd_token cookie) or header (Bearer): uvicorn logs each
+# WebSocket's path and query at INFO, and each request's at DEBUG.
+_SECRET_IN_TEXT = re.compile(r"(token=)[^&\s\"';]+|(bearer\s+)[^\s\"',;]+", re.IGNORECASE)
+REDACTED = "***"
+TOKEN_LITERAL_MIN = 4  # characters: a token this long is also redacted wherever it appears
+
+
+class RedactSecrets(logging.Filter):
+    """Replaces tokens in every record a handler emits with ``***``: ``token=`` values, Bearer
+    values, and the daemon's own token wherever it appears."""
+
+    def __init__(self, token: str = "") -> None:
+        super().__init__()
+        self.token = token
+
+    def redact(self, text: str) -> str:
+        """``text`` with every secret replaced."""
+        text = _SECRET_IN_TEXT.sub(lambda m: (m.group(1) or m.group(2)) + REDACTED, text)
+        if len(self.token) < TOKEN_LITERAL_MIN:
+            return text  # a one-letter token replaced everywhere would garble the log
+        return text.replace(self.token, REDACTED)
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        try:
+            message = record.getMessage()
+        except Exception:  # a bad format: the handler reports it as it would have
+            return True
+        redacted = self.redact(message)
+        if redacted != message:
+            record.msg, record.args = redacted, None
+        if record.exc_info and not record.exc_text:
+            record.exc_text = logging.Formatter().formatException(record.exc_info)
+        if record.exc_text:
+            record.exc_text = self.redact(record.exc_text)
+        if record.stack_info:
+            record.stack_info = self.redact(record.stack_info)
+        return True
+
+
+def _setup_logging(level: str, token: str) -> None:
     # Everything on stderr: stdout carries only the `camd serving` line.
     logging.basicConfig(
         level=level.upper(),
         stream=sys.stderr,
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
     )
+    # On the handlers, not a logger: every logger's records (uvicorn's, the libraries') pass.
+    for handler in logging.getLogger().handlers:
+        handler.addFilter(RedactSecrets(token))
 
 
 def data_dir_problem(path: Path) -> str | None:
@@ -169,7 +325,7 @@ def run(args: argparse.Namespace) -> int:
     except ConfigError as exc:
         print(f"camd serve: invalid configuration:\n{exc}", file=sys.stderr)
         return EXIT_CONFIG
-    _setup_logging(config.daemon.log_level)
+    _setup_logging(config.daemon.log_level, config.api.token)
 
     # Until uvicorn takes the signals over, a stop request just ends the start-up early; and
     # after it hands them back it re-raises what it caught, which must then be harmless.
@@ -226,6 +382,7 @@ def run(args: argparse.Namespace) -> int:
     server = _Server(
         uvicorn.Config(
             create_app(session, token=config.api.token),
+            http=timed_protocol(config.api.request_timeout_s),
             log_config=None,  # keep our logging setup (uvicorn's would print access logs to stdout)
             log_level=config.daemon.log_level,
             access_log=config.daemon.log_level == "debug",
