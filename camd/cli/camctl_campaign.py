@@ -75,7 +75,8 @@ def add_parsers(command: Callable[[str, str], argparse.ArgumentParser]) -> None:
     p.add_argument(
         "--out", metavar="DIR",
         help="run: output directory (resumes if it has state); start: output directory on the "
-        "daemon's host (default: its data directory's campaigns/<job>-<name>)",
+        "daemon's host (relative: in its data directory's campaigns; default: "
+        "campaigns/<job>-<name> there)",
     )  # fmt: skip
     p.add_argument(
         "--quick", action="store_true", help="run, start: the campaign's CI-sized overrides"
@@ -229,7 +230,10 @@ def run_on_own_sim(
     from camd.cli._daemon_proc import DaemonStartError, start_sim_daemon
 
     try:
-        daemon = start_sim_daemon(out_dir.resolve() / "daemon", spec.profile, seed=spec.seed)
+        # Its data directory is inside out_dir; the raw files go beside it, into out_dir/raw.
+        daemon = start_sim_daemon(
+            out_dir.resolve() / "daemon", spec.profile, seed=spec.seed, record_dirs=[out_dir]
+        )
     except DaemonStartError as exc:
         raise CampaignError(f"the simulated camera did not start: {exc}") from None
     try:
@@ -283,7 +287,8 @@ def _job_action(client: CamdClient, args: argparse.Namespace) -> Any:
         # A local file is sent by its absolute path (the daemon runs on this host, or the
         # same path is there); anything else is passed as given, for the daemon to resolve.
         file = str(path.resolve()) if path is not None and path.is_file() else args.file
-        out = None if args.out is None else str(Path(args.out).resolve())
+        # DIR is the daemon's to resolve: a relative one goes into its campaigns folder.
+        out = None if args.out is None else str(Path(args.out).expanduser())
         job = client.start_campaign(file, out=out, quick=args.quick)
         return _follow(client, job) if args.wait else job
     if args.action == "status":

@@ -73,6 +73,7 @@ from camd.daemon.models import (
     TelemetryResponse,
 )
 from camd.daemon.motion_service import MotionService
+from camd.daemon.output_paths import RECORDINGS_FOLDER, SCANS_FOLDER
 from camd.daemon.scan_service import ScanService
 from camd.daemon.sensor_service import SensorService
 from camd.daemon.sim_supervisor import RestartPolicy, SimSupervisor
@@ -199,6 +200,7 @@ class DeviceSession:
             config.daemon.data_dir,
             lambda level, source, message: self._event(level, source, message),
             self._stop_acquisition_now,
+            record_dirs=config.daemon.record_dirs,
         )
 
     # -- lifecycle ------------------------------------------------------------------------------
@@ -220,6 +222,12 @@ class DeviceSession:
         data directory or the archive cannot be written.
         """
         self.config.daemon.data_dir.mkdir(parents=True, exist_ok=True)
+        # The folders that relative record and out paths go into (docs/api.md, "Files").
+        daemon = self.config.daemon
+        for folder in (RECORDINGS_FOLDER, SCANS_FOLDER):
+            (daemon.data_dir / folder).mkdir(exist_ok=True)
+        allowed = ", ".join(str(d) for d in (daemon.data_dir, *daemon.record_dirs))
+        log.info("files that clients name are written only inside: %s", allowed)
         self.archive = TelemetryArchive(self.config.archive_path)
         self._event("info", "daemon", f"camd {camd.__version__} started (pid {os.getpid()})")
         self._recover_recordings()
