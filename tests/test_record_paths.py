@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import json
 import os
+import subprocess
+import sys
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -29,7 +31,7 @@ from camd.cli._daemon_proc import DaemonProcess
 from camd.client import CamdClient
 from camd.store import read_recording
 from tests.device_snapshot import snapshot
-from tests.test_camctl import camctl, camctl_json
+from tests.test_camctl import camctl, camctl_env, camctl_json
 from tests.test_output_paths import NEVER, REFUSED, Tree, fill, listing, make_tree
 
 API = "/api/v1"
@@ -177,3 +179,21 @@ def test_a_campaign_job_with_a_relative_out_runs_in_the_campaigns_folder(rig: Ri
         while client.campaign_job(job["id"])["state"] not in ("aborted", "passed", "failed"):
             assert time.monotonic() < deadline, client.campaign_job(job["id"])
             time.sleep(0.1)
+
+
+def test_camctl_campaign_run_sim_lets_its_own_daemon_write_its_output(tmp_path: Path) -> None:
+    """``camctl campaign run --sim`` (as ``camd demo`` runs its campaigns) starts a daemon of its
+    own in DIR/daemon, which must be allowed to write DIR/raw: without the suite's
+    ``$CAMD_RECORD_DIRS``, only what camctl itself allows."""
+    out = tmp_path / "run"
+    env = {**camctl_env(), "CAMD_RECORD_DIRS": ""}
+    proc = subprocess.run(
+        [sys.executable, "-m", "camd.cli.camctl", "campaign", "run", "example_stare", "--sim",
+         "--quick", "--out", str(out), "--json"],
+        capture_output=True, text=True, timeout=300, env=env, check=False,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout)["passed"] is True
+    raw = sorted(p.name for p in (out / "raw").iterdir())
+    assert raw == ["dark.h5", "light_0__stare.h5", "light_1__stare.h5"]
+    assert all(len(read_recording(out / "raw" / name).frames) > 0 for name in raw)
