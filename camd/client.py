@@ -351,8 +351,9 @@ class CamdClient:
         record: str | None = None,
         timeout_s: float | None = None,
     ) -> StreamResponse:
-        """Take ``frames`` frames (recording them to the HDF5 file ``record``, an absolute path
-        on the daemon's host, if given) and return the counters when the stream has ended."""
+        """Take ``frames`` frames (recording them to the new HDF5 file ``record`` on the daemon's
+        host, if given: relative = in its data directory's recordings, docs/api.md "Files") and
+        return the counters when the stream has ended."""
         body = _stream_body(frames, mode, stages, binning, record, timeout_s)
         # The daemon bounds the acquisition (by timeout_s, or twice the expected time); the
         # answer may take that long, so only connecting is bounded by the client's timeout.
@@ -458,7 +459,8 @@ class CamdClient:
         dv_over_v: float = 0.0,
     ) -> ScanResponse:
         """Start a push-broom scan of ``lines`` complete TDI lines at ``stages`` stages and
-        return at once; ``out`` is an absolute path on the daemon's host (docs/scan.md).
+        return at once; ``out`` is a path on the daemon's host (relative = in its data
+        directory's scans; docs/api.md "Files").
         The scan drives the stage at the synchronous speed (``drive_stage``), closed loop
         unless ``closed_loop`` is False (None: the config), offset by ``dv_over_v``."""
         body: dict[str, Any] = {
@@ -664,7 +666,7 @@ class CamdClient:
     ) -> WheelAcquireResponse:
         """One frame per channel per pass; returns each frame's imaging-centre angle, its
         uncertainty and mean. ``exposure_s`` / ``compensated`` are set first when given;
-        ``record`` is an absolute path of a new HDF5 file on the daemon's host."""
+        ``record`` is a new HDF5 file on the daemon's host (as for ``acquire``)."""
         body: dict[str, Any] = {"channels": list(channels), "passes": passes}
         optional = {
             "exposure_s": exposure_s, "compensated": compensated, "record": record,
@@ -781,7 +783,8 @@ class CamdClient:
         self, campaign: str, *, out: str | None = None, quick: bool = False
     ) -> CampaignJob:
         """Start a campaign job on the daemon (``campaign``: a campaign's name in the daemon's
-        campaign directories, never a path); returns at once with the job, which runs in the
+        campaign directories, never a path; ``out``: its output directory there, relative = in
+        the data directory's campaigns); returns at once with the job, which runs in the
         daemon's worker. Needs control (or free control), which passes to the job's worker."""
         body: dict[str, Any] = {"campaign": campaign, "quick": quick}
         if out is not None:

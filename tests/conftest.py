@@ -11,6 +11,8 @@ from pathlib import Path
 import pytest
 from hypothesis import settings
 
+from camd.daemon.config import RECORD_DIRS_ENV
+
 # The browser fixtures (``browser``, ``page``) for the tests of the pages the daemon serves.
 pytest_plugins = ["tests.browser"]
 
@@ -18,6 +20,17 @@ pytest_plugins = ["tests.browser"]
 # most never scan, and a scan loads them itself; about a second of a core per daemon saved.
 # tests/test_config.py starts one daemon with the warm-up, as shipped.
 os.environ.setdefault("CAMD_TDI_WARM_UP", "0")
+
+
+@pytest.fixture(scope="session", autouse=True)
+def daemons_record_into_the_test_directories(tmp_path_factory: pytest.TempPathFactory) -> None:
+    """The suite's daemons may write into this run's temporary directories (``tmp_path`` and
+    the rest: a test records beside its own files, outside the daemon's data directory),
+    allowed as an operator would, through ``daemon.record_dirs`` (``$CAMD_RECORD_DIRS``, which
+    the daemons inherit; docs/config.md); nowhere else. tests/test_record_paths.py starts its
+    daemon without it."""
+    os.environ[RECORD_DIRS_ENV] = str(tmp_path_factory.getbasetemp())
+
 
 # No per-example deadline: CI machines are slow and shared; a slow example is not a failure.
 settings.register_profile("camd", deadline=None)

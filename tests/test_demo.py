@@ -29,8 +29,13 @@ REPO_ROOT = str(Path(camd.__file__).resolve().parent.parent)
 
 
 def demo_env() -> dict[str, str]:
-    # The demo's daemon and client would both take $CAMD_TOKEN; run it as a user without one.
-    env = {k: v for k, v in os.environ.items() if k not in ("CAMD_URL", "CAMD_TOKEN")}
+    # The demo's daemon and client would both take $CAMD_TOKEN; run it as a user without one,
+    # and without the suite's $CAMD_RECORD_DIRS: its daemons write only where the demo allows.
+    env = {
+        k: v
+        for k, v in os.environ.items()
+        if k not in ("CAMD_URL", "CAMD_TOKEN", "CAMD_RECORD_DIRS")
+    }
     env["PYTHONPATH"] = os.pathsep.join(p for p in (REPO_ROOT, env.get("PYTHONPATH")) if p)
     env["PYTHONUNBUFFERED"] = "1"
     return env

@@ -215,9 +215,9 @@ ROWS = [
         id="stare-of-no-frames",
     ),
     pytest.param(
-        Row(http("POST", "/stream/acquire", {"frames": 2, "record": "rel.h5"}), "bad_request",
-            "is relative; give an absolute path"),
-        id="stare-recorded-to-a-relative-path",
+        Row(http("POST", "/stream/acquire", {"frames": 2, "record": "/etc/camd-never.h5"}),
+            "bad_request", "is outside the directories the daemon may write"),
+        id="stare-recorded-outside-the-allowed-directories",
     ),
     pytest.param(
         Row(cli("stare", "--frames", "2", "--out", "{tmp}/nodir/s.h5"), "exit 1",

@@ -150,11 +150,16 @@ def test_refusals_say_what_to_change(tmp_path: Path, fields: dict[str, Any], mes
         plan_scan(request, _context(tmp_path, stage=_stage()))
 
 
-def test_the_file_is_absolute_or_time_stamped_in_the_data_dir(tmp_path: Path) -> None:
-    assert scan_path("/data/x.h5", tmp_path, NOW) == Path("/data/x.h5")
-    assert scan_path(None, tmp_path, NOW) == tmp_path / "scans/scan-20261125T120000.000000Z.h5"
-    with pytest.raises(BadRequest, match=r"'x\.h5' is relative; give an absolute path"):
-        scan_path("x.h5", tmp_path, NOW)
+def test_the_file_is_confined_or_time_stamped_in_the_data_dir(tmp_path: Path) -> None:
+    data, extra = tmp_path / "data", tmp_path / "extra"
+    assert scan_path(None, data, NOW) == data / "scans/scan-20261125T120000.000000Z.h5"
+    assert scan_path("x.h5", data, NOW) == data / "scans/x.h5"  # relative: in the scans folder
+    assert scan_path(str(data / "x.h5"), data, NOW) == data / "x.h5"
+    assert scan_path(str(extra / "x.h5"), data, NOW, [extra]) == extra / "x.h5"
+    with pytest.raises(BadRequest, match=r"out '/data/x\.h5' is outside the directories the "):
+        scan_path("/data/x.h5", data, NOW)
+    with pytest.raises(BadRequest, match=r"resolves to '/etc/x\.h5', outside the directories"):
+        scan_path("../" * 40 + "etc/x.h5", data, NOW)
 
 
 def test_the_ideal_stage_takes_any_mismatch(tmp_path: Path) -> None:

@@ -23,9 +23,11 @@ ROOT = Path(__file__).resolve().parent.parent
 
 
 def _soak(*args: str, timeout_s: float = 280.0) -> subprocess.CompletedProcess[str]:
+    # Without the suite's $CAMD_RECORD_DIRS: the soak's daemon writes where the soak allows.
+    env = {k: v for k, v in os.environ.items() if k != "CAMD_RECORD_DIRS"}
     return subprocess.run(
         [sys.executable, "-m", "camd", "soak", *args],
-        capture_output=True, text=True, timeout=timeout_s, cwd=ROOT,
+        capture_output=True, text=True, timeout=timeout_s, cwd=ROOT, env=env,
     )  # fmt: skip
 
 

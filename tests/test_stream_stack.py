@@ -120,8 +120,9 @@ def test_bad_requests_are_refused_and_leave_the_daemon_idle(url: str, tmp_path: 
     assert proc.returncode == 2 and "already exists" in proc.stderr
     assert existing.read_bytes() == b"keep me"
     with CamdClient(url) as client:
-        with pytest.raises(CamdError, match="is relative; give an absolute path") as info:
-            client.acquire(2, record="relative.h5")
+        outside = "/etc/camd-test-never.h5"
+        with pytest.raises(CamdError, match="is outside the directories the daemon may") as info:
+            client.acquire(2, record=outside)
         assert info.value.code == "bad_request"
         with pytest.raises(CamdError, match="frames must be at least 1"):
             client.acquire(0)

@@ -42,8 +42,10 @@ class DaemonProcess:
     """A ``camd serve --sim --port 0`` subprocess, as a context manager.
 
     ``data_dir`` is the daemon's ``--data-dir`` (created if missing; the log ``daemon.log`` goes
-    there too). ``inject`` is passed as ``--inject`` when not empty, ``extra_args`` are appended
-    to the command line and ``env`` entries override the inherited environment.
+    there too). ``inject`` is passed as ``--inject`` when not empty, each of ``record_dirs`` as
+    ``--record-dir`` (clients may have the daemon write there too, besides ``data_dir``),
+    ``extra_args`` are appended to the command line and ``env`` entries override the inherited
+    environment.
     """
 
     def __init__(
@@ -51,6 +53,7 @@ class DaemonProcess:
         data_dir: str | os.PathLike[str],
         *,
         inject: str = "",
+        record_dirs: Sequence[str | os.PathLike[str]] = (),
         extra_args: Sequence[str] = (),
         env: Mapping[str, str] | None = None,
         start_timeout_s: float = 30.0,
@@ -75,6 +78,8 @@ class DaemonProcess:
         ]
         if inject:
             self.command += ["--inject", inject]
+        for folder in record_dirs:
+            self.command += ["--record-dir", str(Path(folder).absolute())]
         self.command += list(extra_args)
         self._env = _child_env(env)
         self._proc: subprocess.Popen[str] | None = None
@@ -270,12 +275,17 @@ def _child_env(overrides: Mapping[str, str] | None) -> dict[str, str]:
 
 
 def start_sim_daemon(
-    data_dir: Path, profile: str, *, seed: int | None = None, defects: Sequence[str] = ()
+    data_dir: Path,
+    profile: str,
+    *,
+    seed: int | None = None,
+    defects: Sequence[str] = (),
+    record_dirs: Sequence[Path] = (),
 ) -> DaemonProcess:
     """``camd serve --sim`` simulating camera ``profile`` (with ``seed`` and the deliberate
-    ``defects`` when given), its config, data and log in ``data_dir``; started. What
-    ``camctl campaign run --sim`` and ``camd conform --sim`` run on. DaemonStartError if it
-    does not start."""
+    ``defects`` when given), its config, data and log in ``data_dir``, recording also into
+    ``record_dirs``; started. What ``camctl campaign run --sim`` and ``camd conform --sim`` run
+    on. DaemonStartError if it does not start."""
     data_dir.mkdir(parents=True, exist_ok=True)
     lines = ["[sim]", f"profile = {json.dumps(profile)}"]
     if seed is not None:
@@ -285,6 +295,11 @@ def start_sim_daemon(
     lines += ["[sensor]", f"name = {json.dumps(profile)}"]
     config = data_dir / "camd.toml"
     config.write_text("\n".join(lines) + "\n", encoding="utf-8")
-    daemon = DaemonProcess(data_dir, extra_args=["--config", str(config)], env={"CAMD_TOKEN": ""})
+    daemon = DaemonProcess(
+        data_dir,
+        record_dirs=record_dirs,
+        extra_args=["--config", str(config)],
+        env={"CAMD_TOKEN": ""},
+    )
     daemon.start()
     return daemon

@@ -371,7 +371,10 @@ def run(args: argparse.Namespace) -> int:
         scratch.mkdir()
         try:
             with DaemonProcess(
-                root / "daemon", extra_args=["--config", str(config)], env={"CAMD_TOKEN": ""}
+                root / "daemon",
+                record_dirs=[scratch],  # where neutralise() sends every file
+                extra_args=["--config", str(config)],
+                env={"CAMD_TOKEN": ""},
             ) as daemon:
                 from camd.client import CamdClient
 

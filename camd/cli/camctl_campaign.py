@@ -76,7 +76,8 @@ def add_parsers(command: Callable[[str, str], argparse.ArgumentParser]) -> None:
     p.add_argument(
         "--out", metavar="DIR",
         help="run: output directory (resumes if it has state); start: output directory on the "
-        "daemon's host (default: its data directory's campaigns/<job>-<name>)",
+        "daemon's host (relative: in its data directory's campaigns; default: "
+        "campaigns/<job>-<name> there)",
     )  # fmt: skip
     p.add_argument(
         "--quick", action="store_true", help="run, start: the campaign's CI-sized overrides"
@@ -230,7 +231,10 @@ def run_on_own_sim(
     from camd.cli._daemon_proc import DaemonStartError, start_sim_daemon
 
     try:
-        daemon = start_sim_daemon(out_dir.resolve() / "daemon", spec.profile, seed=spec.seed)
+        # Its data directory is inside out_dir; the raw files go beside it, into out_dir/raw.
+        daemon = start_sim_daemon(
+            out_dir.resolve() / "daemon", spec.profile, seed=spec.seed, record_dirs=[out_dir]
+        )
     except DaemonStartError as exc:
         raise CampaignError(f"the simulated camera did not start: {exc}") from None
     try:
@@ -288,7 +292,8 @@ def _job_action(client: CamdClient, args: argparse.Namespace) -> Any:
                 "them ([campaigns] dirs in the daemon's camd.toml) and start it by name, or run "
                 f"it here, in camctl's own process: `camctl campaign run {args.file}`"
             )
-        out = None if args.out is None else str(Path(args.out).resolve())
+        # DIR is the daemon's to resolve: a relative one goes into its campaigns folder.
+        out = None if args.out is None else str(Path(args.out).expanduser())
         job = client.start_campaign(args.file, out=out, quick=args.quick)
         return _follow(client, job) if args.wait else job
     if args.action == "status":

@@ -12,7 +12,9 @@ first keys are the contract {"file", "lines", "complete_lines", "lost_frames", "
 "mismatch_max" and "mismatch_rms" (M |dV/V| over the scan, docs/motion.md); the rest is the
 daemon's scan document. The scan drives the stage at the synchronous speed (closed loop unless
 --open-loop, or config motion.closed_loop = "off"); --no-stage leaves it alone. Ctrl-C stops the scan (the file keeps what was taken).
-FILE is made absolute on this machine: camctl and camd must share the file system.
+FILE is written by the daemon, on its host: a relative FILE goes into its data directory's
+``scans`` folder, an absolute one must be inside a directory it may write (docs/api.md, "Files");
+``file`` is the absolute path the daemon answers.
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
 from camd.cli.camctl_sensor import CommandFailed, UsageError
-from camd.cli.camctl_stream import count_arg, finite_number
+from camd.cli.camctl_stream import count_arg, daemon_file, finite_number
 from camd.client import CamdClient
 from camd.client_types import ScanResponse
 
@@ -48,7 +50,13 @@ def add_parsers(command: Callable[[str, str], argparse.ArgumentParser]) -> None:
         "--lines", type=count_arg, metavar="L", help="complete TDI lines wanted (0 = until --stop)"
     )
     p.add_argument("--scene", metavar="SPEC", help="simulated camera: set this scene first")
-    p.add_argument("--out", type=Path, metavar="FILE", help="new HDF5 file (default: data dir)")
+    p.add_argument(
+        "--out",
+        type=Path,
+        metavar="FILE",
+        help="new HDF5 file on the daemon's host (relative: in its data directory's scans; "
+        "default: scans/scan-<UTC>.h5 there)",
+    )
     how = p.add_mutually_exclusive_group()
     how.add_argument(
         "--speed-m-s", type=finite_number, metavar="V", help="stage speed; sets the line period"
@@ -104,12 +112,7 @@ def cmd_scan(client: CamdClient, args: argparse.Namespace) -> Any:
         raise UsageError("scan needs --stages M and --lines L (or --status / --stop)")
     if args.stages < 1:
         raise UsageError("--stages must be at least 1")
-    out = None
-    if args.out is not None:
-        path = args.out.expanduser().absolute()
-        if path.exists():
-            raise UsageError(f"{path} already exists; choose another --out or remove it")
-        out = str(path)
+    out = None if args.out is None else daemon_file(args.out)
     doc = client.start_scan(
         args.stages,
         args.lines,

@@ -12,13 +12,16 @@
 
 ``stream`` and ``stare`` print one flat document: the counters (frames, lost, corrupt,
 overruns, mpix_per_s, mbyte_per_s, ...) and the stream's geometry. A recording is written by the
-daemon: FILE is made absolute on this machine, so camctl and camd must share the file system.
+daemon, on its host: a relative FILE goes into its data directory's ``recordings`` folder, an
+absolute one must be inside a directory it may write (docs/api.md, "Files"); ``out`` is the
+absolute path the daemon answers.
 """
 
 from __future__ import annotations
 
 import argparse
 import math
+import os
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -88,7 +91,13 @@ def add_parsers(command: Callable[[str, str], argparse.ArgumentParser]) -> None:
 
     p = command("stare", "record area-mode (staring) frames to an HDF5 file")
     p.add_argument("--frames", type=count_arg, required=True, metavar="N", help="frames, >= 1")
-    p.add_argument("--out", type=Path, required=True, metavar="FILE", help="new HDF5 file")
+    p.add_argument(
+        "--out",
+        type=Path,
+        required=True,
+        metavar="FILE",
+        help="new HDF5 file on the daemon's host (relative: in its data directory's recordings)",
+    )
     p.add_argument("--binning", action="store_true", help="FPGA-side 2x2 binning")
 
     p = command("sim", "the simulated camera's world: scene, stage, stream faults")
@@ -165,18 +174,27 @@ def cmd_stream(client: CamdClient, args: argparse.Namespace) -> Any:
     return doc
 
 
+def daemon_file(path: Path) -> str:
+    """A file for the daemon to write, as camctl sends it: ``~`` expanded; a relative path as
+    given (the daemon takes it inside its data directory, whatever camctl's working directory
+    is); an absolute one refused here already if it exists (UsageError)."""
+    path = path.expanduser()
+    # os.path.exists, not Path.exists: a name too long to stat is the daemon's to refuse.
+    if path.is_absolute() and os.path.exists(path):
+        raise UsageError(f"{path} already exists; choose another --out or remove it")
+    return str(path)
+
+
 def cmd_stare(client: CamdClient, args: argparse.Namespace) -> Any:
     if args.frames < 1:
         raise UsageError("--frames must be at least 1")
-    out = args.out.expanduser().absolute()
-    if out.exists():
-        raise UsageError(f"{out} already exists; choose another --out or remove it")
+    record = daemon_file(args.out)
     doc = flat(
         client.acquire(
-            args.frames, mode="area", binning="2x2" if args.binning else "off", record=str(out)
+            args.frames, mode="area", binning="2x2" if args.binning else "off", record=record
         )
     )
-    doc["out"] = str(out)
+    doc["out"] = doc["recording"]  # the absolute path the daemon wrote
     return doc
 
 

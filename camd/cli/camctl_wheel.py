@@ -26,6 +26,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from camd.cli.camctl_sensor import UsageError
+from camd.cli.camctl_stream import daemon_file
 from camd.client import CamdClient
 from camd.client_types import WheelRegion
 from camd.motion.polarization_run import (
@@ -118,7 +119,13 @@ def add_parsers(command: Callable[[str, str], argparse.ArgumentParser]) -> None:
                     help="set this exposure first (default: the registers')")  # fmt: skip
     sp.add_argument("--compensation", type=_on_off, metavar="on|off",
                     help="set delay compensation first (default: as it is)")  # fmt: skip
-    sp.add_argument("--out", type=Path, metavar="FILE", help="record the frames to a new HDF5")
+    sp.add_argument(
+        "--out",
+        type=Path,
+        metavar="FILE",
+        help="record the frames to a new HDF5 file on the daemon's host (relative: in its data "
+        "directory's recordings)",
+    )
     sp.add_argument("--region", type=_region, metavar="ROW,ROWS,COL,COLS",
                     help="report the mean of this region (default: the whole frame)")  # fmt: skip
     sp = action(
@@ -157,12 +164,7 @@ def cmd_wheel(client: CamdClient, args: argparse.Namespace) -> Any:
 def _acquire(client: CamdClient, args: argparse.Namespace) -> Any:
     if not 1 <= args.passes <= 1000:
         raise UsageError(f"--passes must be from 1 to 1000, got {args.passes}")
-    record = None
-    if args.out is not None:
-        out = args.out.expanduser().absolute()
-        if out.exists():
-            raise UsageError(f"{out} already exists; choose another --out or remove it")
-        record = str(out)
+    record = None if args.out is None else daemon_file(args.out)
     return client.wheel_acquire(
         args.channels,
         passes=args.passes,

@@ -115,7 +115,10 @@ def conform(client: CamdClient | None, args: argparse.Namespace) -> dict[str, An
 
     try:
         daemon = start_sim_daemon(
-            out_dir.resolve() / "daemon", args.profile, defects=list(args.defect or ())
+            out_dir.resolve() / "daemon",
+            args.profile,
+            defects=list(args.defect or ()),
+            record_dirs=[out_dir],
         )
     except DaemonStartError as exc:
         raise RuntimeError(f"the simulated camera did not start: {exc}") from None

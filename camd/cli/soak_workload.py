@@ -222,6 +222,7 @@ class Soak:
         self.daemon = DaemonProcess(
             data,
             inject=inject_text(self.s.inject),
+            record_dirs=[self.s.work_dir],  # stares, scans and campaigns beside its data
             extra_args=["--config", str(config)],
             env={"CAMD_TOKEN": ""},
         )

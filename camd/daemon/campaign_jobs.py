@@ -61,6 +61,7 @@ from camd.daemon.errors import (
 )
 from camd.daemon.estop import RELEASE_HINT
 from camd.daemon.models import CampaignJob, CampaignJobState
+from camd.daemon.output_paths import CAMPAIGNS_FOLDER, resolve_output
 from camd.paths import config_dir
 
 __all__ = ["ACTIVE", "CampaignJobs", "Job", "worker_client"]
@@ -125,8 +126,10 @@ class CampaignJobs:
         estop_latched: Callable[[], bool] = lambda: False,
         campaign_dirs: Sequence[Path] = (),
         python: str = sys.executable,
+        record_dirs: Sequence[Path] = (),
     ) -> None:
-        self._dir = data_dir / "campaigns"
+        self._dir = data_dir / CAMPAIGNS_FOLDER
+        self._record_dirs = tuple(record_dirs)  # where else an out directory may be
         self._path = self._dir / "jobs.json"
         self._events = events
         self._stop_acquisition = stop_acquisition
@@ -228,12 +231,14 @@ class CampaignJobs:
             self._refuse_if_latched("start a campaign job")
             if self._url is None:
                 raise WrongState("campaign jobs start once the daemon serves its API; retry")
-        checked = self.check(str(self.find(campaign)), quick)
+        campaign_path = self.find(campaign)
+        # A directory the client named is checked first: refused at once, no worker started.
+        named_out = None if out_dir is None else self._check_out_dir(out_dir)
+        checked = self.check(str(campaign_path), quick)
         with self._lock:
             self.refuse_if_active()
             job_id = max(self._jobs, default=0) + 1
-            out = Path(out_dir) if out_dir else self._dir / f"{job_id}-{checked['campaign']}"
-            self._check_out_dir(out)
+            out = named_out or self._dir / f"{job_id}-{checked['campaign']}"
             job = Job(
                 id=job_id,
                 campaign=str(checked["campaign"]),
@@ -314,13 +319,17 @@ class CampaignJobs:
                     f"time: pause or abort it first (`camctl campaign pause {job.id}`)"
                 )
 
-    @staticmethod
-    def _check_out_dir(out: Path) -> None:
-        if not out.is_absolute():
-            raise BadRequest(
-                f"out {str(out)!r}: give an absolute path on the daemon's host (or none: the "
-                "daemon's data directory)"
-            )
+    def _check_out_dir(self, out_dir: str) -> Path:
+        """The job's output directory a client named, resolved and confined like a recording
+        (``camd.daemon.output_paths``: relative to the campaigns folder); BadRequest if it
+        is outside the allowed directories, a file, or not writable. Nothing is created."""
+        out = resolve_output(
+            out_dir,
+            field="out",
+            relative_to=self._dir,
+            data_dir=self._dir.parent,
+            record_dirs=self._record_dirs,
+        )
         if out.exists() and not out.is_dir():
             raise BadRequest(f"out {out}: exists and is not a directory; give a directory")
         parent = out if out.exists() else out.parent
@@ -328,6 +337,7 @@ class CampaignJobs:
             parent = parent.parent
         if not os.access(parent, os.W_OK | os.X_OK):
             raise BadRequest(f"out {out}: {parent} is not writable; give another directory")
+        return out
 
     # -- pause, resume, abort ------------------------------------------------------------------
 

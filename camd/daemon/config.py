@@ -35,6 +35,9 @@ TOKEN_ENV = "CAMD_TOKEN"
 TDI_WARM_UP_ENV = "CAMD_TDI_WARM_UP"
 """Environment variable that supplies ``daemon.tdi_warm_up`` ("0" or "1"; it wins over the
 file): the test suite's daemons, most of which never scan, set it to 0."""
+RECORD_DIRS_ENV = "CAMD_RECORD_DIRS"
+"""Environment variable whose directories (separated by ``:``) are added to
+``daemon.record_dirs``: the test suite allows its temporary directories this way."""
 UNIX_SOCKET_PATH_MAX = 100  # bytes: sun_path is 108 on Linux, 104 on BSD, NUL included
 """Environment variable that supplies ``api.token`` (it wins over the file)."""
 
@@ -80,6 +83,11 @@ class _Section(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, validate_default=True)
 
 
+def _expanded(path: Path) -> Path:
+    """``path`` with ``~`` and ``$VARIABLES`` expanded."""
+    return Path(os.path.expandvars(os.path.expanduser(str(path))))
+
+
 class DaemonSection(_Section):
     """[daemon]: where the daemon keeps its files and how much it logs."""
 
@@ -102,11 +110,31 @@ class DaemonSection(_Section):
         "not wait for them (about a second of one core); false: at the first scan",
     )
 
+    record_dirs: list[Path] = Field(
+        default_factory=list,
+        description="directories outside data_dir where clients may have the daemon write "
+        "recordings, scans and campaign output (absolute; ~ and $VARIABLES expanded)",
+    )
+
     @field_validator("data_dir", mode="after")
     @classmethod
     def _expand(cls, value: Path) -> Path:
         # Expanded here so that every user of the config sees one absolute path.
-        return Path(os.path.expandvars(os.path.expanduser(str(value)))).absolute()
+        return _expanded(value).absolute()
+
+    @field_validator("record_dirs", mode="after")
+    @classmethod
+    def _absolute_dirs(cls, value: list[Path]) -> list[Path]:
+        # A relative entry would depend on the daemon's working directory: an operator allows
+        # a directory they can name.
+        expanded = [_expanded(path) for path in value]
+        for index, path in enumerate(expanded):
+            if not path.is_absolute():
+                raise ValueError(
+                    f"entry {index} ({str(value[index])!r}) is not an absolute path; give one "
+                    "starting with / (or ~)"
+                )
+        return expanded
 
 
 class ApiSection(_Section):
@@ -577,8 +605,9 @@ def default_config_path() -> Path:
 def load_config(path: Path | None = None, *, env: Mapping[str, str] | None = None) -> Config:
     """Read and validate a config file (None = the shipped config/camd.toml).
 
-    ``$CAMD_TOKEN`` (from ``env``, default os.environ) replaces ``api.token`` when set, and
-    ``$CAMD_TDI_WARM_UP`` (0 or 1) ``daemon.tdi_warm_up``.
+    ``$CAMD_TOKEN`` (from ``env``, default os.environ) replaces ``api.token`` when set,
+    ``$CAMD_TDI_WARM_UP`` (0 or 1) ``daemon.tdi_warm_up``, and the directories of
+    ``$CAMD_RECORD_DIRS`` are added to ``daemon.record_dirs``.
     Raises ConfigError naming the file, the key path and what is allowed.
     """
     path = default_config_path() if path is None else Path(path)
@@ -611,6 +640,19 @@ def config_from_dict(
         daemon = merged.get("daemon", {})
         if isinstance(daemon, dict):
             merged["daemon"] = {**daemon, "tdi_warm_up": warm_up == "1"}
+    extra_dirs = [entry for entry in env.get(RECORD_DIRS_ENV, "").split(os.pathsep) if entry]
+    for entry in extra_dirs:
+        if not _expanded(Path(entry)).is_absolute():
+            raise ConfigError(
+                f"${RECORD_DIRS_ENV}: {entry!r} is not an absolute path; give absolute "
+                f"directories separated by {os.pathsep!r} (or unset it)"
+            )
+    if extra_dirs:
+        daemon = merged.get("daemon", {})
+        if isinstance(daemon, dict):
+            listed = daemon.get("record_dirs", [])
+            if isinstance(listed, list):  # anything else is the file's error, reported below
+                merged["daemon"] = {**daemon, "record_dirs": [*listed, *extra_dirs]}
     try:
         return Config.model_validate(merged)
     except ValidationError as exc:

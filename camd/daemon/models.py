@@ -610,8 +610,9 @@ class StreamStartRequest(_Request):
     binning: Binning = Field(default="off", description="FPGA-side 2x2 binning")
     record: str | None = Field(
         default=None,
-        description="absolute path of a new HDF5 file to record the frames to (on the daemon's "
-        "host); null records nothing",
+        description="new HDF5 file to record the frames to, on the daemon's host: relative = in "
+        "<data_dir>/recordings; absolute = inside the data directory or daemon.record_dirs "
+        "(docs/api.md, Files); null records nothing",
     )
     timeout_s: float | None = Field(
         default=None,
@@ -789,8 +790,9 @@ class ScanRequest(_Request):
     )
     out: str | None = Field(
         default=None,
-        description="absolute path of the new HDF5 file (on the daemon's host); null = "
-        "<data_dir>/scans/scan-<UTC time>.h5",
+        description="the new HDF5 file, on the daemon's host: relative = in <data_dir>/scans; "
+        "absolute = inside the data directory or daemon.record_dirs (docs/api.md, Files); "
+        "null = <data_dir>/scans/scan-<UTC time>.h5",
     )
     scene: str | None = Field(
         default=None, max_length=240, description="simulated camera only: set this scene first"
@@ -1191,7 +1193,10 @@ class WheelAcquireRequest(_Request):
         default=None, description="set compensation first; null keeps the wheel's setting"
     )
     record: str | None = Field(
-        default=None, description="absolute path of a new HDF5 file for the frames; null: none"
+        default=None,
+        description="new HDF5 file for the frames, on the daemon's host: relative = in "
+        "<data_dir>/recordings; absolute = inside the data directory or daemon.record_dirs "
+        "(docs/api.md, Files); null: none",
     )
     region: WheelRegion | None = Field(
         default=None, description="report the mean of this region; null: of the whole frame"
@@ -1273,9 +1278,10 @@ class CampaignStartRequest(_Request):
     )
     out: str | None = Field(
         default=None,
-        max_length=4096,
-        description="absolute output directory on the daemon's host; null = "
-        "<data_dir>/campaigns/<id>-<campaign>",
+        # No max_length: the path rules (camd.daemon.output_paths) bound it, in bytes.
+        description="output directory on the daemon's host: relative = in <data_dir>/campaigns; "
+        "absolute = inside the data directory or daemon.record_dirs (docs/api.md, Files); "
+        "null = <data_dir>/campaigns/<id>-<campaign>",
     )
     quick: bool = Field(default=False, description="the campaign's CI-sized overrides")
 

@@ -21,12 +21,13 @@ puts back what it changed if a step fails (``camd.daemon.transaction``).
 from __future__ import annotations
 
 import datetime as dt
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from camd.daemon.errors import BadRequest
 from camd.daemon.models import ScanRequest, ScanTiming, TimingResponse
+from camd.daemon.output_paths import SCANS_FOLDER, resolve_output
 from camd.motion.stage import STOPPED_STATES, StageLimits
 from camd.sensor.regmap import RegisterMap
 from camd.tdi import TdiEngine, stage_taps
@@ -218,15 +219,19 @@ def _check_request(request: ScanRequest, stage: StageContext | None) -> None:
         )
 
 
-def scan_path(out: str | None, data_dir: Path, now: dt.datetime) -> Path:
-    """The file a scan writes: ``out`` (absolute, new) or a time-stamped one in the data dir."""
+def scan_path(
+    out: str | None, data_dir: Path, now: dt.datetime, record_dirs: Sequence[Path] = ()
+) -> Path:
+    """The file a scan writes: a time-stamped one in the data directory's scans folder, or
+    ``out`` resolved and confined to the data directory and ``record_dirs`` (a relative one
+    in the scans folder; ``camd.daemon.output_paths``)."""
+    folder = data_dir / SCANS_FOLDER
     if out is None:
         stamp = now.astimezone(dt.UTC).strftime("%Y%m%dT%H%M%S.%fZ")
-        return data_dir / "scans" / f"scan-{stamp}.h5"
-    path = Path(out)
-    if not path.is_absolute():
-        raise BadRequest(f"out path {out!r} is relative; give an absolute path (camctl does)")
-    return path
+        return folder / f"scan-{stamp}.h5"
+    return resolve_output(
+        out, field="out", relative_to=folder, data_dir=data_dir, record_dirs=record_dirs
+    )
 
 
 def plan_scan(request: ScanRequest, context: ScanContext) -> ScanPlan:

@@ -165,7 +165,8 @@ class ScanService:
         back what it had changed and says so (``camd.daemon.transaction``)."""
         device = self.device
         what = "until stopped" if request.lines == 0 else f"{request.lines} lines"
-        path = scan_path(request.out, device.config.daemon.data_dir, dt.datetime.now(dt.UTC))
+        daemon = device.config.daemon
+        path = scan_path(request.out, daemon.data_dir, dt.datetime.now(dt.UTC), daemon.record_dirs)
         slot = device.acquisition
         acquisition = slot.claim("scan", f"M = {request.stages}, {what} to {path}")
         try:

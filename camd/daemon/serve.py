@@ -67,6 +67,13 @@ def add_parser(sub: Any) -> None:
         "--port", type=int, metavar="P", help="TCP port (api.port); 0 picks any free port"
     )
     p.add_argument("--data-dir", type=Path, metavar="DIR", help="data directory (daemon.data_dir)")
+    p.add_argument(
+        "--record-dir",
+        type=Path,
+        action="append",
+        metavar="DIR",
+        help="also let clients record into DIR (added to daemon.record_dirs; repeatable)",
+    )
     device = p.add_mutually_exclusive_group()
     device.add_argument(
         "--sim", action="store_true", help="spawn and use the simulated camera (link.device=sim)"
@@ -91,6 +98,9 @@ def build_config(args: argparse.Namespace) -> Config:
             "api.host": args.host,
             "api.port": args.port,
             "daemon.data_dir": args.data_dir,
+            "daemon.record_dirs": (
+                [*config.daemon.record_dirs, *args.record_dir] if args.record_dir else None
+            ),
             "link.device": device,
             "sim.inject": args.inject,
         },

@@ -76,6 +76,7 @@ from camd.daemon.models import (
     TelemetryResponse,
 )
 from camd.daemon.motion_service import MotionService
+from camd.daemon.output_paths import RECORDINGS_FOLDER, SCANS_FOLDER
 from camd.daemon.scan_service import ScanService
 from camd.daemon.sensor_service import SensorService
 from camd.daemon.sim_supervisor import RestartPolicy, SimSupervisor
@@ -209,6 +210,7 @@ class DeviceSession:
             worker_ended=self._worker_ended,
             estop_latched=lambda: self.device.estop.latched,
             campaign_dirs=config.campaigns.dirs,
+            record_dirs=config.daemon.record_dirs,
         )
 
     # -- lifecycle ------------------------------------------------------------------------------
@@ -230,6 +232,12 @@ class DeviceSession:
         data directory or the archive cannot be written.
         """
         self.config.daemon.data_dir.mkdir(parents=True, exist_ok=True)
+        # The folders that relative record and out paths go into (docs/api.md, "Files").
+        daemon = self.config.daemon
+        for folder in (RECORDINGS_FOLDER, SCANS_FOLDER):
+            (daemon.data_dir / folder).mkdir(exist_ok=True)
+        allowed = ", ".join(str(d) for d in (daemon.data_dir, *daemon.record_dirs))
+        log.info("files that clients name are written only inside: %s", allowed)
         self.archive = GuardedArchive(
             TelemetryArchive(self.config.archive_path),
             lambda level, message: self._event(level, "telemetry", message),

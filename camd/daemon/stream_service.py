@@ -46,6 +46,7 @@ from camd.daemon.models import (
     StreamStartRequest,
     StreamStats,
 )
+from camd.daemon.output_paths import RECORDINGS_FOLDER, resolve_output
 from camd.daemon.sensor_service import SensorService
 from camd.daemon.state import Request, Trigger
 from camd.daemon.transaction import Apply
@@ -412,6 +413,10 @@ class StreamService:
         # One start at a time: a second client's start waits here, then finds the slot taken
         # and is refused (Busy), never touching the running reader. A scan or a wheel run
         # that already holds the slot starts its stream inside its own claim.
+        if request.record is not None:
+            # Resolved and confined first: everything after names the file it will write.
+            record = self.allowed_record(request.record)
+            request = request.model_copy(update={"record": str(record)})
         slot = self.device.acquisition
         with self._start_lock:
             owner = slot.applying_now()
@@ -573,15 +578,24 @@ class StreamService:
         how = f"{info['mode']} stream" if start is None else start.command
         self.device.fire(Trigger.STREAM_STARTED, f"{how}, {what}")
 
+    def allowed_record(self, record: str) -> Path:
+        """The file a client's ``record`` names, resolved and confined to the data directory
+        and ``daemon.record_dirs`` (a relative one in the recordings folder); BadRequest
+        otherwise (``camd.daemon.output_paths``)."""
+        daemon = self.device.config.daemon
+        return resolve_output(
+            record,
+            field="record",
+            relative_to=daemon.data_dir / RECORDINGS_FOLDER,
+            data_dir=daemon.data_dir,
+            record_dirs=daemon.record_dirs,
+        )
+
     def _record_path(self, record: str | None, planned_bytes: int) -> Path | None:
         """The recording's path, refused (nothing changed) when it cannot be written."""
         if record is None:
             return None
-        path = Path(record)
-        if not path.is_absolute():
-            raise BadRequest(
-                f"record path {record!r} is relative; give an absolute path (camctl does this)"
-            )
+        path = Path(record)  # resolved and confined by ``allowed_record`` in ``_start``
         try:
             check_new_file(path, planned_bytes)
         except RecordingError as exc:

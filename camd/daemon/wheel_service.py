@@ -230,6 +230,10 @@ class WheelService:
         asked for (or the wheel's), the region and the recording path. The exposure and
         compensation it sets stay set after it; a run that fails puts them back.
         """
+        if request.record is not None:
+            # Resolved and confined first: everything after names the file it will write.
+            record = self.stream.allowed_record(request.record)
+            request = request.model_copy(update={"record": str(record)})
         slot = self.device.acquisition
         what = f"channels {','.join(map(str, request.channels))} x {request.passes}"
         acquisition = slot.claim(
@@ -479,13 +483,11 @@ class WheelService:
     @staticmethod
     def _check_record(record: str | None) -> None:
         # The stream service checks this too, but only after the exposure has been written.
+        # ``acquire`` has resolved and confined the path already.
         if record is None:
             return
-        path = Path(record)
-        if not path.is_absolute():
-            raise BadRequest(f"record path {record!r} is relative; give an absolute path")
         try:
-            check_new_file(path)
+            check_new_file(Path(record))
         except RecordingError as exc:
             raise BadRequest(str(exc)) from None
 
