@@ -97,7 +97,13 @@ def undo(case: Case[Any]) -> list[tuple[str, str, dict[str, Any] | None]]:
     ``case`` was accepted: (method, path, JSON body) requests, sent as the same client."""
     path = case.operation.path
     method = case.operation.method.upper()
-    if path in (f"{API}/estop", f"{API}/motion/estop"):
+    if (method, path) == ("POST", f"{API}/estop"):
+        # The emergency stop latches: released first, then the stage enabled again.
+        return [
+            ("POST", f"{API}/estop/release", None),
+            ("POST", f"{API}/motion/enable", {"on": True}),
+        ]
+    if (method, path) == ("POST", f"{API}/motion/estop"):
         return [("POST", f"{API}/motion/enable", {"on": True})]
     if (method, path) == ("POST", f"{API}/control"):
         return [("DELETE", f"{API}/control", None)]
