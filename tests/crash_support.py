@@ -1,4 +1,5 @@
-"""Shared by the crash-safety tests: a small file system that fills up, and filling it."""
+"""Shared by the crash-safety tests: a small file system that fills up, filling it, and the
+space a writer holds past the end of its file."""
 
 from __future__ import annotations
 
@@ -55,3 +56,13 @@ def fill_disk(folder: Path) -> int:
     finally:
         os.close(fd)
     return written
+
+
+NO_HEADROOM = 64 << 10  # past a file's end once finished: a block or two of rounding at most
+
+
+def blocks_past_end(path: Path) -> int:
+    """Bytes allocated to ``path`` past its last block: a writer's headroom
+    (camd.store.durability.Headroom), under NO_HEADROOM once the file is finished."""
+    st = path.stat()
+    return st.st_blocks * 512 - -(-st.st_size // 4096) * 4096

@@ -23,10 +23,9 @@ import pytest
 
 from camd.cli._daemon_proc import DaemonProcess
 from camd.client import CamdClient
-from camd.store.durability import reserve_path
 from camd.store.recording import read_recording
 from camd.store.tdi_recording import read_tdi_scan
-from tests.crash_support import fill_disk, small_disk
+from tests.crash_support import NO_HEADROOM, blocks_past_end, fill_disk, small_disk
 
 REPO_ROOT = str(Path(__file__).resolve().parent.parent)
 NO_TOKEN = {"CAMD_TOKEN": ""}
@@ -108,7 +107,7 @@ def test_a_daemon_killed_mid_scan_leaves_a_file_that_the_next_one_repairs(
         assert f["lines"].shape[0] == n == f.attrs["lines"]
         assert f.attrs["finished"] is np.False_ and "killed" in f.attrs["interrupted"]
     assert np.array_equal(read_tdi_scan(out).lines, scan.lines)
-    assert not reserve_path(out).exists()
+    assert blocks_past_end(out) < NO_HEADROOM
     assert list((data / "open-recordings").glob("*.json")) == []
 
 
@@ -187,13 +186,13 @@ def test_a_full_disk_stops_a_stare_and_the_daemon_keeps_serving(tmp_path: Path) 
         assert rec.crc_mismatches() == []
         with h5py.File(out, "r") as f:  # closed properly: any reader opens it
             assert f.attrs["frames"] == kept
-        assert not reserve_path(out).exists()
+        assert blocks_past_end(out) < NO_HEADROOM
         assert list((data / "open-recordings").glob("*.json")) == []
 
 
 def test_a_full_disk_stops_a_scan_and_the_daemon_keeps_serving(tmp_path: Path) -> None:
     data = tmp_path / "data"
-    with small_disk(tmp_path / "small", 48) as disk, _daemon(data) as (_, client):
+    with small_disk(tmp_path / "small", 64) as disk, _daemon(data) as (_, client):
         out = disk / "scan.h5"
         client.start_scan(8, 0, out=str(out), quicklook=False, drive_stage=False)
         _wait_for("200 lines on disk", lambda: client.scan()["lines_flushed"] >= 200)
@@ -208,4 +207,4 @@ def test_a_full_disk_stops_a_scan_and_the_daemon_keeps_serving(tmp_path: Path) -
         assert len(scan.lines) == scan.attrs["lines"] == status["lines_flushed"] >= 200
         assert scan.attrs["state"] == "failed" and "No space left" in scan.attrs["error"]
         assert np.all(np.diff(scan.line_index) > 0)
-        assert not reserve_path(out).exists()
+        assert blocks_past_end(out) < NO_HEADROOM

@@ -174,8 +174,9 @@ class ScanService:
                 self.sensor.require_trained("start a scan")
                 plan, snapshot, stage_position = self._plan(request, path)
                 self._warm_engine(plan)
+                reserve = TdiRecorder.reserve_bytes(plan.columns, request.mode)
                 try:
-                    check_new_file(plan.path, plan.planned_bytes)
+                    check_new_file(plan.path, plan.planned_bytes, reserve)
                 except RecordingError as exc:
                     raise BadRequest(str(exc)) from None
                 scan = self._apply(plan, snapshot, stage_position, acquisition)

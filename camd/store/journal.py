@@ -20,7 +20,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from camd.store.durability import Recovered, RecoveryError, recover_file, reserve_path
+from camd.store.durability import (
+    Recovered,
+    RecoveryError,
+    is_disk_full,
+    is_held_open,
+    recover_file,
+)
 from camd.store.recording import FrameRecorder, RecordingError
 
 log = logging.getLogger(__name__)
@@ -91,8 +97,10 @@ class RecordingJournal:
 
 
 def recover_left_open(journal: RecordingJournal) -> list[LeftOpen]:
-    """Repair every file the journal says was left open; each entry is then removed (a file
-    that cannot be repaired is reported, not retried forever)."""
+    """Repair every file the journal says was left open; each entry is then removed, but for a
+    file whose repair failed for want of space (it is tried again at the next start, and the
+    problem says so); a file that cannot be repaired for another reason is reported, not
+    retried forever."""
     report: list[LeftOpen] = []
     for entry, record in journal.entries():
         path = Path(record.get("path", ""))
@@ -107,8 +115,11 @@ def recover_left_open(journal: RecordingJournal) -> list[LeftOpen]:
                 recovered = recover_file(path)
             except (RecoveryError, OSError, KeyError, ValueError) as exc:
                 problem = f"cannot repair it: {exc}"
+                if is_disk_full(exc):
+                    problem += "; camd tries again when it next starts"
+                    report.append(LeftOpen(path, kind, opened, recovered, problem))
+                    continue  # the entry stays
         report.append(LeftOpen(path, kind, opened, recovered, problem))
-        reserve_path(path).unlink(missing_ok=True)  # the dead writer's space reserve
         entry.unlink(missing_ok=True)
     return report
 
@@ -118,24 +129,43 @@ def close_recording(
     stats: Mapping[str, Any] | None,
     journal: RecordingJournal,
     log_event: Callable[[str, str, str], None],
+    *,
+    ended_early: str | None = None,
 ) -> None:
-    """Close a frame recording and take it off the journal. A file that cannot be closed is
-    repaired at once if it can be (``recover_file``), else left on the journal for the next
-    start; either way the event log says so."""
+    """Close a frame recording (``ended_early``: why it holds fewer frames than asked for) and
+    take it off the journal once the file is whole. A file that cannot be closed is repaired at
+    once if it can be (``recover_file``; never one this process still holds open), else left
+    on the journal for the next start; either way the event log says so."""
+    path = recorder.path
     try:
-        recorder.close(stats)
+        recorder.close(stats, ended_early=ended_early)
     except RecordingError as exc:
+        if is_held_open(path):
+            log_event(
+                "error",
+                "stream",
+                f"recording {path} could not be closed: {exc}; camd repairs it when it next starts",
+            )
+            return  # the journal keeps it
         try:
-            recover_file(recorder.path, reason=str(exc))
+            recover_file(path, reason=str(exc))
         except (RecoveryError, OSError) as again:
             log_event(
                 "error",
                 "stream",
-                f"recording {recorder.path} could not be closed ({exc}) nor repaired ({again}); "
+                f"recording {path} could not be closed ({exc}) nor repaired ({again}); "
                 "camd tries again when it next starts",
             )
             return
-        log_event("warning", "stream", f"recording {recorder.path} was repaired after: {exc}")
+        log_event("warning", "stream", f"recording {path} was repaired after: {exc}")
     else:
-        log_event("info", "stream", f"recording {recorder.path} closed: {recorder.flushed} frames")
-    journal.closed(recorder.path)
+        if recorder.failed is not None:
+            log_event(
+                "warning",
+                "stream",
+                f"recording {path} closed after a failed write: {recorder.flushed} frames "
+                "kept, marked unfinished",
+            )
+        else:
+            log_event("info", "stream", f"recording {path} closed: {recorder.flushed} frames")
+    journal.closed(path)
