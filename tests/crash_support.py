@@ -5,9 +5,11 @@ from __future__ import annotations
 
 import os
 import subprocess
-from collections.abc import Iterator
+import time
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -66,3 +68,16 @@ def blocks_past_end(path: Path) -> int:
     (camd.store.durability.Headroom), under NO_HEADROOM once the file is finished."""
     st = path.stat()
     return st.st_blocks * 512 - -(-st.st_size // 4096) * 4096
+
+
+def wait_for(what: str, check: Callable[[], Any], timeout_s: float = 120.0) -> Any:
+    """Poll ``check`` until it returns something true, and return that; AssertionError naming
+    ``what`` after ``timeout_s`` (generous by default: the suite runs on a busy 2-core host)."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        value = check()
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            raise AssertionError(f"waited {timeout_s:g} s for {what}")
+        time.sleep(0.1)

@@ -133,39 +133,55 @@ def close_recording(
     ended_early: str | None = None,
 ) -> None:
     """Close a frame recording (``ended_early``: why it holds fewer frames than asked for) and
-    take it off the journal once the file is whole. A file that cannot be closed is repaired at
-    once if it can be (``recover_file``; never one this process still holds open), else left
-    on the journal for the next start; either way the event log says so."""
+    take it off the journal once the file is whole (``settle_failed_close`` if the close
+    failed); the event log says how it ended."""
     path = recorder.path
     try:
         recorder.close(stats, ended_early=ended_early)
     except RecordingError as exc:
-        if is_held_open(path):
-            log_event(
-                "error",
-                "stream",
-                f"recording {path} could not be closed: {exc}; camd repairs it when it next starts",
-            )
-            return  # the journal keeps it
-        try:
-            recover_file(path, reason=str(exc))
-        except (RecoveryError, OSError) as again:
-            log_event(
-                "error",
-                "stream",
-                f"recording {path} could not be closed ({exc}) nor repaired ({again}); "
-                "camd tries again when it next starts",
-            )
-            return
-        log_event("warning", "stream", f"recording {path} was repaired after: {exc}")
+        settle_failed_close(path, exc, "recording", journal, log_event, "stream")
+        return
+    if recorder.failed is not None:
+        log_event(
+            "warning",
+            "stream",
+            f"recording {path} closed after a failed write: {recorder.flushed} frames kept, "
+            "marked unfinished",
+        )
     else:
-        if recorder.failed is not None:
-            log_event(
-                "warning",
-                "stream",
-                f"recording {path} closed after a failed write: {recorder.flushed} frames "
-                "kept, marked unfinished",
-            )
-        else:
-            log_event("info", "stream", f"recording {path} closed: {recorder.flushed} frames")
+        log_event("info", "stream", f"recording {path} closed: {recorder.flushed} frames")
     journal.closed(path)
+
+
+def settle_failed_close(
+    path: Path,
+    exc: BaseException,
+    kind: str,
+    journal: RecordingJournal,
+    log_event: Callable[[str, str, str], None],
+    source: str,
+) -> bool:
+    """A writer's close failed (``exc``): repair the file at once if it can be
+    (``recover_file``; never one this process still holds open, which HDF5 would share) and
+    take it off the journal; else leave it on the journal for the next start. The event log
+    says which; True if the file is whole."""
+    if is_held_open(path):
+        log_event(
+            "error",
+            source,
+            f"{kind} {path} could not be closed: {exc}; camd repairs it when it next starts",
+        )
+        return False
+    try:
+        recover_file(path, reason=str(exc))
+    except (RecoveryError, OSError, KeyError, ValueError) as again:
+        log_event(
+            "error",
+            source,
+            f"{kind} {path} could not be closed ({exc}) nor repaired ({again}); camd tries "
+            "again when it next starts",
+        )
+        return False
+    log_event("warning", source, f"{kind} {path} was repaired after: {exc}")
+    journal.closed(path)
+    return True
