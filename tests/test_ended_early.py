@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import os
 import signal
+import subprocess
+import sys
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -23,7 +25,7 @@ from camd.client import CamdClient, CamdError
 from camd.store import read_recording
 from camd.store.tdi_recording import read_tdi_scan
 from tests.crash_support import wait_for
-from tests.test_camctl import camctl, camctl_json
+from tests.test_camctl import camctl, camctl_env, camctl_json
 from tests.test_sensor_stack import serve
 
 pytestmark = pytest.mark.slow
@@ -108,6 +110,35 @@ def test_a_stream_stopped_on_request_did_not_end_early(client: CamdClient) -> No
     # Its frames not sent are counted all the same: the camera's own count.
     sent = doc["frames_sent"]
     assert sent is not None and doc["frames_not_sent"] == 1_000_000 - sent > 0
+
+
+def test_a_stare_stopped_by_another_client_is_not_done(
+    url: str, client: CamdClient, tmp_path: Path
+) -> None:
+    out = tmp_path / "stopped.h5"
+    stare = subprocess.Popen(
+        [sys.executable, "-m", "camd.cli.camctl", "--url", url, "stare", "--frames", "100000",
+         "--out", str(out)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=camctl_env(),
+    )  # fmt: skip
+    try:
+        wait_for("3 frames on disk", lambda: client.stream()["frames_flushed"] >= 3)
+        stopped = client.stop_stream()
+        _, err = stare.communicate(timeout=WAIT_S)
+    finally:
+        if stare.poll() is None:
+            stare.kill()
+            stare.wait()
+    assert stare.returncode == 1
+    kept, sent = stopped["frames_flushed"], stopped["frames_sent"]
+    assert sent is not None and stopped["ended_early"] is None  # as asked, by its stopper
+    assert (
+        "camctl: error: the stream was stopped before its 100000 frames (`camctl stream "
+        "--stop`, an emergency stop or the daemon stopping): "
+        f"{stopped['stats']['frames']} of 100000 frames delivered, 0 lost, {100000 - sent} not "
+        f"sent; the recording {out} is closed with {kept} of them" in err
+    )
+    assert read_recording(out).attrs["frames"] == kept >= 3
 
 
 def test_fail_next_end_after_frames_is_for_commands_that_start_a_stream(

@@ -437,6 +437,15 @@ class ScanService:
         request = plan.request
         scan_meta = request.model_dump(exclude={"out"})
         scan_meta.update(frames_requested=plan.frames, width=plan.columns)
+        # On the journal before the file exists: a daemon killed at any point after leaves an
+        # entry, and the next one repairs the file (or finds it was never made).
+        journal = self.device.recordings
+        try:
+            journal.opened(plan.path, "scan")
+        except OSError as exc:
+            raise SessionError(
+                f"cannot note the scan in {journal.folder}: {exc}; check the data directory"
+            ) from None
         try:
             recorder = TdiRecorder(
                 plan.path,
@@ -452,15 +461,8 @@ class ScanService:
                 background_attrs=None if background is None else background.recording_attrs(),
             )
         except (RecordingError, ValueError) as exc:
+            journal.closed(plan.path)  # no file was left (TdiRecorder removes what it began)
             raise BadRequest(str(exc)) from None
-        journal = self.device.recordings
-        try:
-            journal.opened(plan.path, "scan")
-        except OSError as exc:
-            _discard(recorder, journal)
-            raise SessionError(
-                f"cannot note the scan in {journal.folder}: {exc}; check the data directory"
-            ) from None
         return recorder
 
     def _start_stream(self, scan: _Scan, rows: int, cols: int) -> None:

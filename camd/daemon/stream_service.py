@@ -402,7 +402,8 @@ class StreamService:
     def _raise_if_short(self) -> None:
         """After an acquisition's stream ended: the error to answer with if it ended before
         all its frames came (the camera went away: Disconnected; its recording could not be
-        written for want of space: StorageFull; else EndedEarly), each saying what was kept."""
+        written for want of space: StorageFull; the camera ended it, or someone stopped it:
+        EndedEarly), each saying what was kept."""
         with self._lock:
             broken, early, recording = self._broken, self._ended_early, self._recording
             stop_cause, not_sent, flushed = (
@@ -411,7 +412,7 @@ class StreamService:
                 self._frames_flushed,
             )
             frames = int(self._info["frames_requested"])
-        if early is None:
+        if early is None and not_sent == 0:
             return
         stats = self._stats()
         counts = (
@@ -422,6 +423,11 @@ class StreamService:
             raise Disconnected(
                 f"the stream ended before its {frames} frames: {broken}; {counts}{kept}. Check "
                 "`camctl status` and `camctl events`, then acquire again"
+            )
+        if early is None:
+            raise EndedEarly(
+                f"the stream was stopped before its {frames} frames (`camctl stream --stop`, "
+                f"an emergency stop or the daemon stopping): {counts}{kept}"
             )
         if stop_cause is not None and is_disk_full(OSError(stop_cause)):
             raise StorageFull(f"{early}; the stream was stopped: {counts}{kept}")
@@ -663,6 +669,15 @@ class StreamService:
         }
         if start is not None:
             stream.update({"start_command": start.command, **start.metadata})
+        # On the journal before the file exists: a daemon killed at any point after leaves an
+        # entry, and the next one repairs the file (or finds it was never made).
+        journal = self.device.recordings
+        try:
+            journal.opened(path, "recording")
+        except OSError as exc:
+            raise SessionError(
+                f"cannot note the recording in {journal.folder}: {exc}; check the data directory"
+            ) from None
         try:
             recorder = FrameRecorder(
                 path,
@@ -677,16 +692,8 @@ class StreamService:
                 background_attrs=None if background is None else background.recording_attrs(),
             )
         except RecordingError as exc:
+            journal.closed(path)  # no file was left (FrameRecorder removes what it began)
             raise BadRequest(str(exc)) from None
-        journal = self.device.recordings
-        try:
-            journal.opened(path, "recording")
-        except OSError as exc:
-            recorder.close()
-            path.unlink(missing_ok=True)
-            raise SessionError(
-                f"cannot note the recording in {journal.folder}: {exc}; check the data directory"
-            ) from None
         return recorder
 
     def _attach_recorder(self, recorder: FrameRecorder, reader: FrameStream) -> None:
