@@ -719,8 +719,8 @@ class StreamService:
         self.device.log_event(
             "error", "stream", f"recording {recorder.path} stopped: {why}; stopping the stream"
         )
-        with self._lock:
-            self._stop_cause = f"the recording {recorder.path} stopped: {why}"
+        # Not under the lock: this runs on the dispatcher, which _finish joins holding it.
+        self._stop_cause = f"the recording {recorder.path} stopped: {why}"
 
         def stop() -> None:
             try:
@@ -811,9 +811,9 @@ class StreamService:
         """End the stream on the host side: account for, drain, stop, close; then idle.
 
         ``frames_sent``: the camera's own count (STREAM_DONE, STOP_STREAM), None if it could
-        not say (it went away). ``on_request``: a client (or the daemon's shutdown) stopped it,
-        so frames not sent are not a shortfall. ``settle``: first wait for a START_STREAM in
-        flight to be booked (not from inside it)."""
+        not say (it went away). ``on_request``: a client (or the daemon's shutdown) stopped it:
+        it did not end early (its frames not sent are counted all the same). ``settle``: first
+        wait for a START_STREAM in flight to be booked (not from inside it)."""
         if settle:
             self._settled.wait(SETTLE_TIMEOUT_S)
         with self._lock:
