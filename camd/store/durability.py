@@ -117,7 +117,10 @@ class Headroom:
         there, and the blocks past it go too. NoRoom if it cannot be made whole (the flush
         itself went through). Without ``regrow``: the writer is about to close the file."""
         self._file.flush()
-        self._allocated = min(self._allocated, os.fstat(self._fd).st_size)
+        st = os.fstat(self._fd)
+        if st.st_blocks * 512 + _CUT_SLACK < self._allocated:
+            # Fewer blocks than the headroom had: HDF5 cut the file, and the blocks past it.
+            self._allocated = min(self._allocated, st.st_size)
         if regrow:
             self.ensure(0)
 
@@ -173,6 +176,9 @@ _KEEP_SIZE = 0x01  # fallocate(2): FALLOC_FL_KEEP_SIZE
 _PUNCH_HOLE = 0x02  # fallocate(2): FALLOC_FL_PUNCH_HOLE
 _TAIL_MAX = 1 << 36  # past the end of a finished file: the most a headroom may have allocated
 _PIECE = 256 << 10  # allocate_past's request size
+# A headroom is taken as cut when the file has this much fewer blocks than it allocated (more
+# than the holes HDF5 leaves, less than any reserve).
+_CUT_SLACK = 1 << 20
 
 
 @functools.cache
