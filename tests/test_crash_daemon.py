@@ -238,12 +238,12 @@ def test_a_stare_that_fills_the_disk_is_a_507_and_keeps_every_frame_written(
         assert (failure.http_status, failure.code) == (507, "insufficient_storage")
         kept = client.stream()["frames_flushed"]
         doc = client.stream()
-        delivered = doc["stats"]["frames"]  # with the one that did not fit
+        delivered, lost = doc["stats"]["frames"], doc["stats"]["lost"]  # with what did not fit
         assert (
             f"the recording {out} stopped: the disk holding {disk} is full (No space left on "
             f"device); free some space or record to another disk; the recording keeps the "
             f"{kept} frames written before; the stream was stopped: {delivered} of 150 frames "
-            f"delivered, 0 lost, {doc['frames_not_sent']} not sent; the recording {out} is "
+            f"delivered, {lost} lost, {doc['frames_not_sent']} not sent; the recording {out} is "
             f"closed with {kept} of them" == failure.message
         )
         assert delivered >= kept + 1  # also those that came before the stop took effect
