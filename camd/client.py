@@ -692,15 +692,20 @@ class CamdClient:
         skip: int = 0,
         error: str | None = None,
         duration_s: float | None = None,
+        end_after_frames: int | None = None,
     ) -> None:
         """Simulated camera only: make the (skip + 1)-th next ``command`` (e.g.
-        "REG_WRITE_BURST") fail, refused with a NAK of ``error`` (e.g. "BUSY") or lost because
-        the camera drops off the line for ``duration_s``; give one of the two."""
+        "REG_WRITE_BURST") fail, refused with a NAK of ``error`` (e.g. "BUSY"), lost because
+        the camera drops off the line for ``duration_s``, or (START_STREAM, WHEEL_ACQUIRE)
+        executed with the stream it starts ended by the camera after ``end_after_frames``
+        frames; give one of the three."""
         body: dict[str, Any] = {"command": command, "skip": skip}
         if error is not None:
             body["error"] = error
         if duration_s is not None:
             body["duration_s"] = duration_s
+        if end_after_frames is not None:
+            body["end_after_frames"] = end_after_frames
         self._request("POST", f"{API}/sim/fail-next", json=body)
 
     def clear_fail_next(self) -> None:

@@ -450,6 +450,13 @@ class StreamResponse(TypedDict):
     first_counter: int
     # frames the device says it produced, once ended
     frames_sent: int | None
+    # why the stream (once ended) ended before all its frames were sent and delivered: the camera
+    # ended it, or went away, or its recording failed; null if it did not, or was stopped on request
+    ended_early: str | None
+    # once ended: frames asked for that the camera did not send, stopped or ended early (ended_early
+    # says why), by its own count or, if it could not say, those the host never accounted for; 0 for
+    # a stream until stopped
+    frames_not_sent: int
     # HDF5 file being (or last) recorded
     recording: str | None
     # frames of the recording on disk: what the file keeps if the daemon dies now (flushed at least
@@ -589,7 +596,7 @@ class ScanMotionInfo(TypedDict):
 class ScanResponse(TypedDict):
     """GET /api/v1/scan, and the answer of /scan/start, /stop and /stages."""
 
-    state: Literal["none", "starting", "running", "done", "stopped", "failed"]
+    state: Literal["none", "starting", "running", "done", "stopped", "ended_early", "failed"]
     # the HDF5 file of the current or last scan
     file: str | None
     # its PNG quicklook, once written
@@ -608,6 +615,10 @@ class ScanResponse(TypedDict):
     lines_flushed: int
     # frames the stream never delivered
     lost_frames: int
+    # once ended: frames the scan asked for that the camera never sent (the scan was stopped, failed
+    # or ended early: state and error say why), by its own count or, if it could not say (it died),
+    # those the host never accounted for
+    not_sent_frames: int
     # [line index, stages] for the start and every change
     stage_changes: list[list[int]]
     mode: Literal["sum", "mean"]

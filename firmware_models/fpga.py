@@ -33,7 +33,9 @@ Failures on purpose
 SIM_FAIL_NEXT arms one failure of a coming command (by opcode, after ``skip`` of them): a NAK
 with a chosen error code, or a silence of ``duration_s`` (a dropped line: ``silent(now_s)`` is
 true, frames received are ignored and the transport sends nothing). The failed command is not
-executed, so the host's recovery from a request that fails part-way can be tested.
+executed, so the host's recovery from a request that fails part-way can be tested. The third
+kind, ``end_stream``, lets the command (START_STREAM, WHEEL_ACQUIRE) execute but ends the stream
+it starts after ``frames`` frames with STREAM_DONE, as a camera that ends a stream early.
 """
 
 from __future__ import annotations
@@ -125,11 +127,12 @@ class _Outcome:
 class _FailNext:
     """The failure SIM_FAIL_NEXT armed: the command it fails and how."""
 
-    action: str  # "nak" or "silence"
+    action: str  # "nak", "silence" or "end_stream"
     opcode: int
     skip: int  # commands with ``opcode`` still to let through
     error_code: int  # action nak
     duration_s: float  # action silence
+    frames: int = 0  # action end_stream: the stream ends after this many frames
 
 
 _Handler = Callable[[CommandSpec, dict[str, FieldValue], float], _Outcome]
@@ -213,6 +216,8 @@ class FpgaModel:
         self._recent: deque[Frame] = deque(maxlen=_RECENT_EXECUTED)  # executed command frames
         self._unsolicited_seq = 0
         self._fail_next: _FailNext | None = None
+        # While a command armed with SIM_FAIL_NEXT end_stream executes: its stream's length.
+        self._cut_stream_after: int | None = None
         self._silent_until_s = -math.inf  # transport clock; SIM_FAIL_NEXT silence
         self._handlers: dict[str, _Handler] = {
             "PING": self._ping,
@@ -268,14 +273,24 @@ class FpgaModel:
         if record is not None and record.command == frame and not self.defects.replay_executes:
             self.counters.replayed += 1
             return self._sent([record.response])
+        cut_after = None
         if self._fails_now(frame):
-            return self._fail(frame, now_s)
+            armed = self._fail_next
+            assert armed is not None
+            if armed.action != "end_stream":
+                return self._fail(frame, now_s)
+            # It executes; the stream it starts ends early (START_STREAM, WHEEL_ACQUIRE).
+            self._fail_next, cut_after = None, armed.frames
         self.counters.executed += 1
         if frame in self._recent:
             self.counters.executed_twice += 1  # at-most-once broken (module docstring)
         self._recent.append(frame)
         self.executions[frame.opcode] += 1
-        response, events = self._execute(frame, now_s)
+        self._cut_stream_after = cut_after
+        try:
+            response, events = self._execute(frame, now_s)
+        finally:
+            self._cut_stream_after = None
         if response.type == FrameType.NAK:
             self.counters.nacked += 1
         self._record = _Record(frame, response)
@@ -658,6 +673,7 @@ class FpgaModel:
                 frames=int(request["frames"]),
                 stages=int(request["stages"]),
                 binning=request["binning"] == "2x2",
+                end_after=self._cut_stream_after,
             )
         except StreamRefused as exc:
             raise _Nak("OUT_OF_RANGE", f"START_STREAM refused: {exc}") from None
@@ -855,6 +871,7 @@ class FpgaModel:
                 binning=False,
                 schedule_s=starts,
                 stamps=stamps,
+                end_after=self._cut_stream_after,
             )
         except StreamRefused as exc:
             self.camera.transmission = None
@@ -913,10 +930,22 @@ class FpgaModel:
                     f"SIM_FAIL_NEXT: error_code {code} is not an error of the dictionary; "
                     f"use one of {codes}",
                 ) from None
-        elif duration_s <= 0.0:
+        elif action == "silence" and duration_s <= 0.0:
             raise _Nak("OUT_OF_RANGE", "SIM_FAIL_NEXT: a silence needs duration_s > 0")
-        self._fail_next = _FailNext(action, opcode, int(request["skip"]), code, duration_s)
+        elif action == "end_stream" and opcode not in self._stream_opcodes():
+            raise _Nak(
+                "OUT_OF_RANGE",
+                f"SIM_FAIL_NEXT: end_stream needs a command that starts a stream (START_STREAM, "
+                f"WHEEL_ACQUIRE), not opcode 0x{opcode:02X}",
+            )
+        self._fail_next = _FailNext(
+            action, opcode, int(request["skip"]), code, duration_s, int(request["frames"])
+        )
         return _Outcome(spec.encode_response())
+
+    def _stream_opcodes(self) -> set[int]:
+        """The commands that start a counted stream (SIM_FAIL_NEXT end_stream applies)."""
+        return {self.dictionary.command(name).opcode for name in ("START_STREAM", "WHEEL_ACQUIRE")}
 
     def _stream_done(self, frames_sent: int, next_counter: int) -> None:
         """A counted stream ended by itself (stream thread): tell the host with STREAM_DONE.

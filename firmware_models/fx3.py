@@ -370,6 +370,7 @@ class _Stream:
     period_s: float
     pace: bool
     next_counter: int  # after the stream's last frame so far
+    end_after: int | None = None  # the camera ends the stream early, after this many frames
     produced: int = 0
     stop: bool = False
     done: bool = False
@@ -458,10 +459,14 @@ class StreamEngine:
         pace: bool = True,
         *,
         first_counter: int | None = None,
+        end_after: int | None = None,
     ) -> None:
         """Begin a stream of ``frames`` frames (0: until ``stop``), one per ``period_s``.
 
-        ``first_counter`` defaults to where the previous stream ended (``next_counter``)."""
+        ``first_counter`` defaults to where the previous stream ended (``next_counter``).
+        ``end_after``: end the stream by itself after that many frames if it has not ended
+        before, like a camera that ends a stream early (the last frame is not flagged LAST;
+        ``on_done`` says how many it sent)."""
         if frames < 0:
             raise ValueError(f"frames = {frames}: give a count >= 1, or 0 to stream until stop")
         if not period_s >= 0.0:
@@ -477,7 +482,11 @@ class StreamEngine:
                 # A stopped stream finishing its frame in progress has used its last counter.
                 self.next_counter = first_counter % U32_WRAP
             self._pending = _Stream(
-                frames=frames, period_s=period_s, pace=pace, next_counter=self.next_counter
+                frames=frames,
+                period_s=period_s,
+                pace=pace,
+                next_counter=self.next_counter,
+                end_after=end_after,
             )
             if self._thread is None:
                 self._thread = threading.Thread(
@@ -616,6 +625,9 @@ class StreamEngine:
                         break
                     if stream.frames and stream.produced >= stream.frames:
                         ended = True
+                        break
+                    if stream.end_after is not None and stream.produced >= stream.end_after:
+                        ended = True  # cut short on purpose (SIM_FAIL_NEXT end_stream)
                         break
                     counter = self.next_counter
                     self.next_counter = (counter + 1) % U32_WRAP

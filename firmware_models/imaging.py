@@ -135,13 +135,15 @@ class ImagingPipeline:
         binning: bool,
         schedule_s: Sequence[float] | None = None,
         stamps: Sequence[int] | None = None,
+        end_after: int | None = None,
     ) -> StreamGeometry:
         """Check the settings against the registers, then start the engine. ``device_time_s``
         (seconds since power-on, passed in: the model never reads a clock) is when START_STREAM
         arrived: frame 0 starts its exposure then, frame k one frame period after frame k - 1.
         ``schedule_s`` (one start time per frame, ``frames`` of them) replaces that clock, with
         ``stamps`` the header's stage_position of each frame; such a stream is not paced in
-        wall time (the simulator does not wait for the wheel)."""
+        wall time (the simulator does not wait for the wheel). ``end_after``: the camera ends
+        the stream after that many frames (SIM_FAIL_NEXT end_stream; ``StreamEngine.start``)."""
         if schedule_s is not None and (len(schedule_s) != frames or frames == 0):
             raise StreamRefused(f"a schedule needs one start time per frame ({frames})")
         timing = self.sensor.timing()
@@ -186,6 +188,7 @@ class ImagingPipeline:
             period_s=timing.frame_period_s,
             pace=schedule_s is None and not self.unpaced,
             first_counter=geometry.first_counter,
+            end_after=end_after,
         )
         return geometry
 

@@ -1,12 +1,15 @@
-"""Shared by the crash-safety tests: a small file system that fills up, and filling it."""
+"""Shared by the crash-safety tests: a small file system that fills up, filling it, and the
+space a writer holds past the end of its file."""
 
 from __future__ import annotations
 
 import os
 import subprocess
-from collections.abc import Iterator
+import time
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -55,3 +58,26 @@ def fill_disk(folder: Path) -> int:
     finally:
         os.close(fd)
     return written
+
+
+NO_HEADROOM = 64 << 10  # past a file's end once finished: a block or two of rounding at most
+
+
+def blocks_past_end(path: Path) -> int:
+    """Bytes allocated to ``path`` past its last block: a writer's headroom
+    (camd.store.durability.Headroom), under NO_HEADROOM once the file is finished."""
+    st = path.stat()
+    return st.st_blocks * 512 - -(-st.st_size // 4096) * 4096
+
+
+def wait_for(what: str, check: Callable[[], Any], timeout_s: float = 120.0) -> Any:
+    """Poll ``check`` until it returns something true, and return that; AssertionError naming
+    ``what`` after ``timeout_s`` (generous by default: the suite runs on a busy 2-core host)."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        value = check()
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            raise AssertionError(f"waited {timeout_s:g} s for {what}")
+        time.sleep(0.1)

@@ -401,6 +401,16 @@ ROWS = [
       "fail-next-silence-too-long"),
     p(row("POST", "/sim/fail-next", {"command": "", "error": "BUSY"}, "command:",
           "a string of 1 to 40 characters"), "fail-next-empty-command"),
+    p(row("POST", "/sim/fail-next", {"command": "START_STREAM", "end_after_frames": -1},
+          "end_after_frames: -1 is out of range", "null or an integer in 0..4294967295"),
+      "fail-next-end-after-negative"),
+    p(row("POST", "/sim/fail-next", {"command": "PING", "end_after_frames": 3},
+          "end_after_frames ends the stream a command starts",
+          "give command START_STREAM or WHEEL_ACQUIRE, not PING"),
+      "fail-next-end-after-not-a-stream"),
+    p(row("POST", "/sim/fail-next", {"command": "START_STREAM", "duration_s": 1,
+                                     "end_after_frames": 3}, "not several or none"),
+      "fail-next-end-after-and-silence"),
 ]  # fmt: skip
 
 

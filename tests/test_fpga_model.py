@@ -363,7 +363,8 @@ def test_per_opcode_execution_counts(model: FpgaModel, dictionary: Dictionary) -
 
 def fail_next(model: FpgaModel, seq: int = 90, **values: Any) -> list[Frame]:
     fields: dict[str, Any] = {
-        "action": "nak", "opcode": 0, "skip": 0, "error_code": 0, "duration_s": 0.0, **values,
+        "action": "nak", "opcode": 0, "skip": 0, "error_code": 0, "duration_s": 0.0, "frames": 0,
+        **values,
     }  # fmt: skip
     return call(model, "SIM_FAIL_NEXT", seq=seq, **fields)
 
@@ -388,6 +389,32 @@ def test_fail_next_naks_the_chosen_occurrence_without_executing_it(
     # Disarmed once fired: the next SET_MODE executes.
     ack_values(dictionary, "SET_MODE", call(model, "SET_MODE", seq=4, mode="area"))
     assert model.mode == "area"
+
+
+def test_fail_next_end_stream_executes_the_command_and_cuts_its_stream(
+    model: FpgaModel, dictionary: Dictionary
+) -> None:
+    start = dictionary.command("START_STREAM").opcode
+    # Only a command that starts a stream can have its stream cut.
+    name, detail = nak(dictionary, fail_next(model, action="end_stream", opcode=1, frames=3))
+    assert name == "OUT_OF_RANGE"
+    assert "end_stream needs a command that starts a stream (START_STREAM, WHEEL_ACQUIRE)" in (
+        detail
+    )
+    assert fail_next(model, action="end_stream", opcode=start, frames=3)[0].type == FrameType.ACK
+    assert model.stream._pending is None and model.stream._current is None
+    ack_values(dictionary, "TRAIN", call(model, "TRAIN", seq=5))
+    answer = call(model, "START_STREAM", seq=6, frames=10, stages=0, binning="off")
+    assert answer[0].type == FrameType.ACK  # executed, not failed
+    assert model.execution_count("START_STREAM") == 1
+    pending = model.stream._pending or model.stream._current
+    assert pending is not None and (pending.frames, pending.end_after) == (10, 3)
+    model.imaging_path.stop()
+    # Disarmed once fired: the next stream is whole.
+    call(model, "START_STREAM", seq=7, frames=10, stages=0, binning="off")
+    pending = model.stream._pending or model.stream._current
+    assert pending is not None and pending.end_after is None
+    model.imaging_path.stop()
 
 
 def test_fail_next_silence_drops_off_the_line_then_comes_back(

@@ -184,6 +184,29 @@ def test_n_frames_in_n_out_bit_exact(server: StreamSocketServer, bank: BankSourc
     engine.close()
 
 
+def test_a_stream_the_camera_ends_early_sends_that_many_and_says_so(
+    server: StreamSocketServer, bank: BankSource
+) -> None:
+    done: list[tuple[int, int]] = []
+    engine = StreamEngine(bank, server=server, on_done=lambda n, nxt: done.append((n, nxt)))
+    _backend, dev = connected(server)
+    # A counted stream of 12 cut after 4 (SIM_FAIL_NEXT end_stream), then one until stopped
+    # cut after 2: each ends by itself, none of its frames flagged LAST.
+    engine.start(12, 0.0, pace=False, first_counter=100, end_after=4)
+    headers = [split(read_transfer(dev))[0] for _ in range(4)]
+    assert engine.wait_idle(30.0)
+    assert [h.counter for h in headers] == [100, 101, 102, 103]
+    assert not any(h.flags & FrameFlags.LAST for h in headers)
+    engine.start(0, 0.0, pace=False, end_after=2)
+    assert [split(read_transfer(dev))[0].counter for _ in range(2)] == [104, 105]
+    assert engine.wait_idle(30.0)
+    assert done == [(4, 104), (2, 106)]
+    with pytest.raises(usb.core.USBTimeoutError):
+        read_transfer(dev, timeout_ms=200)  # nothing more was sent
+    assert engine.counters.produced == engine.counters.sent == 6
+    engine.close()
+
+
 def test_a_short_read_gets_the_rest_on_the_next_read(
     server: StreamSocketServer, bank: BankSource
 ) -> None:

@@ -373,7 +373,7 @@ ROWS = [
     pytest.param(
         Row(http("POST", "/sim/fail-next", {"command": "PING", "error": "BUSY",
                                             "duration_s": 1.0}),
-            "bad_request", "not both or neither"),
+            "bad_request", "not several or none"),
         id="fail-next-nak-and-silence",
     ),
 ]  # fmt: skip

@@ -10,7 +10,9 @@
 ``scan`` waits for the scan to end, with a progress bar on stderr, and prints one document whose
 first keys are the contract {"file", "lines", "complete_lines", "lost_frames", "stages"}, then
 "mismatch_max" and "mismatch_rms" (M |dV/V| over the scan, docs/motion.md); the rest is the
-daemon's scan document. The scan drives the stage at the synchronous speed (closed loop unless
+daemon's scan document. It exits 1, saying why, when the scan did not end ``done``: failed,
+ended early (the camera ended its stream before the scan's frames were all sent), or stopped
+before its lines by someone else (a scan until stopped ends ``stopped`` as asked). The scan drives the stage at the synchronous speed (closed loop unless
 --open-loop, or config motion.closed_loop = "off"); --no-stage leaves it alone. Ctrl-C stops the scan (the file keeps what was taken).
 FILE is written by the daemon, on its host: a relative FILE goes into its data directory's
 ``scans`` folder, an absolute one must be inside a directory it may write (docs/api.md, "Files");
@@ -134,9 +136,31 @@ def cmd_scan(client: CamdClient, args: argparse.Namespace) -> Any:
     if not args.detach:
         doc = _follow(client, doc)
     result = flat(doc)
-    if result["state"] == "failed":
-        raise CommandFailed(result, f"the scan failed: {result['error']}")
+    if args.detach:
+        return result
+    why = short_of(result)
+    if why is not None:
+        raise CommandFailed(result, why)
     return result
+
+
+def short_of(doc: dict[str, Any]) -> str | None:
+    """Why an ended scan is not what was asked for, None if it is: failed, ended early (the
+    camera ended its stream), or stopped before its lines (by another client, an emergency
+    stop); a scan until stopped ends stopped as asked."""
+    state = doc["state"]
+    if state == "done" or (state == "stopped" and not doc["lines_wanted"]):
+        return None
+    of = f" of {doc['lines_wanted']}" if doc["lines_wanted"] else ""
+    counts = (
+        f"{doc['lines']}{of} lines, {doc['not_sent_frames']} frames not sent, "
+        f"{doc['lost_frames']} lost; {doc['file']} holds the lines that came"
+    )
+    if state == "failed":
+        return f"the scan failed: {doc['error']}; {counts}"
+    if state == "ended_early":
+        return f"the scan ended early: {doc['error']}; {counts}"
+    return f"the scan was stopped (by another client or an emergency stop): {counts}"
 
 
 def _follow(client: CamdClient, doc: ScanResponse) -> ScanResponse:
@@ -183,11 +207,12 @@ def render_scan(out: Console, doc: Any, args: argparse.Namespace) -> None:
     if doc["state"] == "none":
         out.print("no scan yet; start one with `camctl scan --stages M --lines L`")
         return
-    bad = doc["lost_frames"] + doc["stream"]["overruns"]
+    bad = doc["lost_frames"] + doc["stream"]["overruns"] + doc.get("not_sent_frames", 0)
     colour = "red" if bad else "green"
+    not_sent = f", {doc['not_sent_frames']} not sent" if doc.get("not_sent_frames") else ""
     out.print(
         f"scan {doc['state']}: [{colour}]{doc['lines']} lines, {doc['complete_lines']} complete, "
-        f"{doc['lost_frames']} frames lost[/], M = {doc['stages']} ({doc['mode']}), "
+        f"{doc['lost_frames']} frames lost{not_sent}[/], M = {doc['stages']} ({doc['mode']}), "
         f"{doc['width']} columns"
     )
     timing = doc.get("timing")

@@ -11,9 +11,11 @@
     camctl sim stage-truth              the stepper stage's true position, speed, missed steps
 
 ``stream`` and ``stare`` print one flat document: the counters (frames, lost, corrupt,
-overruns, mpix_per_s, mbyte_per_s, ...) and the stream's geometry. A recording is written by the
-daemon, on its host: a relative FILE goes into its data directory's ``recordings`` folder, an
-absolute one must be inside a directory it may write (docs/api.md, "Files"); ``out`` is the
+overruns, mpix_per_s, mbyte_per_s, ...) and the stream's geometry. A stream or stare that ends
+before its frames all came (the camera ended it early or went away, its recording filled the
+disk) is an error from the daemon: camctl says what happened and exits 1. A recording is written
+by the daemon, on its host: a relative FILE goes into its data directory's ``recordings`` folder,
+an absolute one must be inside a directory it may write (docs/api.md, "Files"); ``out`` is the
 absolute path the daemon answers.
 """
 
@@ -234,13 +236,17 @@ def render_stream(out: Console, doc: Any, args: argparse.Namespace) -> None:
         f"{binned}{stages}, frame period {doc['frame_period_s'] * 1e3:.4g} ms"
     )
     out.print(f"stream {state}: {geometry}")
-    bad = doc["lost"] + doc["corrupt"] + doc["overruns"]
+    bad = doc["lost"] + doc["corrupt"] + doc["overruns"] + doc.get("frames_not_sent", 0)
     colour = "red" if bad else "green"
+    not_sent = f", {doc['frames_not_sent']} not sent" if doc.get("frames_not_sent") else ""
     out.print(
         f"[{colour}]{doc['frames']} frames delivered[/], {doc['lost']} lost, "
         f"{doc['corrupt']} corrupt, {doc['short']} short, {doc['overruns']} overruns, "
-        f"{doc['stalls']} stalls; {doc['mpix_per_s']:.1f} Mpix/s, {doc['mbyte_per_s']:.1f} MB/s"
+        f"{doc['stalls']} stalls{not_sent}; {doc['mpix_per_s']:.1f} Mpix/s, "
+        f"{doc['mbyte_per_s']:.1f} MB/s"
     )
+    if doc.get("ended_early"):
+        out.print(f"[red]ended early: {doc['ended_early']}[/]")
     if doc.get("out") or doc.get("recording"):
         out.print(f"recorded to {doc.get('out') or doc.get('recording')}")
 

@@ -53,12 +53,14 @@ from camd.daemon.errors import (
     DeviceRejected,
     DeviceTimeout,
     Disconnected,
+    EndedEarly,
     EstopLatched,
     LinkUntrained,
     NoControl,
     NotFound,
     NotInControl,
     SessionError,
+    StorageFull,
     WrongState,
 )
 from camd.daemon.models import (
@@ -148,9 +150,11 @@ ERROR_MAP: list[tuple[type[Exception], int, str]] = [
     (NoControl, 409, "no_control"),
     (NotInControl, 423, "not_in_control"),
     (DeviceRejected, 502, "device_nak"),
+    (EndedEarly, 502, "ended_early"),
     (Disconnected, 503, "disconnected"),
     (ArchiveUnreadable, 503, "archive_unreadable"),
     (DeviceTimeout, 504, "timeout"),
+    (StorageFull, 507, "insufficient_storage"),
 ]
 
 _ERROR_RESPONSES: dict[int | str, dict[str, Any]] = {

@@ -39,6 +39,17 @@ class DeviceRejected(SessionError):
         self.name = name
 
 
+class EndedEarly(SessionError):
+    """An acquisition ended before all its frames came: the camera ended the stream early
+    (HTTP 502, code ``ended_early``); the message says after how many frames, why, and what the
+    recording keeps."""
+
+
+class StorageFull(SessionError):
+    """An acquisition's recording could not be written (a full disk) and the acquisition was
+    stopped (HTTP 507, code ``insufficient_storage``); the message says what the file keeps."""
+
+
 class BadRequest(SessionError, ValueError):
     """A parameter is invalid (HTTP 400)."""
 

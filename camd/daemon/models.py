@@ -654,6 +654,18 @@ class StreamResponse(BaseModel):
     frames_requested: int = Field(description="0 = until stopped")
     first_counter: int
     frames_sent: int | None = Field(description="frames the device says it produced, once ended")
+    ended_early: str | None = Field(
+        default=None,
+        description="why the stream (once ended) ended before all its frames were sent and "
+        "delivered: the camera ended it, or went away, or its recording failed; null if it did "
+        "not, or was stopped on request",
+    )
+    frames_not_sent: int = Field(
+        default=0,
+        description="once ended: frames asked for that the camera did not send, stopped or "
+        "ended early (ended_early says why), by its own count or, if it could not say, those "
+        "the host never accounted for; 0 for a stream until stopped",
+    )
     recording: str | None = Field(description="HDF5 file being (or last) recorded")
     frames_flushed: int = Field(
         default=0,
@@ -775,7 +787,7 @@ class SimStreamStats(BaseModel):
 
 
 TdiMode = Literal["sum", "mean"]
-ScanState = Literal["none", "starting", "running", "done", "stopped", "failed"]
+ScanState = Literal["none", "starting", "running", "done", "stopped", "ended_early", "failed"]
 
 
 class ScanRequest(_Request):
@@ -898,6 +910,12 @@ class ScanResponse(BaseModel):
         'least once a second; docs/stream.md "Crash safety")',
     )
     lost_frames: int = Field(description="frames the stream never delivered")
+    not_sent_frames: int = Field(
+        default=0,
+        description="once ended: frames the scan asked for that the camera never sent (the "
+        "scan was stopped, failed or ended early: state and error say why), by its own count or, "
+        "if it could not say (it died), those the host never accounted for",
+    )
     stage_changes: list[tuple[int, int]] = Field(
         description="[line index, stages] for the start and every change"
     )
@@ -1061,7 +1079,8 @@ class SimStageFaultsRequest(_Request):
 
 class SimFailNextRequest(_Request):
     """POST /api/v1/sim/fail-next: make one coming command fail (SIM_FAIL_NEXT), with a NAK
-    (``error``) or a dropped line (``duration_s``)."""
+    (``error``), a dropped line (``duration_s``), or a stream the camera ends early
+    (``end_after_frames``)."""
 
     command: str = Field(
         min_length=1, max_length=40, description="the command to fail, e.g. REG_WRITE_BURST"
@@ -1074,6 +1093,13 @@ class SimFailNextRequest(_Request):
     )
     duration_s: float | None = Field(
         default=None, gt=0.0, le=600.0, description="or: drop off the line for this long, s"
+    )
+    end_after_frames: int | None = Field(
+        default=None,
+        ge=0,
+        le=0xFFFF_FFFF,
+        description="or: the command (START_STREAM, WHEEL_ACQUIRE) executes, and the camera ends "
+        "the stream it starts after this many frames (STREAM_DONE)",
     )
 
 

@@ -71,7 +71,7 @@ from camd.motion.closed_loop import LinePeriodSetting
 from camd.pipeline import TdiPipeline
 from camd.pipeline.background import Background, BackgroundCapture
 from camd.pipeline.live import LiveLines
-from camd.store.journal import RecordingJournal
+from camd.store.journal import RecordingJournal, settle_failed_close
 from camd.store.quicklook import write_quicklook_png
 from camd.store.recording import RecordingError, check_new_file
 from camd.store.tdi_recording import TdiRecorder
@@ -113,6 +113,9 @@ class _Scan:
         self.finisher: threading.Thread | None = None
         self.done = threading.Event()
         self.stop_requested = False
+        # Frames asked for that the camera never sent (stopped, failed, ended early): set when
+        # the scan's stream has ended (StreamService.frames_not_sent).
+        self.not_sent_frames = 0
 
 
 class ScanService:
@@ -175,8 +178,13 @@ class ScanService:
                 self.sensor.require_trained("start a scan")
                 plan, snapshot, stage_position = self._plan(request, path)
                 self._warm_engine(plan)
+                # The file holds the lines and, if the live view has one, the background;
+                # its recorder keeps a headroom besides.
+                reserve = TdiRecorder.reserve_bytes(plan.columns, request.mode)
+                background = self.background.ready() if self.background is not None else None
+                extra = 0 if background is None else background.pixels.nbytes
                 try:
-                    check_new_file(plan.path, plan.planned_bytes)
+                    check_new_file(plan.path, plan.planned_bytes + extra, reserve)
                 except RecordingError as exc:
                     raise BadRequest(str(exc)) from None
                 scan = self._apply(plan, snapshot, stage_position, acquisition)
@@ -254,6 +262,7 @@ class ScanService:
             if scan.motion is not None:
                 scan.motion.finish()  # a stage must not run on without its daemon
             scan.pipeline.finish(flush=False)
+            scan.not_sent_frames = self.stream.frames_not_sent
             self._close_file(scan, scan.state)
             scan.done.set()
             self._live_end(scan.state)
@@ -429,6 +438,15 @@ class ScanService:
         request = plan.request
         scan_meta = request.model_dump(exclude={"out"})
         scan_meta.update(frames_requested=plan.frames, width=plan.columns)
+        # On the journal before the file exists: a daemon killed at any point after leaves an
+        # entry, and the next one repairs the file (or finds it was never made).
+        journal = self.device.recordings
+        try:
+            journal.opened(plan.path, "scan")
+        except OSError as exc:
+            raise SessionError(
+                f"cannot note the scan in {journal.folder}: {exc}; check the data directory"
+            ) from None
         try:
             recorder = TdiRecorder(
                 plan.path,
@@ -444,15 +462,8 @@ class ScanService:
                 background_attrs=None if background is None else background.recording_attrs(),
             )
         except (RecordingError, ValueError) as exc:
+            journal.closed(plan.path)  # no file was left (TdiRecorder removes what it began)
             raise BadRequest(str(exc)) from None
-        journal = self.device.recordings
-        try:
-            journal.opened(plan.path, "scan")
-        except OSError as exc:
-            _discard(recorder, journal)
-            raise SessionError(
-                f"cannot note the scan in {journal.folder}: {exc}; check the data directory"
-            ) from None
         return recorder
 
     def _start_stream(self, scan: _Scan, rows: int, cols: int) -> None:
@@ -525,23 +536,29 @@ class ScanService:
         stream.remove_consumer(scan.pipeline.consumer)
         scan.pipeline.finish(timeout_s=FINISH_TIMEOUT_S)
         scan.ended_mono, scan.ended_cpu = time.monotonic(), time.process_time()
+        scan.not_sent_frames = stream.frames_not_sent  # this scan's stream has ended
         if scan.motion is not None:
             scan.motion.finish()
         final = "stopped" if scan.stop_requested else "done"
-        broken = stream.broken
+        broken, early = stream.broken, stream.ended_early
         if broken is not None and scan.state != "failed" and not scan.stop_requested:
             scan.state, scan.error = "failed", f"the stream ended early: {broken}"
+        elif early is not None and scan.state != "failed" and not scan.stop_requested:
+            # The camera ended the stream before the scan's frames were all sent: the file
+            # holds the lines that came, and the scan is not done.
+            final, scan.error = "ended_early", f"the stream ended early: {early}"
         if scan.state == "failed":
             final = "failed"
         self._close_file(scan, final)
         stats = stream.stats()
         progress = scan.pipeline.progress()
+        not_sent = scan.not_sent_frames
         self.device.log_event(
-            "info" if scan.state != "failed" and stats.lost == 0 else "warning",
+            "info" if final == "done" and stats.lost == 0 else "warning",
             "scan",
-            f"scan {final if scan.state != 'failed' else 'failed'}: {progress.lines} lines "
-            f"({progress.complete_lines} complete), {stats.lost} frames lost, "
-            f"{stats.overruns} overruns; {scan.path}",
+            f"scan {final}: {progress.lines} lines ({progress.complete_lines} complete), "
+            f"{stats.lost} frames lost, {not_sent} not sent, {stats.overruns} overruns; "
+            f"{scan.path}" + (f"; {scan.error}" if final == "ended_early" else ""),
         )
         # Only now, and together: a client that sees the scan ended may start the next at once.
         with self._lock:
@@ -564,6 +581,7 @@ class ScanService:
         attributes: dict[str, Any] = {
             "counters": {
                 **stats,
+                "not_sent_frames": scan.not_sent_frames,
                 "lines": progress.lines,
                 "complete_lines": progress.complete_lines,
                 "dropped_frames": progress.dropped_frames,
@@ -589,9 +607,12 @@ class ScanService:
         try:
             scan.pipeline.recorder.close(attributes, datasets)
         except Exception as exc:
-            # The journal keeps the file: the next start repairs what can be repaired.
             log.exception("closing %s", scan.path)
             scan.state, scan.error = "failed", f"closing {scan.path}: {exc}"
+            # Repaired now if it can be, else the journal keeps it for the next start.
+            settle_failed_close(
+                scan.path, exc, "scan", self.device.recordings, self.device.log_event, "scan"
+            )
             return
         self.device.recordings.closed(scan.path)
         if scan.request.quicklook and progress.lines:
@@ -639,7 +660,8 @@ class ScanService:
         if scan is None:
             return ScanResponse(
                 state="none", file=None, quicklook=None, stages=0, lines_wanted=0,
-                frames_requested=0, lines=0, complete_lines=0, lost_frames=0, stage_changes=[],
+                frames_requested=0, lines=0, complete_lines=0, lost_frames=0, not_sent_frames=0,
+                stage_changes=[],
                 mode="sum", width=0, elapsed_s=0.0, lines_per_s=0.0, cpu_load=0.0,
                 tdi_cpu_s=0.0, backlog_frames=0, timing=None, error=None, stream=stream,
                 mismatch_max=None, mismatch_rms=None, mismatch_level="ok", motion=None,
@@ -659,6 +681,7 @@ class ScanService:
             complete_lines=progress.complete_lines,
             lines_flushed=scan.pipeline.recorder.flushed_lines,
             lost_frames=self._lost_frames(scan, progress.frames_in, progress.gap_frames),
+            not_sent_frames=scan.not_sent_frames,
             stage_changes=list(progress.stage_changes),
             mode=scan.request.mode,
             width=scan.pipeline.width,

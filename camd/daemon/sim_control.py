@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import abc
 import logging
+from dataclasses import dataclass
 from typing import Any
 
 from camd.daemon.device import DeviceAccess
@@ -31,6 +32,9 @@ from camd.daemon.models import (
 )
 from camd.daemon.state import Request
 
+# The commands that start a counted stream: SIM_FAIL_NEXT end_stream (fail_next's
+# end_after_frames) ends the stream they start.
+STREAM_COMMANDS = ("START_STREAM", "WHEEL_ACQUIRE")
 # The simulator takes the speed as an f32 and refuses 0: anything below this would reach it as 0.
 MIN_FIXED_SPEED_M_S = 1e-9
 
@@ -38,6 +42,19 @@ log = logging.getLogger(__name__)
 
 SCENE_TIMEOUT_S = 2.0  # per attempt: a lost frame on a lossy line costs this much
 SCENE_RETRIES = 10
+
+
+@dataclass(frozen=True, slots=True)
+class ArmedFailure:
+    """A failure ``fail_next`` arms (SIM_FAIL_NEXT), checked: the command's opcode, the
+    commands of it to let through, and one of a NAK's error code, a silence's length and the
+    frames after which the camera ends the stream the command starts."""
+
+    opcode: int
+    skip: int
+    error_code: int  # a NAK of this error (0: not a NAK)
+    duration_s: float  # a silence this long (0: not a silence)
+    end_after_frames: int | None  # the stream ends after this many frames (None: not that)
 
 
 class SimulatorControl(abc.ABC):
@@ -141,10 +158,17 @@ class SimulatorControl(abc.ABC):
                 f"command: {request.command!r} is not a command of config/protocol.toml; "
                 "use one of " + ", ".join(c.name for c in dictionary.commands)
             ) from None
-        if (request.error is None) == (request.duration_s is None):
+        given = [request.error, request.duration_s, request.end_after_frames]
+        if sum(value is not None for value in given) != 1:
             raise BadRequest(
-                "give error (the command is refused with a NAK, e.g. BUSY) or duration_s (the "
-                "camera drops off the line for that long), not both or neither"
+                "give one of error (the command is refused with a NAK, e.g. BUSY), duration_s "
+                "(the camera drops off the line for that long) and end_after_frames (the stream "
+                "the command starts ends after that many frames), not several or none"
+            )
+        if request.end_after_frames is not None and name not in STREAM_COMMANDS:
+            raise BadRequest(
+                f"end_after_frames ends the stream a command starts: give command "
+                f"{' or '.join(STREAM_COMMANDS)}, not {name}"
             )
         error_code = 0
         if request.error is not None:
@@ -155,12 +179,24 @@ class SimulatorControl(abc.ABC):
                     f"error: {request.error!r} is not an error of config/protocol.toml; use one "
                     "of " + ", ".join(e.name for e in dictionary.errors)
                 ) from None
-        self._do_fail_next(opcode, request.skip, error_code, request.duration_s or 0.0)
-        how = (
-            f"refused with {request.error.strip().upper()}"
-            if request.error is not None
-            else f"lost: the camera drops off the line for {request.duration_s:g} s"
+        self._do_fail_next(
+            ArmedFailure(
+                opcode,
+                request.skip,
+                error_code,
+                request.duration_s or 0.0,
+                request.end_after_frames,
+            )
         )
+        if request.error is not None:
+            how = f"refused with {request.error.strip().upper()}"
+        elif request.end_after_frames is not None:
+            how = (
+                f"executed, and the camera ends its stream after {request.end_after_frames} "
+                "frames (STREAM_DONE)"
+            )
+        else:
+            how = f"lost: the camera drops off the line for {request.duration_s:g} s"
         self.device.log_event(
             "warning", "api", f"simulator: {name} number {request.skip + 1} from now will be {how}"
         )
@@ -196,7 +232,7 @@ class SimulatorControl(abc.ABC):
     def _do_set_polarizer(self, angle_deg: float | None) -> None: ...
 
     @abc.abstractmethod
-    def _do_fail_next(self, opcode: int, skip: int, error_code: int, duration_s: float) -> None: ...
+    def _do_fail_next(self, failure: ArmedFailure) -> None: ...
 
     @abc.abstractmethod
     def _do_clear_fail_next(self) -> None: ...
@@ -265,19 +301,30 @@ class FirmwareSimulator(SimulatorControl):
             angle_deg=0.0 if angle_deg is None else angle_deg,
         )
 
-    def _do_fail_next(self, opcode: int, skip: int, error_code: int, duration_s: float) -> None:
+    def _do_fail_next(self, failure: ArmedFailure) -> None:
+        if failure.end_after_frames is not None:
+            action = "end_stream"
+        else:
+            action = "nak" if failure.error_code else "silence"
         self.device.request(
             "SIM_FAIL_NEXT",
-            action="nak" if error_code else "silence",
-            opcode=opcode,
-            skip=skip,
-            error_code=error_code,
-            duration_s=duration_s,
+            action=action,
+            opcode=failure.opcode,
+            skip=failure.skip,
+            error_code=failure.error_code,
+            duration_s=failure.duration_s,
+            frames=failure.end_after_frames or 0,
         )
 
     def _do_clear_fail_next(self) -> None:
         self.device.request(
-            "SIM_FAIL_NEXT", action="off", opcode=0, skip=0, error_code=0, duration_s=0.0
+            "SIM_FAIL_NEXT",
+            action="off",
+            opcode=0,
+            skip=0,
+            error_code=0,
+            duration_s=0.0,
+            frames=0,
         )
 
 
@@ -318,7 +365,7 @@ class NoSimulator(SimulatorControl):
     def _do_set_polarizer(self, angle_deg: float | None) -> None:
         raise self._refuse("the reference polariser")
 
-    def _do_fail_next(self, opcode: int, skip: int, error_code: int, duration_s: float) -> None:
+    def _do_fail_next(self, failure: ArmedFailure) -> None:
         raise self._refuse("a failure on purpose (fail-next)")
 
     def _do_clear_fail_next(self) -> None:

@@ -36,7 +36,9 @@ from camd.daemon.errors import (
     BadRequest,
     DeviceTimeout,
     Disconnected,
+    EndedEarly,
     SessionError,
+    StorageFull,
     unreachable,
 )
 from camd.daemon.models import (
@@ -53,6 +55,7 @@ from camd.daemon.transaction import Apply
 from camd.link.frame_stream import HEADER_LOG, FrameStream, ReceivedFrame, StreamError
 from camd.pipeline.background import Background, BackgroundCapture
 from camd.protocol.stream import HEADER_BYTES, StreamMode
+from camd.store.durability import is_disk_full
 from camd.store.journal import close_recording
 from camd.store.recording import FrameRecorder, RecordingError, check_new_file
 
@@ -124,6 +127,13 @@ class StreamService:
         self._claimed: Acquisition | None = None  # the slot this stream took (not a scan's)
         self._reopen = False  # the camera (re)connected: open the USB device afresh
         self._broken: str | None = None  # why the stream ended early (``_end_broken``)
+        # Why the last stream ended before its frames were all sent and delivered, or None
+        # (``_finish``); set while it runs when the daemon stops it itself (its recording
+        # failed) or the camera's LVDS link lost its training.
+        self._ended_early: str | None = None
+        self._stop_cause: str | None = None  # the daemon stopped the stream itself: why
+        self._link_lost = False
+        self._frames_not_sent = 0  # of the last counted stream, once ended (``_shortfall``)
         self._info: dict[str, Any] = {
             "mode": None,
             "rows": 0,
@@ -218,7 +228,7 @@ class StreamService:
         # Draining waits for the reader: not on the link's reader thread.
         threading.Thread(
             target=self._finish,
-            args=(next_counter, frames_sent, "all frames sent"),
+            args=(next_counter, frames_sent, "STREAM_DONE"),
             name="camd-stream-finish",
             daemon=True,
         ).start()
@@ -256,6 +266,7 @@ class StreamService:
         it has not come within LINK_LOST_GRACE_S."""
         if not self.streaming:
             return
+        self._link_lost = True
 
         def finish_late() -> None:
             if not self._finished.wait(LINK_LOST_GRACE_S):
@@ -274,6 +285,19 @@ class StreamService:
         restarted or went away), None if it did not."""
         return self._broken
 
+    @property
+    def ended_early(self) -> str | None:
+        """Why the last stream ended before all its frames were sent and delivered (the camera
+        ended it, or went away; its recording failed), None if it did not or was stopped on
+        request (also None while a stream runs)."""
+        return self._ended_early
+
+    @property
+    def frames_not_sent(self) -> int:
+        """Frames of the last counted stream that never came: the camera did not send them (by
+        its own count; if it could not say, those the host never accounted for)."""
+        return self._frames_not_sent
+
     def shut_down(self) -> None:
         """Daemon shutdown, first step: stop the camera's stream if the link still answers,
         then end it on the host (drained, its recording closed, a scan's finisher woken). A
@@ -288,7 +312,9 @@ class StreamService:
             self.device.log_event(
                 "warning", "stream", f"stream not stopped on the camera: {unreachable(exc)}"
             )
-        self._finish(next_counter, frames_sent, "the daemon is stopping", settle=False)
+        self._finish(
+            next_counter, frames_sent, "the daemon is stopping", settle=False, on_request=True
+        )
 
     def close(self) -> None:
         """Daemon shutdown: stop reading, close any recording, release the USB device."""
@@ -371,17 +397,45 @@ class StreamService:
                 "`camctl stream --status` and `camctl events`"
             )
         self._announced.wait(ANNOUNCE_TIMEOUT_S)
-        with self._lock:
-            broken, recording = self._broken, self._recording
-        if broken is not None:
-            stats = self._stats()
-            kept = f"; the recording {recording} is closed with them" if recording else ""
-            raise Disconnected(
-                f"the stream ended before its {request.frames} frames: {broken}; "
-                f"{stats.frames} frames delivered{kept}. Check `camctl status` and "
-                "`camctl events`, then acquire again"
-            )
+        self._raise_if_short()
         return self._response()
+
+    def _raise_if_short(self) -> None:
+        """After an acquisition's stream ended: the error to answer with if it ended before
+        all its frames came (the camera went away: Disconnected; its recording could not be
+        written for want of space: StorageFull; the camera ended it, or someone stopped it:
+        EndedEarly), each saying what was kept."""
+        with self._lock:
+            broken, early, recording = self._broken, self._ended_early, self._recording
+            stop_cause, not_sent, flushed = (
+                self._stop_cause,
+                self._frames_not_sent,
+                self._frames_flushed,
+            )
+            frames = int(self._info["frames_requested"])
+        if early is None and not_sent == 0:
+            return
+        stats = self._stats()
+        counts = (
+            f"{stats.frames} of {frames} frames delivered, {stats.lost} lost, {not_sent} not sent"
+        )
+        kept = f"; the recording {recording} is closed with {flushed} of them" if recording else ""
+        if broken is not None:
+            raise Disconnected(
+                f"the stream ended before its {frames} frames: {broken}; {counts}{kept}. Check "
+                "`camctl status` and `camctl events`, then acquire again"
+            )
+        if early is None:
+            raise EndedEarly(
+                f"the stream was stopped before its {frames} frames (`camctl stream --stop`, "
+                f"an emergency stop or the daemon stopping): {counts}{kept}"
+            )
+        if stop_cause is not None and is_disk_full(OSError(stop_cause)):
+            raise StorageFull(f"{early}; the stream was stopped: {counts}{kept}")
+        raise EndedEarly(
+            f"the stream ended before its {frames} frames: {early}; {counts}{kept}. Check "
+            "`camctl events`, then acquire again"
+        )
 
     def status_info(self) -> dict[str, Any]:
         """The current or last stream's geometry and device counts (no device traffic)."""
@@ -396,7 +450,9 @@ class StreamService:
         """STOP_STREAM, then drain the reader; harmless when not streaming."""
         self.device.require(Request.STREAM_STOP)
         values = self.device.request("STOP_STREAM").values
-        self._finish(int(values["next_counter"]), int(values["frames_sent"]), "stopped")
+        self._finish(
+            int(values["next_counter"]), int(values["frames_sent"]), "stopped", on_request=True
+        )
         return self._response()
 
     # -- internals --------------------------------------------------------------------------------
@@ -468,7 +524,10 @@ class StreamService:
         # the reader's slots would be refused as corrupt, every one of them.
         rows = max(timing.window_rows, max_rows or 0)
         max_frame_bytes = HEADER_BYTES + 2 * rows * cols
-        recorder_path = self._record_path(request.record, request.frames * max_frame_bytes)
+        # The file holds the frames and, if the live view has one, the background.
+        background = self.background.ready() if self.background is not None else None
+        extra = 0 if background is None else background.pixels.nbytes
+        recorder_path = self._record_path(request.record, request.frames * max_frame_bytes + extra)
         # Apply: the mode, then the stream; a stream that does not start puts the mode back.
         with Apply("stream not started", self._events, source="stream") as apply:
             if set_mode is not None and device.mode != set_mode:
@@ -513,6 +572,9 @@ class StreamService:
             self._finished.clear()
             self._announced.clear()
             self._broken = None
+            self._ended_early = self._stop_cause = None
+            self._link_lost = False
+            self._frames_not_sent = 0
             self._recording = None
             self._frames_flushed = 0
             if recorder is not None:
@@ -621,6 +683,15 @@ class StreamService:
         }
         if start is not None:
             stream.update({"start_command": start.command, **start.metadata})
+        # On the journal before the file exists: a daemon killed at any point after leaves an
+        # entry, and the next one repairs the file (or finds it was never made).
+        journal = self.device.recordings
+        try:
+            journal.opened(path, "recording")
+        except OSError as exc:
+            raise SessionError(
+                f"cannot note the recording in {journal.folder}: {exc}; check the data directory"
+            ) from None
         try:
             recorder = FrameRecorder(
                 path,
@@ -635,16 +706,8 @@ class StreamService:
                 background_attrs=None if background is None else background.recording_attrs(),
             )
         except RecordingError as exc:
+            journal.closed(path)  # no file was left (FrameRecorder removes what it began)
             raise BadRequest(str(exc)) from None
-        journal = self.device.recordings
-        try:
-            journal.opened(path, "recording")
-        except OSError as exc:
-            recorder.close()
-            path.unlink(missing_ok=True)
-            raise SessionError(
-                f"cannot note the recording in {journal.folder}: {exc}; check the data directory"
-            ) from None
         return recorder
 
     def _attach_recorder(self, recorder: FrameRecorder, reader: FrameStream) -> None:
@@ -670,6 +733,8 @@ class StreamService:
         self.device.log_event(
             "error", "stream", f"recording {recorder.path} stopped: {why}; stopping the stream"
         )
+        # Not under the lock: this runs on the dispatcher, which _finish joins holding it.
+        self._stop_cause = f"the recording {recorder.path} stopped: {why}"
 
         def stop() -> None:
             try:
@@ -680,13 +745,25 @@ class StreamService:
 
         threading.Thread(target=stop, name="camd-recording-failed", daemon=True).start()
 
-    def _detach_recorder(self, reader: FrameStream, stats: dict[str, Any] | None = None) -> None:
+    def _detach_recorder(
+        self,
+        reader: FrameStream,
+        stats: dict[str, Any] | None = None,
+        *,
+        ended_early: str | None = None,
+    ) -> None:
         if self._recording_to is None:
             return
         recorder, record = self._recording_to
         self._recording_to = None
         reader.remove_consumer(record)
-        close_recording(recorder, stats, self.device.recordings, self.device.log_event)
+        close_recording(
+            recorder,
+            stats,
+            self.device.recordings,
+            self.device.log_event,
+            ended_early=ended_early,
+        )
         self._frames_flushed = recorder.flushed
 
     def _detach_stream_consumer(self, reader: FrameStream) -> None:
@@ -737,11 +814,20 @@ class StreamService:
             close_backend()
 
     def _finish(
-        self, next_counter: int | None, frames_sent: int | None, why: str, *, settle: bool = True
+        self,
+        next_counter: int | None,
+        frames_sent: int | None,
+        why: str,
+        *,
+        settle: bool = True,
+        on_request: bool = False,
     ) -> None:
         """End the stream on the host side: account for, drain, stop, close; then idle.
 
-        ``settle``: first wait for a START_STREAM in flight to be booked (not from inside it)."""
+        ``frames_sent``: the camera's own count (STREAM_DONE, STOP_STREAM), None if it could
+        not say (it went away). ``on_request``: a client (or the daemon's shutdown) stopped it:
+        it did not end early (its frames not sent are counted all the same). ``settle``: first
+        wait for a START_STREAM in flight to be booked (not from inside it)."""
         if settle:
             self._settled.wait(SETTLE_TIMEOUT_S)
         with self._lock:
@@ -753,7 +839,11 @@ class StreamService:
                     reader.expect_end(next_counter)
                     reader.wait_drained(DRAIN_TIMEOUT_S)
                 reader.stop()
-                self._detach_recorder(reader, reader.stats().as_dict())
+            early, not_sent = self._shortfall(frames_sent, why, on_request, reader)
+            self._ended_early, self._frames_not_sent = early, not_sent
+            if reader is not None:
+                counters = {**reader.stats().as_dict(), "frames_not_sent": not_sent}
+                self._detach_recorder(reader, counters, ended_early=early)
                 self._detach_stream_consumer(reader)
             self._info["frames_sent"] = frames_sent
             self.streaming = False
@@ -762,14 +852,49 @@ class StreamService:
         if claimed is not None:
             self.device.acquisition.release(claimed)
         stats = self._stats()
+        short = f", {not_sent} not sent" if not_sent else ""
         self.device.log_event(
-            "info" if stats.lost == stats.corrupt == stats.overruns == 0 else "warning",
+            "info"
+            if early is None and stats.lost == stats.corrupt == stats.overruns == 0
+            else "warning",
             "stream",
-            f"stream ended ({why}): {stats.frames} frames delivered, {stats.lost} lost, "
-            f"{stats.corrupt} corrupt, {stats.overruns} overruns, {stats.mbyte_per_s:.1f} MB/s",
+            f"stream ended ({early or why}): {stats.frames} frames delivered, {stats.lost} lost, "
+            f"{stats.corrupt} corrupt, {stats.overruns} overruns{short}, "
+            f"{stats.mbyte_per_s:.1f} MB/s",
         )
         self.device.fire(Trigger.STREAM_STOPPED, None)
         self._announced.set()
+
+    def _shortfall(
+        self, frames_sent: int | None, why: str, on_request: bool, reader: FrameStream | None
+    ) -> tuple[str | None, int]:
+        """(why the ending stream ended early, None if it did not; its frames not sent), the
+        lock held. Early: the daemon stopped it itself (its recording failed); the camera
+        could not say what it sent (it went away, its link failed, a reset: ``why``); or it
+        ended the stream with fewer frames than asked for, or a stream until stopped at all.
+        Not sent: of a counted stream, the frames asked for that the camera did not send (by
+        its own count; if it could not say, those the host never accounted for), however it
+        ended (also when stopped on request)."""
+        requested = int(self._info["frames_requested"])
+        early: str | None = None
+        if self._stop_cause is not None:
+            early = self._stop_cause
+        elif on_request:
+            pass
+        elif frames_sent is None:
+            early = why
+        elif requested == 0 or frames_sent < requested:
+            of = f" of {requested}" if requested else ""
+            early = f"the camera ended the stream after {frames_sent}{of} frames (STREAM_DONE)"
+            if self._link_lost:
+                early += ": the sensor's LVDS link lost its training (LINK_LOST)"
+        if requested == 0:
+            return early, 0
+        if frames_sent is None and reader is not None:
+            # Every frame the host saw or knows it missed was sent; the rest never came.
+            st = reader.stats()
+            frames_sent = st.frames + st.lost + st.corrupt + st.short + st.overruns
+        return early, max(0, requested - (frames_sent or 0))
 
     def stats(self) -> StreamStats:
         """The host's ingest counters of the current or last stream (no device traffic)."""
@@ -791,6 +916,8 @@ class StreamService:
             recording_to = self._recording_to
             return StreamResponse(
                 streaming=self.streaming,
+                ended_early=None if self.streaming else self._ended_early,
+                frames_not_sent=0 if self.streaming else self._frames_not_sent,
                 recording=self._recording,
                 frames_flushed=self._frames_flushed
                 if recording_to is None

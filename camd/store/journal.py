@@ -20,7 +20,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from camd.store.durability import Recovered, RecoveryError, recover_file, reserve_path
+from camd.store.durability import (
+    Recovered,
+    RecoveryError,
+    is_disk_full,
+    is_held_open,
+    recover_file,
+)
 from camd.store.recording import FrameRecorder, RecordingError
 
 log = logging.getLogger(__name__)
@@ -91,8 +97,10 @@ class RecordingJournal:
 
 
 def recover_left_open(journal: RecordingJournal) -> list[LeftOpen]:
-    """Repair every file the journal says was left open; each entry is then removed (a file
-    that cannot be repaired is reported, not retried forever)."""
+    """Repair every file the journal says was left open; each entry is then removed, but for a
+    file whose repair failed for want of space (it is tried again at the next start, and the
+    problem says so); a file that cannot be repaired for another reason is reported, not
+    retried forever."""
     report: list[LeftOpen] = []
     for entry, record in journal.entries():
         path = Path(record.get("path", ""))
@@ -107,8 +115,11 @@ def recover_left_open(journal: RecordingJournal) -> list[LeftOpen]:
                 recovered = recover_file(path)
             except (RecoveryError, OSError, KeyError, ValueError) as exc:
                 problem = f"cannot repair it: {exc}"
+                if is_disk_full(exc):
+                    problem += "; camd tries again when it next starts"
+                    report.append(LeftOpen(path, kind, opened, recovered, problem))
+                    continue  # the entry stays
         report.append(LeftOpen(path, kind, opened, recovered, problem))
-        reserve_path(path).unlink(missing_ok=True)  # the dead writer's space reserve
         entry.unlink(missing_ok=True)
     return report
 
@@ -118,24 +129,59 @@ def close_recording(
     stats: Mapping[str, Any] | None,
     journal: RecordingJournal,
     log_event: Callable[[str, str, str], None],
+    *,
+    ended_early: str | None = None,
 ) -> None:
-    """Close a frame recording and take it off the journal. A file that cannot be closed is
-    repaired at once if it can be (``recover_file``), else left on the journal for the next
-    start; either way the event log says so."""
+    """Close a frame recording (``ended_early``: why it holds fewer frames than asked for) and
+    take it off the journal once the file is whole (``settle_failed_close`` if the close
+    failed); the event log says how it ended."""
+    path = recorder.path
     try:
-        recorder.close(stats)
+        recorder.close(stats, ended_early=ended_early)
     except RecordingError as exc:
-        try:
-            recover_file(recorder.path, reason=str(exc))
-        except (RecoveryError, OSError) as again:
-            log_event(
-                "error",
-                "stream",
-                f"recording {recorder.path} could not be closed ({exc}) nor repaired ({again}); "
-                "camd tries again when it next starts",
-            )
-            return
-        log_event("warning", "stream", f"recording {recorder.path} was repaired after: {exc}")
+        settle_failed_close(path, exc, "recording", journal, log_event, "stream")
+        return
+    if recorder.failed is not None:
+        log_event(
+            "warning",
+            "stream",
+            f"recording {path} closed after a failed write: {recorder.flushed} frames kept, "
+            "marked unfinished",
+        )
     else:
-        log_event("info", "stream", f"recording {recorder.path} closed: {recorder.flushed} frames")
-    journal.closed(recorder.path)
+        log_event("info", "stream", f"recording {path} closed: {recorder.flushed} frames")
+    journal.closed(path)
+
+
+def settle_failed_close(
+    path: Path,
+    exc: BaseException,
+    kind: str,
+    journal: RecordingJournal,
+    log_event: Callable[[str, str, str], None],
+    source: str,
+) -> bool:
+    """A writer's close failed (``exc``): repair the file at once if it can be
+    (``recover_file``; never one this process still holds open, which HDF5 would share) and
+    take it off the journal; else leave it on the journal for the next start. The event log
+    says which; True if the file is whole."""
+    if is_held_open(path):
+        log_event(
+            "error",
+            source,
+            f"{kind} {path} could not be closed: {exc}; camd repairs it when it next starts",
+        )
+        return False
+    try:
+        recover_file(path, reason=str(exc))
+    except (RecoveryError, OSError, KeyError, ValueError) as again:
+        log_event(
+            "error",
+            source,
+            f"{kind} {path} could not be closed ({exc}) nor repaired ({again}); camd tries "
+            "again when it next starts",
+        )
+        return False
+    log_event("warning", source, f"{kind} {path} was repaired after: {exc}")
+    journal.closed(path)
+    return True

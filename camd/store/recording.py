@@ -23,9 +23,13 @@ One file per recording::
 
 Root attributes: ``format`` ("camd-recording"), ``format_version``, ``mode``, ``bits``,
 ``rows``, ``cols``, ``line_period_s``, ``created_utc``, ``camd_version``, ``frames_expected``,
-``finished`` (False until the recording is closed) and, once closed, ``frames``. A file whose
-writer died keeps ``finished`` False; the daemon that starts next repairs it and adds
-``interrupted`` and ``recovered_utc`` (``camd.store.durability``).
+``finished`` (False until the recording is closed) and, once closed, ``frames``. A recording
+that holds fewer frames than asked for says why in ``ended_early`` (the camera ended the stream,
+it died, or the disk filled); one whose writes failed (a full disk) keeps ``finished`` False and
+says why in ``error``, and holds every frame written before (``frames`` = ``/frames_flushed`` =
+the length of ``/frames``). A file whose writer died keeps ``finished`` False; the daemon that
+starts next repairs it and adds ``interrupted`` and ``recovered_utc``
+(``camd.store.durability``).
 
 The file is written in HDF5's SWMR mode (file format 1.10, readable by HDF5 1.10 and later):
 the frames' geometry comes with the first frame, the mode is switched on then, and the recorder
@@ -38,6 +42,7 @@ viewer shows it; ``read_recording`` puts it back together. ``None`` values are n
 
 from __future__ import annotations
 
+import contextlib
 import datetime as dt
 import os
 import shutil
@@ -53,7 +58,18 @@ import numpy as np
 import numpy.typing as npt
 
 from camd.protocol.stream import FrameHeader, StreamMode, crc32
-from camd.store.durability import FLUSH_PERIOD_S, SpaceReserve, close_writer, write_failure
+from camd.store.durability import (
+    FLUSH_PERIOD_S,
+    Headroom,
+    NoRoom,
+    close_writer,
+    create_file,
+    discard_new_file,
+    keep_after_failure,
+    reopen_to_finish,
+    retry_held,
+    write_failure,
+)
 from camd.store.nexus import Axis, camera_name, sensor_fields, write_nexus
 
 FORMAT = "camd-recording"
@@ -62,7 +78,13 @@ FORMAT = "camd-recording"
 FORMAT_VERSION = 3
 METADATA_GROUPS = ("profile", "registers", "timing", "stream")
 BACKGROUND_GROUP = "background"
-_RESERVE_BYTES = 4 << 20  # space held back for finishing the file on a full disk
+# Space kept to finish the file on a full disk (durability.Headroom): what HDF5 may hold unwritten
+# when the disk fills, the per-frame columns' chunks (7 x 32 KiB at most between two flushes: the
+# frames themselves go to disk as they come, no chunk cache), and the metadata.
+RESERVE_BYTES = 4 << 20
+# Besides a frame's pixels, what a write may take: the columns' chunks a flush writes (7 x 32 KiB)
+# and the metadata it changes.
+_MARGIN_BYTES = 512 << 10
 _PER_FRAME: dict[str, npt.DTypeLike] = {
     "frame_counter": np.uint32,
     "timestamp_ns": np.uint64,
@@ -78,10 +100,12 @@ class RecordingError(OSError):
     """A recording cannot be written or read; the message names the file and what to do."""
 
 
-def check_new_file(path: Path, planned_bytes: int = 0) -> None:
+def check_new_file(path: Path, planned_bytes: int = 0, reserve_bytes: int = RESERVE_BYTES) -> None:
     """Refuse, before anything is recorded, a file that cannot be written: one that exists, in
     a directory that does not exist or is not writable, or on a disk with less free space than
-    ``planned_bytes``. RecordingError says what to change."""
+    ``planned_bytes`` plus the ``reserve_bytes`` its recorder holds back to close the file if
+    the disk fills (a frame recording's by default; a scan's is ``TdiRecorder.reserve_bytes``).
+    RecordingError says what to change."""
     if path.exists():
         raise RecordingError(f"{path} already exists; choose another file or remove it")
     folder = path.parent
@@ -96,10 +120,12 @@ def check_new_file(path: Path, planned_bytes: int = 0) -> None:
             "choose another directory"
         )
     free = shutil.disk_usage(folder).free
-    if free < planned_bytes:
+    if free < planned_bytes + reserve_bytes:
         raise RecordingError(
-            f"the recording needs about {planned_bytes / 1e6:.1f} MB but {folder} has "
-            f"{free / 1e6:.1f} MB free; free some space, choose another disk, or record less"
+            f"the recording needs about {planned_bytes / 1e6:.1f} MB, and "
+            f"{reserve_bytes / 1e6:.1f} MB more held back to close the file safely if the disk "
+            f"fills, but {folder} has {free / 1e6:.1f} MB free; free some space, choose "
+            "another disk, or record less"
         )
 
 
@@ -158,11 +184,13 @@ class FrameRecorder:
     """Appends streamed frames to a new HDF5 file; ``close(stats)`` finishes it.
 
     The file is created at once with its metadata (so a bad path fails before the stream
-    starts) and never overwrites an existing file. Frames are flushed to disk at least every
+    starts) and never overwrites an existing file; a file it could not set up is removed.
+    Frames go to disk as they are added and are flushed, with their count, at least every
     ``flush_period_s`` (module docstring); a failed write (a full disk) raises RecordingError
-    saying so, and the recorder then refuses further frames (``failed`` says why). The frame geometry (rows, columns, bits,
-    mode, line period) is taken from the first frame's header unless given; a later frame of
-    another shape is refused. ``metadata`` maps group name (profile, registers, timing, stream)
+    saying so, the file keeps every frame written before it (their count flushed at once, with
+    the space the recorder held back), and the recorder then refuses further frames (``failed``
+    says why). The frame geometry (rows, columns, bits, mode, line period) is taken from the
+    first frame's header unless given; a later frame of another shape is refused. ``metadata`` maps group name (profile, registers, timing, stream)
     to a dict. ``background_dn`` (with ``background_attrs``) is stored as ``/background``.
     """
 
@@ -182,29 +210,21 @@ class FrameRecorder:
         flush_period_s: float = FLUSH_PERIOD_S,
     ) -> None:
         self.path = Path(path)
+        retry_held()  # a file an earlier full disk held open, closed if the space is back
         if self.path.exists():
             raise RecordingError(
                 f"{self.path} already exists; choose another --out or remove the old file"
             )
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
-            self._space = SpaceReserve(self.path, _RESERVE_BYTES)
-        except OSError as exc:
-            raise RecordingError(
-                f"cannot create the recording {self.path}: {write_failure(self.path, exc)}"
-            ) from None
-        try:
             # SWMR needs the 1.10 file format.
-            self._file = h5py.File(self.path, "w-", libver=("v110", "latest"))
+            self._file = create_file(self.path, "the recording", libver=("v110", "latest"))
         except OSError as exc:
-            self._space.release()
-            raise RecordingError(
-                f"cannot create the recording {self.path}: {exc}; check that the daemon's user "
-                "may write there"
-            ) from None
-        self.count = 0
+            raise RecordingError(str(exc)) from None
+        self.count = 0  # frames added whose writes went through
         self.flushed = 0  # frames on disk: what the file keeps if the writer dies now
         self.failed: str | None = None  # why writing stopped (a full disk), None while it works
+        self._closed = False
         self._flush_period_s = flush_period_s
         self._last_flush = time.monotonic()
         self._frames_expected = frames_expected
@@ -212,13 +232,43 @@ class FrameRecorder:
         # Host time of a frame = monotonic receive time + this offset (ns since 1970, UTC).
         self._unix_offset_ns = time.time_ns() - time.monotonic_ns()
         self._created_utc = dt.datetime.now(dt.UTC).isoformat(timespec="milliseconds")
+        self._frames: Any = None
+        self._frames_flushed: Any = None
+        self._columns: dict[str, Any] = {}
+        # The columns' values of the frames added since the last flush: a flush that fails on a
+        # full disk cannot simply be tried again (HDF5 then writes a new chunk without adding
+        # it to the dataset's index), so they are written afresh (``_failed``).
+        self._unflushed: list[dict[str, int]] = []
+        self.rows = self.cols = 0
+        self._capacity = 0
+        try:
+            self._headroom = Headroom(self._file, RESERVE_BYTES)
+            background = 0 if background_dn is None else 4 * np.size(background_dn)
+            self._headroom.ensure(background + _MARGIN_BYTES)
+            self._start_file(metadata, background_dn, background_attrs)
+            if rows is not None and cols is not None:
+                self._create(rows, cols, bits or 16, mode or StreamMode.AREA, line_period_s or 0.0)
+        except (OSError, RuntimeError) as exc:  # h5py reports a failed flush as RuntimeError
+            # Nothing recorded yet: leave no file behind (a retry with the same name works).
+            discard_new_file(self._file, self.path, self)
+            raise RecordingError(
+                f"cannot create the recording {self.path}: {write_failure(self.path, exc)}"
+            ) from None
+
+    def _start_file(
+        self,
+        metadata: Mapping[str, Mapping[str, Any]] | None,
+        background_dn: npt.ArrayLike | None,
+        background_attrs: Mapping[str, Any] | None,
+    ) -> None:
+        """The root attributes, the metadata groups and the background, flushed."""
         self._file.attrs.update(
             {
                 "format": FORMAT,
                 "format_version": FORMAT_VERSION,
                 "created_utc": self._created_utc,
                 "camd_version": camd_version(),
-                "frames_expected": frames_expected,
+                "frames_expected": self._frames_expected,
                 "finished": False,
             }
         )
@@ -228,18 +278,13 @@ class FrameRecorder:
             )
         if background_dn is not None:
             write_background(self._file, background_dn, background_attrs or {})
-        self._file.flush()
-        self.rows = self.cols = 0
-        self._frames: Any = None
-        self._columns: dict[str, Any] = {}
-        self._capacity = 0
-        if rows is not None and cols is not None:
-            self._create(rows, cols, bits or 16, mode or StreamMode.AREA, line_period_s or 0.0)
+        self._headroom.flush()
 
     def _create(
         self, rows: int, cols: int, bits: int, mode: StreamMode | str, line_period_s: float
     ) -> None:
         f = self._file
+        self._headroom.ensure(_MARGIN_BYTES)
         self.rows, self.cols = rows, cols
         mode_name = mode.name.lower() if isinstance(mode, StreamMode) else str(mode)
         f.attrs.update(
@@ -251,12 +296,18 @@ class FrameRecorder:
                 "line_period_s": line_period_s,
             }
         )
+        # No chunk cache: each frame goes to disk as it is added, so that a full disk shows at
+        # the frame that does not fit, and HDF5 never holds frames that closing the file would
+        # have to write (HDF5 2's default 8 MiB cache holds three hr400 frames).
+        no_cache = h5py.h5p.create(h5py.h5p.DATASET_ACCESS)
+        no_cache.set_chunk_cache(1, 0, 1.0)
         self._frames = f.create_dataset(
             "frames",
             shape=(0, rows, cols),
             maxshape=(None, rows, cols),
             dtype=np.uint16,
             chunks=(1, rows, cols),
+            dapl=no_cache,
         )
         self._columns = {
             name: f.create_dataset(name, shape=(0,), maxshape=(None,), dtype=dtype, chunks=(4096,))
@@ -267,7 +318,7 @@ class FrameRecorder:
         self._reserve(max(self._frames_expected, 1))
         # Every object exists now: from here on the file is only appended to, in SWMR mode.
         f.swmr_mode = True
-        f.flush()
+        self._headroom.flush()
 
     def _write_nexus(
         self, f: h5py.File, rows: int, cols: int, bits: int, mode: str, line_period_s: float
@@ -326,28 +377,72 @@ class FrameRecorder:
         except RecordingError:
             raise  # the caller's mistake (a frame of another shape): the file is fine
         except (OSError, RuntimeError) as exc:  # h5py reports a failed flush as RuntimeError
-            self.failed = (
-                f"{write_failure(self.path, exc)}; the recording keeps the {self.flushed} "
-                "frames flushed before"
-            )
-            # Back to what is on disk, with the reserve's space, so that close() works.
-            self._space.release()
-            try:
-                self._trim(self._file, self.flushed)
-                self._file.flush()
-            except (OSError, RuntimeError):
-                pass  # close() tries again and says what it could not do
-            raise RecordingError(self.failed) from None
+            raise self._failed(exc) from None
+
+    def _failed(self, exc: BaseException) -> RecordingError:
+        """Writing failed (a full disk): put on disk every frame whose write went through
+        (``count``), with that count, so that nothing but the frame that did not fit is lost
+        and the file can be closed; the error to raise. On a clean ``NoRoom`` HDF5 has
+        written nothing and flushes into the headroom's reserve; after a failed HDF5 write the
+        columns since the last flush are written afresh (``_unflushed``)."""
+        kept = keep_after_failure(
+            exc,
+            written=self.count,
+            flushed=self.flushed,
+            flush=lambda: self._flush_count(regrow=False),
+            rewrite=self._rewrite_unflushed,
+            trim=self._trim_and_flush,
+        )
+        self.count = kept
+        self.failed = (
+            f"{write_failure(self.path, exc)}; the recording keeps the {kept} frames written before"
+        )
+        return RecordingError(self.failed)
+
+    def _trim_and_flush(self, count: int) -> None:
+        self._trim(self._file, count)
+        self._headroom.flush(regrow=False)
+
+    def _flush_count(self, *, regrow: bool = True) -> None:
+        """Flush the frames so far, then their count; then (``regrow``) the headroom is made
+        whole again (``Headroom.flush``: NoRoom if it cannot be, all flushed all the same)."""
+        self._headroom.flush(regrow=False)
+        if self._frames_flushed is not None:
+            self._frames_flushed[0] = self.count
+            self._headroom.flush(regrow=False)
+        self.flushed = self.count
+        self._unflushed.clear()
+        if regrow:
+            self._headroom.ensure(0)
+
+    def _rewrite_unflushed(self) -> None:
+        """After a failed write: the columns of the frames since the last flush written afresh
+        (their chunks dropped first: HDF5 cannot be trusted to write them again, see
+        ``_unflushed``), then everything flushed, with the count."""
+        f = self._file
+        if self._frames_flushed is None:  # the first frame's datasets failed: nothing to keep
+            self._headroom.flush(regrow=False)
+            return
+        flushed, count = self.flushed, self.count
+        for name, column in self._columns.items():
+            column.resize(flushed, axis=0)
+            column.resize(count, axis=0)
+            if count > flushed:
+                column[flushed:count] = [values[name] for values in self._unflushed]
+        self._trim(f, count)
+        self._headroom.flush(regrow=False)
+        self._frames_flushed[0] = count
+        self._headroom.flush(regrow=False)
+        self.flushed = count
+        self._unflushed.clear()
 
     def flush(self) -> None:
         """Put the frames so far on disk (where readers see them and a kill leaves them),
         then their count (``/frames_flushed``)."""
         if self._frames is None:
             return
-        self._file.flush()
-        self._frames_flushed[0] = self.count
-        self._file.flush()
-        self.flushed = self.count
+        self._headroom.ensure(_MARGIN_BYTES)
+        self._flush_count()
         self._last_flush = time.monotonic()
 
     def _add(
@@ -368,6 +463,7 @@ class FrameRecorder:
         i = self.count
         if i >= self._capacity:
             self._reserve(max(2 * self._capacity, 16))
+        self._headroom.ensure(pixels.nbytes + _MARGIN_BYTES)
         self._frames[i] = pixels
         values = {
             "frame_counter": header.counter,
@@ -380,55 +476,68 @@ class FrameRecorder:
         }
         for name, value in values.items():
             self._columns[name][i] = value
+        self._unflushed.append(values)
         self.count += 1
 
-    def close(self, stream_stats: Mapping[str, Any] | None = None) -> Path:
+    def close(
+        self, stream_stats: Mapping[str, Any] | None = None, *, ended_early: str | None = None
+    ) -> Path:
         """Trim to the frames received, store the stream's counters, mark the file finished,
-        close; return the path. After a failed write (``failed``), the file keeps the frames
-        flushed before it, ``finished`` stays False and ``error`` says why. RecordingError if
-        the file cannot even be closed that way (it then needs ``recover_file``)."""
-        if not self._file:
+        close; return the path. ``ended_early``: why the stream ended before its frames were
+        all sent (the camera ended it, or died), kept as the root attribute ``ended_early``.
+        After a failed write (``failed``), the file keeps the frames written before it,
+        ``finished`` stays False and ``error`` says why. RecordingError if the file cannot
+        even be closed that way: if the disk is still full it stays open, held by this process
+        (``camd.store.durability``), for the next start to repair."""
+        if self._closed:
             return self.path
-        count = self.count if self.failed is None else self.flushed
-        self.failed = close_writer(self._file, self.path, self.failed, self._space)
-        if self.failed is not None:
-            # Keep what is on disk, say why it ends there; the file stays unfinished.
+        self._closed = True
+        if self.failed is None:
+            # The frames and their count on disk before the close, while the headroom is
+            # there: if the file cannot be reopened below, it is whole but for its attributes.
             try:
-                with h5py.File(self.path, "r+") as f:
-                    self._trim(f, count)
-                    f.attrs.update({"frames": count, "error": self.failed})
-            except OSError:
-                raise RecordingError(
-                    f"{self.failed}; {self.path} is left unfinished (camd repairs it when it "
-                    "starts again; h5py.File(path, 'r', swmr=True) reads it now)"
-                ) from None
-            return self.path  # finished = False and the error say it ended early
+                with contextlib.suppress(NoRoom):  # a full disk: the headroom's reserve serves
+                    self._headroom.ensure(_MARGIN_BYTES)
+                self._flush_count(regrow=False)
+            except (OSError, RuntimeError) as exc:
+                self._failed(exc)
+        count = self.count
+        why = close_writer(self._file, self.path, self)
+        if why is not None:
+            self.failed = self.failed or why
+            raise RecordingError(
+                f"{self.failed}; {self.path} cannot be closed and stays open until the space is "
+                "back (camd repairs it when it starts again; h5py.File(path, 'r', swmr=True) "
+                f"reads its {self.flushed} flushed frames now)"
+            )
         # An SWMR writer may not add or change attributes: reopen the file to finish it.
         try:
-            try:
-                f = h5py.File(self.path, "r+")
-            except BlockingIOError:
-                # A reader holds the file (and a shared lock on it): it sees the final
-                # attributes when it opens the file again.
-                f = h5py.File(self.path, "r+", locking=False)
-            with f:
-                self._finish(f, count, stream_stats)
+            with reopen_to_finish(self.path) as f:
+                self._finish(f, count, stream_stats, ended_early)
             self.flushed = count
-        except OSError as exc:
+        except (OSError, RuntimeError) as exc:
             raise RecordingError(
-                f"{write_failure(self.path, exc)}; {self.path} keeps its {count} frames but is "
-                "not marked finished"
+                f"{self.failed or write_failure(self.path, exc)}; {self.path} keeps its "
+                f"{self.flushed} flushed frames but is not marked as ended (camd repairs it "
+                "when it starts again; h5py.File(path, 'r', swmr=True) reads it now)"
             ) from None
         return self.path
 
     @staticmethod
     def _trim(f: h5py.File, count: int) -> None:
-        if "frames" in f:
-            for name in ("frames", *_PER_FRAME):
+        for name in ("frames", *_PER_FRAME):
+            if name in f:  # a file whose first frame failed may lack some
                 f[name].resize(count, axis=0)
+        if "frames_flushed" in f:
             f["frames_flushed"][0] = count
 
-    def _finish(self, f: h5py.File, count: int, stream_stats: Mapping[str, Any] | None) -> None:
+    def _finish(
+        self,
+        f: h5py.File,
+        count: int,
+        stream_stats: Mapping[str, Any] | None,
+        ended_early: str | None,
+    ) -> None:
         if "frames" not in f:
             # No frame came: an empty recording, still readable.
             f.attrs.update({"mode": "none", "bits": 0, "rows": 0, "cols": 0})
@@ -439,7 +548,12 @@ class FrameRecorder:
             self._write_nexus(f, 0, 0, 0, "none", 0.0)
         else:
             self._trim(f, count)
-        f.attrs.update({"frames": count, "finished": True})
+        attrs: dict[str, Any] = {"frames": count, "finished": self.failed is None}
+        if self.failed is not None:
+            attrs["error"] = self.failed  # finished = False and the error say it ended early
+        if ended_early or self.failed:
+            attrs["ended_early"] = ended_early or self.failed
+        f.attrs.update(attrs)
         if stream_stats:
             f["stream"].attrs.update(flatten_attrs(stream_stats))
 

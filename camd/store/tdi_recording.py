@@ -42,6 +42,7 @@ such a file when it starts again, so that plain HDF5 readers open it too).
 
 from __future__ import annotations
 
+import contextlib
 import datetime as dt
 import operator
 import time
@@ -54,7 +55,18 @@ import h5py
 import numpy as np
 import numpy.typing as npt
 
-from camd.store.durability import FLUSH_PERIOD_S, SpaceReserve, close_writer, write_failure
+from camd.store.durability import (
+    FLUSH_PERIOD_S,
+    Headroom,
+    NoRoom,
+    close_writer,
+    create_file,
+    discard_new_file,
+    keep_after_failure,
+    reopen_to_finish,
+    retry_held,
+    write_failure,
+)
 from camd.store.nexus import ENTRY, Axis, camera_name, profile_value, sensor_fields, write_nexus
 from camd.store.recording import FORMAT as RECORDING_FORMAT
 from camd.store.recording import (
@@ -100,6 +112,8 @@ _RESERVED_ROOT = frozenset(
 )
 _COLUMN_CHUNK = 4096  # lines per chunk of the 1-D columns
 _RESERVE_MIN_BYTES = 4 << 20  # the least space held back for finishing the file on a full disk
+# Besides the lines' chunks, what a flush may write: the columns' chunks and the metadata.
+_MARGIN_BYTES = 512 << 10
 _UINT32_MAX = 2**32 - 1
 _INT64 = np.iinfo(np.int64)
 
@@ -232,41 +246,50 @@ class TdiRecorder:
         self._flush_period_s = flush_period_s
         self._last_flush = time.monotonic()
         self._stage_change_count = 0
+        self._stage_change_list: list[tuple[int, int]] = []
+        # The lines appended since the last flush, with their columns: a flush that fails on a
+        # full disk cannot simply be tried again (HDF5 then writes a new chunk without adding
+        # it to the dataset's index), so they are written afresh (``_failed``).
+        self._unflushed: list[tuple[npt.NDArray[Any], dict[str, npt.NDArray[Any]]]] = []
         self._closed = False
         self.failed: str | None = None  # why writing stopped (a full disk), None while it works
-        try:
-            # What closing the file needs if the disk fills up: the metadata and the chunk cache.
-            self._space = SpaceReserve(self.path, _RESERVE_MIN_BYTES + 2 * chunk_bytes)
-        except OSError as exc:
-            raise RecordingError(
-                f"cannot create the TDI scan {self.path}: {write_failure(self.path, exc)}"
-            ) from None
+        retry_held()  # a file an earlier full disk held open, closed if the space is back
         try:
             # SWMR needs the 1.10 file format; the chunk cache holds two chunks of lines so that
             # appending a few lines at a time never rewrites a whole chunk on disk.
-            self._file = h5py.File(
+            self._file = create_file(
                 self.path,
-                "w-",
+                "the TDI scan",
                 libver=("v110", "latest"),
                 rdcc_nbytes=max(1 << 20, 2 * chunk_bytes),
             )
         except OSError as exc:
-            self._space.release()
-            raise RecordingError(
-                f"cannot create the TDI scan {self.path}: {exc}; check that the daemon's user "
-                "may write there"
-            ) from None
+            raise RecordingError(str(exc)) from None
         try:
+            self._headroom = Headroom(self._file, self.reserve_bytes(width, mode, chunk_lines))
+            background = 0 if background_dn is None else 4 * np.size(background_dn)
+            self._headroom.ensure(background + _MARGIN_BYTES)
             self._create(metadata)
             if background_dn is not None:  # before SWMR: an SWMR writer cannot add datasets
                 write_background(self._file, background_dn, background_attrs or {})
             self._file.swmr_mode = True
-            self._file.flush()
+            self._headroom.flush()
+        except (OSError, RuntimeError) as exc:  # h5py reports a failed flush as RuntimeError
+            # Nothing recorded yet: leave no file behind (a retry with the same name works).
+            discard_new_file(self._file, self.path, self)
+            raise RecordingError(
+                f"cannot create the TDI scan {self.path}: {write_failure(self.path, exc)}"
+            ) from None
         except BaseException:
-            self._file.close()
-            self.path.unlink(missing_ok=True)
-            self._space.release()
+            discard_new_file(self._file, self.path, self)
             raise
+
+    @staticmethod
+    def reserve_bytes(width: int, mode: str, chunk_lines: int = 256) -> int:
+        """The space a recorder of these settings holds back to close its file if the disk
+        fills (``camd.store.durability.Headroom``): what HDF5 may hold unwritten (two
+        chunks of lines: ``append`` flushes before more are pending) and the metadata."""
+        return _RESERVE_MIN_BYTES + 2 * chunk_lines * width * np.dtype(MODES[mode]).itemsize
 
     def _create(self, metadata: Mapping[str, Mapping[str, Any]]) -> None:
         f = self._file
@@ -418,9 +441,27 @@ class TdiRecorder:
             ),
             "m_dv_over_v": _float_column("m_dv_over_v", m_dv_over_v, n),
         }
-        if n == 0:
-            return
-        start, stop = self.lines, self.lines + n
+        done_at = 0
+        while done_at < n:
+            # At most chunk_lines lines wait unflushed, so at most two chunks of lines are
+            # dirty: the chunk cache holds them without writing one out to make room (an
+            # eviction that fails on a full disk loses its chunk), and the reserve covers them.
+            piece = min(n - done_at, self._chunk_lines - (self.lines - self._flushed_lines))
+            if piece <= 0:
+                self.flush()
+                continue
+            part = slice(done_at, done_at + piece)
+            self._write(lines[part], {name: values[part] for name, values in columns.items()})
+            done_at += piece
+            if (
+                self.lines - self._flushed_lines >= self._chunk_lines
+                or time.monotonic() - self._last_flush >= self._flush_period_s
+            ):
+                self.flush()
+
+    def _write(self, lines: npt.NDArray[Any], columns: Mapping[str, npt.NDArray[Any]]) -> None:
+        """Append a piece of lines to the datasets (not flushed)."""
+        start, stop = self.lines, self.lines + lines.shape[0]
         try:
             self._lines.resize(stop, axis=0)
             for column in self._columns.values():
@@ -431,28 +472,73 @@ class TdiRecorder:
         except (OSError, RuntimeError) as exc:  # h5py reports a failed flush as RuntimeError
             raise self._failed(exc) from None
         self.lines = stop
-        self.complete_lines += int(np.count_nonzero(done))
-        if (
-            self.lines - self._flushed_lines >= self._chunk_lines
-            or time.monotonic() - self._last_flush >= self._flush_period_s
-        ):
-            self.flush()
+        self.complete_lines += int(np.count_nonzero(columns["complete"]))
+        # Copies: the caller may reuse its buffers once this returns.
+        self._unflushed.append((lines.copy(), {k: v.copy() for k, v in columns.items()}))
 
     def _failed(self, exc: BaseException) -> RecordingError:
-        """Writing failed (a full disk): release the reserve and go back to what is on disk,
-        so that the file can still be closed; the RecordingError to raise."""
-        self.failed = (
-            f"{write_failure(self.path, exc)}; the scan file keeps the {self._flushed_lines} "
-            "lines flushed before"
+        """Writing failed (a full disk): put on disk every line appended before (``lines``),
+        with their count, so that nothing but the lines that did not fit is lost and the file
+        can be closed; the RecordingError to raise. On a clean ``NoRoom`` HDF5 has written
+        nothing and flushes into the headroom's reserve; after a failed HDF5 write the lines
+        since the last flush are written afresh (``_unflushed``)."""
+        kept = keep_after_failure(
+            exc,
+            written=self.lines,
+            flushed=self._flushed_lines,
+            flush=lambda: self._flush_count(regrow=False),
+            rewrite=self._rewrite_unflushed,
+            trim=self._trim_and_flush,
         )
-        self._space.release()
-        try:
-            for dataset in (self._lines, *self._columns.values()):
-                dataset.resize(self._flushed_lines, axis=0)
-            self._file.flush()
-        except (OSError, RuntimeError):
-            pass  # close() tries again and says what it could not do
+        self.lines = kept  # complete_lines is counted again from the file by close()
+        self.failed = (
+            f"{write_failure(self.path, exc)}; the scan file keeps the {kept} lines written before"
+        )
         return RecordingError(self.failed)
+
+    def _trim_and_flush(self, count: int) -> None:
+        for dataset in (self._lines, *self._columns.values()):
+            dataset.resize(count, axis=0)
+        self._headroom.flush(regrow=False)
+
+    def _flush_count(self, *, regrow: bool = True) -> None:
+        """Flush the lines so far, then their count (``/lines_flushed``); then (``regrow``)
+        the headroom is made whole again (``Headroom.flush``: NoRoom if it cannot be, all
+        flushed all the same)."""
+        self._headroom.flush(regrow=False)
+        # Only now are the lines on disk: the count follows in a second, small flush.
+        self._lines_flushed[0] = self.lines
+        self._headroom.flush(regrow=False)
+        self._flushed_lines = self.lines
+        self._unflushed.clear()
+        if regrow:
+            self._headroom.ensure(0)
+
+    def _rewrite_unflushed(self) -> None:
+        """After a failed write: the lines since the last flush (and the stage changes)
+        written afresh, their chunks dropped first (HDF5 cannot be trusted to write them
+        again, see ``_unflushed``), then everything flushed, with the count."""
+        start = self._flushed_lines
+        for dataset in (self._lines, *self._columns.values()):
+            dataset.resize(start, axis=0)
+        for lines, columns in self._unflushed:
+            stop = start + lines.shape[0]
+            self._lines.resize(stop, axis=0)
+            self._lines[start:stop] = lines
+            for name, values in columns.items():
+                self._columns[name].resize(stop, axis=0)
+                self._columns[name][start:stop] = values
+            start = stop
+        changes = np.asarray(self._stage_change_list, dtype=np.int64).reshape(-1, 2)
+        self._stage_changes.resize(0, axis=0)
+        self._stage_changes.resize(len(changes), axis=0)
+        if len(changes):
+            self._stage_changes[:] = changes
+        self._headroom.flush(regrow=False)
+        self._lines_flushed[0] = start
+        self._headroom.flush(regrow=False)
+        self._flushed_lines = start
+        self._unflushed.clear()
 
     def note_stage_change(self, line_index: SupportsIndex, stages: SupportsIndex) -> None:
         """Record that from line ``line_index`` on the scan sums ``stages`` stages.
@@ -467,20 +553,28 @@ class TdiRecorder:
         self._stage_changes.resize(k + 1, axis=0)
         self._stage_changes[k] = (line_index, stages)
         self._stage_change_count = k + 1
+        self._stage_change_list.append((line_index, stages))
 
     def flush(self) -> None:
         """Write everything appended so far to the file, where readers see it and where it
         survives the writer's death; then the count of lines on disk (``/lines_flushed``)."""
         self._check_open()
         try:
-            self._file.flush()
-            # Only now are the lines on disk: the count follows in a second, small flush.
-            self._lines_flushed[0] = self.lines
-            self._file.flush()
+            self._headroom.ensure(self._flush_bytes())
+            self._flush_count()
         except (OSError, RuntimeError) as exc:
             raise self._failed(exc) from None
-        self._flushed_lines = self.lines
         self._last_flush = time.monotonic()
+
+    def _flush_bytes(self) -> int:
+        """The most a flush may write now: every chunk of lines since the last flush (at
+        most two, ``append``), and the margin."""
+        if self.lines == self._flushed_lines:
+            return _MARGIN_BYTES
+        first = self._flushed_lines // self._chunk_lines
+        last = (self.lines - 1) // self._chunk_lines
+        chunk_bytes = self._chunk_lines * self.width * self._dtype.itemsize
+        return (last - first + 1) * chunk_bytes + _MARGIN_BYTES
 
     @property
     def flushed_lines(self) -> int:
@@ -515,47 +609,71 @@ class TdiRecorder:
                 )
             else:
                 root[name] = value
+        if self.failed is None:
+            # The lines and their count on disk before the close, while the headroom is there:
+            # if the file cannot be reopened below, it is whole but for its attributes.
+            try:
+                with contextlib.suppress(NoRoom):  # a full disk: the headroom's reserve serves
+                    self._headroom.ensure(self._flush_bytes())
+                self._flush_count(regrow=False)
+            except (OSError, RuntimeError) as exc:
+                self._failed(exc)
         self._closed = True
-        self.failed = close_writer(self._file, self.path, self.failed, self._space)
+        why = close_writer(self._file, self.path, self)
+        if why is not None:
+            self.failed = self.failed or why
+            raise RecordingError(
+                f"{self.failed}; {self.path} cannot be closed and stays open until the space is "
+                "back (camd repairs it when it starts again; read_tdi_scan reads its "
+                f"{self._flushed_lines} flushed lines now)"
+            )
         if self.failed is not None:
-            # Only the flushed lines are surely on disk: keep those, say why it ends there.
-            self.lines = self._flushed_lines
             root["error"] = self.failed
         # An SWMR writer may not add or change attributes: reopen the finished file to do it.
         try:
-            try:
-                f = h5py.File(self.path, "r+")
-            except BlockingIOError:
-                # A reader still has the file open (and a shared lock on it): it sees the final
-                # attributes when it opens the file again.
-                f = h5py.File(self.path, "r+", locking=False)
-        except OSError as exc:
+            with reopen_to_finish(self.path) as f:
+                refused = self._finish(f, root, groups, datasets)
+        except (OSError, RuntimeError) as exc:
             raise RecordingError(
-                f"cannot reopen {self.path} to write its final attributes: {exc}; its lines are "
-                "complete, its lines/complete_lines/counters attributes are missing"
+                f"cannot write the final attributes of {self.path}: "
+                f"{self.failed or write_failure(self.path, exc)}; its {self._flushed_lines} "
+                "flushed lines are readable (read_tdi_scan), its lines/complete_lines/counters "
+                "attributes are missing (camd repairs it when it starts again)"
             ) from None
-        with f:
-            if self.failed is not None:
-                for name in ("lines", *_COLUMNS):
-                    f[name].resize(self.lines, axis=0)
-                f["lines_flushed"][0] = self.lines
-                self.complete_lines = int(np.count_nonzero(f["complete"][: self.lines]))
-            f.attrs.update(
-                {"lines": self.lines, "complete_lines": self.complete_lines, "finished": True}
-            )
-            refused = _store_attrs(f, root, "")
-            for group, values in groups.items():
-                node = f[group] if group in f else f.create_group(group)
-                refused += _store_attrs(node, values, f"{group}.")
-            for group, arrays in (datasets or {}).items():
-                node = f.require_group(_check_group_name(group, "close() dataset group"))
-                for name, array in arrays.items():
-                    node.create_dataset(name, data=np.asarray(array))
         if refused:
             raise ValueError(
                 f"{self.path} is closed, but HDF5 could not store these attributes: "
                 f"{'; '.join(refused)}; use numbers, strings, booleans or lists of them"
             )
+
+    def _finish(
+        self,
+        f: h5py.File,
+        root: Mapping[str, Any],
+        groups: Mapping[str, Mapping[str, Any]],
+        datasets: Mapping[str, Mapping[str, npt.ArrayLike]] | None,
+    ) -> list[str]:
+        """Write the final counts, attributes and datasets; the attributes HDF5 refused."""
+        if self.failed is not None:
+            # What the failed write left: the lines put on disk with their count.
+            self.lines = self._flushed_lines
+            for name in ("lines", *_COLUMNS):
+                f[name].resize(self.lines, axis=0)
+            self.complete_lines = int(np.count_nonzero(f["complete"][: self.lines]))
+        f["lines_flushed"][0] = self.lines  # every line is on disk now
+        self._flushed_lines = self.lines
+        f.attrs.update(
+            {"lines": self.lines, "complete_lines": self.complete_lines, "finished": True}
+        )
+        refused = _store_attrs(f, root, "")
+        for group, values in groups.items():
+            node = f[group] if group in f else f.create_group(group)
+            refused += _store_attrs(node, values, f"{group}.")
+        for group, arrays in (datasets or {}).items():
+            node = f.require_group(_check_group_name(group, "close() dataset group"))
+            for name, array in arrays.items():
+                node.create_dataset(name, data=np.asarray(array))
+        return refused
 
     def __enter__(self) -> TdiRecorder:
         return self

@@ -212,7 +212,14 @@ def _sim_set_polarizer(unit: Unit, spec: CommandSpec) -> Evidence:
 
 
 def _sim_fail_next(unit: Unit, spec: CommandSpec) -> Evidence:
-    fields = {"action": "off", "opcode": 1, "skip": 0, "error_code": 0, "duration_s": 0}
+    fields = {
+        "action": "off",
+        "opcode": 1,
+        "skip": 0,
+        "error_code": 0,
+        "duration_s": 0,
+        "frames": 0,
+    }
     return case("valid: action off (disarm)", send(unit, spec.name, fields=fields), "ACK")
 
 
