@@ -1,6 +1,7 @@
-"""Limits before archives (docs/api.md, "Telemetry"): a daemon whose data disk is full still
-trips its red limit, says once that the archive cannot be written, shows the events it keeps
-in memory, and archives them when space returns. A real ``camd serve --sim`` on a small tmpfs.
+"""A daemon whose data disk is full (docs/faults.md): it still trips its red limit, says once
+that the telemetry archive cannot be written, shows the events it keeps in memory and archives
+them when space returns (docs/api.md, "Telemetry"); a campaign job it cannot record is refused
+507 and changes nothing. A real ``camd serve --sim`` on a small tmpfs.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ from typing import Any
 import pytest
 
 from camd.cli._daemon_proc import DaemonProcess
-from camd.client import CamdClient
+from camd.client import CamdClient, CamdError
 from tests.crash_support import fill_disk, small_disk
 
 WAIT_S = 120.0  # generous: a busy 2-core machine
@@ -102,3 +103,32 @@ def test_a_red_limit_trips_while_the_data_disk_is_full(tmp_path: Path) -> None:
         assert any("uptime_s" in m and "red" in m for m in messages), messages
         log = (tmp_path / "daemon.log").read_text()
         assert "Traceback" not in log, log[-2000:]
+
+
+def test_a_campaign_job_on_a_full_disk_is_refused_and_changes_nothing(tmp_path: Path) -> None:
+    with small_disk(tmp_path / "disk", 16) as disk:
+        daemon = DaemonProcess(disk, log_name="../daemon.log", start_timeout_s=60.0)
+        with daemon, CamdClient(daemon.url, client="ida") as client:
+            client.wait_ready(60.0)
+            client.take_control(120.0)
+            before = client.control()
+            fill_disk(disk)
+            with pytest.raises(CamdError) as refused:
+                client.start_campaign("example_stare", quick=True)
+            error = refused.value
+            assert (error.http_status, error.code) == (507, "insufficient_storage"), error
+            assert "the disk is full" in error.message and "free some space" in error.message
+            # Nothing changed: no job, ida's lease as it was, nothing left on the disk.
+            assert client.campaign_jobs()["jobs"] == []
+            after = client.control()
+            assert (after["holder"], after["expires_t_s"]) == ("ida", before["expires_t_s"])
+            assert not list((disk / "campaigns").glob("1-*"))
+            (disk / "filler").unlink()
+            job = client.start_campaign("example_stare", quick=True)
+            assert job["id"] == 1 and job["state"] == "running"
+            done = _wait_for(
+                "the job to end",
+                lambda: (j := client.campaign_job(1))["state"] not in ("running", "pausing") and j,
+            )
+            assert done["state"] == "passed", done
+        assert daemon.exit_code == 0

@@ -185,8 +185,9 @@ def test_a_short_edge_soak_stops_fills_and_checks_everything(tmp_path: Path) -> 
     assert doc["violations"] == [] and doc["files"]["unopenable"] == []
     assert doc["files"]["journal_left"] == []
     assert doc["crashes"] == 0 and doc["daemon"]["exit_code"] == 0
-    assert doc["requests"]["5xx"] == 0
+    assert doc["error_codes"].get("internal", 0) == 0 and doc["requests"]["no_answer"] == 0
     assert doc["verdict"] == {
-        "crashes_0": True, "motion_after_estop_0": True, "files_openable": True, "no_5xx": True,
+        "crashes_0": True, "motion_after_estop_0": True, "files_openable": True,
+        "no_internal_error": True,
     }  # fmt: skip
     assert "data disk filled" in proc.stderr and "emergency stop: job" in proc.stderr

@@ -258,12 +258,14 @@ def render_edges(doc: dict[str, Any]) -> None:
     )
     print(
         f"data disk filled {c.get('disk_filled', 0)} times and emptied {c.get('disk_emptied', 0)}; "
-        f"recordings {c.get('recordings', 0)} ({c.get('recordings_ok', 0)} ok, "
-        f"{c.get('refused_disk_full', 0)} refused or cut by the full disk)"
+        f"recordings {c.get('recordings', 0)} ({c.get('recordings_ok', 0)} ok); jobs and "
+        f"recordings refused or cut by the full disk: {c.get('refused_disk_full', 0)}"
     )
     print(
         f"requests {r['sent']}: {r['2xx']} 2xx, {r['4xx']} 4xx, {r['5xx']} 5xx, "
-        f"{r['no_answer']} unanswered; other counts: "
+        f"{r['no_answer']} unanswered; error answers by code: "
+        + (", ".join(f"{k} {v}" for k, v in doc["error_codes"].items()) or "none")
+        + "; other counts: "
         + ", ".join(f"{k} {v}" for k, v in c.items() if k.startswith(("refused_", "jobs_")))
     )
     print(
@@ -282,7 +284,7 @@ def render_edges(doc: dict[str, Any]) -> None:
         "crashes_0": "no crash",
         "motion_after_estop_0": "no motion after an emergency stop without a release",
         "files_openable": "every file openable",
-        "no_5xx": "no 5xx answer",
+        "no_internal_error": "no internal error (500) and no request unanswered",
     }
     for key, ok in doc["verdict"].items():
         print(f"{'PASS' if ok else 'FAIL'}: {names.get(key, key)}")

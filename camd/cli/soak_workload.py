@@ -154,6 +154,7 @@ class _CountingClient(CamdClient):
     def __init__(self, url: str, *, timeout_s: float, client: str) -> None:
         super().__init__(url, timeout_s=timeout_s, client=client, token="")
         self.counts: collections.Counter[str] = collections.Counter()
+        self.codes: collections.Counter[str] = collections.Counter()  # error answers by code
         self.errors: list[str] = []
 
     def _request(self, method: str, path: str, **kwargs: Any) -> httpx.Response:
@@ -164,6 +165,7 @@ class _CountingClient(CamdClient):
             status = exc.http_status
             key = "no_answer" if status is None else "5xx" if status >= 500 else "4xx"
             self.counts[key] += 1
+            self.codes[exc.code] += 1
             self.note(f"{method} {path}: HTTP {status or '-'} {exc.code}: {exc.message}")
             raise
         self.counts["2xx"] += 1

@@ -37,6 +37,7 @@ which files may be run.
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import os
 import re
@@ -57,6 +58,8 @@ from camd.daemon.errors import (
     EstopLatched,
     NotFound,
     NotInControl,
+    SessionError,
+    StorageFull,
     WrongState,
 )
 from camd.daemon.estop import RELEASE_HINT
@@ -144,6 +147,7 @@ class CampaignJobs:
         self._url: str | None = None
         self._token = ""
         self._stopping = False
+        self._save_failed = False  # jobs.json could not be written (said once)
         self._load()
 
     # -- reading --------------------------------------------------------------------------------
@@ -260,6 +264,8 @@ class CampaignJobs:
             before_spawn(job_id)
             self._jobs[job_id] = job
             try:
+                # jobs.json first: a job the next daemon would not know of is not started.
+                self._save(strict=True)
                 self._spawn(job)
             except BaseException:
                 del self._jobs[job_id]  # refused: no job, nothing written
@@ -408,6 +414,7 @@ class CampaignJobs:
             was = job.state, job.message
             job.state, job.requested, job.message = "running", None, None
             try:
+                self._save(strict=True)
                 self._spawn(job)
             except BaseException:
                 job.state, job.message = was  # refused: the job as it was
@@ -438,15 +445,18 @@ class CampaignJobs:
             "--run", str(job.runs + 1), "--file", job.file, "--out", job.out_dir,
         ] + (["--quick"] if job.quick else [])  # fmt: skip
         out = Path(job.out_dir)
-        out.mkdir(parents=True, exist_ok=True)
         env = {**os.environ, "CAMD_TOKEN": self._token, "CAMD_CLIENT": worker_client(job.id)}
-        with open(out / "worker.log", "ab") as log:
-            # Its own session: a Ctrl-C meant for the daemon's terminal is not the worker's;
-            # the daemon stops it itself (close).
-            proc = subprocess.Popen(
-                argv, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, env=env,
-                start_new_session=True,
-            )  # fmt: skip
+        try:
+            out.mkdir(parents=True, exist_ok=True)
+            with open(out / "worker.log", "ab") as log:
+                # Its own session: a Ctrl-C meant for the daemon's terminal is not the
+                # worker's; the daemon stops it itself (close).
+                proc = subprocess.Popen(
+                    argv, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT,
+                    env=env, start_new_session=True,
+                )  # fmt: skip
+        except OSError as exc:
+            raise _write_error(f"cannot start job {job.id}'s worker in {out}", exc) from None
         self._procs[job.id] = proc
         job.pid, job.runs, job.started_t_s = proc.pid, job.runs + 1, time.time()
         job.resume_on_start, job.estopped = False, False
@@ -617,16 +627,33 @@ class CampaignJobs:
                 job = Job.model_validate(entry)
                 self._jobs[job.id] = job
 
-    def _save(self) -> None:
+    def _save(self, *, strict: bool = False) -> None:
+        """Rewrite jobs.json. A failure (a full disk) raises StorageFull or BadRequest with
+        ``strict`` (a start or resume is then refused); otherwise the jobs stay in memory, the
+        failure is said once and the next change tries again."""
         doc = {
             "format": JOBS_FORMAT,
             "version": JOBS_VERSION,
             "jobs": [job.model_dump() for job in self._jobs.values()],
         }
-        self._dir.mkdir(parents=True, exist_ok=True)
         tmp = self._path.with_suffix(".json.tmp")
-        tmp.write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
-        os.replace(tmp, self._path)
+        try:
+            self._dir.mkdir(parents=True, exist_ok=True)
+            tmp.write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
+            os.replace(tmp, self._path)
+        except OSError as exc:
+            with contextlib.suppress(OSError):
+                tmp.unlink(missing_ok=True)
+            error = _write_error(f"cannot write {self._path}", exc)
+            if strict:
+                raise error from None
+            if not self._save_failed:
+                self._events("warning", "campaign", f"{error}; the jobs are kept in memory")
+            self._save_failed = True
+            return
+        if self._save_failed:
+            self._events("info", "campaign", f"{self._path} written again")
+        self._save_failed = False
 
 
 def _terminate(proc: subprocess.Popen[bytes], wait_s: float) -> None:
@@ -667,3 +694,14 @@ def _stop_leftover(pid: int, job_id: int) -> None:
 def _cut(text: str, limit: int = 80) -> str:
     """``text`` as a message may quote it: at most ``limit`` characters."""
     return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"
+
+
+def _write_error(what: str, exc: OSError) -> SessionError:
+    """A file the jobs need could not be written: StorageFull (507) for a full disk, else
+    BadRequest saying why."""
+    if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+        return StorageFull(
+            f"{what}: the disk is full (No space left on device); free some space on the "
+            "daemon's data disk, then try again"
+        )
+    return BadRequest(f"{what}: {exc.strerror or exc}")

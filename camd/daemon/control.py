@@ -188,6 +188,23 @@ class Control:
             if self._activity is not None and self._activity.client == client:
                 self._activity = None
 
+    def hand_back(self, to: str, before: Holder | None) -> None:
+        """Undo a ``hand_over`` to ``to`` that came to nothing (its worker never started): the
+        lease as ``before`` (``holder()`` before the hand-over) had it, or none."""
+        with self._lock:
+            lease = self._lease
+            if lease is None or lease.client != to:
+                return
+            if before is not None and before.why == "lease" and before.expires_t_s is not None:
+                self._lease = _Lease(before.client, before.since_t_s, before.expires_t_s)
+            else:
+                self._lease = None
+            self._events(
+                "info",
+                "control",
+                f"control back from {to} (it did not start); {self._after(to) if self._lease is None else f'{self._lease.client} holds it again'}",
+            )
+
     def revoke(self, client: str, why: str) -> None:
         """End ``client``'s lease because its holder's life ended (a campaign job's worker
         exited, or an emergency stop paused its job); harmless when it holds none."""

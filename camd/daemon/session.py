@@ -25,7 +25,7 @@ import os
 import random
 import threading
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import asdict
 from typing import Any, cast
 
@@ -535,20 +535,34 @@ class DeviceSession:
                 "first (`camctl stream stop`, `camctl scan --stop`)"
             )
 
-        def hand_over(job_id: int) -> None:
-            self.control.hand_over(client, worker_client(job_id), CAMPAIGN_CONTROL_TTL_S)
-
-        doc = self.campaigns.start(body.campaign, body.out, body.quick, client, hand_over)
+        with self._handing_over(client) as hand_over:
+            doc = self.campaigns.start(body.campaign, body.out, body.quick, client, hand_over)
         return self._job_doc(doc)
 
     def resume_campaign(self, job_id: int, client: str) -> CampaignJob:
         self.campaigns.refuse_if_active()
         self.control.check(client, "resume a campaign")
 
+        with self._handing_over(client) as hand_over:
+            return self._job_doc(self.campaigns.resume(job_id, client, hand_over))
+
+    @contextlib.contextmanager
+    def _handing_over(self, client: str) -> Iterator[Callable[[int], None]]:
+        """The hand-over of ``client``'s control (or free control) to a job's worker, put back
+        as it was if the start or resume then fails (a refused request changes nothing)."""
+        before = self.control.holder()
+        handed: list[str] = []
+
         def hand_over(job_id: int) -> None:
             self.control.hand_over(client, worker_client(job_id), CAMPAIGN_CONTROL_TTL_S)
+            handed.append(worker_client(job_id))
 
-        return self._job_doc(self.campaigns.resume(job_id, client, hand_over))
+        try:
+            yield hand_over
+        except BaseException:
+            for worker in handed:
+                self.control.hand_back(worker, before)
+            raise
 
     def pause_campaign(self, job_id: int, client: str, force: bool) -> CampaignJob:
         return self._job_doc(self.campaigns.pause(job_id, client, force=force))
