@@ -3,8 +3,8 @@ space a writer holds past the end of its file."""
 
 from __future__ import annotations
 
+import contextlib
 import os
-import subprocess
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -13,51 +13,26 @@ from typing import Any
 
 import pytest
 
+from camd.cli.soak_edges import fill_disk, mounted_tmpfs
+
+__all__ = ["REQUIRE_MOUNT", "blocks_past_end", "fill_disk", "small_disk", "wait_for"]
+
 # CI runs as root and sets this, so that the disk-full tests cannot be skipped there.
 REQUIRE_MOUNT = os.environ.get("CAMD_REQUIRE_MOUNT") == "1"
 
 
 @contextmanager
 def small_disk(folder: Path, size_mb: int) -> Iterator[Path]:
-    """A tmpfs of ``size_mb`` MiB mounted on ``folder`` (root only), unmounted afterwards."""
-    folder.mkdir(parents=True, exist_ok=True)
-    why = None
-    if os.geteuid() != 0:
-        why = "mounting a small file system needs root (CI runs as root)"
-    else:
-        done = subprocess.run(
-            ["mount", "-t", "tmpfs", "-o", f"size={size_mb}m,mode=0755", "tmpfs", str(folder)],
-            capture_output=True,
-            text=True,
-            check=False,
-        )
-        if done.returncode != 0:
-            why = f"cannot mount a tmpfs: {done.stderr.strip()}"
-    if why is not None:
-        if REQUIRE_MOUNT:
-            pytest.fail(f"{why} (CAMD_REQUIRE_MOUNT=1)")
-        pytest.skip(why)
-    try:
-        yield folder
-    finally:
-        subprocess.run(["umount", "-l", str(folder)], check=False)
-
-
-def fill_disk(folder: Path) -> int:
-    """Write zeros to ``folder/filler`` until the disk is full; the bytes written."""
-    fd = os.open(folder / "filler", os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
-    written = 0
-    try:
-        for size in (1 << 20, 4096):  # big blocks, then down to the last page
-            block = bytes(size)
-            try:
-                while True:
-                    written += os.write(fd, block)
-            except OSError:
-                pass
-    finally:
-        os.close(fd)
-    return written
+    """A tmpfs of ``size_mb`` MiB mounted on ``folder`` (root only: skipped otherwise, or a
+    failure under CAMD_REQUIRE_MOUNT=1), unmounted afterwards."""
+    with contextlib.ExitStack() as stack:
+        try:
+            mounted = stack.enter_context(mounted_tmpfs(folder, size_mb))
+        except OSError as exc:
+            if REQUIRE_MOUNT:
+                pytest.fail(f"{exc} (CAMD_REQUIRE_MOUNT=1)")
+            pytest.skip(f"{exc} (CI runs as root)")
+        yield mounted
 
 
 NO_HEADROOM = 64 << 10  # past a file's end once finished: a block or two of rounding at most

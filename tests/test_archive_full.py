@@ -7,32 +7,19 @@ them when space returns (docs/api.md, "Telemetry"); a campaign job it cannot rec
 from __future__ import annotations
 
 import sqlite3
-import time
-from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
 import pytest
 
 from camd.cli._daemon_proc import DaemonProcess
 from camd.client import CamdClient, CamdError
-from tests.crash_support import fill_disk, small_disk
+from tests.crash_support import fill_disk, small_disk, wait_for
 
-WAIT_S = 120.0  # generous: a busy 2-core machine
 # The simulated camera's uptime_s grows with time: a red limit at this many seconds is the
 # channel that crosses it while the test holds the disk full.
 RED_AT_UPTIME_S = 30.0
 
 pytestmark = pytest.mark.slow
-
-
-def _wait_for(what: str, check: Callable[[], Any], timeout_s: float = WAIT_S) -> Any:
-    deadline = time.monotonic() + timeout_s
-    while not (value := check()):
-        if time.monotonic() > deadline:
-            raise AssertionError(f"waited {timeout_s:g} s for {what}")
-        time.sleep(0.1)
-    return value
 
 
 def test_a_red_limit_trips_while_the_data_disk_is_full(tmp_path: Path) -> None:
@@ -50,7 +37,7 @@ def test_a_red_limit_trips_while_the_data_disk_is_full(tmp_path: Path) -> None:
         with daemon, CamdClient(daemon.url) as client:
             client.wait_ready(60.0)
             fill_disk(disk)
-            broken = _wait_for(
+            broken = wait_for(
                 "the archive to find the disk full",
                 lambda: client.telemetry()["archive_error"],
             )
@@ -60,7 +47,7 @@ def test_a_red_limit_trips_while_the_data_disk_is_full(tmp_path: Path) -> None:
                 f"the camera's uptime reached {uptime:g} s before the disk was full: the test "
                 "cannot tell a red limit tripped on a full disk from one tripped before"
             )
-            status = _wait_for(
+            status = wait_for(
                 "the red limit's fault", lambda: (s := client.status())["state"] == "fault" and s
             )
             assert "red limit: uptime_s" in str(status["reason"])
@@ -74,15 +61,15 @@ def test_a_red_limit_trips_while_the_data_disk_is_full(tmp_path: Path) -> None:
             )
             # The latest values stay current while nothing is archived.
             t0 = float(client.telemetry()["latest"]["uptime_s"]["t_s"])
-            _wait_for(
+            wait_for(
                 "a newer sample",
                 lambda: float(client.telemetry()["latest"]["uptime_s"]["t_s"]) > t0,
             )
             (disk / "filler").unlink()
-            _wait_for(
+            wait_for(
                 "the archive to take writes again", lambda: not client.telemetry()["archive_error"]
             )
-            recovered = _wait_for(
+            recovered = wait_for(
                 "the recovery event",
                 lambda: [
                     e for e in client.events(200)["events"]
@@ -126,7 +113,7 @@ def test_a_campaign_job_on_a_full_disk_is_refused_and_changes_nothing(tmp_path: 
             (disk / "filler").unlink()
             job = client.start_campaign("example_stare", quick=True)
             assert job["id"] == 1 and job["state"] == "running"
-            done = _wait_for(
+            done = wait_for(
                 "the job to end",
                 lambda: (j := client.campaign_job(1))["state"] not in ("running", "pausing") and j,
             )

@@ -21,25 +21,16 @@ import pytest
 from camd.cli._daemon_proc import DaemonProcess
 from camd.client import CamdClient, CamdError
 from camd.daemon.campaign_jobs import CampaignJobs
+from tests.crash_support import wait_for
 from tests.device_snapshot import snapshot
 from tests.test_camctl import camctl
 from tests.test_campaign_jobs import _config
 
 PLAN = Path(__file__).parent / "plans" / "long_stare.py"
 ENDLESS = Path(__file__).parent / "plans" / "endless_stare.py"
-WAIT_S = 180.0  # generous: a busy 2-core machine
 ENDED = ("paused", "aborted", "passed", "failed", "error", "interrupted")
 
 pytestmark = pytest.mark.slow
-
-
-def _wait(what: str, check: Callable[[], Any], timeout_s: float = WAIT_S) -> Any:
-    deadline = time.monotonic() + timeout_s
-    while not (value := check()):
-        if time.monotonic() > deadline:
-            raise AssertionError(f"waited {timeout_s:g} s for {what}")
-        time.sleep(0.05)
-    return value
 
 
 def _latched(client: CamdClient, call: Callable[[], object]) -> str:
@@ -157,7 +148,7 @@ def test_an_emergency_stop_mid_scan_leaves_the_stage_standing(daemon: DaemonProc
     with CamdClient(daemon.url) as client:
         out = daemon.data_dir / "estop-scan.h5"
         client.start_scan(32, 0, out=str(out), drive_stage=True, closed_loop=True)
-        _wait("lines on their way to the file", lambda: client.scan()["lines"] > 20)
+        wait_for("lines on their way to the file", lambda: client.scan()["lines"] > 20)
         assert "acquisition" in client.estop()["stopped"]
         ended = client.wait_scan(60)
         assert ended["state"] == "stopped" and ended["error"] is None, ended
@@ -185,11 +176,11 @@ def test_an_emergency_stop_during_a_campaign_job_pauses_it_and_nothing_moves_aft
                 and int(stream["stats"]["frames"]) > 10
             )
 
-        _wait("the job to be inside stare1", acquiring)
+        wait_for("the job to be inside stare1", acquiring)
         assert client.wheel()["speed_deg_s"] == pytest.approx(nominal)  # the baseline's
         stop = client.estop()
         assert "acquisition" in stop["stopped"] and "campaign job" in stop["stopped"]
-        done = _wait(
+        done = wait_for(
             "the job to end",
             lambda: (d := client.campaign_job(job["id"]))["state"] in ENDED and d,
         )
@@ -214,7 +205,7 @@ def test_an_emergency_stop_during_a_campaign_job_pauses_it_and_nothing_moves_aft
         # Released, the operator resumes it: the stopped acquisition is done again.
         client.release_estop()
         assert client.resume_campaign(job["id"])["state"] == "running"
-        final = _wait(
+        final = wait_for(
             "the resumed job to end",
             lambda: (d := client.campaign_job(job["id"]))["state"] in ENDED and d,
         )
@@ -225,7 +216,7 @@ def test_an_emergency_stop_during_a_campaign_job_pauses_it_and_nothing_moves_aft
 def test_a_killed_worker_gives_control_back_at_once(daemon: DaemonProcess) -> None:
     with CamdClient(daemon.url, client="frank") as client:
         job = client.start_campaign(PLAN.stem)
-        _wait(
+        wait_for(
             "the job to be inside an acquisition",
             lambda: (
                 "acquire stare" in (client.campaign_job(job["id"])["activity"] or "")
@@ -236,12 +227,12 @@ def test_a_killed_worker_gives_control_back_at_once(daemon: DaemonProcess) -> No
         pid = _worker_pid(job["id"])
         os.kill(pid, signal.SIGKILL)
         killed_at = time.monotonic()
-        _wait("control to be free", lambda: client.control()["holder"] is None, timeout_s=30.0)
+        wait_for("control to be free", lambda: client.control()["holder"] is None, timeout_s=30.0)
         freed_s = time.monotonic() - killed_at
         assert freed_s < 30.0
         ended = client.campaign_job(job["id"])
         assert ended["state"] == "error" and "status -9" in str(ended["message"])
-        _wait("its stare to stop", lambda: not client.stream()["streaming"], timeout_s=30.0)
+        wait_for("its stare to stop", lambda: not client.stream()["streaming"], timeout_s=30.0)
         # Its starter may act again at once: no lease runs out first.
         assert client.acquire(3, timeout_s=60)["stats"]["frames"] == 3
         events = [e["message"] for e in client.events(limit=40)["events"]]
@@ -284,8 +275,8 @@ def test_the_latch_outlives_the_daemon_and_a_camera_that_comes_back_turning(
     with second, CamdClient(second.url) as client:
         client.wait_ready(60.0)
         assert client.status()["estop"]["by"] == "gina"
-        _wait("the wheel to be stopped again", lambda: client.wheel()["speed_deg_s"] == 0.0)
-        _wait(
+        wait_for("the wheel to be stopped again", lambda: client.wheel()["speed_deg_s"] == 0.0)
+        wait_for(
             "the stage to be stopped again",
             lambda: client.motion()["reading"]["state"] == "estop",
         )
@@ -295,14 +286,14 @@ def test_the_latch_outlives_the_daemon_and_a_camera_that_comes_back_turning(
         sim_pid = client.status()["link"]["sim_pid"]
         assert sim_pid is not None
         os.kill(int(sim_pid), signal.SIGKILL)
-        _wait(
+        wait_for(
             "the simulated camera to be restarted and answer",
             lambda: (
                 int((s := client.status())["link"]["sim_restarts"] or 0) > restarts
                 and s["state"] == "idle"
             ),
         )
-        _wait("the wheel to be stopped again", lambda: client.wheel()["speed_deg_s"] == 0.0)
+        wait_for("the wheel to be stopped again", lambda: client.wheel()["speed_deg_s"] == 0.0)
         again = [
                 e for e in client.events(limit=60)["events"]
                 if e["source"] == "estop" and "stopped again" in e["message"]
@@ -351,7 +342,7 @@ def test_sigterm_during_a_campaign_job_is_clean(tmp_path: Path) -> None:
     with daemon, CamdClient(daemon.url) as client:
         client.wait_ready(60.0)
         job = client.start_campaign(ENDLESS.stem)
-        _wait(
+        wait_for(
             "the job to be inside its stare",
             lambda: (
                 "acquire stare" in (client.campaign_job(job["id"])["activity"] or "")

@@ -51,6 +51,20 @@ class ConfigError(ValueError):
     """The configuration is invalid; the message names the file, the key and what is allowed."""
 
 
+def absolute_dirs(value: list[Path]) -> list[Path]:
+    """Directories a config key names, ``~`` and ``$VARIABLES`` expanded; ValueError naming an
+    entry that is not absolute (it would depend on the daemon's working directory: an operator
+    allows a directory they can name)."""
+    expanded = [_expanded(path) for path in value]
+    for index, path in enumerate(expanded):
+        if not path.is_absolute():
+            raise ValueError(
+                f"entry {index} ({str(value[index])!r}) is not an absolute path; give one "
+                "starting with / (or ~)"
+            )
+    return expanded
+
+
 def is_loopback(host: str) -> bool:
     """True if ``host`` only accepts connections from this machine."""
     if host.lower() == "localhost":
@@ -125,16 +139,7 @@ class DaemonSection(_Section):
     @field_validator("record_dirs", mode="after")
     @classmethod
     def _absolute_dirs(cls, value: list[Path]) -> list[Path]:
-        # A relative entry would depend on the daemon's working directory: an operator allows
-        # a directory they can name.
-        expanded = [_expanded(path) for path in value]
-        for index, path in enumerate(expanded):
-            if not path.is_absolute():
-                raise ValueError(
-                    f"entry {index} ({str(value[index])!r}) is not an absolute path; give one "
-                    "starting with / (or ~)"
-                )
-        return expanded
+        return absolute_dirs(value)
 
 
 class ApiSection(_Section):
@@ -532,12 +537,8 @@ class CampaignsSection(_Section):
 
     @field_validator("dirs", mode="after")
     @classmethod
-    def _absolute(cls, value: list[Path]) -> list[Path]:
-        out = [Path(os.path.expandvars(os.path.expanduser(str(p)))) for p in value]
-        relative = [str(p) for p in out if not p.is_absolute()]
-        if relative:
-            raise ValueError(f"give absolute directories, not {', '.join(relative)}")
-        return out
+    def _absolute_dirs(cls, value: list[Path]) -> list[Path]:
+        return absolute_dirs(value)
 
 
 class Config(_Section):
