@@ -238,7 +238,7 @@ def test_a_silence_sends_nothing_then_the_device_answers_again(
     ping = dictionary.command("PING").opcode
     # 3 s of silence around a 0.5 s listen: the listen stays inside it on a busy machine.
     host.call("SIM_FAIL_NEXT", 50, action="silence", opcode=ping, skip=0, error_code=0,
-              duration_s=3.0)  # fmt: skip
+              duration_s=3.0, frames=0)  # fmt: skip
     lost = host.command_frame("PING", 51, data=b"lost")
     host.send(lost)
     heard = host.drain(0.5)
