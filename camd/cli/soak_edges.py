@@ -39,7 +39,7 @@ from typing import Any
 import h5py
 
 from camd.cli._daemon_proc import DaemonProcess, DaemonStartError
-from camd.cli.soak_workload import SoakAborted, _CountingClient
+from camd.cli.soak_workload import SoakAborted, _CountingClient, write_hr400_config
 from camd.client import CamdError
 
 __all__ = ["EdgeSettings", "EdgeSoak", "fill_disk", "mounted_tmpfs"]
@@ -143,11 +143,7 @@ class EdgeSoak:
         return self.result()
 
     def _run_on(self, disk: Path) -> None:
-        config = self.s.work_dir / "camd.toml"
-        config.write_text(
-            f'[sim]\nprofile = "hr400"\nseed = {self.s.seed}\n[sensor]\nname = "hr400"\n',
-            encoding="utf-8",
-        )
+        config = write_hr400_config(self.s.work_dir, self.s.seed)
         self.daemon = DaemonProcess(
             disk,
             extra_args=["--config", str(config)],

@@ -99,6 +99,16 @@ def build_inject(ber: float, drop: float, frame_faults: float, extra: str = "") 
     return {k: v for k, v in keys.items() if v != 0}
 
 
+def write_hr400_config(work_dir: Path, seed: int) -> Path:
+    """``work_dir/camd.toml``: the soaks' daemon, a simulated hr400 seeded with ``seed``."""
+    config = work_dir / "camd.toml"
+    config.write_text(
+        f'[sim]\nprofile = "hr400"\nseed = {seed}\n[sensor]\nname = "hr400"\n',
+        encoding="utf-8",
+    )
+    return config
+
+
 def inject_text(keys: dict[str, float]) -> str:
     """``key=value,...`` as ``--inject`` takes it."""
     return ",".join(f"{k}={v:g}" for k, v in keys.items())
@@ -216,11 +226,7 @@ class Soak:
         from camd.cli._daemon_proc import DaemonStartError
 
         data = self.s.work_dir / "daemon"
-        config = self.s.work_dir / "camd.toml"
-        config.write_text(
-            f'[sim]\nprofile = "hr400"\nseed = {self.s.seed}\n[sensor]\nname = "hr400"\n',
-            encoding="utf-8",
-        )
+        config = write_hr400_config(self.s.work_dir, self.s.seed)
         self.daemon = DaemonProcess(
             data,
             inject=inject_text(self.s.inject),
