@@ -138,6 +138,9 @@ def test_camctl_shows_the_latch_and_releases_it(daemon: DaemonProcess) -> None:
     release = camctl(url, "--client", "carol", "estop", "release")
     assert release.returncode == 0, release.stderr
     assert "not latched (released at" in release.stdout and "carol" in release.stdout
+    after = camctl(url, "status")  # released: no latch row, nor the raw latch document
+    assert after.returncode == 0 and "EMERGENCY STOP" not in after.stdout
+    assert "latched" not in after.stdout, after.stdout
     with CamdClient(url) as client:
         _released(client)
 

@@ -483,7 +483,9 @@ def status_table(doc: dict[str, Any], title: str | None = "camd status") -> Tabl
             f"{acquisition.get('kind')} {running}: {acquisition.get('description')}{by}, "
             f"since {fmt_time(acquisition.get('started_t_s'))}",
         )
-    listed = {"state", "reason", "mode", "link", "device", "daemon", "control", "acquisition"}
+    listed = {
+        "state", "reason", "mode", "link", "device", "daemon", "control", "acquisition", "estop",
+    }  # fmt: skip
     for key, value in doc.items():
         if key not in listed:
             table.add_row(key, fmt_value(value))
