@@ -27,11 +27,9 @@ run``, and supervises it. The worker holds control for the run under the client 
 Every job is in ``<data_dir>/campaigns/jobs.json`` (rewritten atomically at each change), so
 a restarted daemon knows them all. One job runs at a time.
 
-The daemon runs no code a client names: a job names its campaign by name, and the daemon looks
-it up in the operator's campaign directories (``[campaigns] dirs``, in order) and then in the
-shipped ones (``find``); a path is refused before anything is loaded or imported. A Python plan
-is code run with the daemon's rights, so only the operator (who writes the config) decides
-which files may be run.
+The daemon runs no code a client names: a job names its campaign by name, looked up in the
+operator's campaign directories and then the shipped ones (``camd.daemon.campaign_dirs``); a
+path is refused before anything is loaded or imported.
 """
 
 from __future__ import annotations
@@ -40,7 +38,6 @@ import contextlib
 import errno
 import json
 import os
-import re
 import signal
 import subprocess
 import sys
@@ -52,6 +49,7 @@ from typing import Any, Literal
 
 from pydantic import ValidationError
 
+from camd.daemon.campaign_dirs import CampaignDirs
 from camd.daemon.errors import (
     BadRequest,
     Busy,
@@ -65,7 +63,6 @@ from camd.daemon.errors import (
 from camd.daemon.estop import RELEASE_HINT
 from camd.daemon.models import CampaignJob, CampaignJobState
 from camd.daemon.output_paths import CAMPAIGNS_FOLDER, resolve_output
-from camd.paths import config_dir
 
 __all__ = ["ACTIVE", "CampaignJobs", "Job", "worker_client"]
 
@@ -77,8 +74,6 @@ STOP_GRACE_S = 60.0  # a worker asked to stop gets this long before SIGKILL (a m
 # runs to its end first: the shipped ones take seconds)
 SHUTDOWN_WAIT_S = 5.0  # the daemon's stop waits this long for a worker after SIGTERM
 LOG_TAIL_CHARS = 600
-CAMPAIGN_NAME = re.compile(r"[a-z][a-z0-9_]{0,99}")  # a campaign's name (its file's stem)
-CAMPAIGN_SUFFIXES = (".yaml", ".py")  # a YAML campaign, a Python plan
 
 # The states of a job; ACTIVE ones have (or are about to have) a worker.
 ACTIVE = ("running", "pausing", "aborting")
@@ -138,8 +133,7 @@ class CampaignJobs:
         self._stop_acquisition = stop_acquisition
         self._worker_ended = worker_ended
         self._estop_latched = estop_latched
-        # The operator's campaigns first (they may override a shipped one by name).
-        self.campaign_dirs = [*campaign_dirs, config_dir() / "campaigns"]
+        self.campaigns = CampaignDirs(campaign_dirs)
         self._python = python
         self._lock = threading.RLock()
         self._jobs: dict[int, Job] = {}
@@ -166,42 +160,8 @@ class CampaignJobs:
         """Where the workers find the API (known once the daemon has bound its socket)."""
         self._url, self._token = url, token
 
-    def available(self) -> list[str]:
-        """The campaigns a job may name: every campaign file's name in the directories."""
-        names: set[str] = set()
-        for folder in self.campaign_dirs:
-            with contextlib.suppress(OSError):
-                names.update(
-                    p.stem
-                    for p in folder.iterdir()
-                    if p.suffix in CAMPAIGN_SUFFIXES and CAMPAIGN_NAME.fullmatch(p.stem)
-                )
-        return sorted(names)
-
-    def find(self, name: str) -> Path:
-        """The campaign file ``name`` names: the first ``name.yaml`` or ``name.py`` of the
-        campaign directories. BadRequest (nothing loaded) for anything but a known name."""
-        dirs = ", ".join(str(d) for d in self.campaign_dirs)
-        known = ", ".join(self.available()) or "none"
-        if not CAMPAIGN_NAME.fullmatch(name):
-            raise BadRequest(
-                f"campaign {_cut(name)!r}: give a campaign's name (lowercase letters, digits "
-                "and _, as `camctl campaign list` shows them), not a path: the daemon runs only "
-                f"the campaigns in its campaign directories ({dirs}); put yours in a directory "
-                f"of [campaigns] dirs in camd.toml. Campaigns here: {known}"
-            )
-        for folder in self.campaign_dirs:
-            for suffix in CAMPAIGN_SUFFIXES:
-                path = folder / f"{name}{suffix}"
-                if path.is_file():
-                    return path.resolve()
-        raise BadRequest(
-            f"no campaign {name!r} in the daemon's campaign directories ({dirs}); campaigns "
-            f"here: {known}; add yours to a directory of [campaigns] dirs in camd.toml"
-        )
-
     def check(self, file: str, quick: bool) -> dict[str, Any]:
-        """Load and check the campaign file ``file`` (found by ``find``) in a worker, without
+        """Load and check the campaign file ``file`` (found by ``CampaignDirs.find``) in a worker, without
         running it: {"file", "campaign", "profile", "steps"}; BadRequest with the worker's
         reason when it is not a valid campaign."""
         argv = [self._python, "-m", WORKER_MODULE, "check", file] + (["--quick"] if quick else [])
@@ -235,7 +195,7 @@ class CampaignJobs:
             self._refuse_if_latched("start a campaign job")
             if self._url is None:
                 raise WrongState("campaign jobs start once the daemon serves its API; retry")
-        campaign_path = self.find(campaign)
+        campaign_path = self.campaigns.find(campaign)
         # A directory the client named is checked first: refused at once, no worker started.
         named_out = None if out_dir is None else self._check_out_dir(out_dir)
         checked = self.check(str(campaign_path), quick)
@@ -689,11 +649,6 @@ def _stop_leftover(pid: int, job_id: int) -> None:
         time.sleep(0.05)
     with contextlib.suppress(ProcessLookupError):
         os.kill(pid, signal.SIGKILL)
-
-
-def _cut(text: str, limit: int = 80) -> str:
-    """``text`` as a message may quote it: at most ``limit`` characters."""
-    return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"
 
 
 def _write_error(what: str, exc: OSError) -> SessionError:
