@@ -55,7 +55,7 @@ from camd.daemon.transaction import Apply
 from camd.link.frame_stream import HEADER_LOG, FrameStream, ReceivedFrame, StreamError
 from camd.pipeline.background import Background, BackgroundCapture
 from camd.protocol.stream import HEADER_BYTES, StreamMode
-from camd.store.durability import is_disk_full
+from camd.store.durability import says_disk_full
 from camd.store.journal import close_recording
 from camd.store.recording import FrameRecorder, RecordingError, check_new_file
 
@@ -430,7 +430,7 @@ class StreamService:
                 f"the stream was stopped before its {frames} frames (`camctl stream --stop`, "
                 f"an emergency stop or the daemon stopping): {counts}{kept}"
             )
-        if stop_cause is not None and is_disk_full(OSError(stop_cause)):
+        if stop_cause is not None and says_disk_full(stop_cause):
             raise StorageFull(f"{early}; the stream was stopped: {counts}{kept}")
         raise EndedEarly(
             f"the stream ended before its {frames} frames: {early}; {counts}{kept}. Check "

@@ -64,7 +64,12 @@ def is_disk_full(exc: BaseException) -> bool:
     disk is full."""
     if isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT):
         return True
-    text = str(exc)
+    return says_disk_full(str(exc))
+
+
+def says_disk_full(text: str) -> bool:
+    """True if the message ``text`` (an error's, or a failure written from one) says the disk
+    is full."""
     return any(
         sign in text
         for sign in ("No space left on device", "Disk quota exceeded", "errno = 28", "errno = 122")
