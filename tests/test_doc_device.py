@@ -37,6 +37,11 @@ STREAM_CHECKS = frozenset({
 # Commands whose valid case is exercised by a stream check: they cannot pass without one.
 STREAM_COMMANDS = frozenset({"cmd.START_STREAM", "cmd.WHEEL_ACQUIRE"})
 
+# Soft limits in the daemon's config, inside the rail's 1.2 m of travel (64000 and 704000
+# microsteps of 1.5625 um).
+LOW_LIMIT_M, HIGH_LIMIT_M = 0.1, 1.1
+POWER_ON_LIMITS = (0, 768000)  # docs/motion.md "Power-on": the whole travel
+
 pytestmark = pytest.mark.slow
 
 
@@ -62,7 +67,11 @@ def unit(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[PtyDevice, 
     device = PtyDevice(DocDevice()).start()
     tmp = tmp_path_factory.mktemp("doc-device")
     config = tmp / "camd.toml"
-    config.write_text(f'[link]\ndevice = "{device.port}"\n', encoding="utf-8")
+    config.write_text(
+        f'[link]\ndevice = "{device.port}"\n\n[stage]\nlow_limit_m = {LOW_LIMIT_M}\n'
+        f"high_limit_m = {HIGH_LIMIT_M}\n",
+        encoding="utf-8",
+    )
     daemon = DaemonProcess(
         tmp / "data", env=NO_TOKEN, extra_args=["--config", str(config)], start_timeout_s=WAIT_S
     )
@@ -102,6 +111,51 @@ def test_the_daemon_accepts_the_doc_device(unit: tuple[PtyDevice, DaemonProcess]
         client.write_registers({"WIN_ROWS": 534})
         wheel = client.wheel()
         assert wheel["speed_deg_s"] == pytest.approx(73.245, rel=1e-6)
+
+
+def test_stage_limits_are_programmed_when_the_stage_is_enabled_not_on_connect(
+    unit: tuple[PtyDevice, DaemonProcess],
+) -> None:
+    """docs/config.md [stage]: the configured limits go to the camera on enable (as docs/api.md
+    says), not when it connects; until then it keeps its power-on limits."""
+    device, daemon = unit
+    stage = device.device.stage
+    text = (ROOT / "docs" / "config.md").read_text(encoding="utf-8")
+    assert "They are not sent when the camera connects" in text
+    assert "programs into the FPGA's step generator (MOTOR_SET_LIMITS) when the camera" not in text
+    with CamdClient(daemon.url, timeout_s=60) as client:
+        with device.lock:
+            assert (stage.low, stage.high) == POWER_ON_LIMITS
+        limits = client.enable_stage(True)["limits"]
+        try:
+            with device.lock:
+                assert (stage.low, stage.high) == (64000, 704000)
+            assert limits["low_m"] == pytest.approx(LOW_LIMIT_M)
+            assert limits["high_m"] == pytest.approx(HIGH_LIMIT_M)
+        finally:
+            client.enable_stage(False)
+            with device.lock:
+                stage.low, stage.high = POWER_ON_LIMITS  # as it powered up, for the next test
+
+
+def test_camctl_reads_a_write_only_register_as_the_host_copy(
+    unit: tuple[PtyDevice, DaemonProcess],
+) -> None:
+    """docs/cli.md camctl reg read: a write-only register shows the host's copy of the last
+    value written, and exits 0 (it exited 1 with an error that quoted the value)."""
+    _, daemon = unit
+    camctl = [sys.executable, "-m", "camd.cli.camctl", "--url", daemon.url]
+    env = {**_env(), **NO_TOKEN}
+    proc = subprocess.run([*camctl, "--json", "reg", "read", "SOFT_RESET"], capture_output=True,
+                          text=True, timeout=120, env=env)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout) == {
+        "name": "SOFT_RESET", "address": 3, "value": 0, "fields": {"key": "none"},
+    }  # fmt: skip
+    proc = subprocess.run([*camctl, "reg", "read", "SOFT_RESET"], capture_output=True, text=True,
+                          timeout=120, env=env)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert "SOFT_RESET" in proc.stdout and "0x0000" in proc.stdout
 
 
 @pytest.fixture(scope="module")
