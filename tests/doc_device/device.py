@@ -353,8 +353,9 @@ class DocDevice:
         self.fault_code = 0
         self.boot_count = 1
         self.uptime_from_s = 0.0
-        self.lanes = int(self.sensor.output.get("lanes", 0))
         self.lvds = self.sensor.output["interface"] == "lvds"
+        # GET_SENSOR lanes: "LVDS data lanes (0 for a parallel interface)".
+        self.lanes = int(self.sensor.output.get("lanes", 0)) if self.lvds else 0
         self.trained = not self.lvds  # a parallel interface is always trained (GET_SENSOR)
         self.lane_results: list[tuple[int, int, int, int, bool]] = []
         self.streaming = False
