@@ -321,3 +321,23 @@ def test_every_command_checks_length_and_range_before_state(unit: Unit) -> None:
         assert answer.kind == "BAD_LENGTH", (spec.name, answer)
     assert unit.send("SET_MODE", raw=b"\x07").kind == "OUT_OF_RANGE"  # before DEVICE_FAULT
     assert unit.send("SET_MODE", mode="tdi").kind == "DEVICE_FAULT"
+
+
+def test_lvds_lanes_and_clock_roles_decide_which_lanes_can_lock(unit: Unit) -> None:
+    """docs/sensors.md: hr400 LVDS_CTRL resets with every lane and the clock on (the daemon
+    trains at reset values), and a lane switched off, or the clock lane, cannot lock."""
+    sensors_md = (ROOT / "docs" / "sensors.md").read_text(encoding="utf-8")
+    assert "| 0x25 | `LVDS_CTRL` | 16 | RW |  | 0x01FF |" in sensors_md
+    assert "| `lvds_clock` | `LVDS_CTRL.clock` |" in sensors_md
+    trained = unit.ack("TRAIN")
+    assert (trained["locked"], trained["locked_lanes"]) == ("yes", 8)
+    unit.ack("REG_WRITE", address=0x25, value=0x01FB)  # lane 2 off
+    trained = unit.ack("TRAIN")
+    assert (trained["locked"], trained["locked_lanes"]) == ("no", 7)
+    assert unit.ack("GET_LANE", lane=2)["locked"] == "no"
+    assert unit.ack("GET_SENSOR")["trained"] == "no"
+    unit.ack("REG_WRITE", address=0x25, value=0x00FF)  # the clock lane off
+    trained = unit.ack("TRAIN")
+    assert (trained["locked"], trained["locked_lanes"]) == ("no", 0)
+    unit.ack("REG_WRITE", address=0x25, value=0x01FF)
+    assert unit.ack("TRAIN")["locked"] == "yes"

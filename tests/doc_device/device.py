@@ -541,14 +541,17 @@ class DocDevice:
             ev.append(self.event("LINK_TRAINED", locked="yes", bit_errors=0))
             return {"lanes": 0, "locked_lanes": 0, "locked": "yes", "bit_errors": 0,
                     "verified_bits": 0}  # fmt: skip
-        # A lane delivers data only while LVDS_CTRL enables it and the clock lane runs
-        # (docs/sensors.md, hr400 LVDS_CTRL).
-        ctrl = self.sensor.by_name.get("LVDS_CTRL")
-        enabled = [True] * self.lanes
-        if ctrl is not None:
-            value = self.sensor.values[ctrl.address]
-            clock = bool(value & ctrl.fields["clock"][0])
-            enabled = [clock and bool(value & (1 << i)) for i in range(self.lanes)]
+        # docs/sensors.md roles: a lane sends data only while its lvds_lanes bit is 1 and the
+        # lvds_clock lane is on; a lane that sends nothing cannot lock.
+        clock = not self.sensor.roles.get("lvds_clock") or bool(
+            self.sensor.role_value("lvds_clock")
+        )
+        bits = (
+            self.sensor.role_value("lvds_lanes")
+            if self.sensor.roles.get("lvds_lanes")
+            else (1 << self.lanes) - 1
+        )
+        enabled = [clock and bool(bits >> i & 1) for i in range(self.lanes)]
         self.lane_results = [(i, 16, 20 if on else 0, 0, 0, on) for i, on in enumerate(enabled)]
         locked = all(enabled)
         columns = int(self.sensor.data["columns"])
