@@ -341,3 +341,13 @@ def test_lvds_lanes_and_clock_roles_decide_which_lanes_can_lock(unit: Unit) -> N
     assert (trained["locked"], trained["locked_lanes"]) == ("no", 0)
     unit.ack("REG_WRITE", address=0x25, value=0x01FF)
     assert unit.ack("TRAIN")["locked"] == "yes"
+
+
+def test_device_time_counts_from_power_on_through_a_reset(unit: Unit) -> None:
+    """MOTOR_GET and WHEEL_GET time_s: the device clock since power-on; RESET restarts the
+    uptime only."""
+    _said("seconds since power-on (RESET does not restart it, unlike uptime_s)")
+    unit.send("RESET", 5.0)
+    assert unit.ack("GET_STATUS", 7.0)["uptime_s"] == pytest.approx(2.0)
+    assert unit.ack("MOTOR_GET", 7.0)["time_s"] == pytest.approx(7.0)
+    assert unit.ack("WHEEL_GET", 7.0)["time_s"] == pytest.approx(7.0)
