@@ -10,12 +10,19 @@ training and is always ready.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from camd.sensor.regmap import FieldSpec, RegisterMap, RegisterSpec
-from firmware_models.lvds import Alignment, LaneTraining, LvdsLink, train, verify
+from firmware_models.lvds import (
+    Alignment,
+    LaneTraining,
+    LvdsLink,
+    TrainingResult,
+    train,
+    verify,
+)
 from firmware_models.spi import SpiMaster
 
 VERIFY_ROWS = 16  # rows of the PRBS frame captured to check a training
@@ -62,7 +69,7 @@ class SensorLink:
             self._set_pattern(pattern_reg, pattern_field, saved, "training")
             word = word_field.extract(self.spi.read(word_reg.address))
             self._seed += 1
-            result = train(self.lvds, word, rng_seed=self._seed)
+            result = _without(train(self.lvds, word, rng_seed=self._seed), self._dark_lanes())
             self.alignment = result.alignment
             self.results = list(result.lanes)
             self._set_pattern(pattern_reg, pattern_field, saved, "prbs")
@@ -103,6 +110,19 @@ class SensorLink:
 
     # -- helpers ------------------------------------------------------------------------------
 
+    def _dark_lanes(self) -> set[int]:
+        """Lanes that send nothing: disabled in the ``lvds_lanes`` role's bits, or every lane
+        while the ``lvds_clock`` role's clock lane is off (docs/sensors.md, hr400 LVDS_CTRL).
+        A map without these roles has every lane on."""
+        clock_on, enabled = True, (1 << self.lanes) - 1
+        if self.regmap.role("lvds_clock") is not None:
+            reg, field = self._role("lvds_clock")
+            clock_on = bool(field.extract(self.spi.read(reg.address)))
+        if self.regmap.role("lvds_lanes") is not None:
+            reg, field = self._role("lvds_lanes")
+            enabled = field.extract(self.spi.read(reg.address))
+        return {i for i in range(self.lanes) if not (clock_on and enabled >> i & 1)}
+
     def _role(self, role: str) -> tuple[RegisterSpec, FieldSpec]:
         name = self.regmap.role(role)
         if name is None:
@@ -115,3 +135,16 @@ class SensorLink:
         if field.enum is None or mode not in field.enum:
             raise RuntimeError(f"{reg.name}.{field.name} has no {mode!r} pattern")
         self.spi.write(reg.address, field.insert(base, field.enum[mode]))
+
+
+def _without(result: TrainingResult, dark: set[int]) -> TrainingResult:
+    """``result`` with the ``dark`` lanes unlocked: no data, no eye, nothing to align."""
+    if not dark:
+        return result
+    lanes = [
+        replace(lane, tap=0, eye_width_taps=0, slips=0, shift=0, locked=False, eye="",
+                reason="the lane sends no data (disabled, or the clock lane is off)")
+        if lane.lane in dark else lane
+        for lane in result.lanes
+    ]  # fmt: skip
+    return TrainingResult(result.alignment, lanes)

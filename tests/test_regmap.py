@@ -166,9 +166,9 @@ CORRUPTIONS = [
     (
         "reset bits outside the fields",
         "hr400",
-        "reset = 0x00FF",
-        "reset = 0x02FF",
-        "register LVDS_CTRL: reset value 0x2FF sets bits (0x200) that no field covers",
+        "reset = 0x01FF",
+        "reset = 0x03FF",
+        "register LVDS_CTRL: reset value 0x3FF sets bits (0x200) that no field covers",
     ),
     (
         "duplicate register name",

@@ -37,6 +37,14 @@ from camd.protocol.frame import (
 )
 
 SIMULATOR_OPCODES = range(0xF0, 0x100)
+# The commands a device in fault refuses with DEVICE_FAULT: those that would start something
+# (firmware_models/fpga.py, _require_no_fault). Stopping, reading, registers and RESET stay
+# allowed, so a fault never keeps the stage or a stream running. tests/test_doc_device.py
+# checks the list against the simulated camera.
+REFUSED_IN_FAULT = (
+    "SET_MODE", "TRAIN", "START_STREAM", "WHEEL_ACQUIRE", "MOTOR_ENABLE", "MOTOR_SET_RATE",
+    "MOTOR_MOVE", "MOTOR_HOME", "MOTOR_SET_LIMITS", "SIM_SET_STAGE_FAULTS",
+)  # fmt: skip
 
 _TYPE_ROWS: dict[FrameType, tuple[str, str, str]] = {
     FrameType.COMMAND: ("host → device", "command opcode", "the command's request fields"),
@@ -330,6 +338,11 @@ def _exchanges(d: Dictionary) -> list[str]:
     sim_names = ", ".join(f"`{c.name}`" for c in sim) or "none at present"
     unknown = next((e for e in d.errors if e.name == "UNKNOWN_OPCODE"), None)
     unknown_text = f"NAK {unknown.name} (code {unknown.code})" if unknown else "NAK"
+    fault_names = ", ".join(
+        f"{c.name}" + (" (simulator only)" if c.opcode in SIMULATOR_OPCODES else "")
+        for c in d.commands
+        if c.name in REFUSED_IN_FAULT
+    )
     return [
         "## 4. Exchanges",
         "",
@@ -353,6 +366,25 @@ def _exchanges(d: Dictionary) -> list[str]:
         "between other frames, including between a command and its answer. They are never "
         "answered and never taken for the answer to a command; the host keeps waiting for the "
         "ACK or NAK.",
+        "- **Checks before execution.** The device checks every command before it executes "
+        "it, in this order: an opcode it does not implement gets NAK UNKNOWN_OPCODE; a payload "
+        "length the command does not take (section 5) NAK BAD_LENGTH; a value outside a "
+        "field's enumeration or range (the ranges the host checks, section 1) NAK "
+        "OUT_OF_RANGE. Only then come the checks of the device's state (fault, streaming, "
+        "stage), each with the error its command names. A refused command changes nothing.",
+        "- **Device in fault.** While a fault is active (GET_STATUS `device_state` fault, "
+        "announced by a FAULT event), the commands that would start something are refused "
+        f"with NAK DEVICE_FAULT: {fault_names}. Every other command executes as usual: the "
+        "reads and status, PING, the registers, STOP_STREAM, MOTOR_STOP and MOTOR_ESTOP (a "
+        "fault must not keep anything running), the wheel's speed and compensation, and "
+        "RESET, which clears the fault.",
+        "- **Frames the device does not answer.** A valid frame that is not a COMMAND (ACK, "
+        "NAK, TELEMETRY or EVENT sent to the device) is counted in GET_LINK_STATS `rx_frames` "
+        "and otherwise ignored.",
+        "- **Sequence numbers of unsolicited frames.** TELEMETRY and EVENT frames number "
+        "themselves from a counter of their own (0, 1, 2, ... modulo 256, both kinds on one "
+        "counter), independent of the commands' sequence numbers; the host matches no "
+        "command to them.",
         f"- **Simulator-only opcodes.** Opcodes 0x{SIMULATOR_OPCODES[0]:02X} .. "
         f"0x{SIMULATOR_OPCODES[-1]:02X} are implemented only by the simulated camera "
         f"({sim_names}); hardware answers them with {unknown_text}.",

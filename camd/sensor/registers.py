@@ -205,18 +205,23 @@ class SensorRegisters:
     def read(self, key: str | int) -> RegisterReading:
         """Read a register, a field (``REG.field``) or a group (``EXPOSURE``) from the device.
 
-        Raises RegisterAccessError for a write-only register (its shadow value is in the
-        message and in ``dump()``) and for unknown names or addresses.
+        A write-only register (or a field or group of one) cannot be read from the sensor:
+        its reading is the host's copy of the last value written (``from_shadow``), as in
+        ``dump()``, and nothing is sent (docs/cli.md, camctl reg read). Raises
+        RegisterAccessError for unknown names or addresses.
         """
         target = self._target(key)
         if target.group is not None:
             regs = self.regmap.group_registers(target.group)
-            values = {reg.name: self._read_device(reg) for reg in regs}
+            values = {reg.name: self._read_or_shadow(reg) for reg in regs}
             joined = self.regmap.join_group(target.group, values)
-            return RegisterReading(target.name, regs[0].address, joined, dict(values))
+            shadowed = not all(reg.readable for reg in regs)
+            return RegisterReading(
+                target.name, regs[0].address, joined, dict(values), from_shadow=shadowed
+            )
         reg = target.reg
         assert reg is not None
-        raw = self._read_device(reg)
+        raw = self._read_or_shadow(reg)
         if target.field is None:
             return self._reading(reg, raw)
         part = target.field.extract(raw)
@@ -226,7 +231,12 @@ class SensorRegisters:
             reg.address,
             part,
             {target.field.name: label if label is not None else part},
+            from_shadow=not reg.readable,
         )
+
+    def _read_or_shadow(self, reg: RegisterSpec) -> int:
+        """The sensor's value, or for a write-only register the host's last written one."""
+        return self.bridge.read(reg.address) if reg.readable else self._shadow[reg.name]
 
     def read_value(self, name: str) -> Value:
         """The device's value of ``REG`` (raw), ``REG.field`` (enum label or raw) or ``GROUP``."""

@@ -51,6 +51,8 @@ ROLES = (
     "readout_mode",
     "test_pattern",
     "training_word",
+    "lvds_lanes",
+    "lvds_clock",
     "line_clocks",
     "row_blanking",
     "back_path",
@@ -71,6 +73,9 @@ ROLE_DOCS: dict[str, str] = {
     "readout_mode": "readout mode (reported by `camctl timing`)",
     "test_pattern": "output source: pixels, training word or a test image",
     "training_word": "word sent on every LVDS lane in training mode",
+    "lvds_lanes": "bit per LVDS data lane, 1 = the lane sends data (a disabled lane cannot "
+    "lock in training)",
+    "lvds_clock": "LVDS clock lane on (1) or off (0): no lane can lock while it is off",
     "line_clocks": "sequencer clocks per line (sequencer model); `timing.clocks_per_line` "
     "when absent",
     "row_blanking": "row blanking t_rb in clocks of `timing.clock_hz` (row_blanking model)",
