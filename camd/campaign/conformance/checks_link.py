@@ -4,7 +4,8 @@ at-most-once execution of a retried frame (docs/protocol.md §4, §5, §8).
 The valid case of a command that changes state sends what leaves the unit as it was (the
 mode in force, a register's own value, the stage's own position) or puts back what it changed;
 a valid case that would start an acquisition behind the daemon's back is not sent here: the
-check names the check that exercises it through the daemon.
+check names the check that exercises it through the daemon, and the suite makes it depend on
+that check (suite.VALID_CASE_ELSEWHERE).
 """
 
 from __future__ import annotations
@@ -18,19 +19,13 @@ from camd.protocol import CommandSpec
 
 from .engine import CheckFailed, Evidence, Unit, check_function
 from .raw import ack_values, answer_text, case, invalid_payloads, send
+from .suite import VALID_CASE_ELSEWHERE
 
 # Commands that only read: the valid case is the empty request.
 READS = frozenset({"GET_STATUS", "GET_HOUSEKEEPING", "GET_LINK_STATS", "GET_SENSOR",
                    "GET_STREAM", "MOTOR_GET", "MOTOR_GET_LIMITS", "WHEEL_GET", "STOP_STREAM",
                    "MOTOR_STOP", "SIM_GET_INJECTED", "SIM_GET_SPI_STATS",
                    "SIM_GET_STREAM_STATS", "SIM_GET_STAGE"})  # fmt: skip
-# Valid cases sent through the daemon by other checks (they start acquisitions or move the
-# stage to its home switch, which redefines its zero).
-EXERCISED_ELSEWHERE = {
-    "START_STREAM": "stream.headers (POST /api/v1/stream/acquire sends START_STREAM)",
-    "WHEEL_ACQUIRE": "wheel.delay (POST /api/v1/wheel/acquire sends WHEEL_ACQUIRE)",
-    "MOTOR_HOME": "motion.home (destructive: homing redefines the stage's zero)",
-}
 # SIM_SET_SEED and SIM_SET_INJECT: the simulator cannot report the value in force, so any
 # value sent would change it.
 SIM_SETTERS = "the value in force cannot be read back, so a valid request would change it"
@@ -109,8 +104,10 @@ def _verdict(what: str, cases: list[Evidence]) -> Evidence:
 
 def _valid_case(unit: Unit, spec: CommandSpec) -> Evidence:
     name = spec.name
-    if name in EXERCISED_ELSEWHERE:
-        return _not_sent(f"valid case exercised by {EXERCISED_ELSEWHERE[name]}")
+    if name in VALID_CASE_ELSEWHERE:
+        # The engine makes this check's pass wait on that check's (suite.py, depends_on).
+        check, how = VALID_CASE_ELSEWHERE[name]
+        return _not_sent(f"valid case exercised by {check} ({how})")
     if name in READS:
         return case("valid: empty request", send(unit, name, fields={}), "ACK")
     if name == "PING":
