@@ -17,7 +17,7 @@ from typing import Any
 
 from camd.protocol import CommandSpec
 
-from .engine import CheckFailed, Evidence, Unit, check_function
+from .engine import CheckFailed, CheckNotRun, Evidence, Unit, check_function
 from .raw import ack_values, answer_text, case, invalid_payloads, send
 from .suite import VALID_CASE_ELSEWHERE
 
@@ -46,7 +46,12 @@ def command_check(unit: Unit, *, command: str) -> Evidence:
         cases.append(_valid_case(unit, spec))
         for name, payload, expected in invalid_payloads(spec) + _extra_cases(unit, spec):
             cases.append(case(name, send(unit, opcode=spec.opcode, payload=payload), expected))
-    return _verdict(f"{spec.name} (0x{spec.opcode:02X})", cases)
+    evidence = _verdict(f"{spec.name} (0x{spec.opcode:02X})", cases)
+    unshown = [c for c in cases if c["sent_hex"] is None and c.get("shown_by") is None]
+    if unshown:
+        # Conforming means accepted and verified: a valid case nobody sent shows nothing.
+        raise CheckNotRun(None, unshown[0]["case"], evidence)
+    return evidence
 
 
 @check_function("unknown_opcode")
@@ -107,7 +112,7 @@ def _valid_case(unit: Unit, spec: CommandSpec) -> Evidence:
     if name in VALID_CASE_ELSEWHERE:
         # The engine makes this check's pass wait on that check's (suite.py, depends_on).
         check, how = VALID_CASE_ELSEWHERE[name]
-        return _not_sent(f"valid case exercised by {check} ({how})")
+        return _not_sent(f"valid case exercised by {check} ({how})", shown_by=check)
     if name in READS:
         return case("valid: empty request", send(unit, name, fields={}), "ACK")
     if name == "PING":
@@ -125,8 +130,18 @@ def _valid_case(unit: Unit, spec: CommandSpec) -> Evidence:
     return _not_sent("valid case not defined for this command")  # a new command: add one
 
 
-def _not_sent(why: str) -> Evidence:
-    return {"case": why, "sent_hex": None, "expected": None, "answer": None, "ok": True}
+def _not_sent(why: str, *, shown_by: str | None = None) -> Evidence:
+    """A valid case this check does not send: shown by the check ``shown_by`` (the suite
+    makes this one depend on it), or by nothing, and then the command is not run."""
+    return {"case": why, "sent_hex": None, "expected": None, "answer": None, "ok": True,
+            "shown_by": shown_by}  # fmt: skip
+
+
+def _no_valid_request(why: str) -> Evidence:
+    """No valid request exists for this unit (GET_LANE on a sensor without lanes): its
+    invalid cases (every lane refused) are all the command has to show."""
+    return {"case": why, "sent_hex": None, "expected": None, "answer": None, "ok": True,
+            "shown_by": "its invalid cases"}  # fmt: skip
 
 
 @contextlib.contextmanager
@@ -264,7 +279,7 @@ def _train(unit: Unit, spec: CommandSpec) -> Evidence:
 
 def _get_lane(unit: Unit, spec: CommandSpec) -> Evidence:
     if int(ack_values(unit, "GET_SENSOR")["lanes"]) == 0:
-        return _not_sent("valid case not sent: the sensor has no LVDS lanes")
+        return _no_valid_request("no valid case: the sensor has no LVDS lanes")
     return case("valid: lane 0", send(unit, "GET_LANE", fields={"lane": 0}), "ACK")
 
 

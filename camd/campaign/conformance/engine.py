@@ -10,12 +10,13 @@ with the error as evidence, and the suite goes on.
 
 Four outcomes (``OUTCOMES``): ``pass``, ``fail``, ``skipped`` (a destructive step the run did
 not allow) and ``not_run`` ("not run" in words): the check could not show what it tests, so it
-neither passes nor fails. That happens two ways, both declared as data on the step, never left
-to a check's prose:
+neither passes nor fails. That happens three ways:
 
 - ``needs``: a resource the unit may lack (``"stream"``: the USB frame stream). A check that
   finds it missing raises ``CheckNotRun`` naming it; every later step that needs it is then
   recorded not run with that reason, without being tried.
+- a check that cannot send what it would have to (a valid case that would change what the
+  unit cannot report back) raises ``CheckNotRun`` with no resource and says why.
 - ``depends_on``: checks that exercise part of what this one reports (a command whose valid
   case only an acquisition check sends). The step runs after them, whatever the plan's order,
   and passes only if each of them passed; otherwise it is not run, with the reason ("its valid
@@ -53,11 +54,12 @@ RESOURCES = {"stream": "frame stream"}
 
 class CheckNotRun(Exception):
     """A check could not show what it tests: ``resource`` (a key of RESOURCES) is missing,
-    ``reason`` says how the unit or daemon said so."""
+    ``reason`` says how the unit or daemon said so; or (``resource`` None) ``reason`` says
+    what the check could not do (a valid case it cannot send without changing the unit)."""
 
-    def __init__(self, resource: str, reason: str, evidence: Evidence | None = None) -> None:
+    def __init__(self, resource: str | None, reason: str, evidence: Evidence | None = None) -> None:
         super().__init__(reason)
-        if resource not in RESOURCES:
+        if resource is not None and resource not in RESOURCES:
             raise ValueError(f"unknown resource {resource!r}; known: {', '.join(RESOURCES)}")
         self.resource = resource
         self.reason = reason
@@ -289,6 +291,8 @@ def _run_step(
     try:
         evidence = fn(unit, **step.args)
     except CheckNotRun as exc:
+        if exc.resource is None:
+            return record("not_run", exc.reason, exc.evidence, t0)
         why = f"no {RESOURCES[exc.resource]}: {exc.reason}"
         missing.setdefault(exc.resource, f"{why} (found by {step.id})")
         return record("not_run", why, exc.evidence | {"needs": list(step.needs)}, t0)
