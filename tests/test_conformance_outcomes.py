@@ -278,3 +278,21 @@ def test_without_a_stream_the_stream_checks_are_not_run_and_the_exit_status_says
     assert "NOT RUN stream.headers: no frame stream: " in run.stderr
     assert "NOT RUN cmd.START_STREAM: its valid case is exercised by stream.headers" in run.stderr
     assert "NOT SHOWN TO CONFORM" in (tmp_path / "conformance.html").read_text()
+
+
+def test_camctl_conform_exits_4_when_checks_did_not_run(
+    streamless: DaemonProcess, tmp_path: Path
+) -> None:
+    run = subprocess.run(
+        [sys.executable, "-m", "camd.cli.camctl", "--url", streamless.url, "conform",
+         "--only", "cmd.START_STREAM", "--out", str(tmp_path)],
+        capture_output=True, text=True, timeout=120, cwd=REPO,
+    )  # fmt: skip
+    assert run.returncode == 4, (run.stdout, run.stderr)
+    # cmd.START_STREAM brought stream.headers, which it depends on, into the run.
+    assert "NOT RUN stream.headers: no frame stream: " in run.stderr
+    shown = " ".join(run.stdout.split())  # the console wraps long lines
+    assert "conformance: NOT SHOWN TO CONFORM: 0 passed, 0 failed, 2 not run, 0 skipped of 2" in (
+        shown
+    )
+    assert "not run: cmd.START_STREAM, stream.headers" in run.stderr  # plan order
