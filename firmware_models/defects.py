@@ -28,9 +28,12 @@ DEFECTS: dict[str, str] = {
     "apart (header timestamps) than the registers and the header's line_period_ns say",
     "wheel_ignores_delay": "a wheel acquisition exposes at each channel's entry pulse even "
     "with delay compensation on (WHEEL_GET and WHEEL_ACQUIRE still report T_delay)",
+    "header_line_period_1pct": "the FPGA stamps each frame header's line_period_ns 1 % above "
+    "the frame period the registers set; the frames themselves (timestamps) keep that period",
 }
 
 FRAME_PERIOD_FACTOR = 1.05  # frame_period_5pct
+HEADER_PERIOD_FACTOR = 1.01  # header_line_period_1pct
 COUNTER_SKIP_EVERY = 4  # stream_counter_skip: every 4th frame's counter jumps by one more
 
 
@@ -44,6 +47,7 @@ class Defects:
     stream_counter_skip: bool = False
     frame_period_5pct: bool = False
     wheel_ignores_delay: bool = False
+    header_line_period_1pct: bool = False
 
     @classmethod
     def parse(cls, names: list[str] | tuple[str, ...]) -> Defects:

@@ -35,7 +35,7 @@ import numpy.typing as npt
 from camd.protocol.stream import FrameFlags, FrameHeader, StreamMode, frame_header
 from camd.tdi.binning import bin2x2
 from firmware_models.camera import CameraModel
-from firmware_models.defects import FRAME_PERIOD_FACTOR, NONE
+from firmware_models.defects import FRAME_PERIOD_FACTOR, HEADER_PERIOD_FACTOR, NONE
 from firmware_models.fx3 import StreamEngine
 from firmware_models.sensor import SensorModel
 from firmware_models.sensor_link import SensorLink
@@ -236,11 +236,13 @@ class ImagingPipeline:
                 self._bank[k % self.frame_bank] = (pixels, flags)
         else:
             pixels, flags = banked
+        stamped = HEADER_PERIOD_FACTOR if self.defects.header_line_period_1pct else 1.0
         header = frame_header(
             pixels,
             counter=counter,
             timestamp_ns=round(t_s * NS_PER_S),
-            line_period_ns=round(period_s * NS_PER_S),
+            # header_line_period_1pct: a header field stamped wrong, the frame itself right.
+            line_period_ns=round(period_s * NS_PER_S * stamped),
             bits=geometry.bits,
             mode=self._mode,
             stages=geometry.stages,

@@ -269,7 +269,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             except CommandFailed as failed:
                 _show(out, failed.doc, args)
                 _error(failed.message)
-                return EXIT_API_ERROR
+                return failed.status
             _show(out, doc, args)
     except UsageError as exc:
         _error(str(exc))

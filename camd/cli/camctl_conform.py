@@ -4,8 +4,9 @@ against a simulated camera it starts (``camd.cli.conform`` does the work; docs/c
     camctl conform [--out DIR] [--only ID ...] [--destructive] [--sim [--profile P]
                    [--defect NAME ...]] [--json]
 
-Exit status 0 when the unit conforms, 1 when a check failed (the report is written), 2 for bad
-options, 3 when no daemon answers.
+Exit status as ``camd conform``'s: 0 when the unit conforms (every check ran and passed), 1
+when a check failed (the report is written), 2 for bad options, 3 when no daemon answers, 4
+when none failed but some were not run or skipped.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ from collections.abc import Callable
 from typing import Any
 
 from rich.console import Console
+from rich.markup import escape
 
 from camd.client import CamdClient
 
@@ -31,7 +33,7 @@ def add_parsers(command: Callable[[str, str], argparse.ArgumentParser]) -> None:
 
 def cmd_conform(client: CamdClient, args: argparse.Namespace) -> Any:
     from camd.cli.camctl_sensor import CommandFailed, UsageError
-    from camd.cli.conform import conform, usage_problem
+    from camd.cli.conform import EXIT_FOR_VERDICT, conform, summary_text, usage_problem
 
     problem = usage_problem(args)
     if problem is not None:
@@ -41,19 +43,21 @@ def cmd_conform(client: CamdClient, args: argparse.Namespace) -> Any:
     except RuntimeError as exc:
         raise CommandFailed({"error": str(exc)}, str(exc)) from None
     if not doc["conforms"]:
-        raise CommandFailed(doc, f"conformance: check(s) failed: {', '.join(doc['failed'])}")
+        raise CommandFailed(
+            doc, f"conformance: {summary_text(doc)}", EXIT_FOR_VERDICT[doc["verdict"]]
+        )
     return doc
 
 
 def render_conform(out: Console, doc: Any, args: argparse.Namespace) -> None:
     if "error" in doc:
         return
-    s = doc["summary"]
-    colour = "green" if doc["conforms"] else "red"
-    verdict = "CONFORMS" if doc["conforms"] else "DOES NOT CONFORM"
+    from camd.campaign.conformance.report import VERDICTS, counts_text
+
+    colour = {"conforms": "green", "does_not_conform": "red"}.get(doc["verdict"], "yellow")
     out.print(
-        f"conformance: [{colour}]{verdict}[/]: {s['pass']} passed, {s['fail']} failed, "
-        f"{s['skipped']} skipped of {s['checks']}; report {doc['report']['html']}"
+        f"conformance: [{colour}]{VERDICTS[doc['verdict']]}[/]: "
+        f"{escape(counts_text(doc['summary']))}; report {escape(doc['report']['html'])}"
     )
 
 

@@ -30,12 +30,14 @@ from camd.sensor.config_file import ConfigFileError, format_configuration, parse
 
 
 class CommandFailed(Exception):
-    """The daemon answered, but the outcome is a failure: show ``doc``, then exit 1."""
+    """The daemon answered, but the outcome is a failure: show ``doc``, then exit ``status``
+    (1 unless the command documents another, e.g. conform's 4)."""
 
-    def __init__(self, doc: Any, message: str) -> None:
+    def __init__(self, doc: Any, message: str, status: int = 1) -> None:
         super().__init__(message)
         self.doc = doc
         self.message = message
+        self.status = status
 
 
 class UsageError(Exception):

@@ -8,8 +8,9 @@ Runs every check of ``camd.campaign.conformance`` on the unit behind the daemon 
 with ``--sim`` on a simulated camera of its own (``camd serve --sim``, data and log in
 DIR/daemon), with the simulator's deliberate ``--defect``s if asked. Each check's line goes to
 stderr as it finishes; the report is DIR/conformance.json and DIR/conformance.html. Exit status
-0 when the unit conforms, 1 when a check failed (after the report was written), 2 for bad
-options, 3 when no daemon answers.
+(EXIT_*): 0 when the unit conforms (every check ran and passed), 1 when a check failed (after
+the report was written) or the run broke, 2 for bad options, 3 when no daemon answers, 4 when
+no check failed but some were not run or skipped (the unit was not shown to conform).
 """
 
 from __future__ import annotations
@@ -26,6 +27,19 @@ from firmware_models.defects import DEFECTS
 
 DEFAULT_OUT = "conformance"
 START_TIMEOUT_S = 60.0
+
+EXIT_CONFORMS = 0
+EXIT_FAILED = 1  # a check failed, or the run broke
+EXIT_USAGE = 2
+EXIT_NO_DAEMON = 3
+EXIT_INCOMPLETE = 4  # none failed, but some were not run or skipped: conformance not shown
+EXIT_FOR_VERDICT = {
+    "conforms": EXIT_CONFORMS,
+    "does_not_conform": EXIT_FAILED,
+    "incomplete": EXIT_INCOMPLETE,
+}
+# The progress line's mark for each outcome (docs/conformance.md).
+MARKS = {"pass": "PASS", "fail": "FAIL", "not_run": "NOT RUN", "skipped": "SKIP"}
 
 
 def add_options(p: argparse.ArgumentParser, *, url: bool) -> None:
@@ -63,7 +77,8 @@ def add_parser(sub: Any) -> None:
         "docs/stream.md and docs/sensors.md: every command with valid and invalid arguments, "
         "at-most-once execution, registers, LVDS training, stream headers, counters, CRCs and "
         "frame period, stage and wheel. Writes DIR/conformance.json and DIR/conformance.html. "
-        "Exit status 0 conforms, 1 a check failed, 2 bad options, 3 no daemon.",
+        "Exit status 0 conforms (every check ran and passed), 1 a check failed, 2 bad options, "
+        "3 no daemon, 4 none failed but some were not run or skipped.",
     )
     add_options(p, url=True)
 
@@ -92,9 +107,8 @@ def conform(client: CamdClient | None, args: argparse.Namespace) -> dict[str, An
     out_dir = Path(args.out)
 
     def progress(record: Any) -> None:
-        mark = {"pass": "PASS", "fail": "FAIL", "skipped": "SKIP"}[record.outcome]
         why = f": {record.reason}" if record.reason else ""
-        print(f"{mark:4} {record.id}{why}", file=sys.stderr, flush=True)
+        print(f"{MARKS[record.outcome]:4} {record.id}{why}", file=sys.stderr, flush=True)
 
     def run(c: CamdClient) -> dict[str, Any]:
         result = run_conformance(c, out_dir, destructive=args.destructive, only=args.only,
@@ -103,8 +117,10 @@ def conform(client: CamdClient | None, args: argparse.Namespace) -> dict[str, An
         assert isinstance(summary, dict)
         return {
             "conforms": summary["conforms"],
-            "summary": {k: summary[k] for k in ("checks", "pass", "fail", "skipped")},
+            "verdict": summary["verdict"],
+            "summary": {k: summary[k] for k in ("checks", "pass", "fail", "not_run", "skipped")},
             "failed": result.failed,
+            "not_run": result.not_run,
             "duration_s": result.doc["duration_s"],
             "report": {"json": str(result.json_path), "html": str(result.html_path)},
         }
@@ -135,21 +151,29 @@ def show(doc: dict[str, Any], *, as_json: bool) -> None:
     if as_json:
         sys.stdout.write(json.dumps(doc, indent=2) + "\n")
         return
-    s = doc["summary"]
-    verdict = "CONFORMS" if doc["conforms"] else "DOES NOT CONFORM"
-    failed = f"; failed: {', '.join(doc['failed'])}" if doc["failed"] else ""
-    print(f"conformance: {verdict}: {s['pass']} passed, {s['fail']} failed, {s['skipped']} "
-          f"skipped of {s['checks']} in {doc['duration_s']:.1f} s{failed}; report "
-          f"{doc['report']['html']}")  # fmt: skip
+    print(f"conformance: {summary_text(doc)}; report {doc['report']['html']}")
+
+
+def summary_text(doc: dict[str, Any]) -> str:
+    """'NOT SHOWN TO CONFORM: 54 passed, 0 failed, 1 not run, 1 skipped of 56 in 7.1 s; not
+    run: cmd.MOTOR_HOME' (camd conform's and camctl conform's line)."""
+    from camd.campaign.conformance.report import VERDICTS, counts_text
+
+    listed = "".join(f"; {what}: {', '.join(doc[key])}"
+                     for key, what in (("failed", "failed"), ("not_run", "not run")) if doc[key])  # fmt: skip
+    return (
+        f"{VERDICTS[doc['verdict']]}: {counts_text(doc['summary'])} in {doc['duration_s']:.1f} s"
+        f"{listed}"
+    )
 
 
 def run(args: argparse.Namespace) -> int:
     """``camd conform``: 0 conforms, 1 a check failed (or the run broke), 2 bad options,
-    3 no daemon, 130 interrupted."""
+    3 no daemon, 4 not shown to conform (checks not run or skipped), 130 interrupted."""
     problem = usage_problem(args)
     if problem is not None:
         print(f"camd conform: error: {problem}", file=sys.stderr)
-        return 2
+        return EXIT_USAGE
     try:
         if args.sim:
             doc = conform(None, args)
@@ -158,9 +182,9 @@ def run(args: argparse.Namespace) -> int:
                 doc = conform(client, args)
     except DaemonUnreachable as exc:
         print(f"camd conform: error: {exc.message}", file=sys.stderr)
-        return 3
+        return EXIT_NO_DAEMON
     except (CamdError, RuntimeError, OSError) as exc:
         print(f"camd conform: error: {getattr(exc, 'message', exc)}", file=sys.stderr)
-        return 1
+        return EXIT_FAILED
     show(doc, as_json=args.json)
-    return 0 if doc["conforms"] else 1
+    return EXIT_FOR_VERDICT[doc["verdict"]]

@@ -1,6 +1,6 @@
 """The conformance suite: checks any unit the daemon drives against the spec
 (docs/protocol.md, docs/stream.md, docs/sensors.md) and reports each check with its clause,
-pass or fail and the evidence (docs/conformance.md).
+its outcome (pass, fail, not run, skipped) and the evidence (docs/conformance.md).
 
 - ``engine``: a plan of checks carried out through ``camd.client.CamdClient`` (the plan never
   touches the unit; check functions are registered by name);
@@ -44,6 +44,10 @@ class ConformanceResult:
     @property
     def failed(self) -> list[str]:
         return [r.id for r in self.records if r.outcome == "fail"]
+
+    @property
+    def not_run(self) -> list[str]:
+        return [r.id for r in self.records if r.outcome == "not_run"]
 
 
 def check_ids() -> list[str]:

@@ -4,7 +4,8 @@ at-most-once execution of a retried frame (docs/protocol.md §4, §5, §8).
 The valid case of a command that changes state sends what leaves the unit as it was (the
 mode in force, a register's own value, the stage's own position) or puts back what it changed;
 a valid case that would start an acquisition behind the daemon's back is not sent here: the
-check names the check that exercises it through the daemon.
+check names the check that exercises it through the daemon, and the suite makes it depend on
+that check (suite.VALID_CASE_ELSEWHERE).
 """
 
 from __future__ import annotations
@@ -16,21 +17,15 @@ from typing import Any
 
 from camd.protocol import CommandSpec
 
-from .engine import CheckFailed, Evidence, Unit, check_function
+from .engine import CheckFailed, CheckNotRun, Evidence, Unit, check_function
 from .raw import ack_values, answer_text, case, invalid_payloads, send
+from .suite import VALID_CASE_ELSEWHERE
 
 # Commands that only read: the valid case is the empty request.
 READS = frozenset({"GET_STATUS", "GET_HOUSEKEEPING", "GET_LINK_STATS", "GET_SENSOR",
                    "GET_STREAM", "MOTOR_GET", "MOTOR_GET_LIMITS", "WHEEL_GET", "STOP_STREAM",
                    "MOTOR_STOP", "SIM_GET_INJECTED", "SIM_GET_SPI_STATS",
                    "SIM_GET_STREAM_STATS", "SIM_GET_STAGE"})  # fmt: skip
-# Valid cases sent through the daemon by other checks (they start acquisitions or move the
-# stage to its home switch, which redefines its zero).
-EXERCISED_ELSEWHERE = {
-    "START_STREAM": "stream.headers (POST /api/v1/stream/acquire sends START_STREAM)",
-    "WHEEL_ACQUIRE": "wheel.delay (POST /api/v1/wheel/acquire sends WHEEL_ACQUIRE)",
-    "MOTOR_HOME": "motion.home (destructive: homing redefines the stage's zero)",
-}
 # SIM_SET_SEED and SIM_SET_INJECT: the simulator cannot report the value in force, so any
 # value sent would change it.
 SIM_SETTERS = "the value in force cannot be read back, so a valid request would change it"
@@ -51,7 +46,12 @@ def command_check(unit: Unit, *, command: str) -> Evidence:
         cases.append(_valid_case(unit, spec))
         for name, payload, expected in invalid_payloads(spec) + _extra_cases(unit, spec):
             cases.append(case(name, send(unit, opcode=spec.opcode, payload=payload), expected))
-    return _verdict(f"{spec.name} (0x{spec.opcode:02X})", cases)
+    evidence = _verdict(f"{spec.name} (0x{spec.opcode:02X})", cases)
+    unshown = [c for c in cases if c["sent_hex"] is None and c.get("shown_by") is None]
+    if unshown:
+        # Conforming means accepted and verified: a valid case nobody sent shows nothing.
+        raise CheckNotRun(None, unshown[0]["case"], evidence)
+    return evidence
 
 
 @check_function("unknown_opcode")
@@ -109,8 +109,10 @@ def _verdict(what: str, cases: list[Evidence]) -> Evidence:
 
 def _valid_case(unit: Unit, spec: CommandSpec) -> Evidence:
     name = spec.name
-    if name in EXERCISED_ELSEWHERE:
-        return _not_sent(f"valid case exercised by {EXERCISED_ELSEWHERE[name]}")
+    if name in VALID_CASE_ELSEWHERE:
+        # The engine makes this check's pass wait on that check's (suite.py, depends_on).
+        check, how = VALID_CASE_ELSEWHERE[name]
+        return _not_sent(f"valid case exercised by {check} ({how})", shown_by=check)
     if name in READS:
         return case("valid: empty request", send(unit, name, fields={}), "ACK")
     if name == "PING":
@@ -128,8 +130,18 @@ def _valid_case(unit: Unit, spec: CommandSpec) -> Evidence:
     return _not_sent("valid case not defined for this command")  # a new command: add one
 
 
-def _not_sent(why: str) -> Evidence:
-    return {"case": why, "sent_hex": None, "expected": None, "answer": None, "ok": True}
+def _not_sent(why: str, *, shown_by: str | None = None) -> Evidence:
+    """A valid case this check does not send: shown by the check ``shown_by`` (the suite
+    makes this one depend on it), or by nothing, and then the command is not run."""
+    return {"case": why, "sent_hex": None, "expected": None, "answer": None, "ok": True,
+            "shown_by": shown_by}  # fmt: skip
+
+
+def _no_valid_request(why: str) -> Evidence:
+    """No valid request exists for this unit (GET_LANE on a sensor without lanes): its
+    invalid cases (every lane refused) are all the command has to show."""
+    return {"case": why, "sent_hex": None, "expected": None, "answer": None, "ok": True,
+            "shown_by": "its invalid cases"}  # fmt: skip
 
 
 @contextlib.contextmanager
@@ -267,7 +279,7 @@ def _train(unit: Unit, spec: CommandSpec) -> Evidence:
 
 def _get_lane(unit: Unit, spec: CommandSpec) -> Evidence:
     if int(ack_values(unit, "GET_SENSOR")["lanes"]) == 0:
-        return _not_sent("valid case not sent: the sensor has no LVDS lanes")
+        return _no_valid_request("no valid case: the sensor has no LVDS lanes")
     return case("valid: lane 0", send(unit, "GET_LANE", fields={"lane": 0}), "ACK")
 
 

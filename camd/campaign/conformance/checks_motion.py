@@ -9,7 +9,10 @@ from __future__ import annotations
 
 import time
 
+from camd.client_types import StreamFrameHeader
+
 from .checks_link import stage_kept, wait_stopped
+from .checks_stream import frame_stream_used
 from .engine import CheckFailed, Evidence, Unit, check_function
 from .raw import ack_values, answer_text, send
 
@@ -148,6 +151,10 @@ def wheel_speed_check(unit: Unit) -> Evidence:
     return evidence
 
 
+def _header_brief(h: StreamFrameHeader) -> dict[str, object]:
+    return {k: h[k] for k in ("counter", "timestamp_ns", "stage_position", "rows", "cols")}
+
+
 @check_function("wheel_delay")
 def wheel_delay_check(unit: Unit) -> Evidence:
     """With delay compensation on, a wheel exposure starts T_delay after the channel's entry
@@ -167,14 +174,20 @@ def wheel_delay_check(unit: Unit) -> Evidence:
         # T_center holds at the nominal speed only (docs/wheel.md): measure there.
         if speed != wheel["nominal_speed_deg_s"]:
             client.set_wheel_speed(float(wheel["nominal_speed_deg_s"]))
-        result = client.wheel_acquire([channel], compensated=True, timeout_s=30.0)
+        with frame_stream_used():
+            result = client.wheel_acquire([channel], compensated=True, timeout_s=30.0)
     finally:
         client.set_wheel_compensation(compensation)
         if speed != wheel["nominal_speed_deg_s"]:
             client.set_wheel_speed(speed)
     # The start angle from the frame's header as the daemon kept it: this check must not
-    # depend on the payload CRC (a frame it rejects is not in ``result["frames"]``).
-    headers = client.stream_headers()["frames"]
+    # depend on the payload CRC (a frame it rejects is not in ``result["frames"]``). The frame
+    # is told by its device counter, from the one WHEEL_ACQUIRE announced on: a header counted
+    # before it is an earlier stream's, come late, and is not measured (a counter that jumps
+    # ahead is stream.counters' to judge, not this check's).
+    first_counter = int(result["stream"]["first_counter"])
+    log = client.stream_headers()["frames"]
+    headers = [h for h in log if (h["counter"] - first_counter) % 2**32 < 2**31]
     exposure = result["exposure"]
     evidence: Evidence = {
         "channel": channel,
@@ -183,9 +196,19 @@ def wheel_delay_check(unit: Unit) -> Evidence:
         "delay_s": exposure["delay_s"],
         "device_delay_s": result["device_delay_s"],
         "frames_delivered": len(result["frames"]),
+        "first_counter": first_counter,
+        "headers_of_earlier_streams": len(log) - len(headers),
     }
     if not headers or exposure["centre_error_deg"] is None:
-        raise CheckFailed("the wheel acquisition left no frame header to measure", evidence)
+        raise CheckFailed(
+            f"the wheel acquisition left no frame header from counter {first_counter} (the one "
+            "WHEEL_ACQUIRE announced) on to measure",
+            evidence,
+        )
+    # Device values only: the angle the FPGA latched at the exposure start, the speed and
+    # T_frame the unit runs at. Nothing here is timed by the host, so a busy host cannot move
+    # the result.
+    evidence["header"] = _header_brief(headers[0])
     start_deg = headers[0]["stage_position"] * 1e-4  # docs/protocol.md 0x43: units of 1e-4 deg
     centre_deg = start_deg + result["speed_deg_s"] * exposure["frame_time_s"] / 2.0
     wanted_deg = wheel["channels"][channel]["centre_deg"] + (exposure["centre_offset_deg"] or 0.0)

@@ -9,7 +9,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-from .engine import CheckRecord
+from .engine import OUTCOME_WORDS, OUTCOMES, CheckRecord
 
 JSON_NAME = "conformance.json"
 HTML_NAME = "conformance.html"
@@ -26,13 +26,43 @@ def _clean(value: Any) -> Any:
     return value
 
 
+VERDICTS = {
+    "conforms": "CONFORMS",
+    "does_not_conform": "DOES NOT CONFORM",
+    "incomplete": "NOT SHOWN TO CONFORM",
+}
+"""The run's verdict (JSON ``summary.verdict``) in words: ``conforms`` only when every check
+ran and passed; ``does_not_conform`` when one failed; else ``incomplete``: none failed, but
+some were not run or skipped, so what they test was not shown."""
+
+
+def verdict(counts: dict[str, int]) -> str:
+    """``conforms``, ``does_not_conform`` or ``incomplete`` (VERDICTS) for outcome counts."""
+    if counts.get("fail", 0):
+        return "does_not_conform"
+    if counts.get("not_run", 0) or counts.get("skipped", 0) or not counts.get("pass", 0):
+        return "incomplete"
+    return "conforms"
+
+
+def counts_text(counts: dict[str, int]) -> str:
+    """'54 passed, 0 failed, 1 not run, 1 skipped of 56' (the summary line's counts)."""
+    return (
+        f"{counts['pass']} passed, {counts['fail']} failed, {counts['not_run']} not run, "
+        f"{counts['skipped']} skipped of {counts['checks']}"
+    )
+
+
 def document(header: dict[str, Any], records: list[CheckRecord]) -> dict[str, Any]:
     """The JSON report: ``header`` (suite, unit, times) and the checks."""
-    counts = {o: sum(r.outcome == o for r in records) for o in ("pass", "fail", "skipped")}
+    counts: dict[str, int] = {o: sum(r.outcome == o for r in records) for o in OUTCOMES}
+    said = verdict(counts)
     doc: dict[str, Any] = _clean({
         **header,
-        "summary": {**counts, "checks": len(records), "conforms": counts["fail"] == 0},
+        "summary": {**counts, "checks": len(records), "conforms": said == "conforms",
+                    "verdict": said},
         "failed": [r.id for r in records if r.outcome == "fail"],
+        "not_run": [r.id for r in records if r.outcome == "not_run"],
         "checks": [r.as_dict() for r in records],
     })  # fmt: skip
     return doc
@@ -48,7 +78,7 @@ def write(out_dir: Path, doc: dict[str, Any]) -> tuple[Path, Path]:
     return json_path, html_path
 
 
-_COLOURS = {"pass": "#1a7f37", "fail": "#cf222e", "skipped": "#9a6700"}
+_COLOURS = {"pass": "#1a7f37", "fail": "#cf222e", "not_run": "#6e7781", "skipped": "#9a6700"}
 
 
 def render_html(doc: dict[str, Any]) -> str:
@@ -64,21 +94,22 @@ def render_html(doc: dict[str, Any]) -> str:
             f'<tr id="{e(c["id"])}"><td><code>{e(c["id"])}</code>'
             f"{' <em>(destructive)</em>' if c['destructive'] else ''}<br>{e(c['title'])}</td>"
             f"<td>{e(c['clause'])}</td>"
-            f'<td style="color:{colour};font-weight:bold">{e(c["outcome"].upper())}</td>'
+            f'<td style="color:{colour};font-weight:bold">'
+            f"{e(OUTCOME_WORDS[c['outcome']].upper())}</td>"
             f"<td>{e(c['reason'])}<details><summary>evidence</summary>"
             f"<pre>{e(evidence)}</pre></details></td></tr>"
         )
-    verdict = "CONFORMS" if s["conforms"] else "DOES NOT CONFORM"
+    said = VERDICTS[s["verdict"]]
     unit_rows = "".join(
         f"<tr><th>{e(str(k))}</th><td>{e(str(v))}</td></tr>" for k, v in unit.items()
     )
     return f"""<!DOCTYPE html>
-<html lang="en"><head><meta charset="utf-8"><title>camd conformance: {e(verdict)}</title>
+<html lang="en"><head><meta charset="utf-8"><title>camd conformance: {e(said)}</title>
 <style>body{{font-family:sans-serif;margin:2em}}table{{border-collapse:collapse}}
 td,th{{border:1px solid #ccc;padding:4px 8px;vertical-align:top;text-align:left}}
 pre{{max-width:60em;overflow:auto;font-size:85%}}</style></head><body>
-<h1>camd conformance: {e(verdict)}</h1>
-<p>{s["pass"]} passed, {s["fail"]} failed, {s["skipped"]} skipped of {s["checks"]} checks;
+<h1>camd conformance: {e(said)}</h1>
+<p>{e(counts_text(s))} checks; a unit conforms only when every check ran and passed;
 suite {e(str(doc.get("suite")))} version {e(str(doc.get("version")))}, {e(str(doc.get("started")))},
 {doc.get("duration_s", 0):.1f} s. Clauses refer to docs/protocol.md, docs/stream.md and
 docs/sensors.md; docs/conformance.md describes every check.</p>
