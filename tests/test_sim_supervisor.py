@@ -403,8 +403,11 @@ def test_hardware_reconnect_covers_stream_and_spi(tmp_path: Path) -> None:
     if len(str(data_dir / "sim" / "spi.sock")) > 100:
         pytest.skip("the temporary directory is too deep for a Unix socket path")
     port = data_dir / "sim" / "camera.tty"
+    # A link on a port is hardware: the stream and the bridge are the simulator's only when
+    # the config says so (a mixed config, docs/config.md).
     config = (
         '[telemetry]\npoll_period_s = 0.2\n[sensor]\nbridge = "usb-spi"\n'
+        '[sensor.usb_spi]\nbackend = "sim"\n[stream]\nbackend = "sim"\n'
         f'[link]\ndevice = "{port}"\nreconnect_min_s = 0.05\nreconnect_max_s = 0.3\n'
     )
     sim, _ = start_sim(data_dir)
