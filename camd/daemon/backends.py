@@ -10,7 +10,7 @@ MCP2210, and the simulator process; everything else receives what these function
 from __future__ import annotations
 
 import logging
-from typing import Any
+from typing import Any, Literal
 
 from camd.daemon.config import Config
 from camd.daemon.device import DeviceAccess
@@ -119,7 +119,7 @@ def describe(config: Config) -> BackendsInfo:
             detail=f"MCP2210 USB {usb.vendor_id:04x}:{usb.product_id:04x}{serial}",
         )
     kinds = {link.kind, stream.kind, registers.kind}
-    camera: Any = kinds.pop() if len(kinds) == 1 else "mixed"
+    camera: Literal["sim", "hardware", "mixed"] = "mixed" if len(kinds) > 1 else link.kind
     return BackendsInfo(camera=camera, link=link, stream=stream, registers=registers)
 
 
@@ -142,7 +142,7 @@ def mixed_parts(info: BackendsInfo) -> str:
     )
 
 
-def log_choice(config: Config) -> BackendsInfo:
+def log_choice(config: Config) -> None:
     """Log which camera each interface talks to when the daemon starts; a mix of simulated
     and real interfaces is a warning that says which is which and how to make them one."""
     info = describe(config)
@@ -154,4 +154,3 @@ def log_choice(config: Config) -> BackendsInfo:
             "`camd serve --hardware --serial PORT` for real hardware throughout",
             mixed_parts(info),
         )
-    return info
