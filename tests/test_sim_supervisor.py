@@ -419,6 +419,14 @@ def test_hardware_reconnect_covers_stream_and_spi(tmp_path: Path) -> None:
         assert (s["link"]["sim_pid"], s["link"]["sim_state"], s["link"]["sim_restarts"]) == (
             None, None, None,
         )  # fmt: skip
+        # Accepted, and said: a real link with the simulator's stream and bridge.
+        assert s["backends"]["camera"] == "mixed"
+        assert (s["backends"]["stream"]["kind"], s["backends"]["registers"]["kind"]) == (
+            "sim", "sim",
+        )  # fmt: skip
+        assert f"camera backends mixed: link=serial {port}, stream=sim, registers=sim" in (
+            d.stderr()
+        )
         small_window(d)
         recording = tmp_path / "cut.h5"
         r = d.post(
