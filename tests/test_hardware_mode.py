@@ -31,6 +31,10 @@ from camd.daemon import backends
 from camd.daemon.config import Config, ConfigError
 from camd.daemon.serve import build_config
 from camd.daemon.simulator import SimulatorProcess
+from camd.link.frame_stream import FrameStream, StreamError
+from camd.sensor.bridge import BridgeError
+from camd.sensor.mcp2210 import Mcp2210Bridge
+from camd.sensor.regmap import load_register_map
 from tests.device_snapshot import snapshot
 from tests.test_camctl import NO_TOKEN, camctl, camctl_env, camctl_json
 
@@ -80,6 +84,33 @@ def refusal(call: Any) -> CamdError:
 
 
 # -- item 1: --serial selects the hardware backends, and the status says which ------------------
+
+HARDWARE_MD = Path(__file__).resolve().parent.parent / "docs" / "hardware.md"
+
+
+def test_hardware_md_quotes_the_errors_as_the_code_gives_them(tmp_path: Path) -> None:
+    """docs/hardware.md's messages are the code's: those this PC can produce are produced here
+    (libusb finds no FX3 nor MCP2210 on a test PC) and must appear in it word for word."""
+    doc = " ".join(HARDWARE_MD.read_text(encoding="utf-8").split())
+    messages = []
+    stream = FrameStream()  # libusb, the stream's default ids
+    try:
+        stream.open()
+    except StreamError as exc:
+        messages.append(str(exc))
+    else:
+        stream.close()
+        pytest.skip("a camera's FX3 is plugged into this PC")
+    try:
+        Mcp2210Bridge(load_register_map("hr400").spi)  # libusb, the MCP2210's default ids
+    except BridgeError as exc:
+        messages.append(str(exc))
+    for argv in (["--hardware"], ["--hardware", "--sim"]):
+        with pytest.raises(ConfigError) as info:
+            serve_config(tmp_path, *argv)
+        messages.append(str(info.value))
+    missing = [m for m in messages if m not in doc]
+    assert not missing, f"docs/hardware.md does not quote: {missing}"
 
 
 def serve_config(tmp_path: Path, *argv: str, toml: str = "") -> Config:
