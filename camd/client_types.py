@@ -173,6 +173,33 @@ class EstopState(TypedDict):
     how_to_release: str
 
 
+class BackendInfo(TypedDict):
+    """How the daemon reaches one of the camera's interfaces (docs/hardware.md)."""
+
+    # the simulated camera's interface, or real hardware
+    kind: Literal["sim", "hardware"]
+    # link: sim or serial; stream: sim or libusb; registers: fpga (REG_* over the link) or usb-spi
+    # (an MCP2210)
+    backend: Literal["sim", "serial", "libusb", "fpga", "usb-spi"]
+    # the port, the socket or the USB id it uses
+    detail: str
+
+
+class BackendsInfo(TypedDict):
+    """The status's backends: which camera each interface talks to (docs/config.md, "Hardware or
+    simulator")."""
+
+    # all simulated, all hardware, or mixed (a config that sets a stream or bridge backend against
+    # its link)
+    camera: Literal["sim", "hardware", "mixed"]
+    # the RS-422 command link
+    link: BackendInfo
+    # the USB frame stream
+    stream: BackendInfo
+    # the sensor's register bridge
+    registers: BackendInfo
+
+
 class StatusResponse(TypedDict):
     """GET /api/v1/status and POST /api/v1/reset."""
 
@@ -190,6 +217,8 @@ class StatusResponse(TypedDict):
     acquisition: AcquisitionInfo | None
     # the emergency-stop latch
     estop: EstopState
+    # simulated or real: each interface's backend
+    backends: BackendsInfo
 
 
 class EstopResponse(TypedDict):

@@ -513,7 +513,7 @@ def test_counters_wrap_at_2_to_the_32(sock_path: Path, bank: BankSource) -> None
 def test_no_device_is_a_clear_error(sock_path: Path) -> None:
     with StreamSocketServer(sock_path):
         stream = FrameStream(backend=get_backend(sock_path), product_id=0x1234)
-        with pytest.raises(StreamError, match=r"no frame-stream device 04b4:1234 found.*lsusb"):
+        with pytest.raises(StreamError, match=r"no USB frame-stream device 04b4:1234 found.*lsusb"):
             stream.open()
         with pytest.raises(StreamError, match="not open"):
             stream.start(max_frame_bytes=FRAME_BYTES)

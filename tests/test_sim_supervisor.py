@@ -403,8 +403,11 @@ def test_hardware_reconnect_covers_stream_and_spi(tmp_path: Path) -> None:
     if len(str(data_dir / "sim" / "spi.sock")) > 100:
         pytest.skip("the temporary directory is too deep for a Unix socket path")
     port = data_dir / "sim" / "camera.tty"
+    # A link on a port is hardware: the stream and the bridge are the simulator's only when
+    # the config says so (a mixed config, docs/config.md).
     config = (
         '[telemetry]\npoll_period_s = 0.2\n[sensor]\nbridge = "usb-spi"\n'
+        '[sensor.usb_spi]\nbackend = "sim"\n[stream]\nbackend = "sim"\n'
         f'[link]\ndevice = "{port}"\nreconnect_min_s = 0.05\nreconnect_max_s = 0.3\n'
     )
     sim, _ = start_sim(data_dir)
@@ -416,6 +419,14 @@ def test_hardware_reconnect_covers_stream_and_spi(tmp_path: Path) -> None:
         assert (s["link"]["sim_pid"], s["link"]["sim_state"], s["link"]["sim_restarts"]) == (
             None, None, None,
         )  # fmt: skip
+        # Accepted, and said: a real link with the simulator's stream and bridge.
+        assert s["backends"]["camera"] == "mixed"
+        assert (s["backends"]["stream"]["kind"], s["backends"]["registers"]["kind"]) == (
+            "sim", "sim",
+        )  # fmt: skip
+        assert f"camera backends mixed: link=serial {port}, stream=sim, registers=sim" in (
+            d.stderr()
+        )
         small_window(d)
         recording = tmp_path / "cut.h5"
         r = d.post(

@@ -432,6 +432,20 @@ def _kv_table(title: str | None = None) -> Table:
     return table
 
 
+def backends_text(backends: dict[str, Any]) -> Text:
+    """``hardware: link serial /dev/ttyUSB0, stream libusb USB 04b4:00f1, registers fpga (...)``;
+    a mix of simulated and real interfaces in yellow."""
+    parts = [
+        f"{name} {part.get('backend')} {part.get('detail')}"
+        if name != "registers"
+        else f"{name} {part.get('backend')} ({part.get('detail')})"
+        for name in ("link", "stream", "registers")
+        if isinstance(part := backends.get(name), dict)
+    ]
+    camera = str(backends.get("camera"))
+    return Text(f"{camera}: " + ", ".join(parts), style="yellow" if camera == "mixed" else "")
+
+
 def status_table(doc: dict[str, Any], title: str | None = "camd status") -> Table:
     """The status document as a two-column table, state coloured."""
     table = _kv_table(title)
@@ -460,6 +474,8 @@ def status_table(doc: dict[str, Any], title: str | None = "camd status") -> Tabl
                 style="green" if sim_state == "running" else "yellow",
             ),
         )
+    if isinstance(doc.get("backends"), dict):
+        table.add_row("camera", backends_text(doc["backends"]))
     device = doc.get("device")
     if isinstance(device, dict):
         for key, value in device.items():

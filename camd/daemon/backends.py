@@ -10,10 +10,11 @@ MCP2210, and the simulator process; everything else receives what these function
 from __future__ import annotations
 
 import logging
-from typing import Any
+from typing import Any, Literal
 
 from camd.daemon.config import Config
 from camd.daemon.device import DeviceAccess
+from camd.daemon.models import BackendInfo, BackendsInfo
 from camd.daemon.sim_control import FirmwareSimulator, NoSimulator, SimulatorControl
 from camd.daemon.simulator import SimulatorProcess
 from camd.link import CommandLink
@@ -54,9 +55,9 @@ def simulator_control(device: DeviceAccess) -> SimulatorControl:
 
 
 def frame_stream_backend(config: Config) -> Any:
-    """The pyusb backend of the frame stream: the simulated FX3 (``stream.backend = "sim"``)
-    on its socket, or None for libusb (real hardware)."""
-    if config.stream.backend == "sim":
+    """The pyusb backend of the frame stream: the simulated FX3 (``stream.backend = "sim"``,
+    or "auto" with the simulated link) on its socket, or None for libusb (real hardware)."""
+    if config.stream_backend == "sim":
         return fx3_backend(config.sim_usb_socket)
     return None
 
@@ -73,7 +74,7 @@ def register_bridge(
         return FpgaBridge(link)
     usb = config.sensor.usb_spi
     backend: Any = None
-    if usb.backend == "sim":
+    if config.usb_spi_backend == "sim":
         backend = mcp2210_backend(SocketSpiTarget(config.sim_spi_socket))
     return Mcp2210Bridge(
         regmap.spi,
@@ -83,3 +84,73 @@ def register_bridge(
         serial=usb.serial or None,
         cs_pin=usb.cs_pin,
     )
+
+
+REGISTERS_OVER_LINK = "REG_* commands over the command link"
+
+
+def describe(config: Config) -> BackendsInfo:
+    """Which camera each interface talks to (the status's ``backends``): the simulator's
+    or real hardware, with the port, socket or USB id."""
+    link = (
+        BackendInfo(kind="sim", backend="sim", detail=str(config.sim_link_path))
+        if config.simulated_link
+        else BackendInfo(kind="hardware", backend="serial", detail=config.link.device)
+    )
+    stream_usb = f"USB {config.stream.vendor_id:04x}:{config.stream.product_id:04x}"
+    stream = (
+        BackendInfo(kind="sim", backend="sim", detail=f"socket {config.sim_usb_socket}")
+        if config.stream_backend == "sim"
+        else BackendInfo(kind="hardware", backend="libusb", detail=stream_usb)
+    )
+    if config.sensor.bridge == "fpga":
+        # The FPGA's SPI master is reached through the command link: the link's camera.
+        registers = BackendInfo(kind=link.kind, backend="fpga", detail=REGISTERS_OVER_LINK)
+    elif config.usb_spi_backend == "sim":
+        registers = BackendInfo(
+            kind="sim", backend="usb-spi", detail=f"simulated MCP2210 on {config.sim_spi_socket}"
+        )
+    else:
+        usb = config.sensor.usb_spi
+        serial = f", serial {usb.serial}" if usb.serial else ""
+        registers = BackendInfo(
+            kind="hardware",
+            backend="usb-spi",
+            detail=f"MCP2210 USB {usb.vendor_id:04x}:{usb.product_id:04x}{serial}",
+        )
+    kinds = {link.kind, stream.kind, registers.kind}
+    camera: Literal["sim", "hardware", "mixed"] = "mixed" if len(kinds) > 1 else link.kind
+    return BackendsInfo(camera=camera, link=link, stream=stream, registers=registers)
+
+
+def summary(info: BackendsInfo) -> str:
+    """One line: ``link serial /dev/ttyUSB0, stream libusb USB 04b4:00f1, registers fpga
+    (REG_* commands over the command link)``."""
+    link, stream, registers = info.link, info.stream, info.registers
+    return (
+        f"link {link.backend} {link.detail}, stream {stream.backend} {stream.detail}, "
+        f"registers {registers.backend} ({registers.detail})"
+    )
+
+
+def mixed_parts(info: BackendsInfo) -> str:
+    """``link=serial /dev/ttyUSB0, stream=sim``: for a mixed camera, which interface is which."""
+    parts = {"link": info.link, "stream": info.stream, "registers": info.registers}
+    return ", ".join(
+        f"{name}={part.backend} {part.detail}" if part.kind == "hardware" else f"{name}=sim"
+        for name, part in parts.items()
+    )
+
+
+def log_choice(config: Config) -> None:
+    """Log which camera each interface talks to when the daemon starts; a mix of simulated
+    and real interfaces is a warning that says which is which and how to make them one."""
+    info = describe(config)
+    log.info("camera backends (%s): %s", info.camera, summary(info))
+    if info.camera == "mixed":
+        log.warning(
+            "camera backends mixed: %s; this is what the config asks for ([stream] backend, "
+            '[sensor.usb_spi] backend); set them to "auto" to follow the link, or run '
+            "`camd serve --hardware --serial PORT` for real hardware throughout",
+            mixed_parts(info),
+        )

@@ -45,6 +45,10 @@ HOUSEKEEPING_PACKET = "HOUSEKEEPING"
 """The telemetry packet whose channels the limits apply to."""
 
 LogLevel = Literal["debug", "info", "warning", "error", "critical"]
+BackendChoice = Literal["auto", "sim", "libusb"]
+"""How a USB device of the camera (the frame stream, the USB-SPI bridge) is reached: "auto"
+follows the command link (the simulator's with ``link.device = "sim"``, else real hardware)."""
+UsbBackend = Literal["sim", "libusb"]
 
 
 class ConfigError(ValueError):
@@ -282,9 +286,10 @@ class SimSection(_Section):
 class UsbSpiSection(_Section):
     """[sensor.usb_spi]: the USB-SPI bridge chip (MCP2210) used with ``sensor.bridge = "usb-spi"``."""
 
-    backend: Literal["sim", "libusb"] = Field(
-        default="sim",
-        description="'sim': the simulated chip wired to the simulated camera's SPI bus; "
+    backend: BackendChoice = Field(
+        default="auto",
+        description="'auto': as the command link ('sim' with link.device = 'sim', else "
+        "'libusb'); 'sim': the simulated chip wired to the simulated camera's SPI bus; "
         "'libusb': real hardware through pyusb's default backend",
     )
     vendor_id: int = Field(default=0x04D8, ge=0, le=0xFFFF, description="USB vendor id")
@@ -324,9 +329,10 @@ class SensorSection(_Section):
 class StreamSection(_Section):
     """[stream]: the USB bulk frame stream (docs/stream.md)."""
 
-    backend: Literal["sim", "libusb"] = Field(
-        default="sim",
-        description="'sim': the simulated FX3 wired to the simulated camera's stream socket; "
+    backend: BackendChoice = Field(
+        default="auto",
+        description="'auto': as the command link ('sim' with link.device = 'sim', else "
+        "'libusb'); 'sim': the simulated FX3 wired to the simulated camera's stream socket; "
         "'libusb': real hardware through pyusb's default backend",
     )
     vendor_id: int = Field(default=0x04B4, ge=0, le=0xFFFF, description="USB vendor id")
@@ -567,6 +573,22 @@ class Config(_Section):
         return self
 
     @property
+    def simulated_link(self) -> bool:
+        """True when the command link is the spawned simulator's (``link.device = "sim"``)."""
+        return self.link.device == "sim"
+
+    @property
+    def stream_backend(self) -> UsbBackend:
+        """``stream.backend`` with "auto" resolved: the simulated FX3 with the simulated link,
+        libusb (real hardware) with a serial port."""
+        return _resolved(self.stream.backend, self.simulated_link)
+
+    @property
+    def usb_spi_backend(self) -> UsbBackend:
+        """``sensor.usb_spi.backend`` with "auto" resolved, as ``stream_backend``."""
+        return _resolved(self.sensor.usb_spi.backend, self.simulated_link)
+
+    @property
     def sim_socket_dir(self) -> Path:
         """Where the spawned simulator's Unix sockets go: ``data_dir/sim``, or, when a socket
         there would have a path too long for a socket address (108 bytes on Linux, 104 on
@@ -596,6 +618,14 @@ class Config(_Section):
     def archive_path(self) -> Path:
         """The SQLite telemetry archive."""
         return self.daemon.data_dir / "telemetry.sqlite"
+
+
+def _resolved(choice: BackendChoice, simulated_link: bool) -> UsbBackend:
+    # "auto" is resolved when asked, never stored: a --serial given after the file was read
+    # must turn an "auto" stream to hardware too.
+    if choice == "auto":
+        return "sim" if simulated_link else "libusb"
+    return choice
 
 
 def default_config_path() -> Path:
@@ -671,8 +701,11 @@ def with_overrides(
     for dotted, value in changes.items():
         if value is None:
             continue
-        section, _, key = dotted.replace("__", ".").partition(".")
-        data[section][key] = value
+        *tables, key = dotted.replace("__", ".").split(".")
+        table = data
+        for name in tables:  # "sensor.usb_spi.backend": a table inside a section
+            table = table[name]
+        table[key] = value
     try:
         return Config.model_validate(data)
     except ValidationError as exc:

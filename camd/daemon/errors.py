@@ -27,6 +27,13 @@ class Disconnected(SessionError):
     """No camera on the link (HTTP 503)."""
 
 
+class NoFrameDevice(SessionError):
+    """The camera's USB frame stream cannot be opened (HTTP 503, code ``no_frame_device``): no
+    device with the configured VID:PID, no permission, no USB library, or no simulated camera on
+    the stream socket. The serial link may be fine; the message names what was looked for and
+    what to check."""
+
+
 class DeviceTimeout(SessionError):
     """The device did not answer after every retry (HTTP 504)."""
 

@@ -351,6 +351,32 @@ class EstopState(BaseModel):
     how_to_release: str = Field(description="what to do to release it")
 
 
+class BackendInfo(BaseModel):
+    """How the daemon reaches one of the camera's interfaces (docs/hardware.md)."""
+
+    kind: Literal["sim", "hardware"] = Field(
+        description="the simulated camera's interface, or real hardware"
+    )
+    backend: Literal["sim", "serial", "libusb", "fpga", "usb-spi"] = Field(
+        description="link: sim or serial; stream: sim or libusb; registers: fpga (REG_* over "
+        "the link) or usb-spi (an MCP2210)"
+    )
+    detail: str = Field(description="the port, the socket or the USB id it uses")
+
+
+class BackendsInfo(BaseModel):
+    """The status's backends: which camera each interface talks to (docs/config.md, "Hardware
+    or simulator")."""
+
+    camera: Literal["sim", "hardware", "mixed"] = Field(
+        description="all simulated, all hardware, or mixed (a config that sets a stream or "
+        "bridge backend against its link)"
+    )
+    link: BackendInfo = Field(description="the RS-422 command link")
+    stream: BackendInfo = Field(description="the USB frame stream")
+    registers: BackendInfo = Field(description="the sensor's register bridge")
+
+
 class StatusResponse(BaseModel):
     """GET /api/v1/status and POST /api/v1/reset."""
 
@@ -365,6 +391,7 @@ class StatusResponse(BaseModel):
         description="the running acquisition, or the last started one (null before the first)"
     )
     estop: EstopState = Field(description="the emergency-stop latch")
+    backends: BackendsInfo = Field(description="simulated or real: each interface's backend")
 
 
 class EstopResponse(BaseModel):

@@ -64,7 +64,6 @@ from camd.daemon.scan_plan import (
 )
 from camd.daemon.sensor_service import RegisterSnapshot, SensorService
 from camd.daemon.sim_control import SimulatorControl
-from camd.daemon.state import Request
 from camd.daemon.stream_service import StreamService
 from camd.daemon.transaction import Apply
 from camd.motion.closed_loop import LinePeriodSetting
@@ -174,8 +173,9 @@ class ScanService:
         acquisition = slot.claim("scan", f"M = {request.stages}, {what} to {path}")
         try:
             with slot.applying(acquisition):
-                device.require(Request.STREAM_START)
-                self.sensor.require_trained("start a scan")
+                # The camera first: a scan that will be refused must not have set the mode
+                # or run the stage to find out.
+                self.stream.preflight("start a scan")
                 plan, snapshot, stage_position = self._plan(request, path)
                 self._warm_engine(plan)
                 # The file holds the lines and, if the live view has one, the background;

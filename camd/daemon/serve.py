@@ -32,7 +32,7 @@ import h11
 import uvicorn
 from uvicorn.protocols.http.h11_impl import H11Protocol
 
-from camd.daemon import heap, notify
+from camd.daemon import backends, heap, notify
 from camd.daemon.api import create_app
 from camd.daemon.config import Config, ConfigError, load_config, with_overrides
 from camd.daemon.errors import SimulatorError
@@ -82,6 +82,12 @@ def add_parser(sub: Any) -> None:
         "--serial", metavar="PORT", help="use the camera on this serial port or pyserial URL"
     )
     p.add_argument(
+        "--hardware",
+        action="store_true",
+        help="real hardware throughout: the command link on --serial PORT (or link.device), the "
+        "frame stream and the USB-SPI bridge through libusb, whatever the config says",
+    )
+    p.add_argument(
         "--inject",
         metavar="SPEC",
         help="simulator line faults, e.g. 'ber=1e-4,drop=0.01' (sim.inject)",
@@ -92,6 +98,19 @@ def build_config(args: argparse.Namespace) -> Config:
     """The config file with the command line's overrides applied; ConfigError if invalid."""
     config = load_config(args.config)
     device = "sim" if args.sim else args.serial
+    if args.hardware:
+        if args.sim:
+            raise ConfigError("--hardware and --sim exclude each other; give one")
+        config = with_overrides(
+            config,
+            {"stream.backend": "libusb", "sensor.usb_spi.backend": "libusb"},
+            source="--hardware",
+        )
+        if (device or config.link.device) == "sim":
+            raise ConfigError(
+                "--hardware needs the camera's serial port: give --serial PORT (e.g. "
+                "/dev/ttyUSB0) or set link.device in the config"
+            )
     return with_overrides(
         config,
         {
@@ -336,6 +355,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"camd serve: invalid configuration:\n{exc}", file=sys.stderr)
         return EXIT_CONFIG
     _setup_logging(config.daemon.log_level, config.api.token)
+    backends.log_choice(config)
 
     # Until uvicorn takes the signals over, a stop request just ends the start-up early; and
     # after it hands them back it re-raises what it caught, which must then be harmless.

@@ -628,6 +628,7 @@ class DeviceSession:
             control=self.control_info(client),
             acquisition=self.acquisition_info(),
             estop=self.estop_state(),
+            backends=backends.describe(self.config),
         )
 
     def ping(self, count: int = 10, size: int = 16) -> PingResponse:

@@ -37,6 +37,7 @@ from camd.daemon.errors import (
     DeviceTimeout,
     Disconnected,
     EndedEarly,
+    NoFrameDevice,
     SessionError,
     StorageFull,
     unreachable,
@@ -400,6 +401,19 @@ class StreamService:
         self._raise_if_short()
         return self._response()
 
+    def preflight(self, what: str) -> None:
+        """What every acquisition needs of the camera, checked before it changes anything (a
+        mode, a register, the stage): the daemon in a state that may stream (the link up, no
+        fault), the sensor's output link trained (LinkUntrained) and the frame device present
+        and openable (NoFrameDevice; it stays open for the stream). Each acquisition's plan
+        then checks the rest, still before it changes anything: the sensor the camera reports
+        (its register reads refuse another, SENSOR_MISMATCH), the stage's state and travel, and
+        the space its file needs."""
+        self.device.require(Request.STREAM_START)
+        self.sensor.require_trained(what)
+        with self._lock:
+            self._open_reader()
+
     def _raise_if_short(self) -> None:
         """After an acquisition's stream ended: the error to answer with if it ended before
         all its frames came (the camera went away: Disconnected; its recording could not be
@@ -505,8 +519,7 @@ class StreamService:
     ) -> None:
         # Plan: everything checked before the camera is touched.
         device = self.device
-        device.require(Request.STREAM_START)
-        self.sensor.require_trained("start a stream")
+        self.preflight("start a stream")
         set_mode = request.mode if start is None else None
         mode = set_mode or device.mode or "area"
         timing = self.sensor.timing()
@@ -772,11 +785,12 @@ class StreamService:
             reader.remove_consumer(consumer)
 
     def _open_reader(self) -> FrameStream:
-        """The USB reader, opened on first use; Disconnected (503) if the device is absent."""
+        """The USB reader, opened on first use; NoFrameDevice (503) if the device is absent or
+        cannot be opened: its message names the device looked for and what to check."""
         try:
             return self._opened_reader()
         except (StreamError, ConnectionError, OSError) as exc:
-            raise Disconnected(f"cannot open the frame stream: {exc}") from None
+            raise NoFrameDevice(str(exc)) from None
 
     def _opened_reader(self) -> FrameStream:
         stale = self._reader

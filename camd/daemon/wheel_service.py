@@ -249,10 +249,10 @@ class WheelService:
             slot.release(acquisition)
 
     def _acquire(self, request: WheelAcquireRequest) -> WheelAcquireResponse:
-        self.device.require(Request.STREAM_START)
+        # The camera first, before the exposure registers or the compensation are changed.
+        self.stream.preflight("take wheel frames")
         profile = self.profile
         channels = self._check_channels(request.channels)
-        self.sensor.require_trained("take wheel frames")
         reading: WheelReading = self.wheel.read()
         speed = reading.speed_deg_s
         if speed <= 0.0:

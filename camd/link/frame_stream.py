@@ -284,7 +284,7 @@ class FrameStream:
         except usb.core.USBError as exc:
             raise StreamError(f"cannot list USB devices ({exc}); {self._hint()}") from exc
         if dev is None:
-            raise StreamError(f"no frame-stream device {self.ident} found; {self._hint()}")
+            raise StreamError(f"no USB frame-stream device {self.ident} found; {self._hint()}")
         try:
             self._claim(dev)
             ep = self._endpoint(dev)
@@ -307,8 +307,9 @@ class FrameStream:
         return (
             f"check the camera's power and USB 3 cable, that `lsusb -d {vid_pid}` lists it "
             "(an FX3 without its firmware shows as 04b4:00f3), and that this user may open it "
-            "(udev rule in systemd/, group plugdev); with the simulator, that it runs with "
-            "--usb-socket"
+            "(udev rule systemd/99-camd.rules, group plugdev; docs/hardware.md)"
+            # A backend given is a simulated device's (real hardware is libusb's default).
+            + ("; with the simulator, that it runs with --usb-socket" if self.backend else "")
         )
 
     def _claim(self, dev: Any) -> None:
@@ -317,7 +318,9 @@ class FrameStream:
         except NotImplementedError:
             active = False
         except usb.core.USBError as exc:
-            raise StreamError(f"cannot open {self.ident}: {exc}; {self._hint()}") from exc
+            raise StreamError(
+                f"cannot open the USB frame-stream device {self.ident}: {exc}; {self._hint()}"
+            ) from exc
         if active:
             try:
                 dev.detach_kernel_driver(INTERFACE)
