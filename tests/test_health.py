@@ -122,7 +122,7 @@ def test_the_events_of_a_session_read_as_sentences(client: CamdClient, tmp_path:
     client.stop_stream()
     client.enable_stage(True)
     client.move_stage(0.3)
-    client.start_scan(4, 5, out=str(tmp_path / "scan.h5"), line_period_s=3e-3)
+    client.start_scan(4, 5, out=str(tmp_path / "scan.h5"), line_period_s=3e-3, drive_stage=False)
     assert client.wait_scan(DEADLINE_S)["state"] == "done"
     client.move_stage(0.25)
     client.reset()
@@ -219,9 +219,9 @@ def test_a_camera_with_another_sensor_says_so_and_is_not_trained(tmp_path: Path)
         d.start()
         status = d.wait_state("idle", timeout_s=DEADLINE_S)
         assert status["reason"] == (
-            "the camera reports sensor 'ibis5' but sensor.name is 'hr400': set [sensor] "
-            'name = "ibis5" in the config (or connect the right camera) and restart camd; '
-            "register access and training are refused until they match"
+            "the camera reports sensor 'ibis5' but sensor.name is 'hr400': set sensor.name "
+            '= "ibis5" in the config (or connect the right camera) and restart camd; register '
+            "access, training and imaging are refused until they match"
         )
         r = d.post(f"{API}/train")
         assert r.status_code == 409, r.text
@@ -231,6 +231,8 @@ def test_a_camera_with_another_sensor_says_so_and_is_not_trained(tmp_path: Path)
         assert proc.returncode == 1, proc.stdout
         assert "cannot train the sensor link: the camera reports sensor 'ibis5'" in proc.stderr
         assert "lanes locked" not in proc.stdout + proc.stderr
+        shown = camctl(d.url, "status")
+        assert 'set sensor.name = "ibis5" in the config' in " ".join(shown.stdout.split())
         r = d.get(f"{API}/registers/GAIN")
         assert (r.status_code, r.json()["code"]) == (409, "sensor_mismatch"), r.text
     finally:

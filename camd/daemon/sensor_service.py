@@ -407,9 +407,9 @@ class SensorService:
         if found is None or found == ours:
             return None
         return (
-            f"the camera reports sensor {found!r} but sensor.name is {ours!r}: set [sensor] "
-            f'name = "{found}" in the config (or connect the right camera) and restart camd; '
-            "register access and training are refused until they match"
+            f"the camera reports sensor {found!r} but sensor.name is {ours!r}: set sensor.name "
+            f'= "{found}" in the config (or connect the right camera) and restart camd; register '
+            "access, training and imaging are refused until they match"
         )
 
     def require_trained(self, what: str) -> None:
