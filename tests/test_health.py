@@ -120,6 +120,8 @@ def test_the_events_of_a_session_read_as_sentences(client: CamdClient, tmp_path:
     client.start_stream(frames=0)
     wait_for(client.stream, lambda s: s["stats"]["frames"] >= 3, DEADLINE_S, 0.1)
     client.stop_stream()
+    client.set_stage_faults(ripple=0.01)
+    client.set_stage_faults()
     client.enable_stage(True)
     client.move_stage(0.3)
     client.start_scan(4, 5, out=str(tmp_path / "scan.h5"), line_period_s=3e-3, drive_stage=False)
@@ -144,6 +146,9 @@ def test_the_events_of_a_session_read_as_sentences(client: CamdClient, tmp_path:
         m.startswith("device: the stage stopped (MOTOR_STOPPED): its move finished at 300.000 mm")
         for m in messages
     ), messages
+    assert "api: simulated stage faults: error 0, ripple 0.01, jitter 0, drift 0, load 0" in (
+        messages
+    )
     refused = [m for m in messages if "START_STREAM refused by the device: BUSY" in m]
     assert len(refused) == 1 and refused[0].startswith("stream: stream start failed: "), "\n".join(
         messages

@@ -987,7 +987,7 @@ class DeviceSession:
             return
         if message.name == "FAULT":
             text = self.dictionary.describe_error(int(values.get("fault_code", 0)))
-            self._event("error", "device", f"FAULT {text}", message.t_s)
+            self._event("error", "device", f"the camera entered fault (FAULT): {text}", message.t_s)
             self._fire(Trigger.DEVICE_FAULT, f"device fault {text}")
         elif message.name == "MODE_CHANGED":
             self.device.note_mode(str(values.get("mode")))
@@ -995,7 +995,10 @@ class DeviceSession:
         elif message.name == "BOOT":
             self.device.note_mode("area")
             self._event(
-                "info", "device", f"BOOT (boot count {values.get('boot_count', 0)!s})", message.t_s
+                "info",
+                "device",
+                f"the camera restarted (BOOT): boot count {values.get('boot_count', 0)!s}",
+                message.t_s,
             )
             self._probe_needed.set()  # learn its state afresh
             self._wake.set()
