@@ -77,6 +77,9 @@ def test_a_frozen_camera_goes_disconnected_with_the_reason_then_idle_again(
     try:
         frozen = wait_for(client.status, lambda s: s["state"] == "disconnected", DEADLINE_S, 0.2)
         noticed_s = time.monotonic() - frozen_mono
+        # Requests that need the camera say why, as for a closed port.
+        with pytest.raises(CamdError) as info:
+            client.set_mode("area")
     finally:
         os.kill(sim_pid, signal.SIGCONT)
     print(f"frozen camera noticed after {noticed_s:.1f} s")
@@ -86,9 +89,6 @@ def test_a_frozen_camera_goes_disconnected_with_the_reason_then_idle_again(
         "the camera stopped answering on an open port: nothing answered for "
     ), reason
     assert "check its power and firmware" in reason, reason
-    # Requests that need the camera say why, as for a closed port.
-    with pytest.raises(CamdError) as info:
-        client.set_mode("area")
     assert (info.value.http_status, info.value.code) == (503, "disconnected")
     assert "the camera stopped answering" in info.value.message
 

@@ -169,6 +169,7 @@ class DeviceSession:
         self._stop_stage_on_connect = False  # a scan was cut off: see _recover_recordings
         self._poll_error: str | None = None
         self._unanswered_since: float | None = None  # monotonic: the first unanswered poll's
+        self._silent_reason: str | None = None  # why a camera on an open port is disconnected
         self._last_values: dict[str, float] = {}
         self._last_t_s: dict[str, float] = {}  # when each channel's last value was taken
         self._red_lock = threading.Lock()
@@ -966,7 +967,7 @@ class DeviceSession:
                 self.checker.clear()  # maybe another camera: start its limits afresh
                 with self._red_lock:
                     self._red_acknowledged.clear()
-                self.device.probe_error = None
+                self.device.probe_error = self._silent_reason = None
                 self._probe_needed.set()
                 self._wake.set()
             else:
@@ -1122,16 +1123,17 @@ class DeviceSession:
         try:
             values = self._request("GET_STATUS").values
         except (DeviceTimeout, DeviceRejected) as exc:
-            if self.device.probe_error is None:  # else keep the first reason (a frozen camera)
-                self.device.probe_error = (
-                    f"link open but the device did not answer GET_STATUS: {exc}"
-                )
+            self.device.probe_error = (
+                self._silent_reason or f"link open but the device did not answer GET_STATUS: {exc}"
+            )
             self._probe_needed.set()
             log.warning("%s", self.device.probe_error)
             return False
         except Disconnected:
             return False  # the reconnect will set _probe_needed again
-        self.device.probe_error = None
+        # Until the sensor is checked (and its link trained) and the state is set.
+        self.device.probe_error = "the camera answered GET_STATUS; checking its sensor"
+        self._silent_reason = None
         self._unanswered_since = None
         device = DeviceStatus.model_validate(values)
         self.device.note_mode(device.mode)
@@ -1202,7 +1204,7 @@ class DeviceSession:
             "power-cycle it; the daemon goes back to idle as soon as it answers"
         )
         self._unanswered_since = None
-        self.device.probe_error = reason  # what status.reason says until it answers
+        self._silent_reason = self.device.probe_error = reason  # status.reason until it answers
         self._fire(Trigger.LINK_LOST, reason)
 
 
