@@ -276,8 +276,10 @@ class DeviceAccess:
             return "the link is not open"
         if not link.connected:
             return f"{self.port} is closed ({link.last_error})"
-        if self.machine.state == State.DISCONNECTED:
-            return f"{self.port} is open again; the camera has not answered GET_STATUS yet"
+        if self.machine.state == State.DISCONNECTED:  # the probe's reason: e.g. a frozen camera
+            return self.probe_error or (
+                f"{self.port} is open again; the camera has not answered GET_STATUS yet"
+            )
         try:
             with self._lock.hold():
                 link.request("PING", data=b"")
