@@ -424,8 +424,14 @@ class TrainResponse(TypedDict):
     bit_errors: int
     verified_bits: int
     lane_results: list[LaneResult]
-    # Unix time of the training; None if never trained
+    # Unix time of the last training; None if the daemon has not trained since it started (or the
+    # interface has nothing to train)
     t_s: float | None
+    # Unix time the link lost that training (LINK_LOST, a camera restart): `trained` is then false
+    # and the rest describes the last training; None while it holds
+    lost_t_s: float | None
+    # the link's training in one sentence
+    summary: str
 
 
 class StreamStats(TypedDict):

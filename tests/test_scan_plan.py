@@ -184,7 +184,7 @@ def test_apply_undoes_newest_first_and_names_what_it_restored() -> None:
 
     with (
         pytest.raises(DeviceRejected) as info,
-        Apply("scan not started", lambda *e: events.append(e)) as apply,
+        Apply("scan start", lambda *e: events.append(e)) as apply,
     ):
         apply.step(lambda: done.append("mode tdi"), lambda: done.append("mode area"), "mode area")
         apply.step(lambda: done.append("scene"), lambda: done.append("scene back"), "scene flat")
@@ -198,7 +198,7 @@ def test_apply_undoes_newest_first_and_names_what_it_restored() -> None:
         (
             "warning",
             "api",
-            "scan not started failed: the device refused REG_WRITE_BURST (OUT_OF_RANGE); "
+            "scan start failed: the device refused REG_WRITE_BURST (OUT_OF_RANGE); "
             "restored: scene flat, mode area",
         )
     ]
@@ -211,10 +211,10 @@ def test_apply_reports_an_undo_that_fails_and_wraps_unexpected_errors() -> None:
     def cannot() -> None:
         raise DeviceRejected("link down", "")
 
-    with pytest.raises(ApplyFailed) as info, Apply("stare not started", lambda *e: None) as apply:
+    with pytest.raises(ApplyFailed) as info, Apply("stare start", lambda *e: None) as apply:
         apply.step(lambda: None, cannot, "mode area")
         apply.step(lost, None, "file")
     assert str(info.value) == (
-        "stare not started failed: OSError: no space left on device; could NOT restore: "
+        "stare start failed: OSError: no space left on device; could NOT restore: "
         "mode area (link down) (check them by hand)"
     )

@@ -7,7 +7,8 @@
     camctl reg save FILE               save the configuration (TOML)
     camctl reg load FILE               write a saved configuration
     camctl timing                      line period, exposure, frame time from the registers
-    camctl train                       train the LVDS link (exit 1 if it does not lock)
+    camctl train                       train the LVDS link (exit 1 if it does not lock, or if
+                                       the camera reports another sensor)
 
 Saved configurations are files on the client's machine: the daemon sends and receives the
 register values, camctl reads and writes the file.
@@ -234,6 +235,9 @@ def render_timing(out: Console, doc: Any, args: argparse.Namespace) -> None:
 
 
 def render_train(out: Console, doc: Any, args: argparse.Namespace) -> None:
+    if doc["interface"] != "lvds":  # no lanes: "0/0 lanes locked" would say nothing
+        out.print(doc["summary"], markup=False)
+        return
     verdict = "[bold green]trained[/]" if doc["trained"] else "[bold red]NOT trained[/]"
     out.print(
         f"{doc['sensor']} {doc['interface']} link: {verdict}; {doc['locked_lanes']}/{doc['lanes']}"

@@ -120,6 +120,9 @@ class DeviceAccess:
         self.machine = StateMachine(State.DISCONNECTED, "not connected yet")
         self.link: CommandLink | None = None
         self.probe_error: str | None = None  # why the device is silent on an open port
+        # What is wrong with a camera that answers (the sensor it reports is not sensor.name):
+        # status.reason while the state itself has no reason (idle, streaming).
+        self.sensor_problem: str | None = None
         self.acquisition = AcquisitionSlot()
         # Nothing moves or acquires while an emergency stop is latched (kept across restarts).
         self.estop = EstopLatch(
@@ -174,9 +177,10 @@ class DeviceAccess:
         notify.status(f"camera {change.new.value}{why}")
 
     def reason(self, state: State, reason: str | None) -> str | None:
-        """Why the daemon is in ``state``; for disconnected, what the link says."""
+        """Why the daemon is in ``state``; for disconnected, what the link says; else the
+        state's reason, or what is wrong with the camera (a sensor other than configured)."""
         if state != State.DISCONNECTED:
-            return reason
+            return reason or self.sensor_problem
         link = self.link
         if link is not None and link.connected:
             return self.probe_error or "link open; waiting for the device to answer GET_STATUS"
@@ -272,8 +276,10 @@ class DeviceAccess:
             return "the link is not open"
         if not link.connected:
             return f"{self.port} is closed ({link.last_error})"
-        if self.machine.state == State.DISCONNECTED:
-            return f"{self.port} is open again; the camera has not answered GET_STATUS yet"
+        if self.machine.state == State.DISCONNECTED:  # the probe's reason: e.g. a frozen camera
+            return self.probe_error or (
+                f"{self.port} is open again; the camera has not answered GET_STATUS yet"
+            )
         try:
             with self._lock.hold():
                 link.request("PING", data=b"")

@@ -74,6 +74,11 @@ class LinkUntrained(SessionError):
     """Imaging refused: the sensor's LVDS link is not trained (HTTP 409)."""
 
 
+class SensorMismatch(SessionError):
+    """The camera reports another sensor than the daemon's ``sensor.name`` (HTTP 409): its
+    registers, training and imaging are refused; the message says what to change."""
+
+
 class ArchiveUnreadable(SessionError):
     """The telemetry archive cannot be read (a corrupt file) (HTTP 503); its writes go on
     failing quietly, the limits are still checked (camd.daemon.telemetry.GuardedArchive)."""

@@ -610,7 +610,15 @@ class TrainResponse(BaseModel):
     bit_errors: int
     verified_bits: int
     lane_results: list[LaneResult]
-    t_s: float | None = Field(description="Unix time of the training; None if never trained")
+    t_s: float | None = Field(
+        description="Unix time of the last training; None if the daemon has not trained since it "
+        "started (or the interface has nothing to train)"
+    )
+    lost_t_s: float | None = Field(
+        description="Unix time the link lost that training (LINK_LOST, a camera restart): "
+        "`trained` is then false and the rest describes the last training; None while it holds"
+    )
+    summary: str = Field(description="the link's training in one sentence")
 
 
 # -- the frame stream ---------------------------------------------------------------------------

@@ -327,7 +327,7 @@ class ScanService:
         steps done so far are undone (newest first) and the error says what was restored."""
         request = plan.request
         device, sim, sensor = self.device, self.sim, self.sensor
-        with Apply("scan not started", self._events, source="scan") as apply:
+        with Apply("scan start", self._events, source="scan") as apply:
             if request.scene is not None:
                 scene, before = request.scene, sim.scene
                 apply.step(

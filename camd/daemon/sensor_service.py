@@ -16,12 +16,13 @@ to the snapshot and says so.
 from __future__ import annotations
 
 import logging
+import threading
 import time
 from collections.abc import Callable, Mapping
 from typing import Any
 
 from camd.daemon.device import DeviceAccess
-from camd.daemon.errors import BadRequest, DeviceRejected, LinkUntrained, SessionError
+from camd.daemon.errors import BadRequest, LinkUntrained, SensorMismatch, SessionError
 from camd.daemon.models import (
     LaneResult,
     RegisterConfig,
@@ -33,7 +34,7 @@ from camd.daemon.models import (
     TimingResponse,
     TrainResponse,
 )
-from camd.daemon.state import Request
+from camd.daemon.state import Request, describe
 from camd.daemon.transaction import Apply
 from camd.sensor.bridge import RegisterBridge
 from camd.sensor.profile import list_profiles, load_profile
@@ -113,6 +114,10 @@ class SensorService:
         self.trained = False
         self.streaming = False  # what GET_SENSOR said at the last connect
         self._training: TrainResponse | None = None
+        self._lost: tuple[float, str] | None = None  # when and how the last training was lost
+        # One connect check at a time: a reset's own check and the probe after its BOOT each
+        # used to find the link untrained, and train it twice.
+        self._connect_lock = threading.Lock()
         self._bridge: RegisterBridge | None = None
         self._registers: SensorRegisters | None = None
 
@@ -123,6 +128,10 @@ class SensorService:
 
         Returns True if the camera is streaming (the session then stops the stream).
         """
+        with self._connect_lock:
+            return self._on_connect()
+
+    def _on_connect(self) -> bool:
         # The camera may have restarted (a power cycle, the simulator restarted): open the
         # register bridge afresh (a USB-SPI bridge may have enumerated anew) and re-read the
         # registers, which are at their power-on values then.
@@ -130,15 +139,15 @@ class SensorService:
             self.close()
         values = self.device.request("GET_SENSOR").values
         self.device_sensor = str(values["sensor"])
+        was_trained = self.trained
         self.trained = values["trained"] == "yes"
+        if was_trained and not self.trained and self._lost is None:
+            self._lost = (time.time(), "the camera restarted")
         self.streaming = values["imaging"] == "yes"
-        if self.device_sensor != self.regmap.sensor:
-            self.device.log_event(
-                "error",
-                "sensor",
-                f"the camera reports sensor {self.device_sensor!r} but sensor.name is "
-                f"{self.regmap.sensor!r}; register access is refused until they match",
-            )
+        problem = self.mismatch()
+        self.device.sensor_problem = problem
+        if problem is not None:
+            self.device.log_event("error", "sensor", problem)
             return self.streaming
         try:
             with self.device.device_op():
@@ -155,13 +164,20 @@ class SensorService:
     def on_event(self, name: str, values: dict[str, Any]) -> bool:
         """Handle a sensor-related device event; True if it was one."""
         if name == "LINK_LOST":
+            if self.trained:
+                self._lost = (time.time(), "LINK_LOST")
             self.trained = False
-            self.device.log_event("warning", "device", "LVDS link lost its training")
+            self.device.log_event(
+                "warning", "device", "the LVDS link lost its training (LINK_LOST)"
+            )
             return True
         if name == "LINK_TRAINED":
+            lanes = (
+                "every lane locked" if values.get("locked") == "yes" else "not every lane locked"
+            )
             self.device.log_event(
-                "info", "device", f"LINK_TRAINED locked={values.get('locked')} "
-                f"bit_errors={values.get('bit_errors')}"
+                "info", "device", f"the camera finished LVDS training (LINK_TRAINED): {lanes}, "
+                f"{values.get('bit_errors')} bit errors"
             )  # fmt: skip
             return True
         return False
@@ -277,9 +293,13 @@ class SensorService:
     # -- training ----------------------------------------------------------------------------------
 
     def train(self, *, require: bool = True) -> TrainResponse:
-        """TRAIN the LVDS link and read every lane's result."""
+        """TRAIN the LVDS link and read every lane's result. Refused (SensorMismatch) for a
+        camera with another sensor; a sensor without LVDS lanes has nothing to train: the
+        answer says so, with nothing sent."""
         if require:
-            self.device.require(Request.TRAIN)
+            self._checked(Request.TRAIN)
+        if self.interface != "lvds":
+            return self.last_training()
         values = self.device.request("TRAIN").values
         lanes = int(values["lanes"])
         results = []
@@ -298,6 +318,7 @@ class SensorService:
         locked = values["locked"] == "yes"
         bit_errors = int(values["bit_errors"])
         self.trained = locked and bit_errors == 0
+        self._lost = None
         self._training = TrainResponse(
             sensor=self.regmap.sensor,
             interface=self.interface,
@@ -309,35 +330,61 @@ class SensorService:
             verified_bits=int(values["verified_bits"]),
             lane_results=results,
             t_s=time.time(),
+            lost_t_s=None,
+            summary="",
         )
+        self._training = self._training.model_copy(update={"summary": self.training_summary()})
         level = "info" if self.trained else "error"
         self.device.log_event(level, "sensor", self.training_summary())
         return self._training
 
     def last_training(self) -> TrainResponse:
-        """The last training (``t_s`` None if the daemon has not trained since it started)."""
+        """The last training (``t_s`` None if the daemon has not trained since it started),
+        with whether the link has lost it since (``lost_t_s``) and a summary in words."""
+        lost_t_s = None if self._lost is None or self.trained else self._lost[0]
         if self._training is not None:
-            return self._training
+            return self._training.model_copy(
+                update={
+                    "trained": self.trained,
+                    "lost_t_s": lost_t_s,
+                    "summary": self.training_summary(),
+                }
+            )
+        parallel = self.interface != "lvds"
         return TrainResponse(
             sensor=self.regmap.sensor,
             interface=self.interface,
-            trained=self.trained,
-            lanes=self.regmap.output.lanes if self.interface == "lvds" else 0,
+            trained=self.trained or parallel,
+            lanes=0 if parallel else self.regmap.output.lanes,
             locked_lanes=0,
-            locked=self.trained,
+            locked=self.trained or parallel,
             bit_errors=0,
             verified_bits=0,
             lane_results=[],
             t_s=None,
+            lost_t_s=lost_t_s,
+            summary=self.training_summary(),
         )
 
     def training_summary(self) -> str:
-        """One line on the link's training, for events and refusals."""
+        """One sentence on the link's training, for events, refusals and the train document."""
         t = self._training
         if self.interface != "lvds":
-            return f"{self.interface} interface: no training needed"
+            return (
+                f"{self.regmap.sensor} {self.interface} interface: nothing to train (no LVDS "
+                "lanes); the sensor's data reaches the FPGA as it is"
+            )
+        if not self.trained and self._lost is not None:
+            lost_s, how = self._lost
+            last = "" if t is None else f", after the last training at {_clock(t.t_s)}"
+            return f"LVDS link not trained: it lost its training at {_clock(lost_s)} ({how}){last}"
         if t is None:
-            return "LVDS link trained" if self.trained else "LVDS link not trained yet"
+            if self.trained:
+                return (
+                    "LVDS link trained (found trained when the camera connected; "
+                    "`camctl train` measures its lanes)"
+                )
+            return "LVDS link not trained yet"
         unlocked = [str(lane.lane) for lane in t.lane_results if not lane.locked]
         if self.trained:
             return (
@@ -353,8 +400,24 @@ class SensorService:
             return f"LVDS training failed: {t.bit_errors} bit errors in the PRBS check"
         return "LVDS link not trained (lost since the last training)"
 
+    def mismatch(self) -> str | None:
+        """What is wrong when the camera reports another sensor than ``sensor.name`` (None
+        when they match, or before the first connect): status.reason and refusals say it."""
+        found, ours = self.device_sensor, self.regmap.sensor
+        if found is None or found == ours:
+            return None
+        return (
+            f"the camera reports sensor {found!r} but sensor.name is {ours!r}: set sensor.name "
+            f'= "{found}" in the config (or connect the right camera) and restart camd; register '
+            "access, training and imaging are refused until they match"
+        )
+
     def require_trained(self, what: str) -> None:
-        """Raise LinkUntrained unless the sensor's output link is trained."""
+        """Raise SensorMismatch for a camera with another sensor, LinkUntrained unless the
+        sensor's output link is trained."""
+        problem = self.mismatch()
+        if problem is not None:
+            raise SensorMismatch(f"cannot {what}: {problem}")
         if not self.trained:
             raise LinkUntrained(
                 f"cannot {what}: {self.training_summary()}; run `camctl train` "
@@ -457,13 +520,9 @@ class SensorService:
 
     def _checked(self, request: Request) -> None:
         self.device.require(request)
-        if self.device_sensor is not None and self.device_sensor != self.regmap.sensor:
-            raise DeviceRejected(
-                f"the camera reports sensor {self.device_sensor!r} but the daemon's register map "
-                f"is {self.regmap.sensor!r}; set [sensor] name = {self.device_sensor!r} in the "
-                "config (or connect the right camera) and restart camd",
-                "SENSOR_MISMATCH",
-            )
+        problem = self.mismatch()
+        if problem is not None:
+            raise SensorMismatch(f"cannot {describe(request)}: {problem}")
 
     def _sensor_registers(self) -> SensorRegisters:
         """The register layer, its bridge opened on first use. Call inside ``device_op()``:
@@ -472,6 +531,13 @@ class SensorService:
             self._bridge = self._make_bridge(self.regmap)
             self._registers = SensorRegisters(self.regmap, self._bridge)
         return self._registers
+
+
+def _clock(t_s: float | None) -> str:
+    """A Unix time as the UTC time of day, for sentences ("05:40:01 UTC")."""
+    if t_s is None:
+        return "an unknown time"
+    return time.strftime("%H:%M:%S UTC", time.gmtime(t_s))
 
 
 def _key(text: str) -> str | int:

@@ -112,6 +112,11 @@ log = logging.getLogger(__name__)
 PROBE_RETRY_S = 1.0  # after a GET_STATUS probe went unanswered
 MAX_LOOP_SLEEP_S = 0.25  # the service loop wakes at least this often (stop, sim exit, probes)
 PING_ERRORS_MAX = 5
+# A camera whose housekeeping polls have gone unanswered (no answer at all, not a NAK) for this
+# long, on a port that stays open, is taken as frozen: the state goes disconnected with the
+# reason (docs/api.md, "Details"). Short silences (a line that drops for a couple of seconds)
+# stay below it.
+SILENT_AFTER_S = 5.0
 PRUNE_PERIOD_S = 3600.0  # how often old telemetry samples are deleted
 HEAP_TRIM_PERIOD_S = 30.0  # how often the C heap's free pages go back to the system (heap.py)
 
@@ -163,6 +168,8 @@ class DeviceSession:
         self._started_mono = time.monotonic()
         self._stop_stage_on_connect = False  # a scan was cut off: see _recover_recordings
         self._poll_error: str | None = None
+        self._unanswered_since: float | None = None  # monotonic: the first unanswered poll's
+        self._silent_reason: str | None = None  # why a camera on an open port is disconnected
         self._last_values: dict[str, float] = {}
         self._last_t_s: dict[str, float] = {}  # when each channel's last value was taken
         self._red_lock = threading.Lock()
@@ -961,7 +968,7 @@ class DeviceSession:
                 self.checker.clear()  # maybe another camera: start its limits afresh
                 with self._red_lock:
                     self._red_acknowledged.clear()
-                self.device.probe_error = None
+                self.device.probe_error = self._silent_reason = None
                 self._probe_needed.set()
                 self._wake.set()
             else:
@@ -982,7 +989,7 @@ class DeviceSession:
             return
         if message.name == "FAULT":
             text = self.dictionary.describe_error(int(values.get("fault_code", 0)))
-            self._event("error", "device", f"FAULT {text}", message.t_s)
+            self._event("error", "device", f"the camera entered fault (FAULT): {text}", message.t_s)
             self._fire(Trigger.DEVICE_FAULT, f"device fault {text}")
         elif message.name == "MODE_CHANGED":
             self.device.note_mode(str(values.get("mode")))
@@ -990,12 +997,18 @@ class DeviceSession:
         elif message.name == "BOOT":
             self.device.note_mode("area")
             self._event(
-                "info", "device", f"BOOT (boot count {values.get('boot_count', 0)!s})", message.t_s
+                "info",
+                "device",
+                f"the camera restarted (BOOT): boot count {values.get('boot_count', 0)!s}",
+                message.t_s,
             )
             self._probe_needed.set()  # learn its state afresh
             self._wake.set()
         else:
-            self._event("info", "device", f"{message.name} {dict(values)}", message.t_s)
+            level, text = device_event_text(
+                message.name, values, self.motion.profile.microsteps_per_m
+            )
+            self._event(level, "device", text, message.t_s)
 
     def _record_sample(self, values: Mapping[str, FieldValue], t_s: float, source: str) -> None:
         """Limits first, then the archive: an archive that cannot be written (a full disk)
@@ -1111,13 +1124,18 @@ class DeviceSession:
         try:
             values = self._request("GET_STATUS").values
         except (DeviceTimeout, DeviceRejected) as exc:
-            self.device.probe_error = f"link open but the device did not answer GET_STATUS: {exc}"
+            self.device.probe_error = (
+                self._silent_reason or f"link open but the device did not answer GET_STATUS: {exc}"
+            )
             self._probe_needed.set()
             log.warning("%s", self.device.probe_error)
             return False
         except Disconnected:
             return False  # the reconnect will set _probe_needed again
-        self.device.probe_error = None
+        # Until the sensor is checked (and its link trained) and the state is set.
+        self.device.probe_error = "the camera answered GET_STATUS; checking its sensor"
+        self._silent_reason = None
+        self._unanswered_since = None
         device = DeviceStatus.model_validate(values)
         self.device.note_mode(device.mode)
         fw = f"{device.fw_version >> 8}.{device.fw_version & 0xFF}"
@@ -1150,20 +1168,84 @@ class DeviceSession:
     def _poll(self) -> None:
         if self.machine.state == State.DISCONNECTED:
             return
+        sent_mono = time.monotonic()
         try:
             response = self._request("GET_HOUSEKEEPING")
         except (DeviceTimeout, DeviceRejected) as exc:
             if self._poll_error is None:
                 self._event("warning", "daemon", f"housekeeping poll failing: {exc}")
             self._poll_error = str(exc)
+            if isinstance(exc, DeviceTimeout):
+                self._unanswered(sent_mono, exc)
+            else:
+                self._unanswered_since = None  # a NAK is an answer
             return
         except Disconnected:
             return
+        self._unanswered_since = None
         if self._poll_error is not None:
             self._event("info", "daemon", "housekeeping poll answered again")
             self._poll_error = None
         self._record_sample(response.values, time.time(), "poll")
         self.stream.check_ended()
+
+    def _unanswered(self, sent_mono: float, exc: DeviceTimeout) -> None:
+        """A poll went unanswered: once nothing has answered for ``SILENT_AFTER_S`` while the
+        port stays open, the camera is frozen (not unplugged): say so with the state."""
+        if self._unanswered_since is None:
+            self._unanswered_since = sent_mono
+        silent_s = time.monotonic() - self._unanswered_since
+        if silent_s < SILENT_AFTER_S:
+            return
+        period_s = self.config.telemetry.poll_period_s
+        reason = (
+            f"the camera stopped answering on an open port: nothing answered for {silent_s:.1f} s "
+            f"(GET_HOUSEKEEPING every {period_s:g} s; last: {exc}); {self.port} is still open, "
+            "so it is not unplugged: check its power and firmware (a frozen camera) or "
+            "power-cycle it; the daemon goes back to idle as soon as it answers"
+        )
+        self._unanswered_since = None
+        self._silent_reason = self.device.probe_error = reason  # status.reason until it answers
+        self._fire(Trigger.LINK_LOST, reason)
+
+
+# Why MOTOR_STOPPED says the stage stopped (its ``reason`` field), and how loud: a stop the
+# operator did not ask for is a warning.
+_STAGE_STOPS: dict[str, tuple[str, str]] = {
+    "done": ("info", "its move finished"),
+    "homed": ("info", "homing finished"),
+    "limit_low": ("warning", "it reached its low soft limit"),
+    "limit_high": ("warning", "it reached its high soft limit"),
+    "estop": ("warning", "an emergency stop"),
+    "stall": ("warning", "the motor stalled"),
+}
+
+
+def device_event_text(
+    name: str, values: Mapping[str, FieldValue], microsteps_per_m: float
+) -> tuple[str, str]:
+    """An event of the camera that no service handles, as ``(level, sentence)``: the stage's
+    stop in words, at its position in mm; any other event by name with its fields listed
+    (never a Python dict)."""
+    words = {
+        key: value.hex() if isinstance(value, bytes) else str(value)
+        for key, value in values.items()
+    }
+    if name == "MOTOR_STOPPED":
+        reason = words.get("reason", "unknown")
+        level, why = _STAGE_STOPS.get(reason, ("warning", f"reason {reason}"))
+        steps = values.get("steps")
+        where = (
+            f"{float(steps) / microsteps_per_m * 1e3:.3f} mm"
+            if isinstance(steps, int | float)
+            else "an unknown position"
+        )
+        return level, (
+            f"the stage stopped (MOTOR_STOPPED): {why} at {where} "
+            f"(encoder count {words.get('encoder')})"
+        )
+    fields = ", ".join(f"{key} {value}" for key, value in words.items())
+    return "info", f"the camera sent {name}" + (f": {fields}" if fields else "")
 
 
 def _warm_tdi() -> None:

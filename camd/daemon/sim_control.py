@@ -130,7 +130,8 @@ class SimulatorControl(abc.ABC):
         self.device.require(Request.SIM)
         self._do_set_stage_faults(request)
         self._stage_faults = request
-        self.device.log_event("info", "api", f"simulated stage faults: {request.model_dump()}")
+        faults = ", ".join(f"{name} {value:g}" for name, value in request.model_dump().items())
+        self.device.log_event("info", "api", f"simulated stage faults: {faults}")
 
     def stage_truth(self) -> SimStageTruth:
         """Where the simulated stage really is."""

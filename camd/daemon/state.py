@@ -56,7 +56,7 @@ from enum import StrEnum
 class State(StrEnum):
     """What the daemon knows about the camera."""
 
-    DISCONNECTED = "disconnected"  # no port, or the device does not answer
+    DISCONNECTED = "disconnected"  # no port, or the device does not answer (status.reason: which)
     IDLE = "idle"  # connected, ready for commands
     STREAMING = "streaming"  # the sequencer runs and frames stream over USB (START_STREAM)
     FAULT = "fault"  # the device reported a fault or a red limit tripped; RESET clears it
@@ -93,7 +93,9 @@ class Trigger(StrEnum):
 
     PROBE_IDLE = "probe_idle"  # GET_STATUS answered after (re)connecting: device idle/busy
     PROBE_FAULT = "probe_fault"  # GET_STATUS answered with device_state = fault
-    LINK_LOST = "link_lost"  # the port closed or a request failed with LinkDown
+    # the port closed, a request failed with LinkDown, or the camera stopped answering on an
+    # open port (a frozen camera: its polls unanswered for session.SILENT_AFTER_S)
+    LINK_LOST = "link_lost"
     DEVICE_FAULT = "device_fault"  # FAULT event, or the device says it is in fault
     RED_LIMIT = "red_limit"  # a telemetry channel went red (with telemetry.red_is_fault)
     RESET_OK = "reset_ok"  # RESET acknowledged

@@ -224,7 +224,10 @@ class StreamService:
         next_counter = int(values.get("next_counter", 0))
         frames_sent = int(values.get("frames_sent", 0))
         self.device.log_event(
-            "info", "device", f"STREAM_DONE: {frames_sent} frames, next counter {next_counter}"
+            "info",
+            "device",
+            f"the camera ended the stream (STREAM_DONE): {frames_sent} frames sent, next "
+            f"counter {next_counter}",
         )
         # Draining waits for the reader: not on the link's reader thread.
         threading.Thread(
@@ -542,7 +545,7 @@ class StreamService:
         extra = 0 if background is None else background.pixels.nbytes
         recorder_path = self._record_path(request.record, request.frames * max_frame_bytes + extra)
         # Apply: the mode, then the stream; a stream that does not start puts the mode back.
-        with Apply("stream not started", self._events, source="stream") as apply:
+        with Apply("stream start", self._events, source="stream") as apply:
             if set_mode is not None and device.mode != set_mode:
                 before = device.mode or "area"
                 apply.step(

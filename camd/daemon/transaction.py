@@ -6,7 +6,7 @@ the action that undoes it. When a later step fails (a NAK, a link loss, a full d
 actions run in reverse order and the error the client gets is the original one (same HTTP
 status) with what was restored appended, e.g.::
 
-    scan not started: ... the device refused START_STREAM (BUSY); restored: stream recording
+    ... the device refused START_STREAM (BUSY); restored: stream recording
     removed, stage stopped and back at 120.000 mm, registers WIN_ROWS, EXPOSURE, mode area
 
 An undo that itself fails is reported in the same sentence ("could NOT restore ...") and logged:
@@ -90,6 +90,9 @@ class Apply:
 
     Use ``step(label, action, undo)`` for each change, then ``done()``; or as a context
     manager, which rolls back on any exception and re-raises it with what was restored.
+    ``what`` names the request as a noun ("scan start", "mode change"): a failure's event
+    reads "<what> failed: <why>; <what was restored>", so it is never an outcome ("scan not
+    started", which would read "scan not started failed: ...").
     """
 
     def __init__(self, what: str, events: EventLog, source: str = "api") -> None:

@@ -171,7 +171,7 @@ class WheelService:
         except WheelSpeedError as exc:
             raise BadRequest(str(exc)) from None
         before = wheel.read().speed_deg_s
-        with Apply("wheel speed not set", self._events, source="wheel") as apply:
+        with Apply("wheel speed change", self._events, source="wheel") as apply:
             apply.step(
                 lambda: wheel.set_speed(speed_deg_s),
                 lambda: wheel.set_speed(before),
@@ -209,7 +209,7 @@ class WheelService:
                 )
         wheel = self.wheel
         before = wheel.read().compensation
-        with Apply("delay compensation not switched", self._events, source="wheel") as apply:
+        with Apply("delay compensation switch", self._events, source="wheel") as apply:
             apply.step(
                 lambda: wheel.set_compensation(on),
                 lambda: wheel.set_compensation(before),
