@@ -101,6 +101,10 @@ class DaemonInfo(TypedDict):
     version: str
     pid: int
     uptime_s: float
+    # what each of the threads the hardware waits on runs at, e.g. {"frame_reader": "SCHED_RR 10",
+    # "command_link": ..., "service_loop": ..., "closed_loop": ...} (each once it has run), and
+    # "why" one got no more than shown (docs/config.md, daemon.realtime)
+    scheduling: dict[str, str]
 
 
 class ControlActivity(TypedDict):

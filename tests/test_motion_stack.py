@@ -22,6 +22,7 @@ from camd.cli._daemon_proc import DaemonProcess
 from camd.client import CamdClient
 from camd.sensor.profile import load_profile
 from camd.store.tdi_recording import read_tdi_scan
+from tests.realtime_support import as_the_unit
 from tests.test_camctl import NO_TOKEN, camctl, camctl_json
 
 # Real-time streaming / control loops: alone under xdist (tests/conftest.py).
@@ -42,7 +43,10 @@ SCENE = "edge:angle_deg=5"
 def start_daemon(tmp: Path, motion: str = "") -> DaemonProcess:
     config = tmp / "camd.toml"
     config.write_text(f"[motion]\n{motion}\n")
-    return DaemonProcess(tmp, extra_args=["--config", str(config)], env=NO_TOKEN)
+    # As systemd/camd.service starts it: the closed loop's threads real-time, the rest nice.
+    return DaemonProcess(
+        tmp, extra_args=["--config", str(config)], env=NO_TOKEN, wrapper=as_the_unit()
+    )
 
 
 @pytest.fixture(scope="module")
@@ -334,7 +338,9 @@ def test_turntable_carries_the_sensor_eq5(tmp_path: Path) -> None:
     moves with the arc (image scale 1), T = a / (w l)."""
     config = tmp_path / "camd.toml"
     config.write_text('[stage]\nprofile = "turntable"\n')
-    daemon = DaemonProcess(tmp_path, extra_args=["--config", str(config)], env=NO_TOKEN)
+    daemon = DaemonProcess(
+        tmp_path, extra_args=["--config", str(config)], env=NO_TOKEN, wrapper=as_the_unit()
+    )
     with daemon as d, CamdClient(d.url) as client:
         client.wait_ready(60)
         doc = camctl_json(d.url, "sync", "--line-period-s", repr(T_LINE_S))

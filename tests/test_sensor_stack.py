@@ -20,6 +20,7 @@ import pytest
 from camd.cli._daemon_proc import DaemonProcess
 from camd.client import CamdClient
 from camd.sensor.regmap import RegisterSpec, load_register_map
+from tests.realtime_support import as_the_unit
 from tests.test_camctl import NO_TOKEN, camctl, camctl_json
 
 HR400 = load_register_map("hr400")
@@ -30,14 +31,20 @@ T_LINE_S = 513 / 25e6  # docs/physics.md §3: one line = 513 sequencer clocks (2
 def serve(
     tmp: Path, bridge: str, *, train_on_connect: bool = True, inject: str = ""
 ) -> Iterator[DaemonProcess]:
-    """A daemon on the simulated hr400 with the given register bridge, camera connected."""
+    """A daemon on the simulated hr400 with the given register bridge, camera connected; started
+    as systemd/camd.service starts it (its nice and real-time limit: tests/realtime_support.py),
+    since the stream, scan and wheel stacks' real-time tests run on it."""
     config = tmp / "camd.toml"
     config.write_text(
         f'[sensor]\nname = "hr400"\nbridge = "{bridge}"\n'
         f"train_on_connect = {'true' if train_on_connect else 'false'}\n"
     )
     with DaemonProcess(
-        tmp, inject=inject, extra_args=["--config", str(config)], env=NO_TOKEN
+        tmp,
+        inject=inject,
+        extra_args=["--config", str(config)],
+        env=NO_TOKEN,
+        wrapper=as_the_unit(),
     ) as daemon:
         with CamdClient(daemon.url) as client:
             client.wait_ready(60)

@@ -45,7 +45,9 @@ class DaemonProcess:
     there too). ``inject`` is passed as ``--inject`` when not empty, each of ``record_dirs`` as
     ``--record-dir`` (clients may have the daemon write there too, besides ``data_dir``),
     ``extra_args`` are appended to the command line and ``env`` entries override the inherited
-    environment.
+    environment. ``wrapper``, if given, is a command that runs the daemon's command in the same
+    process (it execs it), e.g. ``["nice", "-n", "-5"]``: how the tests start it with the
+    systemd unit's scheduling (tests/realtime_support.py).
     """
 
     def __init__(
@@ -59,6 +61,7 @@ class DaemonProcess:
         start_timeout_s: float = 30.0,
         stop_timeout_s: float = 10.0,
         log_name: str = "daemon.log",
+        wrapper: Sequence[str] = (),
     ) -> None:
         self.data_dir = Path(data_dir)
         self.inject = inject
@@ -66,6 +69,7 @@ class DaemonProcess:
         self.stop_timeout_s = stop_timeout_s
         self.log_path = self.data_dir / log_name
         self.command: list[str] = [
+            *wrapper,
             sys.executable,
             "-m",
             "camd",

@@ -49,6 +49,10 @@ BackendChoice = Literal["auto", "sim", "libusb"]
 """How a USB device of the camera (the frame stream, the USB-SPI bridge) is reached: "auto"
 follows the command link (the simulator's with ``link.device = "sim"``, else real hardware)."""
 UsbBackend = Literal["sim", "libusb"]
+RealtimeSetting = Literal["auto", "off", "required"]
+RT_PRIORITY_MAX = 49
+"""Highest ``daemon.rt_priority``: the kernel's threaded interrupt handlers run at 50, and the
+USB controller's must stay ahead of the frame reader that waits for it."""
 
 
 class ConfigError(ValueError):
@@ -132,6 +136,25 @@ class DaemonSection(_Section):
         default_factory=list,
         description="directories outside data_dir where clients may have the daemon write "
         "recordings, scans and campaign output (absolute; ~ and $VARIABLES expanded)",
+    )
+
+    realtime: RealtimeSetting = Field(
+        default="auto",
+        description="real-time scheduling of the threads the hardware waits on (frame reader, "
+        "command link, closed loop, service loop): auto (when allowed, else a raised priority), "
+        "off, required (refuse to start without it)",
+    )
+    rt_priority: int = Field(
+        default=10,
+        ge=1,
+        le=RT_PRIORITY_MAX,
+        description="their SCHED_RR priority (1..49: under the kernel's interrupt threads at 50)",
+    )
+    fallback_nice: int = Field(
+        default=-5,
+        ge=-20,
+        le=0,
+        description="their nice value where real time is not allowed (if the nice limit allows it)",
     )
 
     @field_validator("data_dir", mode="after")

@@ -254,6 +254,12 @@ class DaemonInfo(BaseModel):
     version: str
     pid: int
     uptime_s: float
+    scheduling: dict[str, str] = Field(
+        description="what each of the threads the hardware waits on runs at, e.g. "
+        '{"frame_reader": "SCHED_RR 10", "command_link": ..., "service_loop": ..., '
+        '"closed_loop": ...} (each once it has run), and "why" one got no more than shown '
+        "(docs/config.md, daemon.realtime)"
+    )
 
 
 class ControlActivity(BaseModel):

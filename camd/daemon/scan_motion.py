@@ -20,6 +20,7 @@ import numpy as np
 
 from camd.daemon.errors import SessionError, unreachable
 from camd.daemon.motion_service import WAIT_MARGIN_S, MotionService
+from camd.daemon.realtime import REALTIME
 from camd.daemon.scan_plan import StagePlan
 from camd.motion.closed_loop import (
     EncoderSample,
@@ -136,6 +137,7 @@ class ScanMotion:
 
     def _loop(self) -> None:
         """Poll the encoder, trim the step rate or the line period (module docstring)."""
+        REALTIME.enter("closed_loop")
         config = self.service.config
         stage = self.service.stage
         _, scale = self.service.optics()

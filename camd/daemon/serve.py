@@ -36,6 +36,7 @@ from camd.daemon import backends, heap, notify
 from camd.daemon.api import create_app
 from camd.daemon.config import Config, ConfigError, load_config, with_overrides
 from camd.daemon.errors import SimulatorError
+from camd.daemon.realtime import REALTIME
 from camd.daemon.session import DeviceSession
 
 log = logging.getLogger("camd.serve")
@@ -386,6 +387,12 @@ def run(args: argparse.Namespace) -> int:
 
     # Before any thread starts: arenas made before the limit stay (camd/daemon/heap.py).
     heap.limit_arenas(config.daemon.malloc_arenas)
+    daemon = config.daemon
+    refusal = REALTIME.configure(daemon.realtime, daemon.rt_priority, daemon.fallback_nice)
+    if refusal:
+        print(f"camd serve: {refusal}", file=sys.stderr)
+        sock.close()
+        return EXIT_CONFIG
     session = DeviceSession(config)
     try:
         session.start()

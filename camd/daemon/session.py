@@ -77,6 +77,7 @@ from camd.daemon.models import (
 )
 from camd.daemon.motion_service import MotionService
 from camd.daemon.output_paths import RECORDINGS_FOLDER, SCANS_FOLDER
+from camd.daemon.realtime import REALTIME
 from camd.daemon.scan_service import ScanService
 from camd.daemon.sensor_service import SensorService
 from camd.daemon.sim_supervisor import RestartPolicy, SimSupervisor
@@ -267,6 +268,7 @@ class DeviceSession:
             retries=cfg.retries,
             reconnect_min_s=cfg.reconnect_min_s,
             reconnect_max_s=cfg.reconnect_max_s,
+            thread_start=REALTIME.enter,
         )
         self._unsubscribe = link.subscribe(self._on_message)
         link.open()
@@ -631,7 +633,12 @@ class DeviceSession:
                 ),
             ),
             device=device,
-            daemon=DaemonInfo(version=camd.__version__, pid=os.getpid(), uptime_s=self.uptime_s),
+            daemon=DaemonInfo(
+                version=camd.__version__,
+                pid=os.getpid(),
+                uptime_s=self.uptime_s,
+                scheduling=REALTIME.report(),
+            ),
             control=self.control_info(client),
             acquisition=self.acquisition_info(),
             estop=self.estop_state(),
@@ -1051,6 +1058,7 @@ class DeviceSession:
     # -- internals: the service loop --------------------------------------------------------------
 
     def _service_loop(self) -> None:
+        REALTIME.enter("service_loop")
         watchdog_s = notify.watchdog_interval_s()
         pet_every_s = watchdog_s / 2 if watchdog_s else None
         next_pet = next_poll = next_probe = next_prune = next_trim = time.monotonic()

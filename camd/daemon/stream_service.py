@@ -50,6 +50,7 @@ from camd.daemon.models import (
     StreamStats,
 )
 from camd.daemon.output_paths import RECORDINGS_FOLDER, resolve_output
+from camd.daemon.realtime import REALTIME
 from camd.daemon.sensor_service import SensorService
 from camd.daemon.state import Request, Trigger
 from camd.daemon.transaction import Apply
@@ -812,6 +813,7 @@ class StreamService:
                 overflow=self.config.overflow,
                 read_bytes=self.config.read_bytes,
                 timeout_s=self.config.timeout_s,
+                thread_start=REALTIME.enter,
             )
             reader.open()
             for consumer in self._consumers:

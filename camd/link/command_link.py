@@ -152,6 +152,7 @@ class CommandLink:
         reconnect_min_s: float = 0.1,
         reconnect_max_s: float = 2.0,
         frame_timeout_s: float | None = None,
+        thread_start: Callable[[str], object] | None = None,
     ) -> None:
         if timeout_s <= 0:
             raise ValueError(f"timeout_s must be > 0, got {timeout_s}")
@@ -164,6 +165,9 @@ class CommandLink:
         self.retries = retries
         self.reconnect_min_s = reconnect_min_s
         self.reconnect_max_s = reconnect_max_s
+        # Called as ``thread_start("command_link")`` from inside the reader thread when it
+        # starts: how the daemon gives it real-time scheduling (camd/daemon/realtime.py).
+        self.thread_start = thread_start
         # Longest frame at 10 bits per byte, plus USB-serial adapter latency (FTDI: 16 ms).
         self.frame_timeout_s = (
             frame_timeout_s
@@ -414,6 +418,8 @@ class CommandLink:
     # -- reader thread --------------------------------------------------------------------------
 
     def _run(self) -> None:
+        if self.thread_start is not None:
+            self.thread_start("command_link")
         backoff_s = self.reconnect_min_s
         while not self._stop.is_set():
             if not self._try_open():

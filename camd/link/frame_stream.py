@@ -190,6 +190,7 @@ class FrameStream:
         timeout_s: float = 1.0,
         overflow_wait_s: float = OVERFLOW_WAIT_S,
         no_data_warning_s: float = NO_DATA_WARNING_S,
+        thread_start: Callable[[str], object] | None = None,
     ) -> None:
         if queue_frames < 1:
             raise ValueError(f"queue_frames = {queue_frames} must be at least 1")
@@ -212,6 +213,10 @@ class FrameStream:
         self.timeout_s = timeout_s
         self.overflow_wait_s = overflow_wait_s
         self.no_data_warning_s = no_data_warning_s
+        # Called as ``thread_start("frame_reader")`` and ``thread_start("frame_dispatcher")``
+        # from inside each thread when it starts: how the daemon gives the reader real-time
+        # scheduling (camd/daemon/realtime.py).
+        self.thread_start = thread_start
         self.ident = f"{vendor_id:04x}:{product_id:04x}"
         self._dev: Any = None
         self._detached = False
@@ -547,6 +552,8 @@ class FrameStream:
 
     def _read_loop(self) -> None:
         try:
+            if self.thread_start is not None:
+                self.thread_start("frame_reader")
             self._read_frames()
         except Exception as exc:  # never die silently: say why the stream stopped
             log.exception("frame stream %s: the reader failed", self.ident)
@@ -797,6 +804,8 @@ class FrameStream:
     # -- the dispatcher thread --------------------------------------------------------------------
 
     def _dispatch_loop(self) -> None:
+        if self.thread_start is not None:
+            self.thread_start("frame_dispatcher")
         cond = self._cond
         queue = self._queue
         # The frame just handed to the consumers, accounted (counted, its slot freed) in the
