@@ -17,6 +17,7 @@ from collections.abc import Awaitable, Callable, Iterable
 from typing import Any, Union, get_args, get_origin
 from urllib.parse import urlencode
 
+import annotated_types
 import anyio
 from fastapi import Depends, FastAPI, Header, Query, Request, WebSocket, WebSocketDisconnect
 from fastapi.exceptions import RequestValidationError
@@ -36,6 +37,7 @@ from prometheus_client.registry import Collector, CollectorRegistry
 from pydantic import BaseModel
 from pydantic.fields import FieldInfo
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.routing import Match
 
 import camd
 from camd import web
@@ -225,6 +227,31 @@ def _parameter(route: object, loc: list[str | int]) -> FieldInfo | None:
     return field
 
 
+def _outside(field: FieldInfo | None, value: float) -> bool:
+    """Whether ``value`` lies beyond the bounds ``field`` sets (unknown bounds: no)."""
+    for item in field.metadata if field is not None else ():
+        if isinstance(item, annotated_types.Ge | annotated_types.Gt):
+            low = item.ge if isinstance(item, annotated_types.Ge) else item.gt
+            if value < low:  # type: ignore[operator]
+                return True
+        elif isinstance(item, annotated_types.Le | annotated_types.Lt):
+            high = item.le if isinstance(item, annotated_types.Le) else item.lt
+            if value > high:  # type: ignore[operator]
+                return True
+    return False
+
+
+def _allowed_methods(app: FastAPI, request: Request) -> list[str]:
+    """The methods the routes of the request's path answer (for a 405 and its Allow header)."""
+    methods: set[str] = set()
+    for route in app.router.routes:
+        match, _ = route.matches({**request.scope, "method": "GET"})
+        route_methods = getattr(route, "methods", None)
+        if match != Match.NONE and route_methods:
+            methods.update(route_methods)
+    return sorted(methods)
+
+
 def _what_it_is(value: object) -> str:
     """The JSON type of a refused value, in words."""
     if value is None:
@@ -294,6 +321,13 @@ def _validation_message(exc: RequestValidationError, route: object = None) -> st
             parts.append(f"{name}: {_shown(value, loc)} is out of range{use}")
         elif kind == "finite_number":
             parts.append(f"{name}: {_shown(value, loc)} is not a finite number{use}")
+        elif kind == "int_type" and isinstance(value, float) and value.is_integer():
+            # 1e20 or 3.0: a whole number written as a float; out of range, or just its form
+            if _outside(field, value):
+                parts.append(f"{name}: {cut(repr(value))} is out of range{use}")
+            else:
+                parts.append(f"{name}: {cut(repr(value))} is a whole number written with a "
+                             f"decimal point or an exponent; write it as an integer{use}")  # fmt: skip
         elif kind.endswith("_type"):
             parts.append(f"{name}: {cut(repr(value))} is {_what_it_is(value)}, the wrong type{use}")
         elif kind == "value_error":  # a validator of the model: its reason
@@ -509,7 +543,13 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
         if exc.status_code == 404:
             message = f"no such endpoint {path}; see /docs or docs/api.md"
         elif exc.status_code == 405:
-            message = f"{request.method} is not allowed on {path}; see /docs"
+            allowed = _allowed_methods(app, request)
+            message = (
+                f"{request.method} is not allowed on {path}; use {' or '.join(allowed)} (see /docs)"
+            )
+            response = error_response(exc.status_code, code, message)
+            response.headers["Allow"] = ", ".join(allowed)  # RFC 9110 15.5.6: required
+            return response
         elif exc.status_code == 400:  # FastAPI: a JSON body its parser gave up on
             message = (
                 f"{message}: the request body is not JSON that can be read (nested too deeply?); "

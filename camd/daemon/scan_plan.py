@@ -21,12 +21,13 @@ puts back what it changed if a step fails (``camd.daemon.transaction``).
 from __future__ import annotations
 
 import datetime as dt
+import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from camd.daemon.errors import BadRequest
-from camd.daemon.models import ScanRequest, ScanTiming, TimingResponse
+from camd.daemon.models import SCAN_LINE_PERIOD_MAX_S, ScanRequest, ScanTiming, TimingResponse
 from camd.daemon.output_paths import SCANS_FOLDER, resolve_output
 from camd.motion.stage import STOPPED_STATES, StageLimits
 from camd.sensor.regmap import RegisterMap
@@ -219,6 +220,21 @@ def _check_request(request: ScanRequest, stage: StageContext | None) -> None:
         )
 
 
+def _period_of_speed(speed_m_s: float, pitch_m: float, scale: float) -> float:
+    """The TDI line period a stage speed implies; refused beyond the longest a scan takes (a
+    tiny speed would give an infinite period, and a window of more rows than exist)."""
+    image_speed = scale * speed_m_s
+    period_s = pitch_m / image_speed if image_speed > 0.0 else math.inf
+    if not period_s <= SCAN_LINE_PERIOD_MAX_S:
+        slowest = pitch_m / (scale * SCAN_LINE_PERIOD_MAX_S)
+        raise BadRequest(
+            f"speed_m_s: {speed_m_s:g} m/s is too slow: it gives a TDI line period of "
+            f"{period_s:.4g} s, longer than the {SCAN_LINE_PERIOD_MAX_S:g} s a scan takes; "
+            f"give at least {slowest:.4g} m/s"
+        )
+    return tdi_line_period_s(pitch_m, image_speed)
+
+
 def scan_path(
     out: str | None, data_dir: Path, now: dt.datetime, record_dirs: Sequence[Path] = ()
 ) -> Path:
@@ -250,7 +266,7 @@ def plan_scan(request: ScanRequest, context: ScanContext) -> ScanPlan:
     # The line period, once: from the stage speed, as given, or the registers'.
     period_s = request.line_period_s
     if request.speed_m_s is not None:
-        period_s = tdi_line_period_s(pitch, scale * request.speed_m_s)
+        period_s = _period_of_speed(request.speed_m_s, pitch, scale)
     writes: dict[str, int | str] = {}
     notes: list[str] = []
     if period_s is not None:
