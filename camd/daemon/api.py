@@ -132,6 +132,7 @@ from camd.daemon.request_guard import API, RequestGuard
 from camd.daemon.session import DeviceSession
 from camd.daemon.state import IllegalState, State
 from camd.daemon.telemetry import Level, classify
+from camd.datafile import what_it_is
 
 log = logging.getLogger(__name__)
 
@@ -252,21 +253,6 @@ def _allowed_methods(app: FastAPI, request: Request) -> list[str]:
     return sorted(methods)
 
 
-def _what_it_is(value: object) -> str:
-    """The JSON type of a refused value, in words."""
-    if value is None:
-        return "null"
-    if isinstance(value, bool):
-        return "a boolean"
-    if isinstance(value, int):
-        return "an integer"
-    if isinstance(value, float):
-        return "a number with a fraction"
-    if isinstance(value, str):
-        return "a string"
-    return "a list" if isinstance(value, list) else "an object"
-
-
 def _shown(value: object, loc: list[str | int]) -> str:
     """A rejected value as the user wrote it: a query parameter's number arrives as the text
     of the URL ("0.0"), which quoted would read as a string given where a number was due."""
@@ -329,7 +315,8 @@ def _validation_message(exc: RequestValidationError, route: object = None) -> st
                 parts.append(f"{name}: {cut(repr(value))} is a whole number written with a "
                              f"decimal point or an exponent; write it as an integer{use}")  # fmt: skip
         elif kind.endswith("_type"):
-            parts.append(f"{name}: {cut(repr(value))} is {_what_it_is(value)}, the wrong type{use}")
+            what = what_it_is(value, array="a list", table="an object")
+            parts.append(f"{name}: {cut(repr(value))} is {what}, the wrong type{use}")
         elif kind == "value_error":  # a validator of the model: its reason
             reason = cut(str(err.get("msg", "")).removeprefix("Value error, "), ERROR_MESSAGE_MAX)
             parts.append(f"{name}: {cut(repr(value))} is not valid ({reason}){use}")
