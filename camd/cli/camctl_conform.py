@@ -15,6 +15,7 @@ from collections.abc import Callable
 from typing import Any
 
 from rich.console import Console
+from rich.markup import escape
 
 from camd.client import CamdClient
 
@@ -53,7 +54,7 @@ def render_conform(out: Console, doc: Any, args: argparse.Namespace) -> None:
     verdict = "CONFORMS" if doc["conforms"] else "DOES NOT CONFORM"
     out.print(
         f"conformance: [{colour}]{verdict}[/]: {s['pass']} passed, {s['fail']} failed, "
-        f"{s['skipped']} skipped of {s['checks']}; report {doc['report']['html']}"
+        f"{s['skipped']} skipped of {s['checks']}; report {escape(doc['report']['html'])}"
     )
 
 

@@ -259,7 +259,11 @@ def _shown(value: object, loc: list[str | int]) -> str:
     return cut(value if loc[:1] == ["query"] and isinstance(value, str) else repr(value))
 
 
-def _validation_message(exc: RequestValidationError, route: object = None) -> str:
+def _validation_message(
+    exc: RequestValidationError,
+    route: object = None,
+    limit_now: Callable[[str], str] = lambda name: "",
+) -> str:
     """``"stages: 0 is out of range; use an integer in 1..4096"`` for each invalid parameter:
     the valid values read from the endpoint's own model (``valid_values``), with
     ``ALLOWED``'s explanation where the type and constraints do not say enough."""
@@ -304,7 +308,7 @@ def _validation_message(exc: RequestValidationError, route: object = None) -> st
                 f"not {cut(shown)}"
             )
         elif kind in ("greater_than_equal", "less_than_equal", "greater_than", "less_than"):
-            parts.append(f"{name}: {_shown(value, loc)} is out of range{use}")
+            parts.append(f"{name}: {_shown(value, loc)} is out of range{use}{limit_now(name)}")
         elif kind == "finite_number":
             parts.append(f"{name}: {_shown(value, loc)} is not a finite number{use}")
         elif kind == "int_type" and isinstance(value, float) and value.is_integer():
@@ -516,8 +520,24 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
 
     @app.exception_handler(RequestValidationError)
     async def on_validation_error(request: Request, exc: RequestValidationError) -> JSONResponse:
-        return error_response(
-            400, "bad_request", _validation_message(exc, request.scope.get("route"))
+        # In a worker thread: limit_now may ask the camera (never on the event loop).
+        route = request.scope.get("route")
+        message = await anyio.to_thread.run_sync(_validation_message, exc, route, limit_now)
+        return error_response(400, "bad_request", message)
+
+    def limit_now(name: str) -> str:
+        """A limit tighter than the field's own that holds now: the stages the window holds
+        (the field's 4096 is the largest window of any sensor)."""
+        if name != "stages":
+            return ""
+        try:
+            timing = session.sensor.timing()
+        except (SessionError, IllegalState):
+            return ""  # the camera cannot be asked: the field's own range stands
+        return (
+            f"; the sensor's window now has {timing.window_rows} rows, so at most "
+            f"{timing.max_stages} stages (M <= the window's rows, docs/physics.md §2 eq 13); "
+            "a scan sets the window from its line period"
         )
 
     @app.exception_handler(StarletteHTTPException)
