@@ -143,6 +143,13 @@ ROWS = [
           "give a campaign's name", "not a path", "[campaigns] dirs"), "campaign-file-path"),
     p(row("POST", "/campaigns/jobs", {"campaign": "../plans/long_stare"},
           "give a campaign's name", "not a path"), "campaign-dotdot-name"),
+    # issue 31: a job for another camera was accepted as running, failed 2 s later and held
+    # control for about a minute; now checked whole, the camera included, before it is accepted
+    p(row("POST", "/campaigns/jobs", {"campaign": "tdi_snr_stages", "quick": True},
+          "campaign 'tdi_snr_stages' is written for the ibis5 camera but the daemon simulates "
+          "hr400: run `camctl campaign run FILE --sim`, which starts a simulator with the "
+          'campaign\'s profile, or start the daemon with [sim] profile = "ibis5" and [sensor] '
+          'name = "ibis5"'), "campaign-for-another-camera"),
     p(row("POST", "/campaigns/jobs", {"campaign": "no_such_campaign"},
           "no campaign 'no_such_campaign' in the daemon's campaign directories",
           "example_stare"), "campaign-unknown-name"),
@@ -603,3 +610,20 @@ def test_what_cannot_start_during_a_scan_says_a_scan_runs_and_how_to_stop_it(
         "a scan is running: a campaign starts from its own baseline; stop it first with "
         "`camctl scan --stop`"
     ), campaign.text
+
+
+def test_a_campaign_job_for_another_camera_is_refused_before_it_exists(
+    daemon: tuple[str, CamdClient],
+) -> None:
+    """Refused at once, as `camctl campaign run` refuses it: no job, control free, idle."""
+    url, client = daemon
+    jobs_before = client.campaign_jobs()["jobs"]
+    with httpx.Client(base_url=url, timeout=120, headers={"X-Camd-Client": CLIENT}) as h:
+        answer = h.post(f"{API}/campaigns/jobs", json={"campaign": "mtf_mismatch"})
+    assert answer.status_code == 400, answer.text
+    assert answer.json()["error"].startswith(
+        "campaign 'mtf_mismatch' is written for the mt9m001 camera but the daemon simulates hr400"
+    ), answer.text
+    assert client.campaign_jobs()["jobs"] == jobs_before
+    status = client.status()
+    assert status["control"]["holder"] is None and status["state"] == "idle"
