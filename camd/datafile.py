@@ -179,8 +179,6 @@ _TYPE_WORDS = {
 }
 """What a value of each strict type is written as, by pydantic's error type."""
 
-_SHOWN_MAX = 80  # characters of a value quoted back in a message
-
 
 def wrong_type(kind: str, value: object) -> str | None:
     """A strict type's refusal (pydantic's error ``kind``) that says what was written and what
@@ -188,7 +186,7 @@ def wrong_type(kind: str, value: object) -> str | None:
     quotes``; None for other errors."""
     if kind not in _TYPE_WORDS:
         return None
-    return f"{_cut(repr(value))} is {what_it_is(value)}, the wrong type; write {_TYPE_WORDS[kind]}"
+    return f"{cut(repr(value))} is {what_it_is(value)}, the wrong type; write {_TYPE_WORDS[kind]}"
 
 
 def line_of(text: str, data: Mapping[str, Any], loc: Sequence[str | int]) -> int | None:
@@ -197,9 +195,30 @@ def line_of(text: str, data: Mapping[str, Any], loc: Sequence[str | int]) -> int
     return _Layout.of(text).line(_clean_loc(loc), data)
 
 
-def _cut(text: str) -> str:
-    """A value quoted in a message, cut short: a message is not as long as a bad value."""
-    return text if len(text) <= _SHOWN_MAX else f"{text[:_SHOWN_MAX]}... ({len(text)} characters)"
+SHOWN_MAX = 80  # characters of a value quoted back in an error message
+ERROR_MESSAGE_MAX = 2000  # characters: longer messages carry an echoed value (below)
+WORD_MAX = 100  # ... whose words longer than this are cut
+
+
+def cut(text: str, limit: int = SHOWN_MAX) -> str:
+    """``text``, or its first ``limit`` characters and how long it was: a value quoted in an
+    error (from a request, a file, an argument) must not make the error as large as itself."""
+    return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"
+
+
+def bounded(message: str) -> str:
+    """An error message at most about ERROR_MESSAGE_MAX characters long. Messages quote names,
+    paths and values given (a register, a file, a campaign's value); a message this long holds
+    such a value, and its long words are cut; a message still too long keeps its head and its
+    tail (what to do). The API's errors, camctl's, camd's and the simulator's pass through it."""
+    if len(message) <= ERROR_MESSAGE_MAX:
+        return message
+    message = re.sub(rf"\S{{{WORD_MAX + 1},}}", lambda m: cut(m.group(), WORD_MAX), message)
+    if len(message) <= ERROR_MESSAGE_MAX:
+        return message
+    head, tail = ERROR_MESSAGE_MAX * 3 // 4, ERROR_MESSAGE_MAX // 5
+    dropped = len(message) - head - tail
+    return f"{message[:head]} ... ({dropped} characters cut) ... {message[-tail:]}"
 
 
 def what_it_is(value: object, *, array: str = "an array", table: str = "a table") -> str:

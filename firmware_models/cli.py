@@ -20,7 +20,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from types import FrameType
 
-from camd.datafile import DataFileError
+from camd.datafile import DataFileError, bounded
 from camd.protocol import load_dictionary
 from camd.sensor.profile import list_profiles
 from firmware_models.defects import DEFECTS, Defects
@@ -188,7 +188,7 @@ def main(argv: list[str] | None = None, *, prog: str = "python -m firmware_model
             defects=Defects.parse(args.defect),
         )
     except DataFileError as exc:  # a config file: its file:line message says what to change
-        print(f"{prog}: error: {exc}", file=sys.stderr)
+        print(f"{prog}: error: {bounded(str(exc))}", file=sys.stderr)
         return 2
     if args.scene is not None:
         model.camera.set_scene(args.scene)

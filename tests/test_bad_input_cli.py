@@ -339,3 +339,25 @@ def test_camctl_prints_bracketed_text_from_the_daemon_as_it_is() -> None:
     for text in outputs:
         assert "[sim] profile" in text and "[sensor] name" in text, text
     assert "x[bold]y" in outputs[0], outputs[0]
+
+
+# -- issue 31: a 1 MB bad value is quoted cut, wherever it was written -----------------------------
+
+BIG = "x" * 1_000_000
+
+
+def test_a_megabyte_value_in_a_campaign_or_register_file_is_quoted_cut(
+    url: str, tmp_path: Path
+) -> None:
+    campaign = edited(tmp_path, lambda d: set_stare_frames(d, BIG))
+    registers = tmp_path / "regs.toml"
+    registers.write_text(f'sensor = "hr400"\n[registers]\nGAIN = "{BIG}"\n', encoding="utf-8")
+    for args, fragment in (
+        (["campaign", "run", str(campaign), "--out", str(tmp_path / "out"), "--quick"],
+         f"{campaign}: steps[2] (id 'dark').stare.frames: 'xxxx"),
+        (["reg", "load", str(registers)], f"{registers}: registers.GAIN = 'xxxx"),
+    ):  # fmt: skip
+        proc = camctl(url, *args)
+        refused(proc, 2, fragment, "... (100000")  # 1000002 or 3 characters: with quotes
+        assert len(proc.stderr) < 1000, len(proc.stderr)
+    assert tree(tmp_path) == ["bad.yaml", "regs.toml"]

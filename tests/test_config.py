@@ -293,6 +293,9 @@ CONFIG_ROWS = [
     ('[telemetry.limits.vcc_io_v]\nyellow = [3.2, 3.4]\nred = [3, "4"]\n',
      "{file}:3: telemetry.limits.vcc_io_v.red.1: '4' is a string, the wrong type; write a "
      "number, without quotes"),
+    ('[sim]\nscene = "' + "z" * 1_000_000 + '"\n',
+     "{file}:2: sim.scene: String should have at most 240 characters (got '" + "z" * 79
+     + "... (1000002 characters))"),
     ('[sim]\nprofile = "hr401"\n',
      "{file}:2: sim.profile: no camera profile 'hr401' (config/profiles/); give one of "
      "ftf5066, hr400, ibis5, mt9m001, uvccd"),
@@ -302,7 +305,7 @@ CONFIG_ROWS = [
 @pytest.mark.parametrize(
     ("text", "error"),
     CONFIG_ROWS,
-    ids=["port-string", "bool-for-number", "limit-string", "sim-profile"],
+    ids=["port-string", "bool-for-number", "limit-string", "megabyte-scene", "sim-profile"],
 )
 def test_camd_toml_is_strict_and_names_the_line(tmp_path: Path, text: str, error: str) -> None:
     assert error_of(tmp_path, text) == error.format(file=tmp_path / "camd.toml")

@@ -36,6 +36,7 @@ from camd.cli import (
 )
 from camd.cli.camctl_sensor import CommandFailed, NothingRunning, UsageError
 from camd.client import DEFAULT_URL, CamdClient, CamdError, DaemonUnreachable
+from camd.datafile import bounded
 
 EXIT_OK = 0
 EXIT_API_ERROR = 1
@@ -302,7 +303,8 @@ def _show(out: Console, doc: Any, args: argparse.Namespace) -> None:
 
 
 def _error(message: str) -> None:
-    print(f"camctl: error: {message}", file=sys.stderr)
+    # Bounded: a message quotes what it refuses (a value of a file, an argument), cut short.
+    print(f"camctl: error: {bounded(message)}", file=sys.stderr)
 
 
 def _silence_stdout() -> None:

@@ -13,7 +13,7 @@ import importlib
 import sys
 
 import camd
-from camd.datafile import DataFileError
+from camd.datafile import DataFileError, bounded
 
 # subcommand -> module providing add_parser() and run()
 _SUBCOMMANDS = {
@@ -58,7 +58,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(module.run(args))
     except DataFileError as exc:  # a config or data file: file:line says what to change
-        print(f"camd {args.command}: error: {exc}", file=sys.stderr)
+        print(f"camd {args.command}: error: {bounded(str(exc))}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("camd: interrupted", file=sys.stderr)

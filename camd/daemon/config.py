@@ -29,7 +29,7 @@ from pydantic import (
     model_validator,
 )
 
-from camd.datafile import line_of, wrong_type
+from camd.datafile import cut, line_of, wrong_type
 from camd.paths import config_dir
 from camd.protocol import load_dictionary
 from camd.sensor.profile import list_profiles
@@ -242,6 +242,7 @@ class SimSection(_Section):
 
     scene: str = Field(
         default="",
+        max_length=240,  # as the API's scene: a spec, not a payload for the simulator's argv
         description="scene in front of the simulated camera, e.g. 'bars:lux=3'; empty = the "
         "simulator's default flat field (docs/simulator.md lists the scene specs)",
     )
@@ -771,11 +772,11 @@ def format_errors(
         if strict is not None:
             msg = strict
         elif kind == "literal_error" and "expected" in ctx:
-            msg = f"{err['input']!r} is not allowed; use {ctx['expected']}"
+            msg = f"{cut(repr(err['input']))} is not allowed; use {ctx['expected']}"
         elif kind in _BOUND_ERRORS:
             bounds = _allowed_range(loc)
-            msg = f"{err['input']!r} is out of range; allowed: {bounds or msg}"
+            msg = f"{cut(repr(err['input']))} is out of range; allowed: {bounds or msg}"
         elif kind not in ("value_error", "missing"):
-            msg = f"{msg} (got {err['input']!r})"
+            msg = f"{msg} (got {cut(repr(err['input']))})"
         lines.append(f"{where}: {key}: {msg}")
     return "\n".join(lines)
