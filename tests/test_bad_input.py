@@ -325,6 +325,17 @@ ROWS = [
           "use true or false"), "stage-move-wait-integer"),
     p(row("POST", "/motion/home", {"wait": "true"}, "wait: 'true' is a string",
           "use true or false"), "stage-home-wait-string"),
+    # issue 31, numbers turned into counts: a move so slow its duration passes MOTOR_MOVE's
+    # (a 502 from the device), a speed whose step rate rounds to 0 ("the maximum": it moved)
+    p(row("POST", "/motion/move", {"position_m": 0.35, "speed_m_s": 1e-9},
+          "a move of 50 mm at 1e-09 m/s would take 5e+07 s, longer than the 4294.97 s a move "
+          "may take; give at least 1.16e-05 m/s"), "stage-move-longer-than-the-driver-counts"),
+    p(row("POST", "/motion/move", {"position_m": 0.3, "speed_m_s": 1e-30},
+          "stage speed 1e-30 m/s is below the slowest the driver takes, 1.56e-09 m/s (0.001 "
+          "steps/s); give at least that"), "stage-move-rate-rounds-to-zero"),
+    p(row("POST", "/motion/run", {"speed_m_s": -1e-12},
+          "stage speed -1e-12 m/s is below the slowest the driver takes"),
+      "stage-run-rate-rounds-to-zero"),
     p(row("POST", "/motion/move", {"position_m": "0.2"}, "position_m: '0.2' is a string",
           "a number in -100..100"), "stage-move-string"),
     p(row("POST", "/motion/move", {"position_m": 5}, "outside the soft limits [0.0, 1.2] m",
