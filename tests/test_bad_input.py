@@ -638,3 +638,25 @@ def test_a_campaign_job_for_another_camera_is_refused_before_it_exists(
     assert client.campaign_jobs()["jobs"] == jobs_before
     status = client.status()
     assert status["control"]["holder"] is None and status["state"] == "idle"
+
+
+def test_a_path_with_dotdot_is_resolved_before_the_check_and_echoed_resolved(
+    daemon: tuple[str, CamdClient], tmp_path: Path
+) -> None:
+    """issue 31 listed an absolute record path with `..` accepted and echoed as given: the
+    daemon resolves it first (confined to the allowed directories), writes and answers the
+    resolved path, as camctl prints it."""
+    from tests.test_camctl import camctl
+
+    url, _ = daemon
+    (tmp_path / "sub").mkdir()
+    given = f"{tmp_path}/sub/../stare.h5"
+    with httpx.Client(base_url=url, timeout=120, headers={"X-Camd-Client": CLIENT}) as h:
+        answer = h.post(f"{API}/stream/acquire", json={"frames": 2, "record": given})
+    assert answer.status_code == 200, answer.text
+    assert answer.json()["recording"] == str(tmp_path / "stare.h5")
+    proc = camctl(url, "--json", "--client", CLIENT, "stare", "--frames", "2", "--out",
+                  f"{tmp_path}/sub/../camctl.h5")  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout)["out"] == str(tmp_path / "camctl.h5"), proc.stdout
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["camctl.h5", "stare.h5", "sub"]
