@@ -9,6 +9,7 @@ camera reads the same files.
 
 from __future__ import annotations
 
+import difflib
 import re
 import tomllib
 import types
@@ -54,7 +55,7 @@ class KeyedError(ValueError):
 class Sourced(BaseModel, Generic[T]):
     """A value with its provenance: exactly one of ``source`` or ``assumed``."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
 
     value: T = Field(description="the value, in the unit the key's name gives")
     source: str | None = Field(default=None, description="where the value comes from")
@@ -132,7 +133,8 @@ def located(
     """A validation error of the data file ``path`` (``text``, parsed into ``data``, validated
     as ``model``) as ``error``: ``file:line: where: message[; hint]``.
 
-    The first of pydantic's errors is reported. ``where`` is its location, dotted
+    The first of pydantic's errors is reported (an unknown key before the others: a misspelt
+    key is also missing). ``where`` is its location, dotted
     (``channels.2.band``); an entry of an array listed in ``named`` is called by its ``name``
     key instead, through the format given (``{"registers": "register {}"}`` gives
     ``register GAIN: width: ...``). A ``KeyedError`` shows its own message after its label. The
@@ -145,15 +147,18 @@ def located(
     layout = _Layout.of(text)
     if isinstance(exc, KeyedError):
         return _keyed(exc, (), path, layout, data, model, error, named)
-    first = exc.errors()[0]
+    errors = exc.errors()
+    # A misspelt key is also a missing one: the unknown key is the cause, and says what to fix.
+    first = next((e for e in errors if e["type"] == "extra_forbidden"), errors[0])
     loc = _clean_loc(first["loc"])
     cause = first.get("ctx", {}).get("error")
     if isinstance(cause, KeyedError):
         return _keyed(cause, loc, path, layout, data, model, error, named)
     message = str(first["msg"]).removeprefix("Value error, ")
+    kind = str(first["type"])
+    message = wrong_type(kind, first.get("input")) or message
     if not loc:
         return error(path, None, message)
-    kind = str(first["type"])
     if kind == "model_type":  # "... instance of Sourced[Annotated[float, FieldInfo(...)]]"
         message = re.sub(r"(instance of \w+)\[.*\]$", r"\1", message)
     segments = _segments(loc, data, model, named)
@@ -161,6 +166,77 @@ def located(
         segments.pop()
     where = "".join(f"{segment}: " for segment in segments)
     return error(path, layout.line(loc, data), f"{where}{message}{_hint(model, loc, kind)}")
+
+
+_TYPE_WORDS = {
+    "int_type": "an integer, without quotes",
+    "float_type": "a number, without quotes",
+    "string_type": "a string, in quotes",
+    "bool_type": "true or false, without quotes",
+    "list_type": "an array, [...]",
+    "tuple_type": "an array, [...]",
+    "dict_type": "a table, { ... }",
+}
+"""What a value of each strict type is written as, by pydantic's error type."""
+
+
+def wrong_type(kind: str, value: object) -> str | None:
+    """A strict type's refusal (pydantic's error ``kind``) that says what was written and what
+    to write instead, e.g. ``'8423' is a string, the wrong type; write an integer, without
+    quotes``; None for other errors."""
+    if kind not in _TYPE_WORDS:
+        return None
+    return f"{cut(repr(value))} is {what_it_is(value)}, the wrong type; write {_TYPE_WORDS[kind]}"
+
+
+def line_of(text: str, data: Mapping[str, Any], loc: Sequence[str | int]) -> int | None:
+    """The line of the TOML text ``text`` (parsed into ``data``) where the place pydantic's
+    ``loc`` names is written (see ``located``)."""
+    return _Layout.of(text).line(_clean_loc(loc), data)
+
+
+SHOWN_MAX = 80  # characters of a value quoted back in an error message
+ERROR_MESSAGE_MAX = 2000  # characters: longer messages carry an echoed value (below)
+WORD_MAX = 100  # ... whose words longer than this are cut
+
+
+def cut(text: str, limit: int = SHOWN_MAX) -> str:
+    """``text``, or its first ``limit`` characters and how long it was: a value quoted in an
+    error (from a request, a file, an argument) must not make the error as large as itself."""
+    return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"
+
+
+def bounded(message: str) -> str:
+    """An error message at most about ERROR_MESSAGE_MAX characters long. Messages quote names,
+    paths and values given (a register, a file, a campaign's value); a message this long holds
+    such a value, and its long words are cut; a message still too long keeps its head and its
+    tail (what to do). The API's errors, camctl's, camd's and the simulator's pass through it."""
+    if len(message) <= ERROR_MESSAGE_MAX:
+        return message
+    message = re.sub(rf"\S{{{WORD_MAX + 1},}}", lambda m: cut(m.group(), WORD_MAX), message)
+    if len(message) <= ERROR_MESSAGE_MAX:
+        return message
+    head, tail = ERROR_MESSAGE_MAX * 3 // 4, ERROR_MESSAGE_MAX // 5
+    dropped = len(message) - head - tail
+    return f"{message[:head]} ... ({dropped} characters cut) ... {message[-tail:]}"
+
+
+def what_it_is(value: object, *, array: str = "an array", table: str = "a table") -> str:
+    """A parsed value's type, in words: TOML's (or YAML's) names for arrays and tables by
+    default; the API calls them a list and an object."""
+    if value is None:
+        return "null"
+    if isinstance(value, bool):
+        return "a boolean"
+    if isinstance(value, int):
+        return "an integer"
+    if isinstance(value, float):
+        return "a number with a fraction"
+    if isinstance(value, str):
+        return "a string"
+    if isinstance(value, list):
+        return array
+    return table if isinstance(value, dict) else "a value"
 
 
 def _clean_loc(loc: Sequence[str | int]) -> Loc:
@@ -250,7 +326,9 @@ def _hint(model: type[BaseModel], loc: Loc, kind: str) -> str:
     if kind == "extra_forbidden":
         parent = _type_at(model, loc[:-1])
         if isinstance(parent, type) and issubclass(parent, BaseModel):
-            return f"; known keys: {', '.join(parent.model_fields)}"
+            close = difflib.get_close_matches(key, list(parent.model_fields), n=1)
+            meant = f"; did you mean `{close[0]}`?" if close else ""
+            return f"{meant}; known keys: {', '.join(parent.model_fields)}"
     if kind == "model_type":
         expected = _type_at(model, loc)
         if _is_model(expected, Sourced):

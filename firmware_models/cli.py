@@ -20,6 +20,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from types import FrameType
 
+from camd.datafile import DataFileError, bounded
 from camd.protocol import load_dictionary
 from camd.sensor.profile import list_profiles
 from firmware_models.defects import DEFECTS, Defects
@@ -176,15 +177,19 @@ def main(argv: list[str] | None = None, *, prog: str = "python -m firmware_model
     usb_path: Path | None = (
         Path(os.path.abspath(args.usb_socket)) if args.usb_socket is not None else None
     )
-    model = FpgaModel(
-        load_dictionary(),
-        seed=args.seed,
-        power_on_s=time.monotonic(),
-        injector=FaultInjector(inject, seed=args.seed),
-        sensor=args.profile,
-        stage=args.stage,
-        defects=Defects.parse(args.defect),
-    )
+    try:
+        model = FpgaModel(
+            load_dictionary(),
+            seed=args.seed,
+            power_on_s=time.monotonic(),
+            injector=FaultInjector(inject, seed=args.seed),
+            sensor=args.profile,
+            stage=args.stage,
+            defects=Defects.parse(args.defect),
+        )
+    except DataFileError as exc:  # a config file: its file:line message says what to change
+        print(f"{prog}: error: {bounded(str(exc))}", file=sys.stderr)
+        return 2
     if args.scene is not None:
         model.camera.set_scene(args.scene)
     if args.frame_bank < 0:

@@ -143,6 +143,13 @@ ROWS = [
           "give a campaign's name", "not a path", "[campaigns] dirs"), "campaign-file-path"),
     p(row("POST", "/campaigns/jobs", {"campaign": "../plans/long_stare"},
           "give a campaign's name", "not a path"), "campaign-dotdot-name"),
+    # issue 31: a job for another camera was accepted as running, failed 2 s later and held
+    # control for about a minute; now checked whole, the camera included, before it is accepted
+    p(row("POST", "/campaigns/jobs", {"campaign": "tdi_snr_stages", "quick": True},
+          "campaign 'tdi_snr_stages' is written for the ibis5 camera but the daemon simulates "
+          "hr400: run `camctl campaign run FILE --sim`, which starts a simulator with the "
+          'campaign\'s profile, or start the daemon with [sim] profile = "ibis5" and [sensor] '
+          'name = "ibis5"'), "campaign-for-another-camera"),
     p(row("POST", "/campaigns/jobs", {"campaign": "no_such_campaign"},
           "no campaign 'no_such_campaign' in the daemon's campaign directories",
           "example_stare"), "campaign-unknown-name"),
@@ -177,6 +184,12 @@ ROWS = [
           "an integer in 1..100000"), "ping-count-numeric-string"),
     p(row("POST", "/ping", {"count": 2.5}, "count: 2.5 is a number with a fraction",
           "an integer in 1..100000"), "ping-count-fraction"),
+    # issue 31: a whole number beyond the range is out of range, not "a number with a fraction"
+    p(row("POST", "/ping", {"count": 1e20}, "count: 1e+20 is out of range",
+          "an integer in 1..100000"), "ping-count-1e20"),
+    p(row("POST", "/ping", {"count": 3.0}, "count: 3.0 is a whole number written with a "
+          "decimal point or an exponent; write it as an integer", "an integer in 1..100000"),
+      "ping-count-whole-float"),
     p(row("POST", "/ping", {"size": 257}, "size: 257 is out of range",
           "an integer in 0..256 (bytes)"), "ping-size-too-big"),
     p(row("POST", "/ping", {"size": -1}, "an integer in 0..256"), "ping-size-negative"),
@@ -248,6 +261,18 @@ ROWS = [
     p(row("POST", "/scan/start", scan(line_period_s=None, speed_m_s=NAN),
           "speed_m_s: nan is not a finite number", "more than 0 and at most 10"),
       "scan-speed-nan"),
+    # issue 31, a held-out fuzz case: a subnormal speed was a 500 (an infinite line period)
+    p(row("POST", "/scan/start", scan(line_period_s=None, speed_m_s=5e-324),
+          "speed_m_s: 5e-324 is not valid (5e-324 is too small to compute with: a subnormal "
+          "number, below 2.23e-308", "null or a number more than 0 and at most 10"),
+      "scan-speed-subnormal"),
+    p(row("POST", "/scan/start", scan(line_period_s=None, speed_m_s=2.3e-308),
+          "speed_m_s: 2.3e-308 m/s is too slow: it gives a TDI line period of 4.783e+303 s, "
+          "longer than the 10 s a scan takes; give at least 1.1e-05 m/s"),
+      "scan-speed-smallest-normal"),
+    p(row("POST", "/scan/start", scan(line_period_s=None, speed_m_s=1e-300),
+          "speed_m_s: 1e-300 m/s is too slow: it gives a TDI line period of ",
+          "longer than the 10 s a scan takes; give at least "), "scan-speed-tiny"),
     p(row("POST", "/scan/start", scan(line_period_s=0), "line_period_s: 0 is out of range",
           "null or a number more than 0 and at most 10"), "scan-line-period-zero"),
     p(row("POST", "/scan/start", scan(line_period_s=INF),
@@ -300,6 +325,17 @@ ROWS = [
           "use true or false"), "stage-move-wait-integer"),
     p(row("POST", "/motion/home", {"wait": "true"}, "wait: 'true' is a string",
           "use true or false"), "stage-home-wait-string"),
+    # issue 31, numbers turned into counts: a move so slow its duration passes MOTOR_MOVE's
+    # (a 502 from the device), a speed whose step rate rounds to 0 ("the maximum": it moved)
+    p(row("POST", "/motion/move", {"position_m": 0.35, "speed_m_s": 1e-9},
+          "a move of 50 mm at 1e-09 m/s would take 5e+07 s, longer than the 4294.97 s a move "
+          "may take; give at least 1.16e-05 m/s"), "stage-move-longer-than-the-driver-counts"),
+    p(row("POST", "/motion/move", {"position_m": 0.3, "speed_m_s": 1e-30},
+          "stage speed 1e-30 m/s is below the slowest the driver takes, 1.56e-09 m/s (0.001 "
+          "steps/s); give at least that"), "stage-move-rate-rounds-to-zero"),
+    p(row("POST", "/motion/run", {"speed_m_s": -1e-12},
+          "stage speed -1e-12 m/s is below the slowest the driver takes"),
+      "stage-run-rate-rounds-to-zero"),
     p(row("POST", "/motion/move", {"position_m": "0.2"}, "position_m: '0.2' is a string",
           "a number in -100..100"), "stage-move-string"),
     p(row("POST", "/motion/move", {"position_m": 5}, "outside the soft limits [0.0, 1.2] m",
@@ -425,6 +461,7 @@ def daemon(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[str, Camd
 
 
 def test_the_table_covers_every_field_family() -> None:
+    """... and the table grows: issue 31 added its inputs."""
     assert len(ROWS) >= 120
 
 
@@ -471,3 +508,155 @@ def test_moving_a_homing_stage_is_a_400_not_the_devices_nak(
     finally:
         client.stop_stage()
         client.move_stage(0.3)  # back where the table's rows expect it
+
+
+# -- issue 31: numbers that overflow or underflow what they are turned into, as a class ----------
+
+
+def _json_types(schema: dict[str, Any]) -> set[str]:
+    """The JSON types an OpenAPI property takes (``anyOf`` members included)."""
+    members = schema.get("anyOf", [schema])
+    return {str(m.get("type")) for m in members if "type" in m}
+
+
+def _request_properties(url: str) -> list[tuple[str, str, str, set[str]]]:
+    """(method, path, property, its JSON types) of every request body of the API."""
+    spec = httpx.get(f"{url}/openapi.json", timeout=60).json()
+    schemas = spec["components"]["schemas"]
+    found = []
+    for path, operations in spec["paths"].items():
+        for method, operation in operations.items():
+            body = (operation.get("requestBody", {}).get("content", {})
+                    .get("application/json", {}).get("schema", {}))  # fmt: skip
+            refs = [m["$ref"] for m in body.get("anyOf", [body]) if "$ref" in m]
+            if not refs:
+                continue
+            model = schemas[refs[0].rsplit("/", 1)[1]]
+            for name, prop in model.get("properties", {}).items():
+                found.append((method.upper(), path, name, _json_types(prop)))
+    return found
+
+
+def test_every_number_field_refuses_what_would_overflow_or_underflow(
+    daemon: tuple[str, CamdClient],
+) -> None:
+    """Every number of every request body, sent alone as 5e-324 (subnormal), +-1e308 (its
+    products overflow), inf and nan; every integer as 1e20: a 400 naming the field and what
+    to give, never a 500; the device unchanged."""
+    url, client = daemon
+    before = snapshot(client)
+    properties = _request_properties(url)
+    numbers = [p for p in properties if "number" in p[3]]
+    integers = [p for p in properties if "integer" in p[3] and "number" not in p[3]]
+    assert len(numbers) >= 20 and len(integers) >= 15, (numbers, integers)
+    cases = [(p, v) for p in numbers for v in (5e-324, -5e-324, 1e308, -1e308, INF, NAN)]
+    cases += [(p, 1e20) for p in integers]
+    unclear = []
+    with httpx.Client(base_url=url, timeout=60, headers={"X-Camd-Client": CLIENT}) as h:
+        for (method, path, name, _), value in cases:
+            response = h.request(
+                method, path, content=json.dumps({name: value}),
+                headers={"Content-Type": "application/json"},
+            )  # fmt: skip
+            error = response.json().get("error", "") if response.status_code == 400 else ""
+            shown = f"{name}: {value!r}"
+            why = (
+                "too small to compute with",
+                "is out of range",
+                "is not a finite number",
+                "write it as an integer",
+            )  # an integer field with no upper bound
+            if (
+                response.status_code != 400
+                or shown not in error
+                or not any(w in error for w in why)
+            ):
+                unclear.append((method, path, name, value, response.status_code, response.text))
+    assert unclear == [], "\n".join(map(str, unclear))
+    assert snapshot(client) == before
+
+
+def test_a_405_names_the_allowed_methods_in_its_body_and_allow_header(
+    daemon: tuple[str, CamdClient],
+) -> None:
+    url, _ = daemon
+    with httpx.Client(base_url=url, timeout=60, headers={"X-Camd-Client": CLIENT}) as h:
+        for method, path, allowed in (
+            ("DELETE", "/ping", "POST"),
+            ("GET", "/ping", "POST"),
+            ("POST", "/status", "GET"),
+            ("POST", "/control/activity", "PUT"),
+            ("PATCH", "/control", "DELETE, GET, POST"),
+        ):
+            response = h.request(method, f"{API}{path}")
+            assert response.status_code == 405, response.text
+            assert response.headers["Allow"] == allowed
+            doc = response.json()
+            assert doc["code"] == "method_not_allowed"
+            assert doc["error"] == (
+                f"{method} is not allowed on {API}{path}; use "
+                f"{allowed.replace(', ', ' or ')} (see /docs)"
+            )
+
+
+def test_what_cannot_start_during_a_scan_says_a_scan_runs_and_how_to_stop_it(
+    daemon: tuple[str, CamdClient], tmp_path: Path
+) -> None:
+    """issue 31: `stream --frames 5` during a scan said "cannot start a stare"; the campaign
+    start suggested `camctl stream stop`, a usage error."""
+    url, client = daemon
+    client.start_scan(4, 0, drive_stage=False, line_period_s=3e-3, out=str(tmp_path / "s.h5"))
+    try:
+        with httpx.Client(base_url=url, timeout=60, headers={"X-Camd-Client": CLIENT}) as h:
+            stare = h.post(f"{API}/stream/acquire", json={"frames": 5})
+            campaign = h.post(f"{API}/campaigns/jobs", json={"campaign": "example_stare"})
+    finally:
+        client.stop_scan()
+    assert stare.status_code == 409, stare.text
+    assert stare.json()["error"].startswith(
+        "cannot take frames (`camctl stream --frames N`, `camctl stare`): a scan is running (M "
+    ), stare.text
+    assert stare.json()["error"].endswith("stop it with `camctl scan --stop`"), stare.text
+    assert campaign.json()["error"] == (
+        "a scan is running: a campaign starts from its own baseline; stop it first with "
+        "`camctl scan --stop`"
+    ), campaign.text
+
+
+def test_a_campaign_job_for_another_camera_is_refused_before_it_exists(
+    daemon: tuple[str, CamdClient],
+) -> None:
+    """Refused at once, as `camctl campaign run` refuses it: no job, control free, idle."""
+    url, client = daemon
+    jobs_before = client.campaign_jobs()["jobs"]
+    with httpx.Client(base_url=url, timeout=120, headers={"X-Camd-Client": CLIENT}) as h:
+        answer = h.post(f"{API}/campaigns/jobs", json={"campaign": "mtf_mismatch"})
+    assert answer.status_code == 400, answer.text
+    assert answer.json()["error"].startswith(
+        "campaign 'mtf_mismatch' is written for the mt9m001 camera but the daemon simulates hr400"
+    ), answer.text
+    assert client.campaign_jobs()["jobs"] == jobs_before
+    status = client.status()
+    assert status["control"]["holder"] is None and status["state"] == "idle"
+
+
+def test_a_path_with_dotdot_is_resolved_before_the_check_and_echoed_resolved(
+    daemon: tuple[str, CamdClient], tmp_path: Path
+) -> None:
+    """issue 31 listed an absolute record path with `..` accepted and echoed as given: the
+    daemon resolves it first (confined to the allowed directories), writes and answers the
+    resolved path, as camctl prints it."""
+    from tests.test_camctl import camctl
+
+    url, _ = daemon
+    (tmp_path / "sub").mkdir()
+    given = f"{tmp_path}/sub/../stare.h5"
+    with httpx.Client(base_url=url, timeout=120, headers={"X-Camd-Client": CLIENT}) as h:
+        answer = h.post(f"{API}/stream/acquire", json={"frames": 2, "record": given})
+    assert answer.status_code == 200, answer.text
+    assert answer.json()["recording"] == str(tmp_path / "stare.h5")
+    proc = camctl(url, "--json", "--client", CLIENT, "stare", "--frames", "2", "--out",
+                  f"{tmp_path}/sub/../camctl.h5")  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout)["out"] == str(tmp_path / "camctl.h5"), proc.stdout
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["camctl.h5", "stare.h5", "sub"]

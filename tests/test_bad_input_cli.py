@@ -221,6 +221,23 @@ CAMCTL_ROWS = [
     (["stages", "0"], 2, ["stages must be at least 1"]),
     (["sync", "--speed-m-s", "0"], 1,
      ["speed_m_s: 0.0 is out of range; use null or a number more than 0 and at most 10"]),
+    # issue 31: a unit written after the number, the limit that holds now, a stop of nothing
+    (["stage", "move", "100mm"], 2,
+     ["argument X: '100mm' is not a number: give the distance in metres, without a unit, e.g. "
+      "0.1 for 100 mm"]),
+    (["stage", "move", "0.3", "--speed-m-s", "5mm/s"], 2,
+     ["argument --speed-m-s: '5mm/s' is not a number: give the speed in m/s, without a unit, "
+      "e.g. 0.005 for 5 mm/s"]),
+    (["stream", "--frames", "2", "--stages", "5000"], 1,
+     ["stages: 5000 is out of range; use null or an integer in 0..4096; the sensor's window now "
+      "has 534 rows, so at most 534 stages (M <= the window's rows"]),
+    (["scan", "--stages", "5000", "--lines", "5", "--no-stage"], 1,
+     ["stages: 5000 is out of range; use an integer in 1..4096; the sensor's window now has 534 "
+      "rows, so at most 534 stages"]),
+    (["scan", "--stop"], 1,
+     ["nothing was running: no scan to stop (`camctl scan --status` shows the last one)"]),
+    (["stream", "--stop"], 1,
+     ["nothing was running: no stream to stop (`camctl stream --status` shows the last one)"]),
 ]  # fmt: skip
 
 
@@ -273,3 +290,74 @@ def test_serve_unusable_data_dir_exits_2(tmp_path: Path, under: str) -> None:
     assert len(proc.stderr.strip().splitlines()) == 1, proc.stderr
     assert proc.stdout == ""
     assert tree(tmp_path) == ["F"]
+
+
+# -- issue 31: what the daemon says is printed as it is, never read as rich markup ------------------
+
+MARKUP_LIKE = 'start the daemon with [sim] profile = "hr400" and [sensor] name = "hr400"'
+
+
+def test_camctl_prints_bracketed_text_from_the_daemon_as_it_is() -> None:
+    """rich took "[sim]" and "[sensor]" for markup and dropped them ("start the daemon with
+    profile = ..."): every renderer that shows a text the daemon sent (a job's message, a
+    reason, an event, a scan's error, a stream that ended early, a loop error) keeps them."""
+    import argparse
+    import io
+
+    from rich.console import Console
+
+    from camd.cli import camctl, camctl_campaign, camctl_scan, camctl_stream
+
+    def shown(render: Any, *args: Any) -> str:
+        buffer = io.StringIO()
+        render(Console(file=buffer, width=400, highlight=False, soft_wrap=False), *args)
+        return buffer.getvalue()
+
+    job = {"id": 1, "campaign": "x[bold]y", "quick": False, "state": "error", "steps": 12,
+           "done": None, "run_time_s": 2.0, "runs": 1, "started_by": "me", "out_dir": "/d",
+           "message": MARKUP_LIKE, "report": None}  # fmt: skip
+    event = {"t_s": 0.0, "level": "error", "source": "campaign", "message": MARKUP_LIKE}
+    outputs = [
+        shown(camctl_campaign._render_job, job),
+        shown(lambda out: out.print(camctl.events_table({"events": [event]}))),
+        shown(lambda out: out.print(camctl.cell(MARKUP_LIKE))),
+    ]
+    scan_doc = {"state": "failed", "lost_frames": 0, "stream": {"overruns": 0}, "lines": 1,
+                "complete_lines": 1, "stages": 4, "mode": "sum", "width": 4, "timing": None,
+                "lines_per_s": 1.0, "elapsed_s": 1.0, "cpu_load": 0.1, "tdi_cpu_s": 0.1,
+                "mismatch_level": "ok", "mismatch_max": None, "mismatch_rms": None,
+                "motion": {"stage_speed_m_s": 0.01, "closed_loop": True, "loop_samples": 1,
+                           "loop_error": MARKUP_LIKE},
+                "stage_changes": [[0, 4]], "file": "/d/s.h5", "quicklook": None,
+                "error": MARKUP_LIKE}  # fmt: skip
+    outputs.append(shown(camctl_scan.render_scan, scan_doc, argparse.Namespace()))
+    stream_doc = {"mode": "area", "rows": 4, "cols": 4, "bits": 12, "binning": "off",
+                  "stages": None, "frame_period_s": 1e-3, "streaming": False, "frames": 1,
+                  "lost": 0, "corrupt": 0, "short": 0, "overruns": 0, "stalls": 0,
+                  "mpix_per_s": 1.0, "mbyte_per_s": 1.0, "ended_early": MARKUP_LIKE}  # fmt: skip
+    outputs.append(shown(camctl_stream.render_stream, stream_doc, argparse.Namespace()))
+    for text in outputs:
+        assert "[sim] profile" in text and "[sensor] name" in text, text
+    assert "x[bold]y" in outputs[0], outputs[0]
+
+
+# -- issue 31: a 1 MB bad value is quoted cut, wherever it was written -----------------------------
+
+BIG = "x" * 1_000_000
+
+
+def test_a_megabyte_value_in_a_campaign_or_register_file_is_quoted_cut(
+    url: str, tmp_path: Path
+) -> None:
+    campaign = edited(tmp_path, lambda d: set_stare_frames(d, BIG))
+    registers = tmp_path / "regs.toml"
+    registers.write_text(f'sensor = "hr400"\n[registers]\nGAIN = "{BIG}"\n', encoding="utf-8")
+    for args, fragment in (
+        (["campaign", "run", str(campaign), "--out", str(tmp_path / "out"), "--quick"],
+         f"{campaign}: steps[2] (id 'dark').stare.frames: 'xxxx"),
+        (["reg", "load", str(registers)], f"{registers}: registers.GAIN = 'xxxx"),
+    ):  # fmt: skip
+        proc = camctl(url, *args)
+        refused(proc, 2, fragment, "... (100000")  # 1000002 or 3 characters: with quotes
+        assert len(proc.stderr) < 1000, len(proc.stderr)
+    assert tree(tmp_path) == ["bad.yaml", "regs.toml"]

@@ -279,3 +279,91 @@ def test_a_daemon_with_the_warm_up_loads_the_tdi_kernels_at_start(tmp_path: Path
     ):
         client.wait_ready(60.0)
     assert "TDI kernels" not in (cold / "daemon.log").read_text()
+
+
+# -- issue 31: config and data files strict about types, file:line errors, no traceback --------
+
+CONFIG_ROWS = [
+    # (camd.toml text, the whole error)
+    ('[api]\nport = "8423"\n',
+     "{file}:2: api.port: '8423' is a string, the wrong type; write an integer, without quotes"),
+    ("[daemon]\n\n[sim]\nhk_period_s = true\n",
+     "{file}:4: sim.hk_period_s: True is a boolean, the wrong type; write a number, without "
+     "quotes"),
+    ('[telemetry.limits.vcc_io_v]\nyellow = [3.2, 3.4]\nred = [3, "4"]\n',
+     "{file}:3: telemetry.limits.vcc_io_v.red.1: '4' is a string, the wrong type; write a "
+     "number, without quotes"),
+    ('[sim]\nscene = "' + "z" * 1_000_000 + '"\n',
+     "{file}:2: sim.scene: String should have at most 240 characters (got '" + "z" * 79
+     + "... (1000002 characters))"),
+    ('[sim]\nprofile = "hr401"\n',
+     "{file}:2: sim.profile: no camera profile 'hr401' (config/profiles/); give one of "
+     "ftf5066, hr400, ibis5, mt9m001, uvccd"),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("text", "error"),
+    CONFIG_ROWS,
+    ids=["port-string", "bool-for-number", "limit-string", "megabyte-scene", "sim-profile"],
+)
+def test_camd_toml_is_strict_and_names_the_line(tmp_path: Path, text: str, error: str) -> None:
+    assert error_of(tmp_path, text) == error.format(file=tmp_path / "camd.toml")
+
+
+def _broken_copy(tmp_path: Path, file: str, old: str, new: str) -> Path:
+    """camd, its simulator and config/ copied to ``tmp_path`` (run from there, they read that
+    config/), with ``old`` replaced by ``new`` once in ``config/<file>``."""
+    import shutil
+
+    root = Path(__file__).resolve().parents[1]
+    for name in ("camd", "firmware_models", "config"):
+        shutil.copytree(root / name, tmp_path / name,
+                        ignore=shutil.ignore_patterns("__pycache__", "_data"))  # fmt: skip
+    path = tmp_path / "config" / file
+    text = path.read_text(encoding="utf-8")
+    assert old in text
+    path.write_text(text.replace(old, new, 1), encoding="utf-8")
+    return tmp_path
+
+
+BROKEN_FILES = [
+    # (file, text replaced, by, the error's start, what it says)
+    ("profiles/hr400.toml", "\ncolumns = ", "\ncolums = ", "config/profiles/hr400.toml:15: ",
+     "colums: Extra inputs are not permitted; did you mean `columns`?; known keys: profile, "),
+    ("profiles/hr400.toml", "\ncolumns = ", "\n# columns = ", "config/profiles/hr400.toml: ",
+     'columns: Field required; add `columns = { value = ..., source = "..." }`'),
+    ("profiles/hr400.toml", "columns = { value = 2048,", 'columns = { value = "2048",',
+     "config/profiles/hr400.toml:15: ",
+     "columns.value: '2048' is a string, the wrong type; write an integer, without quotes"),
+    ("protocol.toml", "opcode = 0x01", "opcod = 0x01", "config/protocol.toml:78: ",
+     "command PING: opcod: Extra inputs are not permitted; did you mean `opcode`?"),
+    ("protocol.toml", "opcode = 0x01", 'opcode = "0x01"', "config/protocol.toml:78: ",
+     "command PING: opcode: '0x01' is a string, the wrong type; write an integer, without "
+     "quotes"),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(("file", "old", "new", "where", "what"), BROKEN_FILES,
+                         ids=["profile-typo", "profile-missing-key", "profile-string-columns",
+                              "protocol-typo", "protocol-opcode-string"])  # fmt: skip
+def test_a_broken_data_file_stops_the_simulator_and_daemon_with_file_line_no_traceback(
+    tmp_path: Path, file: str, old: str, new: str, where: str, what: str
+) -> None:
+    """issue 31: 22 lines of simulator traceback (a profile), 44 of raw pydantic text
+    (protocol.toml); now one line each that says where and what to change, exit status 2."""
+    import subprocess
+    import sys
+
+    root = _broken_copy(tmp_path / "tree", file, old, new)
+    data = tmp_path / "data"
+    for argv in ([sys.executable, "-m", "firmware_models", "--profile", "hr400"],
+                 [sys.executable, "-m", "camd", "serve", "--sim", "--port", "0",
+                  "--data-dir", str(data)]):  # fmt: skip
+        proc = subprocess.run(argv, cwd=root, capture_output=True, text=True, timeout=120,
+                              env={"PATH": "/usr/bin:/bin", "PYTHONPATH": str(root)},
+                              check=False)  # fmt: skip
+        assert proc.returncode == 2, (argv, proc.stderr)
+        assert "Traceback" not in proc.stderr, proc.stderr
+        line = next(x for x in proc.stderr.splitlines() if f"{root}/{where}" in x)
+        assert f"{root}/{where}{what}" in line, proc.stderr

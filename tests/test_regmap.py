@@ -261,8 +261,16 @@ CORRUPTIONS = [
         "hr400",
         'width = 16\naccess = "rw"\nreset = 757',
         'width = "wide"\naccess = "rw"\nreset = 757',
-        "register WIN_START: width: Input should be a valid integer, unable to parse string as "
-        "an integer",
+        "register WIN_START: width: 'wide' is a string, the wrong type; write an integer, "
+        "without quotes",
+    ),
+    (  # issue 31: strict types, a number in quotes is not taken as one
+        "a number in quotes",
+        "hr400",
+        'width = 16\naccess = "rw"\nreset = 757',
+        'width = "16"\naccess = "rw"\nreset = 757',
+        "register WIN_START: width: '16' is a string, the wrong type; write an integer, "
+        "without quotes",
     ),
 ]
 

@@ -218,3 +218,44 @@ def test_apply_reports_an_undo_that_fails_and_wraps_unexpected_errors() -> None:
         "stare start failed: OSError: no space left on device; could NOT restore: "
         "mode area (link down) (check them by hand)"
     )
+
+
+def test_a_driven_scan_until_stopped_runs_until_the_travel_ends(tmp_path: Path) -> None:
+    """issue 31: `scan --lines 0` (documented "until stopped") was refused as needing 2389.8 mm
+    of travel (a minute planned); it now takes the frames the travel between the soft limits
+    holds, and says so: it ends done there unless stopped first."""
+    period = 3e-3
+    plan = plan_scan(
+        ScanRequest(stages=4, lines=0, line_period_s=period), _context(tmp_path, stage=_stage())
+    )
+    speed = PITCH_M / (MAG * plan.timing.tdi_line_period_s)
+    ramps = speed**2 / LIMITS.accel_m_s2
+    frames = math.floor(((1.2 / 1.05 - ramps) / speed - 2.0) / plan.timing.tdi_line_period_s)
+    assert plan.frames == frames > 9000
+    assert plan.stage is not None and plan.stage.travel_m <= 1.2
+    assert plan.stage.rewind_to_m == 0.0  # from the low end: the whole travel
+    assert plan.notes[-1] == (
+        f"until stopped: the stage's travel (1200.0 mm between the soft limits, at "
+        f"{speed * 1e3:.6g} mm/s) holds {frames - 3} lines; the scan ends there (state done) "
+        "unless it is stopped first (state stopped)"
+    )
+    # Without a driven stage it runs until stopped, as before.
+    free = plan_scan(
+        ScanRequest(stages=4, lines=0, line_period_s=period, drive_stage=False), _context(tmp_path)
+    )
+    assert free.frames == 0
+
+
+def test_a_scan_until_stopped_with_travel_for_no_line_is_refused(tmp_path: Path) -> None:
+    short = StageContext(kind="linear", position_m=0.01, state="idle", loop_mode="step_rate",
+                         limits=StageLimits(low_m=0.0, high_m=0.05, max_speed_m_s=0.1,
+                                            accel_m_s2=0.5),
+                         image_scale=MAG, encoder_counts_per_m=1e6)  # fmt: skip
+    with pytest.raises(BadRequest) as info:
+        plan_scan(ScanRequest(stages=4, lines=0, line_period_s=3e-3),
+                  _context(tmp_path, stage=short))  # fmt: skip
+    assert str(info.value) == (
+        "a scan until stopped at 36.67 mm/s: the soft limits leave 50.0 mm of travel, not enough "
+        "for one complete line of 4 stages; scan slower (a longer line period), or widen "
+        "stage.low_limit_m / high_limit_m"
+    )

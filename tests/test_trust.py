@@ -119,7 +119,10 @@ def test_requests_that_would_disturb_a_scan_are_refused_naming_it(url: str, tmp_
                 (lambda: client.set_mode("area"), "cannot change the imaging mode"),
                 (lambda: client.reset(), "cannot reset the camera"),
                 (lambda: client.write_registers({"EXPOSURE": 3}), "cannot write sensor registers"),
-                (lambda: client.acquire(3), "cannot start a stare"),
+                (
+                    lambda: client.acquire(3),
+                    "cannot take frames (`camctl stream --frames N`, `camctl stare`)",
+                ),
                 (lambda: client.start_scan(4, 5, drive_stage=False), "cannot start a scan"),
                 (lambda: client.move_stage(0.2), "cannot move the stage"),
             ):

@@ -218,6 +218,30 @@ def spec_digest(spec: CampaignSpec, quick: bool, source: str | None = None) -> s
     return hashlib.sha256(text.encode()).hexdigest()
 
 
+def check_camera(
+    client: CamdClient, spec: CampaignSpec, on_sim: Callable[[], bool] | None = None
+) -> None:
+    """CampaignError unless the daemon's sensor is the campaign's profile (physics differ per
+    sensor). ``on_sim`` says whether the daemon drives the simulated camera (None: ask it).
+    The runner checks this before its first step; a daemon's campaign job before it is
+    accepted (``camd.campaign.worker check --url``)."""
+    sensor = client.timing()["sensor"]
+    if sensor == spec.profile:
+        return
+    simulated = on_sim() if on_sim is not None else client.status()["link"].get("sim_pid")
+    if simulated:
+        raise CampaignError(
+            f"campaign {spec.name!r} is written for the {spec.profile} camera but the daemon "
+            f"simulates {sensor}: run `camctl campaign run FILE --sim`, which starts a "
+            f"simulator with the campaign's profile, or start the daemon with [sim] profile = "
+            f'"{spec.profile}" and [sensor] name = "{spec.profile}"'
+        )
+    raise CampaignError(
+        f"campaign {spec.name!r} is written for the {spec.profile} sensor; the camera on this "
+        f"daemon has a {sensor}: refusing to run it on another sensor"
+    )
+
+
 class CampaignRunner:
     """Runs ``spec`` through ``client`` into ``out_dir`` (see the module docstring).
 
@@ -752,22 +776,7 @@ class CampaignRunner:
             )
 
     def _check_camera(self) -> None:
-        """The daemon's sensor must be the campaign's profile (physics differ per sensor)."""
-        sensor = self.client.timing()["sensor"]
-        if sensor == self.spec.profile:
-            return
-        if self._on_sim():
-            raise CampaignError(
-                f"campaign {self.spec.name!r} is written for the {self.spec.profile} camera but "
-                f"the daemon simulates {sensor}: run `camctl campaign run FILE --sim`, which "
-                f"starts a simulator with the campaign's profile, or start the daemon with "
-                f'[sim] profile = "{self.spec.profile}" and [sensor] name = '
-                f'"{self.spec.profile}"'
-            )
-        raise CampaignError(
-            f"campaign {self.spec.name!r} is written for the {self.spec.profile} sensor; the "
-            f"camera on this daemon has a {sensor}: refusing to run it on another sensor"
-        )
+        check_camera(self.client, self.spec, self._on_sim)
 
     def _stop_device(self) -> None:
         # Best effort after Ctrl-C: leave no stream or scan running behind us.

@@ -100,7 +100,7 @@ class CampaignError(ValueError):
 
 
 class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
 
 
 # -- steps ------------------------------------------------------------------------------------

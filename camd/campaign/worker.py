@@ -1,13 +1,14 @@
 """The worker of a daemon's campaign job (docs/campaigns.md, "Campaign jobs").
 
-    python -m camd.campaign.worker check FILE [--quick]
+    python -m camd.campaign.worker check FILE [--quick] [--url URL]
     python -m camd.campaign.worker run --url URL --job N --run K --file FILE --out DIR [--quick]
 
 The daemon (``camd.daemon.campaign_jobs``) starts it; nobody else needs to.
 
 ``check`` loads and checks a campaign without running it and prints ``{"file", "campaign",
 "profile", "steps"}`` as JSON; a campaign that cannot be run exits 2 with the reason as the
-last line on stderr.
+last line on stderr. With ``--url`` it also checks the camera of the daemon there, as the
+runner does before its first step (the sensor must be the campaign's profile).
 
 ``run`` runs the campaign into DIR through the daemon's API at URL (the token in
 ``$CAMD_TOKEN``, the client name in ``$CAMD_CLIENT``), resuming from DIR's state file if it
@@ -38,6 +39,7 @@ from camd.campaign.runner import (
     CampaignInterrupted,
     CampaignPaused,
     CampaignRunner,
+    check_camera,
 )
 from camd.campaign.spec import CampaignError
 from camd.client import CamdClient, CamdError, DaemonUnreachable
@@ -52,6 +54,7 @@ def main(argv: list[str] | None = None) -> int:
     check = sub.add_parser("check")
     check.add_argument("file")
     check.add_argument("--quick", action="store_true")
+    check.add_argument("--url", help="also check the camera of the daemon there (its sensor)")
     run = sub.add_parser("run")
     run.add_argument("--url", required=True)
     run.add_argument("--job", type=int, required=True)
@@ -61,15 +64,18 @@ def main(argv: list[str] | None = None) -> int:
     run.add_argument("--quick", action="store_true")
     args = parser.parse_args(argv)
     if args.command == "check":
-        return _check(args.file, args.quick)
+        return _check(args.file, args.quick, args.url)
     return _run(args)
 
 
-def _check(file: str, quick: bool) -> int:
+def _check(file: str, quick: bool, url: str | None) -> int:
     try:
         loaded = load_any(file, quick=quick)
         steps = loaded.steps(quick)
-    except CampaignError as exc:
+        if url is not None:  # the job is checked whole: the camera it would run on too
+            with CamdClient(url, timeout_s=30.0) as client:
+                check_camera(client, loaded.spec)
+    except (CampaignError, CamdError) as exc:
         print(str(exc).replace("\n", " "), file=sys.stderr)
         return 2
     doc = {

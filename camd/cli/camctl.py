@@ -34,8 +34,9 @@ from camd.cli import (
     camctl_stream,
     camctl_wheel,
 )
-from camd.cli.camctl_sensor import CommandFailed, UsageError
+from camd.cli.camctl_sensor import CommandFailed, NothingRunning, UsageError
 from camd.client import DEFAULT_URL, CamdClient, CamdError, DaemonUnreachable
+from camd.datafile import bounded
 
 EXIT_OK = 0
 EXIT_API_ERROR = 1
@@ -274,6 +275,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except UsageError as exc:
         _error(str(exc))
         return EXIT_USAGE
+    except NothingRunning as exc:
+        _error(str(exc))
+        return EXIT_API_ERROR
     except DaemonUnreachable as exc:
         _error(exc.message)
         return EXIT_UNREACHABLE
@@ -299,7 +303,8 @@ def _show(out: Console, doc: Any, args: argparse.Namespace) -> None:
 
 
 def _error(message: str) -> None:
-    print(f"camctl: error: {message}", file=sys.stderr)
+    # Bounded: a message quotes what it refuses (a value of a file, an argument), cut short.
+    print(f"camctl: error: {bounded(message)}", file=sys.stderr)
 
 
 def _silence_stdout() -> None:
@@ -384,6 +389,12 @@ _COMMANDS: dict[str, Callable[[CamdClient, argparse.Namespace], Any]] = {
 # -- human output ---------------------------------------------------------------------------------
 
 
+def cell(value: Any) -> Text:
+    """A table cell holding a value the daemon sent: text, never read as rich markup (a reason
+    or an event that says "[sim] profile = ..." keeps its brackets)."""
+    return Text(fmt_value(value))
+
+
 def fmt_value(value: Any) -> str:
     """A compact human form of a JSON value (6 significant digits for floats)."""
     if value is None:
@@ -451,7 +462,7 @@ def status_table(doc: dict[str, Any], title: str | None = "camd status") -> Tabl
     table = _kv_table(title)
     table.add_row("state", state_text(doc.get("state")))
     if doc.get("reason"):
-        table.add_row("reason", fmt_value(doc.get("reason")))
+        table.add_row("reason", cell(doc.get("reason")))
     table.add_row("mode", fmt_value(doc.get("mode")))
     link = doc.get("link") or {}
     connected = link.get("connected")
@@ -485,7 +496,7 @@ def status_table(doc: dict[str, Any], title: str | None = "camd status") -> Tabl
         table.add_row("device", "-")
     daemon = doc.get("daemon") or {}
     for key, value in daemon.items():
-        table.add_row(f"daemon.{key}", fmt_value(value))
+        table.add_row(f"daemon.{key}", cell(value))
     if isinstance(doc.get("estop"), dict) and doc["estop"].get("latched"):
         table.add_row("EMERGENCY STOP", estop_text(doc["estop"]))
     if isinstance(doc.get("control"), dict):
@@ -504,7 +515,7 @@ def status_table(doc: dict[str, Any], title: str | None = "camd status") -> Tabl
     }  # fmt: skip
     for key, value in doc.items():
         if key not in listed:
-            table.add_row(key, fmt_value(value))
+            table.add_row(key, cell(value))
     return table
 
 
@@ -523,7 +534,7 @@ def ping_table(doc: dict[str, Any], title: str | None = "ping") -> Table:
         table.add_row(f"rtt {key}", shown)
     for key, value in doc.items():
         if key not in {"count", "ok", "failed", "retries", "rtt_ms", "errors"}:
-            table.add_row(key, fmt_value(value))
+            table.add_row(key, cell(value))
     return table
 
 
@@ -548,7 +559,7 @@ def link_table(doc: dict[str, Any], title: str | None = "command link counters")
     device_doc = doc.get("device")
     device = _flatten(device_doc) if isinstance(device_doc, dict) else [("(disconnected)", None)]
     for (hk, hv), (dk, dv) in zip_longest(host, device, fillvalue=("", "")):
-        table.add_row(hk, fmt_value(hv) if hk else "", dk, fmt_value(dv) if dk else "")
+        table.add_row(hk, cell(hv) if hk else "", dk, cell(dv) if dk else "")
     return table
 
 
@@ -606,8 +617,8 @@ def events_table(doc: dict[str, Any], title: str | None = "events") -> Table:
         table.add_row(
             fmt_time(event.get("t_s")),
             Text(level, style=LEVEL_STYLE.get(level.lower(), "")),
-            fmt_value(event.get("source")),
-            fmt_value(event.get("message")),
+            cell(event.get("source")),
+            cell(event.get("message")),
         )
     if not doc.get("events"):
         table.caption = "no events"

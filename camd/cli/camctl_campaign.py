@@ -34,6 +34,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from camd.client import CamdClient
@@ -330,7 +331,7 @@ def _follow(client: CamdClient, job: Any) -> Any:
 
     err = Console(stderr=True, highlight=False)
     with Progress(
-        TextColumn(f"[bold]job {job['id']} {job['campaign']}[/]"), BarColumn(),
+        TextColumn(f"[bold]job {job['id']} {escape(job['campaign'])}[/]"), BarColumn(),
         MofNCompleteColumn(), TextColumn("{task.description}"), TimeElapsedColumn(),
         console=err,
     ) as bar:  # fmt: skip
@@ -348,7 +349,7 @@ class RichProgress:
 
     def __init__(self, console: Console, name: str) -> None:
         self._bar = Progress(
-            TextColumn(f"[bold]{name}[/]"), BarColumn(), MofNCompleteColumn(),
+            TextColumn(f"[bold]{escape(name)}[/]"), BarColumn(), MofNCompleteColumn(),
             TextColumn("{task.description}"), TimeElapsedColumn(), console=console,
             transient=False,
         )  # fmt: skip
@@ -389,7 +390,7 @@ def render_campaign(out: Console, doc: Any, args: argparse.Namespace) -> None:
 
     if "campaigns" in doc:
         if not doc["campaigns"]:
-            out.print(f"no campaigns in {campaigns_dir()}")
+            out.print(f"no campaigns in {campaigns_dir()}", markup=False)
             return
         table = Table(
             title="shipped campaigns: steps and measured run times (simulated camera), full "
@@ -420,8 +421,8 @@ def render_campaign(out: Console, doc: Any, args: argparse.Namespace) -> None:
         return
     colour = "green" if doc["passed"] else "red"
     out.print(
-        f"campaign {doc['campaign']}: [{colour}]{'PASSED' if doc['passed'] else 'FAILED'}[/]; "
-        f"report {doc['report']}"
+        f"campaign {escape(doc['campaign'])}: [{colour}]{'PASSED' if doc['passed'] else 'FAILED'}"
+        f"[/]; report {escape(str(doc['report']))}"
     )
 
 
@@ -431,14 +432,15 @@ def _render_job(out: Console, job: Any) -> None:
     steps = "" if job["steps"] is None else f" of {job['steps']}"
     done = "" if job.get("done") is None else f", step {job['done']}{steps} done"
     out.print(
-        f"job {job['id']} [bold]{job['campaign']}[/]{' (quick)' if job['quick'] else ''}: "
+        f"job {job['id']} [bold]{escape(job['campaign'])}[/]{' (quick)' if job['quick'] else ''}: "
         f"[{colour}]{job['state']}[/]{done}, {_seconds(job['run_time_s'])} run "
-        f"({job['runs']} run(s)), started by {job['started_by']}; {job['out_dir']}"
+        f"({job['runs']} run(s)), started by {escape(job['started_by'])}; "
+        f"{escape(job['out_dir'])}"
     )
     if job.get("message"):
-        out.print(f"  {job['message']}")
+        out.print(f"  {job['message']}", markup=False)  # "[sim] profile = ...": not markup
     if job.get("report"):
-        out.print(f"  report {job['report']}")
+        out.print(f"  report {job['report']}", markup=False)
 
 
 RENDER: dict[str, Callable[[Console, Any, argparse.Namespace], None]] = {

@@ -24,9 +24,10 @@ from collections.abc import Callable
 from typing import Any
 
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, Progress, TaskProgressColumn, TextColumn
 
-from camd.cli.camctl_stream import count_arg, finite_number
+from camd.cli.camctl_stream import count_arg, finite_number, si_number
 from camd.client import CamdClient
 from camd.client_types import MotionStatus, StageOperationModel
 
@@ -54,9 +55,9 @@ def add_parsers(command: Callable[[str, str], argparse.ArgumentParser]) -> None:
 
     p = command("stage", "the scan stage: status, enable, run, move, stop, home, estop")
     p.add_argument("action", nargs="?", default="status", choices=STAGE_ACTIONS)
-    p.add_argument("value", nargs="?", type=finite_number, metavar="X",
+    p.add_argument("value", nargs="?", type=si_number, metavar="X",
                    help="run: speed in m/s (signed); move: position in m from home")  # fmt: skip
-    p.add_argument("--speed-m-s", type=finite_number, metavar="V", help="move: cruise speed")
+    p.add_argument("--speed-m-s", type=si_number, metavar="V", help="move: cruise speed")
     p.add_argument("--no-wait", action="store_true", help="move/home: answer at once")
 
 
@@ -167,7 +168,7 @@ def render_sync(out: Console, doc: Any, args: argparse.Namespace) -> None:
     table = f" (table {angular:.6g} rad/s)" if angular is not None else ""
     out.print(
         f"synchronous stage speed {doc['sync_speed'] * 1e3:.6g} mm/s{table}, step rate "
-        f"{doc['step_rate_hz']:.6g} Hz ({doc['stage_profile']}, image scale "
+        f"{doc['step_rate_hz']:.6g} Hz ({escape(doc['stage_profile'])}, image scale "
         f"{doc['image_scale']:g}, image {doc['image_speed_m_s'] * 1e3:.6g} mm/s)"
     )
     colour = "green" if doc["tolerance_ok"] else "red"
@@ -181,7 +182,7 @@ def render_stage(out: Console, doc: Any, args: argparse.Namespace) -> None:
     r, lim = doc["reading"], doc["limits"]
     colour = "red" if r["state"] == "estop" else "green"
     out.print(
-        f"stage {doc['profile']} ({doc['kind']}): [{colour}]{r['state']}[/]"
+        f"stage {escape(doc['profile'])} ({doc['kind']}): [{colour}]{r['state']}[/]"
         f"{', homed' if r['homed'] else ', not homed'}"
         f"{'' if r['at_limit'] == 'none' else ', at the ' + r['at_limit'] + ' limit'}"
     )

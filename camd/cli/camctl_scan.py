@@ -28,10 +28,16 @@ from pathlib import Path
 from typing import Any
 
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
 from camd.cli.camctl_sensor import CommandFailed, UsageError
-from camd.cli.camctl_stream import count_arg, daemon_file, finite_number
+from camd.cli.camctl_stream import (
+    count_arg,
+    daemon_file,
+    finite_number,
+    refuse_a_stop_of_nothing,
+)
 from camd.client import CamdClient
 from camd.client_types import ScanResponse
 
@@ -107,6 +113,7 @@ def flat(doc: ScanResponse) -> dict[str, Any]:
 
 def cmd_scan(client: CamdClient, args: argparse.Namespace) -> Any:
     if args.stop:
+        refuse_a_stop_of_nothing(client, ("scan",), "camctl scan --status")
         return flat(client.stop_scan())
     if args.status:
         return flat(client.scan())
@@ -186,7 +193,7 @@ def _follow(client: CamdClient, doc: ScanResponse) -> ScanResponse:
                 bar.update(task, completed=doc["lines"], rate=rate)
     except KeyboardInterrupt:
         doc = client.stop_scan()
-        err.print(f"scan stopped: {doc['lines']} lines in {doc['file']}")
+        err.print(f"scan stopped: {doc['lines']} lines in {doc['file']}", markup=False)
         raise
     return doc
 
@@ -242,16 +249,17 @@ def render_scan(out: Console, doc: Any, args: argparse.Namespace) -> None:
             f"[{colour}]M |dV/V| {numbers} pixels ({level})[/]"
         )
         if motion["loop_error"]:
-            out.print(f"[yellow]{motion['loop_error']}[/]")
+            out.print(f"[yellow]{escape(motion['loop_error'])}[/]")
     if len(doc["stage_changes"]) > 1:
         changes = ", ".join(f"line {i}: M = {m}" for i, m in doc["stage_changes"])
-        out.print(f"stage changes: {changes}")
+        out.print(f"stage changes: {changes}", markup=False)
     if doc["file"]:
         out.print(
-            f"file {doc['file']}" + (f", quicklook {doc['quicklook']}" if doc["quicklook"] else "")
+            f"file {doc['file']}" + (f", quicklook {doc['quicklook']}" if doc["quicklook"] else ""),
+            markup=False,
         )
     if doc.get("error"):
-        out.print(f"[red]error: {doc['error']}[/]")
+        out.print(f"[red]error: {escape(doc['error'])}[/]")
 
 
 RENDER: dict[str, Callable[[Console, Any, argparse.Namespace], None]] = {

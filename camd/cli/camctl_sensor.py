@@ -23,6 +23,7 @@ from typing import Any
 
 from rich import box
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from camd.client import CamdClient
@@ -43,6 +44,10 @@ class CommandFailed(Exception):
 
 class UsageError(Exception):
     """A bad argument found after parsing (e.g. an unreadable FILE): exit 2."""
+
+
+class NothingRunning(Exception):
+    """A stop with nothing to stop: said so (not the last one shown as if just stopped), exit 1."""
 
 
 def _assignment(text: str) -> tuple[str, int | str]:
@@ -196,7 +201,7 @@ def render_reg(out: Console, doc: Any, args: argparse.Namespace) -> None:
         )
     elif action == "diff":
         if not doc["differences"]:
-            out.print(f"no differences from {doc['against']}")
+            out.print(f"no differences from {doc['against']}", markup=False)
             return
         table = Table(title=f"differences from {doc['against']}", box=box.SIMPLE_HEAD)
         for column in ("address", "name", "expected", "actual"):
@@ -206,7 +211,10 @@ def render_reg(out: Console, doc: Any, args: argparse.Namespace) -> None:
                           f"0x{d['actual']:04X}")  # fmt: skip
         out.print(table)
     elif action == "save":
-        out.print(f"saved {len(doc['registers'])} {doc['sensor']} registers to {doc['file']}")
+        out.print(
+            f"saved {len(doc['registers'])} {doc['sensor']} registers to {doc['file']}",
+            markup=False,
+        )
     elif action == "load":
         out.print(register_table(f"loaded into {doc['sensor']} (read back)", doc["written"]))
 
@@ -240,7 +248,8 @@ def render_train(out: Console, doc: Any, args: argparse.Namespace) -> None:
         return
     verdict = "[bold green]trained[/]" if doc["trained"] else "[bold red]NOT trained[/]"
     out.print(
-        f"{doc['sensor']} {doc['interface']} link: {verdict}; {doc['locked_lanes']}/{doc['lanes']}"
+        f"{escape(doc['sensor'])} {doc['interface']} link: {verdict}; "
+        f"{doc['locked_lanes']}/{doc['lanes']}"
         f" lanes locked, {doc['bit_errors']} bit errors in {doc['verified_bits']} PRBS bits"
     )
     if doc["lane_results"]:

@@ -24,13 +24,15 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import re
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from rich.console import Console
+from rich.markup import escape
 
-from camd.cli.camctl_sensor import CommandFailed, UsageError
+from camd.cli.camctl_sensor import CommandFailed, NothingRunning, UsageError
 from camd.client import CamdClient
 from camd.client_types import StreamResponse
 
@@ -47,6 +49,25 @@ def count_arg(text: str) -> int:
     if value < 0:
         raise argparse.ArgumentTypeError(f"{text!r} is not a whole number >= 0")
     return value
+
+
+_WITH_UNIT = re.compile(r"\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*([a-zµ/]+)\s*")
+_TO_SI = {"m": 1.0, "cm": 1e-2, "mm": 1e-3, "um": 1e-6, "µm": 1e-6, "m/s": 1.0,
+          "cm/s": 1e-2, "mm/s": 1e-3, "um/s": 1e-6, "µm/s": 1e-6}  # fmt: skip
+
+
+def si_number(text: str) -> float:
+    """argparse type: a finite number in the SI unit the option names, written without one;
+    ``100mm`` is refused with the number to give instead (0.1)."""
+    match = _WITH_UNIT.fullmatch(text)
+    if match is not None and match.group(2) in _TO_SI:
+        value = float(match.group(1)) * _TO_SI[match.group(2)]
+        what = "speed in m/s" if match.group(2).endswith("/s") else "distance in metres"
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is not a number: give the {what}, without a unit, e.g. {value:g} for "
+            f"{match.group(1)} {match.group(2)}"
+        )
+    return finite_number(text)
 
 
 def finite_number(text: str) -> float:
@@ -150,8 +171,19 @@ def flat(doc: StreamResponse) -> dict[str, Any]:
     return out
 
 
+def refuse_a_stop_of_nothing(client: CamdClient, kinds: tuple[str, ...], show: str) -> None:
+    """NothingRunning unless an acquisition of one of ``kinds`` runs: the daemon's stop answers
+    the last one, which would read as if it had just been stopped."""
+    running = client.status().get("acquisition")
+    if running is None or not running["running"] or running["kind"] not in kinds:
+        raise NothingRunning(f"nothing was running: no {kinds[0]} to stop (`{show}` shows the "
+                             "last one)")  # fmt: skip
+
+
 def cmd_stream(client: CamdClient, args: argparse.Namespace) -> Any:
     if args.stop:
+        # What `stream --stop` stops: any acquisition but a scan (`camctl scan --stop`).
+        refuse_a_stop_of_nothing(client, ("stream", "stare", "wheel"), "camctl stream --status")
         return flat(client.stop_stream())
     if args.status:
         return flat(client.stream())
@@ -235,7 +267,7 @@ def render_stream(out: Console, doc: Any, args: argparse.Namespace) -> None:
         f"{doc['mode'] or '-'} mode, {doc['rows']} x {doc['cols']} x {doc['bits']} bit"
         f"{binned}{stages}, frame period {doc['frame_period_s'] * 1e3:.4g} ms"
     )
-    out.print(f"stream {state}: {geometry}")
+    out.print(f"stream {state}: {geometry}", markup=False)
     bad = doc["lost"] + doc["corrupt"] + doc["overruns"] + doc.get("frames_not_sent", 0)
     colour = "red" if bad else "green"
     not_sent = f", {doc['frames_not_sent']} not sent" if doc.get("frames_not_sent") else ""
@@ -246,14 +278,14 @@ def render_stream(out: Console, doc: Any, args: argparse.Namespace) -> None:
         f"{doc['mbyte_per_s']:.1f} MB/s"
     )
     if doc.get("ended_early"):
-        out.print(f"[red]ended early: {doc['ended_early']}[/]")
+        out.print(f"[red]ended early: {escape(doc['ended_early'])}[/]")
     if doc.get("out") or doc.get("recording"):
-        out.print(f"recorded to {doc.get('out') or doc.get('recording')}")
+        out.print(f"recorded to {doc.get('out') or doc.get('recording')}", markup=False)
 
 
 def render_sim(out: Console, doc: Any, args: argparse.Namespace) -> None:
     if args.sim_command == "scene":
-        out.print(f"scene set: {doc['scene']}")
+        out.print(f"scene set: {doc['scene']}", markup=False)
     elif args.sim_command == "stage":
         sync = doc["sync_speed_m_s"]
         dv = (doc["speed_m_s"] - sync) / sync if sync else 0.0
@@ -266,7 +298,7 @@ def render_sim(out: Console, doc: Any, args: argparse.Namespace) -> None:
             "stage faults: " + ", ".join(f"{k} {v:g}" for k, v in doc["stage_faults"].items())
         )
     else:
-        out.print(", ".join(f"{k} {v}" for k, v in doc.items()))
+        out.print(", ".join(f"{k} {v}" for k, v in doc.items()), markup=False)
 
 
 RENDER: dict[str, Callable[[Console, Any, argparse.Namespace], None]] = {

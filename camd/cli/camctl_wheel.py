@@ -22,6 +22,7 @@ from typing import Any
 
 from rich import box
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
@@ -229,7 +230,7 @@ def _exposure_lines(out: Console, e: dict[str, Any]) -> None:
         f"ms, T_delay = {e['delay_s'] * 1e3:.6g} ms"
     )
     if not e["fits"]:
-        out.print(f"[red]does not fit:[/] {e['refusal']}")
+        out.print(f"[red]does not fit:[/] {escape(e['refusal'])}")
         return
     out.print(
         f"compensation {'on' if e['compensated'] else 'off'}: delay after the entry pulse "
@@ -261,7 +262,7 @@ def _render_status(out: Console, doc: dict[str, Any]) -> None:
     channel = doc["channel"]
     at = "between channels" if channel is None else f"channel {channel}"
     out.print(
-        f"wheel {doc['wheel']}: {turning}, angle {doc['angle_deg']:.4f} deg ({at}); "
+        f"wheel {escape(doc['wheel'])}: {turning}, angle {doc['angle_deg']:.4f} deg ({at}); "
         f"compensation [bold]{'on' if doc['compensation'] else 'off'}[/]"
     )
     out.print(
@@ -305,7 +306,7 @@ def _render_acquire(out: Console, doc: dict[str, Any]) -> None:
     recording = doc["stream"]["recording"]
     out.print(
         f"[{colour}]{len(doc['frames'])} of {doc['stream']['frames_requested']} frames, "
-        f"{stats['lost']} lost[/]" + (f"; recorded to {recording}" if recording else "")
+        f"{stats['lost']} lost[/]" + (f"; recorded to {escape(recording)}" if recording else "")
     )
 
 

@@ -13,6 +13,7 @@ import importlib
 import sys
 
 import camd
+from camd.datafile import DataFileError, bounded
 
 # subcommand -> module providing add_parser() and run()
 _SUBCOMMANDS = {
@@ -56,6 +57,9 @@ def main(argv: list[str] | None = None) -> int:
     module = importlib.import_module(_SUBCOMMANDS[args.command])
     try:
         return int(module.run(args))
+    except DataFileError as exc:  # a config or data file: file:line says what to change
+        print(f"camd {args.command}: error: {bounded(str(exc))}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         print("camd: interrupted", file=sys.stderr)
         return 130

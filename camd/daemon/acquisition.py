@@ -24,6 +24,10 @@ STOP_COMMANDS: dict[str, str] = {
     "stream": "`camctl stream --stop`",
     "wheel": "`camctl stream --stop`",
 }
+START_WORDS: dict[str, str] = {
+    # A stare is what `camctl stream --frames N` starts: name what the user typed.
+    "stare": "take frames (`camctl stream --frames N`, `camctl stare`)",
+}
 
 
 @dataclass(slots=True)
@@ -90,7 +94,7 @@ class AcquisitionSlot:
         with self._lock:
             running = self.active
             if running is not None:
-                raise Busy(running.busy_message(f"start a {kind}"))
+                raise Busy(running.busy_message(START_WORDS.get(kind, f"start a {kind}")))
             acquisition = Acquisition(kind, description, _CLIENT.get())
             self._previous = self._current
             self._current = acquisition

@@ -17,6 +17,7 @@ from collections.abc import Awaitable, Callable, Iterable
 from typing import Any, Union, get_args, get_origin
 from urllib.parse import urlencode
 
+import annotated_types
 import anyio
 from fastapi import Depends, FastAPI, Header, Query, Request, WebSocket, WebSocketDisconnect
 from fastapi.exceptions import RequestValidationError
@@ -36,6 +37,7 @@ from prometheus_client.registry import Collector, CollectorRegistry
 from pydantic import BaseModel
 from pydantic.fields import FieldInfo
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.routing import Match
 
 import camd
 from camd import web
@@ -132,6 +134,7 @@ from camd.daemon.request_guard import API, RequestGuard
 from camd.daemon.session import DeviceSession
 from camd.daemon.state import IllegalState, State
 from camd.daemon.telemetry import Level, classify
+from camd.datafile import what_it_is
 
 log = logging.getLogger(__name__)
 
@@ -229,19 +232,29 @@ def _parameter(route: object, loc: list[str | int]) -> FieldInfo | None:
     return field
 
 
-def _what_it_is(value: object) -> str:
-    """The JSON type of a refused value, in words."""
-    if value is None:
-        return "null"
-    if isinstance(value, bool):
-        return "a boolean"
-    if isinstance(value, int):
-        return "an integer"
-    if isinstance(value, float):
-        return "a number with a fraction"
-    if isinstance(value, str):
-        return "a string"
-    return "a list" if isinstance(value, list) else "an object"
+def _outside(field: FieldInfo | None, value: float) -> bool:
+    """Whether ``value`` lies beyond the bounds ``field`` sets (unknown bounds: no)."""
+    for item in field.metadata if field is not None else ():
+        if isinstance(item, annotated_types.Ge | annotated_types.Gt):
+            low = item.ge if isinstance(item, annotated_types.Ge) else item.gt
+            if value < low:  # type: ignore[operator]
+                return True
+        elif isinstance(item, annotated_types.Le | annotated_types.Lt):
+            high = item.le if isinstance(item, annotated_types.Le) else item.lt
+            if value > high:  # type: ignore[operator]
+                return True
+    return False
+
+
+def _allowed_methods(app: FastAPI, request: Request) -> list[str]:
+    """The methods the routes of the request's path answer (for a 405 and its Allow header)."""
+    methods: set[str] = set()
+    for route in app.router.routes:
+        match, _ = route.matches({**request.scope, "method": "GET"})
+        route_methods = getattr(route, "methods", None)
+        if match != Match.NONE and route_methods:
+            methods.update(route_methods)
+    return sorted(methods)
 
 
 def _shown(value: object, loc: list[str | int]) -> str:
@@ -250,7 +263,11 @@ def _shown(value: object, loc: list[str | int]) -> str:
     return cut(value if loc[:1] == ["query"] and isinstance(value, str) else repr(value))
 
 
-def _validation_message(exc: RequestValidationError, route: object = None) -> str:
+def _validation_message(
+    exc: RequestValidationError,
+    route: object = None,
+    limit_now: Callable[[str], str] = lambda name: "",
+) -> str:
     """``"stages: 0 is out of range; use an integer in 1..4096"`` for each invalid parameter:
     the valid values read from the endpoint's own model (``valid_values``), with
     ``ALLOWED``'s explanation where the type and constraints do not say enough."""
@@ -295,11 +312,19 @@ def _validation_message(exc: RequestValidationError, route: object = None) -> st
                 f"not {cut(shown)}"
             )
         elif kind in ("greater_than_equal", "less_than_equal", "greater_than", "less_than"):
-            parts.append(f"{name}: {_shown(value, loc)} is out of range{use}")
+            parts.append(f"{name}: {_shown(value, loc)} is out of range{use}{limit_now(name)}")
         elif kind == "finite_number":
             parts.append(f"{name}: {_shown(value, loc)} is not a finite number{use}")
+        elif kind == "int_type" and isinstance(value, float) and value.is_integer():
+            # 1e20 or 3.0: a whole number written as a float; out of range, or just its form
+            if _outside(field, value):
+                parts.append(f"{name}: {cut(repr(value))} is out of range{use}")
+            else:
+                parts.append(f"{name}: {cut(repr(value))} is a whole number written with a "
+                             f"decimal point or an exponent; write it as an integer{use}")  # fmt: skip
         elif kind.endswith("_type"):
-            parts.append(f"{name}: {cut(repr(value))} is {_what_it_is(value)}, the wrong type{use}")
+            what = what_it_is(value, array="a list", table="an object")
+            parts.append(f"{name}: {cut(repr(value))} is {what}, the wrong type{use}")
         elif kind == "value_error":  # a validator of the model: its reason
             reason = cut(str(err.get("msg", "")).removeprefix("Value error, "), ERROR_MESSAGE_MAX)
             parts.append(f"{name}: {cut(repr(value))} is not valid ({reason}){use}")
@@ -499,8 +524,24 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
 
     @app.exception_handler(RequestValidationError)
     async def on_validation_error(request: Request, exc: RequestValidationError) -> JSONResponse:
-        return error_response(
-            400, "bad_request", _validation_message(exc, request.scope.get("route"))
+        # In a worker thread: limit_now may ask the camera (never on the event loop).
+        route = request.scope.get("route")
+        message = await anyio.to_thread.run_sync(_validation_message, exc, route, limit_now)
+        return error_response(400, "bad_request", message)
+
+    def limit_now(name: str) -> str:
+        """A limit tighter than the field's own that holds now: the stages the window holds
+        (the field's 4096 is the largest window of any sensor)."""
+        if name != "stages":
+            return ""
+        try:
+            timing = session.sensor.timing()
+        except (SessionError, IllegalState):
+            return ""  # the camera cannot be asked: the field's own range stands
+        return (
+            f"; the sensor's window now has {timing.window_rows} rows, so at most "
+            f"{timing.max_stages} stages (M <= the window's rows, docs/physics.md §2 eq 13); "
+            "a scan sets the window from its line period"
         )
 
     @app.exception_handler(StarletteHTTPException)
@@ -513,7 +554,13 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
         if exc.status_code == 404:
             message = f"no such endpoint {path}; see /docs or docs/api.md"
         elif exc.status_code == 405:
-            message = f"{request.method} is not allowed on {path}; see /docs"
+            allowed = _allowed_methods(app, request)
+            message = (
+                f"{request.method} is not allowed on {path}; use {' or '.join(allowed)} (see /docs)"
+            )
+            response = error_response(exc.status_code, code, message)
+            response.headers["Allow"] = ", ".join(allowed)  # RFC 9110 15.5.6: required
+            return response
         elif exc.status_code == 400:  # FastAPI: a JSON body its parser gave up on
             message = (
                 f"{message}: the request body is not JSON that can be read (nested too deeply?); "

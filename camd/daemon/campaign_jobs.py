@@ -163,10 +163,18 @@ class CampaignJobs:
     def check(self, file: str, quick: bool) -> dict[str, Any]:
         """Load and check the campaign file ``file`` (found by ``CampaignDirs.find``) in a worker, without
         running it: {"file", "campaign", "profile", "steps"}; BadRequest with the worker's
-        reason when it is not a valid campaign."""
+        reason when it is not a valid campaign. Once the API serves, the worker checks the
+        camera too, as the runner does before its first step (the campaign's profile must be
+        the daemon's sensor): a job for another camera is refused here, not 2 s after it was
+        accepted, holding control."""
         argv = [self._python, "-m", WORKER_MODULE, "check", file] + (["--quick"] if quick else [])
+        if self._url is not None:
+            argv += ["--url", self._url]
+        env = {**os.environ, "CAMD_TOKEN": self._token, "CAMD_CLIENT": "campaign-check"}
         try:
-            done = subprocess.run(argv, capture_output=True, timeout=CHECK_TIMEOUT_S, check=False)
+            done = subprocess.run(
+                argv, capture_output=True, timeout=CHECK_TIMEOUT_S, check=False, env=env
+            )
         except subprocess.TimeoutExpired:
             raise BadRequest(
                 f"checking campaign {file!r} took over {CHECK_TIMEOUT_S:g} s; check it with "

@@ -13,22 +13,26 @@ import math
 import os
 import tempfile
 import tomllib
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 from urllib.parse import urlsplit
 
 from pydantic import (
     BaseModel,
     ConfigDict,
     Field,
+    Strict,
+    StrictFloat,
     ValidationError,
     field_validator,
     model_validator,
 )
 
+from camd.datafile import cut, line_of, wrong_type
 from camd.paths import config_dir
 from camd.protocol import load_dictionary
+from camd.sensor.profile import list_profiles
 from camd.sensor.regmap import list_sensors
 
 TOKEN_ENV = "CAMD_TOKEN"
@@ -102,7 +106,9 @@ def normal_origin(origin: str) -> str:
 
 
 class _Section(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True, validate_default=True)
+    # Strict: port = "8423" is a string, not a port (as the API refuses "10"); a TOML array
+    # becomes a tuple and a string a path only where a field says so (Field(strict=False)).
+    model_config = ConfigDict(extra="forbid", frozen=True, validate_default=True, strict=True)
 
 
 def _expanded(path: Path) -> Path:
@@ -113,7 +119,7 @@ def _expanded(path: Path) -> Path:
 class DaemonSection(_Section):
     """[daemon]: where the daemon keeps its files and how much it logs."""
 
-    data_dir: Path = Field(
+    data_dir: Annotated[Path, Strict(False)] = Field(
         default=Path("~/.local/share/camd"),
         description="directory for the telemetry archive and the simulator's link (~ is expanded)",
     )
@@ -132,7 +138,7 @@ class DaemonSection(_Section):
         "not wait for them (about a second of one core); false: at the first scan",
     )
 
-    record_dirs: list[Path] = Field(
+    record_dirs: list[Annotated[Path, Strict(False)]] = Field(
         default_factory=list,
         description="directories outside data_dir where clients may have the daemon write "
         "recordings, scans and campaign output (absolute; ~ and $VARIABLES expanded)",
@@ -250,8 +256,20 @@ class SimSection(_Section):
     profile: str = Field(
         default="hr400", pattern=r"^[a-z0-9_]+$", description="camera profile to simulate"
     )
+
+    @field_validator("profile", mode="after")
+    @classmethod
+    def _known_profile(cls, value: str) -> str:
+        known = list_profiles()
+        if value not in known:
+            raise ValueError(
+                f"no camera profile {value!r} (config/profiles/); give one of {', '.join(known)}"
+            )
+        return value
+
     scene: str = Field(
         default="",
+        max_length=240,  # as the API's scene: a spec, not a payload for the simulator's argv
         description="scene in front of the simulated camera, e.g. 'bars:lux=3'; empty = the "
         "simulator's default flat field (docs/simulator.md lists the scene specs)",
     )
@@ -478,8 +496,8 @@ class MotionSection(_Section):
 class ChannelLimits(_Section):
     """Yellow (warning) and red (alarm) ranges of one telemetry channel; inside = ok."""
 
-    yellow: tuple[float, float]
-    red: tuple[float, float]
+    yellow: tuple[StrictFloat, StrictFloat] = Field(strict=False)
+    red: tuple[StrictFloat, StrictFloat] = Field(strict=False)
 
     @model_validator(mode="after")
     def _ranges(self) -> ChannelLimits:
@@ -557,7 +575,7 @@ class TelemetrySection(_Section):
 class CampaignsSection(_Section):
     """[campaigns]: where the daemon's campaign jobs come from."""
 
-    dirs: list[Path] = Field(
+    dirs: list[Annotated[Path, Strict(False)]] = Field(
         default_factory=list,
         description="directories of the operator's own campaigns (YAML files and Python plans), "
         "searched in order before the shipped ones; a campaign job names a campaign found "
@@ -666,20 +684,26 @@ def load_config(path: Path | None = None, *, env: Mapping[str, str] | None = Non
     """
     path = default_config_path() if path is None else Path(path)
     try:
-        data = tomllib.loads(path.read_text())
+        text = path.read_text()
+        data = tomllib.loads(text)
     except FileNotFoundError:
         raise ConfigError(f"{path}: config file not found; give an existing --config") from None
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read the config file: {exc.strerror}") from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: not valid TOML: {exc}") from None
-    return config_from_dict(data, source=str(path), env=env)
+    return config_from_dict(data, source=str(path), env=env, text=text)
 
 
 def config_from_dict(
-    data: Mapping[str, Any], *, source: str = "config", env: Mapping[str, str] | None = None
+    data: Mapping[str, Any],
+    *,
+    source: str = "config",
+    env: Mapping[str, str] | None = None,
+    text: str | None = None,
 ) -> Config:
-    """Validate a config given as nested dicts (as read from TOML); see ``load_config``."""
+    """Validate a config given as nested dicts (as read from TOML); see ``load_config``. With
+    the file's ``text``, each error names its line (``source:line: key: ...``)."""
     env = os.environ if env is None else env
     merged: dict[str, Any] = {k: dict(v) if isinstance(v, Mapping) else v for k, v in data.items()}
     token = env.get(TOKEN_ENV, "")
@@ -710,7 +734,8 @@ def config_from_dict(
     try:
         return Config.model_validate(merged)
     except ValidationError as exc:
-        raise ConfigError(format_errors(exc, source)) from None
+        where = None if text is None else (lambda loc: line_of(text, data, loc))
+        raise ConfigError(format_errors(exc, source, where)) from None
 
 
 def with_overrides(
@@ -777,27 +802,37 @@ def _allowed_range(loc: tuple[int | str, ...]) -> str:
     return f"{lo}{loc[-1]}{hi}" if lo or hi else ""
 
 
-def format_errors(exc: ValidationError, source: str) -> str:
-    """One line per error: ``source: key.path: what is wrong; what is allowed``."""
+def format_errors(
+    exc: ValidationError,
+    source: str,
+    line: Callable[[tuple[int | str, ...]], int | None] | None = None,
+) -> str:
+    """One line per error: ``source[:line]: key.path: what is wrong; what is allowed`` (the
+    line of the key, when ``line`` finds it in the file)."""
     lines = []
     for err in exc.errors():
         loc = tuple(err["loc"])
+        number = None if line is None or not loc else line(loc)
+        where = source if number is None else f"{source}:{number}"
         key = ".".join(str(p) for p in loc) or "(top level)"
         kind = err["type"]
         if kind == "extra_forbidden":
             parent = _model_at(loc[:-1])
             allowed = list(parent.model_fields) if parent is not None else []
             hint = f"; allowed keys here: {', '.join(allowed)}" if allowed else ""
-            lines.append(f"{source}: {key}: unknown key (a typo?){hint}")
+            lines.append(f"{where}: {key}: unknown key (a typo?){hint}")
             continue
         msg = str(err["msg"]).removeprefix("Value error, ")
         ctx = err.get("ctx", {})
-        if kind == "literal_error" and "expected" in ctx:
-            msg = f"{err['input']!r} is not allowed; use {ctx['expected']}"
+        strict = wrong_type(kind, err["input"])
+        if strict is not None:
+            msg = strict
+        elif kind == "literal_error" and "expected" in ctx:
+            msg = f"{cut(repr(err['input']))} is not allowed; use {ctx['expected']}"
         elif kind in _BOUND_ERRORS:
             bounds = _allowed_range(loc)
-            msg = f"{err['input']!r} is out of range; allowed: {bounds or msg}"
+            msg = f"{cut(repr(err['input']))} is out of range; allowed: {bounds or msg}"
         elif kind not in ("value_error", "missing"):
-            msg = f"{msg} (got {err['input']!r})"
-        lines.append(f"{source}: {key}: {msg}")
+            msg = f"{msg} (got {cut(repr(err['input']))})"
+        lines.append(f"{where}: {key}: {msg}")
     return "\n".join(lines)

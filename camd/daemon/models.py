@@ -7,6 +7,8 @@ These are the contract clients build against: FastAPI publishes them in /openapi
 
 from __future__ import annotations
 
+import math
+import sys
 import types
 from typing import Any, Literal, Union, get_args, get_origin
 
@@ -25,6 +27,24 @@ EVENTS_LIMIT_MAX = 100_000
 LIVE_LINES_MAX = 2048  # lines the live view's waterfall keeps, and the most one request gets
 LIVE_WAIT_MAX_S = 5.0  # longest a live-view request waits for something newer
 ACTIVITY_TEXT_MAX = 200
+SCAN_LINE_PERIOD_MAX_S = 10.0  # the longest TDI line period a scan takes, given or implied
+
+
+FLOAT_NORMAL_MIN = sys.float_info.min
+"""The smallest magnitude a request's number may have besides 0 (2.2e-308): below it a float
+is subnormal, and what it is turned into (a period from a speed, a rate, a register count)
+overflows or loses its precision."""
+
+
+def _numbers(value: object) -> list[float]:
+    """The floats in a field's value, entries of lists and objects included."""
+    if isinstance(value, float):
+        return [value]
+    if isinstance(value, list | tuple):
+        return [x for item in value for x in _numbers(item)]
+    if isinstance(value, dict):
+        return [x for item in value.values() for x in _numbers(item)]
+    return []  # a nested request model checks its own fields
 
 
 class _Request(BaseModel):
@@ -32,6 +52,19 @@ class _Request(BaseModel):
     # number); NaN and infinities are refused. 400 messages give each field's valid values
     # (valid_values below), read from its own type and constraints.
     model_config = ConfigDict(extra="forbid", strict=True, allow_inf_nan=False)
+
+    @field_validator("*", mode="after")
+    @classmethod
+    def _no_subnormal_numbers(cls, value: Any) -> Any:
+        """Every number of every request is 0 or normal: one check for all fields (a speed of
+        5e-324 passed "more than 0" and turned into an infinite line period, a 500)."""
+        for number in _numbers(value):
+            if number != 0.0 and math.isfinite(number) and abs(number) < FLOAT_NORMAL_MIN:
+                raise ValueError(
+                    f"{number!r} is too small to compute with: a subnormal number, below "
+                    f"{FLOAT_NORMAL_MIN:.3g}; give 0 where 0 is allowed, or a value in range"
+                )
+        return value
 
 
 class LinkCommandRequest(_Request):
@@ -860,7 +893,7 @@ class ScanRequest(_Request):
     line_period_s: float | None = Field(
         default=None,
         gt=0.0,
-        le=10.0,
+        le=SCAN_LINE_PERIOD_MAX_S,
         description="TDI line period to set (docs/physics.md §2 eqs 6-9); exclusive with speed_m_s",
     )
     drive_stage: bool = Field(

@@ -41,6 +41,7 @@ from camd.daemon.sensor_service import SensorService
 from camd.daemon.state import Request
 from camd.daemon.transaction import Apply
 from camd.motion.stage import (
+    MOVE_DURATION_MAX_S,
     STOPPED_STATES,
     FpgaStage,
     StageLimitError,
@@ -323,6 +324,13 @@ class MotionService:
             self.check_speed(request.speed_m_s)
         before = self._check_not_stopped_hard()
         stood = before.position_m
+        distance = abs(request.position_m - stood)
+        if request.speed_m_s is not None and distance > request.speed_m_s * MOVE_DURATION_MAX_S:
+            raise BadRequest(
+                f"a move of {distance * 1e3:.4g} mm at {request.speed_m_s:.6g} m/s would take "
+                f"{distance / request.speed_m_s:.6g} s, longer than the {MOVE_DURATION_MAX_S:g} "
+                f"s a move may take; give at least {distance / MOVE_DURATION_MAX_S:.3g} m/s"
+            )
         stage = self.stage
 
         def move() -> float:

@@ -21,12 +21,13 @@ puts back what it changed if a step fails (``camd.daemon.transaction``).
 from __future__ import annotations
 
 import datetime as dt
+import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from camd.daemon.errors import BadRequest
-from camd.daemon.models import ScanRequest, ScanTiming, TimingResponse
+from camd.daemon.models import SCAN_LINE_PERIOD_MAX_S, ScanRequest, ScanTiming, TimingResponse
 from camd.daemon.output_paths import SCANS_FOLDER, resolve_output
 from camd.motion.stage import STOPPED_STATES, StageLimits
 from camd.sensor.regmap import RegisterMap
@@ -219,6 +220,21 @@ def _check_request(request: ScanRequest, stage: StageContext | None) -> None:
         )
 
 
+def _period_of_speed(speed_m_s: float, pitch_m: float, scale: float) -> float:
+    """The TDI line period a stage speed implies; refused beyond the longest a scan takes (a
+    tiny speed would give an infinite period, and a window of more rows than exist)."""
+    image_speed = scale * speed_m_s
+    period_s = pitch_m / image_speed if image_speed > 0.0 else math.inf
+    if not period_s <= SCAN_LINE_PERIOD_MAX_S:
+        slowest = pitch_m / (scale * SCAN_LINE_PERIOD_MAX_S)
+        raise BadRequest(
+            f"speed_m_s: {speed_m_s:g} m/s is too slow: it gives a TDI line period of "
+            f"{period_s:.4g} s, longer than the {SCAN_LINE_PERIOD_MAX_S:g} s a scan takes; "
+            f"give at least {slowest:.4g} m/s"
+        )
+    return tdi_line_period_s(pitch_m, image_speed)
+
+
 def scan_path(
     out: str | None, data_dir: Path, now: dt.datetime, record_dirs: Sequence[Path] = ()
 ) -> Path:
@@ -250,7 +266,7 @@ def plan_scan(request: ScanRequest, context: ScanContext) -> ScanPlan:
     # The line period, once: from the stage speed, as given, or the registers'.
     period_s = request.line_period_s
     if request.speed_m_s is not None:
-        period_s = tdi_line_period_s(pitch, scale * request.speed_m_s)
+        period_s = _period_of_speed(request.speed_m_s, pitch, scale)
     writes: dict[str, int | str] = {}
     notes: list[str] = []
     if period_s is not None:
@@ -282,6 +298,17 @@ def plan_scan(request: ScanRequest, context: ScanContext) -> ScanPlan:
         notes.append(f"run the scan stage at {sync * 1e3:.6g} mm/s (synchronous)")
 
     frames = 0 if request.lines == 0 else request.lines + request.stages - 1
+    if frames == 0 and stage is not None and stage.kind == "linear":
+        # "Until stopped" on a linear stage: until stopped or the travel ends, whichever first.
+        assert speed is not None
+        frames = _frames_the_travel_holds(request, stage.limits, speed, after.tdi_line_period_s)
+        if frames:
+            span_mm = (stage.limits.high_m - stage.limits.low_m) * 1e3
+            notes.append(
+                f"until stopped: the stage's travel ({span_mm:.1f} mm between the soft limits, "
+                f"at {abs(speed) * 1e3:.6g} mm/s) holds {frames - request.stages + 1} lines; "
+                "the scan ends there (state done) unless it is stopped first (state stopped)"
+            )
     duration_s = (frames or UNTIL_STOPPED_PLAN_S / after.tdi_line_period_s) * (
         after.tdi_line_period_s
     )
@@ -305,7 +332,11 @@ def plan_scan(request: ScanRequest, context: ScanContext) -> ScanPlan:
         stage_speed_m_s=speed,
         dv_over_v=None if speed is None else velocity_mismatch(sync, speed),
     )
-    lines = request.lines or round(UNTIL_STOPPED_PLAN_S / after.tdi_line_period_s)
+    lines = request.lines or (
+        frames - request.stages + 1
+        if frames
+        else round(UNTIL_STOPPED_PLAN_S / after.tdi_line_period_s)
+    )
     planned = FILE_BYTES_OVERHEAD + (lines + request.stages) * (cols * 4 + LINE_BYTES_OVERHEAD)
     return ScanPlan(
         request=request,
@@ -320,6 +351,30 @@ def plan_scan(request: ScanRequest, context: ScanContext) -> ScanPlan:
         planned_bytes=planned,
         notes=notes,
     )
+
+
+def _frames_the_travel_holds(
+    request: ScanRequest, limits: StageLimits, speed_m_s: float, period_s: float
+) -> int:
+    """The frames a scan until stopped takes before a linear stage's travel between its soft
+    limits ends (ramps and margins as ``_plan_stage`` plans them: the most frames it accepts);
+    0 when the speed is beyond the stage (``_plan_stage`` refuses it, saying so). BadRequest
+    when the travel holds no complete line."""
+    speed = abs(speed_m_s)
+    if speed > limits.max_speed_m_s:
+        return 0
+    span = limits.high_m - limits.low_m
+    ramps_m = speed**2 / limits.accel_m_s2  # up and down
+    duration_s = (span / TRAVEL_MARGIN - ramps_m) / speed - STREAM_END_MARGIN_S
+    frames = math.floor(duration_s / period_s) if duration_s > 0 else 0
+    if frames < request.stages:
+        raise BadRequest(
+            f"a scan until stopped at {speed * 1e3:.4g} mm/s: the soft limits leave "
+            f"{span * 1e3:.1f} mm of travel, not enough for one complete line of "
+            f"{request.stages} stages; scan slower (a longer line period), or widen "
+            "stage.low_limit_m / high_limit_m"
+        )
+    return frames
 
 
 def _plan_stage(

@@ -33,6 +33,7 @@ import numpy as np
 
 import camd
 from camd.daemon import backends, heap, notify
+from camd.daemon.acquisition import STOP_COMMANDS
 from camd.daemon.campaign_jobs import CampaignJobs, worker_client
 from camd.daemon.config import HOUSEKEEPING_PACKET, Config, telemetry_channels
 from camd.daemon.control import ANONYMOUS, Control
@@ -541,7 +542,7 @@ class DeviceSession:
         if running is not None:
             raise Busy(
                 f"a {running.kind} is running: a campaign starts from its own baseline; stop it "
-                "first (`camctl stream stop`, `camctl scan --stop`)"
+                f"first with {STOP_COMMANDS[running.kind]}"
             )
 
         with self._handing_over(client) as hand_over:

@@ -27,6 +27,13 @@ STOPPED_STATES = frozenset({"idle", "disabled", "estop"})
 """MOTOR_GET states in which the stage stands still."""
 
 
+RATE_STEP_HZ = 0.001
+"""The resolution of the step rates MOTOR_MOVE and MOTOR_SET_RATE carry (config/protocol.toml:
+``rate_hz``, scale 0.001)."""
+MOVE_DURATION_MAX_S = 4294.967295
+"""The longest move MOTOR_MOVE can answer the duration of (``duration_s``: u32 microseconds)."""
+
+
 class StageLimitError(ValueError):
     """A motion the stage's limits forbid; the message says which limit and what to change."""
 
@@ -192,4 +199,12 @@ class FpgaStage(ScanStage):
             raise StageLimitError(
                 f"stage speed {speed_m_s * 1e3:.6g} mm/s is above the {self.profile.name} "
                 f"stage's maximum {top * 1e3:.6g} mm/s; scan slower (a longer line period)"
+            )
+        # The step rate goes to the driver in steps of RATE_STEP_HZ: a slower, non-zero speed
+        # would be sent as rate 0, which MOTOR_MOVE takes for "the programmed maximum".
+        slowest = RATE_STEP_HZ / self._steps_per_m
+        if speed_m_s != 0.0 and abs(self._rate_hz(speed_m_s)) < RATE_STEP_HZ:
+            raise StageLimitError(
+                f"stage speed {speed_m_s:.6g} m/s is below the slowest the driver takes, "
+                f"{slowest:.3g} m/s ({RATE_STEP_HZ:g} steps/s); give at least that, or 0 to stop"
             )

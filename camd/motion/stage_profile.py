@@ -77,7 +77,7 @@ class StageSim(BaseModel):
     settings, not facts). The other keys shape the model and carry their provenance.
     """
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
 
     ripple_period_m: Sourced[Positive] = _key(
         "spatial period of the periodic speed ripple (stage position, m)", "m"
@@ -122,7 +122,7 @@ class StageSim(BaseModel):
 class StageProfile(BaseModel):
     """One scan stage's mechanics, as loaded from ``config/stages/<name>.toml``."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
 
     name: str = Field(pattern=r"^[a-z0-9][a-z0-9_]*$", description="profile name (file stem)")
     description: str = Field(default="", description="one line on the stage")

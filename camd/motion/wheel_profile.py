@@ -47,7 +47,7 @@ class WheelProfileError(DataFileError):
 class WheelChannel(BaseModel):
     """One channel of the wheel: a name, its band, and a polariser axis if it has one."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
 
     name: str = Field(pattern=r"^[A-Za-z0-9][A-Za-z0-9_.-]*$", description="channel name")
     band: Sourced[str] = Field(description="band / filter, as text")
@@ -65,7 +65,7 @@ class WheelChannel(BaseModel):
 class WheelProfile(BaseModel):
     """The filter wheel, as loaded from ``config/wheel.toml`` (docs/physics.md §4)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
 
     wheel: str = Field(pattern=r"^[a-z0-9][a-z0-9_]*$", description="wheel name")
     description: str = Field(default="", description="one line on the wheel")

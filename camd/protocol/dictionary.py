@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import math
 import struct
-import tomllib
 from collections.abc import Mapping
 from functools import cache
 from pathlib import Path
@@ -18,6 +17,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, model_validator
 
+from camd.datafile import DataFileError, located, read_toml
 from camd.paths import config_dir
 from camd.protocol.frame import MAX_PAYLOAD
 
@@ -59,14 +59,14 @@ class PayloadError(ProtocolError):
     """A received payload does not match its definition."""
 
 
-class DictionaryError(ProtocolError):
-    """The dictionary file itself is invalid."""
+class DictionaryError(DataFileError, ProtocolError):
+    """The dictionary file itself is invalid: ``file:line: key: what is wrong; what to do``."""
 
 
 class FieldSpec(BaseModel):
     """One payload field."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
 
     name: str = Field(pattern=r"^[a-z][a-z0-9_]*$")
     type: FieldType
@@ -246,7 +246,7 @@ def decode_fields(fields: list[FieldSpec], payload: bytes, where: str) -> dict[s
 class ErrorSpec(BaseModel):
     """An error code a NAK can carry."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
 
     code: int = Field(ge=1, le=0xFFFF)
     name: str = Field(pattern=r"^[A-Z][A-Z0-9_]*$")
@@ -256,7 +256,7 @@ class ErrorSpec(BaseModel):
 class CommandSpec(BaseModel):
     """A command and the layout of its request and acknowledge payloads."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", strict=True)
 
     name: str = Field(pattern=r"^[A-Z][A-Z0-9_]*$")
     opcode: int = Field(ge=0, le=0xFF)
@@ -285,7 +285,7 @@ class CommandSpec(BaseModel):
 class PacketSpec(BaseModel):
     """A telemetry packet or an event: an id (the frame's opcode) and its fields."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", strict=True)
 
     name: str = Field(pattern=r"^[A-Z][A-Z0-9_]*$")
     opcode: int = Field(ge=0, le=0xFF)
@@ -305,7 +305,7 @@ _NAK_HEADER = struct.Struct(">H")
 class Dictionary(BaseModel):
     """The whole command dictionary, with lookups by name and by opcode."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", strict=True)
 
     version: int = Field(ge=1)
     errors: list[ErrorSpec]
@@ -445,12 +445,23 @@ def _default_dictionary() -> Dictionary:
     return _load(config_dir() / "protocol.toml")
 
 
+# Entries of the dictionary's arrays are called by their names in its errors.
+_NAMED = {
+    kind: f"{kind.rstrip('s')} {{}}" for kind in ("errors", "commands", "telemetry", "events")
+}
+
+
 def _load(path: Path) -> Dictionary:
     try:
-        data = tomllib.loads(path.read_text())
-    except (OSError, tomllib.TOMLDecodeError) as exc:
-        raise DictionaryError(f"{path}: cannot read the command dictionary: {exc}") from None
+        text, data = read_toml(path, DictionaryError)
+    except OSError as exc:
+        raise DictionaryError(
+            path, None, f"cannot read the command dictionary: {exc.strerror or exc}"
+        ) from None
     try:
         return Dictionary.model_validate(data)
     except ValidationError as exc:
-        raise DictionaryError(f"{path}: invalid command dictionary:\n{exc}") from None
+        raise located(
+            exc, path=path, text=text, data=data, model=Dictionary, error=DictionaryError,
+            named=_NAMED,
+        ) from None  # fmt: skip

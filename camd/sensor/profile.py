@@ -69,7 +69,7 @@ class GainSpec(BaseModel):
     - ``db``: ``factor = 10^((db_at_zero + db_per_code * code) / 20)``, a PGA linear in dB.
     """
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
 
     kind: Literal["table", "code", "db"] = Field(description="table, code or db (see above)")
     table: dict[str, Positive] = Field(
@@ -152,7 +152,7 @@ def _key(description: str, unit: str) -> Any:
 class CameraProfile(BaseModel):
     """One camera's physical facts, as loaded from ``config/profiles/<name>.toml``."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
 
     profile: str = Field(pattern=r"^[a-z0-9][a-z0-9_]*$", description="profile name (file stem)")
     description: str = Field(default="", description="one line on the camera")

@@ -26,7 +26,15 @@ from functools import cache
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    PrivateAttr,
+    StrictInt,
+    ValidationError,
+    model_validator,
+)
 
 from camd.datafile import DataFileError, KeyedError, located, read_toml
 from camd.paths import config_dir
@@ -150,7 +158,7 @@ class SpiLayout(BaseModel):
     sends zeros in the data slot and the sensor drives the value on MISO during it.
     """
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
 
     mode: int = Field(ge=0, le=3, description="SPI mode: CPOL = mode >> 1, CPHA = mode & 1")
     rw_bits: int = Field(default=1, ge=1, le=8, description="bits of the command slot")
@@ -195,10 +203,11 @@ class SpiLayout(BaseModel):
 class FieldSpec(BaseModel):
     """A named bit field of a register: bits ``[msb, lsb]`` inclusive."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
 
     name: str = Field(pattern=_FIELD_NAME, description="lower-case field name")
-    bits: tuple[int, int] = Field(description="[msb, lsb], inclusive")
+    # A TOML array is a list: the pair is taken from one (strict=False), its items strictly.
+    bits: tuple[StrictInt, StrictInt] = Field(strict=False, description="[msb, lsb], inclusive")
     doc: str = Field(default="", description="what the field does")
     unit: str = Field(default="", description="unit of the physical value raw * scale")
     scale: float = Field(default=1.0, gt=0, description="physical value per raw step")
@@ -322,7 +331,7 @@ class FieldSpec(BaseModel):
 class RegisterSpec(BaseModel):
     """One sensor register. Registers without ``fields`` behave as one field named ``value``."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
 
     name: str = Field(pattern=_NAME, description="upper-case register name")
     address: int = Field(ge=0, description="register address on the SPI bus")
@@ -510,7 +519,7 @@ class GroupSpec(BaseModel):
     the hold bit is set and applies them together when it is cleared (group hold).
     """
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
 
     name: str = Field(pattern=_NAME, description="upper-case group name")
     registers: list[str] = Field(
@@ -532,7 +541,7 @@ class TimingSpec(BaseModel):
     and ``f_s = clock_hz * pixels_per_clock``.
     """
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
 
     model: Literal["sequencer", "row_blanking"] = Field(description="sequencer or row_blanking")
     clock_hz: float = Field(
@@ -562,7 +571,7 @@ class TimingSpec(BaseModel):
 class OutputSpec(BaseModel):
     """The sensor's pixel output interface to the FPGA: LVDS lanes to train, or a parallel bus."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
 
     interface: Literal["lvds", "parallel"] = Field(description="lvds (needs training) or parallel")
     lanes: int = Field(default=1, ge=1, le=32, description="LVDS data lanes (1 for parallel)")
@@ -578,7 +587,7 @@ class OutputSpec(BaseModel):
 class SoftResetSpec(BaseModel):
     """Which write returns every register to its reset value."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
 
     field: str = Field(description="REGISTER.field written to reset")
     value: int = Field(ge=0, description="raw field value that triggers the reset")
@@ -587,7 +596,7 @@ class SoftResetSpec(BaseModel):
 class RegisterMap(BaseModel):
     """A sensor's whole register map, as loaded from ``config/sensors/<sensor>.toml``."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
 
     sensor: str = Field(pattern=r"^[a-z0-9][a-z0-9_]*$", description="sensor name (file stem)")
     description: str = Field(default="", description="one line on the sensor")
