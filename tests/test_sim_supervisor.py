@@ -12,10 +12,12 @@ from __future__ import annotations
 
 import json
 import os
+import select
 import signal
 import subprocess
 import sys
 import threading
+import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -343,6 +345,53 @@ def test_an_acquisition_cut_by_the_simulators_death_fails_clearly(supervised: Da
         0.2,
     )
     acquire(d, 3)
+
+
+@pytest.mark.slow
+def test_the_stale_link_of_a_killed_simulator_is_not_reopened(tmp_path: Path) -> None:
+    """A killed simulator leaves its link symlink pointing at a freed pty, whose number the
+    kernel soon gives to another process (on a loaded test machine, another test's simulator:
+    the daemon then trained that camera and streamed 0 frames from its own). Here the stale
+    link is pointed at a pty this test holds, as a reused number would be: until the restarted
+    simulator has pointed the link at its own pty the daemon must not open it."""
+    d = Daemon(tmp_path, SUPERVISED.replace("restart_backoff_min_s = 0.2", "restart_backoff_min_s = 4.0")
+               .replace("restart_backoff_max_s = 1.0", "restart_backoff_max_s = 4.0"))  # fmt: skip
+    master, slave = os.openpty()
+    try:
+        d.start()
+        s = d.wait_state("idle", timeout_s=60)
+        link, pid = Path(s["link"]["port"]), s["link"]["sim_pid"]
+        assert link.is_symlink()
+        os.kill(pid, signal.SIGKILL)
+        stale = link.with_name(link.name + ".test")
+        os.symlink(os.ttyname(slave), stale)
+        os.replace(stale, link)  # the dead pty's number, now another process's
+        # The daemon reconnects within 0.3 s (link.reconnect_max_s); the restart is 4 s away.
+        heard = b""
+        deadline = time.monotonic() + 3.0
+        while time.monotonic() < deadline:
+            ready, _, _ = select.select([master], [], [], 0.1)
+            if ready:
+                heard += os.read(master, 4096)
+        assert heard == b"", f"the daemon wrote {len(heard)} bytes to another process's pty"
+        s = d.status()
+        assert s["link"]["connected"] is False
+        assert "not running" in (s["link"]["last_error"] or "") or "points at" in (
+            s["link"]["last_error"] or ""
+        ), s["link"]
+        s = wait_for(
+            d.status,
+            lambda s: s["link"]["sim_restarts"] == 1 and s["state"] == "idle",
+            DEADLINE_S,
+            0.2,
+        )
+        assert os.readlink(link) != os.ttyname(slave)
+        acquire(d, 3)
+    finally:
+        os.close(master)
+        os.close(slave)
+        code = d.stop()
+    assert code == 0, d.stderr()
 
 
 @pytest.mark.slow

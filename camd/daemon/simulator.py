@@ -115,6 +115,26 @@ class SimulatorProcess:
         """The exit status once the child has exited (reaping it), else None."""
         return None if self._proc is None else self._proc.poll()
 
+    def refuses_link(self) -> str | None:
+        """Why the link symlink must not be opened now, or None when it leads to this child.
+
+        A killed simulator cannot remove its link, and the pty it pointed at is freed with it:
+        the kernel soon gives the same /dev/pts number to another process (another camera's
+        simulator on a shared PC), and a host reopening the stale link would talk to that
+        process's device. So the link is this child's only while the child runs, its start
+        line has named its pty and the link points there."""
+        proc = self._proc
+        tty = self.info.get("tty")
+        if proc is None or proc.poll() is not None or not tty:
+            return f"the simulated camera behind {self.link_path} is not running yet"
+        try:
+            target = os.readlink(self.link_path)
+        except OSError as exc:
+            return f"{self.link_path} cannot be read ({exc.strerror})"
+        if target != tty:
+            return f"{self.link_path} points at {target}, not at the simulated camera's pty {tty}"
+        return None
+
     def start(self, timeout_s: float = SIM_START_TIMEOUT_S) -> dict[str, Any]:
         """Spawn the simulator and return its JSON start line as a dict.
 

@@ -153,6 +153,7 @@ class CommandLink:
         reconnect_max_s: float = 2.0,
         frame_timeout_s: float | None = None,
         thread_start: Callable[[str], object] | None = None,
+        may_open: Callable[[], str | None] | None = None,
     ) -> None:
         if timeout_s <= 0:
             raise ValueError(f"timeout_s must be > 0, got {timeout_s}")
@@ -168,6 +169,11 @@ class CommandLink:
         # Called as ``thread_start("command_link")`` from inside the reader thread when it
         # starts: how the daemon gives it real-time scheduling (camd/daemon/realtime.py).
         self.thread_start = thread_start
+        # Asked before each attempt to open the port: None lets it open, a reason keeps it shut
+        # (and becomes last_error). The daemon's own simulator's link is a symlink to a pty
+        # that dies with it; the pty's number is soon another process's, so the link must not
+        # be opened again until the restarted simulator has pointed it at its own pty.
+        self.may_open = may_open
         # Longest frame at 10 bits per byte, plus USB-serial adapter latency (FTDI: 16 ms).
         self.frame_timeout_s = (
             frame_timeout_s
@@ -430,6 +436,10 @@ class CommandLink:
             self._read_until_lost()
 
     def _try_open(self) -> bool:
+        refused = self.may_open() if self.may_open is not None else None
+        if refused is not None:
+            self._last_error = refused
+            return False
         try:
             port = serial.serial_for_url(
                 self.port, baudrate=self.baudrate, timeout=_READ_POLL_S, exclusive=True
