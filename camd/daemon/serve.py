@@ -348,6 +348,12 @@ def data_dir_problem(path: Path) -> str | None:
     return None
 
 
+def unusable_data_dir(path: Path, exc: BaseException) -> str:
+    """The refusal of a data directory that could not be made or used."""
+    why = getattr(exc, "strerror", None) or exc
+    return f"cannot use the data directory {path}: {why}; make it writable or choose another with --data-dir"
+
+
 def run(args: argparse.Namespace) -> int:
     """Run the daemon until SIGTERM/SIGINT; return the exit status."""
     try:
@@ -356,7 +362,6 @@ def run(args: argparse.Namespace) -> int:
         print(f"camd serve: invalid configuration:\n{exc}", file=sys.stderr)
         return EXIT_CONFIG
     _setup_logging(config.daemon.log_level, config.api.token)
-    backends.log_choice(config)
 
     # Until uvicorn takes the signals over, a stop request just ends the start-up early; and
     # after it hands them back it re-raises what it caught, which must then be harmless.
@@ -384,6 +389,14 @@ def run(args: argparse.Namespace) -> int:
         )
         return EXIT_CONFIG
     url = f"http://{url_host(host)}:{sock.getsockname()[1]}"
+    # Made here, before anything logs: a directory the checks above could not foresee (under
+    # /proc, a read-only mount) is refused with its one line of error, as a bad one is.
+    try:
+        config.daemon.data_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        print(f"camd serve: {unusable_data_dir(config.daemon.data_dir, exc)}", file=sys.stderr)
+        sock.close()
+        return EXIT_CONFIG
 
     # Before any thread starts: arenas made before the limit stay (camd/daemon/heap.py).
     heap.limit_arenas(config.daemon.malloc_arenas)
@@ -393,6 +406,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"camd serve: {refusal}", file=sys.stderr)
         sock.close()
         return EXIT_CONFIG
+    # Said once the daemon will run: a refused start's one line of error stands alone.
+    backends.log_choice(config)
     session = DeviceSession(config)
     try:
         session.start()
@@ -402,12 +417,7 @@ def run(args: argparse.Namespace) -> int:
         sock.close()
         return EXIT_CONFIG if exc.usage else EXIT_RUNTIME
     except (OSError, sqlite3.Error) as exc:
-        print(
-            f"camd serve: cannot use the data directory {config.daemon.data_dir}: "
-            f"{getattr(exc, 'strerror', None) or exc}; make it writable or choose another "
-            "with --data-dir",
-            file=sys.stderr,
-        )
+        print(f"camd serve: {unusable_data_dir(config.daemon.data_dir, exc)}", file=sys.stderr)
         session.stop()
         sock.close()
         return EXIT_CONFIG
