@@ -44,6 +44,8 @@ from typing import TYPE_CHECKING, Annotated, Any, Literal
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
+from camd.datafile import Loc, place, what_to_write, wrong_type, yaml_line, yaml_lines, yaml_problem
+
 if TYPE_CHECKING:
     from camd.sensor.regmap import FieldSpec, GroupSpec, RegisterMap, RegisterSpec
 
@@ -368,29 +370,47 @@ def load_campaign(path: str | Path) -> CampaignSpec:
         raise CampaignError(f"{path}: cannot read the campaign file ({exc})") from None
     try:
         doc = yaml.safe_load(text)
+        lines = yaml_lines(text)
     except yaml.YAMLError as exc:
-        raise CampaignError(f"{path}: not valid YAML: {exc}") from None
+        line, problem = yaml_problem(exc)
+        raise CampaignError(f"{place(path, line)}: not valid YAML: {problem}") from None
     if not isinstance(doc, dict):
-        raise CampaignError(f"{path}: a campaign is a mapping (name, profile, steps, ...)")
+        raise CampaignError(
+            f"{place(path, lines.get(()))}: a campaign is a mapping (name, profile, steps, ...)"
+        )
     try:
         spec = CampaignSpec.model_validate(doc)
     except ValidationError as exc:
-        raise CampaignError(_explain(path, doc, exc)) from None
+        raise CampaignError(_explain(path, doc, exc, CampaignSpec, lines=lines)) from None
     _check_semantics(path, spec)
     _check_register_names(path, spec)
     return spec
 
 
-def _explain(path: Path, doc: Any, exc: ValidationError, prefix: str = "") -> str:
-    """pydantic's errors as ``file: steps[1] (id 'x'): key: message`` lines, one per key (the
-    most telling of a union's alternatives), each saying what to give instead. ``prefix`` names
-    the step when ``doc`` is one step."""
-    found: dict[str, tuple[int, str]] = {}
+def _explain(
+    path: Path,
+    doc: Any,
+    exc: ValidationError,
+    model: type[BaseModel],
+    prefix: str = "",
+    lines: dict[Loc, int] | None = None,
+) -> str:
+    """pydantic's errors (``doc`` validated as ``model``) as ``file:line: steps[1] (id 'x'):
+    key: message`` lines, one per key (the most telling of a union's alternatives), each
+    saying what to give instead. ``lines`` (``yaml_lines`` of the file) give the line of the
+    key, or of the mapping a missing key belongs in; without them (a step checked with its
+    parameters substituted) the message has no line. ``prefix`` names the step when ``doc`` is
+    one step."""
+    found: dict[str, tuple[int, int | None, str]] = {}
+    references: set[str] = set()  # keys whose value may also be a ${name} reference
     for err in exc.errors():
+        loc = tuple(err["loc"])
+        if err["type"] in ("union_tag_not_found", "union_tag_invalid"):
+            loc = (*loc, "kind")  # the step's `kind` is what is wrong or missing
         where: list[str] = []
         node: Any = doc
         leaf = ""
-        for part in err["loc"]:
+        for part in loc:
             if isinstance(part, int) and isinstance(node, list):
                 node = node[part] if part < len(node) else None
                 step_id = node.get("id") if isinstance(node, dict) else None
@@ -403,35 +423,54 @@ def _explain(path: Path, doc: Any, exc: ValidationError, prefix: str = "") -> st
                 node = node[part]
                 where.append(str(part))
                 leaf = str(part)
-            elif part in ("configure", "sweep", "acquire", "measure", "check"):
+            elif part in _STEP_KINDS:
                 pass  # the discriminated union's tag: not a key of the file
-            elif isinstance(node, dict) and err["type"] in ("missing", "extra_forbidden"):
+            elif isinstance(node, dict) and (
+                err["type"] in ("missing", "extra_forbidden") or part == "kind"
+            ):
                 where.append(str(part))
                 node = None
-            # else: a union's alternative or the discriminated union's tag, not a key
+            # else: a union's alternative, not a key
         key = ".".join(where) or "(top level)"
-        rank, message = _message(err, leaf)
+        if loc[-1] == "constrained-str" and err["type"] == "string_pattern_mismatch":
+            references.add(key)
+        rank, message = _message(err, leaf, model, loc)
+        line = yaml_line(lines, loc) if lines is not None else None
         if key not in found or rank < found[key][0]:
-            found[key] = (rank, message)
-    head = f"{path}: {prefix}" + (": " if prefix else "")
-    return "\n".join(f"{head}{key}: {message}" for key, (_, message) in found.items())
+            found[key] = (rank, line, message)
+    shown = []
+    for key, (_, line, message) in found.items():
+        if key in references and " the wrong type;" in message:
+            message += " (or a ${name} reference)"
+        shown.append(f"{place(path, line)}: {prefix}{': ' if prefix else ''}{key}: {message}")
+    return "\n".join(shown)
 
 
-def _message(err: Any, leaf: str) -> tuple[int, str]:
+_STEP_KINDS = ("configure", "sweep", "acquire", "measure", "check")
+"""The kinds of step, the tags of ``Step``."""
+
+
+def _message(err: Any, leaf: str, model: type[BaseModel], loc: Loc) -> tuple[int, str]:
     """(rank, text) of one pydantic error: range errors first, then others, type mismatches of
     a union's alternatives last (a count given as -5 is out of range, not "not a ${ref}")."""
     kind = err["type"]
-    if kind == "extra_forbidden":
-        return 0, "unknown key (a typo?); docs/campaigns.md lists the keys"
-    if kind == "missing":
-        return 0, "missing key"
+    if kind in ("extra_forbidden", "missing"):
+        hint = what_to_write(model, loc, kind)
+        if kind == "missing":
+            return 0, f"missing key{hint}"
+        return 0, f"unknown key{hint or '; docs/campaigns.md lists the keys'}"
+    if kind == "union_tag_not_found":
+        return 0, f"missing key; add `kind: ...`, one of {', '.join(_STEP_KINDS)}"
+    if kind == "union_tag_invalid":
+        tag = err["ctx"]["tag"]
+        return 0, f"{tag!r} is not a step kind; give one of {', '.join(_STEP_KINDS)}"
     if kind in ("greater_than_equal", "less_than_equal", "greater_than", "less_than"):
         if leaf in RANGES:
             lo, hi = RANGES[leaf]
             return 0, f"{err['input']!r} is out of range; give {lo} .. {hi}"
         return 0, f"{err['input']!r}: {err['msg']}"
     if kind.endswith("_type") or kind.endswith("_parsing") or kind == "string_pattern_mismatch":
-        return 2, f"{err['input']!r}: {err['msg']}"
+        return 2, wrong_type(kind, err["input"]) or f"{err['input']!r}: {err['msg']}"
     return 1, f"{err['msg']}"
 
 
@@ -662,7 +701,7 @@ def check_campaign(spec: CampaignSpec, path: str | Path, *, quick: bool) -> None
                 continue  # names a result measured before it
             except ValidationError as exc:
                 raise CampaignError(
-                    _explain(Path(path), data, exc, prefix=label) + f"\n{fix}"
+                    _explain(Path(path), data, exc, type(step), prefix=label) + f"\n{fix}"
                 ) from None
             if isinstance(resolved, ConfigureStep) and resolved.registers:
                 regmap = regmap or register_map_of(path, spec)
