@@ -38,6 +38,8 @@ Errors (``CampaignError``) name the file, the step (``steps[2] (id 'sweep')``) a
 from __future__ import annotations
 
 import re
+from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, Literal
 
@@ -382,9 +384,31 @@ def load_campaign(path: str | Path) -> CampaignSpec:
         spec = CampaignSpec.model_validate(doc)
     except ValidationError as exc:
         raise CampaignError(_explain(path, doc, exc, CampaignSpec, lines=lines)) from None
-    _check_semantics(path, spec)
-    _check_register_names(path, spec)
+    _check_semantics(_File(path, lines), spec)
+    _check_register_names(_File(path, lines), spec)
     return spec
+
+
+@dataclass(frozen=True)
+class _File:
+    """A campaign file and the lines its places are written on (``yaml_lines``): where each
+    error begins, ``file:line:`` (``file:`` when the place is not known)."""
+
+    path: str | Path
+    lines: Mapping[Loc, int]
+
+    @classmethod
+    def read(cls, path: str | Path) -> _File:
+        """The file at ``path``, with its lines if it can be read (the runner names a campaign
+        by its name instead: no lines)."""
+        try:
+            return cls(path, yaml_lines(Path(path).read_text(encoding="utf-8")))
+        except (OSError, ValueError, yaml.YAMLError):
+            return cls(path, {})
+
+    def at(self, loc: Loc) -> str:
+        """``file:line`` of the place ``loc`` (the nearest written place above it)."""
+        return place(self.path, yaml_line(self.lines, loc))
 
 
 def _explain(
@@ -393,14 +417,15 @@ def _explain(
     exc: ValidationError,
     model: type[BaseModel],
     prefix: str = "",
-    lines: dict[Loc, int] | None = None,
+    lines: Mapping[Loc, int] | None = None,
+    at: Loc = (),
 ) -> str:
     """pydantic's errors (``doc`` validated as ``model``) as ``file:line: steps[1] (id 'x'):
     key: message`` lines, one per key (the most telling of a union's alternatives), each
     saying what to give instead. ``lines`` (``yaml_lines`` of the file) give the line of the
     key, or of the mapping a missing key belongs in; without them (a step checked with its
-    parameters substituted) the message has no line. ``prefix`` names the step when ``doc`` is
-    one step."""
+    parameters substituted, when the file cannot be read again) the message has no line.
+    ``prefix`` names the step when ``doc`` is one step, the step at ``at`` of the file."""
     found: dict[str, tuple[int, int | None, str]] = {}
     references: set[str] = set()  # keys whose value may also be a ${name} reference
     for err in exc.errors():
@@ -435,7 +460,7 @@ def _explain(
         if loc[-1] == "constrained-str" and err["type"] == "string_pattern_mismatch":
             references.add(key)
         rank, message = _message(err, leaf, model, loc)
-        line = yaml_line(lines, loc) if lines is not None else None
+        line = yaml_line(lines, (*at, *loc)) if lines is not None else None
         if key not in found or rank < found[key][0]:
             found[key] = (rank, line, message)
     shown = []
@@ -474,31 +499,35 @@ def _message(err: Any, leaf: str, model: type[BaseModel], loc: Loc) -> tuple[int
     return 1, f"{err['msg']}"
 
 
-def _walk(steps: list[Any], where: str) -> list[tuple[str, Any]]:
-    out: list[tuple[str, Any]] = []
+def _walk(steps: list[Any], where: str, at: Loc = ("steps",)) -> list[tuple[str, Loc, Any]]:
+    """Every step, nested ones after their sweep: its label in messages, its place in the
+    file, the step."""
+    out: list[tuple[str, Loc, Any]] = []
     for i, step in enumerate(steps):
         label = f"{where}[{i}] (id {step.id!r})"
-        out.append((label, step))
+        out.append((label, (*at, i), step))
         if isinstance(step, SweepStep):
-            out += _walk(step.steps, f"{label}.steps")
+            out += _walk(step.steps, f"{label}.steps", (*at, i, "steps"))
     return out
 
 
-def _check_semantics(path: Path, spec: CampaignSpec) -> None:
+def _check_semantics(file: _File, spec: CampaignSpec) -> None:
     """What the schema cannot say: unique ids, known references, known functions."""
     from camd.campaign.measurements import MEASUREMENTS
 
     unknown_quick = sorted(set(spec.quick) - set(spec.parameters))
     if unknown_quick:
         raise CampaignError(
-            f"{path}: quick: {', '.join(unknown_quick)} not in `parameters` (quick overrides "
-            "parameters; declare them there)"
+            f"{file.at(('quick', unknown_quick[0]))}: quick: {', '.join(unknown_quick)} not in "
+            "`parameters` (quick overrides parameters; declare them there)"
         )
     seen: dict[str, str] = {}
     acquires: set[str] = set()
-    for label, step in _walk(spec.steps, "steps"):
+    for label, loc, step in _walk(spec.steps, "steps"):
         if step.id in seen:
-            raise CampaignError(f"{path}: {label}: id {step.id!r} already used by {seen[step.id]}")
+            raise CampaignError(
+                f"{file.at((*loc, 'id'))}: {label}: id {step.id!r} already used by {seen[step.id]}"
+            )
         seen[step.id] = label
         if isinstance(step, AcquireStep):
             acquires.add(step.id)
@@ -508,47 +537,50 @@ def _check_semantics(path: Path, spec: CampaignSpec) -> None:
     # when it runs, so those are checked then.
     declared: set[str] = set()
 
-    def check(steps: list[Any], where: str, names: set[str]) -> None:
+    def check(steps: list[Any], where: str, at: Loc, names: set[str]) -> None:
         for i, step in enumerate(steps):
             label = f"{where}[{i}] (id {step.id!r})"
+            loc = (*at, i)
             known = names | declared
             for key, value in step.model_dump(exclude={"steps", "from_results"}).items():
-                for ref in _refs(value):
+                for ref, inside in _refs(value):
                     if ref not in known:
                         raise CampaignError(
-                            f"{path}: {label}: {key}: ${{{ref}}} is neither a parameter, an "
+                            f"{file.at((*loc, key, *inside))}: {label}: {key}: ${{{ref}}} is "
+                            "neither a parameter, an "
                             "enclosing sweep's parameter nor a result declared before it "
                             f"(known: {', '.join(sorted(known))})"
                         )
             if isinstance(step, MeasureStep):
                 if step.function not in MEASUREMENTS:
                     raise CampaignError(
-                        f"{path}: {label}: function: unknown measurement {step.function!r}; "
-                        f"known: {', '.join(sorted(MEASUREMENTS))}"
+                        f"{file.at((*loc, 'function'))}: {label}: function: unknown "
+                        f"measurement {step.function!r}; known: {', '.join(sorted(MEASUREMENTS))}"
                     )
                 for arg, source in step.inputs.items():
                     if source not in acquires:
                         raise CampaignError(
-                            f"{path}: {label}: inputs.{arg}: {source!r} is not the id of an "
-                            "acquire step"
+                            f"{file.at((*loc, 'inputs', arg))}: {label}: inputs.{arg}: "
+                            f"{source!r} is not the id of an acquire step"
                         )
                 declared.update(step.results or ())
             if isinstance(step, CheckStep) and step.min is None and step.max is None:
-                raise CampaignError(f"{path}: {label}: give `min`, `max` or both")
+                raise CampaignError(f"{file.at(loc)}: {label}: give `min`, `max` or both")
             if isinstance(step, SweepStep):
-                check(step.steps, f"{label}.steps", names | {step.parameter})
+                check(step.steps, f"{label}.steps", (*loc, "steps"), names | {step.parameter})
 
     # Result names in `outputs` are only known after a run: the report says which are missing.
-    check(spec.steps, "steps", set(spec.parameters))
+    check(spec.steps, "steps", ("steps",), set(spec.parameters))
 
 
-def _refs(value: Any) -> list[str]:
+def _refs(value: Any) -> list[tuple[str, Loc]]:
+    """The names ``value`` refers to (``${name}``), each with its place inside ``value``."""
     if isinstance(value, str):
-        return [m.group(1) for m in REF_RE.finditer(value)]
+        return [(m.group(1), ()) for m in REF_RE.finditer(value)]
     if isinstance(value, dict):
-        return [r for v in value.values() for r in _refs(v)]
+        return [(r, (k, *at)) for k, v in value.items() for r, at in _refs(v)]
     if isinstance(value, list):
-        return [r for v in value for r in _refs(v)]
+        return [(r, (i, *at)) for i, v in enumerate(value) for r, at in _refs(v)]
     return []
 
 
@@ -584,7 +616,8 @@ def _text(value: Any) -> str:
 
 
 def register_map_of(path: str | Path, spec: CampaignSpec) -> RegisterMap:
-    """The register map of the campaign's profile's sensor; CampaignError if there is none."""
+    """The register map of the campaign's profile's sensor; CampaignError if there is none
+    (``path``: the file, or ``file:line`` of its profile)."""
     from camd.sensor.profile import load_profile
     from camd.sensor.regmap import load_register_map
 
@@ -596,26 +629,26 @@ def register_map_of(path: str | Path, spec: CampaignSpec) -> RegisterMap:
         ) from None
 
 
-def _check_register_names(path: Path, spec: CampaignSpec) -> None:
+def _check_register_names(file: _File, spec: CampaignSpec) -> None:
     """Every register a configure step names is one of the profile's sensor's that can be
     written (``REG``, ``REG.field``, ``GROUP`` or an address)."""
-    configures = [(label, step) for label, step in _walk(spec.steps, "steps")
+    configures = [(label, loc, step) for label, loc, step in _walk(spec.steps, "steps")
                   if isinstance(step, ConfigureStep) and step.registers]  # fmt: skip
     if not configures:
         return
-    regmap = register_map_of(path, spec)
-    for label, step in configures:
+    regmap = register_map_of(file.at(("profile",)), spec)
+    for label, loc, step in configures:
         for name in step.registers:
             if "${" not in name:
-                _register_target(path, label, regmap, name)
+                _register_target(file, (*loc, "registers", name), label, regmap, name)
 
 
 def _register_target(
-    path: str | Path, label: str, regmap: RegisterMap, name: str
+    file: _File, loc: Loc, label: str, regmap: RegisterMap, name: str
 ) -> tuple[RegisterSpec | GroupSpec, FieldSpec | None]:
     from camd.sensor.regmap import GroupSpec
 
-    where = f"{path}: {label}: registers.{name}"
+    where = f"{file.at(loc)}: {label}: registers.{name}"
     try:
         try:
             target: RegisterSpec | GroupSpec = regmap.register(int(name.strip(), 0))
@@ -633,14 +666,15 @@ def _register_target(
 
 
 def _check_register_values(
-    path: str | Path, label: str, regmap: RegisterMap, registers: dict[str, Any]
+    file: _File, at: Loc, label: str, regmap: RegisterMap, registers: dict[str, Any]
 ) -> None:
     """Each value against its register's, field's or group's range (what the daemon checks
     first; combinations such as the window are checked by the daemon when the step runs)."""
     from camd.sensor.regmap import GroupSpec
 
     for name, given in registers.items():
-        target, field_spec = _register_target(path, label, regmap, name)
+        loc = (*at, "registers", name)
+        target, field_spec = _register_target(file, loc, label, regmap, name)
         value = given
         if isinstance(value, str):
             try:
@@ -655,15 +689,15 @@ def _check_register_values(
             elif isinstance(value, str):
                 fields = ", ".join(f"{target.name}.{f.name}" for f in target.all_fields())
                 raise CampaignError(
-                    f"{path}: {label}: registers.{name}: {value!r} is not a number; give an "
-                    f"integer or set a field by name ({fields})"
+                    f"{file.at(loc)}: {label}: registers.{name}: {value!r} is not a number; "
+                    f"give an integer or set a field by name ({fields})"
                 )
             else:
                 target.check_value(value)
         except ValueError as exc:  # RegisterValueError
             if isinstance(exc, CampaignError):
                 raise
-            raise CampaignError(f"{path}: {label}: registers.{name}: {exc}") from None
+            raise CampaignError(f"{file.at(loc)}: {label}: registers.{name}: {exc}") from None
 
 
 def check_campaign(spec: CampaignSpec, path: str | Path, *, quick: bool) -> None:
@@ -678,19 +712,29 @@ def check_campaign(spec: CampaignSpec, path: str | Path, *, quick: bool) -> None
         "this step uses"
     )
 
-    def walk(steps: list[Any], where: str, names: dict[str, Any], within: str) -> None:
+    file: _File | None = None  # read for its lines when there is an error to place
+
+    def read() -> _File:
+        nonlocal file
+        file = file or _File.read(path)
+        return file
+
+    def walk(steps: list[Any], where: str, at: Loc, names: dict[str, Any], within: str) -> None:
         nonlocal regmap
         for i, step in enumerate(steps):
             label = f"{where}[{i}] (id {step.id!r}){within}"
+            loc = (*at, i)
             if isinstance(step, SweepStep):
                 try:
                     values = sweep_values(step, names)
                 except KeyError:
                     continue  # swept over a measured result
                 except CampaignError as exc:
-                    raise CampaignError(f"{path}: {label}: {exc}\n{fix}") from None
+                    raise CampaignError(
+                        f"{read().at((*loc, 'values'))}: {label}: {exc}\n{fix}"
+                    ) from None
                 for value in values:
-                    walk(step.steps, f"{where}[{i}] (id {step.id!r}).steps",
+                    walk(step.steps, f"{where}[{i}] (id {step.id!r}).steps", (*loc, "steps"),
                          {**names, step.parameter: value},
                          f"{within} with {step.parameter} = {_text(value)}")  # fmt: skip
                 continue
@@ -700,17 +744,17 @@ def check_campaign(spec: CampaignSpec, path: str | Path, *, quick: bool) -> None
             except KeyError:
                 continue  # names a result measured before it
             except ValidationError as exc:
-                raise CampaignError(
-                    _explain(Path(path), data, exc, type(step), prefix=label) + f"\n{fix}"
-                ) from None
+                lines = read().lines
+                explained = _explain(Path(path), data, exc, type(step), label, lines, loc)
+                raise CampaignError(f"{explained}\n{fix}") from None
             if isinstance(resolved, ConfigureStep) and resolved.registers:
-                regmap = regmap or register_map_of(path, spec)
+                regmap = regmap or register_map_of(read().at(("profile",)), spec)
                 try:
-                    _check_register_values(path, label, regmap, resolved.registers)
+                    _check_register_values(read(), loc, label, regmap, resolved.registers)
                 except CampaignError as exc:
                     raise CampaignError(f"{exc}\nnothing was done") from None
 
-    walk(spec.steps, "steps", dict(spec.parameters_for(quick)), "")
+    walk(spec.steps, "steps", ("steps",), dict(spec.parameters_for(quick)), "")
 
 
 def sweep_values(step: SweepStep, names: dict[str, Any]) -> list[Any]:
