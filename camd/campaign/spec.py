@@ -41,7 +41,7 @@ import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal, TypeVar
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
@@ -69,6 +69,7 @@ __all__ = [
     "register_map_of",
     "resolve",
     "sweep_values",
+    "validate_header",
 ]
 
 NAME = r"^[a-z][a-z0-9_]*$"
@@ -380,12 +381,32 @@ def load_campaign(path: str | Path) -> CampaignSpec:
         raise CampaignError(
             f"{place(path, lines.get(()))}: a campaign is a mapping (name, profile, steps, ...)"
         )
-    try:
-        spec = CampaignSpec.model_validate(doc)
-    except ValidationError as exc:
-        raise CampaignError(_explain(path, doc, exc, CampaignSpec, lines=lines)) from None
+    spec = validate_header(path, doc, CampaignSpec, lines)
     _check_semantics(_File(path, lines), spec)
     _check_register_names(_File(path, lines), spec)
+    return spec
+
+
+Spec = TypeVar("Spec", bound=CampaignSpec)
+
+
+def validate_header(
+    path: Path, doc: Mapping[str, Any], model: type[Spec], lines: Mapping[Loc, int], name: str = ""
+) -> Spec:
+    """``doc`` validated as ``model`` (a campaign, or a Python campaign's header, called
+    ``name``), its ``quick`` overrides among its parameters; CampaignError whose lines begin
+    ``file:line:`` (the places' ``lines``, as ``yaml_lines`` gives them) otherwise."""
+    try:
+        spec = model.model_validate(doc)
+    except ValidationError as exc:
+        raise CampaignError(_explain(path, doc, exc, model, name, lines)) from None
+    unknown_quick = sorted(set(spec.quick) - set(spec.parameters))
+    if unknown_quick:
+        where = _File(path, lines).at(("quick", unknown_quick[0]))
+        raise CampaignError(
+            f"{where}: {name}{': ' if name else ''}quick: {', '.join(unknown_quick)} not in "
+            "`parameters` (quick overrides parameters; declare them there)"
+        )
     return spec
 
 
@@ -515,12 +536,6 @@ def _check_semantics(file: _File, spec: CampaignSpec) -> None:
     """What the schema cannot say: unique ids, known references, known functions."""
     from camd.campaign.measurements import MEASUREMENTS
 
-    unknown_quick = sorted(set(spec.quick) - set(spec.parameters))
-    if unknown_quick:
-        raise CampaignError(
-            f"{file.at(('quick', unknown_quick[0]))}: quick: {', '.join(unknown_quick)} not in "
-            "`parameters` (quick overrides parameters; declare them there)"
-        )
     seen: dict[str, str] = {}
     acquires: set[str] = set()
     for label, loc, step in _walk(spec.steps, "steps"):
