@@ -443,9 +443,16 @@ def yaml_lines(text: str) -> dict[Loc, int]:
         if isinstance(node, yaml.MappingNode):
             for key, value in node.value:
                 if isinstance(key, yaml.ScalarNode):
-                    # the last of a repeated key: the one the parsed document keeps
-                    lines[(*loc, key.value)] = key.start_mark.line + 1
-                    walk(value, (*loc, key.value), above)
+                    here = (*loc, key.value)
+                    if here in lines and key.value != "<<":  # `<<` merges: not a key
+                        # YAML's parsers keep the last silently; TOML refuses it, as here.
+                        raise yaml.MarkedYAMLError(
+                            problem=f"the key {key.value!r} is given twice (first on line "
+                            f"{lines[here]}); keep one",
+                            problem_mark=key.start_mark,
+                        )
+                    lines[here] = key.start_mark.line + 1
+                    walk(value, here, above)
         elif isinstance(node, yaml.SequenceNode):
             for index, item in enumerate(node.value):
                 lines[(*loc, index)] = item.start_mark.line + 1

@@ -436,6 +436,9 @@ STARE_KEYS = "frames, mode, stages, binning, timeout_s"
         ("inputs: {frames: dark}", "inputs: {frames: dark",
          "16: not valid YAML: expected ',' or '}', but got ':' (while parsing a flow mapping "
          "begun on line 15)"),
+        # A key given twice: YAML keeps the last silently, TOML refuses it; so does camd.
+        ("  photons: [2.0e+7, 8.0e+7]\n", "  photons: [2.0e+7, 8.0e+7]\n  frames: 5\n",
+         "7: not valid YAML: the key 'frames' is given twice (first on line 5); keep one"),
         # What the schema cannot say, checked after it: the line of the key too.
         ("function: dark_noise", "function: dark_nois",
          "14: steps[1] (id 'noise'): function: unknown measurement 'dark_nois'; known: "
@@ -460,7 +463,7 @@ STARE_KEYS = "frames, mode, stages, binning, timeout_s"
          "parameters (or their quick overrides) that this step uses"),
     ],
     ids=["typo", "wrong-type", "wrong-type-deep", "missing-key", "missing-top-level-key",
-         "out-of-range-deep", "unknown-kind", "missing-kind", "yaml-syntax", "unknown-function",
+         "out-of-range-deep", "unknown-kind", "missing-kind", "yaml-syntax", "repeated-key", "unknown-function",
          "input-not-acquired", "unknown-reference", "repeated-id", "unknown-register",
          "register-value", "parameter-out-of-range"],
 )  # fmt: skip
