@@ -3,8 +3,10 @@
 ``Sourced`` holds a physical value with its provenance (a paper's section, or why it was
 assumed); ``DataFileError`` is a file that does not validate, its message starting with
 ``file:line:``; ``located`` turns a pydantic ValidationError (or a ``KeyedError`` a check
-raised) into that message, with the line of the key in the TOML text. Pure: the simulated
-camera reads the same files.
+raised) into that message, with the line of the key in the TOML text. The campaign files
+(YAML, camd.campaign.spec) begin their errors the same way (``place``), with the lines
+``yaml_lines`` finds and the same words for a wrong type (``wrong_type``) and a missing or
+unknown key (``what_to_write``). Pure: the simulated camera reads the same files.
 """
 
 from __future__ import annotations

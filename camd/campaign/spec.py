@@ -32,7 +32,9 @@ key of a mapping value. A whole-string reference takes the value with its type, 
 one is formatted into the text. References are checked when the file is loaded, the values
 they resolve to when the step runs.
 
-Errors (``CampaignError``) name the file, the step (``steps[2] (id 'sweep')``) and the key.
+Errors (``CampaignError``) begin ``file:line:`` (the line of the key, found in the YAML's node
+graph: ``camd.datafile.yaml_lines``), then name the step (``steps[2] (id 'sweep')``) and the
+key and say what to write, in the words of the TOML data files' errors (camd.datafile).
 """
 
 from __future__ import annotations
@@ -41,7 +43,7 @@ import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any, Literal, TypeVar
+from typing import TYPE_CHECKING, Annotated, Any, Literal, TypeVar, get_args
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
@@ -492,8 +494,10 @@ def _explain(
     return "\n".join(shown)
 
 
-_STEP_KINDS = ("configure", "sweep", "acquire", "measure", "check")
-"""The kinds of step, the tags of ``Step``."""
+_STEP_KINDS: tuple[str, ...] = tuple(
+    get_args(member.model_fields["kind"].annotation)[0] for member in get_args(get_args(Step)[0])
+)
+"""The kinds of step, the tags of ``Step``: configure, sweep, acquire, measure, check."""
 
 
 def _message(err: Any, leaf: str, model: type[BaseModel], loc: Loc) -> tuple[int, str]:
