@@ -3,8 +3,10 @@
 ``Sourced`` holds a physical value with its provenance (a paper's section, or why it was
 assumed); ``DataFileError`` is a file that does not validate, its message starting with
 ``file:line:``; ``located`` turns a pydantic ValidationError (or a ``KeyedError`` a check
-raised) into that message, with the line of the key in the TOML text. Pure: the simulated
-camera reads the same files.
+raised) into that message, with the line of the key in the TOML text. The campaign files
+(YAML, camd.campaign.spec) begin their errors the same way (``place``), with the lines
+``yaml_lines`` finds and the same words for a wrong type (``wrong_type``) and a missing or
+unknown key (``what_to_write``). Pure: the simulated camera reads the same files.
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ import types
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Any, Generic, TypeVar, Union, get_args, get_origin
+from typing import Annotated, Any, Generic, Literal, TypeVar, Union, get_args, get_origin
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
@@ -30,10 +32,15 @@ class DataFileError(ValueError):
     """A data file is invalid; the message starts with ``file:line:`` (or ``file:``)."""
 
     def __init__(self, path: Path | str, line: int | None, message: str) -> None:
-        where = f"{path}:{line}" if line is not None else f"{path}"
-        super().__init__(f"{where}: {message}")
+        super().__init__(f"{place(path, line)}: {message}")
         self.path = Path(path)
         self.line = line
+
+
+def place(path: Path | str, line: int | None) -> str:
+    """``file:line`` (``file`` when the line is not known): how the error of every data file
+    (TOML or a campaign's YAML) begins."""
+    return f"{path}:{line}" if line is not None else f"{path}"
 
 
 class KeyedError(ValueError):
@@ -307,10 +314,22 @@ def _entry_of(model: type[BaseModel], loc: Loc, named: Mapping[str, str]) -> boo
     return _is_tables(_type_at(model, loc))
 
 
-def _hint(model: type[BaseModel], loc: Loc, kind: str) -> str:
-    """What to write, for a missing key, an unknown key or a value that should be a table."""
+def what_to_write(model: type[BaseModel], loc: Sequence[str | int], kind: str) -> str:
+    """What to write in a YAML file (a campaign) validated as ``model``, for pydantic's error
+    ``kind`` at ``loc``: ``; add `key: ...``` for a missing key, the key meant and the known
+    keys for an unknown one; "" otherwise."""
+    return _hint(model, _clean_loc(loc), kind, yaml=True)
+
+
+def _hint(model: type[BaseModel], loc: Loc, kind: str, *, yaml: bool = False) -> str:
+    """What to write, for a missing key, an unknown key or a value that should be a table
+    (in TOML, or with ``yaml`` in YAML, where a missing key is added as ``key: ...``)."""
     key = loc[-1]
     if not isinstance(key, str):
+        return ""
+    if yaml and kind == "missing":
+        return f"; add `{key}: ...`"
+    if yaml and kind != "extra_forbidden":
         return ""
     tables = all(isinstance(part, str) for part in loc)
     dotted = ".".join(str(part) for part in loc)
@@ -351,6 +370,9 @@ def _type_at(model: type[BaseModel], loc: Loc) -> object:
             expected = args[0]
         elif origin is dict and len(args) == 2 and isinstance(part, str):
             expected = args[1]
+        elif origin in (Union, types.UnionType) and isinstance(part, str):
+            # pydantic names the member of a discriminated union it tried by its tag
+            expected = next((m for m in args if part in _tags(m)), None)
         else:
             return None
     return _unwrap(expected)
@@ -371,6 +393,16 @@ def _unwrap(annotation: object) -> object:
         return annotation
 
 
+def _tags(member: object) -> tuple[object, ...]:
+    """The values of a model's ``Literal`` fields: its tags as a discriminated union's member."""
+    if not (isinstance(member, type) and issubclass(member, BaseModel)):
+        return ()
+    fields = member.model_fields.values()
+    return tuple(
+        tag for f in fields if get_origin(f.annotation) is Literal for tag in get_args(f.annotation)
+    )
+
+
 def _is_model(annotation: object, base: type[BaseModel] = BaseModel) -> bool:
     return isinstance(annotation, type) and issubclass(annotation, base)
 
@@ -389,6 +421,79 @@ def _child(node: object, part: str | int) -> object:
         return node[part]
     return None
 
+
+# -- where a place of a YAML file is -----------------------------------------------------------
+
+
+def yaml_lines(text: str) -> dict[Loc, int]:
+    """The 1-based line of every place of the YAML text ``text``, by its ``Loc``: of each
+    mapping's key (``()``: where the document begins) and of each sequence's item. PyYAML's
+    node graph keeps the marks that its parsed values lose. yaml.YAMLError if it is not YAML
+    (``yaml_problem`` says where)."""
+    import yaml
+
+    root = yaml.compose(text, Loader=yaml.SafeLoader)
+    lines: dict[Loc, int] = {}
+    if root is None:
+        return lines
+    lines[()] = root.start_mark.line + 1
+
+    def walk(node: yaml.Node, loc: Loc, above: frozenset[int]) -> None:
+        if id(node) in above:  # an alias of a node that holds it: the same places again
+            return
+        above = above | {id(node)}
+        if isinstance(node, yaml.MappingNode):
+            for key, value in node.value:
+                if isinstance(key, yaml.ScalarNode):
+                    here = (*loc, key.value)
+                    if here in lines and key.value != "<<":  # `<<` merges: not a key
+                        # YAML's parsers keep the last silently; TOML refuses it, as here.
+                        raise yaml.MarkedYAMLError(
+                            problem=f"the key {key.value!r} is given twice (first on line "
+                            f"{lines[here]}); keep one",
+                            problem_mark=key.start_mark,
+                        )
+                    lines[here] = key.start_mark.line + 1
+                    walk(value, here, above)
+        elif isinstance(node, yaml.SequenceNode):
+            for index, item in enumerate(node.value):
+                lines[(*loc, index)] = item.start_mark.line + 1
+                walk(item, (*loc, index), above)
+
+    walk(root, (), frozenset())
+    return lines
+
+
+def yaml_line(lines: Mapping[Loc, int], loc: Sequence[str | int]) -> int | None:
+    """The line (of ``yaml_lines``) of the deepest place of pydantic's ``loc`` written in the
+    file. Parts the file does not write are passed over (a union's member, a discriminated
+    union's tag), so a missing key gives the line of the mapping it belongs in."""
+    here: Loc = ()
+    for part in loc:
+        if (*here, part) in lines:
+            here = (*here, part)
+    return lines.get(here)
+
+
+def yaml_problem(exc: Exception) -> tuple[int | None, str]:
+    """The line and a one-line account of a YAML syntax error (PyYAML's spans several lines,
+    with the text quoted): ``expected ',' or '}', but got ':' (while parsing a flow mapping
+    begun on line 15)``."""
+    import yaml
+
+    if not isinstance(exc, yaml.MarkedYAMLError):
+        return None, " ".join(str(exc).split())
+    mark = exc.problem_mark or exc.context_mark
+    line = mark.line + 1 if mark is not None else None
+    message = exc.problem or exc.context or "not YAML"
+    if exc.problem and exc.context:
+        begun = exc.context_mark
+        at = f" begun on line {begun.line + 1}" if begun is not None and begun is not mark else ""
+        message = f"{exc.problem} ({exc.context}{at})"
+    return line, " ".join(message.split())
+
+
+# -- where a place of a TOML file is -----------------------------------------------------------
 
 _HEADER = re.compile(r"^\s*(\[\[?)\s*([A-Za-z0-9_.]+)\s*\]\]?")
 

@@ -104,7 +104,7 @@ def test_invalid_campaign_exits_2_before_anything_runs(
     out = tmp_path / "out"
     args = ["campaign", "run", str(bad), "--out", str(out), "--quick"]
     proc = camctl(NO_DAEMON, *args, *(["--sim"] if sim else []))
-    refused(proc, 2, f"{bad}: ", *fragments)
+    refused(proc, 2, f"{bad}:", *fragments)
     assert not out.exists()  # no output directory, no daemon started for --sim
     assert tree(tmp_path) == ["bad.yaml"]
 
@@ -354,10 +354,160 @@ def test_a_megabyte_value_in_a_campaign_or_register_file_is_quoted_cut(
     registers.write_text(f'sensor = "hr400"\n[registers]\nGAIN = "{BIG}"\n', encoding="utf-8")
     for args, fragment in (
         (["campaign", "run", str(campaign), "--out", str(tmp_path / "out"), "--quick"],
-         f"{campaign}: steps[2] (id 'dark').stare.frames: 'xxxx"),
+         f"{campaign}:35: steps[2] (id 'dark').stare.frames: 'xxxx"),
         (["reg", "load", str(registers)], f"{registers}: registers.GAIN = 'xxxx"),
     ):  # fmt: skip
         proc = camctl(url, *args)
         refused(proc, 2, fragment, "... (100000")  # 1000002 or 3 characters: with quotes
         assert len(proc.stderr) < 1000, len(proc.stderr)
     assert tree(tmp_path) == ["bad.yaml", "regs.toml"]
+
+
+# -- issue 31: a campaign file's error names its line --------------------------------------------
+
+LINED = """\
+name: lines
+profile: hr400
+seed: 7
+parameters:
+  frames: 4
+  photons: [2.0e+7, 8.0e+7]
+steps:
+  - id: dark
+    kind: acquire
+    stare:
+      frames: 3
+  - id: noise
+    kind: measure
+    function: dark_noise
+    inputs: {frames: dark}
+  - id: light
+    kind: sweep
+    parameter: photons
+    values: "${photons}"
+    steps:
+      - id: scene
+        kind: configure
+        scene: "flat:photons=${photons}"
+      - id: stare
+        kind: acquire
+        stare: {frames: "${frames}", stages: 1}
+  - id: window
+    kind: configure
+    registers: {WIN_ROWS: 64}
+"""
+"""A valid campaign whose line numbers the cases below name (line 11: ``frames: 3``)."""
+
+
+def test_the_lined_campaign_is_valid(tmp_path: Path) -> None:
+    from camd.campaign.spec import check_campaign, load_campaign
+
+    path = tmp_path / "lines.yaml"
+    path.write_text(LINED, encoding="utf-8")
+    check_campaign(load_campaign(path), path, quick=False)
+
+
+STARE_KEYS = "frames, mode, stages, binning, timeout_s"
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "expected"),
+    [
+        ("      frames: 3", "      frame: 3",
+         "11: steps[0] (id 'dark').stare.frame: unknown key; did you mean `frames`?; known "
+         f"keys: {STARE_KEYS}"),
+        ("seed: 7", 'seed: "7"',
+         "3: seed: '7' is a string, the wrong type; write an integer, without quotes"),
+        ("stages: 1}", 'stages: "1"}',
+         "26: steps[2] (id 'light').steps[1] (id 'stare').stare.stages: '1' is a string, the "
+         "wrong type; write an integer, without quotes (or a ${name} reference)"),
+        ("    function: dark_noise\n", "",
+         "12: steps[1] (id 'noise').function: missing key; add `function: ...`"),
+        ("profile: hr400\n", "", "1: profile: missing key; add `profile: ...`"),
+        ("stages: 1}", "stages: 5000}",
+         "26: steps[2] (id 'light').steps[1] (id 'stare').stare.stages: 5000 is out of range; "
+         "give 1 .. 4096"),
+        ("  - id: dark\n    kind: acquire\n", "  - id: dark\n    kind: acquir\n",
+         "9: steps[0] (id 'dark').kind: 'acquir' is not a step kind; give one of configure, "
+         "sweep, acquire, measure, check"),
+        ("    kind: measure\n", "",
+         "12: steps[1] (id 'noise').kind: missing key; add `kind: ...`, one of configure, "
+         "sweep, acquire, measure, check"),
+        ("inputs: {frames: dark}", "inputs: {frames: dark",
+         "16: not valid YAML: expected ',' or '}', but got ':' (while parsing a flow mapping "
+         "begun on line 15)"),
+        # A key given twice: YAML keeps the last silently, TOML refuses it; so does camd.
+        ("  photons: [2.0e+7, 8.0e+7]\n", "  photons: [2.0e+7, 8.0e+7]\n  frames: 5\n",
+         "7: not valid YAML: the key 'frames' is given twice (first on line 5); keep one"),
+        # What the schema cannot say, checked after it: the line of the key too.
+        ("function: dark_noise", "function: dark_nois",
+         "14: steps[1] (id 'noise'): function: unknown measurement 'dark_nois'; known: "
+         "bar_resolution, dark_noise, "),
+        ("inputs: {frames: dark}", "inputs: {frames: noise}",
+         "15: steps[1] (id 'noise'): inputs.frames: 'noise' is not the id of an acquire step"),
+        ('{frames: "${frames}"', '{frames: "${frame}"',
+         "26: steps[2] (id 'light').steps[1] (id 'stare'): stare: ${frame} is neither a "
+         "parameter, an enclosing sweep's parameter nor a result declared before it (known: "
+         "frames, photons)"),
+        ("  - id: window", "  - id: dark",
+         "27: steps[3] (id 'dark'): id 'dark' already used by steps[0] (id 'dark')"),
+        ("{WIN_ROWS: 64}", "{WIN_ROW: 64}",
+         "29: steps[3] (id 'window'): registers.WIN_ROW: hr400 has no register named 'WIN_ROW'"),
+        ("{WIN_ROWS: 64}", "{WIN_ROWS: 100000}",
+         "29: steps[3] (id 'window'): registers.WIN_ROWS: WIN_ROWS.rows: 100000 is out of range "
+         "(valid: 1 .. 2048 (1 .. 2048 row))\nnothing was done"),
+        # ... and with the parameters substituted: the line of the key that uses the parameter.
+        ("  frames: 4", "  frames: 0",
+         "26: steps[2] (id 'light').steps[1] (id 'stare') with photons = 2e+07: stare.frames: 0 "
+         "is out of range; give 1 .. 4294967295\nnothing was done: correct the campaign's "
+         "parameters (or their quick overrides) that this step uses"),
+    ],
+    ids=["typo", "wrong-type", "wrong-type-deep", "missing-key", "missing-top-level-key",
+         "out-of-range-deep", "unknown-kind", "missing-kind", "yaml-syntax", "repeated-key", "unknown-function",
+         "input-not-acquired", "unknown-reference", "repeated-id", "unknown-register",
+         "register-value", "parameter-out-of-range"],
+)  # fmt: skip
+def test_a_campaign_error_names_its_line(tmp_path: Path, old: str, new: str, expected: str) -> None:
+    """Each error starts ``file:LINE:`` with the line of the key (of the mapping a missing key
+    belongs in), names the step and says what to write; camctl prints that one line, exit 2."""
+    from camd.campaign.spec import CampaignError, check_campaign, load_campaign
+
+    assert LINED.count(old) == 1
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(LINED.replace(old, new), encoding="utf-8")
+    with pytest.raises(CampaignError) as info:
+        check_campaign(load_campaign(bad), bad, quick=False)
+    message = str(info.value)
+    assert message.startswith(f"{bad}:{expected}"), message
+    assert message.count("\n") == expected.count("\n"), message  # one line, and what to do
+    proc = camctl(NO_DAEMON, "campaign", "run", str(bad), "--out", str(tmp_path / "out"))
+    refused(proc, 2)
+    assert proc.stderr == f"camctl: error: {message}\n", proc.stderr
+    assert tree(tmp_path) == ["bad.yaml"]
+
+
+def test_the_documented_campaign_errors_are_what_load_campaign_says(tmp_path: Path) -> None:
+    """docs/campaigns.md shows the errors of example_stare.yaml with one mistake each."""
+    from camd.campaign.spec import CampaignError, load_campaign
+
+    docs = (Path(REPO_ROOT) / "docs" / "campaigns.md").read_text(encoding="utf-8")
+    documented = [
+        line.strip() for line in docs.splitlines() if line.startswith("    campaign.yaml:")
+    ]
+    text = EXAMPLE.read_text(encoding="utf-8")
+    mistakes = [
+        ('stare: {frames: "${frames}"}\n      - id: stats',
+         'stare: {frame: "${frames}"}\n      - id: stats'),
+        ("seed: 7", 'seed: "7"'),
+        ("    function: dark_noise\n", ""),
+        ("inputs: {frames: dark}", "inputs: {frames: dark"),
+    ]  # fmt: skip
+    said = []
+    for old, new in mistakes:
+        assert text.count(old) == 1, old
+        path = tmp_path / "campaign.yaml"
+        path.write_text(text.replace(old, new), encoding="utf-8")
+        with pytest.raises(CampaignError) as info:
+            load_campaign(path)
+        said.append(str(info.value).replace(f"{tmp_path}/", ""))
+    assert said == documented

@@ -146,7 +146,7 @@ def test_bad_campaign_file_names_file_step_and_key(
     with pytest.raises(CampaignError) as info:
         load_campaign(bad)
     message = str(info.value)
-    assert message.startswith(f"{bad}: "), message
+    assert message.startswith(f"{bad}:"), message
     assert expected in message, message
     proc = camctl("campaign", "run", str(bad), "--out", str(tmp_path / "o"))
     assert proc.returncode == 2 and str(bad) in proc.stderr

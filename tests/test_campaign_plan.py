@@ -169,14 +169,22 @@ def test_a_plan_that_breaks_the_rules_is_stopped_with_a_message(
 @pytest.mark.parametrize(
     ("text", "message"),
     [
-        ("x = 1\n", "a Python campaign defines CAMPAIGN .* and plan\\(parameters\\)"),
-        ("CAMPAIGN = {'name': 'x'}\ndef plan(p):\n    yield from ()\n", "CAMPAIGN: profile: Field required"),
-        ("import no_such_module\n", "importing the plan failed: ModuleNotFoundError"),
+        ("x = 1\n", " a Python campaign defines CAMPAIGN .* and plan\\(parameters\\)"),
+        # The header's errors name the line of the key in the CAMPAIGN dict, as a YAML file's do.
+        ("CAMPAIGN = {'name': 'x'}\ndef plan(p):\n    yield from ()\n",
+         "1: CAMPAIGN: profile: missing key; add `profile: \\.\\.\\.`$"),
+        ("CAMPAIGN = {\n    'name': 'x',\n    'profile': 'hr400',\n    'seed': '3',\n}\n"
+         "def plan(p):\n    yield from ()\n",
+         "4: CAMPAIGN: seed: '3' is a string, the wrong type; write an integer, without quotes$"),
+        ("CAMPAIGN = dict(\n    name='x',\n    profile='hr400',\n    parameters={'n': 1},\n"
+         "    quick={'m': 2},\n)\ndef plan(p):\n    yield from ()\n",
+         "5: CAMPAIGN: quick: m not in `parameters`"),
+        ("import no_such_module\n", " importing the plan failed: ModuleNotFoundError"),
     ],
 )  # fmt: skip
 def test_a_bad_python_campaign_names_the_file_and_what_is_missing(
     tmp_path: Path, text: str, message: str
 ) -> None:
     path = write_plan(tmp_path, "bad", text)
-    with pytest.raises(CampaignError, match=f"{re.escape(str(path))}: {message}"):
+    with pytest.raises(CampaignError, match=f"^{re.escape(str(path))}:{message}"):
         load_plan(path)

@@ -30,6 +30,7 @@ campaigns are one front end of the same runner: ``yaml_plan`` yields their steps
 
 from __future__ import annotations
 
+import ast
 import importlib.util
 import sys
 from collections.abc import Callable, Generator, Iterable, Mapping
@@ -37,7 +38,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from pydantic import Field, ValidationError
+from pydantic import Field
 
 from camd.campaign.spec import (
     AcquireStep,
@@ -50,7 +51,9 @@ from camd.campaign.spec import (
     Step,
     SweepStep,
     sweep_values,
+    validate_header,
 )
+from camd.datafile import Loc
 
 __all__ = [
     "BeginIteration",
@@ -202,6 +205,47 @@ class PlanCampaign:
         return None if self.count_steps is None else int(self.count_steps(parameters))
 
 
+def _header_lines(source: str) -> dict[Loc, int]:
+    """The line of each place of the module's ``CAMPAIGN`` as the source writes it (a dict
+    display or ``dict(...)``, with the dicts and lists in it), by its ``Loc``, as
+    ``yaml_lines`` gives a YAML file's: its errors name their line. {} for a header built
+    otherwise."""
+    lines: dict[Loc, int] = {}
+
+    def walk(node: ast.expr, loc: Loc) -> None:
+        lines.setdefault(loc, node.lineno)
+        if isinstance(node, ast.Dict):
+            for key, value in zip(node.keys, node.values, strict=True):
+                if isinstance(key, ast.Constant) and isinstance(key.value, str):
+                    lines[(*loc, key.value)] = key.lineno
+                    walk(value, (*loc, key.value))
+        elif (
+            isinstance(node, ast.Call)
+            and isinstance(node.func, ast.Name)
+            and node.func.id == "dict"
+        ):
+            for keyword in node.keywords:
+                if keyword.arg is not None:
+                    lines[(*loc, keyword.arg)] = keyword.lineno
+                    walk(keyword.value, (*loc, keyword.arg))
+        elif isinstance(node, ast.List | ast.Tuple):
+            for index, item in enumerate(node.elts):
+                lines[(*loc, index)] = item.lineno
+                walk(item, (*loc, index))
+
+    for statement in ast.parse(source).body:  # the module imported: its syntax is valid
+        if isinstance(statement, ast.Assign):
+            targets, value = statement.targets, statement.value
+        elif isinstance(statement, ast.AnnAssign) and statement.value is not None:
+            targets, value = [statement.target], statement.value
+        else:
+            continue
+        if any(isinstance(target, ast.Name) and target.id == "CAMPAIGN" for target in targets):
+            lines = {}  # the last assignment is the module's CAMPAIGN
+            walk(value, ())
+    return lines
+
+
 def load_plan(path: str | Path) -> PlanCampaign:
     """Load a Python campaign (module docstring). CampaignError naming the file and what is
     wrong: no CAMPAIGN or plan, an invalid header, an error importing it."""
@@ -230,14 +274,7 @@ def load_plan(path: str | Path) -> PlanCampaign:
             f"{path}: a Python campaign defines CAMPAIGN (a dict: name, profile, seed, "
             "parameters, ...) and plan(parameters), a generator of steps (docs/campaigns.md)"
         )
-    try:
-        spec = PlanSpec.model_validate(dict(header))
-    except ValidationError as exc:
-        problems = "; ".join(
-            f"{'.'.join(str(p) for p in err['loc']) or 'CAMPAIGN'}: {err['msg']}"
-            for err in exc.errors()
-        )
-        raise CampaignError(f"{path}: CAMPAIGN: {problems}") from None
+    spec = validate_header(path, dict(header), PlanSpec, _header_lines(source), "CAMPAIGN")
     count = getattr(module, "count_steps", None)
     return PlanCampaign(
         spec=spec,
