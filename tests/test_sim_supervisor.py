@@ -62,6 +62,7 @@ class FakeProcess:
         self.stopped = False
         self.starts = 0
         self.fail_starts = 0  # the next this many starts fail
+        self.forgotten = 0  # forget_link calls: the dead child's stale link removed
 
     @property
     def last_pid(self) -> int | None:
@@ -81,6 +82,12 @@ class FakeProcess:
 
     def stop_child(self) -> None:
         self.code = -15
+
+    def refuses_link(self) -> str | None:
+        return None if self.code is None else "the simulated camera is not running yet"
+
+    def forget_link(self) -> None:
+        self.forgotten += 1
 
 
 class Clock:
@@ -120,6 +127,9 @@ def test_a_death_is_reported_then_restarted_after_the_backoff(rig: Any) -> None:
     process.code = -9
     sup.check()
     assert sup.state == "restarting" and process.starts == 0
+    # The dead child's link is removed, and not reopened until the restarted one runs.
+    assert process.forgotten == 1
+    assert sup.refuses_link() == "the simulated camera is not running yet"
     assert events == [
         (
             "error",
@@ -137,6 +147,7 @@ def test_a_death_is_reported_then_restarted_after_the_backoff(rig: Any) -> None:
     assert level == "warning"
     assert message.startswith("simulated camera restarted (restart 1): pid 101, tty /dev/pts/9")
     assert "registers are at their power-on defaults" in message
+    assert sup.refuses_link() is None
 
 
 def test_rapid_failures_back_off_longer_then_give_up(rig: Any) -> None:
@@ -199,6 +210,8 @@ def test_restart_off_only_reports(rig: Any) -> None:
     sup.check()
     assert sup.state == "exited" and process.starts == 0 and len(events) == 1
     assert "it is not restarted (sim.restart = false)" in events[0][1]
+    # Not restarted: the link is the operator's, for a simulator started by hand.
+    assert process.forgotten == 1 and sup.refuses_link() is None
 
 
 def test_config_keys_and_their_order() -> None:

@@ -270,7 +270,7 @@ class DeviceSession:
             reconnect_min_s=cfg.reconnect_min_s,
             reconnect_max_s=cfg.reconnect_max_s,
             thread_start=REALTIME.enter,
-            may_open=self.sim_process.refuses_link if self.sim_process is not None else None,
+            may_open=self.sim_supervisor.refuses_link if self.sim_supervisor is not None else None,
         )
         self._unsubscribe = link.subscribe(self._on_message)
         link.open()

@@ -57,6 +57,10 @@ class SupervisedProcess(Protocol):
 
     def stop_child(self) -> None: ...
 
+    def refuses_link(self) -> str | None: ...
+
+    def forget_link(self) -> None: ...
+
 
 @dataclass(slots=True)
 class RestartPolicy:
@@ -193,9 +197,20 @@ class SimSupervisor:
         else:
             self._spawn(self._start)
 
+    def refuses_link(self) -> str | None:
+        """Why the command link must not open the simulator's link now (None: it may). While
+        the daemon runs or restarts its simulator the link leads to that child only
+        (``SimulatorProcess.refuses_link``); once it has stopped restarting it (``exited``,
+        ``gave_up``) the link is the operator's, for a simulator started by hand (``camd sim
+        --link``), and the dead child's stale link was removed when its death was noticed."""
+        if self._state in ("exited", "gave_up"):
+            return None
+        return self.process.refuses_link()
+
     def _failed(self, what: str, up_s: float, now: float) -> tuple[str, str]:
         """Book a failure (lock held): the event to log."""
         link = self.process.link_path
+        self.process.forget_link()
         if not self.restart:
             self._state = "exited"
             return (

@@ -135,6 +135,17 @@ class SimulatorProcess:
             return f"{self.link_path} points at {target}, not at the simulated camera's pty {tty}"
         return None
 
+    def forget_link(self) -> None:
+        """Remove the link if it still points at the last child's pty, which a dead child
+        could not do itself; a link that points elsewhere (a simulator started by hand, or
+        the next child's) is left alone."""
+        tty = self.info.get("tty")
+        try:
+            if tty and os.readlink(self.link_path) == tty:
+                self.link_path.unlink()
+        except OSError:
+            pass  # already gone, or not a symlink: nothing of ours to remove
+
     def start(self, timeout_s: float = SIM_START_TIMEOUT_S) -> dict[str, Any]:
         """Spawn the simulator and return its JSON start line as a dict.
 

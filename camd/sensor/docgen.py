@@ -63,6 +63,8 @@ def _hex(value: int, width: int) -> str:
 def _type_name(annotation: Any) -> str:
     origin = typing.get_origin(annotation)
     args = typing.get_args(annotation)
+    if origin is typing.Annotated:  # a strict type: the type it constrains is what a file holds
+        return _type_name(args[0])
     if origin is typing.Literal:
         return " | ".join(f'"{a}"' for a in args)
     if origin in (typing.Union, types.UnionType):

@@ -34,20 +34,21 @@ KNOWN_FLAGS = int(
 )  # fmt: skip
 
 
-NO_DEVICE_STATUS = 503
-"""The daemon's HTTP status for a device it cannot reach (docs/api.md): on an acquisition
-whose command link answers, the frame stream's USB device is what is missing."""
+NO_FRAME_DEVICE = "no_frame_device"
+"""The daemon's error code (503) for an acquisition whose frame-stream device is missing or
+cannot be opened while the command link answers (docs/api.md). A camera that drops off the
+link (503 ``disconnected``) is not "no stream": the check fails with the daemon's message."""
 
 
 @contextlib.contextmanager
 def frame_stream_used() -> Iterator[None]:
     """Around the request that starts an acquisition: a daemon that cannot open the frame
-    stream (HTTP 503) makes the check not run for want of a stream (CheckNotRun), not fail:
+    stream (503 ``no_frame_device``) makes the check not run for want of a stream (CheckNotRun), not fail:
     the unit was not shown wrong, only not shown at all."""
     try:
         yield
     except CamdError as exc:
-        if exc.http_status == NO_DEVICE_STATUS:
+        if exc.code == NO_FRAME_DEVICE:
             raise CheckNotRun("stream", exc.message, {"code": exc.code}) from None
         raise
 
