@@ -65,14 +65,21 @@ def _ended(client: CamdClient, job_id: int) -> dict[str, Any]:
 def _inside_acquisition(client: CamdClient, job_id: int, step: str) -> None:
     """Wait until the job's worker is acquiring ``step`` and frames are arriving."""
 
+    seen: list[Any] = []
+
     def acquiring() -> bool:
         job = client.campaign_job(job_id)
+        seen[:] = [{k: job.get(k) for k in ("state", "activity", "error", "steps_done")}]
         if job["state"] != "running" or f"acquire {step}" not in (job["activity"] or ""):
             return False
         stream = client.stream()
+        seen.append({k: stream.get(k) for k in ("streaming", "error")} | {"stats": stream["stats"]})
         return stream["streaming"] and int(stream["stats"]["frames"]) > 10
 
-    _wait(f"job {job_id} to be inside {step}", acquiring)
+    try:
+        _wait(f"job {job_id} to be inside {step}", acquiring)
+    except AssertionError as exc:  # say what was seen last: a failed job, a stalled stream
+        raise AssertionError(f"{exc}; last seen: {seen}") from None
 
 
 def _camctl(url: str, *args: str, client: str | None = None) -> subprocess.CompletedProcess[str]:

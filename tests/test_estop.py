@@ -345,13 +345,18 @@ def test_sigterm_during_a_campaign_job_is_clean(tmp_path: Path) -> None:
     with daemon, CamdClient(daemon.url) as client:
         client.wait_ready(60.0)
         job = client.start_campaign(ENDLESS.stem)
-        wait_for(
-            "the job to be inside its stare",
-            lambda: (
-                "acquire stare" in (client.campaign_job(job["id"])["activity"] or "")
-                and int(client.stream()["stats"]["frames"]) > 10
-            ),
-        )
+        try:
+            wait_for(
+                "the job to be inside its stare",
+                lambda: (
+                    "acquire stare" in (client.campaign_job(job["id"])["activity"] or "")
+                    and int(client.stream()["stats"]["frames"]) > 10
+                ),
+            )
+        except AssertionError as exc:  # say what was seen: a failed job, a stalled stream
+            seen = (client.campaign_job(job["id"]), client.stream()["stats"])
+            tail = daemon.log_path.read_text()[-3000:]
+            raise AssertionError(f"{exc}; last seen: {seen}; daemon log ends:\n{tail}") from None
         asked = time.monotonic()
         daemon.stop()
         stop_s = time.monotonic() - asked
