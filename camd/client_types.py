@@ -58,8 +58,8 @@ class ErrorResponse(TypedDict):
 
     # what went wrong and what to change
     error: str
-    # bad_request, unauthorized, not_in_control, no_control, illegal_state, busy, link_untrained,
-    # device_nak, disconnected, timeout, internal
+    # what kind of error, for programs: each response status of each route lists the codes it may
+    # carry (docs/api.md, Errors, says what each means)
     code: str
 
 

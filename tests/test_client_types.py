@@ -455,3 +455,13 @@ def test_the_answers_show_every_typed_dict(answers: dict[str, Any]) -> None:
     for label, name in ANSWERS:
         mismatches(answers[label], getattr(client_types, name), label, seen)
     assert seen == set(typed_dicts()), f"never seen in an answer: {set(typed_dicts()) - seen}"
+
+
+def test_each_error_status_lists_every_code_it_carries() -> None:
+    """OpenAPI's description of a route's 409 (or 503 ...) names every code the daemon answers
+    with that status: one per status overwrote the others (409 said only no_control)."""
+    from camd.daemon.api import _ERROR_RESPONSES, ERROR_MAP
+
+    for _, status, code in ERROR_MAP:
+        assert code in _ERROR_RESPONSES[status]["description"].split(", "), (status, code)
+    assert _ERROR_RESPONSES[409]["description"].startswith("illegal_state, link_untrained")

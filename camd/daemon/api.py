@@ -172,8 +172,10 @@ _ERROR_RESPONSES: dict[int | str, dict[str, Any]] = {
         "description": "too_large: the body passes api.max_body_bytes or 1000 JSON values",
     },
 }
-for _kind, _status, _code in ERROR_MAP:
-    _ERROR_RESPONSES[_status] = {"model": ErrorResponse, "description": _code}
+# One status may carry several codes (409: illegal_state, busy, ...): OpenAPI lists them all.
+for _status in dict.fromkeys(status for _, status, _ in ERROR_MAP):
+    _codes = ", ".join(code for _, s, code in ERROR_MAP if s == _status)
+    _ERROR_RESPONSES[_status] = {"model": ErrorResponse, "description": _codes}
 
 # The live view's pixels: raw bytes, or 404 while there are none yet (no_frame, no_scan,
 # no_background).

@@ -244,8 +244,8 @@ class ErrorResponse(BaseModel):
 
     error: str = Field(description="what went wrong and what to change")
     code: str = Field(
-        description="bad_request, unauthorized, not_in_control, no_control, illegal_state, "
-        "busy, link_untrained, device_nak, disconnected, timeout, internal"
+        description="what kind of error, for programs: each response status of each route "
+        "lists the codes it may carry (docs/api.md, Errors, says what each means)"
     )
 
 
