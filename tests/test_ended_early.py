@@ -100,10 +100,15 @@ def test_a_stream_until_stopped_that_the_camera_ends_says_so(client: CamdClient)
     assert doc["ended_early"] == "the camera ended the stream after 4 frames (STREAM_DONE)"
     assert (doc["frames_sent"], doc["frames_not_sent"]) == (4, 0)
     assert doc["stats"]["frames"] + doc["stats"]["lost"] == 4
-    events = [e["message"] for e in client.events(limit=50)["events"]]
-    assert any(
-        m.startswith("stream ended (the camera ended the stream after 4 frames (STREAM_DONE))")
-        for m in events
+    # The event is logged just after the stream document says it ended: wait for it.
+    wait_for(
+        "the stream's end event",
+        lambda: any(
+            e["message"].startswith(
+                "stream ended (the camera ended the stream after 4 frames (STREAM_DONE))"
+            )
+            for e in client.events(limit=50)["events"]
+        ),
     )
 
 
