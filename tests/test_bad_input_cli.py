@@ -110,7 +110,8 @@ def test_invalid_campaign_exits_2_before_anything_runs(
 
 
 def test_every_shipped_campaign_passes_the_whole_check() -> None:
-    from camd.campaign.spec import check_campaign, load_campaign
+    from camd.campaign.checks import check_campaign
+    from camd.campaign.loading import load_campaign
 
     for path in sorted(CAMPAIGNS.glob("*.yaml")):
         spec = load_campaign(path)
@@ -400,7 +401,8 @@ steps:
 
 
 def test_the_lined_campaign_is_valid(tmp_path: Path) -> None:
-    from camd.campaign.spec import check_campaign, load_campaign
+    from camd.campaign.checks import check_campaign
+    from camd.campaign.loading import load_campaign
 
     path = tmp_path / "lines.yaml"
     path.write_text(LINED, encoding="utf-8")
@@ -470,7 +472,9 @@ STARE_KEYS = "frames, mode, stages, binning, timeout_s"
 def test_a_campaign_error_names_its_line(tmp_path: Path, old: str, new: str, expected: str) -> None:
     """Each error starts ``file:LINE:`` with the line of the key (of the mapping a missing key
     belongs in), names the step and says what to write; camctl prints that one line, exit 2."""
-    from camd.campaign.spec import CampaignError, check_campaign, load_campaign
+    from camd.campaign.checks import check_campaign
+    from camd.campaign.loading import load_campaign
+    from camd.campaign.spec import CampaignError
 
     assert LINED.count(old) == 1
     bad = tmp_path / "bad.yaml"
@@ -488,7 +492,8 @@ def test_a_campaign_error_names_its_line(tmp_path: Path, old: str, new: str, exp
 
 def test_the_documented_campaign_errors_are_what_load_campaign_says(tmp_path: Path) -> None:
     """docs/campaigns.md shows the errors of example_stare.yaml with one mistake each."""
-    from camd.campaign.spec import CampaignError, load_campaign
+    from camd.campaign.loading import load_campaign
+    from camd.campaign.spec import CampaignError
 
     docs = (Path(REPO_ROOT) / "docs" / "campaigns.md").read_text(encoding="utf-8")
     documented = [

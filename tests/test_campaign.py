@@ -14,8 +14,9 @@ from typing import Any
 import pytest
 import yaml
 
+from camd.campaign.loading import load_campaign
 from camd.campaign.runner import CampaignInterrupted, CampaignRunner
-from camd.campaign.spec import CampaignError, load_campaign
+from camd.campaign.spec import CampaignError
 from camd.cli._daemon_proc import DaemonProcess
 from camd.client import CamdClient
 from camd.paths import config_dir

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from camd.campaign.loading import load_campaign
 from camd.campaign.measurements import MEASUREMENTS
-from camd.campaign.spec import load_campaign
 from camd.cli.camctl_campaign import campaigns_dir
 
 CAMPAIGNS_MD = Path(__file__).resolve().parent.parent / "docs" / "campaigns.md"

@@ -15,9 +15,10 @@ from typing import Any
 
 import pytest
 
+from camd.campaign.loading import load_campaign
 from camd.campaign.plan import load_plan
 from camd.campaign.runner import CampaignInterrupted, CampaignRunner
-from camd.campaign.spec import CampaignError, load_campaign
+from camd.campaign.spec import CampaignError
 from camd.cli._daemon_proc import DaemonProcess
 from camd.client import CamdClient
 from camd.paths import config_dir

@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
+from camd.campaign.loading import load_campaign
 from camd.campaign.runner import CampaignInterrupted
-from camd.campaign.spec import load_campaign
 from camd.cli.camctl_campaign import campaigns_dir, run_on_own_sim
 from camd.sensor.profile import load_profile
 from tests.campaign_support import report_images, run_shipped

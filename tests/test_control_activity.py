@@ -17,8 +17,8 @@ from typing import Any
 import httpx
 import pytest
 
+from camd.campaign.loading import load_campaign
 from camd.campaign.runner import CampaignRunner
-from camd.campaign.spec import load_campaign
 from camd.client import CamdClient, CamdError
 from camd.client_types import ControlInfo
 from camd.daemon.acquisition import AcquisitionSlot, acting_as

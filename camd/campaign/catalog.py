@@ -13,14 +13,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from camd.campaign.checks import check_campaign
+from camd.campaign.loading import load_campaign
 from camd.campaign.plan import PlanCampaign, load_plan
 from camd.campaign.spec import (
     NAME,
     CampaignError,
     CampaignSpec,
     SweepStep,
-    check_campaign,
-    load_campaign,
     sweep_values,
 )
 

@@ -40,6 +40,7 @@ from typing import Any
 
 from pydantic import Field
 
+from camd.campaign.loading import validate_header
 from camd.campaign.spec import (
     AcquireStep,
     CampaignError,
@@ -51,7 +52,6 @@ from camd.campaign.spec import (
     Step,
     SweepStep,
     sweep_values,
-    validate_header,
 )
 from camd.datafile import Loc
 

@@ -51,6 +51,7 @@ from typing import Any, Protocol
 
 from camd.campaign.acquisitions import run_acquisition
 from camd.campaign.baseline import Settings, apply_baseline, capture, restore
+from camd.campaign.checks import check_campaign
 from camd.campaign.measurements import MEASUREMENTS, Acquired
 from camd.campaign.plan import (
     BeginIteration,
@@ -74,7 +75,6 @@ from camd.campaign.spec import (
     StareAcquire,
     SweepStep,
     WheelAcquire,
-    check_campaign,
     resolve,
     sweep_values,
 )

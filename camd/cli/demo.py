@@ -597,7 +597,8 @@ class _Demo:
     def campaigns(self) -> None:
         import shutil
 
-        from camd.campaign.spec import CampaignError, load_campaign
+        from camd.campaign.loading import load_campaign
+        from camd.campaign.spec import CampaignError
         from camd.cli.camctl_campaign import RichProgress, campaigns_dir, run_on_own_sim
 
         names = " and ".join(DEMO_CAMPAIGNS)

@@ -447,8 +447,9 @@ class Soak:
         path.with_suffix(".png").unlink(missing_ok=True)
 
     def _do_campaign(self) -> None:
+        from camd.campaign.loading import load_campaign
         from camd.campaign.runner import CampaignRunner
-        from camd.campaign.spec import CampaignError, load_campaign
+        from camd.campaign.spec import CampaignError
         from camd.cli.camctl_campaign import campaigns_dir
         from camd.store.recording import read_recording
 
