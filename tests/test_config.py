@@ -11,17 +11,15 @@ import pytest
 from pydantic import BaseModel
 
 from camd.daemon.config import (
-    DEFAULT_LIMITS,
-    ChannelLimits,
     Config,
     ConfigError,
-    TelemetrySection,
     config_from_dict,
     default_config_path,
-    is_loopback,
     load_config,
     with_overrides,
 )
+from camd.daemon.config_camera import DEFAULT_LIMITS, ChannelLimits, TelemetrySection
+from camd.daemon.config_sections import is_loopback
 
 DOCS = Path(__file__).resolve().parent.parent / "docs" / "config.md"
 NO_ENV: dict[str, str] = {}

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from camd.daemon.config import ChannelLimits
+from camd.daemon.config_camera import ChannelLimits
 from camd.daemon.errors import ArchiveUnreadable
 from camd.daemon.telemetry import GuardedArchive, Level, LimitChecker, TelemetryArchive, classify
 from tests.crash_support import fill_disk, small_disk

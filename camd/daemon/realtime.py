@@ -31,7 +31,7 @@ import resource
 import threading
 from dataclasses import dataclass
 
-from camd.daemon.config import RealtimeSetting
+from camd.daemon.config_sections import RealtimeSetting
 
 log = logging.getLogger(__name__)
 CAP_SYS_NICE = 23  # linux/capability.h

@@ -16,7 +16,7 @@ from fastapi.responses import JSONResponse
 from starlette.datastructures import Headers
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from camd.daemon.config import normal_origin
+from camd.daemon.config_sections import normal_origin
 from camd.daemon.error_body import WS_POLICY_VIOLATION, cut, error_response
 
 __all__ = ["API", "EMERGENCY_STOPS", "JSON_VALUES_MAX", "RequestGuard", "json_values"]
