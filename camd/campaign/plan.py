@@ -71,6 +71,7 @@ __all__ = [
     "measure",
     "sweep",
     "yaml_plan",
+    "yaml_steps_in_run",
 ]
 
 
@@ -167,10 +168,7 @@ def yaml_plan(steps: list[Step], names: dict[str, Any]) -> Plan:
     also knows the results measured so far."""
     for step in steps:
         if isinstance(step, SweepStep):
-            try:
-                values = sweep_values(step, names)
-            except CampaignError as exc:
-                raise CampaignError(f"step {step.id!r}: {exc}") from None
+            values = _sweep_values(step, names)
             yield BeginSweep(step.id, step.parameter, tuple(values), step.record, step.title)
             for index, value in enumerate(values):
                 yield BeginIteration(index, value)
@@ -179,6 +177,26 @@ def yaml_plan(steps: list[Step], names: dict[str, Any]) -> Plan:
             yield EndSweep()
         else:
             yield step
+
+
+def yaml_steps_in_run(steps: list[Step], names: dict[str, Any]) -> int:
+    """The step instances ``yaml_plan(steps, names)`` yields (the runner's progress total)."""
+    total = 0
+    for step in steps:
+        if isinstance(step, SweepStep):
+            for value in _sweep_values(step, names):
+                total += yaml_steps_in_run(step.steps, {**names, step.parameter: value})
+        else:
+            total += 1
+    return total
+
+
+def _sweep_values(step: SweepStep, names: dict[str, Any]) -> list[Any]:
+    """A sweep's values, or CampaignError naming the step."""
+    try:
+        return sweep_values(step, names)
+    except CampaignError as exc:
+        raise CampaignError(f"step {step.id!r}: {exc}") from None
 
 
 # -- Python campaigns ------------------------------------------------------------------------------
