@@ -359,7 +359,7 @@ class _SessionCollector(Collector):
             "1 while the command link's port is open",
             value=1.0 if link is not None and link.connected else 0.0,
         )
-        for name, count in session.host_counters().items():
+        for name, count in session.link_commands.host_counters().items():
             yield CounterMetricFamily(
                 f"camd_link_{name}", f"command link host counter: {name}", value=count
             )
@@ -702,7 +702,7 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
     def post_ping(body: PingRequest | None = None) -> PingResponse:
         """PING the device ``count`` times with ``size`` random bytes; round-trip statistics."""
         body = body or PingRequest()
-        return session.ping(body.count, body.size)
+        return session.link_commands.ping(body.count, body.size)
 
     @app.post(f"{API}/link/command", response_model=LinkCommandResponse, tags=["link"])
     def post_link_command(
@@ -715,12 +715,12 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
         daemon's view of the camera is not updated, so put back what you change. Idle or in
         fault only."""
         with acting_as(client):
-            return session.link_command(body)
+            return session.link_commands.command(body)
 
     @app.get(f"{API}/link", response_model=LinkResponse, tags=["link"])
     def get_link() -> LinkResponse:
         """Host and device counters of the command link."""
-        return session.link_stats()
+        return session.link_commands.stats()
 
     @app.get(f"{API}/telemetry", response_model=TelemetryResponse, tags=["telemetry"])
     def get_telemetry() -> TelemetryResponse:

@@ -22,14 +22,11 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
-import random
 import threading
 import time
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import asdict
 from typing import Any, cast
-
-import numpy as np
 
 import camd
 from camd.daemon import backends, heap, notify
@@ -47,6 +44,7 @@ from camd.daemon.errors import (
     SessionError,
 )
 from camd.daemon.estop import RELEASE_HINT
+from camd.daemon.link_commands import LinkCommands
 from camd.daemon.models import (
     LIVE_LINES_MAX,
     AcquisitionInfo,
@@ -58,21 +56,14 @@ from camd.daemon.models import (
     ControlActivity,
     ControlInfo,
     DaemonInfo,
-    DeviceLinkStats,
     DeviceStatus,
     EstopResponse,
     EstopState,
     EventItem,
     EventsResponse,
     HistoryResponse,
-    LinkAnswer,
-    LinkCommandRequest,
-    LinkCommandResponse,
     LinkInfo,
-    LinkResponse,
     ModeResponse,
-    PingResponse,
-    RttMs,
     StatusResponse,
     TelemetryResponse,
 )
@@ -98,11 +89,8 @@ from camd.link import (
 from camd.pipeline.background import BackgroundCapture
 from camd.pipeline.live import LiveLines, LiveTap
 from camd.protocol import (
-    CommandSpec,
     Dictionary,
-    Frame,
     FrameType,
-    PayloadError,
     load_dictionary,
 )
 from camd.protocol.dictionary import FieldValue
@@ -113,7 +101,6 @@ log = logging.getLogger(__name__)
 
 PROBE_RETRY_S = 1.0  # after a GET_STATUS probe went unanswered
 MAX_LOOP_SLEEP_S = 0.25  # the service loop wakes at least this often (stop, sim exit, probes)
-PING_ERRORS_MAX = 5
 # A camera whose housekeeping polls have gone unanswered (no answer at all, not a NAK) for this
 # long, on a port that stays open, is taken as frozen: the state goes disconnected with the
 # reason (docs/api.md, "Details"). Short silences (a line that drops for a couple of seconds)
@@ -209,6 +196,7 @@ class DeviceSession:
             live_lines=self.live_lines,
         )
         self.wheel = WheelService(device, self.sensor, self.stream)
+        self.link_commands = LinkCommands(device, self.sim, self._stop.is_set)
         self.control = Control(
             device.acquisition, lambda level, source, message: self._event(level, source, message)
         )
@@ -386,10 +374,6 @@ class DeviceSession:
     def uptime_s(self) -> float:
         """Seconds since this session was created."""
         return time.monotonic() - self._started_mono
-
-    def host_counters(self) -> dict[str, int]:
-        """The link's host-side counters."""
-        return self.link.counters() if self.link is not None else {}
 
     def latest_values(self) -> dict[str, float]:
         """The last value seen on each telemetry channel (this run only)."""
@@ -646,160 +630,6 @@ class DeviceSession:
             estop=self.estop_state(),
             backends=backends.describe(self.config),
         )
-
-    def ping(self, count: int = 10, size: int = 16) -> PingResponse:
-        """Send ``count`` PINGs of ``size`` random bytes; a differing echo is a failure."""
-        self._require(Request.PING)
-        rtts_s: list[float] = []
-        errors: dict[str, None] = {}  # distinct reasons, in order of first appearance
-        ok = failed = retries = 0
-        for i in range(count):
-            if self._stop.is_set():
-                failed += count - i
-                errors.setdefault("the daemon is shutting down; ping run cut short")
-                break
-            payload = random.randbytes(size)
-            try:
-                response = self._request("PING", data=payload)
-            except Disconnected as exc:
-                if i == 0:
-                    raise
-                failed += count - i
-                errors.setdefault(str(exc))
-                break
-            except DeviceTimeout as exc:
-                failed += 1
-                retries += self.config.link.retries  # every re-send went unanswered too
-                errors.setdefault(str(exc))
-                continue
-            except DeviceRejected as exc:
-                failed += 1
-                errors.setdefault(str(exc))
-                continue
-            retries += response.attempts - 1
-            echo = response.values.get("data")
-            if echo != payload:
-                failed += 1
-                errors.setdefault(
-                    f"PING echo differs from the {size} bytes sent: the line corrupted it "
-                    "undetected; check the link quality (GET /api/v1/link)"
-                )
-                continue
-            ok += 1
-            rtts_s.append(response.rtt_s)
-        if rtts_s:
-            rtt_ms = np.asarray(rtts_s) * 1e3
-            p50, p99 = (float(v) for v in np.percentile(rtt_ms, [50, 99]))
-            rtt = RttMs(p50=p50, p99=p99, max=float(rtt_ms.max()))
-        else:
-            rtt = RttMs(p50=None, p99=None, max=None)
-        return PingResponse(
-            count=count,
-            ok=ok,
-            failed=failed,
-            retries=retries,
-            rtt_ms=rtt,
-            errors=list(errors)[:PING_ERRORS_MAX],
-        )
-
-    def link_command(self, body: LinkCommandRequest) -> LinkCommandResponse:
-        """Send one COMMAND frame as the request says and return the answer frames undecoded
-        and decoded (docs/api.md): for conformance tests of the device's own checks. The
-        daemon's view of the camera (mode, register copy, stage) is not updated; a client that
-        changes the camera with it puts it back."""
-        if (body.command is None) == (body.opcode is None):
-            raise BadRequest("give either command (a name in config/protocol.toml) or opcode")
-        if body.fields is not None and body.payload_hex is not None:
-            raise BadRequest("give either fields (encoded by the dictionary) or payload_hex")
-        spec: CommandSpec | None
-        if body.command is not None:
-            try:
-                spec = self.dictionary.command(body.command.upper())
-            except KeyError as exc:
-                raise BadRequest(str(exc.args[0])) from None
-            opcode = spec.opcode
-        else:
-            assert body.opcode is not None
-            opcode = body.opcode
-            found = self.dictionary.command_for_opcode(opcode)
-            if body.fields is not None and found is None:
-                raise BadRequest(
-                    f"opcode 0x{opcode:02X} is not in the dictionary: send payload_hex, not fields"
-                )
-            spec = found
-        if body.payload_hex is not None:
-            payload = bytes.fromhex(body.payload_hex)
-        elif spec is not None:
-            try:
-                fields = {
-                    name: bytes.fromhex(value)
-                    if isinstance(value, str) and _bytes_field(spec, name)
-                    else value
-                    for name, value in (body.fields or {}).items()
-                }
-                payload = spec.encode_request(**fields)
-            except (ValueError, TypeError) as exc:
-                raise BadRequest(f"{spec.name}: {exc}") from None
-        else:
-            payload = b""
-        self._require(Request.LINK_COMMAND)
-        self.device.estop.check_raw(None if spec is None else spec.name)
-        with self.device.device_op() as link:
-            try:
-                exchange = link.exchange(opcode, payload, repeat=body.repeat)
-            except ValueError as exc:
-                raise BadRequest(str(exc)) from None
-        answers = [self._link_answer(spec, frame) for frame in exchange.answers]
-        return LinkCommandResponse(
-            command=None if spec is None else spec.name,
-            opcode=opcode,
-            seq=exchange.seq,
-            request_hex=payload.hex(),
-            answers=answers,
-            attempts=exchange.attempts,
-            rtt_s=exchange.rtt_s,
-        )
-
-    def _link_answer(self, spec: CommandSpec | None, frame: Frame) -> LinkAnswer:
-        """One answer frame in words: a NAK's code, name and detail; an ACK's fields."""
-        if frame.type == FrameType.NAK:
-            try:
-                code, detail = self.dictionary.decode_nak(frame.payload)
-            except PayloadError as exc:
-                code, detail = None, f"malformed NAK payload: {exc}"
-            name: str | None = None
-            if code is not None:
-                with contextlib.suppress(KeyError):
-                    name = self.dictionary.error(code).name
-            return LinkAnswer(type="nak", seq=frame.seq, payload_hex=frame.payload.hex(),
-                              error_code=code, error_name=name, detail=detail, values=None,
-                              decode_error=None)  # fmt: skip
-        values: dict[str, int | float | str] | None = None
-        problem: str | None = None
-        if spec is None:
-            problem = "the dictionary has no command with this opcode"
-        else:
-            try:
-                decoded = spec.decode_response(frame.payload)
-                values = {k: v.hex() if isinstance(v, bytes) else v for k, v in decoded.items()}
-            except PayloadError as exc:
-                problem = str(exc)
-        return LinkAnswer(type="ack", seq=frame.seq, payload_hex=frame.payload.hex(),
-                          error_code=None, error_name=None, detail=None, values=values,
-                          decode_error=problem)  # fmt: skip
-
-    def link_stats(self) -> LinkResponse:
-        """Host counters, and the device's (null when it cannot be asked)."""
-        host = self.host_counters()
-        device: DeviceLinkStats | None = None
-        if self.machine.state != State.DISCONNECTED:
-            try:
-                stats: dict[str, Any] = dict(self._request("GET_LINK_STATS").values)
-                injected = self.sim.injected()
-                device = DeviceLinkStats.model_validate({**stats, "injected": injected})
-            except SessionError as exc:
-                log.info("link: device counters unavailable: %s", exc)
-        return LinkResponse(host=host, device=device)
 
     def telemetry(self) -> TelemetryResponse:
         """Latest value of every channel with its limit level (this run's, from memory, so
@@ -1266,8 +1096,3 @@ def _warm_tdi() -> None:
         log.exception("could not load the TDI kernels ahead of the first scan")
     else:
         log.info("TDI kernels ready in %.2f s", seconds)
-
-
-def _bytes_field(spec: CommandSpec, name: str) -> bool:
-    """``name`` is a bytes field of ``spec``'s request (given as hex, sent as those bytes)."""
-    return any(f.name == name and f.type == "bytes" for f in spec.request)
