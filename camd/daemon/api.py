@@ -391,14 +391,14 @@ class _SessionCollector(Collector):
             labels=["channel"],
         )
         level_number = {Level.OK: 0.0, Level.YELLOW: 1.0, Level.RED: 2.0}
-        for channel, value in sorted(session.latest_values().items()):
-            values.add_metric([channel, session.channels.get(channel, "")], value)
+        for channel, value in sorted(session.telemetry.latest_values().items()):
+            values.add_metric([channel, session.telemetry.channels.get(channel, "")], value)
             limits = session.config.telemetry.limits.get(channel)
             if limits is not None:
                 levels.add_metric([channel], level_number[classify(value, limits)])
         yield values
         yield levels
-        archive = session.archive
+        archive = session.telemetry.archive
         if archive is not None:
             yield GaugeMetricFamily(
                 "camd_telemetry_archived_samples",
@@ -725,7 +725,7 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
     @app.get(f"{API}/telemetry", response_model=TelemetryResponse, tags=["telemetry"])
     def get_telemetry() -> TelemetryResponse:
         """Latest value of every housekeeping channel, with its limit level."""
-        return session.telemetry()
+        return session.telemetry.latest()
 
     @app.get(f"{API}/telemetry/history", response_model=HistoryResponse, tags=["telemetry"])
     def get_history(
@@ -737,14 +737,14 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
         limit: int = Query(default=1000, ge=1, le=HISTORY_LIMIT_MAX, description="newest N"),
     ) -> HistoryResponse:
         """Archived samples of one channel, oldest first."""
-        return session.history(channel, since_s, limit)
+        return session.telemetry.history(channel, since_s, limit)
 
     @app.get(f"{API}/events", response_model=EventsResponse, tags=["telemetry"])
     def get_events(
         limit: int = Query(default=100, ge=1, le=EVENTS_LIMIT_MAX, description="newest N"),
     ) -> EventsResponse:
         """Recent events (link, device, limits, state changes), newest last."""
-        return session.events(limit)
+        return session.telemetry.events(limit)
 
     @app.get(
         f"{API}/live/frame",

@@ -32,11 +32,10 @@ import camd
 from camd.daemon import backends, heap, notify
 from camd.daemon.acquisition import STOP_COMMANDS
 from camd.daemon.campaign_jobs import CampaignJobs, worker_client
-from camd.daemon.config import HOUSEKEEPING_PACKET, Config, telemetry_channels
+from camd.daemon.config import HOUSEKEEPING_PACKET, Config
 from camd.daemon.control import ANONYMOUS, Control
 from camd.daemon.device import DeviceAccess
 from camd.daemon.errors import (
-    BadRequest,
     Busy,
     DeviceRejected,
     DeviceTimeout,
@@ -52,20 +51,15 @@ from camd.daemon.models import (
     CampaignJob,
     CampaignJobsResponse,
     CampaignStartRequest,
-    ChannelLatest,
     ControlActivity,
     ControlInfo,
     DaemonInfo,
     DeviceStatus,
     EstopResponse,
     EstopState,
-    EventItem,
-    EventsResponse,
-    HistoryResponse,
     LinkInfo,
     ModeResponse,
     StatusResponse,
-    TelemetryResponse,
 )
 from camd.daemon.motion_service import MotionService
 from camd.daemon.output_paths import RECORDINGS_FOLDER, SCANS_FOLDER
@@ -76,7 +70,7 @@ from camd.daemon.sim_supervisor import RestartPolicy, SimSupervisor
 from camd.daemon.simulator import SimulatorProcess
 from camd.daemon.state import Request, State, Trigger
 from camd.daemon.stream_service import StreamService
-from camd.daemon.telemetry import GuardedArchive, LimitChecker, TelemetryArchive, classify
+from camd.daemon.telemetry_service import TelemetryService
 from camd.daemon.transaction import Apply
 from camd.daemon.wheel_service import WheelService
 from camd.link import (
@@ -141,11 +135,10 @@ class DeviceSession:
     def __init__(self, config: Config, *, dictionary: Dictionary | None = None) -> None:
         self.config = config
         self.dictionary = dictionary or load_dictionary()
-        self.channels: dict[str, str] = telemetry_channels()  # name -> unit
-        self.checker = LimitChecker(config.telemetry.limits)
+        # Built first: the device access's event log writes into its archive.
+        self.telemetry = TelemetryService(config, self._event, self._red_limit)
         self.sim_process: SimulatorProcess | None = None
         self.sim_supervisor: SimSupervisor | None = None
-        self.archive: GuardedArchive | None = None
         self.device = DeviceAccess(config, self.dictionary, self._event)
         self.machine = self.device.machine
 
@@ -159,10 +152,6 @@ class DeviceSession:
         self._poll_error: str | None = None
         self._unanswered_since: float | None = None  # monotonic: the first unanswered poll's
         self._silent_reason: str | None = None  # why a camera on an open port is disconnected
-        self._last_values: dict[str, float] = {}
-        self._last_t_s: dict[str, float] = {}  # when each channel's last value was taken
-        self._red_lock = threading.Lock()
-        self._red_acknowledged: set[str] = set()
         self._ending: threading.Thread | None = None  # abort's: acquisitions and job ended
         self._ending_lock = threading.Lock()
         device = self.device
@@ -235,10 +224,7 @@ class DeviceSession:
             (daemon.data_dir / folder).mkdir(exist_ok=True)
         allowed = ", ".join(str(d) for d in (daemon.data_dir, *daemon.record_dirs))
         log.info("files that clients name are written only inside: %s", allowed)
-        self.archive = GuardedArchive(
-            TelemetryArchive(self.config.archive_path),
-            lambda level, message: self._event(level, "telemetry", message),
-        )
+        self.telemetry.open()
         self._event("info", "daemon", f"camd {camd.__version__} started (pid {os.getpid()})")
         self._recover_recordings()
         self.sim_process = backends.simulator_process(self.config)
@@ -342,11 +328,10 @@ class DeviceSession:
         self.stream.shut_down()
         self.scan.close()
         self.stream.close()
-        if self.archive is not None:
+        if self.telemetry.archive is not None:
             with contextlib.suppress(Exception):
                 self._event("info", "daemon", "camd stopped: acquisitions ended, files closed")
-            self.archive.close()
-            self.archive = None
+            self.telemetry.close()
         self.sensor.close()
         if self.link is not None:
             self.link.close()
@@ -374,10 +359,6 @@ class DeviceSession:
     def uptime_s(self) -> float:
         """Seconds since this session was created."""
         return time.monotonic() - self._started_mono
-
-    def latest_values(self) -> dict[str, float]:
-        """The last value seen on each telemetry channel (this run only)."""
-        return dict(self._last_values)
 
     # -- operations for the API -----------------------------------------------------------------
 
@@ -631,57 +612,6 @@ class DeviceSession:
             backends=backends.describe(self.config),
         )
 
-    def telemetry(self) -> TelemetryResponse:
-        """Latest value of every channel with its limit level (this run's, from memory, so
-        that they stay current while the archive cannot be written; before the first sample,
-        the archive's), the archive's size and why it cannot be written, if it cannot."""
-        archive = self._archive()
-        seen: dict[str, tuple[float, float]] = {
-            ch: (self._last_values[ch], self._last_t_s[ch])
-            for ch in list(self._last_t_s)
-            if ch in self._last_values
-        }
-        if len(seen) < len(self.channels):
-            with contextlib.suppress(SessionError):  # an unreadable archive: what we have
-                for channel, sample in archive.latest(self.channels).items():
-                    seen.setdefault(channel, (sample.value, sample.t_s))
-        latest = {}
-        for channel, (value, t_s) in seen.items():
-            limits = self.config.telemetry.limits.get(channel)
-            level = classify(value, limits).value if limits is not None else "ok"
-            latest[channel] = ChannelLatest(
-                value=value,
-                unit=self.channels.get(channel, ""),
-                t_s=t_s,
-                limit=cast(Any, level),
-            )
-        return TelemetryResponse(
-            latest=latest,
-            samples=archive.count(),
-            archive=str(archive.path),
-            archive_error=archive.failing,
-        )
-
-    def history(self, channel: str, since_s: float = 0.0, limit: int = 1000) -> HistoryResponse:
-        """Archived samples of ``channel``, oldest first; ``since_s`` < 0 means "seconds ago"."""
-        if channel not in self.channels:
-            raise BadRequest(
-                f"channel: {channel!r} is not a telemetry channel; use one of "
-                + ", ".join(self.channels)
-            )
-        if since_s < 0:
-            since_s = time.time() + since_s
-        t_s, values = self._archive().history(channel, since_s, limit)
-        return HistoryResponse(channel=channel, unit=self.channels[channel], t_s=t_s, value=values)
-
-    def events(self, limit: int = 100) -> EventsResponse:
-        """The newest ``limit`` events, newest last."""
-        items = [
-            EventItem(t_s=e.t_s, level=cast(Any, e.level), source=e.source, message=e.message)
-            for e in self._archive().events(limit)
-        ]
-        return EventsResponse(events=items)
-
     @property
     def mode(self) -> str | None:
         """The imaging mode last known (None before first contact)."""
@@ -706,10 +636,7 @@ class DeviceSession:
         self._request("RESET")
         self.device.note_mode("area")  # RESET puts the device back in area mode
         self.stream.on_reset()  # and stops the sequencer; BOOT leads to a retrain
-        with self._red_lock:
-            # The operator has seen the red channels; they trip again only after recovering.
-            self._red_acknowledged = set(self.checker.red_channels())
-            still_red = sorted(self._red_acknowledged)
+        still_red = self.telemetry.acknowledge_red()
         self._fire(Trigger.RESET_OK, "reset")
         note = f"; still red: {', '.join(still_red)}" if still_red else ""
         # The sensor keeps its registers through the camera's RESET: put back the values it
@@ -778,11 +705,6 @@ class DeviceSession:
 
     # -- internals: requests and state ----------------------------------------------------------
 
-    def _archive(self) -> GuardedArchive:
-        if self.archive is None:
-            raise RuntimeError("the session is not started")
-        return self.archive
-
     def _require(self, request: Request) -> None:
         self.device.require(request)
 
@@ -794,9 +716,12 @@ class DeviceSession:
 
     def _event(self, level: str, source: str, message: str, t_s: float | None = None) -> None:
         getattr(log, "error" if level == "error" else level)("%s: %s", source, message)
-        archive = self.archive
-        if archive is not None:
-            archive.add_event(level, source, message, t_s)  # never raises (GuardedArchive)
+        self.telemetry.archive_event(level, source, message, t_s)
+
+    def _red_limit(self, reason: str) -> None:
+        """A red channel the operator has not acknowledged: fault, from idle or streaming."""
+        if self.machine.state in (State.IDLE, State.STREAMING):
+            self._fire(Trigger.RED_LIMIT, reason)
 
     # -- internals: link messages (reader thread) -----------------------------------------------
 
@@ -804,9 +729,7 @@ class DeviceSession:
         if isinstance(message, ConnectionChange):
             if message.connected:
                 self._event("info", "link", f"link open on {self.port}")
-                self.checker.clear()  # maybe another camera: start its limits afresh
-                with self._red_lock:
-                    self._red_acknowledged.clear()
+                self.telemetry.on_connect()  # maybe another camera: start its limits afresh
                 self.device.probe_error = self._silent_reason = None
                 self._probe_needed.set()
                 self._wake.set()
@@ -816,7 +739,7 @@ class DeviceSession:
             return
         if message.kind == FrameType.TELEMETRY:
             if message.name == HOUSEKEEPING_PACKET:
-                self._record_sample(message.values, message.t_s, "tlm")
+                self.telemetry.record(message.values, message.t_s, "tlm")
             return
         self._on_device_event(message)
 
@@ -849,44 +772,6 @@ class DeviceSession:
             )
             self._event(level, "device", text, message.t_s)
 
-    def _record_sample(self, values: Mapping[str, FieldValue], t_s: float, source: str) -> None:
-        """Limits first, then the archive: an archive that cannot be written (a full disk)
-        must not keep a red limit from tripping (``GuardedArchive`` never raises)."""
-        numeric = {
-            k: float(v)
-            for k, v in values.items()
-            if isinstance(v, int | float) and k in self.channels
-        }
-        self._last_values.update(numeric)
-        for channel in numeric:
-            self._last_t_s[channel] = t_s
-        for change in self.checker.check(numeric, t_s):
-            limits = self.config.telemetry.limits[change.channel]
-            unit = self.channels.get(change.channel, "")
-            self._event(change.level, "limits", change.message(limits, unit), t_s)
-        self._check_red()
-        self._archive().add_samples(t_s, numeric, source, self.channels)
-
-    def _check_red(self) -> None:
-        """Trip to fault on a red channel that the operator has not acknowledged with a reset."""
-        if not self.config.telemetry.red_is_fault:
-            return
-        with self._red_lock:
-            red = set(self.checker.red_channels())
-            self._red_acknowledged &= red  # a channel that recovered may trip again
-            fresh = sorted(red - self._red_acknowledged)
-        if not fresh or self.machine.state not in (State.IDLE, State.STREAMING):
-            return
-        parts = []
-        for ch in fresh:
-            limits = self.config.telemetry.limits[ch]
-            unit = self.channels.get(ch, "")
-            value = self._last_values.get(ch, float("nan"))
-            parts.append(
-                f"{ch} = {value:.6g} {unit} outside [{limits.red[0]:g}, {limits.red[1]:g}]"
-            )
-        self._fire(Trigger.RED_LIMIT, "red limit: " + "; ".join(parts))
-
     # -- internals: the service loop --------------------------------------------------------------
 
     def _service_loop(self) -> None:
@@ -910,7 +795,7 @@ class DeviceSession:
                         next_probe = time.monotonic() + PROBE_RETRY_S
                 if now >= next_prune:
                     next_prune = now + PRUNE_PERIOD_S
-                    self._prune()
+                    self.telemetry.prune()
                 if now >= next_trim:
                     next_trim = now + HEAP_TRIM_PERIOD_S
                     heap.give_back()
@@ -927,14 +812,6 @@ class DeviceSession:
                 deadlines.append(next_probe)
             self._wake.wait(max(0.0, min(deadlines) - time.monotonic()))
             self._wake.clear()
-
-    def _prune(self) -> None:
-        days = self.config.telemetry.retention_days
-        if days <= 0 or self.archive is None:
-            return
-        removed = self.archive.prune(time.time() - days * 86400.0)
-        if removed:
-            log.info("telemetry archive: deleted %d samples older than %g days", removed, days)
 
     def _wants_probe(self) -> bool:
         link = self.link
@@ -1002,7 +879,7 @@ class DeviceSession:
                 f"camera answered: firmware {fw}, mode {device.mode}, state "
                 f"{device.device_state}, boot count {device.boot_count}",
             )
-        self._check_red()  # a red sample that arrived before the probe counts now
+        self.telemetry.check_red()  # a red sample that arrived before the probe counts now
         return True
 
     def _poll(self) -> None:
@@ -1026,7 +903,7 @@ class DeviceSession:
         if self._poll_error is not None:
             self._event("info", "daemon", "housekeeping poll answered again")
             self._poll_error = None
-        self._record_sample(response.values, time.time(), "poll")
+        self.telemetry.record(response.values, time.time(), "poll")
         self.stream.check_ended()
 
     def _unanswered(self, sent_mono: float, exc: DeviceTimeout) -> None:
