@@ -824,7 +824,7 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
         """The live view's background: none, capturing (progress), ready (where it came from,
         its spatial mean and standard deviation, the recordings it was saved in) or failed
         (why). Reading never needs control."""
-        return session.background_status()
+        return session.background.status()
 
     @app.post(f"{API}/live/background", response_model=BackgroundStatus, tags=["live"])
     def post_live_background(
@@ -837,7 +837,7 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
         (nothing changed then)."""
         body = body or BackgroundRequest()
         with acting_as(client):
-            return session.capture_background(body.frames)
+            return session.background.start(body.frames)
 
     @app.delete(f"{API}/live/background", response_model=BackgroundStatus, tags=["live"])
     def delete_live_background(
@@ -845,7 +845,7 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
     ) -> BackgroundStatus:
         """Drop the background (and stop a capture); recordings no longer get one."""
         with acting_as(client):
-            return session.clear_background()
+            return session.background.clear()
 
     @app.get(
         f"{API}/live/background/frame",
@@ -858,9 +858,9 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
         the header ``X-Camd-Background`` holds its JSON description (seq, frames, rows, cols,
         mode, stages, first_counter, last_counter, captured_t_s, mean_dn, std_dn, dtype).
         404 when none is ready."""
-        background = session.background.ready()
+        background = session.background.capture.ready()
         if background is None:
-            state = session.background_status()
+            state = session.background.status()
             why = {"capturing": "one is being captured", "failed": "the last capture failed"}
             return error_response(
                 404,

@@ -31,6 +31,7 @@ from typing import Any, cast
 import camd
 from camd.daemon import backends, heap, notify
 from camd.daemon.acquisition import STOP_COMMANDS
+from camd.daemon.background_service import BackgroundService
 from camd.daemon.campaign_jobs import CampaignJobs, worker_client
 from camd.daemon.config import HOUSEKEEPING_PACKET, Config
 from camd.daemon.control import ANONYMOUS, Control
@@ -47,7 +48,6 @@ from camd.daemon.link_commands import LinkCommands
 from camd.daemon.models import (
     LIVE_LINES_MAX,
     AcquisitionInfo,
-    BackgroundStatus,
     CampaignJob,
     CampaignJobsResponse,
     CampaignStartRequest,
@@ -161,17 +161,18 @@ class DeviceSession:
         )
         # The live view's background: captured from any stream, stored in every recording
         # (stream, stare, wheel, scan) started while it is ready.
-        self.background = BackgroundCapture()
+        background = BackgroundCapture()
         self.stream = StreamService(
             device,
             self.sensor,
             lambda: backends.frame_stream_backend(config),
-            background=self.background,
+            background=background,
         )
         # The live view's tap stays on every stream (stare, stream, scan, wheel).
         self.live = LiveTap()
         self.stream.add_consumer(self.live)
-        self.stream.add_consumer(self.background)
+        self.stream.add_consumer(background)
+        self.background = BackgroundService(device, background, self.stream)
         self.motion = MotionService(device, self.sensor)
         # The live view's waterfall: the newest integrated lines of the running or last scan.
         self.live_lines = LiveLines(LIVE_LINES_MAX)
@@ -181,7 +182,7 @@ class DeviceSession:
             self.stream,
             self.motion,
             self.sim,
-            background=self.background,
+            background=background,
             live_lines=self.live_lines,
         )
         self.wheel = WheelService(device, self.sensor, self.stream)
@@ -658,50 +659,6 @@ class DeviceSession:
             note += f"; the sensor check after the reset failed: {exc}"
         self._event("info", "api", f"camera reset{note}")
         return self.status()
-
-    # -- the live view's background -------------------------------------------------------------
-
-    def background_status(self) -> BackgroundStatus:
-        """The background's state (a capture whose stream has ended fails here)."""
-        capture = self.background
-        if capture.snapshot().state == "capturing" and not self.stream.streaming:
-            capture.fail(
-                "the stream ended",
-                "capture again while something streams (`camctl stream --start`, a stare or a "
-                "scan)",
-            )
-        snap = capture.snapshot()
-        ready = snap.background
-        return BackgroundStatus(
-            state=snap.state,
-            frames_wanted=snap.frames_wanted,
-            frames_done=snap.frames_done,
-            rows=snap.rows,
-            cols=snap.cols,
-            mode=snap.mode,
-            stages=snap.stages,
-            first_counter=snap.first_counter,
-            last_counter=snap.last_counter,
-            captured_t_s=None if ready is None else ready.captured_t_s,
-            seq=None if ready is None else ready.seq,
-            mean_dn=None if ready is None else ready.mean_dn,
-            std_dn=None if ready is None else ready.std_dn,
-            saved_to=list(snap.saved_to),
-            error=snap.error,
-        )
-
-    def capture_background(self, frames: int) -> BackgroundStatus:
-        """Average the next ``frames`` frames of the running stream; returns at once. Refused
-        (409, nothing changed: a ready background stays) when nothing streams."""
-        self._require(Request.LIVE_BACKGROUND)
-        self.background.start(frames)
-        self._event("info", "api", f"live-view background: averaging the next {frames} frames")
-        return self.background_status()
-
-    def clear_background(self) -> BackgroundStatus:
-        """Drop the background (and stop a capture)."""
-        self.background.clear()
-        return self.background_status()
 
     # -- internals: requests and state ----------------------------------------------------------
 
