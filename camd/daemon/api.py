@@ -629,12 +629,12 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
         filter wheel and a running campaign job (paused). Never refused, whoever asks and
         whatever holds control; it latches: nothing moves or acquires until a client with
         control releases it (``POST /api/v1/estop/release``)."""
-        return session.estop(client)
+        return session.estop.engage(client)
 
     @app.get(f"{API}/estop", response_model=EstopState, tags=["control"])
     def get_estop() -> EstopState:
         """The emergency-stop latch: whether it holds, since when, who asked, what was stopped."""
-        return session.estop_state()
+        return session.estop.state()
 
     @app.post(f"{API}/estop/release", response_model=EstopState, tags=["control"])
     def post_estop_release(
@@ -642,13 +642,13 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
     ) -> EstopState:
         """Release the latch (needs control, or free control); the stage stays disabled and the
         wheel stopped until someone starts them. Harmless when not latched."""
-        return session.release_estop(client)
+        return session.estop.release(client)
 
     @app.get(f"{API}/campaigns/jobs", response_model=CampaignJobsResponse, tags=["campaigns"])
     def get_campaign_jobs() -> CampaignJobsResponse:
         """Every campaign job this daemon knows (jobs.json in its data directory), running or
         ended. Reading never needs control."""
-        return session.campaign_jobs()
+        return session.campaigns.list_jobs()
 
     @app.post(f"{API}/campaigns/jobs", response_model=CampaignJob, tags=["campaigns"])
     def post_campaign_job(
@@ -659,12 +659,12 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
         starts and this returns at once. The requester's control (or free control) passes to
         the worker, ``campaign-job-<id>``, for the run. 409 while an acquisition or another
         job runs."""
-        return session.start_campaign(body, client)
+        return session.campaigns.start(body, client)
 
     @app.get(f"{API}/campaigns/jobs/{{job_id}}", response_model=CampaignJob, tags=["campaigns"])
     def get_campaign_job(job_id: int) -> CampaignJob:
         """One campaign job; 404 if there is none."""
-        return session.campaign_job(job_id)
+        return session.campaigns.job(job_id)
 
     @app.post(
         f"{API}/campaigns/jobs/{{job_id}}/pause", response_model=CampaignJob, tags=["campaigns"]
@@ -676,7 +676,7 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
         resume), its worker stops at the step boundary, puts the daemon's settings back and
         gives control back; the job is then ``paused``. Only its starter may, or anyone with
         ``force``. 409 unless it runs."""
-        return session.pause_campaign(job_id, client, body.force)
+        return session.campaigns.pause(job_id, client, body.force)
 
     @app.post(
         f"{API}/campaigns/jobs/{{job_id}}/resume", response_model=CampaignJob, tags=["campaigns"]
@@ -685,7 +685,7 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
         """Resume a paused, interrupted or failed-with-an-error job from its state file: the
         completed steps are replayed, the rest executed. Needs control, which passes to the
         worker as at the start."""
-        return session.resume_campaign(job_id, client)
+        return session.campaigns.resume(job_id, client)
 
     @app.post(
         f"{API}/campaigns/jobs/{{job_id}}/abort", response_model=CampaignJob, tags=["campaigns"]
@@ -696,7 +696,7 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
         """Abort a job: a running one is stopped as for a pause, then ends ``aborted``; a
         paused one ends at once. Its files stay. Only its starter may, or anyone with
         ``force``."""
-        return session.abort_campaign(job_id, client, body.force)
+        return session.campaigns.abort(job_id, client, body.force)
 
     @app.post(f"{API}/ping", response_model=PingResponse, tags=["link"])
     def post_ping(body: PingRequest | None = None) -> PingResponse:

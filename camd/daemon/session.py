@@ -24,39 +24,31 @@ import logging
 import os
 import threading
 import time
-from collections.abc import Callable, Iterator, Mapping
-from dataclasses import asdict
+from collections.abc import Mapping
 from typing import Any, cast
 
 import camd
 from camd.daemon import backends, heap, notify
-from camd.daemon.acquisition import STOP_COMMANDS
 from camd.daemon.background_service import BackgroundService
-from camd.daemon.campaign_jobs import CampaignJobs, worker_client
+from camd.daemon.campaign_service import CampaignService
 from camd.daemon.config import HOUSEKEEPING_PACKET, Config
 from camd.daemon.control import ANONYMOUS, Control
 from camd.daemon.device import DeviceAccess
 from camd.daemon.errors import (
-    Busy,
     DeviceRejected,
     DeviceTimeout,
     Disconnected,
     SessionError,
 )
-from camd.daemon.estop import RELEASE_HINT
+from camd.daemon.estop_service import EstopService
 from camd.daemon.link_commands import LinkCommands
 from camd.daemon.models import (
     LIVE_LINES_MAX,
     AcquisitionInfo,
-    CampaignJob,
-    CampaignJobsResponse,
-    CampaignStartRequest,
     ControlActivity,
     ControlInfo,
     DaemonInfo,
     DeviceStatus,
-    EstopResponse,
-    EstopState,
     LinkInfo,
     ModeResponse,
     StatusResponse,
@@ -124,11 +116,6 @@ def _join_camd_threads(timeout_s: float) -> None:
 # -- the session ---------------------------------------------------------------------------------
 
 
-# A campaign's worker takes the requester's control for this long, renewing it as it runs
-# (camd.campaign.runner's lease).
-CAMPAIGN_CONTROL_TTL_S = 60.0
-
-
 class DeviceSession:
     """The daemon's view of one camera; see the module docstring."""
 
@@ -190,14 +177,13 @@ class DeviceSession:
         self.control = Control(
             device.acquisition, lambda level, source, message: self._event(level, source, message)
         )
-        self.campaigns = CampaignJobs(
-            config.daemon.data_dir,
-            lambda level, source, message: self._event(level, source, message),
-            self._stop_acquisition_now,
-            worker_ended=self._worker_ended,
-            estop_latched=lambda: self.device.estop.latched,
-            campaign_dirs=config.campaigns.dirs,
-            record_dirs=config.daemon.record_dirs,
+        self.campaigns = CampaignService(device, self.control, self._stop_acquisition_now)
+        self.estop = EstopService(
+            device,
+            self.motion,
+            self.wheel,
+            stop_acquisition=self._stop_acquisition_now,
+            pause_job=self.campaigns.pause_for_estop,
         )
 
     # -- lifecycle ------------------------------------------------------------------------------
@@ -289,7 +275,7 @@ class DeviceSession:
         stare's request waiting for its frames, a campaign worker's) answer within the grace
         instead of being cancelled at its end. The running acquisition is ended and a campaign
         job's worker stopped on a thread of their own (``stop`` waits for it)."""
-        self.campaigns.stopping()
+        self.campaigns.jobs.stopping()
         self._stop.set()
         self._wake.set()
         with self._ending_lock:
@@ -300,7 +286,7 @@ class DeviceSession:
                 self._ending.start()
 
     def _end_for_shutdown(self) -> None:
-        for step in (self.scan.stopping, self.stream.shut_down, self.campaigns.close):
+        for step in (self.scan.stopping, self.stream.shut_down, self.campaigns.jobs.close):
             try:
                 step()
             except Exception:  # the ordered stop tries again and says what it could not do
@@ -318,7 +304,7 @@ class DeviceSession:
         ending = self._ending
         if ending is not None:
             ending.join(SHUTDOWN_ENDING_S)
-        self.campaigns.close()
+        self.campaigns.jobs.close()
         if self._thread is not None:
             self._thread.join(timeout=THREAD_JOIN_S)
             self._thread = None
@@ -397,165 +383,11 @@ class DeviceSession:
             running=current.active,
         )
 
-    def estop(self, client: str = ANONYMOUS) -> EstopResponse:
-        """Emergency stop, never refused, and latched (camd.daemon.estop): first the latch, so
-        that nothing racing the stop can start motion or acquisition again; then the stage (no
-        ramp, motor current cut), the running acquisition (its stream stopped; a scan's file is
-        closed as stopped), the filter wheel and the campaign job (paused, its worker's control
-        ended). Each is tried whatever the others did; what failed is said, not raised."""
-        self.device.estop.engage(client)
-        stopped: list[str] = []
-        failed: list[str] = []
-        for what, action in (
-            ("stage", self.motion.emergency_stop_now),
-            ("acquisition", self._stop_acquisition_now),
-            ("wheel", self.wheel.stop_now),
-            ("campaign job", self._pause_job_for_estop),
-        ):
-            try:
-                if action():
-                    stopped.append(what)
-            except Exception as exc:  # keep stopping the others
-                failed.append(f"{what}: {exc}")
-        self.device.estop.stopped(stopped, failed)
-        level = "error" if failed else "warning"
-        self._event(
-            level,
-            "api",
-            f"EMERGENCY STOP by {client}: stopped {', '.join(stopped) or 'nothing'}"
-            + (f"; could not stop {'; '.join(failed)}" if failed else "")
-            + f"; latched: nothing moves or acquires until it is released ({RELEASE_HINT})",
-        )
-        return EstopResponse(stopped=stopped, failed=failed, latch=self.estop_state())
-
-    def estop_state(self) -> EstopState:
-        """The emergency-stop latch (no device traffic)."""
-        return EstopState.model_validate(
-            {**asdict(self.device.estop.record()), "how_to_release": RELEASE_HINT}
-        )
-
-    def release_estop(self, client: str) -> EstopState:
-        """Lift the latch (the caller has control); the stage stays disabled and the wheel
-        stopped until someone starts them. Harmless when not latched."""
-        if self.device.estop.release(client):
-            self._event(
-                "warning",
-                "api",
-                f"emergency stop released by {client}: motion and acquisition may start again; "
-                "the stage stays disabled until `camctl stage enable`, the wheel stopped until "
-                "`camctl wheel speed`, a paused campaign job paused until `camctl campaign resume`",
-            )
-        return self.estop_state()
-
-    def _pause_job_for_estop(self) -> bool:
-        job_id = self.campaigns.estop()
-        if job_id is None:
-            return False
-        # Its worker changes nothing more (not even its closing "restore settings"): its
-        # control ends here, and it may not take control again (take_control).
-        self.control.revoke(worker_client(job_id), "the emergency stop paused its job")
-        return True
-
-    def _hold_estop(self) -> None:
-        """The camera answered (a connect, a reboot) while the latch holds: it may have
-        powered up turning its wheel; stop the wheel and the stage again."""
-        if not self.device.estop.latched:
-            return
-        done = []
-        for what, action in (
-            ("stage", self.motion.emergency_stop_now),
-            ("wheel", self.wheel.stop_now),
-        ):
-            try:
-                action()
-                done.append(what)
-            except SessionError as exc:
-                self._event("error", "estop", f"could not stop the {what} again: {exc}")
-        if done:
-            self._event(
-                "warning",
-                "estop",
-                f"the camera answered while the emergency stop is latched: {' and '.join(done)} "
-                f"stopped again; {RELEASE_HINT}",
-            )
-
     def take_control(self, client: str, ttl_s: float, *, force: bool = False) -> None:
         """Take or renew a lease (``Control.take``); a campaign job's worker whose job no
         longer runs (paused by an emergency stop, ended) may not take it back."""
-        self.campaigns.refuse_control(client)
+        self.campaigns.jobs.refuse_control(client)
         self.control.take(client, ttl_s, force=force)
-
-    # -- campaign jobs (camd.daemon.campaign_jobs) -----------------------------------------------
-
-    def campaign_jobs(self) -> CampaignJobsResponse:
-        return CampaignJobsResponse(jobs=[self._job_doc(doc) for doc in self.campaigns.jobs()])
-
-    def campaign_job(self, job_id: int) -> CampaignJob:
-        return self._job_doc(self.campaigns.job(job_id))
-
-    def _job_doc(self, doc: dict[str, Any]) -> CampaignJob:
-        """The job with what its worker, holding control, last said it is doing."""
-        activity = self.control.activity()
-        if activity is not None and activity.client == worker_client(int(doc["id"])):
-            doc = {**doc, "activity": activity.text, "done": activity.done}
-        return CampaignJob.model_validate(doc)
-
-    def start_campaign(self, body: CampaignStartRequest, client: str) -> CampaignJob:
-        """Start a campaign job; the requester's control (or free control) goes to its worker.
-        Busy while an acquisition or another job runs."""
-        self.campaigns.refuse_if_active()  # before control: it names the job that runs
-        self.control.check(client, "start a campaign")
-        running = self.device.acquisition.active
-        if running is not None:
-            raise Busy(
-                f"a {running.kind} is running: a campaign starts from its own baseline; stop it "
-                f"first with {STOP_COMMANDS[running.kind]}"
-            )
-
-        with self._handing_over(client) as hand_over:
-            doc = self.campaigns.start(body.campaign, body.out, body.quick, client, hand_over)
-        return self._job_doc(doc)
-
-    def resume_campaign(self, job_id: int, client: str) -> CampaignJob:
-        self.campaigns.refuse_if_active()
-        self.control.check(client, "resume a campaign")
-
-        with self._handing_over(client) as hand_over:
-            return self._job_doc(self.campaigns.resume(job_id, client, hand_over))
-
-    @contextlib.contextmanager
-    def _handing_over(self, client: str) -> Iterator[Callable[[int], None]]:
-        """The hand-over of ``client``'s control (or free control) to a job's worker, put back
-        as it was if the start or resume then fails (a refused request changes nothing)."""
-        before = self.control.holder()
-        handed: list[str] = []
-
-        def hand_over(job_id: int) -> None:
-            self.control.hand_over(client, worker_client(job_id), CAMPAIGN_CONTROL_TTL_S)
-            handed.append(worker_client(job_id))
-
-        try:
-            yield hand_over
-        except BaseException:
-            for worker in handed:
-                self.control.hand_back(worker, before)
-            raise
-
-    def pause_campaign(self, job_id: int, client: str, force: bool) -> CampaignJob:
-        return self._job_doc(self.campaigns.pause(job_id, client, force=force))
-
-    def abort_campaign(self, job_id: int, client: str, force: bool) -> CampaignJob:
-        return self._job_doc(self.campaigns.abort(job_id, client, force=force))
-
-    def _worker_ended(self, job_id: int, why: str) -> None:
-        """A job's worker has exited, however it ended: its control ends with it, and an
-        acquisition it left running (a killed worker) is stopped: nobody will read it."""
-        client = worker_client(job_id)
-        running = self.device.acquisition.active
-        if running is not None and running.client == client:
-            with contextlib.suppress(Exception):
-                self._stop_acquisition_now()
-        self.control.revoke(client, why)
 
     def _stop_acquisition_now(self) -> bool:
         # A scan first, through its own stop: stopping only its stream would end it "done".
@@ -609,7 +441,7 @@ class DeviceSession:
             ),
             control=self.control_info(client),
             acquisition=self.acquisition_info(),
-            estop=self.estop_state(),
+            estop=self.estop.state(),
             backends=backends.describe(self.config),
         )
 
@@ -828,7 +660,7 @@ class DeviceSession:
                 self._event("warning", "sensor", f"sensor check after connect failed: {exc}")
             self._fire(Trigger.PROBE_IDLE, None)
             self._stop_stage_left_running()
-            self._hold_estop()
+            self.estop.hold()
         if was == State.DISCONNECTED:
             self._event(
                 "info",
