@@ -359,7 +359,7 @@ class _SessionCollector(Collector):
             "1 while the command link's port is open",
             value=1.0 if link is not None and link.connected else 0.0,
         )
-        for name, count in session.host_counters().items():
+        for name, count in session.link_commands.host_counters().items():
             yield CounterMetricFamily(
                 f"camd_link_{name}", f"command link host counter: {name}", value=count
             )
@@ -391,14 +391,14 @@ class _SessionCollector(Collector):
             labels=["channel"],
         )
         level_number = {Level.OK: 0.0, Level.YELLOW: 1.0, Level.RED: 2.0}
-        for channel, value in sorted(session.latest_values().items()):
-            values.add_metric([channel, session.channels.get(channel, "")], value)
+        for channel, value in sorted(session.telemetry.latest_values().items()):
+            values.add_metric([channel, session.telemetry.channels.get(channel, "")], value)
             limits = session.config.telemetry.limits.get(channel)
             if limits is not None:
                 levels.add_metric([channel], level_number[classify(value, limits)])
         yield values
         yield levels
-        archive = session.archive
+        archive = session.telemetry.archive
         if archive is not None:
             yield GaugeMetricFamily(
                 "camd_telemetry_archived_samples",
@@ -629,12 +629,12 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
         filter wheel and a running campaign job (paused). Never refused, whoever asks and
         whatever holds control; it latches: nothing moves or acquires until a client with
         control releases it (``POST /api/v1/estop/release``)."""
-        return session.estop(client)
+        return session.estop.engage(client)
 
     @app.get(f"{API}/estop", response_model=EstopState, tags=["control"])
     def get_estop() -> EstopState:
         """The emergency-stop latch: whether it holds, since when, who asked, what was stopped."""
-        return session.estop_state()
+        return session.estop.state()
 
     @app.post(f"{API}/estop/release", response_model=EstopState, tags=["control"])
     def post_estop_release(
@@ -642,13 +642,13 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
     ) -> EstopState:
         """Release the latch (needs control, or free control); the stage stays disabled and the
         wheel stopped until someone starts them. Harmless when not latched."""
-        return session.release_estop(client)
+        return session.estop.release(client)
 
     @app.get(f"{API}/campaigns/jobs", response_model=CampaignJobsResponse, tags=["campaigns"])
     def get_campaign_jobs() -> CampaignJobsResponse:
         """Every campaign job this daemon knows (jobs.json in its data directory), running or
         ended. Reading never needs control."""
-        return session.campaign_jobs()
+        return session.campaigns.list_jobs()
 
     @app.post(f"{API}/campaigns/jobs", response_model=CampaignJob, tags=["campaigns"])
     def post_campaign_job(
@@ -659,12 +659,12 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
         starts and this returns at once. The requester's control (or free control) passes to
         the worker, ``campaign-job-<id>``, for the run. 409 while an acquisition or another
         job runs."""
-        return session.start_campaign(body, client)
+        return session.campaigns.start(body, client)
 
     @app.get(f"{API}/campaigns/jobs/{{job_id}}", response_model=CampaignJob, tags=["campaigns"])
     def get_campaign_job(job_id: int) -> CampaignJob:
         """One campaign job; 404 if there is none."""
-        return session.campaign_job(job_id)
+        return session.campaigns.job(job_id)
 
     @app.post(
         f"{API}/campaigns/jobs/{{job_id}}/pause", response_model=CampaignJob, tags=["campaigns"]
@@ -676,7 +676,7 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
         resume), its worker stops at the step boundary, puts the daemon's settings back and
         gives control back; the job is then ``paused``. Only its starter may, or anyone with
         ``force``. 409 unless it runs."""
-        return session.pause_campaign(job_id, client, body.force)
+        return session.campaigns.pause(job_id, client, body.force)
 
     @app.post(
         f"{API}/campaigns/jobs/{{job_id}}/resume", response_model=CampaignJob, tags=["campaigns"]
@@ -685,7 +685,7 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
         """Resume a paused, interrupted or failed-with-an-error job from its state file: the
         completed steps are replayed, the rest executed. Needs control, which passes to the
         worker as at the start."""
-        return session.resume_campaign(job_id, client)
+        return session.campaigns.resume(job_id, client)
 
     @app.post(
         f"{API}/campaigns/jobs/{{job_id}}/abort", response_model=CampaignJob, tags=["campaigns"]
@@ -696,13 +696,13 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
         """Abort a job: a running one is stopped as for a pause, then ends ``aborted``; a
         paused one ends at once. Its files stay. Only its starter may, or anyone with
         ``force``."""
-        return session.abort_campaign(job_id, client, body.force)
+        return session.campaigns.abort(job_id, client, body.force)
 
     @app.post(f"{API}/ping", response_model=PingResponse, tags=["link"])
     def post_ping(body: PingRequest | None = None) -> PingResponse:
         """PING the device ``count`` times with ``size`` random bytes; round-trip statistics."""
         body = body or PingRequest()
-        return session.ping(body.count, body.size)
+        return session.link_commands.ping(body.count, body.size)
 
     @app.post(f"{API}/link/command", response_model=LinkCommandResponse, tags=["link"])
     def post_link_command(
@@ -715,17 +715,17 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
         daemon's view of the camera is not updated, so put back what you change. Idle or in
         fault only."""
         with acting_as(client):
-            return session.link_command(body)
+            return session.link_commands.command(body)
 
     @app.get(f"{API}/link", response_model=LinkResponse, tags=["link"])
     def get_link() -> LinkResponse:
         """Host and device counters of the command link."""
-        return session.link_stats()
+        return session.link_commands.stats()
 
     @app.get(f"{API}/telemetry", response_model=TelemetryResponse, tags=["telemetry"])
     def get_telemetry() -> TelemetryResponse:
         """Latest value of every housekeeping channel, with its limit level."""
-        return session.telemetry()
+        return session.telemetry.latest()
 
     @app.get(f"{API}/telemetry/history", response_model=HistoryResponse, tags=["telemetry"])
     def get_history(
@@ -737,14 +737,14 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
         limit: int = Query(default=1000, ge=1, le=HISTORY_LIMIT_MAX, description="newest N"),
     ) -> HistoryResponse:
         """Archived samples of one channel, oldest first."""
-        return session.history(channel, since_s, limit)
+        return session.telemetry.history(channel, since_s, limit)
 
     @app.get(f"{API}/events", response_model=EventsResponse, tags=["telemetry"])
     def get_events(
         limit: int = Query(default=100, ge=1, le=EVENTS_LIMIT_MAX, description="newest N"),
     ) -> EventsResponse:
         """Recent events (link, device, limits, state changes), newest last."""
-        return session.events(limit)
+        return session.telemetry.events(limit)
 
     @app.get(
         f"{API}/live/frame",
@@ -824,7 +824,7 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
         """The live view's background: none, capturing (progress), ready (where it came from,
         its spatial mean and standard deviation, the recordings it was saved in) or failed
         (why). Reading never needs control."""
-        return session.background_status()
+        return session.background.status()
 
     @app.post(f"{API}/live/background", response_model=BackgroundStatus, tags=["live"])
     def post_live_background(
@@ -837,7 +837,7 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
         (nothing changed then)."""
         body = body or BackgroundRequest()
         with acting_as(client):
-            return session.capture_background(body.frames)
+            return session.background.start(body.frames)
 
     @app.delete(f"{API}/live/background", response_model=BackgroundStatus, tags=["live"])
     def delete_live_background(
@@ -845,7 +845,7 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
     ) -> BackgroundStatus:
         """Drop the background (and stop a capture); recordings no longer get one."""
         with acting_as(client):
-            return session.clear_background()
+            return session.background.clear()
 
     @app.get(
         f"{API}/live/background/frame",
@@ -858,9 +858,9 @@ def create_app(session: DeviceSession, *, token: str = "") -> FastAPI:
         the header ``X-Camd-Background`` holds its JSON description (seq, frames, rows, cols,
         mode, stages, first_counter, last_counter, captured_t_s, mean_dn, std_dn, dtype).
         404 when none is ready."""
-        background = session.background.ready()
+        background = session.background.capture.ready()
         if background is None:
-            state = session.background_status()
+            state = session.background.status()
             why = {"capturing": "one is being captured", "failed": "the last capture failed"}
             return error_response(
                 404,

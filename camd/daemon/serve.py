@@ -424,8 +424,8 @@ def run(args: argparse.Namespace) -> int:
 
     # Campaign jobs' workers reach the API at this URL; jobs the last daemon was running when
     # it stopped run on (their workers wait until the API answers).
-    session.campaigns.attach(url, config.api.token)
-    session.campaigns.resume_interrupted()
+    session.campaigns.jobs.attach(url, config.api.token)
+    session.campaigns.jobs.resume_interrupted()
     server = _Server(
         uvicorn.Config(
             create_app(session, token=config.api.token),

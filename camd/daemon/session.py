@@ -1,18 +1,25 @@
-"""The device session: composes the daemon's parts and owns their lifecycle.
+"""The device session: composes the daemon's parts, owns their lifecycle, keeps the state.
 
-``DeviceSession(config)`` spawns the simulated camera when ``link.device = "sim"`` (the
-backends are chosen in ``camd.daemon.backends``), opens the CommandLink inside a
-``DeviceAccess`` (link, FIFO lock, state machine, event log), builds the services on it (sensor,
-stream, motion, scan, wheel, simulator control: each handed the device access and its peers,
-never the session), follows the link's connection changes, telemetry and events, and runs a
-service loop that polls housekeeping and pets the systemd watchdog. The API calls its
-operations (``status``, ``ping``, ``link_stats``, ``telemetry``, ``history``, ``events``,
-``set_mode``, ``reset``); each checks the state machine first, so an illegal request never
-reaches the device.
+``DeviceSession(config)`` builds one ``DeviceAccess`` (link, FIFO lock, state machine, event
+log) and the services on it, each handed the device access and its peers, never the session:
+telemetry (samples, limits, the archive, the event log read back), sensor, stream, motion,
+scan, wheel, simulator control, the live view's background, control, campaign jobs, the
+emergency stop, the link commands (ping, raw commands, counters), and the ``Connection``: the
+simulated camera when ``link.device = "sim"`` (the backends are chosen in
+``camd.daemon.backends``), the CommandLink, the probe after a connect, the housekeeping polls
+and the service loop. ``start`` opens the archive, repairs what the last daemon left open and
+opens the connection; ``abort`` and ``stop`` are the ordered shutdown.
 
-Threads: the link's reader thread calls ``_on_message`` (quick work only: archive, limits,
-state); the service loop thread does everything that waits for the device outside requests
-(probing after a connect, polling); API requests run on the HTTP server's worker threads. Device
+The session answers what concerns the camera's state: ``status`` (state and reason, link,
+the device's GET_STATUS, the daemon, control, acquisition, the emergency-stop latch),
+``set_mode``, ``reset``, and who holds control (``control_info``, ``take_control``); each
+checks the state machine first, so an illegal request never reaches the device. The API
+reaches everything else through the services (``session.link_commands``,
+``session.telemetry``, ``session.background``, ``session.estop``, ``session.campaigns``,
+``session.stream`` ...).
+
+Threads: the link's reader thread and the service loop are the connection's
+(``camd.daemon.connection``); API requests run on the HTTP server's worker threads. Device
 requests go through one FIFO lock so that a long ping run cannot starve the poll (and with it
 the watchdog).
 """
@@ -22,106 +29,49 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
-import random
 import threading
 import time
-from collections.abc import Callable, Iterator, Mapping
-from dataclasses import asdict
 from typing import Any, cast
 
-import numpy as np
-
 import camd
-from camd.daemon import backends, heap, notify
-from camd.daemon.acquisition import STOP_COMMANDS
-from camd.daemon.campaign_jobs import CampaignJobs, worker_client
-from camd.daemon.config import HOUSEKEEPING_PACKET, Config, telemetry_channels
+from camd.daemon import backends
+from camd.daemon.background_service import BackgroundService
+from camd.daemon.campaign_service import CampaignService
+from camd.daemon.config import Config
+from camd.daemon.connection import Connection
 from camd.daemon.control import ANONYMOUS, Control
 from camd.daemon.device import DeviceAccess
-from camd.daemon.errors import (
-    BadRequest,
-    Busy,
-    DeviceRejected,
-    DeviceTimeout,
-    Disconnected,
-    SessionError,
-)
-from camd.daemon.estop import RELEASE_HINT
+from camd.daemon.errors import SessionError
+from camd.daemon.estop_service import EstopService
+from camd.daemon.link_commands import LinkCommands
 from camd.daemon.models import (
     LIVE_LINES_MAX,
     AcquisitionInfo,
-    BackgroundStatus,
-    CampaignJob,
-    CampaignJobsResponse,
-    CampaignStartRequest,
-    ChannelLatest,
     ControlActivity,
     ControlInfo,
     DaemonInfo,
-    DeviceLinkStats,
     DeviceStatus,
-    EstopResponse,
-    EstopState,
-    EventItem,
-    EventsResponse,
-    HistoryResponse,
-    LinkAnswer,
-    LinkCommandRequest,
-    LinkCommandResponse,
-    LinkInfo,
-    LinkResponse,
     ModeResponse,
-    PingResponse,
-    RttMs,
     StatusResponse,
-    TelemetryResponse,
 )
 from camd.daemon.motion_service import MotionService
 from camd.daemon.output_paths import RECORDINGS_FOLDER, SCANS_FOLDER
 from camd.daemon.realtime import REALTIME
 from camd.daemon.scan_service import ScanService
 from camd.daemon.sensor_service import SensorService
-from camd.daemon.sim_supervisor import RestartPolicy, SimSupervisor
-from camd.daemon.simulator import SimulatorProcess
 from camd.daemon.state import Request, State, Trigger
 from camd.daemon.stream_service import StreamService
-from camd.daemon.telemetry import GuardedArchive, LimitChecker, TelemetryArchive, classify
+from camd.daemon.telemetry_service import TelemetryService
 from camd.daemon.transaction import Apply
 from camd.daemon.wheel_service import WheelService
-from camd.link import (
-    CommandLink,
-    ConnectionChange,
-    Message,
-    Response,
-    Unsolicited,
-)
+from camd.link import CommandLink, Response
 from camd.pipeline.background import BackgroundCapture
 from camd.pipeline.live import LiveLines, LiveTap
-from camd.protocol import (
-    CommandSpec,
-    Dictionary,
-    Frame,
-    FrameType,
-    PayloadError,
-    load_dictionary,
-)
-from camd.protocol.dictionary import FieldValue
+from camd.protocol import Dictionary, load_dictionary
 from camd.store.journal import recover_left_open
 from camd.tdi import warm_up
 
 log = logging.getLogger(__name__)
-
-PROBE_RETRY_S = 1.0  # after a GET_STATUS probe went unanswered
-MAX_LOOP_SLEEP_S = 0.25  # the service loop wakes at least this often (stop, sim exit, probes)
-PING_ERRORS_MAX = 5
-# A camera whose housekeeping polls have gone unanswered (no answer at all, not a NAK) for this
-# long, on a port that stays open, is taken as frozen: the state goes disconnected with the
-# reason (docs/api.md, "Details"). Short silences (a line that drops for a couple of seconds)
-# stay below it.
-SILENT_AFTER_S = 5.0
-PRUNE_PERIOD_S = 3600.0  # how often old telemetry samples are deleted
-HEAP_TRIM_PERIOD_S = 30.0  # how often the C heap's free pages go back to the system (heap.py)
-
 
 THREAD_JOIN_S = 5.0  # at shutdown, the longest wait for one of camd's threads to end
 SHUTDOWN_ENDING_S = 15.0  # ... for the acquisition to end and a job's worker to stop (abort)
@@ -143,39 +93,17 @@ def _join_camd_threads(timeout_s: float) -> None:
 # -- the session ---------------------------------------------------------------------------------
 
 
-# A campaign's worker takes the requester's control for this long, renewing it as it runs
-# (camd.campaign.runner's lease).
-CAMPAIGN_CONTROL_TTL_S = 60.0
-
-
 class DeviceSession:
     """The daemon's view of one camera; see the module docstring."""
 
     def __init__(self, config: Config, *, dictionary: Dictionary | None = None) -> None:
         self.config = config
         self.dictionary = dictionary or load_dictionary()
-        self.channels: dict[str, str] = telemetry_channels()  # name -> unit
-        self.checker = LimitChecker(config.telemetry.limits)
-        self.sim_process: SimulatorProcess | None = None
-        self.sim_supervisor: SimSupervisor | None = None
-        self.archive: GuardedArchive | None = None
+        # Built first: the device access's event log writes into its archive.
+        self.telemetry = TelemetryService(config, self._event, self._red_limit)
         self.device = DeviceAccess(config, self.dictionary, self._event)
         self.machine = self.device.machine
-
-        self._stop = threading.Event()
-        self._wake = threading.Event()
-        self._probe_needed = threading.Event()
-        self._thread: threading.Thread | None = None
-        self._unsubscribe: Any = None
         self._started_mono = time.monotonic()
-        self._stop_stage_on_connect = False  # a scan was cut off: see _recover_recordings
-        self._poll_error: str | None = None
-        self._unanswered_since: float | None = None  # monotonic: the first unanswered poll's
-        self._silent_reason: str | None = None  # why a camera on an open port is disconnected
-        self._last_values: dict[str, float] = {}
-        self._last_t_s: dict[str, float] = {}  # when each channel's last value was taken
-        self._red_lock = threading.Lock()
-        self._red_acknowledged: set[str] = set()
         self._ending: threading.Thread | None = None  # abort's: acquisitions and job ended
         self._ending_lock = threading.Lock()
         device = self.device
@@ -185,17 +113,18 @@ class DeviceSession:
         )
         # The live view's background: captured from any stream, stored in every recording
         # (stream, stare, wheel, scan) started while it is ready.
-        self.background = BackgroundCapture()
+        background = BackgroundCapture()
         self.stream = StreamService(
             device,
             self.sensor,
             lambda: backends.frame_stream_backend(config),
-            background=self.background,
+            background=background,
         )
         # The live view's tap stays on every stream (stare, stream, scan, wheel).
         self.live = LiveTap()
         self.stream.add_consumer(self.live)
-        self.stream.add_consumer(self.background)
+        self.stream.add_consumer(background)
+        self.background = BackgroundService(device, background, self.stream)
         self.motion = MotionService(device, self.sensor)
         # The live view's waterfall: the newest integrated lines of the running or last scan.
         self.live_lines = LiveLines(LIVE_LINES_MAX)
@@ -205,22 +134,25 @@ class DeviceSession:
             self.stream,
             self.motion,
             self.sim,
-            background=self.background,
+            background=background,
             live_lines=self.live_lines,
         )
         self.wheel = WheelService(device, self.sensor, self.stream)
         self.control = Control(
             device.acquisition, lambda level, source, message: self._event(level, source, message)
         )
-        self.campaigns = CampaignJobs(
-            config.daemon.data_dir,
-            lambda level, source, message: self._event(level, source, message),
-            self._stop_acquisition_now,
-            worker_ended=self._worker_ended,
-            estop_latched=lambda: self.device.estop.latched,
-            campaign_dirs=config.campaigns.dirs,
-            record_dirs=config.daemon.record_dirs,
+        self.campaigns = CampaignService(device, self.control, self._stop_acquisition_now)
+        self.estop = EstopService(
+            device,
+            self.motion,
+            self.wheel,
+            stop_acquisition=self._stop_acquisition_now,
+            pause_job=self.campaigns.pause_for_estop,
         )
+        self.connection = Connection(
+            device, self.telemetry, self.sensor, self.stream, self.motion, self.estop
+        )
+        self.link_commands = LinkCommands(device, self.sim, self.connection.shutting_down)
 
     # -- lifecycle ------------------------------------------------------------------------------
 
@@ -235,7 +167,8 @@ class DeviceSession:
         return self.device.link
 
     def start(self) -> None:
-        """Open the archive, spawn the simulator if configured, open the link, start the loop.
+        """Open the archive, repair what the last daemon left open, spawn the simulator if
+        configured, open the link, start the service loop (``Connection.open``).
 
         Raises SimulatorError if the simulator does not start, OSError or sqlite3.Error if the
         data directory or the archive cannot be written.
@@ -247,36 +180,10 @@ class DeviceSession:
             (daemon.data_dir / folder).mkdir(exist_ok=True)
         allowed = ", ".join(str(d) for d in (daemon.data_dir, *daemon.record_dirs))
         log.info("files that clients name are written only inside: %s", allowed)
-        self.archive = GuardedArchive(
-            TelemetryArchive(self.config.archive_path),
-            lambda level, message: self._event(level, "telemetry", message),
-        )
+        self.telemetry.open()
         self._event("info", "daemon", f"camd {camd.__version__} started (pid {os.getpid()})")
         self._recover_recordings()
-        self.sim_process = backends.simulator_process(self.config)
-        if self.sim_process is not None:
-            self.config.sim_socket_dir.mkdir(mode=0o700, parents=True, exist_ok=True)
-            info = self.sim_process.start()
-            self._event("info", "daemon", f"simulated camera started: pid {info.get('pid')}, "
-                        f"tty {info.get('tty')}, link {self.port}")  # fmt: skip
-            self.sim_supervisor = self._sim_supervisor(self.sim_process)
-        cfg = self.config.link
-        link = self.device.link = CommandLink(
-            self.port,
-            dictionary=self.dictionary,
-            baudrate=cfg.baudrate,
-            timeout_s=cfg.timeout_s,
-            retries=cfg.retries,
-            reconnect_min_s=cfg.reconnect_min_s,
-            reconnect_max_s=cfg.reconnect_max_s,
-            thread_start=REALTIME.enter,
-            may_open=self.sim_supervisor.refuses_link if self.sim_supervisor is not None else None,
-        )
-        self._unsubscribe = link.subscribe(self._on_message)
-        link.open()
-        self._stop.clear()
-        self._thread = threading.Thread(target=self._service_loop, name="camd-service", daemon=True)
-        self._thread.start()
+        self.connection.open(backends.simulator_process(self.config))
         # Compile (or load) the TDI kernels now rather than when the first scan starts.
         if self.config.daemon.tdi_warm_up:
             threading.Thread(target=_warm_tdi, name="camd-tdi-warm-up", daemon=True).start()
@@ -288,25 +195,7 @@ class DeviceSession:
         for found in recover_left_open(self.device.recordings):
             self._event("warning", "daemon", f"found at start: {found.describe()}")
             if found.kind == "scan":
-                self._stop_stage_on_connect = True
-
-    def _stop_stage_left_running(self) -> None:
-        if not self._stop_stage_on_connect:
-            return
-        self._stop_stage_on_connect = False
-        try:
-            status = self.motion.stop()
-        except SessionError as exc:
-            self._event(
-                "warning", "motion", f"could not stop the stage after the cut-off scan: {exc}"
-            )
-            return
-        self._event(
-            "info",
-            "motion",
-            "a scan was cut off when the last daemon stopped: stage stopped at "
-            f"{status.reading.position_m * 1e3:.3f} mm",
-        )
+                self.connection.stop_stage_on_connect = True
 
     def abort(self) -> None:
         """Shutdown has begun (SIGTERM or SIGINT, before uvicorn's grace for open requests):
@@ -314,9 +203,8 @@ class DeviceSession:
         stare's request waiting for its frames, a campaign worker's) answer within the grace
         instead of being cancelled at its end. The running acquisition is ended and a campaign
         job's worker stopped on a thread of their own (``stop`` waits for it)."""
-        self.campaigns.stopping()
-        self._stop.set()
-        self._wake.set()
+        self.campaigns.jobs.stopping()
+        self.connection.begin_shutdown()
         with self._ending_lock:
             if self._ending is None:
                 self._ending = threading.Thread(
@@ -325,7 +213,7 @@ class DeviceSession:
                 self._ending.start()
 
     def _end_for_shutdown(self) -> None:
-        for step in (self.scan.stopping, self.stream.shut_down, self.campaigns.close):
+        for step in (self.scan.stopping, self.stream.shut_down, self.campaigns.jobs.close):
             try:
                 step()
             except Exception:  # the ordered stop tries again and says what it could not do
@@ -343,29 +231,18 @@ class DeviceSession:
         ending = self._ending
         if ending is not None:
             ending.join(SHUTDOWN_ENDING_S)
-        self.campaigns.close()
-        if self._thread is not None:
-            self._thread.join(timeout=THREAD_JOIN_S)
-            self._thread = None
-        if self._unsubscribe is not None:
-            self._unsubscribe()  # no "link lost" for our own close
-            self._unsubscribe = None
+        self.campaigns.jobs.close()
+        self.connection.stop_loop(THREAD_JOIN_S)
         self.scan.stopping()
         self.stream.shut_down()
         self.scan.close()
         self.stream.close()
-        if self.archive is not None:
+        if self.telemetry.archive is not None:
             with contextlib.suppress(Exception):
                 self._event("info", "daemon", "camd stopped: acquisitions ended, files closed")
-            self.archive.close()
-            self.archive = None
+            self.telemetry.close()
         self.sensor.close()
-        if self.link is not None:
-            self.link.close()
-        if self.sim_process is not None:
-            self.sim_process.stop()
-        if self.sim_supervisor is not None:
-            self.sim_supervisor.close(THREAD_JOIN_S)
+        self.connection.close(THREAD_JOIN_S)
         _join_camd_threads(THREAD_JOIN_S)
 
     def __enter__(self) -> DeviceSession:
@@ -386,14 +263,6 @@ class DeviceSession:
     def uptime_s(self) -> float:
         """Seconds since this session was created."""
         return time.monotonic() - self._started_mono
-
-    def host_counters(self) -> dict[str, int]:
-        """The link's host-side counters."""
-        return self.link.counters() if self.link is not None else {}
-
-    def latest_values(self) -> dict[str, float]:
-        """The last value seen on each telemetry channel (this run only)."""
-        return dict(self._last_values)
 
     # -- operations for the API -----------------------------------------------------------------
 
@@ -431,165 +300,11 @@ class DeviceSession:
             running=current.active,
         )
 
-    def estop(self, client: str = ANONYMOUS) -> EstopResponse:
-        """Emergency stop, never refused, and latched (camd.daemon.estop): first the latch, so
-        that nothing racing the stop can start motion or acquisition again; then the stage (no
-        ramp, motor current cut), the running acquisition (its stream stopped; a scan's file is
-        closed as stopped), the filter wheel and the campaign job (paused, its worker's control
-        ended). Each is tried whatever the others did; what failed is said, not raised."""
-        self.device.estop.engage(client)
-        stopped: list[str] = []
-        failed: list[str] = []
-        for what, action in (
-            ("stage", self.motion.emergency_stop_now),
-            ("acquisition", self._stop_acquisition_now),
-            ("wheel", self.wheel.stop_now),
-            ("campaign job", self._pause_job_for_estop),
-        ):
-            try:
-                if action():
-                    stopped.append(what)
-            except Exception as exc:  # keep stopping the others
-                failed.append(f"{what}: {exc}")
-        self.device.estop.stopped(stopped, failed)
-        level = "error" if failed else "warning"
-        self._event(
-            level,
-            "api",
-            f"EMERGENCY STOP by {client}: stopped {', '.join(stopped) or 'nothing'}"
-            + (f"; could not stop {'; '.join(failed)}" if failed else "")
-            + f"; latched: nothing moves or acquires until it is released ({RELEASE_HINT})",
-        )
-        return EstopResponse(stopped=stopped, failed=failed, latch=self.estop_state())
-
-    def estop_state(self) -> EstopState:
-        """The emergency-stop latch (no device traffic)."""
-        return EstopState.model_validate(
-            {**asdict(self.device.estop.record()), "how_to_release": RELEASE_HINT}
-        )
-
-    def release_estop(self, client: str) -> EstopState:
-        """Lift the latch (the caller has control); the stage stays disabled and the wheel
-        stopped until someone starts them. Harmless when not latched."""
-        if self.device.estop.release(client):
-            self._event(
-                "warning",
-                "api",
-                f"emergency stop released by {client}: motion and acquisition may start again; "
-                "the stage stays disabled until `camctl stage enable`, the wheel stopped until "
-                "`camctl wheel speed`, a paused campaign job paused until `camctl campaign resume`",
-            )
-        return self.estop_state()
-
-    def _pause_job_for_estop(self) -> bool:
-        job_id = self.campaigns.estop()
-        if job_id is None:
-            return False
-        # Its worker changes nothing more (not even its closing "restore settings"): its
-        # control ends here, and it may not take control again (take_control).
-        self.control.revoke(worker_client(job_id), "the emergency stop paused its job")
-        return True
-
-    def _hold_estop(self) -> None:
-        """The camera answered (a connect, a reboot) while the latch holds: it may have
-        powered up turning its wheel; stop the wheel and the stage again."""
-        if not self.device.estop.latched:
-            return
-        done = []
-        for what, action in (
-            ("stage", self.motion.emergency_stop_now),
-            ("wheel", self.wheel.stop_now),
-        ):
-            try:
-                action()
-                done.append(what)
-            except SessionError as exc:
-                self._event("error", "estop", f"could not stop the {what} again: {exc}")
-        if done:
-            self._event(
-                "warning",
-                "estop",
-                f"the camera answered while the emergency stop is latched: {' and '.join(done)} "
-                f"stopped again; {RELEASE_HINT}",
-            )
-
     def take_control(self, client: str, ttl_s: float, *, force: bool = False) -> None:
         """Take or renew a lease (``Control.take``); a campaign job's worker whose job no
         longer runs (paused by an emergency stop, ended) may not take it back."""
-        self.campaigns.refuse_control(client)
+        self.campaigns.jobs.refuse_control(client)
         self.control.take(client, ttl_s, force=force)
-
-    # -- campaign jobs (camd.daemon.campaign_jobs) -----------------------------------------------
-
-    def campaign_jobs(self) -> CampaignJobsResponse:
-        return CampaignJobsResponse(jobs=[self._job_doc(doc) for doc in self.campaigns.jobs()])
-
-    def campaign_job(self, job_id: int) -> CampaignJob:
-        return self._job_doc(self.campaigns.job(job_id))
-
-    def _job_doc(self, doc: dict[str, Any]) -> CampaignJob:
-        """The job with what its worker, holding control, last said it is doing."""
-        activity = self.control.activity()
-        if activity is not None and activity.client == worker_client(int(doc["id"])):
-            doc = {**doc, "activity": activity.text, "done": activity.done}
-        return CampaignJob.model_validate(doc)
-
-    def start_campaign(self, body: CampaignStartRequest, client: str) -> CampaignJob:
-        """Start a campaign job; the requester's control (or free control) goes to its worker.
-        Busy while an acquisition or another job runs."""
-        self.campaigns.refuse_if_active()  # before control: it names the job that runs
-        self.control.check(client, "start a campaign")
-        running = self.device.acquisition.active
-        if running is not None:
-            raise Busy(
-                f"a {running.kind} is running: a campaign starts from its own baseline; stop it "
-                f"first with {STOP_COMMANDS[running.kind]}"
-            )
-
-        with self._handing_over(client) as hand_over:
-            doc = self.campaigns.start(body.campaign, body.out, body.quick, client, hand_over)
-        return self._job_doc(doc)
-
-    def resume_campaign(self, job_id: int, client: str) -> CampaignJob:
-        self.campaigns.refuse_if_active()
-        self.control.check(client, "resume a campaign")
-
-        with self._handing_over(client) as hand_over:
-            return self._job_doc(self.campaigns.resume(job_id, client, hand_over))
-
-    @contextlib.contextmanager
-    def _handing_over(self, client: str) -> Iterator[Callable[[int], None]]:
-        """The hand-over of ``client``'s control (or free control) to a job's worker, put back
-        as it was if the start or resume then fails (a refused request changes nothing)."""
-        before = self.control.holder()
-        handed: list[str] = []
-
-        def hand_over(job_id: int) -> None:
-            self.control.hand_over(client, worker_client(job_id), CAMPAIGN_CONTROL_TTL_S)
-            handed.append(worker_client(job_id))
-
-        try:
-            yield hand_over
-        except BaseException:
-            for worker in handed:
-                self.control.hand_back(worker, before)
-            raise
-
-    def pause_campaign(self, job_id: int, client: str, force: bool) -> CampaignJob:
-        return self._job_doc(self.campaigns.pause(job_id, client, force=force))
-
-    def abort_campaign(self, job_id: int, client: str, force: bool) -> CampaignJob:
-        return self._job_doc(self.campaigns.abort(job_id, client, force=force))
-
-    def _worker_ended(self, job_id: int, why: str) -> None:
-        """A job's worker has exited, however it ended: its control ends with it, and an
-        acquisition it left running (a killed worker) is stopped: nobody will read it."""
-        client = worker_client(job_id)
-        running = self.device.acquisition.active
-        if running is not None and running.client == client:
-            with contextlib.suppress(Exception):
-                self._stop_acquisition_now()
-        self.control.revoke(client, why)
 
     def _stop_acquisition_now(self) -> bool:
         # A scan first, through its own stop: stopping only its stream would end it "done".
@@ -619,21 +334,11 @@ class DeviceSession:
             except SessionError as exc:
                 log.info("status: GET_STATUS failed: %s", exc)
         snap = self.machine.snapshot
-        link = self.link
         return StatusResponse(
             state=snap.state.value,
             reason=self.device.reason(snap.state, snap.reason),
             mode=cast(Any, self.device.mode),
-            link=LinkInfo(
-                port=self.port,
-                connected=link is not None and link.connected,
-                last_error=link.last_error if link is not None else "not opened",
-                sim_pid=self.sim_process.pid if self.sim_process is not None else None,
-                sim_state=self.sim_supervisor.state if self.sim_supervisor is not None else None,
-                sim_restarts=(
-                    self.sim_supervisor.restarts if self.sim_supervisor is not None else None
-                ),
-            ),
+            link=self.connection.link_info(),
             device=device,
             daemon=DaemonInfo(
                 version=camd.__version__,
@@ -643,214 +348,9 @@ class DeviceSession:
             ),
             control=self.control_info(client),
             acquisition=self.acquisition_info(),
-            estop=self.estop_state(),
+            estop=self.estop.state(),
             backends=backends.describe(self.config),
         )
-
-    def ping(self, count: int = 10, size: int = 16) -> PingResponse:
-        """Send ``count`` PINGs of ``size`` random bytes; a differing echo is a failure."""
-        self._require(Request.PING)
-        rtts_s: list[float] = []
-        errors: dict[str, None] = {}  # distinct reasons, in order of first appearance
-        ok = failed = retries = 0
-        for i in range(count):
-            if self._stop.is_set():
-                failed += count - i
-                errors.setdefault("the daemon is shutting down; ping run cut short")
-                break
-            payload = random.randbytes(size)
-            try:
-                response = self._request("PING", data=payload)
-            except Disconnected as exc:
-                if i == 0:
-                    raise
-                failed += count - i
-                errors.setdefault(str(exc))
-                break
-            except DeviceTimeout as exc:
-                failed += 1
-                retries += self.config.link.retries  # every re-send went unanswered too
-                errors.setdefault(str(exc))
-                continue
-            except DeviceRejected as exc:
-                failed += 1
-                errors.setdefault(str(exc))
-                continue
-            retries += response.attempts - 1
-            echo = response.values.get("data")
-            if echo != payload:
-                failed += 1
-                errors.setdefault(
-                    f"PING echo differs from the {size} bytes sent: the line corrupted it "
-                    "undetected; check the link quality (GET /api/v1/link)"
-                )
-                continue
-            ok += 1
-            rtts_s.append(response.rtt_s)
-        if rtts_s:
-            rtt_ms = np.asarray(rtts_s) * 1e3
-            p50, p99 = (float(v) for v in np.percentile(rtt_ms, [50, 99]))
-            rtt = RttMs(p50=p50, p99=p99, max=float(rtt_ms.max()))
-        else:
-            rtt = RttMs(p50=None, p99=None, max=None)
-        return PingResponse(
-            count=count,
-            ok=ok,
-            failed=failed,
-            retries=retries,
-            rtt_ms=rtt,
-            errors=list(errors)[:PING_ERRORS_MAX],
-        )
-
-    def link_command(self, body: LinkCommandRequest) -> LinkCommandResponse:
-        """Send one COMMAND frame as the request says and return the answer frames undecoded
-        and decoded (docs/api.md): for conformance tests of the device's own checks. The
-        daemon's view of the camera (mode, register copy, stage) is not updated; a client that
-        changes the camera with it puts it back."""
-        if (body.command is None) == (body.opcode is None):
-            raise BadRequest("give either command (a name in config/protocol.toml) or opcode")
-        if body.fields is not None and body.payload_hex is not None:
-            raise BadRequest("give either fields (encoded by the dictionary) or payload_hex")
-        spec: CommandSpec | None
-        if body.command is not None:
-            try:
-                spec = self.dictionary.command(body.command.upper())
-            except KeyError as exc:
-                raise BadRequest(str(exc.args[0])) from None
-            opcode = spec.opcode
-        else:
-            assert body.opcode is not None
-            opcode = body.opcode
-            found = self.dictionary.command_for_opcode(opcode)
-            if body.fields is not None and found is None:
-                raise BadRequest(
-                    f"opcode 0x{opcode:02X} is not in the dictionary: send payload_hex, not fields"
-                )
-            spec = found
-        if body.payload_hex is not None:
-            payload = bytes.fromhex(body.payload_hex)
-        elif spec is not None:
-            try:
-                fields = {
-                    name: bytes.fromhex(value)
-                    if isinstance(value, str) and _bytes_field(spec, name)
-                    else value
-                    for name, value in (body.fields or {}).items()
-                }
-                payload = spec.encode_request(**fields)
-            except (ValueError, TypeError) as exc:
-                raise BadRequest(f"{spec.name}: {exc}") from None
-        else:
-            payload = b""
-        self._require(Request.LINK_COMMAND)
-        self.device.estop.check_raw(None if spec is None else spec.name)
-        with self.device.device_op() as link:
-            try:
-                exchange = link.exchange(opcode, payload, repeat=body.repeat)
-            except ValueError as exc:
-                raise BadRequest(str(exc)) from None
-        answers = [self._link_answer(spec, frame) for frame in exchange.answers]
-        return LinkCommandResponse(
-            command=None if spec is None else spec.name,
-            opcode=opcode,
-            seq=exchange.seq,
-            request_hex=payload.hex(),
-            answers=answers,
-            attempts=exchange.attempts,
-            rtt_s=exchange.rtt_s,
-        )
-
-    def _link_answer(self, spec: CommandSpec | None, frame: Frame) -> LinkAnswer:
-        """One answer frame in words: a NAK's code, name and detail; an ACK's fields."""
-        if frame.type == FrameType.NAK:
-            try:
-                code, detail = self.dictionary.decode_nak(frame.payload)
-            except PayloadError as exc:
-                code, detail = None, f"malformed NAK payload: {exc}"
-            name: str | None = None
-            if code is not None:
-                with contextlib.suppress(KeyError):
-                    name = self.dictionary.error(code).name
-            return LinkAnswer(type="nak", seq=frame.seq, payload_hex=frame.payload.hex(),
-                              error_code=code, error_name=name, detail=detail, values=None,
-                              decode_error=None)  # fmt: skip
-        values: dict[str, int | float | str] | None = None
-        problem: str | None = None
-        if spec is None:
-            problem = "the dictionary has no command with this opcode"
-        else:
-            try:
-                decoded = spec.decode_response(frame.payload)
-                values = {k: v.hex() if isinstance(v, bytes) else v for k, v in decoded.items()}
-            except PayloadError as exc:
-                problem = str(exc)
-        return LinkAnswer(type="ack", seq=frame.seq, payload_hex=frame.payload.hex(),
-                          error_code=None, error_name=None, detail=None, values=values,
-                          decode_error=problem)  # fmt: skip
-
-    def link_stats(self) -> LinkResponse:
-        """Host counters, and the device's (null when it cannot be asked)."""
-        host = self.host_counters()
-        device: DeviceLinkStats | None = None
-        if self.machine.state != State.DISCONNECTED:
-            try:
-                stats: dict[str, Any] = dict(self._request("GET_LINK_STATS").values)
-                injected = self.sim.injected()
-                device = DeviceLinkStats.model_validate({**stats, "injected": injected})
-            except SessionError as exc:
-                log.info("link: device counters unavailable: %s", exc)
-        return LinkResponse(host=host, device=device)
-
-    def telemetry(self) -> TelemetryResponse:
-        """Latest value of every channel with its limit level (this run's, from memory, so
-        that they stay current while the archive cannot be written; before the first sample,
-        the archive's), the archive's size and why it cannot be written, if it cannot."""
-        archive = self._archive()
-        seen: dict[str, tuple[float, float]] = {
-            ch: (self._last_values[ch], self._last_t_s[ch])
-            for ch in list(self._last_t_s)
-            if ch in self._last_values
-        }
-        if len(seen) < len(self.channels):
-            with contextlib.suppress(SessionError):  # an unreadable archive: what we have
-                for channel, sample in archive.latest(self.channels).items():
-                    seen.setdefault(channel, (sample.value, sample.t_s))
-        latest = {}
-        for channel, (value, t_s) in seen.items():
-            limits = self.config.telemetry.limits.get(channel)
-            level = classify(value, limits).value if limits is not None else "ok"
-            latest[channel] = ChannelLatest(
-                value=value,
-                unit=self.channels.get(channel, ""),
-                t_s=t_s,
-                limit=cast(Any, level),
-            )
-        return TelemetryResponse(
-            latest=latest,
-            samples=archive.count(),
-            archive=str(archive.path),
-            archive_error=archive.failing,
-        )
-
-    def history(self, channel: str, since_s: float = 0.0, limit: int = 1000) -> HistoryResponse:
-        """Archived samples of ``channel``, oldest first; ``since_s`` < 0 means "seconds ago"."""
-        if channel not in self.channels:
-            raise BadRequest(
-                f"channel: {channel!r} is not a telemetry channel; use one of "
-                + ", ".join(self.channels)
-            )
-        if since_s < 0:
-            since_s = time.time() + since_s
-        t_s, values = self._archive().history(channel, since_s, limit)
-        return HistoryResponse(channel=channel, unit=self.channels[channel], t_s=t_s, value=values)
-
-    def events(self, limit: int = 100) -> EventsResponse:
-        """The newest ``limit`` events, newest last."""
-        items = [
-            EventItem(t_s=e.t_s, level=cast(Any, e.level), source=e.source, message=e.message)
-            for e in self._archive().events(limit)
-        ]
-        return EventsResponse(events=items)
 
     @property
     def mode(self) -> str | None:
@@ -876,10 +376,7 @@ class DeviceSession:
         self._request("RESET")
         self.device.note_mode("area")  # RESET puts the device back in area mode
         self.stream.on_reset()  # and stops the sequencer; BOOT leads to a retrain
-        with self._red_lock:
-            # The operator has seen the red channels; they trip again only after recovering.
-            self._red_acknowledged = set(self.checker.red_channels())
-            still_red = sorted(self._red_acknowledged)
+        still_red = self.telemetry.acknowledge_red()
         self._fire(Trigger.RESET_OK, "reset")
         note = f"; still red: {', '.join(still_red)}" if still_red else ""
         # The sensor keeps its registers through the camera's RESET: put back the values it
@@ -902,56 +399,7 @@ class DeviceSession:
         self._event("info", "api", f"camera reset{note}")
         return self.status()
 
-    # -- the live view's background -------------------------------------------------------------
-
-    def background_status(self) -> BackgroundStatus:
-        """The background's state (a capture whose stream has ended fails here)."""
-        capture = self.background
-        if capture.snapshot().state == "capturing" and not self.stream.streaming:
-            capture.fail(
-                "the stream ended",
-                "capture again while something streams (`camctl stream --start`, a stare or a "
-                "scan)",
-            )
-        snap = capture.snapshot()
-        ready = snap.background
-        return BackgroundStatus(
-            state=snap.state,
-            frames_wanted=snap.frames_wanted,
-            frames_done=snap.frames_done,
-            rows=snap.rows,
-            cols=snap.cols,
-            mode=snap.mode,
-            stages=snap.stages,
-            first_counter=snap.first_counter,
-            last_counter=snap.last_counter,
-            captured_t_s=None if ready is None else ready.captured_t_s,
-            seq=None if ready is None else ready.seq,
-            mean_dn=None if ready is None else ready.mean_dn,
-            std_dn=None if ready is None else ready.std_dn,
-            saved_to=list(snap.saved_to),
-            error=snap.error,
-        )
-
-    def capture_background(self, frames: int) -> BackgroundStatus:
-        """Average the next ``frames`` frames of the running stream; returns at once. Refused
-        (409, nothing changed: a ready background stays) when nothing streams."""
-        self._require(Request.LIVE_BACKGROUND)
-        self.background.start(frames)
-        self._event("info", "api", f"live-view background: averaging the next {frames} frames")
-        return self.background_status()
-
-    def clear_background(self) -> BackgroundStatus:
-        """Drop the background (and stop a capture)."""
-        self.background.clear()
-        return self.background_status()
-
     # -- internals: requests and state ----------------------------------------------------------
-
-    def _archive(self) -> GuardedArchive:
-        if self.archive is None:
-            raise RuntimeError("the session is not started")
-        return self.archive
 
     def _require(self, request: Request) -> None:
         self.device.require(request)
@@ -964,298 +412,12 @@ class DeviceSession:
 
     def _event(self, level: str, source: str, message: str, t_s: float | None = None) -> None:
         getattr(log, "error" if level == "error" else level)("%s: %s", source, message)
-        archive = self.archive
-        if archive is not None:
-            archive.add_event(level, source, message, t_s)  # never raises (GuardedArchive)
+        self.telemetry.archive_event(level, source, message, t_s)
 
-    # -- internals: link messages (reader thread) -----------------------------------------------
-
-    def _on_message(self, message: Message) -> None:
-        if isinstance(message, ConnectionChange):
-            if message.connected:
-                self._event("info", "link", f"link open on {self.port}")
-                self.checker.clear()  # maybe another camera: start its limits afresh
-                with self._red_lock:
-                    self._red_acknowledged.clear()
-                self.device.probe_error = self._silent_reason = None
-                self._probe_needed.set()
-                self._wake.set()
-            else:
-                self._event("warning", "link", f"link on {self.port} lost: {message.reason}")
-                self._fire(Trigger.LINK_LOST, f"link lost: {message.reason}")
-            return
-        if message.kind == FrameType.TELEMETRY:
-            if message.name == HOUSEKEEPING_PACKET:
-                self._record_sample(message.values, message.t_s, "tlm")
-            return
-        self._on_device_event(message)
-
-    def _on_device_event(self, message: Unsolicited) -> None:
-        values = message.values
-        handled = self.sensor.on_event(message.name, dict(values))
-        handled = self.stream.on_event(message.name, dict(values)) or handled
-        if handled:
-            return
-        if message.name == "FAULT":
-            text = self.dictionary.describe_error(int(values.get("fault_code", 0)))
-            self._event("error", "device", f"the camera entered fault (FAULT): {text}", message.t_s)
-            self._fire(Trigger.DEVICE_FAULT, f"device fault {text}")
-        elif message.name == "MODE_CHANGED":
-            self.device.note_mode(str(values.get("mode")))
-            self._event("info", "device", f"mode changed to {self.device.mode}", message.t_s)
-        elif message.name == "BOOT":
-            self.device.note_mode("area")
-            self._event(
-                "info",
-                "device",
-                f"the camera restarted (BOOT): boot count {values.get('boot_count', 0)!s}",
-                message.t_s,
-            )
-            self._probe_needed.set()  # learn its state afresh
-            self._wake.set()
-        else:
-            level, text = device_event_text(
-                message.name, values, self.motion.profile.microsteps_per_m
-            )
-            self._event(level, "device", text, message.t_s)
-
-    def _record_sample(self, values: Mapping[str, FieldValue], t_s: float, source: str) -> None:
-        """Limits first, then the archive: an archive that cannot be written (a full disk)
-        must not keep a red limit from tripping (``GuardedArchive`` never raises)."""
-        numeric = {
-            k: float(v)
-            for k, v in values.items()
-            if isinstance(v, int | float) and k in self.channels
-        }
-        self._last_values.update(numeric)
-        for channel in numeric:
-            self._last_t_s[channel] = t_s
-        for change in self.checker.check(numeric, t_s):
-            limits = self.config.telemetry.limits[change.channel]
-            unit = self.channels.get(change.channel, "")
-            self._event(change.level, "limits", change.message(limits, unit), t_s)
-        self._check_red()
-        self._archive().add_samples(t_s, numeric, source, self.channels)
-
-    def _check_red(self) -> None:
-        """Trip to fault on a red channel that the operator has not acknowledged with a reset."""
-        if not self.config.telemetry.red_is_fault:
-            return
-        with self._red_lock:
-            red = set(self.checker.red_channels())
-            self._red_acknowledged &= red  # a channel that recovered may trip again
-            fresh = sorted(red - self._red_acknowledged)
-        if not fresh or self.machine.state not in (State.IDLE, State.STREAMING):
-            return
-        parts = []
-        for ch in fresh:
-            limits = self.config.telemetry.limits[ch]
-            unit = self.channels.get(ch, "")
-            value = self._last_values.get(ch, float("nan"))
-            parts.append(
-                f"{ch} = {value:.6g} {unit} outside [{limits.red[0]:g}, {limits.red[1]:g}]"
-            )
-        self._fire(Trigger.RED_LIMIT, "red limit: " + "; ".join(parts))
-
-    # -- internals: the service loop --------------------------------------------------------------
-
-    def _service_loop(self) -> None:
-        REALTIME.enter("service_loop")
-        watchdog_s = notify.watchdog_interval_s()
-        pet_every_s = watchdog_s / 2 if watchdog_s else None
-        next_pet = next_poll = next_probe = next_prune = next_trim = time.monotonic()
-        while not self._stop.is_set():
-            now = time.monotonic()
-            if pet_every_s is not None and now >= next_pet:
-                # Petted from this loop, not a timer: if the loop wedges, systemd restarts us.
-                notify.watchdog()
-                next_pet = now + pet_every_s
-            try:
-                self._check_sim()
-                self.stream.check_reader()
-                if self._wants_probe() and now >= next_probe:
-                    if self._probe():
-                        next_poll = now  # a first sample right away, not a period later
-                    else:
-                        next_probe = time.monotonic() + PROBE_RETRY_S
-                if now >= next_prune:
-                    next_prune = now + PRUNE_PERIOD_S
-                    self._prune()
-                if now >= next_trim:
-                    next_trim = now + HEAP_TRIM_PERIOD_S
-                    heap.give_back()
-                if now >= next_poll:
-                    # Skip missed periods instead of bursting to catch up.
-                    next_poll = max(next_poll + self.config.telemetry.poll_period_s, now)
-                    self._poll()
-            except Exception:
-                log.exception("service loop iteration failed; continuing")
-            deadlines = [next_poll, now + MAX_LOOP_SLEEP_S]
-            if pet_every_s is not None:
-                deadlines.append(next_pet)
-            if self._wants_probe():
-                deadlines.append(next_probe)
-            self._wake.wait(max(0.0, min(deadlines) - time.monotonic()))
-            self._wake.clear()
-
-    def _prune(self) -> None:
-        days = self.config.telemetry.retention_days
-        if days <= 0 or self.archive is None:
-            return
-        removed = self.archive.prune(time.time() - days * 86400.0)
-        if removed:
-            log.info("telemetry archive: deleted %d samples older than %g days", removed, days)
-
-    def _wants_probe(self) -> bool:
-        link = self.link
-        if link is None or not link.connected:
-            return False
-        # Also re-probe if we believe we are disconnected while the port is open: a LinkDown
-        # seen by a request can race with the reconnect that followed it.
-        return self._probe_needed.is_set() or self.machine.state == State.DISCONNECTED
-
-    def _sim_supervisor(self, process: SimulatorProcess) -> SimSupervisor:
-        sim = self.config.sim
-        policy = RestartPolicy(
-            backoff_min_s=sim.restart_backoff_min_s,
-            backoff_max_s=sim.restart_backoff_max_s,
-            stable_s=sim.restart_stable_s,
-            limit=sim.restart_limit,
-        )
-        return SimSupervisor(process, policy, self._event, restart=sim.restart)
-
-    def _check_sim(self) -> None:
-        if self.sim_supervisor is not None:
-            self.sim_supervisor.check()  # restarts a simulator that died (sim_supervisor.py)
-
-    def _probe(self) -> bool:
-        """GET_STATUS after a (re)connect or a BOOT; sets idle or fault. True if answered."""
-        self._probe_needed.clear()
-        try:
-            values = self._request("GET_STATUS").values
-        except (DeviceTimeout, DeviceRejected) as exc:
-            self.device.probe_error = (
-                self._silent_reason or f"link open but the device did not answer GET_STATUS: {exc}"
-            )
-            self._probe_needed.set()
-            log.warning("%s", self.device.probe_error)
-            return False
-        except Disconnected:
-            return False  # the reconnect will set _probe_needed again
-        # Until the sensor is checked (and its link trained) and the state is set.
-        self.device.probe_error = "the camera answered GET_STATUS; checking its sensor"
-        self._silent_reason = None
-        self._unanswered_since = None
-        device = DeviceStatus.model_validate(values)
-        self.device.note_mode(device.mode)
-        fw = f"{device.fw_version >> 8}.{device.fw_version & 0xFF}"
-        was = self.machine.state
-        if device.device_state == "fault":
-            self._fire(
-                Trigger.PROBE_FAULT,
-                "device reports fault " + self.dictionary.describe_error(device.fault_code),
-            )
-        else:
-            # Identify the sensor and train its link before announcing idle, so that a client
-            # that waits for idle finds the camera ready to image.
-            try:
-                self.stream.on_connect(self.sensor.on_connect())
-            except SessionError as exc:
-                self._event("warning", "sensor", f"sensor check after connect failed: {exc}")
-            self._fire(Trigger.PROBE_IDLE, None)
-            self._stop_stage_left_running()
-            self._hold_estop()
-        if was == State.DISCONNECTED:
-            self._event(
-                "info",
-                "device",
-                f"camera answered: firmware {fw}, mode {device.mode}, state "
-                f"{device.device_state}, boot count {device.boot_count}",
-            )
-        self._check_red()  # a red sample that arrived before the probe counts now
-        return True
-
-    def _poll(self) -> None:
-        if self.machine.state == State.DISCONNECTED:
-            return
-        sent_mono = time.monotonic()
-        try:
-            response = self._request("GET_HOUSEKEEPING")
-        except (DeviceTimeout, DeviceRejected) as exc:
-            if self._poll_error is None:
-                self._event("warning", "daemon", f"housekeeping poll failing: {exc}")
-            self._poll_error = str(exc)
-            if isinstance(exc, DeviceTimeout):
-                self._unanswered(sent_mono, exc)
-            else:
-                self._unanswered_since = None  # a NAK is an answer
-            return
-        except Disconnected:
-            return
-        self._unanswered_since = None
-        if self._poll_error is not None:
-            self._event("info", "daemon", "housekeeping poll answered again")
-            self._poll_error = None
-        self._record_sample(response.values, time.time(), "poll")
-        self.stream.check_ended()
-
-    def _unanswered(self, sent_mono: float, exc: DeviceTimeout) -> None:
-        """A poll went unanswered: once nothing has answered for ``SILENT_AFTER_S`` while the
-        port stays open, the camera is frozen (not unplugged): say so with the state."""
-        if self._unanswered_since is None:
-            self._unanswered_since = sent_mono
-        silent_s = time.monotonic() - self._unanswered_since
-        if silent_s < SILENT_AFTER_S:
-            return
-        period_s = self.config.telemetry.poll_period_s
-        reason = (
-            f"the camera stopped answering on an open port: nothing answered for {silent_s:.1f} s "
-            f"(GET_HOUSEKEEPING every {period_s:g} s; last: {exc}); {self.port} is still open, "
-            "so it is not unplugged: check its power and firmware (a frozen camera) or "
-            "power-cycle it; the daemon goes back to idle as soon as it answers"
-        )
-        self._unanswered_since = None
-        self._silent_reason = self.device.probe_error = reason  # status.reason until it answers
-        self._fire(Trigger.LINK_LOST, reason)
-
-
-# Why MOTOR_STOPPED says the stage stopped (its ``reason`` field), and how loud: a stop the
-# operator did not ask for is a warning.
-_STAGE_STOPS: dict[str, tuple[str, str]] = {
-    "done": ("info", "its move finished"),
-    "homed": ("info", "homing finished"),
-    "limit_low": ("warning", "it reached its low soft limit"),
-    "limit_high": ("warning", "it reached its high soft limit"),
-    "estop": ("warning", "an emergency stop"),
-    "stall": ("warning", "the motor stalled"),
-}
-
-
-def device_event_text(
-    name: str, values: Mapping[str, FieldValue], microsteps_per_m: float
-) -> tuple[str, str]:
-    """An event of the camera that no service handles, as ``(level, sentence)``: the stage's
-    stop in words, at its position in mm; any other event by name with its fields listed
-    (never a Python dict)."""
-    words = {
-        key: value.hex() if isinstance(value, bytes) else str(value)
-        for key, value in values.items()
-    }
-    if name == "MOTOR_STOPPED":
-        reason = words.get("reason", "unknown")
-        level, why = _STAGE_STOPS.get(reason, ("warning", f"reason {reason}"))
-        steps = values.get("steps")
-        where = (
-            f"{float(steps) / microsteps_per_m * 1e3:.3f} mm"
-            if isinstance(steps, int | float)
-            else "an unknown position"
-        )
-        return level, (
-            f"the stage stopped (MOTOR_STOPPED): {why} at {where} "
-            f"(encoder count {words.get('encoder')})"
-        )
-    fields = ", ".join(f"{key} {value}" for key, value in words.items())
-    return "info", f"the camera sent {name}" + (f": {fields}" if fields else "")
+    def _red_limit(self, reason: str) -> None:
+        """A red channel the operator has not acknowledged: fault, from idle or streaming."""
+        if self.machine.state in (State.IDLE, State.STREAMING):
+            self._fire(Trigger.RED_LIMIT, reason)
 
 
 def _warm_tdi() -> None:
@@ -1266,8 +428,3 @@ def _warm_tdi() -> None:
         log.exception("could not load the TDI kernels ahead of the first scan")
     else:
         log.info("TDI kernels ready in %.2f s", seconds)
-
-
-def _bytes_field(spec: CommandSpec, name: str) -> bool:
-    """``name`` is a bytes field of ``spec``'s request (given as hex, sent as those bytes)."""
-    return any(f.name == name and f.type == "bytes" for f in spec.request)

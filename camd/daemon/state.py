@@ -94,7 +94,7 @@ class Trigger(StrEnum):
     PROBE_IDLE = "probe_idle"  # GET_STATUS answered after (re)connecting: device idle/busy
     PROBE_FAULT = "probe_fault"  # GET_STATUS answered with device_state = fault
     # the port closed, a request failed with LinkDown, or the camera stopped answering on an
-    # open port (a frozen camera: its polls unanswered for session.SILENT_AFTER_S)
+    # open port (a frozen camera: its polls unanswered for connection.SILENT_AFTER_S)
     LINK_LOST = "link_lost"
     DEVICE_FAULT = "device_fault"  # FAULT event, or the device says it is in fault
     RED_LIMIT = "red_limit"  # a telemetry channel went red (with telemetry.red_is_fault)
