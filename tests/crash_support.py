@@ -13,7 +13,7 @@ from typing import Any
 
 import pytest
 
-from camd.cli.soak_edges import fill_disk, mounted_tmpfs
+from camd.soak.edges import fill_disk, mounted_tmpfs
 
 __all__ = ["REQUIRE_MOUNT", "blocks_past_end", "fill_disk", "small_disk", "wait_for"]
 

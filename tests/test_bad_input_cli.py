@@ -307,7 +307,7 @@ def test_camctl_prints_bracketed_text_from_the_daemon_as_it_is() -> None:
 
     from rich.console import Console
 
-    from camd.cli import camctl, camctl_campaign, camctl_scan, camctl_stream
+    from camd.cli import camctl_campaign, camctl_format, camctl_scan, camctl_stream
 
     def shown(render: Any, *args: Any) -> str:
         buffer = io.StringIO()
@@ -320,8 +320,8 @@ def test_camctl_prints_bracketed_text_from_the_daemon_as_it_is() -> None:
     event = {"t_s": 0.0, "level": "error", "source": "campaign", "message": MARKUP_LIKE}
     outputs = [
         shown(camctl_campaign._render_job, job),
-        shown(lambda out: out.print(camctl.events_table({"events": [event]}))),
-        shown(lambda out: out.print(camctl.cell(MARKUP_LIKE))),
+        shown(lambda out: out.print(camctl_format.events_table({"events": [event]}))),
+        shown(lambda out: out.print(camctl_format.cell(MARKUP_LIKE))),
     ]
     scan_doc = {"state": "failed", "lost_frames": 0, "stream": {"overruns": 0}, "lines": 1,
                 "complete_lines": 1, "stages": 4, "mode": "sum", "width": 4, "timing": None,

@@ -6,8 +6,8 @@ import json
 
 import pytest
 
-from camd.cli import bench_all
-from camd.cli.bench_all import BENCHES, NAMES, Bench, run_one
+from camd.bench import run_all as bench_all
+from camd.bench.run_all import BENCHES, NAMES, Bench, run_one
 from camd.cli.camd_main import main
 
 TINY_TDI = ("--shapes", "6x64", "--frames-mb", "1", "--seconds", "0.02", "--rounds", "1")

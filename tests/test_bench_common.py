@@ -7,8 +7,8 @@ import itertools
 
 import pytest
 
-from camd.cli import bench_common
-from camd.cli.bench_common import Alternation, alternate, beyond_cache_bytes, rate_over
+from camd.bench import common as bench_common
+from camd.bench.common import Alternation, alternate, beyond_cache_bytes, rate_over
 
 
 def test_alternation_swaps_the_order_every_round() -> None:

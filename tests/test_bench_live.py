@@ -10,7 +10,7 @@ import sys
 
 import pytest
 
-from camd.cli import bench_live
+from camd.bench import live as bench_live
 
 # Streams in real time: alone under xdist (tests/conftest.py).
 pytestmark = pytest.mark.exclusive

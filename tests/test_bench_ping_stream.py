@@ -8,7 +8,7 @@ import statistics
 
 import pytest
 
-from camd.cli.bench_stream import bench_stream, transfer_bytes
+from camd.bench.stream import bench_stream, transfer_bytes
 from camd.cli.camd_main import main
 from camd.protocol.stream import HEADER_BYTES
 

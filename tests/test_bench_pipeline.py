@@ -12,8 +12,8 @@ import json
 
 import pytest
 
-from camd.cli.bench_common import last_level_cache_bytes
-from camd.cli.bench_pipeline import line_rate_hz, measure, run
+from camd.bench.common import last_level_cache_bytes
+from camd.bench.pipeline import line_rate_hz, measure, run
 from camd.protocol.stream import HEADER_BYTES
 
 # Real-time streaming: alone under xdist (tests/conftest.py).

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import pytest
 
-from camd.cli.bench_scan import bench_scan
+from camd.bench.scan import bench_scan
 
 # Real-time streaming / control loops: alone under xdist (tests/conftest.py).
 pytestmark = pytest.mark.exclusive

@@ -11,7 +11,7 @@ import os
 
 import pytest
 
-from camd.cli.bench_sim import measure, run
+from camd.bench.sim import measure, run
 from camd.protocol.stream import HEADER_BYTES
 
 # Real-time streaming: alone under xdist (tests/conftest.py).
@@ -60,7 +60,7 @@ def test_bad_options_exit_2_with_the_fix(
 
 
 def test_windows_are_kept_within_what_each_sensor_allows() -> None:
-    from camd.cli.bench_common import window_rows_range, window_stages
+    from camd.bench.common import window_rows_range, window_stages
 
     # The MT9M001 holds rows - 1 with a minimum of 2: its fewest window rows are 3.
     assert window_rows_range("mt9m001") == (3, 1024)

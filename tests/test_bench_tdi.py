@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from camd.cli.bench_tdi import (
+from camd.bench.tdi import (
     PATHS,
     PUSH_FRAMES,
     TARGETS,
@@ -75,7 +75,7 @@ def test_document_has_every_path_and_consistent_numbers(kernel: str) -> None:
 
 
 def test_the_frame_set_is_beyond_the_cache_unless_sized() -> None:
-    from camd.cli.bench_common import last_level_cache_bytes
+    from camd.bench.common import last_level_cache_bytes
 
     assert frame_set_bytes(3.5) == 3_500_000
     cache = last_level_cache_bytes()

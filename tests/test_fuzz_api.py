@@ -1,6 +1,6 @@
 """The daemon's API fuzzed from its own /openapi.json (schemathesis), a short run.
 
-One daemon on the simulated camera (16-row window: short frames). ``camd.cli.bench_fuzz.fuzz``
+One daemon on the simulated camera (16-row window: short frames). ``camd.bench.fuzz.fuzz``
 sends requests generated from the schema to every operation, valid ones and invalid ones
 alternately, with a fixed seed (reproducible): no 5xx, no hang, every answer's status code,
 content type and body as documented. Every 5th refused (4xx) request to an operation that
@@ -8,10 +8,10 @@ changes something is sent again on a quiet device between two device snapshots
 (``tests/device_snapshot.py``): a refusal changes nothing. At the end the daemon answers
 /api/v1/status and its process lives.
 
-Left out (``bench_fuzz.EXCLUDED``, the reasons printed in a failure): POST /reset (seconds each,
-undoes the rest), POST /sim/fail-next (fails the next command on purpose), POST /link/command
-(sends any frame to the camera by design), POST /wheel/acquire
-(waits for the wheel, seconds to minutes). Neutralised (``bench_fuzz.neutralise`` / ``undo``):
+Left out (``camd.bench.fuzz.EXCLUDED``, the reasons printed in a failure): POST /reset
+(seconds each, undoes the rest), POST /sim/fail-next (fails the next command on purpose), POST
+/link/command (sends any frame to the camera by design), POST /wheel/acquire (waits for the
+wheel, seconds to minutes). Neutralised (``camd.bench.fuzz.neutralise`` / ``undo``):
 acquisitions take at most 4 frames or 20 lines and write only into a scratch directory, moves
 and homing return at once, an emergency stop is followed by /motion/enable, control taken is
 given back, a stream or scan started is stopped. The long run is ``camd bench fuzz``.
@@ -24,7 +24,7 @@ from pathlib import Path
 
 import pytest
 
-from camd.cli.bench_fuzz import fuzz
+from camd.bench.fuzz import fuzz
 from camd.client import CamdClient
 from tests.test_sensor_stack import serve
 

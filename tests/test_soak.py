@@ -1,4 +1,4 @@
-"""``camd soak`` (camd/cli/soak.py): a short run's JSON document has every figure, sane.
+"""``camd soak`` (camd/soak/command.py): a short run's JSON document has every figure, sane.
 
 A benchmark, not a test of the daemon: the figures are checked for shape and consistency, not
 against the soak's criteria, and nothing here depends on time.
@@ -15,8 +15,8 @@ from typing import Any
 
 import pytest
 
-from camd.cli.soak import render
-from camd.cli.soak_workload import KINDS, build_inject
+from camd.soak.command import render
+from camd.soak.workload import KINDS, build_inject
 from tests.crash_support import REQUIRE_MOUNT
 
 ROOT = Path(__file__).resolve().parent.parent

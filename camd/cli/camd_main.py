@@ -1,6 +1,8 @@
 """``camd``: the server-side command (serve, sim, demo, bench, soak, conform).
 
-Each subcommand lives in its own module with ``add_parser(subparsers)`` and ``run(args) -> int``.
+Each subcommand lives in its own module with ``add_parser(subparsers)`` and ``run(args) -> int``:
+the user's commands here in ``camd.cli`` (serve in ``camd.daemon``), the tools that measure camd
+in their own packages above it (``camd.bench``, ``camd.soak``), named by module path only.
 ``camd sim`` passes its arguments through to the simulator (``camd.cli.sim``), whose module is
 imported only then: ``camd sim`` never loads the daemon, and the other commands never load the
 simulator.
@@ -19,8 +21,8 @@ from camd.datafile import DataFileError, bounded
 _SUBCOMMANDS = {
     "serve": "camd.daemon.serve",
     "demo": "camd.cli.demo",
-    "bench": "camd.cli.bench",
-    "soak": "camd.cli.soak",
+    "bench": "camd.bench.command",
+    "soak": "camd.soak.command",
     "conform": "camd.cli.conform",
 }
 

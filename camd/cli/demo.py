@@ -290,7 +290,7 @@ class _Demo:
     def status(self) -> None:
         from rich.table import Table
 
-        from camd.cli.camctl import fmt_firmware, fmt_value, state_text
+        from camd.cli.camctl_format import fmt_firmware, fmt_value, state_text
 
         self.step("1. status")
         doc = _plain(self.client.wait_ready(10.0))
@@ -317,7 +317,7 @@ class _Demo:
             )
 
     def ping_and_link(self) -> None:
-        from camd.cli.camctl import link_table, ping_table
+        from camd.cli.camctl_format import link_table, ping_table
 
         self.step(f"2. {self.pings} pings over the lossy line")
         before = _plain(self.client.link())
@@ -362,7 +362,7 @@ class _Demo:
             )
 
     def telemetry(self) -> None:
-        from camd.cli.camctl import telemetry_table
+        from camd.cli.camctl_format import telemetry_table
 
         self.step("4. telemetry")
         first = _plain(self.client.telemetry())
@@ -415,7 +415,7 @@ class _Demo:
     def modes(self) -> None:
         from rich.table import Table
 
-        from camd.cli.camctl import fmt_value, state_text
+        from camd.cli.camctl_format import fmt_value, state_text
 
         self.step("5. imaging mode: area -> tdi -> area")
         table = Table(box=None, pad_edge=False)
@@ -587,7 +587,7 @@ class _Demo:
                 raise DemoFailed(f"scan at M = {row['stages']} kept too few complete lines: {row}")
 
     def events(self) -> None:
-        from camd.cli.camctl import events_table
+        from camd.cli.camctl_format import events_table
 
         self.step("9. recent events")
         doc = _plain(self.client.events(limit=10))

@@ -1,8 +1,8 @@
 """``camd sim``: run the simulated camera alone and print where it listens.
 
-With the backend factory (``camd.daemon.backends``) and the USB benchmark (``camd.cli.bench``)
-this is the only place camd names the
-simulated device: it hands its arguments to ``firmware_models.cli``, which owns the simulator's
+With the backend factory (``camd.daemon.backends``) and the benchmarks that read the simulated
+FX3 or measure the simulator (``camd.bench``), this is the only place camd names the simulated
+device: it hands its arguments to ``firmware_models.cli``, which owns the simulator's
 options. ``camd`` imports this module only when ``camd sim`` runs (``camd.cli.camd_main``).
 """
 

@@ -1,5 +1,5 @@
-"""The workload of ``camd soak`` (``camd.cli.soak``): a daemon on a lossy simulated line, a mixed
-stream of requests through ``CamdClient``, and the counts that say whether it held up.
+"""The workload of ``camd soak`` (``camd.soak.command``): a daemon on a lossy simulated line, a
+mixed stream of requests through ``CamdClient``, and the counts that say whether it held up.
 
 ``Soak.run()`` starts ``camd serve --sim`` (``DaemonProcess``, loopback, a 32-row hr400 window),
 runs every workload kind once and then the mix for ``warmup_minutes`` as a warm-up, takes the
@@ -37,8 +37,8 @@ from typing import Any, cast
 
 import httpx
 
+from camd.bench.common import proc_status_int
 from camd.cli._daemon_proc import DaemonProcess
-from camd.cli.bench_common import proc_status_int
 from camd.client import CamdClient, CamdError
 
 __all__ = [
@@ -221,7 +221,7 @@ class Soak:
     # -- the run --------------------------------------------------------------------------------
 
     def run(self) -> dict[str, Any]:
-        """Run the soak; the result document (``camd.cli.soak`` prints it). SoakAborted if the
+        """Run the soak; the result document (``camd.soak.command`` prints it). SoakAborted if the
         daemon does not start; a daemon lost later ends the run early with ``error`` set."""
         from camd.cli._daemon_proc import DaemonStartError
 

@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 import serial
 
-from camd.cli.bench_common import (
+from camd.bench.common import (
     DEFAULT_ROUNDS,
     MIN_ROUND_S,
     Alternation,

@@ -7,7 +7,7 @@ alternately valid ones (positive) and invalid ones (negative), round after round
 documented status code, the documented content type and body schema; a request that gets no
 answer within ``--timeout`` is a hang. Every Nth refused (4xx) request to an operation that
 changes something is sent again on a quiet device (stage stopped) between two snapshots of the
-device's state (``camd.cli.device_snapshot``): a refusal must change nothing. At the end the
+device's state (``camd.bench.device_snapshot``): a refusal must change nothing. At the end the
 daemon must still answer GET /api/v1/status, its process alive.
 
 Operations that would make the run destructive or long are left out or neutralised
@@ -144,7 +144,7 @@ def fuzz(
         raise FuzzUnavailable(f"camd bench fuzz needs schemathesis ({exc}); {INSTALL}") from None
     import httpx
 
-    from camd.cli.device_snapshot import snapshot
+    from camd.bench.device_snapshot import snapshot
     from camd.client import CamdClient
     from camd.motion.stage import STOPPED_STATES
 

@@ -33,14 +33,14 @@ from typing import Any
 import usb.core
 import usb.util
 
-from camd.cli.bench_common import (
+from camd.bench.common import (
     DEFAULT_ROUNDS,
     add_round_options,
     alternate,
     beyond_cache_bytes,
     machine,
 )
-from camd.cli.bench_streamer import FrameStreamer
+from camd.bench.streamer import FrameStreamer
 from camd.link.frame_stream import FrameStream
 from camd.protocol.stream import HEADER_BYTES
 from firmware_models.fx3_backend import PRODUCT_ID, VENDOR_ID, get_backend

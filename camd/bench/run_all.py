@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import Any
 
-from camd.cli.bench_common import choice_list, machine
+from camd.bench.common import choice_list, machine
 
 Doc = dict[str, Any]
 

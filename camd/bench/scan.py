@@ -20,7 +20,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from camd.cli.bench_common import proc_status_int
+from camd.bench.common import proc_status_int
 
 DEFAULT_LINES = 5000
 DEFAULT_STAGES = 96

@@ -10,7 +10,7 @@ at the start (after a warm-up: one item of each kind, then the mix for ``--warmu
 at the end, with a sample every
 ``--sample-s``. The exit status is 0 whenever the soak ran, whatever the figures; a verdict
 line per criterion says how they compare with what is expected. The workload itself is
-``camd.cli.soak_workload``; docs/cli.md describes every option and the JSON document.
+``camd.soak.workload``; docs/cli.md describes every option and the JSON document.
 """
 
 from __future__ import annotations
@@ -144,7 +144,7 @@ def add_parser(sub: Any) -> None:
 def run(args: argparse.Namespace) -> int:
     """``camd soak``: 0 if the soak ran (whatever the figures), 1 if it could not, 2 for bad
     options, 130 when interrupted."""
-    from camd.cli.soak_workload import Soak, SoakAborted, SoakSettings, build_inject
+    from camd.soak.workload import Soak, SoakAborted, SoakSettings, build_inject
 
     try:
         inject = build_inject(args.ber, args.drop, args.frame_faults, args.inject)
@@ -199,9 +199,9 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run_edges(args: argparse.Namespace, work: Path) -> int:
-    """``camd soak --edges`` (camd.cli.soak_edges)."""
-    from camd.cli.soak_edges import EdgeSettings, EdgeSoak
-    from camd.cli.soak_workload import SoakAborted
+    """``camd soak --edges`` (camd.soak.edges)."""
+    from camd.soak.edges import EdgeSettings, EdgeSoak
+    from camd.soak.workload import SoakAborted
 
     if args.disk_mb < 16 or args.disk_fills < 0:
         print(

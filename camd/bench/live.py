@@ -360,7 +360,7 @@ class BrowserViewers:
 
 
 def _descendants(pid: int) -> list[int]:
-    from camd.cli.bench_scan import _children
+    from camd.bench.scan import _children
 
     out: list[int] = []
     for child in _children(pid):
@@ -397,7 +397,7 @@ class _Cpu:
         self.daemon_pid = daemon_pid
 
     def sample(self) -> dict[str, dict[int, float]]:
-        from camd.cli.bench_scan import _cpu_s
+        from camd.bench.scan import _cpu_s
 
         daemon_tree = [self.daemon_pid, *_descendants(self.daemon_pid)]
         viewers = [p for p in _descendants(os.getpid()) if p not in daemon_tree]

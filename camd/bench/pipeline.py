@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from camd.cli.bench_common import (
+from camd.bench.common import (
     beyond_cache_bytes,
     int_list,
     last_level_cache_bytes,
@@ -99,7 +99,7 @@ def measure(
     profile: str, stages: int, *, seconds: float, rounds: int, bank_mb: float
 ) -> dict[str, Any]:
     """One profile: the host path on an unpaced stream of M x columns frames."""
-    from camd.cli.bench_streamer import FrameStreamer
+    from camd.bench.streamer import FrameStreamer
     from camd.link.frame_stream import FrameStream
     from camd.pipeline.tdi_pipeline import TdiPipeline
     from camd.protocol.stream import HEADER_BYTES

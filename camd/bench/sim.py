@@ -26,7 +26,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from camd.cli.bench_common import thread_cpu_s, window_stages
+from camd.bench.common import thread_cpu_s, window_stages
 from camd.protocol.stream import HEADER_BYTES
 
 DEFAULT_PROFILES = ("hr400", "ibis5", "ftf5066", "uvccd", "mt9m001")

@@ -39,8 +39,8 @@ from typing import Any
 import h5py
 
 from camd.cli._daemon_proc import DaemonProcess, DaemonStartError
-from camd.cli.soak_workload import SoakAborted, _CountingClient, write_hr400_config
 from camd.client import CamdError
+from camd.soak.workload import SoakAborted, _CountingClient, write_hr400_config
 
 __all__ = ["EdgeSettings", "EdgeSoak", "fill_disk", "mounted_tmpfs"]
 

@@ -36,7 +36,7 @@ from typing import TYPE_CHECKING, Any, Literal
 import numpy as np
 import numpy.typing as npt
 
-from camd.cli.bench_common import (
+from camd.bench.common import (
     DEFAULT_ROUNDS,
     MIN_ROUND_S,
     add_round_options,

@@ -1,0 +1,283 @@
+"""camctl's commands on the instrument as a whole: status, ping, link, telemetry (and a channel's
+history), events, mode, reset, control and the emergency stop.
+
+Like every command group (``camctl_sensor``, ``camctl_stream``, ...): ``add_parsers`` adds the
+commands to camctl's parser, ``COMMANDS`` makes one API call each and returns the document
+``--json`` prints, ``RENDER`` prints it as tables (``camctl_format``). Also the argument types
+the global options share with them (``positive_float``, ``int_range``).
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Callable
+from typing import Any
+
+from rich.console import Console
+from rich.text import Text
+
+from camd.cli.camctl_format import (
+    control_text,
+    estop_text,
+    events_table,
+    history_table,
+    link_table,
+    ping_table,
+    status_table,
+    telemetry_table,
+)
+from camd.cli.camctl_sensor import CommandFailed, UsageError
+from camd.cli.camctl_stream import finite_number
+from camd.client import CamdClient
+
+MODES = ("area", "tdi")
+
+
+def positive_float(text: str) -> float:
+    """An argument type: a number > 0 (``--timeout``, ``--ttl-s``)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
+    return value
+
+
+def int_range(lo: int, hi: int) -> Callable[[str], int]:
+    """An argument type: an integer from ``lo`` to ``hi``, named ``integer`` in argparse's
+    messages."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+        if not lo <= value <= hi:
+            raise argparse.ArgumentTypeError(f"must be from {lo} to {hi}, got {value}")
+        return value
+
+    parse.__name__ = "integer"
+    return parse
+
+
+def add_parsers(command: Callable[[str, str], argparse.ArgumentParser]) -> None:
+    """The commands of this group, added through camctl's ``command(name, help)``."""
+    command("status", "show the daemon's state, mode, link and device status")
+
+    p = command("ping", "ping the device through the daemon and show round-trip times")
+    p.add_argument(
+        "--count",
+        type=int_range(1, 100_000),
+        default=10,
+        metavar="N",
+        help="number of pings, 1..100000 (default 10)",
+    )
+    p.add_argument(
+        "--size",
+        type=int_range(0, 256),
+        default=16,
+        metavar="B",
+        help="payload bytes per ping, 0..256 (default 16)",
+    )
+
+    command("link", "show the command link's counters, host and device side by side")
+
+    p = command("telemetry", "show the latest housekeeping telemetry, or one channel's history")
+    p.add_argument(
+        "--history",
+        metavar="CHANNEL",
+        help="show the archived samples of CHANNEL instead (e.g. fpga_temp_degc)",
+    )
+    p.add_argument(
+        "--since-s",
+        type=finite_number,
+        metavar="T",
+        help="with --history: only samples from Unix time T on; a negative T means T seconds "
+        "before now (e.g. --since-s -60)",
+    )
+    p.add_argument(
+        "--limit",
+        type=int_range(1, 1_000_000),
+        metavar="N",
+        help="with --history: at most N samples",
+    )
+
+    p = command("events", "show recent events, newest last")
+    p.add_argument(
+        "--limit", type=int_range(1, 100_000), metavar="N", help="at most N events (newest)"
+    )
+
+    p = command("mode", "select the imaging mode: area (staring) or tdi (push-broom)")
+    p.add_argument("mode", choices=MODES, help="area or tdi")
+
+    command(
+        "reset",
+        "soft-reset the device (mode back to area, fault cleared, the sensor's registers back "
+        "at their power-up values); refused while an acquisition runs",
+    )
+    p = command(
+        "control",
+        "show who holds control of the camera, or take or give it back (reading never needs it)",
+    )
+    p.add_argument(
+        "action",
+        nargs="?",
+        choices=("status", "take", "release"),
+        default="status",
+        help="status (default), take (or renew) a lease, or release it",
+    )
+    p.add_argument(
+        "--ttl-s",
+        type=positive_float,
+        default=60.0,
+        metavar="S",
+        help="with take: the lease's length in seconds (default 60; take again to renew)",
+    )
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="with take: take control from the client that holds it (logged as an event)",
+    )
+    p = command(
+        "estop",
+        "EMERGENCY STOP: the stage (no ramp, current cut), the running acquisition, the filter "
+        "wheel and a running campaign job (paused); never refused, whoever holds control. It "
+        "latches: nothing moves or acquires until released (`camctl estop release`)",
+    )
+    p.add_argument(
+        "action",
+        nargs="?",
+        choices=("stop", "status", "release"),
+        default="stop",
+        help="stop (default): the emergency stop; status: the latch; release: lift the latch "
+        "once the rig is checked (needs control; the stage stays disabled and the wheel stopped "
+        "until you start them)",
+    )
+
+
+# -- commands: one API call each; the returned document is what --json prints ------------------
+
+
+def _cmd_status(client: CamdClient, args: argparse.Namespace) -> Any:
+    return client.status()
+
+
+def _cmd_ping(client: CamdClient, args: argparse.Namespace) -> Any:
+    return client.ping(count=args.count, size=args.size)
+
+
+def _cmd_link(client: CamdClient, args: argparse.Namespace) -> Any:
+    return client.link()
+
+
+def _cmd_telemetry(client: CamdClient, args: argparse.Namespace) -> Any:
+    if args.history is not None:
+        return client.history(args.history, since_s=args.since_s, limit=args.limit)
+    return client.telemetry()
+
+
+def _cmd_events(client: CamdClient, args: argparse.Namespace) -> Any:
+    return client.events(limit=args.limit)
+
+
+def _cmd_mode(client: CamdClient, args: argparse.Namespace) -> Any:
+    return client.set_mode(args.mode)
+
+
+def _cmd_reset(client: CamdClient, args: argparse.Namespace) -> Any:
+    return client.reset()
+
+
+def _cmd_control(client: CamdClient, args: argparse.Namespace) -> Any:
+    if args.action == "take":
+        return client.take_control(args.ttl_s, force=args.force)
+    if args.action == "release":
+        return client.release_control()
+    if args.force:
+        raise UsageError("--force goes with `camctl control take`")
+    return client.control()
+
+
+def _cmd_estop(client: CamdClient, args: argparse.Namespace) -> Any:
+    if args.action == "status":
+        return client.estop_state()
+    if args.action == "release":
+        return client.release_estop()
+    doc = client.estop()
+    if doc["failed"]:
+        raise CommandFailed(doc, "could not stop " + "; ".join(doc["failed"]))
+    return doc
+
+
+COMMANDS: dict[str, Callable[[CamdClient, argparse.Namespace], Any]] = {
+    "status": _cmd_status,
+    "ping": _cmd_ping,
+    "link": _cmd_link,
+    "telemetry": _cmd_telemetry,
+    "events": _cmd_events,
+    "mode": _cmd_mode,
+    "reset": _cmd_reset,
+    "control": _cmd_control,
+    "estop": _cmd_estop,
+}
+
+
+# -- human output ---------------------------------------------------------------------------------
+
+
+def _render_status(out: Console, doc: Any, args: argparse.Namespace) -> None:
+    out.print(status_table(doc))
+
+
+def _render_ping(out: Console, doc: Any, args: argparse.Namespace) -> None:
+    out.print(ping_table(doc, title=f"ping: {args.count} x {args.size} B"))
+    for reason in doc.get("errors") or []:
+        out.print(Text(f"  error: {reason}", style="red"))
+
+
+def _render_link(out: Console, doc: Any, args: argparse.Namespace) -> None:
+    out.print(link_table(doc))
+
+
+def _render_telemetry(out: Console, doc: Any, args: argparse.Namespace) -> None:
+    out.print(history_table(doc) if args.history is not None else telemetry_table(doc))
+
+
+def _render_events(out: Console, doc: Any, args: argparse.Namespace) -> None:
+    out.print(events_table(doc))
+
+
+def _render_mode(out: Console, doc: Any, args: argparse.Namespace) -> None:
+    out.print(Text.assemble("mode: ", (str(doc.get("mode")), "bold")))
+
+
+def _render_reset(out: Console, doc: Any, args: argparse.Namespace) -> None:
+    out.print("device reset")
+    out.print(status_table(doc))
+
+
+def _render_control(out: Console, doc: Any, args: argparse.Namespace) -> None:
+    out.print(Text.assemble("control: ", control_text(doc)))
+
+
+def _render_estop(out: Console, doc: Any, args: argparse.Namespace) -> None:
+    if args.action == "stop":
+        out.print(
+            Text(f"EMERGENCY STOP: stopped {', '.join(doc['stopped']) or 'nothing'}", "bold red")
+        )
+        doc = doc["latch"]
+    out.print(Text.assemble("emergency stop: ", estop_text(doc)))
+
+
+RENDER: dict[str, Callable[[Console, Any, argparse.Namespace], None]] = {
+    "status": _render_status,
+    "ping": _render_ping,
+    "link": _render_link,
+    "telemetry": _render_telemetry,
+    "events": _render_events,
+    "mode": _render_mode,
+    "reset": _render_reset,
+    "control": _render_control,
+    "estop": _render_estop,
+}
