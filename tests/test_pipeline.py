@@ -415,8 +415,8 @@ def test_the_batcher_copies_every_layout_of_frame_exactly(
     assert batch.frames.dtype == np.uint16 and np.array_equal(batch.frames, frames[:, :4])
 
 
-FORBIDDEN = ("camd.daemon", "camd.motion", "camd.sensor", "camd.cli", "camd.campaign",
-             "camd.client")  # fmt: skip
+FORBIDDEN = ("camd.daemon", "camd.motion", "camd.sensor", "camd.cli", "camd.bench", "camd.soak",
+             "camd.campaign", "camd.client")  # fmt: skip
 
 
 @pytest.mark.parametrize("path", sorted((ROOT / "camd" / "pipeline").glob("*.py")), ids=str)
