@@ -7,10 +7,11 @@ tells the stream service whether the link is trained (``require_trained``). Ever
 runs inside ``DeviceAccess.device_op()``: one at a time, with link and register errors mapped
 to the API's errors.
 
-A register write reads the register file first (``RegisterSnapshot``), checks the write against
-it, and then writes through an ``Apply``: a write that fails after the camera may have taken it
-(its burst unanswered, a read-back refused or different) puts the registers it changes back
-to the snapshot and says so.
+A register burst (a write of several registers, fields and groups; a configuration's load) is
+planned first: the register file read once (``RegisterSnapshot``) and the burst checked whole
+against it (``camd.daemon.register_plan``), then sent through an ``Apply``: a burst that fails
+after the camera may have taken it (unanswered, a read-back refused or different) puts the
+registers it changed back to the snapshot and says so.
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 from camd.daemon.device import DeviceAccess
-from camd.daemon.errors import BadRequest, LinkUntrained, SensorMismatch, SessionError
+from camd.daemon.errors import LinkUntrained, SensorMismatch, SessionError
 from camd.daemon.models import (
     LaneResult,
     RegisterConfig,
@@ -34,68 +35,23 @@ from camd.daemon.models import (
     TimingResponse,
     TrainResponse,
 )
+from camd.daemon.register_plan import (
+    RegisterPlan,
+    check_configuration,
+    plan_configuration,
+    plan_write,
+)
+from camd.daemon.register_plan import (
+    RegisterSnapshot as RegisterSnapshot,
+)  # ScanService plans on it
 from camd.daemon.state import Request, describe
 from camd.daemon.transaction import Apply
 from camd.sensor.bridge import RegisterBridge
 from camd.sensor.profile import list_profiles, load_profile
 from camd.sensor.registers import SensorRegisters
-from camd.sensor.regmap import (
-    RegisterAccessError,
-    RegisterMap,
-    RegisterValueError,
-    load_register_map,
-)
-from camd.sensor.timing_view import SensorTiming, sensor_timing
+from camd.sensor.regmap import RegisterMap, load_register_map
 
 BridgeFactory = Callable[[RegisterMap], RegisterBridge]
-
-
-class RegisterSnapshot:
-    """The sensor's registers at one moment (raw values), and what writes would make of them.
-
-    ``preview(writes)`` validates ``writes`` as a write would and returns the timing they would
-    set, with nothing sent (pure); ``changed(writes)`` names the registers they would change.
-    """
-
-    def __init__(
-        self, regmap: RegisterMap, registers: SensorRegisters, raw: dict[str, int]
-    ) -> None:
-        self.regmap = regmap
-        self.raw = raw
-        self._registers = registers
-
-    def value(self, name: str) -> int | str:
-        """A value name's value (``REG``, ``REG.field`` or ``GROUP``) in the snapshot."""
-        return self.regmap.value_of(name, lambda reg: self.raw[reg.name])
-
-    def timing(self) -> TimingResponse:
-        """The timing the snapshot's registers set."""
-        return TimingResponse.model_validate(sensor_timing(self.regmap, self.value).as_dict())
-
-    def columns(self) -> int:
-        """Columns per window row (the window-columns role, else the whole row)."""
-        count = self.regmap.role_count("window_columns", self.value)
-        return self.regmap.columns if count is None else count
-
-    def _plan(self, writes: Mapping[str, int | str]) -> tuple[dict[str, int], SensorTiming]:
-        try:
-            return self._registers.preview(writes, self.raw)
-        except (RegisterAccessError, RegisterValueError) as exc:
-            raise BadRequest(str(exc)) from None
-
-    def preview(self, writes: Mapping[str, int | str]) -> TimingResponse:
-        """The timing ``writes`` would set; BadRequest for a write that would be refused."""
-        if not writes:
-            return self.timing()
-        _, timing = self._plan(writes)
-        return TimingResponse.model_validate(timing.as_dict())
-
-    def changed(self, writes: Mapping[str, int | str]) -> list[str]:
-        """The registers ``writes`` would change, by name."""
-        if not writes:
-            return []
-        values, _ = self._plan(writes)
-        return [name for name, raw in values.items() if raw != self.raw[name]]
 
 
 log = logging.getLogger(__name__)
@@ -217,7 +173,7 @@ class SensorService:
         """Validate everything, write in one burst, verify; nothing is written if invalid, and
         a write that fails part-way puts back what it changed (module docstring)."""
         self._checked(Request.REGISTERS_WRITE)
-        written = self._write_restoring("register write", values, lambda r: r.write(values))
+        written = self._apply(plan_write(self.snapshot(), values))
         names = ", ".join(f"{k}={v}" for k, v in values.items())
         self.device.log_event("info", "api", f"registers written: {names}")
         return RegisterWriteResponse(
@@ -262,18 +218,10 @@ class SensorService:
     def load_configuration(self, config: RegisterConfig) -> RegisterWriteResponse:
         """Write a saved configuration: refused whole if it is for another sensor or invalid."""
         self._checked(Request.REGISTERS_WRITE)
-        with self.device.device_op():  # another sensor's configuration: refused before reading
-            self._sensor_registers().check_configuration(
-                config.sensor, config.registers, source="the configuration"
-            )
-        written = self._write_restoring(
-            "configuration load",
-            dict(config.registers),
-            lambda r: r.load_configuration(
-                config.sensor, config.registers, source="the configuration"
-            ),
-            source="the configuration",
-        )
+        with self.device.device_op():
+            registers = self._sensor_registers()
+        check_configuration(registers, config)  # another sensor's: refused before reading
+        written = self._apply(plan_configuration(self.snapshot(), config))
         self.device.log_event(
             "info", "api", f"configuration of {len(config.registers)} registers loaded"
         )
@@ -442,9 +390,13 @@ class SensorService:
 
     def restore(self, snapshot: RegisterSnapshot, names: list[str]) -> None:
         """Write the registers ``names`` back to their values in ``snapshot`` (verified)."""
-        if names:
+        self._write_back({name: snapshot.raw[name] for name in names})
+
+    def _write_back(self, values: Mapping[str, int]) -> None:
+        """Write raw register values back (verified): what a failed request changed."""
+        if values:
             with self.device.device_op():
-                self._sensor_registers().write({name: snapshot.raw[name] for name in names})
+                self._sensor_registers().write(dict(values))
 
     def restore_defaults(self) -> list[str]:
         """Write every configurable register that differs back to its reset value (the sensor
@@ -476,44 +428,16 @@ class SensorService:
 
     # -- internals -------------------------------------------------------------------------------
 
-    def _write_restoring(
-        self,
-        what: str,
-        values: Mapping[str, int | str],
-        write: Callable[[SensorRegisters], list[Any]],
-        *,
-        source: str | None = None,
-    ) -> list[Any]:
-        """Snapshot, check ``values`` against it, then ``write`` with the registers it changes
-        restored if the write fails (it may have reached the sensor before failing).
-        ``source`` (e.g. "the configuration") prefixes a refusal, as the write would."""
-        snapshot = self.snapshot()
-        try:
-            changed = self._restorable(snapshot.changed(values))
-        except BadRequest as exc:
-            if source is None:
-                raise
-            raise BadRequest(f"{source}: {exc}; nothing was written") from None
-        with Apply(what, self._events, source="api") as apply:
-            if changed:
-                apply.undo_later(
-                    lambda: self.restore(snapshot, changed), "registers " + ", ".join(changed)
-                )
+    def _apply(self, plan: RegisterPlan) -> list[Any]:
+        """Send a planned burst, its registers written back if it fails after the camera may
+        have taken it (it may have reached the sensor before failing)."""
+        with Apply(plan.what, self._events, source="api") as apply:
+            if plan.restore:
+                apply.undo_later(lambda: self._write_back(plan.restore), plan.restore_label)
             with self.device.device_op():
-                written = write(self._sensor_registers())
+                written = self._sensor_registers().write(plan.writes)
             apply.done()
         return written
-
-    def _restorable(self, names: list[str]) -> list[str]:
-        """The settings among ``names``: what a failed write puts back. Actions (a soft reset,
-        flags cleared by writing 1) and volatile registers cannot be put back."""
-        reset_reg = self.regmap.soft_reset_register()
-        return [
-            name
-            for name in names
-            if self.regmap.register(name).configurable
-            and self.regmap.register(name) is not reset_reg
-        ]
 
     def _events(self, level: str, source: str, message: str) -> None:
         self.device.log_event(level, source, message)
