@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from camd.daemon.config import DaemonSection
+from camd.daemon.config_sections import DaemonSection
 from camd.daemon.errors import BadRequest
 from camd.daemon.models import StreamStartRequest
 from camd.daemon.output_paths import RECORDINGS_FOLDER, resolve_output

@@ -19,7 +19,7 @@ import threading
 from collections.abc import Callable
 from typing import Any
 
-from camd.daemon.config import StreamSection
+from camd.daemon.config_camera import StreamSection
 from camd.daemon.errors import NoFrameDevice
 from camd.daemon.models import StreamFrameHeader, StreamHeadersResponse, StreamStats
 from camd.daemon.realtime import REALTIME
