@@ -85,7 +85,7 @@ def test_command_line_check_passes() -> None:
 
 def test_header_names_the_source_and_the_command() -> None:
     head = GENERATED.read_text(encoding="utf-8")[:1200]
-    assert "camd/daemon/models.py" in head
+    assert "camd/daemon/models/" in head
     assert COMMAND in head
     assert client_types.StatusResponse.__doc__ == "GET /api/v1/status and POST /api/v1/reset."
 

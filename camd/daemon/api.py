@@ -42,6 +42,7 @@ from starlette.routing import Match
 import camd
 from camd import web
 from camd.daemon.acquisition import acting_as
+from camd.daemon.api_validation import ALLOWED, valid_values
 from camd.daemon.control import ANONYMOUS
 from camd.daemon.error_body import ERROR_MESSAGE_MAX, WS_POLICY_VIOLATION, cut, error_response
 from camd.daemon.errors import (
@@ -64,7 +65,6 @@ from camd.daemon.errors import (
     WrongState,
 )
 from camd.daemon.models import (
-    ALLOWED,
     EVENTS_LIMIT_MAX,
     HISTORY_LIMIT_MAX,
     LIVE_LINES_MAX,
@@ -128,7 +128,6 @@ from camd.daemon.models import (
     WheelCompensationRequest,
     WheelSpeedRequest,
     WheelStatus,
-    valid_values,
 )
 from camd.daemon.request_guard import API, RequestGuard
 from camd.daemon.session import DeviceSession

@@ -5,8 +5,9 @@ publishes them in /openapi.json). ``camd.client`` returns the same documents as 
 and types them with TypedDicts; those are rendered here from the models, so that the shapes are
 written once. ``tests/test_client_types.py`` fails when the committed file is stale.
 
-One TypedDict per response model (every model of the module that is not a request body) and per
-model nested in one, named after the model, in the module's order with nested models first. The
+One TypedDict per response model (every model of the package that is not a request body) and per
+model nested in one, named after the model, in the order of the package's ``__all__`` with nested
+models first. The
 keys are those of the JSON the API emits: FastAPI serialises a ``response_model`` with
 ``by_alias=True`` and without excluding unset, default or None values, so the key of a field is
 its serialisation alias (else its alias, else its name) and every key is present (``None``
@@ -34,6 +35,7 @@ from typing import Annotated, Any, Literal, Union
 from pydantic import BaseModel
 
 from camd.daemon import models as api_models
+from camd.daemon.models.common import _Request
 from camd.markdown import write_or_check
 
 COMMAND = "python -m camd.daemon.client_types_gen"
@@ -50,20 +52,26 @@ class ClientTypesError(ValueError):
 
 
 def module_models(module: types.ModuleType = api_models) -> list[type[BaseModel]]:
-    """Every pydantic model defined in ``module``, in definition order."""
+    """Every pydantic model ``module`` defines or, a package, defines in its modules and
+    exports: in the order of its ``__all__`` (else of definition)."""
+    names = getattr(module, "__all__", None) or list(vars(module))
+    values = [getattr(module, name) for name in names]
     return [
         value
-        for value in vars(module).values()
+        for value in dict.fromkeys(values)
         if isinstance(value, type)
         and issubclass(value, BaseModel)
-        and value.__module__ == module.__name__
+        and (
+            value.__module__ == module.__name__
+            or value.__module__.startswith(f"{module.__name__}.")
+        )
         and not value.__name__.startswith("_")
     ]
 
 
 def is_request(model: type[BaseModel]) -> bool:
     """A request body (a ``_Request``: unknown keys forbidden) rather than a response."""
-    return issubclass(model, api_models._Request)
+    return issubclass(model, _Request)
 
 
 def response_models(module: types.ModuleType = api_models) -> list[type[BaseModel]]:
@@ -82,7 +90,8 @@ def response_models(module: types.ModuleType = api_models) -> list[type[BaseMode
         if model not in rank:
             raise ClientTypesError(
                 f"{' -> '.join(path)} nests {model.__module__}.{model.__name__}, which is not "
-                f"defined in {module.__name__}; define the API's models there"
+                f"exported by {module.__name__}; define the API's models there (and list it in its "
+                "__all__)"
             )
         nested = sorted(
             {m for _, annotation in json_fields(model) for m in nested_models(annotation)},
@@ -211,10 +220,10 @@ def _union(parts: list[str]) -> str:
 # -- the module -------------------------------------------------------------------------------------
 
 HEADER = f'''\
-# Generated from camd/daemon/models.py by `{COMMAND}`: do not edit.
+# Generated from camd/daemon/models/ by `{COMMAND}`: do not edit.
 """The JSON documents of the camd HTTP API as TypedDicts: the shapes ``camd.client`` returns.
 
-Generated from the pydantic models of camd/daemon/models.py (the bodies the daemon publishes in
+Generated from the pydantic models of camd/daemon/models/ (the bodies the daemon publishes in
 /openapi.json) by ``{COMMAND}``: to change a shape, change the
 model and run that command (tests/test_client_types.py fails while this file is stale).
 
@@ -304,7 +313,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog=COMMAND,
         description="Generate camd/client_types.py (the client's TypedDicts) from the API's "
-        "pydantic models in camd/daemon/models.py.",
+        "pydantic models in camd/daemon/models/.",
     )
     parser.add_argument(
         "--check",
