@@ -23,6 +23,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any, Literal, Union
 
+import fastapi.routing
 import httpx
 import pytest
 from fastapi.routing import APIRoute
@@ -211,7 +212,11 @@ def routes(tmp_path_factory: pytest.TempPathFactory) -> list[APIRoute]:
     data_dir = tmp_path_factory.mktemp("camd-app")
     session = DeviceSession(Config.model_validate({"daemon": {"data_dir": str(data_dir)}}))
     app = create_app(session)
-    return [r for r in app.routes if isinstance(r, APIRoute)]
+    # FastAPI from 0.137 keeps an included router as one entry of app.routes; its
+    # iter_route_contexts (0.137.2) lists the routes inside.
+    flatten = getattr(fastapi.routing, "iter_route_contexts", None)
+    found = [c.original_route for c in flatten(app.routes)] if flatten else app.routes
+    return [r for r in found if isinstance(r, APIRoute)]
 
 
 def json_keys(model: type[BaseModel], by_alias: bool = True) -> dict[str, set[str]]:
@@ -460,7 +465,8 @@ def test_the_answers_show_every_typed_dict(answers: dict[str, Any]) -> None:
 def test_each_error_status_lists_every_code_it_carries() -> None:
     """OpenAPI's description of a route's 409 (or 503 ...) names every code the daemon answers
     with that status: one per status overwrote the others (409 said only no_control)."""
-    from camd.daemon.api import _ERROR_RESPONSES, ERROR_MAP
+    from camd.daemon.api_errors import ERROR_MAP
+    from camd.daemon.api_errors import ERROR_RESPONSES as _ERROR_RESPONSES
 
     for _, status, code in ERROR_MAP:
         assert code in _ERROR_RESPONSES[status]["description"].split(", "), (status, code)

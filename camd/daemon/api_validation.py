@@ -1,16 +1,25 @@
-"""What a 400 quotes as the values a parameter takes: read from the field's own type and
-constraints (``valid_values``), so that the message cannot drift from what is enforced, with
-``ALLOWED``'s explanation where they do not say enough.
+"""The 400 message of an invalid request: for each invalid parameter, what was wrong and the
+values it takes, read from the endpoint's own request model or query parameter (its type and
+constraints), so that the message cannot drift from what is enforced. FastAPI's 422 validation
+errors leave as these 400s (``camd.daemon.api_errors``).
 """
 
 from __future__ import annotations
 
 import types
+from collections.abc import Callable
 from typing import Any, Literal, Union, get_args, get_origin
 
 import annotated_types
+from fastapi.exceptions import RequestValidationError
+from fastapi.routing import APIRoute
 from pydantic import BaseModel
 from pydantic.fields import FieldInfo
+
+from camd.daemon.error_body import ERROR_MESSAGE_MAX, cut
+from camd.datafile import what_it_is
+
+PROBLEMS_SHOWN_MAX = 10  # invalid parameters described in one 400; the rest are counted
 
 # What a field's type and constraints do not say, for 400 messages: appended in parentheses to
 # the valid values read from the field itself (valid_values). Keyed by field name, so each entry
@@ -112,3 +121,127 @@ def valid_values(field: FieldInfo) -> str:
     if " or " in words:  # a choice of values: true, false or null
         return f"{words.replace(' or ', ', ')} or null"
     return f"null or {words}"
+
+
+_UNION_TAGS = {"int", "float", "str", "bool", "none"}  # pydantic's loc parts for union members
+
+
+def _parameter(route: object, loc: list[str | int]) -> FieldInfo | None:
+    """The field of ``route``'s own request model (or query parameter) that ``loc`` names, so
+    that the valid values quoted are this endpoint's (several models share field names)."""
+    if not isinstance(route, APIRoute) or len(loc) < 2:
+        return None
+    where, path = loc[0], loc[1:]
+    if where == "query":
+        params = {p.alias: p.field_info for p in route.dependant.query_params}
+        return params.get(str(path[0])) if len(path) == 1 else None
+    if where != "body" or len(route.dependant.body_params) != 1:
+        return None
+    model: Any = route.dependant.body_params[0].field_info.annotation
+    field: FieldInfo | None = None
+    for part in path:
+        if get_origin(model) in (Union, types.UnionType):
+            args = [a for a in get_args(model) if a is not type(None)]
+            model = args[0] if len(args) == 1 else None
+        if get_origin(model) in (dict, list):  # an entry: its type, unconstrained
+            field = FieldInfo.from_annotation(get_args(model)[-1])
+        elif isinstance(model, type) and issubclass(model, BaseModel):
+            field = model.model_fields.get(str(part))
+        else:
+            return None
+        if field is None:
+            return None
+        model = field.annotation
+    return field
+
+
+def _outside(field: FieldInfo | None, value: float) -> bool:
+    """Whether ``value`` lies beyond the bounds ``field`` sets (unknown bounds: no)."""
+    for item in field.metadata if field is not None else ():
+        if isinstance(item, annotated_types.Ge | annotated_types.Gt):
+            low = item.ge if isinstance(item, annotated_types.Ge) else item.gt
+            if value < low:  # type: ignore[operator]
+                return True
+        elif isinstance(item, annotated_types.Le | annotated_types.Lt):
+            high = item.le if isinstance(item, annotated_types.Le) else item.lt
+            if value > high:  # type: ignore[operator]
+                return True
+    return False
+
+
+def _shown(value: object, loc: list[str | int]) -> str:
+    """A rejected value as the user wrote it: a query parameter's number arrives as the text
+    of the URL ("0.0"), which quoted would read as a string given where a number was due."""
+    return cut(value if loc[:1] == ["query"] and isinstance(value, str) else repr(value))
+
+
+def validation_message(
+    exc: RequestValidationError,
+    route: object = None,
+    limit_now: Callable[[str], str] = lambda name: "",
+) -> str:
+    """``"stages: 0 is out of range; use an integer in 1..4096"`` for each invalid parameter:
+    the valid values read from the endpoint's own model (``valid_values``), with
+    ``ALLOWED``'s explanation where the type and constraints do not say enough."""
+    parts: list[str] = []
+    seen = set()
+    more = 0  # invalid parameters past PROBLEMS_SHOWN_MAX: counted, not described
+    for err in exc.errors():
+        loc: list[str | int] = list(err.get("loc", ()))
+        while len(loc) > 2 and loc[-1] in _UNION_TAGS:
+            loc.pop()  # values.GAIN.int -> values.GAIN
+        shown_loc = [str(p) for p in loc if p not in ("body", "query", "path")]
+        name = ".".join(shown_loc)
+        if name in seen:
+            continue  # one message per parameter (a union reports each member)
+        seen.add(name)
+        if len(parts) >= PROBLEMS_SHOWN_MAX:
+            more += 1
+            continue
+        name = cut(name)  # a key of the client's own object may be part of it
+        kind = str(err.get("type", ""))
+        value = err.get("input")
+        field = _parameter(route, loc)
+        # ALLOWED's explanation of the parameter, or of the one an entry belongs to
+        hint = next((ALLOWED[p] for p in reversed(shown_loc) if p in ALLOWED), "")
+        if field is not None and not hint and loc[0] == "query":
+            hint = field.description or ""  # its meaning on this endpoint
+        if field is not None:
+            allowed = valid_values(field) + (f" ({hint})" if hint else "")
+        else:
+            allowed = hint
+        use = f"; use {allowed}" if allowed else ""
+        if kind == "json_invalid":
+            parts.append('the request body is not valid JSON; send e.g. {"count": 10}')
+        elif kind == "missing":
+            parts.append(f"{name}: is required{use}")
+        elif kind == "extra_forbidden":
+            parts.append(f"{name}: unknown parameter; remove it (check the spelling)")
+        elif kind in ("model_attributes_type", "dict_type") and not name:
+            shown = value.decode(errors="replace") if isinstance(value, bytes) else repr(value)
+            parts.append(
+                f"the request body must be a JSON object (Content-Type: application/json), "
+                f"not {cut(shown)}"
+            )
+        elif kind in ("greater_than_equal", "less_than_equal", "greater_than", "less_than"):
+            parts.append(f"{name}: {_shown(value, loc)} is out of range{use}{limit_now(name)}")
+        elif kind == "finite_number":
+            parts.append(f"{name}: {_shown(value, loc)} is not a finite number{use}")
+        elif kind == "int_type" and isinstance(value, float) and value.is_integer():
+            # 1e20 or 3.0: a whole number written as a float; out of range, or just its form
+            if _outside(field, value):
+                parts.append(f"{name}: {cut(repr(value))} is out of range{use}")
+            else:
+                parts.append(f"{name}: {cut(repr(value))} is a whole number written with a "
+                             f"decimal point or an exponent; write it as an integer{use}")  # fmt: skip
+        elif kind.endswith("_type"):
+            what = what_it_is(value, array="a list", table="an object")
+            parts.append(f"{name}: {cut(repr(value))} is {what}, the wrong type{use}")
+        elif kind == "value_error":  # a validator of the model: its reason
+            reason = cut(str(err.get("msg", "")).removeprefix("Value error, "), ERROR_MESSAGE_MAX)
+            parts.append(f"{name}: {cut(repr(value))} is not valid ({reason}){use}")
+        else:
+            parts.append(f"{name}: {cut(repr(value))} is not valid{use}")
+    if more:
+        parts.append(f"and {more} more problem{'s' if more > 1 else ''}")
+    return "; ".join(parts) or "invalid request"
