@@ -7,6 +7,7 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 from camd.daemon.models.common import _Request
+from camd.sensor.timing_view import SensorTiming
 
 RegisterValue = int | str
 
@@ -74,29 +75,8 @@ class RegisterConfig(BaseModel):
     registers: dict[str, int]
 
 
-class TimingResponse(BaseModel):
+class TimingResponse(SensorTiming):
     """GET /api/v1/timing: the sensor timing its registers set (docs/physics.md §2, §3)."""
-
-    sensor: str
-    line_period_s: float
-    window_start_row: int
-    window_rows: int
-    exposure_lines: int
-    exposure_s: float
-    frame_time_s: float
-    frame_period_s: float
-    back_path_s: float
-    tdi_line_period_s: float
-    max_stages: int
-    gain: RegisterValue | None = None
-    offset: RegisterValue | None = None
-    readout_mode: RegisterValue | None = None
-    test_pattern: RegisterValue | None = None
-    exposure_register: str | None = Field(
-        default=None,
-        description="the register (or REG.field) that sets exposure_lines: write it with "
-        "POST /api/v1/registers to change the exposure",
-    )
 
 
 class LaneResult(BaseModel):
