@@ -91,21 +91,28 @@ def test_header_names_the_source_and_the_command() -> None:
     assert client_types.StatusResponse.__doc__ == "GET /api/v1/status and POST /api/v1/reset."
 
 
+# camd/client_requests.py (tests/test_client_requests.py) is generated the same way, for the same
+# client: the same two checks hold for it.
+GENERATED_FILES = [GENERATED, ROOT / "camd" / "client_requests.py"]
+
+
 @pytest.mark.skipif(shutil.which("ruff") is None, reason="ruff is not installed")
-def test_generated_file_passes_ruff_unchanged() -> None:
+@pytest.mark.parametrize("generated", GENERATED_FILES, ids=lambda p: p.name)
+def test_generated_file_passes_ruff_unchanged(generated: Path) -> None:
     ruff = shutil.which("ruff")
     assert ruff is not None
     for args in (["format", "--check"], ["check"]):
         proc = subprocess.run(
-            [ruff, *args, str(GENERATED)], cwd=ROOT, capture_output=True, text=True, timeout=60
+            [ruff, *args, str(generated)], cwd=ROOT, capture_output=True, text=True, timeout=60
         )
         assert proc.returncode == 0, (args, proc.stdout, proc.stderr)
 
 
-def test_client_types_imports_nothing_of_camd() -> None:
+@pytest.mark.parametrize("generated", GENERATED_FILES, ids=lambda p: p.name)
+def test_client_types_imports_nothing_of_camd(generated: Path) -> None:
     # The client sits below the daemon: loading the shapes must not load camd.daemon.
     imported = set()
-    for node in ast.walk(ast.parse(GENERATED.read_text(encoding="utf-8"))):
+    for node in ast.walk(ast.parse(generated.read_text(encoding="utf-8"))):
         if isinstance(node, ast.Import):
             imported |= {alias.name for alias in node.names}
         elif isinstance(node, ast.ImportFrom):

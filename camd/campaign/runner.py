@@ -47,7 +47,7 @@ import zlib
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, Literal, Protocol, cast
 
 from camd.campaign.acquisitions import run_acquisition
 from camd.campaign.baseline import Settings, apply_baseline, capture, restore
@@ -655,10 +655,14 @@ class CampaignRunner:
                 )
         elif isinstance(step.scan, ScanAcquire):
             sc = step.scan
+            # mode and binning may come from a reference, a str to the type checker; the daemon
+            # refuses any other value (400).
             self.client.start_scan(
                 int(sc.stages), int(sc.lines), out=str(path), scene=sc.scene,
-                mode=str(sc.mode), out_bits=None if sc.out_bits is None else int(sc.out_bits),
-                binning=str(sc.binning), quicklook=False, drive_stage=bool(sc.drive_stage),
+                mode=cast(Literal["sum", "mean"], sc.mode),
+                out_bits=None if sc.out_bits is None else int(sc.out_bits),
+                binning=cast(Literal["off", "2x2"], sc.binning), quicklook=False,
+                drive_stage=bool(sc.drive_stage),
                 closed_loop=None if sc.closed_loop is None else bool(sc.closed_loop),
                 dv_over_v=float(sc.dv_over_v),
             )  # fmt: skip

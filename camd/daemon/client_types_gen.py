@@ -28,7 +28,7 @@ import sys
 import textwrap
 import types
 import typing
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Annotated, Any, Literal, Union
 
@@ -237,23 +237,27 @@ from __future__ import annotations
 '''
 
 
-def _docstring(model: type[BaseModel]) -> list[str]:
-    """The model's summary (its docstring's first paragraph) as a class docstring."""
+def summary(model: type[BaseModel]) -> str:
+    """The model's summary: its docstring's first paragraph, on one line."""
     doc = model.__dict__.get("__doc__") or ""
-    summary = " ".join(doc.strip().split("\n\n")[0].split())
-    if not summary:
-        summary = f"The ``{model.__name__}`` document (its model has no docstring)."
-    summary = summary.replace("\\", "\\\\").replace('"""', '\\"\\"\\"')
-    if summary.endswith('"'):
-        summary += " "
+    text = " ".join(doc.strip().split("\n\n")[0].split())
+    return text or f"The ``{model.__name__}`` document (its model has no docstring)."
+
+
+def docstring_lines(text: str) -> list[str]:
+    """``text`` as a class docstring, wrapped to the line length."""
+    text = text.replace("\\", "\\\\").replace('"""', '\\"\\"\\"')
+    if text.endswith('"'):
+        text += " "
     width = LINE_LENGTH - len(INDENT)
-    lines = textwrap.wrap(summary, width - 3, break_long_words=False, break_on_hyphens=False)
+    lines = textwrap.wrap(text, width - 3, break_long_words=False, break_on_hyphens=False)
     lines[0] = '"""' + lines[0]
     lines[-1] += '"""'
     return [INDENT + line for line in lines]
 
 
-def _comment(text: str) -> list[str]:
+def comment_lines(text: str) -> list[str]:
+    """``text`` as comment lines of a class body, wrapped to the line length."""
     prefix = INDENT + "# "
     width = LINE_LENGTH - len(prefix)
     words = " ".join(text.split())
@@ -262,7 +266,7 @@ def _comment(text: str) -> list[str]:
 
 def render_class(model: type[BaseModel], annotations: list[str] | None = None) -> list[str]:
     """The TypedDict of ``model``; its annotations are appended to ``annotations``."""
-    lines = [f"class {model.__name__}(TypedDict):", *_docstring(model), ""]
+    lines = [f"class {model.__name__}(TypedDict):", *docstring_lines(summary(model)), ""]
     fields = json_fields(model)
     if not fields:
         raise ClientTypesError(f"{model.__name__} has no fields to emit")
@@ -275,15 +279,15 @@ def render_class(model: type[BaseModel], annotations: list[str] | None = None) -
     for key, annotation in fields:
         description = descriptions.get(key)
         if description:
-            lines += _comment(description)
+            lines += comment_lines(description)
         rendered = render_type(annotation, f"{model.__name__}.{key}")
         if annotations is not None:
             annotations.append(rendered)
-        lines += _field_lines(key, rendered)
+        lines += field_lines(key, rendered)
     return lines
 
 
-def _field_lines(key: str, rendered: str) -> list[str]:
+def field_lines(key: str, rendered: str) -> list[str]:
     """``key: rendered``, a long ``Literal[...]`` split as ruff's formatter splits it (the
     file must pass ``ruff format`` unchanged): its values on one indented line if they fit,
     else one per line with a trailing comma."""
@@ -297,37 +301,60 @@ def _field_lines(key: str, rendered: str) -> list[str]:
     return [head, *(f"{INDENT * 2}{value}," for value in inner.split(", ")), tail]
 
 
+def module_text(header: str, classes: Sequence[list[str]], annotations: Sequence[str]) -> str:
+    """A generated module: ``header``, the typing names its ``annotations`` use, ``classes``."""
+    body: list[str] = []
+    for lines in classes:
+        body += ["", "", *lines]
+    used = {name for a in annotations for name in re.findall(r"\b(Any|Literal)\b", a)}
+    imports = "from typing import " + ", ".join(sorted({"TypedDict", *used}))
+    return header + "\n" + imports + "\n" + "\n".join(body) + "\n"
+
+
 def render_client_types(models: Sequence[type[BaseModel]] | None = None) -> str:
     """The text of camd/client_types.py for ``models`` (default: the API's response models)."""
     models = response_models() if models is None else models
-    body: list[str] = []
     annotations: list[str] = []
-    for model in models:
-        body += ["", "", *render_class(model, annotations)]
-    used = {name for a in annotations for name in re.findall(r"\b(Any|Literal)\b", a)}
-    imports = "from typing import " + ", ".join(sorted({"TypedDict", *used}))
-    return HEADER + "\n" + imports + "\n" + "\n".join(body) + "\n"
+    classes = [render_class(model, annotations) for model in models]
+    return module_text(HEADER, classes, annotations)
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        prog=COMMAND,
-        description="Generate camd/client_types.py (the client's TypedDicts) from the API's "
-        "pydantic models in camd/daemon/models/.",
-    )
+def generator_main(
+    argv: Sequence[str] | None,
+    *,
+    command: str,
+    description: str,
+    output: Path,
+    render: Callable[[], str],
+) -> int:
+    """The command line of a generator of this kind: write ``output`` with ``render()``, or
+    with ``--check`` say whether it is current (exit 1 if not, 2 if a model cannot be
+    rendered)."""
+    parser = argparse.ArgumentParser(prog=command, description=description)
     parser.add_argument(
         "--check",
         action="store_true",
         help="do not write; exit 1 if the file differs from what would be generated",
     )
-    parser.add_argument("--output", type=Path, default=OUTPUT, help="file to write or check")
+    parser.add_argument("--output", type=Path, default=output, help="file to write or check")
     args = parser.parse_args(argv)
     try:
-        text = render_client_types()
+        text = render()
     except ClientTypesError as exc:
-        print(f"client_types_gen: {exc}", file=sys.stderr)
+        print(f"{command.rpartition('.')[2]}: {exc}", file=sys.stderr)
         return 2
-    return write_or_check(args.output, text, check=args.check, command=COMMAND)
+    return write_or_check(args.output, text, check=args.check, command=command)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    return generator_main(
+        argv,
+        command=COMMAND,
+        description="Generate camd/client_types.py (the client's TypedDicts) from the API's "
+        "pydantic models in camd/daemon/models/.",
+        output=OUTPUT,
+        render=render_client_types,
+    )
 
 
 if __name__ == "__main__":
