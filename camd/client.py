@@ -2,8 +2,10 @@
 
 Every method returns the API's JSON document as a plain dict, typed with the TypedDicts of
 ``camd.client_types``: those are generated from the API's pydantic models
-(camd/daemon/models.py) by ``python -m camd.daemon.client_types_gen``, so they name exactly the
+(camd/daemon/models/) by ``python -m camd.daemon.client_types_gen``, so they name exactly the
 keys the daemon sends, and are named after the models (``StatusResponse``, ``ScanResponse``, ...).
+A request's optional keys are typed by ``camd.client_requests``, generated from the same models:
+only the keys given are sent, so that each default is the daemon's model's.
 Failures raise ``CamdError`` built from the API's ``{"error", "code"}`` body, or
 ``DaemonUnreachable`` when nothing answers at the URL::
 
@@ -25,10 +27,11 @@ import socket
 import threading
 import time
 from collections.abc import Callable, Iterator
-from typing import TYPE_CHECKING, Any, cast
+from typing import TYPE_CHECKING, Any, Unpack, cast
 
 import httpx
 
+from camd.client_requests import ScanRequestOptions
 from camd.client_types import (
     BackgroundStatus,
     CampaignJob,
@@ -439,38 +442,16 @@ class CamdClient:
         return cast(ScanResponse, self._json("GET", f"{API}/scan"))
 
     def start_scan(
-        self,
-        stages: int,
-        lines: int,
-        *,
-        out: str | None = None,
-        scene: str | None = None,
-        speed_m_s: float | None = None,
-        line_period_s: float | None = None,
-        mode: str = "sum",
-        out_bits: int | None = None,
-        rows_per_line: float = 1.0,
-        cols_per_line: float = 0.0,
-        reverse: bool = False,
-        binning: str = "off",
-        quicklook: bool = True,
-        drive_stage: bool = True,
-        closed_loop: bool | None = None,
-        dv_over_v: float = 0.0,
+        self, stages: int, lines: int, **options: Unpack[ScanRequestOptions]
     ) -> ScanResponse:
         """Start a push-broom scan of ``lines`` complete TDI lines at ``stages`` stages and
-        return at once; ``out`` is a path on the daemon's host (relative = in its data
-        directory's scans; docs/api.md "Files").
-        The scan drives the stage at the synchronous speed (``drive_stage``), closed loop
-        unless ``closed_loop`` is False (None: the config), offset by ``dv_over_v``."""
-        body: dict[str, Any] = {
-            "stages": stages, "lines": lines, "out": out, "scene": scene,
-            "speed_m_s": speed_m_s, "line_period_s": line_period_s, "mode": mode,
-            "out_bits": out_bits, "rows_per_line": rows_per_line,
-            "cols_per_line": cols_per_line, "reverse": reverse, "binning": binning,
-            "quicklook": quicklook, "drive_stage": drive_stage, "closed_loop": closed_loop,
-            "dv_over_v": dv_over_v,
-        }  # fmt: skip
+        return at once. ``options`` are ``ScanRequest``'s optional keys (camd/client_requests.py,
+        with their defaults): only those given are sent, the daemon supplies the others.
+        ``out`` is a path on the daemon's host (relative = in its data directory's scans;
+        docs/api.md "Files"). The scan drives the stage at the synchronous speed
+        (``drive_stage``), closed loop unless ``closed_loop`` is False (None: the config),
+        offset by ``dv_over_v``."""
+        body: dict[str, Any] = {"stages": stages, "lines": lines, **options}
         return cast(ScanResponse, self._json("POST", f"{API}/scan/start", json=body))
 
     def stop_scan(self) -> ScanResponse:

@@ -1,7 +1,7 @@
-# Generated from camd/daemon/models.py by `python -m camd.daemon.client_types_gen`: do not edit.
+# Generated from camd/daemon/models/ by `python -m camd.daemon.client_types_gen`: do not edit.
 """The JSON documents of the camd HTTP API as TypedDicts: the shapes ``camd.client`` returns.
 
-Generated from the pydantic models of camd/daemon/models.py (the bodies the daemon publishes in
+Generated from the pydantic models of camd/daemon/models/ (the bodies the daemon publishes in
 /openapi.json) by ``python -m camd.daemon.client_types_gen``: to change a shape, change the
 model and run that command (tests/test_client_types.py fails while this file is stale).
 

@@ -18,7 +18,7 @@ import math
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal, cast
 
 from camd.campaign.acquisitions import run_acquisition
 from camd.campaign.measurements import MEASUREMENTS, Acquired
@@ -196,8 +196,10 @@ class StepExecutor:
             sc = step.scan
             self.client.start_scan(
                 int(sc.stages), int(sc.lines), out=str(path), scene=sc.scene,
-                mode=str(sc.mode), out_bits=None if sc.out_bits is None else int(sc.out_bits),
-                binning=str(sc.binning), quicklook=False, drive_stage=bool(sc.drive_stage),
+                mode=cast(Literal["sum", "mean"], sc.mode),
+                out_bits=None if sc.out_bits is None else int(sc.out_bits),
+                binning=cast(Literal["off", "2x2"], sc.binning), quicklook=False,
+                drive_stage=bool(sc.drive_stage),
                 closed_loop=None if sc.closed_loop is None else bool(sc.closed_loop),
                 dv_over_v=float(sc.dv_over_v),
             )  # fmt: skip

@@ -5,8 +5,9 @@ publishes them in /openapi.json). ``camd.client`` returns the same documents as 
 and types them with TypedDicts; those are rendered here from the models, so that the shapes are
 written once. ``tests/test_client_types.py`` fails when the committed file is stale.
 
-One TypedDict per response model (every model of the module that is not a request body) and per
-model nested in one, named after the model, in the module's order with nested models first. The
+One TypedDict per response model (every model of the package that is not a request body) and per
+model nested in one, named after the model, in the order of the package's ``__all__`` with nested
+models first. The
 keys are those of the JSON the API emits: FastAPI serialises a ``response_model`` with
 ``by_alias=True`` and without excluding unset, default or None values, so the key of a field is
 its serialisation alias (else its alias, else its name) and every key is present (``None``
@@ -27,13 +28,14 @@ import sys
 import textwrap
 import types
 import typing
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Annotated, Any, Literal, Union
 
 from pydantic import BaseModel
 
 from camd.daemon import models as api_models
+from camd.daemon.models.common import _Request
 from camd.markdown import write_or_check
 
 COMMAND = "python -m camd.daemon.client_types_gen"
@@ -50,20 +52,26 @@ class ClientTypesError(ValueError):
 
 
 def module_models(module: types.ModuleType = api_models) -> list[type[BaseModel]]:
-    """Every pydantic model defined in ``module``, in definition order."""
+    """Every pydantic model ``module`` defines or, a package, defines in its modules and
+    exports: in the order of its ``__all__`` (else of definition)."""
+    names = getattr(module, "__all__", None) or list(vars(module))
+    values = [getattr(module, name) for name in names]
     return [
         value
-        for value in vars(module).values()
+        for value in dict.fromkeys(values)
         if isinstance(value, type)
         and issubclass(value, BaseModel)
-        and value.__module__ == module.__name__
+        and (
+            value.__module__ == module.__name__
+            or value.__module__.startswith(f"{module.__name__}.")
+        )
         and not value.__name__.startswith("_")
     ]
 
 
 def is_request(model: type[BaseModel]) -> bool:
     """A request body (a ``_Request``: unknown keys forbidden) rather than a response."""
-    return issubclass(model, api_models._Request)
+    return issubclass(model, _Request)
 
 
 def response_models(module: types.ModuleType = api_models) -> list[type[BaseModel]]:
@@ -82,7 +90,8 @@ def response_models(module: types.ModuleType = api_models) -> list[type[BaseMode
         if model not in rank:
             raise ClientTypesError(
                 f"{' -> '.join(path)} nests {model.__module__}.{model.__name__}, which is not "
-                f"defined in {module.__name__}; define the API's models there"
+                f"exported by {module.__name__}; define the API's models there (and list it in its "
+                "__all__)"
             )
         nested = sorted(
             {m for _, annotation in json_fields(model) for m in nested_models(annotation)},
@@ -211,10 +220,10 @@ def _union(parts: list[str]) -> str:
 # -- the module -------------------------------------------------------------------------------------
 
 HEADER = f'''\
-# Generated from camd/daemon/models.py by `{COMMAND}`: do not edit.
+# Generated from camd/daemon/models/ by `{COMMAND}`: do not edit.
 """The JSON documents of the camd HTTP API as TypedDicts: the shapes ``camd.client`` returns.
 
-Generated from the pydantic models of camd/daemon/models.py (the bodies the daemon publishes in
+Generated from the pydantic models of camd/daemon/models/ (the bodies the daemon publishes in
 /openapi.json) by ``{COMMAND}``: to change a shape, change the
 model and run that command (tests/test_client_types.py fails while this file is stale).
 
@@ -228,23 +237,27 @@ from __future__ import annotations
 '''
 
 
-def _docstring(model: type[BaseModel]) -> list[str]:
-    """The model's summary (its docstring's first paragraph) as a class docstring."""
+def summary(model: type[BaseModel]) -> str:
+    """The model's summary: its docstring's first paragraph, on one line."""
     doc = model.__dict__.get("__doc__") or ""
-    summary = " ".join(doc.strip().split("\n\n")[0].split())
-    if not summary:
-        summary = f"The ``{model.__name__}`` document (its model has no docstring)."
-    summary = summary.replace("\\", "\\\\").replace('"""', '\\"\\"\\"')
-    if summary.endswith('"'):
-        summary += " "
+    text = " ".join(doc.strip().split("\n\n")[0].split())
+    return text or f"The ``{model.__name__}`` document (its model has no docstring)."
+
+
+def docstring_lines(text: str) -> list[str]:
+    """``text`` as a class docstring, wrapped to the line length."""
+    text = text.replace("\\", "\\\\").replace('"""', '\\"\\"\\"')
+    if text.endswith('"'):
+        text += " "
     width = LINE_LENGTH - len(INDENT)
-    lines = textwrap.wrap(summary, width - 3, break_long_words=False, break_on_hyphens=False)
+    lines = textwrap.wrap(text, width - 3, break_long_words=False, break_on_hyphens=False)
     lines[0] = '"""' + lines[0]
     lines[-1] += '"""'
     return [INDENT + line for line in lines]
 
 
-def _comment(text: str) -> list[str]:
+def comment_lines(text: str) -> list[str]:
+    """``text`` as comment lines of a class body, wrapped to the line length."""
     prefix = INDENT + "# "
     width = LINE_LENGTH - len(prefix)
     words = " ".join(text.split())
@@ -253,7 +266,7 @@ def _comment(text: str) -> list[str]:
 
 def render_class(model: type[BaseModel], annotations: list[str] | None = None) -> list[str]:
     """The TypedDict of ``model``; its annotations are appended to ``annotations``."""
-    lines = [f"class {model.__name__}(TypedDict):", *_docstring(model), ""]
+    lines = [f"class {model.__name__}(TypedDict):", *docstring_lines(summary(model)), ""]
     fields = json_fields(model)
     if not fields:
         raise ClientTypesError(f"{model.__name__} has no fields to emit")
@@ -266,15 +279,15 @@ def render_class(model: type[BaseModel], annotations: list[str] | None = None) -
     for key, annotation in fields:
         description = descriptions.get(key)
         if description:
-            lines += _comment(description)
+            lines += comment_lines(description)
         rendered = render_type(annotation, f"{model.__name__}.{key}")
         if annotations is not None:
             annotations.append(rendered)
-        lines += _field_lines(key, rendered)
+        lines += field_lines(key, rendered)
     return lines
 
 
-def _field_lines(key: str, rendered: str) -> list[str]:
+def field_lines(key: str, rendered: str) -> list[str]:
     """``key: rendered``, a long ``Literal[...]`` split as ruff's formatter splits it (the
     file must pass ``ruff format`` unchanged): its values on one indented line if they fit,
     else one per line with a trailing comma."""
@@ -288,37 +301,60 @@ def _field_lines(key: str, rendered: str) -> list[str]:
     return [head, *(f"{INDENT * 2}{value}," for value in inner.split(", ")), tail]
 
 
+def module_text(header: str, classes: Sequence[list[str]], annotations: Sequence[str]) -> str:
+    """A generated module: ``header``, the typing names its ``annotations`` use, ``classes``."""
+    body: list[str] = []
+    for lines in classes:
+        body += ["", "", *lines]
+    used = {name for a in annotations for name in re.findall(r"\b(Any|Literal)\b", a)}
+    imports = "from typing import " + ", ".join(sorted({"TypedDict", *used}))
+    return header + "\n" + imports + "\n" + "\n".join(body) + "\n"
+
+
 def render_client_types(models: Sequence[type[BaseModel]] | None = None) -> str:
     """The text of camd/client_types.py for ``models`` (default: the API's response models)."""
     models = response_models() if models is None else models
-    body: list[str] = []
     annotations: list[str] = []
-    for model in models:
-        body += ["", "", *render_class(model, annotations)]
-    used = {name for a in annotations for name in re.findall(r"\b(Any|Literal)\b", a)}
-    imports = "from typing import " + ", ".join(sorted({"TypedDict", *used}))
-    return HEADER + "\n" + imports + "\n" + "\n".join(body) + "\n"
+    classes = [render_class(model, annotations) for model in models]
+    return module_text(HEADER, classes, annotations)
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        prog=COMMAND,
-        description="Generate camd/client_types.py (the client's TypedDicts) from the API's "
-        "pydantic models in camd/daemon/models.py.",
-    )
+def generator_main(
+    argv: Sequence[str] | None,
+    *,
+    command: str,
+    description: str,
+    output: Path,
+    render: Callable[[], str],
+) -> int:
+    """The command line of a generator of this kind: write ``output`` with ``render()``, or
+    with ``--check`` say whether it is current (exit 1 if not, 2 if a model cannot be
+    rendered)."""
+    parser = argparse.ArgumentParser(prog=command, description=description)
     parser.add_argument(
         "--check",
         action="store_true",
         help="do not write; exit 1 if the file differs from what would be generated",
     )
-    parser.add_argument("--output", type=Path, default=OUTPUT, help="file to write or check")
+    parser.add_argument("--output", type=Path, default=output, help="file to write or check")
     args = parser.parse_args(argv)
     try:
-        text = render_client_types()
+        text = render()
     except ClientTypesError as exc:
-        print(f"client_types_gen: {exc}", file=sys.stderr)
+        print(f"{command.rpartition('.')[2]}: {exc}", file=sys.stderr)
         return 2
-    return write_or_check(args.output, text, check=args.check, command=COMMAND)
+    return write_or_check(args.output, text, check=args.check, command=command)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    return generator_main(
+        argv,
+        command=COMMAND,
+        description="Generate camd/client_types.py (the client's TypedDicts) from the API's "
+        "pydantic models in camd/daemon/models/.",
+        output=OUTPUT,
+        render=render_client_types,
+    )
 
 
 if __name__ == "__main__":

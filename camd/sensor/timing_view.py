@@ -14,10 +14,10 @@ computes everything with the equations of ``camd.timing``, so that each exists o
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Callable
-from dataclasses import dataclass
 from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field
 
 from camd.sensor.regmap import RegisterMap, RegisterValueError
 from camd.timing import (
@@ -31,9 +31,14 @@ from camd.timing import (
 ValueOf = Callable[[str], int | str]
 
 
-@dataclass(frozen=True, slots=True)
-class SensorTiming:
-    """What the sensor's registers make of its timing (SI units; JSON-ready via ``as_dict``)."""
+class SensorTiming(BaseModel):
+    """What the sensor's registers make of its timing (SI units; JSON-ready via ``as_dict``).
+
+    A frozen pydantic model, so that the API's answer (``camd.daemon.models.TimingResponse``)
+    is this model under its own name rather than a copy of its fields.
+    """
+
+    model_config = ConfigDict(frozen=True)
 
     sensor: str
     line_period_s: float
@@ -46,15 +51,20 @@ class SensorTiming:
     back_path_s: float
     tdi_line_period_s: float
     max_stages: int
-    gain: int | str | None
-    offset: int | str | None
-    readout_mode: int | str | None
-    test_pattern: int | str | None
-    exposure_register: str | None  # the value name that sets exposure_lines (its role)
+    # The settings the map gives a role to (null: it has none).
+    gain: int | str | None = None
+    offset: int | str | None = None
+    readout_mode: int | str | None = None
+    test_pattern: int | str | None = None
+    exposure_register: str | None = Field(
+        default=None,
+        description="the register (or REG.field) that sets exposure_lines: write it with "
+        "POST /api/v1/registers to change the exposure",
+    )
 
     def as_dict(self) -> dict[str, Any]:
         """Plain JSON-ready values, keyed by field name."""
-        return dataclasses.asdict(self)
+        return self.model_dump()
 
 
 def _required(regmap: RegisterMap, role: str, value: ValueOf) -> int:

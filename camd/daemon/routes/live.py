@@ -1,0 +1,214 @@
+"""The live view (docs/live-view.md): the newest frame (polled, or pushed over a WebSocket),
+the background, and the TDI waterfall's lines. Pixels leave as raw bytes with a JSON header."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+from typing import Any
+
+import anyio
+from fastapi import APIRouter, Query, Response, WebSocket, WebSocketDisconnect
+
+from camd.daemon.api_token import TOKEN_COOKIE, token_ok
+from camd.daemon.error_body import WS_POLICY_VIOLATION, error_response
+from camd.daemon.models import (
+    LIVE_LINES_MAX,
+    LIVE_WAIT_MAX_S,
+    BackgroundRequest,
+    BackgroundStatus,
+    ErrorResponse,
+)
+from camd.daemon.request_guard import API
+from camd.daemon.routes.deps import Session, needs_control
+
+# LIVE_WAIT_MAX_S (models): longest a live-view request waits for something newer.
+LIVE_POLL_S = 1.0  # a WebSocket viewer's wait for the next frame, between checks
+
+# The live view's pixels: raw bytes, or 404 while there are none yet (no_frame, no_scan,
+# no_background).
+FRAME_RESPONSES: dict[int | str, dict[str, Any]] = {
+    200: {"content": {"application/octet-stream": {}}},
+    404: {"model": ErrorResponse, "description": "nothing to show yet: the message says why"},
+}
+
+router = APIRouter(prefix=f"{API}/live", tags=["live"])
+
+
+@router.get("/frame", response_class=Response, responses=FRAME_RESPONSES)
+def get_live_frame(
+    session: Session,
+    after: int = Query(
+        default=0, ge=0, description="wait for a frame newer than this seq (0: the newest)"
+    ),
+    timeout_s: float = Query(
+        default=LIVE_WAIT_MAX_S, gt=0, le=LIVE_WAIT_MAX_S, description="longest wait, s"
+    ),
+) -> Response:
+    """The live view's newest frame (at most 20 a second are kept, whatever streams):
+    raw pixels, little-endian uint16, row by row; the header ``X-Camd-Frame`` holds its
+    JSON description (seq, counter, timestamp_ns, mode, stages, rows, cols, skipped,
+    gap_before, dtype). Reading never needs control. 404 if no frame newer than ``after``
+    came within ``timeout_s``."""
+    frame = session.live.latest() if after == 0 else session.live.wait_newer(after, timeout_s)
+    if frame is None:
+        newer = f" newer than seq {after} within {timeout_s:g} s" if after else " yet"
+        return error_response(
+            404,
+            "no_frame",
+            f"no live frame{newer}: the live view shows frames while something streams; "
+            "start a stream (`camctl stream --frames 100`), a stare or a scan",
+        )
+    return Response(
+        content=frame.pixels.astype("<u2", copy=False).tobytes(),
+        media_type="application/octet-stream",
+        headers={"X-Camd-Frame": json.dumps(frame.meta()), "Cache-Control": "no-store"},
+    )
+
+
+@router.websocket("/ws")
+async def live_ws(websocket: WebSocket) -> None:
+    """The live view pushed: for each frame the tap keeps (at most 20 a second), a text
+    message with its JSON description (as ``X-Camd-Frame``) then a binary one with its
+    pixels. A slow viewer gets fewer frames (always the newest), never a backlog, and
+    never slows the acquisition. With a token: ``?token=`` or the Authorization header."""
+    token: str = websocket.app.state.token
+    if token and not token_ok(
+        token,
+        websocket.headers.get("authorization", ""),
+        websocket.query_params.get("token"),
+        websocket.cookies.get(TOKEN_COOKIE),
+    ):
+        await websocket.close(code=WS_POLICY_VIOLATION, reason="no or wrong token")
+        return
+    await websocket.accept()
+    live = websocket.app.state.session.live
+
+    async def watch_for_close(scope: anyio.CancelScope) -> None:
+        # A viewer that goes away is noticed at once, not at the next frame.
+        with contextlib.suppress(WebSocketDisconnect):
+            while (await websocket.receive())["type"] != "websocket.disconnect":
+                pass
+        scope.cancel()
+
+    async with anyio.create_task_group() as group:
+        group.start_soon(watch_for_close, group.cancel_scope)
+        seq = 0
+        try:
+            while True:
+                frame = await anyio.to_thread.run_sync(
+                    live.wait_newer, seq, LIVE_POLL_S, abandon_on_cancel=True
+                )
+                if frame is None:
+                    continue
+                seq = frame.seq
+                await websocket.send_text(json.dumps(frame.meta()))
+                await websocket.send_bytes(frame.pixels.astype("<u2", copy=False).tobytes())
+        except (WebSocketDisconnect, RuntimeError):  # gone between two frames
+            group.cancel_scope.cancel()
+
+
+@router.get("/background", response_model=BackgroundStatus)
+def get_live_background(session: Session) -> BackgroundStatus:
+    """The live view's background: none, capturing (progress), ready (where it came from,
+    its spatial mean and standard deviation, the recordings it was saved in) or failed
+    (why). Reading never needs control."""
+    return session.background.status()
+
+
+@router.post(
+    "/background",
+    response_model=BackgroundStatus,
+    dependencies=[needs_control("capture a background")],
+)
+def post_live_background(
+    session: Session, body: BackgroundRequest | None = None
+) -> BackgroundStatus:
+    """Average the next ``frames`` frames of the running stream into the background, and
+    return at once (poll GET). It replaces the background there was; every recording
+    started while it is ready stores it as ``/background``. 409 when nothing streams
+    (nothing changed then)."""
+    body = body or BackgroundRequest()
+    return session.background.start(body.frames)
+
+
+@router.delete(
+    "/background",
+    response_model=BackgroundStatus,
+    dependencies=[needs_control("clear the background")],
+)
+def delete_live_background(session: Session) -> BackgroundStatus:
+    """Drop the background (and stop a capture); recordings no longer get one."""
+    return session.background.clear()
+
+
+@router.get("/background/frame", response_class=Response, responses=FRAME_RESPONSES)
+def get_live_background_frame(session: Session) -> Response:
+    """The background: raw little-endian float32, row by row (DN, the mean of its frames);
+    the header ``X-Camd-Background`` holds its JSON description (seq, frames, rows, cols,
+    mode, stages, first_counter, last_counter, captured_t_s, mean_dn, std_dn, dtype).
+    404 when none is ready."""
+    background = session.background.capture.ready()
+    if background is None:
+        state = session.background.status()
+        why = {"capturing": "one is being captured", "failed": "the last capture failed"}
+        return error_response(
+            404,
+            "no_background",
+            f"no background is ready ({why.get(state.state, 'none was captured')}); "
+            "capture one while something streams: POST /api/v1/live/background "
+            '{"frames": 16}, then poll GET /api/v1/live/background',
+        )
+    return Response(
+        content=background.pixels.astype("<f4", copy=False).tobytes(),
+        media_type="application/octet-stream",
+        headers={
+            "X-Camd-Background": json.dumps(background.meta()),
+            "Cache-Control": "no-store",
+        },
+    )
+
+
+@router.get("/lines", response_class=Response, responses=FRAME_RESPONSES)
+def get_live_lines(
+    session: Session,
+    after: int = Query(
+        default=-1, ge=-1, description="the last line index the viewer has (-1: none)"
+    ),
+    max_lines: int = Query(
+        default=512, ge=1, le=LIVE_LINES_MAX, alias="max", description="most lines to send"
+    ),
+    timeout_s: float = Query(
+        default=0.0,
+        ge=0,
+        le=LIVE_WAIT_MAX_S,
+        description="with no line newer than after: longest wait for one, s",
+    ),
+) -> Response:
+    """The live view's waterfall: the newest integrated lines of the running (or last)
+    TDI scan with index > ``after``, at most ``max``, the newest ones. Raw little-endian
+    float32, ``n`` x ``cols`` row by row; the header ``X-Camd-Lines`` holds their JSON
+    description (scan, scan_seq, first_index, n, cols, index, complete, stages_used,
+    skipped, lines_done, lines_planned, state, dtype). With none newer, waits up to
+    ``timeout_s`` for one, then answers ``n`` = 0 with an empty body. 404 before the
+    first scan. Reading never needs control."""
+    lines = session.live_lines
+    if timeout_s > 0:
+        lines.wait_newer(after, timeout_s)
+    chunk = lines.since(after, max_lines)
+    if chunk is None:
+        return error_response(
+            404,
+            "no_scan",
+            "no scan has run since the daemon started: the live lines are those of the "
+            "running or last TDI scan; start one (`camctl scan --stages 8 --lines 1000`)",
+        )
+    return Response(
+        content=chunk.data.astype("<f4", copy=False).tobytes(),
+        media_type="application/octet-stream",
+        # Compact: with 2048 lines the flags and indices make a header of tens of kB.
+        headers={
+            "X-Camd-Lines": json.dumps(chunk.meta(), separators=(",", ":")),
+            "Cache-Control": "no-store",
+        },
+    )
