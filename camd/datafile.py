@@ -1,9 +1,10 @@
 """What the data files of config/ (camera, stage and wheel profiles, register maps) have in common.
 
 ``Sourced`` holds a physical value with its provenance (a paper's section, or why it was
-assumed); ``DataFileError`` is a file that does not validate, its message starting with
-``file:line:``; ``located`` turns a pydantic ValidationError (or a ``KeyedError`` a check
-raised) into that message, with the line of the key in the TOML text. The campaign files
+assumed); ``DataFileKind`` reads every kind of TOML data file the one way (parse, validate,
+check; shipped files found by name); ``DataFileError`` is a file that does not validate, its
+message starting with ``file:line:``; ``located`` turns a pydantic ValidationError (or a
+``KeyedError`` a check raised) into that message, with the line of the key in the TOML text. The campaign files
 (YAML, camd.campaign.spec) begin their errors the same way (``place``), with the lines
 ``yaml_lines`` finds and the same words for a wrong type (``wrong_type``) and a missing or
 unknown key (``what_to_write``). Pure: the simulated camera reads the same files.
@@ -12,10 +13,11 @@ unknown key (``what_to_write``). Pure: the simulated camera reads the same files
 from __future__ import annotations
 
 import difflib
+import functools
 import re
 import tomllib
 import types
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Generic, Literal, TypeVar, Union, get_args, get_origin
@@ -23,6 +25,7 @@ from typing import Annotated, Any, Generic, Literal, TypeVar, Union, get_args, g
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 T = TypeVar("T")
+Model = TypeVar("Model", bound=BaseModel)
 
 Loc = tuple[str | int, ...]
 """A place in a data file: the keys and ``[[array]]`` indices down to it (pydantic's ``loc``)."""
@@ -102,24 +105,84 @@ def read_toml(path: Path, error: type[DataFileError]) -> tuple[str, dict[str, ob
         raise error(path, int(match.group(1)) if match else None, str(exc)) from None
 
 
-def named_file(
-    name_or_path: str | Path,
-    folder: Path,
-    *,
-    kind: str,
-    known: list[str],
-    error: type[DataFileError],
-) -> Path:
-    """The file a name (``folder/<name>.toml``) or a ``.toml`` path stands for."""
-    path = Path(name_or_path)
-    if path.suffix == ".toml":
-        return path
-    if not re.fullmatch(r"[a-z0-9_]+", str(name_or_path)):
-        raise error(path, None, f"not a {kind} name or a .toml file; known: {', '.join(known)}")
-    path = folder / f"{name_or_path}.toml"
-    if not path.is_file():
-        raise FileNotFoundError(f"no {kind} {name_or_path!r}; known: {', '.join(known)}")
-    return path
+class DataFileKind(Generic[Model]):
+    """One kind of TOML data file (camera profiles, stage profiles, the wheel, register maps,
+    the command dictionary), read the one way every kind is read: the TOML parsed (a syntax
+    error names the line the parser gives), validated as ``model``, then by ``check`` (which
+    raises ``KeyedError``); any error is ``error`` as ``located`` words it, ``file:line: key:
+    what to write``, without a traceback. ``named`` calls the entries of arrays of tables by
+    their names (see ``located``).
+
+    A kind shipped as ``config/<folder>/<name>.toml`` files (``folder``, called when asked: the
+    config directory is found then) is also found by name (``find``): the ``noun`` says what a
+    name stands for in the refusal of an unknown one (``no camera profile 'x'; known: ...``),
+    ``name_of`` what the name names when that is not the noun (a register map is named by its
+    ``sensor``).
+    """
+
+    def __init__(
+        self,
+        model: type[Model],
+        error: type[DataFileError],
+        *,
+        named: Mapping[str, str] | None = None,
+        check: Callable[[Model], None] | None = None,
+        folder: Callable[[], Path] | None = None,
+        noun: str = "data file",
+        name_of: str | None = None,
+    ) -> None:
+        self.model = model
+        self.error = error
+        self.named = dict(named or {})
+        self.check = check
+        self.folder = folder
+        self.noun = noun
+        self.name_of = name_of
+        # A shipped file is read once per process; one given by path is read each time it is
+        # asked for, since it may have been edited in between.
+        self.shipped: Callable[[Path], Model] = functools.cache(self.load)
+
+    def load(self, path: Path) -> Model:
+        """The file at ``path``, validated; ``error`` (``file:line: ...``) if it is not valid.
+        OSError as reading raises it (a missing file is FileNotFoundError)."""
+        text, data = read_toml(path, self.error)
+        try:
+            loaded = self.model.model_validate(data)
+            if self.check is not None:
+                self.check(loaded)
+        except (ValidationError, KeyedError) as exc:
+            raise located(
+                exc,
+                path=path,
+                text=text,
+                data=data,
+                model=self.model,
+                error=self.error,
+                named=self.named,
+            ) from None
+        return loaded
+
+    def names(self) -> list[str]:
+        """The names of the shipped files, sorted."""
+        if self.folder is None:
+            return []
+        return sorted(p.stem for p in self.folder().glob("*.toml"))
+
+    def find(self, name_or_path: str | Path) -> Model:
+        """A shipped file by name (``<folder>/<name>.toml``, read once) or a ``.toml`` file by
+        path (read each time)."""
+        path = Path(name_or_path)
+        if path.suffix == ".toml":
+            return self.load(path)
+        known = f"known: {', '.join(self.names())}"
+        if self.folder is None or not re.fullmatch(r"[a-z0-9_]+", str(name_or_path)):
+            what = f"not a {self.name_of or self.noun} name or a .toml file"
+            raise self.error(path, None, f"{what}; {known}")
+        path = self.folder() / f"{name_or_path}.toml"
+        if not path.is_file():
+            named = f"{self.noun} for {self.name_of}" if self.name_of else self.noun
+            raise FileNotFoundError(f"no {named} {name_or_path!r}; {known}")
+        return self.shipped(path)
 
 
 # -- where a validation error is -------------------------------------------------------------

@@ -9,7 +9,7 @@ from typing import Annotated
 import pytest
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from camd.datafile import DataFileError, KeyedError, Sourced, located, read_toml
+from camd.datafile import DataFileError, DataFileKind, KeyedError, Sourced, located, read_toml
 
 PATH = Path("demo.toml")
 
@@ -208,3 +208,50 @@ def test_a_toml_syntax_error_names_its_line(tmp_path: Path) -> None:
     text, data = read_toml(path, DemoError)
     assert text == TEXT
     assert data["title"] == "demo"
+
+
+def _no_untitled(demo: Demo) -> None:
+    """A check after validation, as a profile's against its register map."""
+    if demo.title == "untitled":
+        raise KeyedError("title", "give the demo a title")
+
+
+def test_one_loader_reads_validates_checks_and_finds_a_kind(tmp_path: Path) -> None:
+    """issue 32: every kind of data file is read by DataFileKind (it was five _load functions):
+    TOML syntax, the model, the check after it, all as file:line; shipped files by name."""
+    folder = tmp_path / "demos"
+    folder.mkdir()
+    (folder / "good.toml").write_text(TEXT, encoding="utf-8")
+    bad = folder / "bad.toml"
+    bad.write_text(TEXT.replace("size = 2", "size = 0"), encoding="utf-8")
+    demos = DataFileKind(Demo, DemoError, check=_no_untitled, folder=lambda: folder, noun="demo")
+
+    assert demos.names() == ["bad", "good"]
+    assert demos.find("good").title == "demo"
+    assert demos.find("good") is demos.find("good")  # a shipped file is read once
+    with pytest.raises(DemoError) as info:
+        demos.find("bad")
+    assert str(info.value) == f"{bad}:19: items.1.size: Input should be greater than or equal to 1"
+    assert info.value.line == 19
+
+    given = tmp_path / "given.toml"  # a file given by path is read each time: it may change
+    given.write_text(TEXT, encoding="utf-8")
+    assert demos.find(given).title == "demo"
+    given.write_text(TEXT.replace('"demo"', '"untitled"'), encoding="utf-8")
+    with pytest.raises(DemoError) as info:
+        demos.find(given)
+    assert str(info.value) == f"{given}:1: title: give the demo a title"
+    given.write_text(TEXT.replace("high = 5.0", "high = = 5.0"), encoding="utf-8")
+    with pytest.raises(DemoError) as info:
+        demos.load(given)
+    assert info.value.line == 6
+
+    with pytest.raises(FileNotFoundError, match=r"^no demo 'nosuch'; known: bad, good$"):
+        demos.find("nosuch")
+    with pytest.raises(DemoError, match=r"not a demo name or a \.toml file; known: bad, good$"):
+        demos.find("Not A Name")
+    maps = DataFileKind(Demo, DemoError, folder=lambda: folder, noun="map", name_of="sensor")
+    with pytest.raises(FileNotFoundError, match=r"^no map for sensor 'nosuch'; known: bad"):
+        maps.find("nosuch")
+    with pytest.raises(DemoError, match=r"not a sensor name or a \.toml file; known: bad, good$"):
+        maps.find("Not A Name")

@@ -35,13 +35,12 @@ and what to change, e.g.::
 from __future__ import annotations
 
 import math
-from functools import cache
 from pathlib import Path
 from typing import Annotated, Any, Literal, TypeVar
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from camd.datafile import DataFileError, KeyedError, Sourced, located, named_file, read_toml
+from camd.datafile import DataFileError, DataFileKind, KeyedError, Sourced
 from camd.paths import config_dir
 
 StageKind = Literal["linear", "turntable"]
@@ -314,31 +313,12 @@ def stages_dir() -> Path:
 
 def list_stage_profiles() -> list[str]:
     """Names of the shipped stage profiles."""
-    return sorted(p.stem for p in stages_dir().glob("*.toml"))
+    return _STAGES.names()
 
 
 def load_stage_profile(name_or_path: str | Path) -> StageProfile:
     """Load and validate a stage profile by name (``linear_rail``) or by ``.toml`` path."""
-    path = named_file(
-        name_or_path,
-        stages_dir(),
-        kind="stage profile",
-        known=list_stage_profiles(),
-        error=StageProfileError,
-    )
-    return _load(path) if Path(name_or_path).suffix == ".toml" else _load_cached(path)
+    return _STAGES.find(name_or_path)
 
 
-@cache
-def _load_cached(path: Path) -> StageProfile:
-    return _load(path)
-
-
-def _load(path: Path) -> StageProfile:
-    text, data = read_toml(path, StageProfileError)
-    try:
-        return StageProfile.model_validate(data)
-    except ValidationError as exc:
-        raise located(
-            exc, path=path, text=text, data=data, model=StageProfile, error=StageProfileError
-        ) from None
+_STAGES = DataFileKind(StageProfile, StageProfileError, folder=stages_dir, noun="stage profile")

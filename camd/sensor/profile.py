@@ -23,14 +23,13 @@ what to change, e.g.::
 from __future__ import annotations
 
 import math
-from functools import cache
 from pathlib import Path
 from typing import Annotated, Any, Literal, TypeVar
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from camd.analysis.sensor_noise import system_gain_dn_per_e
-from camd.datafile import DataFileError, KeyedError, Sourced, located, named_file, read_toml
+from camd.datafile import DataFileError, DataFileKind, KeyedError, Sourced
 from camd.paths import config_dir
 from camd.sensor.regmap import (
     FieldSpec,
@@ -308,7 +307,7 @@ def profiles_dir() -> Path:
 
 def list_profiles() -> list[str]:
     """Names of the shipped camera profiles."""
-    return sorted(p.stem for p in profiles_dir().glob("*.toml"))
+    return _PROFILES.names()
 
 
 def load_profile(name_or_path: str | Path) -> CameraProfile:
@@ -317,28 +316,7 @@ def load_profile(name_or_path: str | Path) -> CameraProfile:
     Also checks the profile against its sensor's register map: the map exists, the array
     sizes agree, and every label of the map's gain enum has a factor.
     """
-    path = named_file(
-        name_or_path, profiles_dir(), kind="camera profile", known=list_profiles(),
-        error=ProfileError,
-    )  # fmt: skip
-    return _load(path) if Path(name_or_path).suffix == ".toml" else _load_cached(path)
-
-
-@cache
-def _load_cached(path: Path) -> CameraProfile:
-    return _load(path)
-
-
-def _load(path: Path) -> CameraProfile:
-    text, data = read_toml(path, ProfileError)
-    try:
-        profile = CameraProfile.model_validate(data)
-        _check_against_map(profile)
-    except (ValidationError, KeyedError) as exc:
-        raise located(
-            exc, path=path, text=text, data=data, model=CameraProfile, error=ProfileError
-        ) from None
-    return profile
+    return _PROFILES.find(name_or_path)
 
 
 def _check_against_map(profile: CameraProfile) -> None:
@@ -402,3 +380,12 @@ def _gain_field(regmap: RegisterMap) -> FieldSpec | None:
 def _gain_enum(regmap: RegisterMap) -> dict[str, int] | None:
     spec = _gain_field(regmap)
     return None if spec is None else spec.enum
+
+
+_PROFILES = DataFileKind(
+    CameraProfile,
+    ProfileError,
+    check=_check_against_map,
+    folder=profiles_dir,
+    noun="camera profile",
+)
