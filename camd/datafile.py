@@ -1,13 +1,15 @@
-"""What the data files of config/ (camera, stage and wheel profiles, register maps) have in common.
+"""What the config files have in common: the data files of config/ (camera, stage and wheel
+profiles, register maps, the command dictionary), camd.toml and the campaigns.
 
 ``Sourced`` holds a physical value with its provenance (a paper's section, or why it was
 assumed); ``DataFileKind`` reads every kind of TOML data file the one way (parse, validate,
 check; shipped files found by name); ``DataFileError`` is a file that does not validate, its
 message starting with ``file:line:``; ``located`` turns a pydantic ValidationError (or a
-``KeyedError`` a check raised) into that message, with the line of the key in the TOML text. The campaign files
-(YAML, camd.campaign.spec) begin their errors the same way (``place``), with the lines
-``yaml_lines`` finds and the same words for a wrong type (``wrong_type``) and a missing or
-unknown key (``what_to_write``). Pure: the simulated camera reads the same files.
+``KeyedError`` a check raised) into that message, with the line of the key in the TOML text.
+``problem`` words each of pydantic's errors, the same fault in the same words in every config
+file: ``located`` and ``every_error`` (camd.toml, all its errors at once) with it, and the
+campaign files (YAML, camd.campaign.explain), which begin their errors the same way (``place``)
+with the lines ``yaml_lines`` finds. Pure: the simulated camera reads the same files.
 """
 
 from __future__ import annotations
@@ -23,6 +25,8 @@ from pathlib import Path
 from typing import Annotated, Any, Generic, Literal, TypeVar, Union, get_args, get_origin
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic.fields import FieldInfo
+from pydantic_core import ErrorDetails
 
 T = TypeVar("T")
 Model = TypeVar("Model", bound=BaseModel)
@@ -201,41 +205,111 @@ def located(
     named: Mapping[str, str] | None = None,
 ) -> DataFileError:
     """A validation error of the data file ``path`` (``text``, parsed into ``data``, validated
-    as ``model``) as ``error``: ``file:line: where: message[; hint]``.
+    as ``model``) as ``error``: ``file:line: where: what is wrong[; what to write]``.
 
     The first of pydantic's errors is reported (an unknown key before the others: a misspelt
-    key is also missing). ``where`` is its location, dotted
+    key is also missing), in the words of ``problem``. ``where`` is its location, dotted
     (``channels.2.band``); an entry of an array listed in ``named`` is called by its ``name``
     key instead, through the format given (``{"registers": "register {}"}`` gives
-    ``register GAIN: width: ...``). A ``KeyedError`` shows its own message after its label. The
-    hint says what to write: a missing key (``add ...``), an unknown key (the known keys), a
-    table where a value was written. The line is that of the key: at the top level, in a
-    ``[table]``, in the n-th ``[[array]]`` entry, or of an inline table in an array found by its
-    ``name``; else the line of the table's header; none for a missing top-level key.
+    ``register GAIN: width: ...``). A ``KeyedError`` shows its own message after its label.
+    The line is that of the key: at the top level, in a ``[table]``, in the n-th ``[[array]]``
+    entry, or of an inline table in an array found by its ``name``; else the line of the
+    table's header; none for a missing top-level key.
     """
     named = named or {}
     layout = _Layout.of(text)
     if isinstance(exc, KeyedError):
-        return _keyed(exc, (), path, layout, data, model, error, named)
+        line, message = _keyed(exc, (), layout, data, model, named)
+        return error(path, line, message)
     errors = exc.errors()
     # A misspelt key is also a missing one: the unknown key is the cause, and says what to fix.
     first = next((e for e in errors if e["type"] == "extra_forbidden"), errors[0])
-    loc = _clean_loc(first["loc"])
-    cause = first.get("ctx", {}).get("error")
+    line, message = _explained(first, model, data, named, layout)
+    return error(path, line, message)
+
+
+def every_error(
+    exc: ValidationError,
+    source: str,
+    *,
+    model: type[BaseModel],
+    text: str | None = None,
+    data: Mapping[str, Any] | None = None,
+) -> str:
+    """Every one of pydantic's errors (``data`` validated as ``model``), a line each, as
+    ``located`` words the first: ``source:line: where: what is wrong; what to write``. For a
+    file its reader wants every mistake of at once (camd.toml); without the ``text`` (values
+    given on the command line, say), no line."""
+    layout = None if text is None else _Layout.of(text)
+    lines = []
+    for err in exc.errors():
+        line, message = _explained(err, model, data or {}, {}, layout)
+        lines.append(f"{place(source, line)}: {message}")
+    return "\n".join(lines)
+
+
+def _explained(
+    err: ErrorDetails,
+    model: type[BaseModel],
+    data: Mapping[str, Any],
+    named: Mapping[str, str],
+    layout: _Layout | None,
+) -> tuple[int | None, str]:
+    """The line (None without a ``layout``) and the ``where: message`` of one error."""
+    loc = _clean_loc(err["loc"])
+    cause = err.get("ctx", {}).get("error")
     if isinstance(cause, KeyedError):
-        return _keyed(cause, loc, path, layout, data, model, error, named)
-    message = str(first["msg"]).removeprefix("Value error, ")
-    kind = str(first["type"])
-    message = wrong_type(kind, first.get("input")) or message
+        return _keyed(cause, loc, layout, data, model, named)
+    message = problem(err, model)
     if not loc:
-        return error(path, None, message)
-    if kind == "model_type":  # "... instance of Sourced[Annotated[float, FieldInfo(...)]]"
-        message = re.sub(r"(instance of \w+)\[.*\]$", r"\1", message)
+        return None, message
     segments = _segments(loc, data, model, named)
     if message.startswith(f"{segments[-1]}:"):  # a nested model's validator named itself
         segments.pop()
     where = "".join(f"{segment}: " for segment in segments)
-    return error(path, layout.line(loc, data), f"{where}{message}{_hint(model, loc, kind)}")
+    return None if layout is None else layout.line(loc, data), f"{where}{message}"
+
+
+_BOUND_ERRORS = frozenset({"greater_than", "greater_than_equal", "less_than", "less_than_equal"})
+
+
+def problem(err: ErrorDetails, model: type[BaseModel], *, yaml: bool = False) -> str:
+    """What is wrong in one of pydantic's errors (validating ``model``) and what to write
+    instead, in the words every config file's errors use (the data files of config/, camd.toml
+    and, with ``yaml``, a campaign's YAML):
+
+    - an unknown key: ``unknown key; did you mean `frames`?; known keys: frames, mode, ...``;
+    - a missing key: ``missing key; add `title = ...``` (``title: ...`` in YAML; a physical
+      value's inline table, a ``[table]``, ``[[tables]]``);
+    - a strict type: ``'8423' is a string, the wrong type; write an integer, without quotes``;
+    - a value out of its bounds: ``70000 is out of range; allowed: 0 <= port <= 65535``;
+    - a value not among a few: ``'loud' is not allowed; use 'debug', 'info', ...``;
+    - a validator's own message as it is; other errors with the value given, ``String should
+      have at most 240 characters (got 'zz...')``.
+    """
+    kind = str(err["type"])
+    loc = _clean_loc(err["loc"])
+    value = err.get("input")
+    ctx = err.get("ctx", {})
+    if kind == "extra_forbidden":
+        return f"unknown key{_hint(model, loc, kind)}"
+    if kind == "missing":
+        return f"missing key{_hint(model, loc, kind, yaml=yaml)}"
+    strict = wrong_type(kind, value)
+    if strict is not None:
+        return strict
+    shown = cut(repr(value))
+    if kind == "literal_error" and "expected" in ctx:
+        return f"{shown} is not allowed; use {ctx['expected']}"
+    if kind in _BOUND_ERRORS:
+        return f"{shown} is out of range; allowed: {_allowed(model, loc, ctx)}"
+    message = str(err["msg"]).removeprefix("Value error, ")
+    if kind == "model_type":  # "... instance of Sourced[Annotated[float, FieldInfo(...)]]"
+        message = re.sub(r"(instance of \w+)\[.*\]$", r"\1", message)
+        return message + ("" if yaml else _hint(model, loc, kind))
+    if kind in ("value_error", "assertion_error"):
+        return message  # a validator's: it says what it checked
+    return f"{message} (got {shown})"
 
 
 _TYPE_WORDS = {
@@ -257,6 +331,58 @@ def wrong_type(kind: str, value: object) -> str | None:
     if kind not in _TYPE_WORDS:
         return None
     return f"{cut(repr(value))} is {what_it_is(value)}, the wrong type; write {_TYPE_WORDS[kind]}"
+
+
+def _allowed(model: type[BaseModel], loc: Loc, ctx: Mapping[str, Any]) -> str:
+    """``0 <= port <= 65535``: the bounds of the value at ``loc``, both of them when its
+    constraints hold the one the error's ``ctx`` names, else that one."""
+    key = next((part for part in reversed(loc) if isinstance(part, str)), "value")
+    bounds = {name: ctx[name] for name in ("ge", "gt", "le", "lt") if name in ctx}
+    for group in _constraints(model, loc):
+        found = {
+            name: getattr(meta, name)
+            for meta in group
+            for name in ("ge", "gt", "le", "lt")
+            if getattr(meta, name, None) is not None
+        }
+        if all(found.get(name) == bound for name, bound in bounds.items()):
+            bounds = found
+            break
+    lo = f"{bounds['ge']} <= " if "ge" in bounds else f"{bounds['gt']} < " if "gt" in bounds else ""
+    hi = f" <= {bounds['le']}" if "le" in bounds else f" < {bounds['lt']}" if "lt" in bounds else ""
+    return f"{lo}{key}{hi}"
+
+
+def _constraints(model: type[BaseModel], loc: Loc) -> list[list[object]]:
+    """The constraints (``annotated_types.Ge`` etc.) on the value at ``loc``: a list for each
+    type it may have (a field's own, each member of a union)."""
+    if not loc:
+        return []
+    parent = _type_at(model, loc[:-1])
+    key = loc[-1]
+    groups: list[list[object]] = []
+    annotation: object
+    if isinstance(parent, type) and issubclass(parent, BaseModel) and key in parent.model_fields:
+        info = parent.model_fields[key]
+        groups.append(list(info.metadata))
+        annotation = info.annotation
+    else:
+        annotation = _member_at(parent, key)
+
+    def walk(annotation: object) -> None:
+        if get_origin(annotation) is Annotated:
+            inner, *metadata = get_args(annotation)
+            group: list[object] = []
+            for meta in metadata:
+                group += meta.metadata if isinstance(meta, FieldInfo) else [meta]
+            groups.append(group)
+            walk(inner)
+        elif get_origin(annotation) in (Union, types.UnionType):
+            for member in get_args(annotation):
+                walk(member)
+
+    walk(annotation)
+    return groups
 
 
 def line_of(text: str, data: Mapping[str, Any], loc: Sequence[str | int]) -> int | None:
@@ -324,20 +450,19 @@ def _clean_loc(loc: Sequence[str | int]) -> Loc:
 def _keyed(
     exc: KeyedError,
     outer: Loc,
-    path: Path,
-    layout: _Layout,
+    layout: _Layout | None,
     data: Mapping[str, Any],
     model: type[BaseModel],
-    error: type[DataFileError],
     named: Mapping[str, str],
-) -> DataFileError:
+) -> tuple[int | None, str]:
+    """The line and message of a ``KeyedError`` raised at ``outer`` (see ``located``)."""
     loc = outer + exc.loc
     label = exc.label
     if label is None and loc:  # the place's first key, or its named entry
         head = 2 if len(loc) > 1 and _entry_of(model, loc[:1], named) else 1
         label = _segments(loc[:head], data, model, named)[0]
     message = f"{label}: {exc.message}" if label else exc.message
-    return error(path, layout.line(loc, data), message)
+    return None if layout is None else layout.line(loc, data), message
 
 
 def _segments(
@@ -377,23 +502,14 @@ def _entry_of(model: type[BaseModel], loc: Loc, named: Mapping[str, str]) -> boo
     return _is_tables(_type_at(model, loc))
 
 
-def what_to_write(model: type[BaseModel], loc: Sequence[str | int], kind: str) -> str:
-    """What to write in a YAML file (a campaign) validated as ``model``, for pydantic's error
-    ``kind`` at ``loc``: ``; add `key: ...``` for a missing key, the key meant and the known
-    keys for an unknown one; "" otherwise."""
-    return _hint(model, _clean_loc(loc), kind, yaml=True)
-
-
 def _hint(model: type[BaseModel], loc: Loc, kind: str, *, yaml: bool = False) -> str:
     """What to write, for a missing key, an unknown key or a value that should be a table
     (in TOML, or with ``yaml`` in YAML, where a missing key is added as ``key: ...``)."""
-    key = loc[-1]
+    key = loc[-1] if loc else None
     if not isinstance(key, str):
         return ""
     if yaml and kind == "missing":
         return f"; add `{key}: ...`"
-    if yaml and kind != "extra_forbidden":
-        return ""
     tables = all(isinstance(part, str) for part in loc)
     dotted = ".".join(str(part) for part in loc)
     if kind == "missing":
@@ -424,21 +540,32 @@ def _type_at(model: type[BaseModel], loc: Loc) -> object:
     """The type the model expects at ``loc`` (None when the location leaves the models)."""
     expected: object = model
     for part in loc:
-        expected = _unwrap(expected)
-        origin, args = get_origin(expected), get_args(expected)
-        if isinstance(expected, type) and issubclass(expected, BaseModel):
-            field_info = expected.model_fields.get(str(part))
-            expected = field_info.annotation if field_info is not None else None
-        elif origin is list and args and isinstance(part, int):
-            expected = args[0]
-        elif origin is dict and len(args) == 2 and isinstance(part, str):
-            expected = args[1]
-        elif origin in (Union, types.UnionType) and isinstance(part, str):
-            # pydantic names the member of a discriminated union it tried by its tag
-            expected = next((m for m in args if part in _tags(m)), None)
-        else:
+        expected = _member_at(expected, part)
+        if expected is None:
             return None
     return _unwrap(expected)
+
+
+def _member_at(outer: object, part: str | int) -> object:
+    """The type, as annotated, at the step ``part`` of a location into the type ``outer``: a
+    model's field, a list's or tuple's item, a table's value, a discriminated union's member
+    (pydantic names the member it tried by its tag); None when there is none."""
+    outer = _unwrap(outer)
+    origin, args = get_origin(outer), get_args(outer)
+    if isinstance(outer, type) and issubclass(outer, BaseModel):
+        field_info = outer.model_fields.get(str(part))
+        return field_info.annotation if field_info is not None else None
+    if origin is list and args and isinstance(part, int):
+        return args[0]
+    if origin is tuple and args and isinstance(part, int):
+        if len(args) == 2 and args[1] is Ellipsis:
+            return args[0]
+        return args[part] if 0 <= part < len(args) else None
+    if origin is dict and len(args) == 2 and isinstance(part, str):
+        return args[1]
+    if origin in (Union, types.UnionType) and isinstance(part, str):
+        return next((m for m in args if part in _tags(m)), None)
+    return None
 
 
 def _unwrap(annotation: object) -> object:

@@ -618,7 +618,7 @@ def test_base_dictionary_is_valid(tmp_path: Path) -> None:
         pytest.param(
             '[[commands]]\nname = "WIDE"\nopcode = 0x02\n'
             'request = [{ name = "count", type = "u128" }]\n',
-            [":23: command WIDE: request.0.type: Input should be 'u8', 'u16'"],
+            [":23: command WIDE: request.0.type: 'u128' is not allowed; use 'u8', 'u16'"],
             id="unknown-field-type",
         ),
         pytest.param(
@@ -635,7 +635,7 @@ def test_base_dictionary_is_valid(tmp_path: Path) -> None:
         ),
         pytest.param(
             '[[commands]]\nname = "OOPS"\nopcode = 0x02\ncolour = "red"\n',
-            [":23: command OOPS: colour: Extra inputs are not permitted; known keys: name, opcode"],
+            [":23: command OOPS: colour: unknown key; known keys: name, opcode"],
             id="unknown-key",
         ),
     ],
