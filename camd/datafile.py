@@ -98,15 +98,24 @@ class Sourced(BaseModel, Generic[T]):
         return bool(self.assumed)
 
 
-def read_toml(path: Path, error: type[DataFileError]) -> tuple[str, dict[str, object]]:
-    """The text of a TOML data file and what it holds; a syntax error becomes ``error`` with
-    the line the parser names."""
+def read_toml(path: Path, error: type[DataFileError]) -> tuple[str, dict[str, Any]]:
+    """The text of a TOML data file and what it holds (see ``parse_toml``)."""
     text = path.read_text(encoding="utf-8")
+    return text, parse_toml(text, path, error)
+
+
+def parse_toml(
+    text: str, path: Path | str, error: type[DataFileError] = DataFileError
+) -> dict[str, Any]:
+    """What the TOML text ``text`` of the file ``path`` holds; a syntax error is ``error``,
+    ``file:line: not valid TOML: <the parser's words>``, at the line the parser names (the
+    last line when it names the end of the text), as every config file says it."""
     try:
-        return text, tomllib.loads(text)
+        return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         match = re.search(r"line (\d+)", str(exc))
-        raise error(path, int(match.group(1)) if match else None, str(exc)) from None
+        line = int(match.group(1)) if match else len(text.splitlines()) or None
+        raise error(path, line, f"not valid TOML: {exc}") from None
 
 
 class DataFileKind(Generic[Model]):

@@ -358,7 +358,7 @@ def test_a_megabyte_value_in_a_campaign_or_register_file_is_quoted_cut(
     for args, fragment in (
         (["campaign", "run", str(campaign), "--out", str(tmp_path / "out"), "--quick"],
          f"{campaign}:35: steps[2] (id 'dark').stare.frames: 'xxxx"),
-        (["reg", "load", str(registers)], f"{registers}: registers.GAIN = 'xxxx"),
+        (["reg", "load", str(registers)], f"{registers}:3: registers.GAIN = 'xxxx"),
     ):  # fmt: skip
         proc = camctl(url, *args)
         refused(proc, 2, fragment, "... (100000")  # 1000002 or 3 characters: with quotes

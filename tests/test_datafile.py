@@ -338,3 +338,58 @@ def test_the_same_fault_is_said_in_the_same_words_in_every_config_file(
         _load_any(path)
     first = str(info.value).splitlines()[0]
     assert re.match(rf"{re.escape(str(path))}(:\d+)?: {re.escape(says)}", first), first
+
+
+def test_a_toml_syntax_error_is_said_the_same_way_in_every_config_file(tmp_path: Path) -> None:
+    """issue 32: 'file:line: <parser>' (data files), 'file: not valid TOML: <parser>' (camd.toml,
+    no line) and 'source: not valid TOML: <parser>' (a saved register configuration, no line);
+    now 'file:line: not valid TOML: <parser>' in all, the last line at the end of the file."""
+    from camd.daemon.config import ConfigError, load_config
+    from camd.sensor.config_file import ConfigFileError, parse_configuration
+    from camd.sensor.profile import ProfileError, load_profile
+
+    profile = tmp_path / "profile.toml"
+    profile.write_text('profile = "x"\ncolumns = = 3\n', encoding="utf-8")
+    with pytest.raises(ProfileError) as info:
+        load_profile(profile)
+    assert str(info.value) == f"{profile}:2: not valid TOML: Invalid value (at line 2, column 11)"
+    assert info.value.line == 2
+
+    camd_toml = tmp_path / "camd.toml"
+    camd_toml.write_text("[api]\nport = = 8422\n", encoding="utf-8")
+    with pytest.raises(ConfigError) as info:
+        load_config(camd_toml, env={})
+    assert str(info.value) == f"{camd_toml}:2: not valid TOML: Invalid value (at line 2, column 8)"
+
+    with pytest.raises(ConfigFileError) as info:
+        parse_configuration('sensor = "hr400"\n[registers]\nGAIN == 3\n', source="saved.toml")
+    assert str(info.value) == "saved.toml:3: not valid TOML: Invalid value (at line 3, column 7)"
+
+    camd_toml.write_text("[api]\nport = 8422\nallowed_origins = [\n", encoding="utf-8")
+    with pytest.raises(ConfigError) as info:
+        load_config(camd_toml, env={})
+    assert str(info.value) == f"{camd_toml}:3: not valid TOML: Invalid value (at end of document)"
+
+
+def test_a_saved_register_configuration_names_the_line_too() -> None:
+    """issue 32: a saved register configuration's errors began `file:` alone; now `file:line:`
+    as every config file's, and an unknown key in the same words."""
+    from camd.sensor.config_file import ConfigFileError, parse_configuration
+
+    good = 'sensor = "hr400"\n\n[registers]\nOFFSET = 0x0010\nWIN_ROWS = 0x0216\n'
+    for text, expected in [
+        (good.replace("0x0216", "-1"),
+         "saved.toml:5: registers.WIN_ROWS = -1 is not a raw register value; give a "
+         "non-negative integer (e.g. 0x02F5)"),
+        (good.replace("0x0216", "true"),
+         "saved.toml:5: registers.WIN_ROWS = True is not a raw register value; give a "
+         "non-negative integer (e.g. 0x02F5)"),
+        (good.replace('sensor = "hr400"\n', 'sensor = "hr400"\ncolour = 1\n'),
+         "saved.toml:2: colour: unknown key; known keys: sensor, registers"),
+        (good.replace('sensor = "hr400"\n', ""),
+         'saved.toml: a configuration needs sensor = "<name>" and a [registers] table; write '
+         "one with `camctl reg save FILE`"),
+    ]:  # fmt: skip
+        with pytest.raises(ConfigFileError) as info:
+            parse_configuration(text, source="saved.toml")
+        assert str(info.value) == expected

@@ -658,4 +658,7 @@ def test_unreadable_dictionary(tmp_path: Path) -> None:
         load_dictionary(tmp_path / "missing.toml")
     with pytest.raises(DictionaryError) as info:
         load_text(tmp_path, BASE + "\nversion = [\n")
-    assert str(info.value) == f"{tmp_path / 'protocol.toml'}: Invalid value (at end of document)"
+    last = len((BASE + "\nversion = [\n").splitlines())  # the end of the file: its last line
+    assert str(info.value) == (
+        f"{tmp_path / 'protocol.toml'}:{last}: not valid TOML: Invalid value (at end of document)"
+    )

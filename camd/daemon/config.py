@@ -16,7 +16,6 @@ from __future__ import annotations
 import hashlib
 import os
 import tempfile
-import tomllib
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -49,7 +48,7 @@ from camd.daemon.config_sections import (
     is_loopback,
     normal_origin,
 )
-from camd.datafile import every_error
+from camd.datafile import DataFileError, every_error, parse_toml
 from camd.paths import config_dir
 
 # The names defined here, and the sections' names that importers took from here before the
@@ -186,13 +185,13 @@ def load_config(path: Path | None = None, *, env: Mapping[str, str] | None = Non
     path = default_config_path() if path is None else Path(path)
     try:
         text = path.read_text()
-        data = tomllib.loads(text)
+        data = parse_toml(text, path)
     except FileNotFoundError:
         raise ConfigError(f"{path}: config file not found; give an existing --config") from None
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read the config file: {exc.strerror}") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: not valid TOML: {exc}") from None
+    except DataFileError as exc:
+        raise ConfigError(str(exc)) from None
     return config_from_dict(data, source=str(path), env=env, text=text)
 
 
