@@ -26,17 +26,20 @@ from camd.datafile.places import (
     yaml_problem,
 )
 from camd.datafile.quoting import ERROR_MESSAGE_MAX, SHOWN_MAX, WORD_MAX, bounded, cut, what_it_is
-from camd.datafile.sourced import Sourced
+from camd.datafile.sourced import Count, NonNegative, Positive, Sourced, physical, unit_of
 from camd.datafile.words import every_error, located, problem, wrong_type
 
 __all__ = [
     "ERROR_MESSAGE_MAX",
     "SHOWN_MAX",
     "WORD_MAX",
+    "Count",
     "DataFileError",
     "DataFileKind",
     "KeyedError",
     "Loc",
+    "NonNegative",
+    "Positive",
     "Sourced",
     "bounded",
     "cut",
@@ -44,9 +47,11 @@ __all__ = [
     "line_of",
     "located",
     "parse_toml",
+    "physical",
     "place",
     "problem",
     "read_toml",
+    "unit_of",
     "what_it_is",
     "wrong_type",
     "yaml_line",

@@ -1,13 +1,19 @@
-"""``Sourced``: a physical value of a data file with its provenance (a paper's section, or
-why it was assumed)."""
+"""The physical values of the data files: ``Sourced``, a value with its provenance (a paper's
+section, or why it was assumed); the bounds they share (``Positive``, ``NonNegative``,
+``Count``); a model's key for one, with its unit kept for the docs (``physical``,
+``unit_of``)."""
 
 from __future__ import annotations
 
-from typing import Generic, TypeVar
+from typing import Annotated, Any, Generic, TypeVar
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 T = TypeVar("T")
+
+Positive = Annotated[float, Field(gt=0)]
+NonNegative = Annotated[float, Field(ge=0)]
+Count = Annotated[int, Field(ge=1)]
 
 
 class Sourced(BaseModel, Generic[T]):
@@ -40,3 +46,19 @@ class Sourced(BaseModel, Generic[T]):
     @property
     def is_assumed(self) -> bool:
         return bool(self.assumed)
+
+
+def physical(description: str, unit: str, default: Any = ...) -> Any:
+    """A model's key that holds a physical value (required unless a ``default`` is given);
+    its unit is kept for the docs (``unit_of``)."""
+    return Field(default, description=description, json_schema_extra={"unit": unit})
+
+
+def unit_of(model: type[BaseModel], key: str) -> str | None:
+    """The unit of ``model``'s physical key ``key`` ("" for a label or a pure number), None
+    for a key that is not a physical value."""
+    extra = model.model_fields[key].json_schema_extra
+    if isinstance(extra, dict):
+        unit = extra.get("unit")
+        return unit if isinstance(unit, str) else None
+    return None

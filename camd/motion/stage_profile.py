@@ -36,20 +36,24 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Annotated, Any, Literal, TypeVar
+from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from camd.datafile import DataFileError, DataFileKind, KeyedError, Sourced
+from camd.datafile import (
+    Count,
+    DataFileError,
+    DataFileKind,
+    KeyedError,
+    Positive,
+    Sourced,
+    unit_of,
+)
+from camd.datafile import physical as _key
 from camd.paths import config_dir
 
 StageKind = Literal["linear", "turntable"]
 
-T = TypeVar("T")
-
-Positive = Annotated[float, Field(gt=0)]
-NonNegative = Annotated[float, Field(ge=0)]
-Count = Annotated[int, Field(ge=1)]
 Microsteps = Annotated[int, Field(ge=1, le=256)]
 OpenFraction = Annotated[float, Field(gt=0, lt=1)]
 TorqueFraction = Annotated[float, Field(ge=0, lt=1)]
@@ -61,11 +65,6 @@ TURNTABLE_KEYS = ("gear_ratio", "radius_m", "table_encoder_counts_per_rev")
 
 class StageProfileError(DataFileError):
     """A stage profile is invalid; the message starts with ``file:line:`` (or ``file:``)."""
-
-
-def _key(description: str, unit: str, default: Any = ...) -> Any:
-    """A profile key; the unit is kept for the docs (``StageProfile.unit_of``)."""
-    return Field(default, description=description, json_schema_extra={"unit": unit})
 
 
 class StageSim(BaseModel):
@@ -214,11 +213,7 @@ class StageProfile(BaseModel):
     @classmethod
     def unit_of(cls, key: str) -> str | None:
         """The unit of a physical key, None for other keys."""
-        extra = cls.model_fields[key].json_schema_extra
-        if isinstance(extra, dict):
-            unit = extra.get("unit")
-            return unit if isinstance(unit, str) else None
-        return None
+        return unit_of(cls, key)
 
     # -- derived values -------------------------------------------------------------------------
 

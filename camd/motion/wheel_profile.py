@@ -22,19 +22,22 @@ the line of the key and what to change.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Literal, TypeVar
+from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from camd.datafile import DataFileError, DataFileKind, KeyedError, Sourced
+from camd.datafile import (
+    Count,
+    DataFileError,
+    DataFileKind,
+    KeyedError,
+    NonNegative,
+    Positive,
+    Sourced,
+)
 from camd.paths import config_dir
 from camd.timing.wheel import WheelExposure, wheel_exposure
 
-T = TypeVar("T")
-
-Positive = Annotated[float, Field(gt=0)]
-NonNegative = Annotated[float, Field(ge=0)]
-Count = Annotated[int, Field(ge=1)]
 AxisDeg = Annotated[float, Field(ge=0, lt=180)]
 Stability = Annotated[float, Field(ge=0, lt=1)]
 

@@ -24,12 +24,22 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Annotated, Any, Literal, TypeVar
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from camd.analysis.sensor_noise import system_gain_dn_per_e
-from camd.datafile import DataFileError, DataFileKind, KeyedError, Sourced
+from camd.datafile import (
+    Count,
+    DataFileError,
+    DataFileKind,
+    KeyedError,
+    NonNegative,
+    Positive,
+    Sourced,
+    unit_of,
+)
+from camd.datafile import physical as _key
 from camd.paths import config_dir
 from camd.sensor.regmap import (
     FieldSpec,
@@ -43,13 +53,8 @@ from camd.timing import rolling_line_period_s
 Shutter = Literal["rolling", "global", "frame_transfer", "full_frame"]
 SHUTTERS: tuple[str, ...] = ("rolling", "global", "frame_transfer", "full_frame")
 
-T = TypeVar("T")
-
-Positive = Annotated[float, Field(gt=0)]
-NonNegative = Annotated[float, Field(ge=0)]
 Fraction = Annotated[float, Field(gt=0, le=1)]
 SmallFraction = Annotated[float, Field(ge=0, lt=1)]
-Count = Annotated[int, Field(ge=1)]
 Bits = Annotated[int, Field(ge=1, le=16)]
 Celsius = Annotated[float, Field(ge=-273.15)]
 
@@ -143,11 +148,6 @@ def _code_key(key: str) -> int | None:
         return None
 
 
-def _key(description: str, unit: str) -> Any:
-    """A required profile key; the unit is kept for the docs (``CameraProfile.unit_of``)."""
-    return Field(description=description, json_schema_extra={"unit": unit})
-
-
 class CameraProfile(BaseModel):
     """One camera's physical facts, as loaded from ``config/profiles/<name>.toml``."""
 
@@ -239,11 +239,7 @@ class CameraProfile(BaseModel):
     @classmethod
     def unit_of(cls, key: str) -> str | None:
         """The unit of a physical key ("" for a label or pure number), None for other keys."""
-        extra = cls.model_fields[key].json_schema_extra
-        if isinstance(extra, dict):
-            unit = extra.get("unit")
-            return unit if isinstance(unit, str) else None
-        return None
+        return unit_of(cls, key)
 
     def sourced(self, key: str) -> Sourced[Any]:
         """The ``Sourced`` entry of a physical key."""
