@@ -73,15 +73,17 @@ def set_registers(doc: dict[str, Any], registers: dict[str, Any]) -> None:
     ("edit", "fragments"),
     [
         (lambda d: set_stare_frames(d, -5),
-         ["steps[2] (id 'dark').stare.frames: -5 is out of range; give 1 .. 4294967295"]),
+         ["steps[2] (id 'dark').stare.frames: -5 is out of range; allowed: 1 <= frames <= "
+          "4294967295"]),
         # A parameter (its --quick override) that makes a step invalid.
         (lambda d: d["quick"].update(frames=-5),
-         ["steps[2] (id 'dark'): stare.frames: -5 is out of range; give 1 .. 4294967295",
+         ["steps[2] (id 'dark'): stare.frames: -5 is out of range; allowed: 1 <= frames <= "
+          "4294967295",
           "nothing was done: correct the campaign's parameters (or their quick overrides)"]),
         # ... inside a sweep: the message names the sweep value.
         (sweep_over_frames,
          ["steps[4] (id 'light').steps[1] (id 'stare') with photons = -1: stare.frames: -1 is "
-          "out of range; give 1 .. 4294967295"]),
+          "out of range; allowed: 1 <= frames <= 4294967295"]),
         (lambda d: set_registers(d, {"NO_SUCH": 3}),
          ["steps[0]", "registers.NO_SUCH: hr400 has no register named 'NO_SUCH'",
           "`camctl reg dump` lists them"]),
@@ -356,7 +358,7 @@ def test_a_megabyte_value_in_a_campaign_or_register_file_is_quoted_cut(
     for args, fragment in (
         (["campaign", "run", str(campaign), "--out", str(tmp_path / "out"), "--quick"],
          f"{campaign}:35: steps[2] (id 'dark').stare.frames: 'xxxx"),
-        (["reg", "load", str(registers)], f"{registers}: registers.GAIN = 'xxxx"),
+        (["reg", "load", str(registers)], f"{registers}:3: registers.GAIN = 'xxxx"),
     ):  # fmt: skip
         proc = camctl(url, *args)
         refused(proc, 2, fragment, "... (100000")  # 1000002 or 3 characters: with quotes
@@ -428,7 +430,7 @@ STARE_KEYS = "frames, mode, stages, binning, timeout_s"
         ("profile: hr400\n", "", "1: profile: missing key; add `profile: ...`"),
         ("stages: 1}", "stages: 5000}",
          "26: steps[2] (id 'light').steps[1] (id 'stare').stare.stages: 5000 is out of range; "
-         "give 1 .. 4096"),
+         "allowed: 1 <= stages <= 4096"),
         ("  - id: dark\n    kind: acquire\n", "  - id: dark\n    kind: acquir\n",
          "9: steps[0] (id 'dark').kind: 'acquir' is not a step kind; give one of configure, "
          "sweep, acquire, measure, check"),
@@ -461,8 +463,8 @@ STARE_KEYS = "frames, mode, stages, binning, timeout_s"
         # ... and with the parameters substituted: the line of the key that uses the parameter.
         ("  frames: 4", "  frames: 0",
          "26: steps[2] (id 'light').steps[1] (id 'stare') with photons = 2e+07: stare.frames: 0 "
-         "is out of range; give 1 .. 4294967295\nnothing was done: correct the campaign's "
-         "parameters (or their quick overrides) that this step uses"),
+         "is out of range; allowed: 1 <= frames <= 4294967295\nnothing was done: correct the "
+         "campaign's parameters (or their quick overrides) that this step uses"),
     ],
     ids=["typo", "wrong-type", "wrong-type-deep", "missing-key", "missing-top-level-key",
          "out-of-range-deep", "unknown-kind", "missing-kind", "yaml-syntax", "repeated-key", "unknown-function",

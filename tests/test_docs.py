@@ -91,9 +91,7 @@ def test_bad_dictionary_is_reported(tmp_path: Path, capsys: pytest.CaptureFixtur
     bad = tmp_path / "bad.toml"
     bad.write_text("version = 0\n")
     assert main(["--dictionary", str(bad), "--output", str(tmp_path / "p.md")]) == 2
-    assert (
-        f"{bad}:1: version: Input should be greater than or equal to 1" in capsys.readouterr().err
-    )
+    assert f"{bad}:1: version: 0 is out of range; allowed: 1 <= version" in capsys.readouterr().err
     assert not (tmp_path / "p.md").exists()
 
 

@@ -330,12 +330,12 @@ def test_top_level_and_table_errors_point_at_their_key(tmp_path: Path) -> None:
     with pytest.raises(RegisterMapError) as info:
         load_register_map(path)
     assert str(info.value) == (
-        f"{path}:{line}: spi.address_bits: Input should be less than or equal to 16"
+        f"{path}:{line}: spi.address_bits: 17 is out of range; allowed: 1 <= address_bits <= 16"
     )
     path, line = corrupt(tmp_path, "hr400", "columns = 2048", "columns = 0")
     with pytest.raises(RegisterMapError) as info:
         load_register_map(path)
-    assert str(info.value) == f"{path}:{line}: columns: Input should be greater than or equal to 1"
+    assert str(info.value) == f"{path}:{line}: columns: 0 is out of range; allowed: 1 <= columns"
 
 
 def test_unknown_sensor_name_lists_the_known_ones() -> None:

@@ -117,7 +117,7 @@ RAIL_TEXT = (STAGES / "linear_rail.toml").read_text(encoding="utf-8")
             "lower max_speed_m_s to at most 0.625",
         ),
         ("microsteps = { value = 16,", "microsteps = { value = 512,", "microsteps.value"),
-        ("[sim]", "[sim]\nbogus = 1", "sim.bogus: Extra inputs are not permitted; known keys:"),
+        ("[sim]", "[sim]\nbogus = 1", "sim.bogus: unknown key; known keys:"),
         (
             'travel_m = { value = 1.2, assumed = "room',
             'travel_m = { value = 1.2, source = "x", assumed = "room',

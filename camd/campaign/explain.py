@@ -15,8 +15,8 @@ from typing import Any, get_args
 import yaml
 from pydantic import BaseModel, ValidationError
 
-from camd.campaign.spec import RANGES, Step, SweepStep
-from camd.datafile import Loc, place, what_to_write, wrong_type, yaml_line, yaml_lines
+from camd.campaign.spec import Step, SweepStep
+from camd.datafile import Loc, place, problem, yaml_line, yaml_lines
 
 __all__ = ["STEP_KINDS", "CampaignFile", "explain", "walk_steps"]
 
@@ -66,7 +66,6 @@ def explain(
             loc = (*loc, "kind")  # the step's `kind` is what is wrong or missing
         where: list[str] = []
         node: Any = doc
-        leaf = ""
         for part in loc:
             if isinstance(part, int) and isinstance(node, list):
                 node = node[part] if part < len(node) else None
@@ -79,7 +78,6 @@ def explain(
             elif isinstance(node, dict) and part in node:
                 node = node[part]
                 where.append(str(part))
-                leaf = str(part)
             elif part in STEP_KINDS:
                 pass  # the discriminated union's tag: not a key of the file
             elif isinstance(node, dict) and (
@@ -91,7 +89,7 @@ def explain(
         key = ".".join(where) or "(top level)"
         if loc[-1] == "constrained-str" and err["type"] == "string_pattern_mismatch":
             references.add(key)
-        rank, message = _message(err, leaf, model, loc)
+        rank, message = _message(err, model)
         line = yaml_line(lines, (*at, *loc)) if lines is not None else None
         if key not in found or rank < found[key][0]:
             found[key] = (rank, line, message)
@@ -109,28 +107,27 @@ STEP_KINDS: tuple[str, ...] = tuple(
 """The kinds of step, the tags of ``Step``: configure, sweep, acquire, measure, check."""
 
 
-def _message(err: Any, leaf: str, model: type[BaseModel], loc: Loc) -> tuple[int, str]:
-    """(rank, text) of one pydantic error: range errors first, then others, type mismatches of
-    a union's alternatives last (a count given as -5 is out of range, not "not a ${ref}")."""
+_BOUNDS = ("greater_than_equal", "less_than_equal", "greater_than", "less_than")
+
+
+def _message(err: Any, model: type[BaseModel]) -> tuple[int, str]:
+    """(rank, text) of one pydantic error, in the words of every config file's errors
+    (``camd.datafile.problem``): range errors first, then others, type mismatches of a union's
+    alternatives last (a count given as -5 is out of range, not "not a ${ref}")."""
     kind = err["type"]
-    if kind in ("extra_forbidden", "missing"):
-        hint = what_to_write(model, loc, kind)
-        if kind == "missing":
-            return 0, f"missing key{hint}"
-        return 0, f"unknown key{hint or '; docs/campaigns.md lists the keys'}"
     if kind == "union_tag_not_found":
         return 0, f"missing key; add `kind: ...`, one of {', '.join(STEP_KINDS)}"
     if kind == "union_tag_invalid":
         tag = err["ctx"]["tag"]
         return 0, f"{tag!r} is not a step kind; give one of {', '.join(STEP_KINDS)}"
-    if kind in ("greater_than_equal", "less_than_equal", "greater_than", "less_than"):
-        if leaf in RANGES:
-            lo, hi = RANGES[leaf]
-            return 0, f"{err['input']!r} is out of range; give {lo} .. {hi}"
-        return 0, f"{err['input']!r}: {err['msg']}"
+    message = problem(err, model, yaml=True)
+    if message == "unknown key":  # inside a union: the known keys depend on its member
+        message += "; docs/campaigns.md lists the keys"
     if kind.endswith("_type") or kind.endswith("_parsing") or kind == "string_pattern_mismatch":
-        return 2, wrong_type(kind, err["input"]) or f"{err['input']!r}: {err['msg']}"
-    return 1, f"{err['msg']}"
+        return 2, message
+    if kind in ("extra_forbidden", "missing", *_BOUNDS):
+        return 0, message
+    return 1, message
 
 
 def walk_steps(steps: list[Any], where: str, at: Loc = ("steps",)) -> list[tuple[str, Loc, Any]]:

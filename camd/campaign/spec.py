@@ -82,7 +82,7 @@ RANGES: dict[str, tuple[int, int]] = {
     "passes": (1, 1000),
     "seed": (0, 0xFFFFFFFF),
 }
-"""The valid range of each count, by key: the schema's bounds and its error messages."""
+"""The valid range of each count, by key: the schema's bounds (its errors name them)."""
 
 Frames = Annotated[int, Field(ge=RANGES["frames"][0], le=RANGES["frames"][1])]
 Stages = Annotated[int, Field(ge=RANGES["stages"][0], le=RANGES["stages"][1])]

@@ -5,8 +5,10 @@ The defaults give a working simulated camera on 127.0.0.1:8422. ``load_config`` 
 with the file, the dotted key path and what is allowed; docs/config.md lists every key.
 
 The sections live beside this module: the daemon's own ([daemon], [api], [campaigns]) in
-config_sections.py, the camera's in config_camera.py; the error messages are written by
-config_errors.py. ``Config`` assembles them, chooses the backends and derives the paths.
+config_sections.py, the camera's in config_camera.py; the error messages are those of every
+config file (``camd.datafile.every_error``: each mistake on a line of its own, where the data
+files of config/ report their first). ``Config`` assembles them, chooses the backends and
+derives the paths.
 """
 
 from __future__ import annotations
@@ -14,7 +16,6 @@ from __future__ import annotations
 import hashlib
 import os
 import tempfile
-import tomllib
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -36,7 +37,6 @@ from camd.daemon.config_camera import (
     UsbBackend,
     telemetry_channels,
 )
-from camd.daemon.config_errors import format_errors
 from camd.daemon.config_sections import (
     TOKEN_ENV,
     ApiSection,
@@ -48,7 +48,7 @@ from camd.daemon.config_sections import (
     is_loopback,
     normal_origin,
 )
-from camd.datafile import line_of
+from camd.datafile import DataFileError, every_error, parse_toml
 from camd.paths import config_dir
 
 # The names defined here, and the sections' names that importers took from here before the
@@ -185,13 +185,13 @@ def load_config(path: Path | None = None, *, env: Mapping[str, str] | None = Non
     path = default_config_path() if path is None else Path(path)
     try:
         text = path.read_text()
-        data = tomllib.loads(text)
+        data = parse_toml(text, path)
     except FileNotFoundError:
         raise ConfigError(f"{path}: config file not found; give an existing --config") from None
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read the config file: {exc.strerror}") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: not valid TOML: {exc}") from None
+    except DataFileError as exc:
+        raise ConfigError(str(exc)) from None
     return config_from_dict(data, source=str(path), env=env, text=text)
 
 
@@ -234,8 +234,7 @@ def config_from_dict(
     try:
         return Config.model_validate(merged)
     except ValidationError as exc:
-        where = None if text is None else (lambda loc: line_of(text, data, loc))
-        raise ConfigError(format_errors(exc, source, where, root=Config)) from None
+        raise ConfigError(every_error(exc, source, model=Config, text=text, data=data)) from None
 
 
 def with_overrides(
@@ -257,4 +256,4 @@ def with_overrides(
     try:
         return Config.model_validate(data)
     except ValidationError as exc:
-        raise ConfigError(format_errors(exc, source, root=Config)) from None
+        raise ConfigError(every_error(exc, source, model=Config)) from None

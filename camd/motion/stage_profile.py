@@ -35,22 +35,25 @@ and what to change, e.g.::
 from __future__ import annotations
 
 import math
-from functools import cache
 from pathlib import Path
-from typing import Annotated, Any, Literal, TypeVar
+from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from camd.datafile import DataFileError, KeyedError, Sourced, located, named_file, read_toml
+from camd.datafile import (
+    Count,
+    DataFileError,
+    DataFileKind,
+    KeyedError,
+    Positive,
+    Sourced,
+    unit_of,
+)
+from camd.datafile import physical as _key
 from camd.paths import config_dir
 
 StageKind = Literal["linear", "turntable"]
 
-T = TypeVar("T")
-
-Positive = Annotated[float, Field(gt=0)]
-NonNegative = Annotated[float, Field(ge=0)]
-Count = Annotated[int, Field(ge=1)]
 Microsteps = Annotated[int, Field(ge=1, le=256)]
 OpenFraction = Annotated[float, Field(gt=0, lt=1)]
 TorqueFraction = Annotated[float, Field(ge=0, lt=1)]
@@ -62,11 +65,6 @@ TURNTABLE_KEYS = ("gear_ratio", "radius_m", "table_encoder_counts_per_rev")
 
 class StageProfileError(DataFileError):
     """A stage profile is invalid; the message starts with ``file:line:`` (or ``file:``)."""
-
-
-def _key(description: str, unit: str, default: Any = ...) -> Any:
-    """A profile key; the unit is kept for the docs (``StageProfile.unit_of``)."""
-    return Field(default, description=description, json_schema_extra={"unit": unit})
 
 
 class StageSim(BaseModel):
@@ -215,11 +213,7 @@ class StageProfile(BaseModel):
     @classmethod
     def unit_of(cls, key: str) -> str | None:
         """The unit of a physical key, None for other keys."""
-        extra = cls.model_fields[key].json_schema_extra
-        if isinstance(extra, dict):
-            unit = extra.get("unit")
-            return unit if isinstance(unit, str) else None
-        return None
+        return unit_of(cls, key)
 
     # -- derived values -------------------------------------------------------------------------
 
@@ -314,31 +308,12 @@ def stages_dir() -> Path:
 
 def list_stage_profiles() -> list[str]:
     """Names of the shipped stage profiles."""
-    return sorted(p.stem for p in stages_dir().glob("*.toml"))
+    return _STAGES.names()
 
 
 def load_stage_profile(name_or_path: str | Path) -> StageProfile:
     """Load and validate a stage profile by name (``linear_rail``) or by ``.toml`` path."""
-    path = named_file(
-        name_or_path,
-        stages_dir(),
-        kind="stage profile",
-        known=list_stage_profiles(),
-        error=StageProfileError,
-    )
-    return _load(path) if Path(name_or_path).suffix == ".toml" else _load_cached(path)
+    return _STAGES.find(name_or_path)
 
 
-@cache
-def _load_cached(path: Path) -> StageProfile:
-    return _load(path)
-
-
-def _load(path: Path) -> StageProfile:
-    text, data = read_toml(path, StageProfileError)
-    try:
-        return StageProfile.model_validate(data)
-    except ValidationError as exc:
-        raise located(
-            exc, path=path, text=text, data=data, model=StageProfile, error=StageProfileError
-        ) from None
+_STAGES = DataFileKind(StageProfile, StageProfileError, folder=stages_dir, noun="stage profile")

@@ -21,21 +21,23 @@ the line of the key and what to change.
 
 from __future__ import annotations
 
-from functools import cache
 from pathlib import Path
-from typing import Annotated, Literal, TypeVar
+from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from camd.datafile import DataFileError, KeyedError, Sourced, located, read_toml
+from camd.datafile import (
+    Count,
+    DataFileError,
+    DataFileKind,
+    KeyedError,
+    NonNegative,
+    Positive,
+    Sourced,
+)
 from camd.paths import config_dir
 from camd.timing.wheel import WheelExposure, wheel_exposure
 
-T = TypeVar("T")
-
-Positive = Annotated[float, Field(gt=0)]
-NonNegative = Annotated[float, Field(ge=0)]
-Count = Annotated[int, Field(ge=1)]
 AxisDeg = Annotated[float, Field(ge=0, lt=180)]
 Stability = Annotated[float, Field(ge=0, lt=1)]
 
@@ -184,26 +186,13 @@ def default_wheel_path() -> Path:
 
 def load_wheel_profile(path: Path | str | None = None) -> WheelProfile:
     """Load and validate the wheel file (``config/wheel.toml`` when ``path`` is None)."""
-    if path is None:
-        return _load_cached(default_wheel_path())
-    return _load(Path(path))
-
-
-@cache
-def _load_cached(path: Path) -> WheelProfile:
-    return _load(path)
-
-
-def _load(path: Path) -> WheelProfile:
+    file = default_wheel_path() if path is None else Path(path)
     try:
-        text, data = read_toml(path, WheelProfileError)
+        return _WHEEL.shipped(file) if path is None else _WHEEL.load(file)
     except FileNotFoundError:
         raise FileNotFoundError(
-            f"no wheel file {path}; give the path of a wheel TOML file (see config/wheel.toml)"
+            f"no wheel file {file}; give the path of a wheel TOML file (see config/wheel.toml)"
         ) from None
-    try:
-        return WheelProfile.model_validate(data)
-    except ValidationError as exc:
-        raise located(
-            exc, path=path, text=text, data=data, model=WheelProfile, error=WheelProfileError
-        ) from None
+
+
+_WHEEL = DataFileKind(WheelProfile, WheelProfileError)

@@ -11,13 +11,12 @@ from __future__ import annotations
 import math
 import struct
 from collections.abc import Mapping
-from functools import cache
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, model_validator
 
-from camd.datafile import DataFileError, located, read_toml
+from camd.datafile import DataFileError, DataFileKind
 from camd.paths import config_dir
 from camd.protocol.frame import MAX_PAYLOAD
 
@@ -435,33 +434,18 @@ class Dictionary(BaseModel):
 
 def load_dictionary(path: Path | str | None = None) -> Dictionary:
     """Load and validate a dictionary file (default: the shipped config/protocol.toml)."""
-    if path is None:
-        return _default_dictionary()
-    return _load(Path(path))
-
-
-@cache
-def _default_dictionary() -> Dictionary:
-    return _load(config_dir() / "protocol.toml")
-
-
-# Entries of the dictionary's arrays are called by their names in its errors.
-_NAMED = {
-    kind: f"{kind.rstrip('s')} {{}}" for kind in ("errors", "commands", "telemetry", "events")
-}
-
-
-def _load(path: Path) -> Dictionary:
+    file = config_dir() / "protocol.toml" if path is None else Path(path)
     try:
-        text, data = read_toml(path, DictionaryError)
+        return _DICTIONARIES.shipped(file) if path is None else _DICTIONARIES.load(file)
     except OSError as exc:
         raise DictionaryError(
-            path, None, f"cannot read the command dictionary: {exc.strerror or exc}"
+            file, None, f"cannot read the command dictionary: {exc.strerror or exc}"
         ) from None
-    try:
-        return Dictionary.model_validate(data)
-    except ValidationError as exc:
-        raise located(
-            exc, path=path, text=text, data=data, model=Dictionary, error=DictionaryError,
-            named=_NAMED,
-        ) from None  # fmt: skip
+
+
+_DICTIONARIES = DataFileKind(
+    Dictionary,
+    DictionaryError,
+    # Entries of the dictionary's arrays are called by their names in its errors.
+    named={k: f"{k.rstrip('s')} {{}}" for k in ("errors", "commands", "telemetry", "events")},
+)

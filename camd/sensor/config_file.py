@@ -15,8 +15,9 @@ writes them to the sensor (all before anything is written).
 from __future__ import annotations
 
 import re
-import tomllib
 from collections.abc import Mapping
+
+from camd.datafile import DataFileError, line_of, parse_toml, place
 
 _NAME = re.compile(r"^[A-Z][A-Z0-9_]*$")
 
@@ -41,11 +42,16 @@ def format_configuration(sensor: str, registers: Mapping[str, int], *, note: str
 
 
 def parse_configuration(text: str, *, source: str = "configuration") -> tuple[str, dict[str, int]]:
-    """(sensor, {register name: raw value}) from a configuration's text."""
+    """(sensor, {register name: raw value}) from a configuration's text; ConfigFileError
+    ``source:line: ...`` (the line of the key) otherwise, as every config file's errors."""
     try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigFileError(f"{source}: not valid TOML: {exc}") from None
+        data = parse_toml(text, source)
+    except DataFileError as exc:
+        raise ConfigFileError(str(exc)) from None
+
+    def at(*loc: str) -> str:
+        return place(source, line_of(text, data, loc))
+
     sensor = data.get("sensor")
     registers = data.get("registers")
     if not isinstance(sensor, str) or not isinstance(registers, dict):
@@ -55,13 +61,14 @@ def parse_configuration(text: str, *, source: str = "configuration") -> tuple[st
         )
     unknown = sorted(set(data) - {"sensor", "registers"})
     if unknown:
-        raise ConfigFileError(f"{source}: unknown key(s) {', '.join(unknown)}; remove them")
+        key = unknown[0]
+        raise ConfigFileError(f"{at(key)}: {key}: unknown key; known keys: sensor, registers")
     values: dict[str, int] = {}
     for name, value in registers.items():
         if isinstance(value, bool) or not isinstance(value, int) or value < 0:
             raise ConfigFileError(
-                f"{source}: registers.{name} = {value!r} is not a raw register value; "
-                "give a non-negative integer (e.g. 0x02F5)"
+                f"{at('registers', name)}: registers.{name} = {value!r} is not a raw register "
+                "value; give a non-negative integer (e.g. 0x02F5)"
             )
         values[name.upper()] = value
     return sensor, values

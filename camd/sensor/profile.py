@@ -23,14 +23,23 @@ what to change, e.g.::
 from __future__ import annotations
 
 import math
-from functools import cache
 from pathlib import Path
-from typing import Annotated, Any, Literal, TypeVar
+from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from camd.analysis.sensor_noise import system_gain_dn_per_e
-from camd.datafile import DataFileError, KeyedError, Sourced, located, named_file, read_toml
+from camd.datafile import (
+    Count,
+    DataFileError,
+    DataFileKind,
+    KeyedError,
+    NonNegative,
+    Positive,
+    Sourced,
+    unit_of,
+)
+from camd.datafile import physical as _key
 from camd.paths import config_dir
 from camd.sensor.regmap import (
     FieldSpec,
@@ -44,13 +53,8 @@ from camd.timing import rolling_line_period_s
 Shutter = Literal["rolling", "global", "frame_transfer", "full_frame"]
 SHUTTERS: tuple[str, ...] = ("rolling", "global", "frame_transfer", "full_frame")
 
-T = TypeVar("T")
-
-Positive = Annotated[float, Field(gt=0)]
-NonNegative = Annotated[float, Field(ge=0)]
 Fraction = Annotated[float, Field(gt=0, le=1)]
 SmallFraction = Annotated[float, Field(ge=0, lt=1)]
-Count = Annotated[int, Field(ge=1)]
 Bits = Annotated[int, Field(ge=1, le=16)]
 Celsius = Annotated[float, Field(ge=-273.15)]
 
@@ -144,11 +148,6 @@ def _code_key(key: str) -> int | None:
         return None
 
 
-def _key(description: str, unit: str) -> Any:
-    """A required profile key; the unit is kept for the docs (``CameraProfile.unit_of``)."""
-    return Field(description=description, json_schema_extra={"unit": unit})
-
-
 class CameraProfile(BaseModel):
     """One camera's physical facts, as loaded from ``config/profiles/<name>.toml``."""
 
@@ -240,11 +239,7 @@ class CameraProfile(BaseModel):
     @classmethod
     def unit_of(cls, key: str) -> str | None:
         """The unit of a physical key ("" for a label or pure number), None for other keys."""
-        extra = cls.model_fields[key].json_schema_extra
-        if isinstance(extra, dict):
-            unit = extra.get("unit")
-            return unit if isinstance(unit, str) else None
-        return None
+        return unit_of(cls, key)
 
     def sourced(self, key: str) -> Sourced[Any]:
         """The ``Sourced`` entry of a physical key."""
@@ -308,7 +303,7 @@ def profiles_dir() -> Path:
 
 def list_profiles() -> list[str]:
     """Names of the shipped camera profiles."""
-    return sorted(p.stem for p in profiles_dir().glob("*.toml"))
+    return _PROFILES.names()
 
 
 def load_profile(name_or_path: str | Path) -> CameraProfile:
@@ -317,28 +312,7 @@ def load_profile(name_or_path: str | Path) -> CameraProfile:
     Also checks the profile against its sensor's register map: the map exists, the array
     sizes agree, and every label of the map's gain enum has a factor.
     """
-    path = named_file(
-        name_or_path, profiles_dir(), kind="camera profile", known=list_profiles(),
-        error=ProfileError,
-    )  # fmt: skip
-    return _load(path) if Path(name_or_path).suffix == ".toml" else _load_cached(path)
-
-
-@cache
-def _load_cached(path: Path) -> CameraProfile:
-    return _load(path)
-
-
-def _load(path: Path) -> CameraProfile:
-    text, data = read_toml(path, ProfileError)
-    try:
-        profile = CameraProfile.model_validate(data)
-        _check_against_map(profile)
-    except (ValidationError, KeyedError) as exc:
-        raise located(
-            exc, path=path, text=text, data=data, model=CameraProfile, error=ProfileError
-        ) from None
-    return profile
+    return _PROFILES.find(name_or_path)
 
 
 def _check_against_map(profile: CameraProfile) -> None:
@@ -402,3 +376,12 @@ def _gain_field(regmap: RegisterMap) -> FieldSpec | None:
 def _gain_enum(regmap: RegisterMap) -> dict[str, int] | None:
     spec = _gain_field(regmap)
     return None if spec is None else spec.enum
+
+
+_PROFILES = DataFileKind(
+    CameraProfile,
+    ProfileError,
+    check=_check_against_map,
+    folder=profiles_dir,
+    noun="camera profile",
+)

@@ -20,9 +20,7 @@ offending key (the register's ``reset`` line, the field's inline table, the role
 from __future__ import annotations
 
 import math
-import re
 from collections.abc import Callable, Iterator
-from functools import cache
 from pathlib import Path
 from typing import Any, Literal
 
@@ -32,11 +30,10 @@ from pydantic import (
     Field,
     PrivateAttr,
     StrictInt,
-    ValidationError,
     model_validator,
 )
 
-from camd.datafile import DataFileError, KeyedError, located, read_toml
+from camd.datafile import DataFileError, DataFileKind, KeyedError
 from camd.paths import config_dir
 
 Access = Literal["ro", "rw", "wo", "w1c"]
@@ -1104,45 +1101,20 @@ def sensors_dir() -> Path:
 
 def list_sensors() -> list[str]:
     """Names of the shipped register maps."""
-    return sorted(p.stem for p in sensors_dir().glob("*.toml"))
+    return _MAPS.names()
 
 
 def load_register_map(sensor_or_path: str | Path) -> RegisterMap:
     """Load and validate a register map by sensor name (``hr400``) or by file path."""
-    path = Path(sensor_or_path)
-    if path.suffix != ".toml":
-        if not re.fullmatch(r"[a-z0-9_]+", str(sensor_or_path)):
-            raise RegisterMapError(path, None, "not a sensor name or a .toml file")
-        path = sensors_dir() / f"{sensor_or_path}.toml"
-        if not path.is_file():
-            known = ", ".join(list_sensors())
-            raise FileNotFoundError(
-                f"no register map for sensor {sensor_or_path!r}; known: {known}"
-            )
-        return _load_cached(path)
-    return _load(path)
+    return _MAPS.find(sensor_or_path)
 
 
-@cache
-def _load_cached(path: Path) -> RegisterMap:
-    return _load(path)
-
-
-def _load(path: Path) -> RegisterMap:
-    text, data = read_toml(path, RegisterMapError)
-    try:
-        return RegisterMap.model_validate(data)
-    except ValidationError as exc:
-        raise located(
-            exc,
-            path=path,
-            text=text,
-            data=data,
-            model=RegisterMap,
-            error=RegisterMapError,
-            named=_NAMED,
-        ) from None
-
-
-# A message calls an entry by its name: "register GAIN: field 'digital': ...".
-_NAMED = {"registers": "register {}", "groups": "group {}", "fields": "field {!r}"}
+_MAPS = DataFileKind(
+    RegisterMap,
+    RegisterMapError,
+    # A message calls an entry by its name: "register GAIN: field 'digital': ...".
+    named={"registers": "register {}", "groups": "group {}", "fields": "field {!r}"},
+    folder=sensors_dir,
+    noun="register map",
+    name_of="sensor",
+)
