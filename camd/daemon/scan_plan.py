@@ -91,6 +91,9 @@ class StagePlan:
     rewind_to_m: float | None  # where to go first when the scan does not fit ahead
     counts_per_pixel: float  # encoder counts per image pitch (the M dV/V monitor)
     must_brake: bool  # the stage still moves: stop it and wait before programming limits
+    limits: StageLimits  # programmed before the stage moves (config [stage], as planned with)
+    image_scale: float  # image metres per metre of stage travel (the line-period loop)
+    encoder_counts_per_m: float  # the closed loop's speed window in counts
 
 
 @dataclass(frozen=True, slots=True)
@@ -430,4 +433,7 @@ def _plan_stage(
         rewind_to_m=rewind,
         counts_per_pixel=stage.encoder_counts_per_m * pitch_m / stage.image_scale,
         must_brake=stage.state not in STOPPED_STATES,
+        limits=limits,
+        image_scale=stage.image_scale,
+        encoder_counts_per_m=stage.encoder_counts_per_m,
     )
