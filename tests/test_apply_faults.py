@@ -294,6 +294,73 @@ def test_a_stage_move_whose_answer_is_lost_is_stopped_where_it_stood(
     assert snapshot(client) == before
 
 
+# -- (d) a wheel acquisition's apply -------------------------------------------------------------
+
+# hr400: 513 sequencer clocks of 25 MHz per line; 3 ms of exposure is round(3e-3 / T_line) = 146
+# lines, which the EXPOSURE group (EXP_HI, EXP_LO) holds in EXP_LO alone.
+WHEEL_EXPOSURE_S = 0.003
+WHEEL_LINES = 146
+
+
+@pytest.mark.parametrize(
+    ("command", "labels"),
+    [
+        # The compensation switch fails: the exposure written before it goes back.
+        ("WHEEL_COMPENSATION", "registers EXP_LO"),
+        # The acquisition's start fails: the compensation and the exposure go back.
+        ("WHEEL_ACQUIRE", "delay compensation {was}, registers EXP_LO"),
+    ],
+)
+def test_a_wheel_acquisition_that_fails_while_being_applied_is_put_back(
+    client: CamdClient, command: str, labels: str
+) -> None:
+    small_window(client)
+    wheel = client.wheel()
+    assert wheel["speed_deg_s"] > 0  # the simulated wheel turns from power-on
+    was = wheel["compensation"]
+    before = snapshot(client)
+    assert before["registers"]["EXP_LO"] != WHEEL_LINES
+    with failing(client, command, error="BUSY"):
+        error = refused(
+            lambda: client.wheel_acquire(
+                [3], exposure_s=WHEEL_EXPOSURE_S, compensated=not was, timeout_s=30
+            )
+        )
+    assert (error.http_status, error.code) == (502, "device_nak"), error.message
+    assert error.message.startswith(f"{command} refused by the device: BUSY (5)")
+    word = "on" if was else "off"
+    assert error.message.endswith(restored(labels.format(was=word))), error.message
+    assert snapshot(client) == before
+    events = [e["message"] for e in client.events(limit=5)["events"]]
+    assert any(m.startswith(f"wheel acquisition failed: {command} refused") for m in events)
+    status = client.status()
+    assert status["acquisition"] is None or not status["acquisition"]["running"]
+
+
+def test_a_wheel_acquisition_the_camera_ends_early_puts_back_what_it_set(
+    client: CamdClient,
+) -> None:
+    # Part-way in the strictest sense: the acquisition ran, one of its two frames came, then the
+    # camera ended the stream. What the request had set (exposure, compensation) goes back.
+    small_window(client)
+    was = client.wheel()["compensation"]
+    before = snapshot(client)
+    with failing(client, "WHEEL_ACQUIRE", end_after_frames=1):
+        error = refused(
+            lambda: client.wheel_acquire(
+                [3, 9], exposure_s=WHEEL_EXPOSURE_S, compensated=not was, timeout_s=60
+            )
+        )
+    assert (error.http_status, error.code) == (502, "ended_early"), error.message
+    word = "on" if was else "off"
+    assert error.message.endswith(restored(f"delay compensation {word}, registers EXP_LO"))
+    assert snapshot(client) == before
+    # The slot is free: the same acquisition, asked again, runs.
+    doc = client.wheel_acquire([3], exposure_s=WHEEL_EXPOSURE_S, compensated=not was)
+    assert doc["exposure"]["exposure_lines"] == WHEEL_LINES and len(doc["frames"]) == 1
+    client.set_wheel_compensation(was)
+
+
 # -- Apply itself -----------------------------------------------------------------------------------
 
 

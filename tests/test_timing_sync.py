@@ -9,6 +9,7 @@ import pytest
 
 from camd.timing import (
     line_mismatch,
+    scan_speed,
     step_rate_hz,
     synchronous_motion,
     turntable_angular_velocity_rad_s,
@@ -116,6 +117,52 @@ def test_refusals_say_what_to_change() -> None:
     with pytest.raises(ValueError, match="metres_per_microstep must be > 0"):
         step_rate_hz(0.05, 0.0)
     assert step_rate_hz(-0.05, 1e-6) == pytest.approx(-50000.0)
+
+
+def test_scan_speed_for_a_line_period_by_eq9_with_the_deliberate_mismatch() -> None:
+    # hr400: p = 11 um, m = 0.1, T = 2 ms: V = p / (m T) = 0.055 m/s (§6 eq 9, n_mag = 1 / m).
+    exact = scan_speed(pixel_pitch_m=11e-6, image_scale=0.1, line_period_s=2e-3)
+    assert exact.sync_speed_m_s == pytest.approx(0.055, rel=1e-12)
+    assert exact.speed_m_s == exact.sync_speed_m_s and exact.dv_over_v == 0.0
+    # A deliberate dV/V = 0.1: the stage runs at (1 - dV/V) V = 49.5 mm/s, 10 % slow.
+    slow = scan_speed(pixel_pitch_m=11e-6, image_scale=0.1, line_period_s=2e-3, dv_over_v=0.1)
+    assert slow.sync_speed_m_s == exact.sync_speed_m_s
+    assert slow.speed_m_s == pytest.approx(0.0495, rel=1e-12)
+    assert slow.dv_over_v == pytest.approx(0.1, rel=1e-12)
+    # A stage that runs at its own speed: the mismatch is (V - V_m) / V, whatever its sign.
+    mt9 = scan_speed(
+        pixel_pitch_m=5.2e-6, image_scale=0.1, line_period_s=1e-3, stage_speed_m_s=-0.052 * 1.005
+    )
+    assert mt9.sync_speed_m_s == pytest.approx(0.052, rel=1e-12)
+    assert mt9.speed_m_s == pytest.approx(0.052 * 1.005, rel=1e-12)
+    assert mt9.dv_over_v == pytest.approx(-0.005, rel=1e-9)
+
+
+def test_scan_speed_refuses_what_it_cannot_solve() -> None:
+    with pytest.raises(ValueError, match=r"line_period_s must be > 0, got 0\.0"):
+        scan_speed(pixel_pitch_m=11e-6, image_scale=0.1, line_period_s=0.0)
+    with pytest.raises(ValueError, match="dv_over_v must be < 1"):
+        scan_speed(pixel_pitch_m=11e-6, image_scale=0.1, line_period_s=2e-3, dv_over_v=1.0)
+    with pytest.raises(ValueError, match="stage_speed_m_s must be finite"):
+        scan_speed(
+            pixel_pitch_m=11e-6, image_scale=0.1, line_period_s=2e-3, stage_speed_m_s=math.inf
+        )
+
+
+def test_camctl_sync_and_the_scan_planner_take_their_speed_from_the_one_solve() -> None:
+    # synchronous_motion (camctl sync) reports scan_speed's numbers to the bit.
+    sol = synchronous_motion(
+        line_period_s=1e-3,
+        stage_speed_m_s=0.0521,
+        row_time_s=10e-6,
+        pixel_pitch_m=5.2e-6,
+        image_scale=0.1,
+        metres_per_microstep=UM_PER_MICROSTEP,
+    )
+    solved = scan_speed(
+        pixel_pitch_m=5.2e-6, image_scale=0.1, line_period_s=1e-3, stage_speed_m_s=0.0521
+    )
+    assert (sol.sync_speed, sol.dv_over_v) == (solved.sync_speed_m_s, solved.dv_over_v)
 
 
 def test_line_mismatch_from_encoder_latches() -> None:

@@ -3,8 +3,10 @@
 ``MotionService`` is handed the device access and the sensor service. It drives the stage
 through ``FpgaStage`` (the MOTOR_* commands), enforces the limits of config ``[stage]``
 (programmed into the FPGA too), and answers ``camctl sync`` with
-``camd.timing.synchronous_motion`` (docs/physics.md §2, §6). A scan's motion
-(``camd.daemon.scan_motion.ScanMotion``) drives the stage through this service's public methods.
+``camd.timing.synchronous_motion`` (docs/physics.md §2, §6). For a scan it gives the planner
+the stage as it stands (``stage_context``) and a scan's motion
+(``camd.daemon.scan_motion.ScanMotion``) a ``StageDrive`` (``scan_drive``,
+``camd.daemon.stage_drive``): the stage's commands and nothing else of this service.
 Enabling and homing program the configured limits first: if the command after them fails, the
 limits in force before are put back (``camd.daemon.transaction.Apply``). A move or run whose
 answer is lost (a lost link, a silent camera) may have started: the stage is then stopped and
@@ -18,11 +20,9 @@ polling GET /api/v1/motion instead of holding a request open for as long as the 
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import threading
-import time
-from collections.abc import Iterator, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -37,14 +37,22 @@ from camd.daemon.models import (
     StageReadingModel,
     SyncResponse,
 )
+from camd.daemon.scan_plan import StageContext
 from camd.daemon.sensor_service import SensorService
+from camd.daemon.stage_drive import (
+    BRAKE_TIMEOUT_S,
+    POSITION_TOLERANCE_M,
+    WAIT_MARGIN_S,
+    StageDrive,
+    stage_errors,
+    wait_stopped,
+)
 from camd.daemon.state import Request
 from camd.daemon.transaction import Apply
 from camd.motion.stage import (
     MOVE_DURATION_MAX_S,
     STOPPED_STATES,
     FpgaStage,
-    StageLimitError,
     StageLimits,
     StageReading,
 )
@@ -55,9 +63,6 @@ from camd.timing import synchronous_motion, turntable_angular_velocity_rad_s
 
 log = logging.getLogger(__name__)
 
-WAIT_MARGIN_S = 2.0  # beyond the device's own estimate, before a wait gives up
-BRAKE_TIMEOUT_S = 10.0  # longest a stage takes to decelerate to a stop
-POSITION_TOLERANCE_M = 1e-6  # a stage this close to where it stood is back
 DEVICE_CLOCK_BACK_S = 1.0  # a reading this much older than a move's start is another device's
 
 OperationKind = Literal["move", "home"]
@@ -176,17 +181,32 @@ class MotionService:
             )
         return StageLimits(low_m=low, high_m=high, max_speed_m_s=speed, accel_m_s2=accel)
 
-    def program_limits(self) -> StageLimits:
-        """Program the configured limits into the FPGA (before any motion: a scan's)."""
-        self._forget_operation()
-        limits = self.limits_wanted()
-        with self.stage_errors():
-            self.stage.set_limits(limits)
-        return limits
+    # -- a scan's stage ----------------------------------------------------------------------------
+
+    def stage_context(self, closed_loop: bool | None) -> StageContext:
+        """The stage as it stands and what config allows it, for a scan's plan
+        (``closed_loop``: the scan request's, None for config's)."""
+        reading = self.read()
+        _, scale = self.optics()
+        return StageContext(
+            kind=self.profile.kind,
+            limits=self.limits_wanted(),
+            position_m=reading.position_m,
+            state=reading.state,
+            loop_mode=self.loop_mode(closed_loop),
+            image_scale=scale,
+            encoder_counts_per_m=self.profile.encoder_counts_per_m,
+        )
+
+    def scan_drive(self) -> StageDrive:
+        """The stage for a scan's motion: its commands, the motion events, and taking the stage
+        from a move or homing started here (no longer followed once the scan programs its
+        limits)."""
+        return StageDrive(self.stage, events=self.log_event, on_take=self._forget_operation)
 
     def status(self) -> MotionStatus:
         self.device.require(Request.MOTION_READ)
-        with self.stage_errors():
+        with stage_errors():
             reading = self.stage.read()
             limits = self.stage.limits()
         with self._operation_lock:
@@ -235,7 +255,7 @@ class MotionService:
         with Apply("stage enable", self._events, source="motion") as apply:
             if on:
                 self._program_limits_if_idle(apply)
-            with self.stage_errors():
+            with stage_errors():
                 self.stage.enable(on)
             apply.done()
         self.log_event("info", f"stage {'enabled' if on else 'released'}")
@@ -245,16 +265,16 @@ class MotionService:
         """Program the limits unless the stage moves (the FPGA refuses then; they are set), as
         a step of ``apply`` whose undo programs the limits in force before."""
         stage = self.stage
-        with self.stage_errors():
+        with stage_errors():
             state = stage.read().state
         if state not in STOPPED_STATES:
             return
         wanted = self.limits_wanted()
-        with self.stage_errors():
+        with stage_errors():
             before = stage.limits()
 
         def program(limits: StageLimits) -> None:
-            with self.stage_errors():
+            with stage_errors():
                 stage.set_limits(limits)
 
         apply.step(lambda: program(wanted), lambda: program(before), "stage limits")
@@ -271,7 +291,7 @@ class MotionService:
         stage = self.stage
 
         def run_at(speed: float) -> None:
-            with self.stage_errors():
+            with stage_errors():
                 stage.run(speed)
 
         with Apply("stage run", self._events, source="motion") as apply:
@@ -286,7 +306,7 @@ class MotionService:
     def _check_not_stopped_hard(self) -> StageReading:
         """Refuse motion in emergency stop or with the motor released, in camctl's words;
         returns the stage as it is."""
-        with self.stage_errors():
+        with stage_errors():
             reading = self.stage.read()
         if reading.state == "estop":
             raise BadRequest(
@@ -303,11 +323,11 @@ class MotionService:
 
     def _back_to(self, position_m: float) -> None:
         """Stop, and move back to ``position_m`` unless the stage stands there."""
-        with self.stage_errors():
+        with stage_errors():
             self.stage.stop()
         reading = self.wait_stopped(BRAKE_TIMEOUT_S)
         if abs(reading.position_m - position_m) > POSITION_TOLERANCE_M:
-            with self.stage_errors():
+            with stage_errors():
                 duration = self.stage.move_to(position_m)
             self.wait_stopped(duration + WAIT_MARGIN_S)
 
@@ -334,7 +354,7 @@ class MotionService:
         stage = self.stage
 
         def move() -> float:
-            with self.stage_errors():
+            with stage_errors():
                 return stage.move_to(request.position_m, request.speed_m_s)
 
         with Apply("stage move", self._events, source="motion") as apply:
@@ -352,7 +372,7 @@ class MotionService:
 
     def stop(self) -> MotionStatus:
         self.device.require(Request.MOTION_STOP)
-        with self.stage_errors():
+        with stage_errors():
             self.stage.stop()
         return self.status()
 
@@ -361,7 +381,7 @@ class MotionService:
         before = self._check_not_stopped_hard()
         with Apply("stage homing", self._events, source="motion") as apply:
             self._program_limits_if_idle(apply)
-            with self.stage_errors():
+            with stage_errors():
                 duration = self.stage.home()
             apply.done()
         speed = min(self.profile.home_speed_m_s.value, self.limits_wanted().max_speed_m_s)
@@ -380,30 +400,19 @@ class MotionService:
 
     def emergency_stop_now(self) -> bool:
         """MOTOR_ESTOP at once, whatever the daemon's state (``POST /api/v1/estop``)."""
-        with self.stage_errors():
+        with stage_errors():
             self.stage.emergency_stop()
         self.log_event("warning", "stage EMERGENCY STOP (enable to clear)")
         return True
 
     def read(self) -> StageReading:
         """The stage now (MOTOR_GET), without the state check of ``status``."""
-        with self.stage_errors():
+        with stage_errors():
             return self.stage.read()
 
     def wait_stopped(self, timeout_s: float) -> StageReading:
         """Poll until the stage stands still; raise if it does not within ``timeout_s``."""
-        deadline = time.monotonic() + timeout_s
-        while True:
-            with self.stage_errors():
-                reading = self.stage.read()
-            if reading.state in STOPPED_STATES:
-                return reading
-            if time.monotonic() > deadline:
-                raise BadRequest(
-                    f"the stage is still {reading.state} after {timeout_s:.3g} s; "
-                    "`camctl stage stop` (or estop) and check it"
-                )
-            time.sleep(0.02)
+        return wait_stopped(self.stage, timeout_s)
 
     # -- synchronisation -------------------------------------------------------------------------
 
@@ -495,15 +504,6 @@ class MotionService:
                 f"{limit * 1e3:.6g} mm/s (stage.max_speed_m_s, {self.profile.name} profile); "
                 "go slower (for a scan: a longer line period or a smaller magnification)"
             )
-
-    @staticmethod
-    @contextlib.contextmanager
-    def stage_errors() -> Iterator[None]:
-        """A StageLimitError (a motion the stage's limits forbid) becomes a BadRequest."""
-        try:
-            yield
-        except StageLimitError as exc:
-            raise BadRequest(str(exc)) from None
 
 
 def travel_ends_m(profile: StageProfile) -> tuple[float, float]:

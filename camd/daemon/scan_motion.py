@@ -2,9 +2,10 @@
 stopped after the last.
 
 ``ScanMotion`` carries out the stage part of a scan plan (``camd.daemon.scan_plan``: speed,
-travel, rewind, all checked before anything moved) through ``MotionService``'s public methods
-only: brake, limits, rewind, ramp to speed, the closed loop
-(``camd.motion.closed_loop``, docs/motion.md) on its own thread, and the stop at the end.
+travel, rewind, limits, all checked before anything moved) through a ``StageDrive``
+(``camd.daemon.stage_drive``) and nothing else: brake, limits, rewind, ramp to speed, the closed
+loop (``camd.motion.closed_loop``, docs/motion.md) on its own thread, and the stop at the end.
+Config ``[motion]`` tunes the settling and the loop.
 """
 
 from __future__ import annotations
@@ -18,10 +19,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from camd.daemon.config import MotionSection
 from camd.daemon.errors import SessionError, unreachable
-from camd.daemon.motion_service import WAIT_MARGIN_S, MotionService
 from camd.daemon.realtime import REALTIME
 from camd.daemon.scan_plan import StagePlan
+from camd.daemon.stage_drive import BRAKE_TIMEOUT_S, POSITION_TOLERANCE_M, StageDrive
 from camd.motion.closed_loop import (
     EncoderSample,
     LinePeriodSetting,
@@ -32,9 +34,6 @@ from camd.motion.closed_loop import (
 from camd.motion.stage import STOPPED_STATES, StageLimits
 
 log = logging.getLogger(__name__)
-
-BRAKE_TIMEOUT_S = 10.0  # longest wait for a moving stage to stop before a scan
-RESTORE_TOLERANCE_M = 1e-6  # a stage this close to where it stood is back
 
 
 @dataclass
@@ -58,16 +57,18 @@ class ScanMotion:
     ``speed_m_s`` is signed (the scan direction) and includes any deliberate mismatch
     ``offset`` (dV/V): the step-rate loop holds that speed, the line-period loop keeps the line
     period ``offset`` off the measured speed's; ``mode`` is "off", "step_rate" or
-    "line_period"."""
+    "line_period". ``settings`` is config ``[motion]``."""
 
     def __init__(
         self,
-        service: MotionService,
+        drive: StageDrive,
         plan: StagePlan,
+        settings: MotionSection,
         apply_line_period: Callable[[LinePeriodSetting], None] | None = None,
     ) -> None:
-        self.service = service
+        self.drive = drive
         self.plan = plan
+        self.settings = settings
         self.speed_m_s = plan.speed_m_s
         self.mode = plan.loop_mode
         self.offset = plan.offset
@@ -83,67 +84,53 @@ class ScanMotion:
     def start(self) -> None:
         """Brake if still moving, program the limits, rewind if the plan says so, enable,
         ramp to speed, settle, start the loop."""
-        service = self.service
+        drive = self.drive
         plan = self.plan
-        stage = service.stage
-        self._released = service.read().state == "disabled"
+        self._released = drive.read().state == "disabled"
         if plan.must_brake:
             # Still braking after the last scan (or moved by hand): the FPGA takes new limits
             # only from a standing stage.
-            with service.stage_errors():
-                stage.stop()
-            service.wait_stopped(BRAKE_TIMEOUT_S)
-        with service.stage_errors():
-            self._limits_before = stage.limits()
-        service.program_limits()
+            drive.brake(BRAKE_TIMEOUT_S)
+        self._limits_before = drive.limits()
+        drive.program_limits(plan.limits)
         if plan.rewind_to_m is not None:
-            service.log_event(
+            drive.log_event(
                 "info",
                 f"rewinding the stage to {plan.rewind_to_m * 1e3:.1f} mm: "
                 f"{plan.travel_m * 1e3:.1f} mm of travel needed",
             )
-            self._go_to(plan.rewind_to_m)
-        with service.stage_errors():
-            stage.enable(True)
-            ramp_s = stage.run(self.speed_m_s)
-        time.sleep(ramp_s + service.config.settle_s)
+            drive.go_to(plan.rewind_to_m)
+        ramp_s = drive.run(self.speed_m_s)
+        time.sleep(ramp_s + self.settings.settle_s)
         if self.mode != "off":
             self._thread = threading.Thread(target=self._loop, name="camd-motion-loop", daemon=True)
             self._thread.start()
-
-    def _go_to(self, position_m: float) -> None:
-        service = self.service
-        with service.stage_errors():
-            service.stage.enable(True)
-            duration = service.stage.move_to(position_m)
-        service.wait_stopped(duration + WAIT_MARGIN_S)
 
     def restore(self, position_m: float) -> None:
         """A scan that could not start: stop, put the stage back at ``position_m``, and
         release the motor again if the scan had enabled it."""
         self.finish()
-        self.service.wait_stopped(BRAKE_TIMEOUT_S)
-        reading = self.service.read()
-        if abs(reading.position_m - position_m) > RESTORE_TOLERANCE_M:
-            self._go_to(position_m)
+        drive = self.drive
+        drive.wait_stopped(BRAKE_TIMEOUT_S)
+        reading = drive.read()
+        if abs(reading.position_m - position_m) > POSITION_TOLERANCE_M:
+            drive.go_to(position_m)
         before = self._limits_before
-        if before is not None and before != self.service.stage.limits():
+        if before is not None and before != drive.limits():
             # The FPGA takes limits only from a standing stage: it stands now.
-            with self.service.stage_errors():
-                self.service.stage.set_limits(before)
+            drive.set_limits(before)
         if self._released:
-            with self.service.stage_errors():
-                self.service.stage.enable(False)
+            drive.release()
 
     def _loop(self) -> None:
         """Poll the encoder, trim the step rate or the line period (module docstring)."""
         REALTIME.enter("closed_loop")
-        config = self.service.config
-        stage = self.service.stage
-        _, scale = self.service.optics()
+        config = self.settings
+        drive = self.drive
+        scale = self.plan.image_scale
         estimator = SpeedEstimator(
             config.speed_window_s,
-            min_span_m=config.speed_window_counts / self.service.profile.encoder_counts_per_m,
+            min_span_m=config.speed_window_counts / self.plan.encoder_counts_per_m,
         )
         # ``speed_m_s`` already carries a deliberate mismatch (``offset``): hold it.
         target = self.speed_m_s
@@ -162,7 +149,7 @@ class ScanMotion:
         try:
             while not self._stop.is_set():
                 sent = time.monotonic()
-                reading = stage.read()
+                reading = drive.read()
                 round_trip = time.monotonic() - sent
                 if reading.at_limit != "none" and reading.state in STOPPED_STATES:
                     # The stage ran out of travel (the stream ran slower than planned): no
@@ -171,7 +158,7 @@ class ScanMotion:
                         f"the stage stopped at its {reading.at_limit} soft limit before the "
                         "scan ended; give it more travel (rewind, or widen the limits)"
                     )
-                    self.service.log_event("warning", self.error)
+                    self.drive.log_event("warning", self.error)
                     return
                 got = estimator.add(
                     EncoderSample(reading.time_s, reading.encoder_m, reading.position_m)
@@ -191,7 +178,7 @@ class ScanMotion:
                             baseline_s=estimator.span_s,
                         )
                         if abs(new - command) > 1e-6 * abs(command):
-                            stage.run(new)
+                            drive.trim(new)
                             command = new
                     elif self._apply_line_period is not None:
                         setting = period_trim.update(measured * scale)
@@ -209,11 +196,11 @@ class ScanMotion:
                 self._stop.wait(max(0.0, next_t - time.monotonic()))
         except SessionError as exc:  # the camera went away (or is going): one line, no trace
             self.error = f"closed loop stopped: {unreachable(exc)}"
-            self.service.log_event("warning", f"{self.error}; the scan continues open loop")
+            self.drive.log_event("warning", f"{self.error}; the scan continues open loop")
         except Exception as exc:  # the scan goes on open loop; say so
             self.error = f"closed loop stopped: {exc}"
             log.exception("closed loop")
-            self.service.log_event("warning", f"{self.error}; the scan continues open loop")
+            self.drive.log_event("warning", f"{self.error}; the scan continues open loop")
 
     def finish(self) -> None:
         """Stop the loop, then decelerate the stage to a stop."""
@@ -221,10 +208,8 @@ class ScanMotion:
         if self._thread is not None:
             self._thread.join(5.0)
         try:
-            self.service.stage.stop()
+            self.drive.stop()
         except SessionError as exc:
-            self.service.log_event(
-                "warning", f"stage not stopped after the scan: {unreachable(exc)}"
-            )
+            self.drive.log_event("warning", f"stage not stopped after the scan: {unreachable(exc)}")
         except Exception as exc:
-            self.service.log_event("warning", f"stopping the stage after the scan: {exc}")
+            self.drive.log_event("warning", f"stopping the stage after the scan: {exc}")

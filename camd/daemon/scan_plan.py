@@ -8,7 +8,8 @@ set, the optics, the stage) it computes, once, everything a scan needs (docs/sca
   general form of eq 5), the window that fits it (eqs 6-9, 13: window rows, back path, an
   exposure of at most n_lines - 1 rows, eq 3) and the register writes that set it;
 - the timing those writes realise (whole clocks), hence the synchronous stage speed (§6 eq 9),
-  the speed the stage runs at (with any deliberate dV/V) and the mismatch;
+  the speed the stage runs at (with any deliberate dV/V) and the mismatch
+  (``camd.timing.scan_speed``, the one solve ``camctl sync`` uses too);
 - for a driven stage: the travel the scan needs, whether the stage must first rewind, and the
   limits it must respect;
 - the TDI geometry (rows the engine reads, columns) and the file target with its planned size.
@@ -32,12 +33,7 @@ from camd.daemon.output_paths import SCANS_FOLDER, resolve_output
 from camd.motion.stage import STOPPED_STATES, StageLimits
 from camd.sensor.regmap import RegisterMap
 from camd.tdi import TdiEngine, stage_taps
-from camd.timing import (
-    synchronous_stage_speed_m_s,
-    tdi_line_period_s,
-    tdi_window,
-    velocity_mismatch,
-)
+from camd.timing import scan_speed, tdi_line_period_s, tdi_window
 
 DRIVEN_MISMATCH_MAX = 0.5  # |dv_over_v| a driven stage takes (0.5 .. 1.5 x synchronous)
 STREAM_END_MARGIN_S = 2.0  # stage travel planned beyond the frames' own duration
@@ -95,6 +91,9 @@ class StagePlan:
     rewind_to_m: float | None  # where to go first when the scan does not fit ahead
     counts_per_pixel: float  # encoder counts per image pitch (the M dV/V monitor)
     must_brake: bool  # the stage still moves: stop it and wait before programming limits
+    limits: StageLimits  # programmed before the stage moves (config [stage], as planned with)
+    image_scale: float  # image metres per metre of stage travel (the line-period loop)
+    encoder_counts_per_m: float  # the closed loop's speed window in counts
 
 
 @dataclass(frozen=True, slots=True)
@@ -282,19 +281,26 @@ def plan_scan(request: ScanRequest, context: ScanContext) -> ScanPlan:
     rows = after.window_rows // factor
     rows_needed = check_engine(request, request.stages, rows, cols)
 
-    sync = synchronous_stage_speed_m_s(pitch, after.tdi_line_period_s, scale)
-    speed = request.speed_m_s
+    # A driven stage runs at the synchronous speed of the line period the registers realise
+    # (whole clocks), the simulator's ideal stage at the speed asked for or that one; both
+    # offset by any deliberate mismatch asked for (for the ideal stage an exact dV/V for MTF
+    # against mismatch, docs/physics.md §6, beyond a real stage's range). An external stage
+    # runs as it runs: at the speed given, if one was.
+    offset = request.dv_over_v if stage is not None or context.ideal_stage else 0.0
+    solved = scan_speed(
+        pixel_pitch_m=pitch,
+        image_scale=scale,
+        line_period_s=after.tdi_line_period_s,
+        stage_speed_m_s=None if stage is not None else request.speed_m_s,
+        dv_over_v=offset,
+    )
+    sync = solved.sync_speed_m_s
+    speed: float | None = solved.speed_m_s
     ideal: float | None = None
-    if stage is not None:
-        # The stage runs at the synchronous speed of the line period the registers realise
-        # (whole clocks), offset by any deliberate mismatch asked for.
-        speed = sync * (1.0 - request.dv_over_v)
-    elif context.ideal_stage:
-        # The simulator's ideal stage, offset by the deliberate mismatch too: an exact dV/V
-        # for MTF against mismatch (docs/physics.md §6), beyond a real stage's range.
-        speed = (sync if speed is None else speed) * (1.0 - request.dv_over_v)
+    if stage is None and context.ideal_stage:
         ideal = speed
-    elif speed is None:
+    elif stage is None and request.speed_m_s is None:
+        speed = None
         notes.append(f"run the scan stage at {sync * 1e3:.6g} mm/s (synchronous)")
 
     frames = 0 if request.lines == 0 else request.lines + request.stages - 1
@@ -330,7 +336,7 @@ def plan_scan(request: ScanRequest, context: ScanContext) -> ScanPlan:
         exposure_s=after.exposure_s,
         sync_speed_m_s=sync,
         stage_speed_m_s=speed,
-        dv_over_v=None if speed is None else velocity_mismatch(sync, speed),
+        dv_over_v=None if speed is None else solved.dv_over_v,
     )
     lines = request.lines or (
         frames - request.stages + 1
@@ -427,4 +433,7 @@ def _plan_stage(
         rewind_to_m=rewind,
         counts_per_pixel=stage.encoder_counts_per_m * pitch_m / stage.image_scale,
         must_brake=stage.state not in STOPPED_STATES,
+        limits=limits,
+        image_scale=stage.image_scale,
+        encoder_counts_per_m=stage.encoder_counts_per_m,
     )

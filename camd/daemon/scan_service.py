@@ -7,8 +7,8 @@ services. A scan (docs/scan.md):
    the stage once and plans the whole scan from them (``camd.daemon.scan_plan.plan_scan``: line
    period, window, register writes, synchronous speed, travel, file), refusing it before
    anything is changed; then applies the plan step by step (scene, TDI mode, registers, the
-   simulator's ideal stage, the scan stage through ``camd.daemon.scan_motion.ScanMotion``, the
-   file), each step with its undo (``camd.daemon.transaction.Apply``): a failure puts back what
+   simulator's ideal stage, the scan stage through ``camd.daemon.scan_motion.ScanMotion`` on
+   the motion service's ``StageDrive``, the file), each step with its undo (``camd.daemon.transaction.Apply``): a failure puts back what
    was changed and says so;
 2. starts the stream with ``lines + M - 1`` frames and the scan's acquisition pipeline
    (``camd.pipeline.TdiPipeline``): its consumer copies each frame into a batch on the stream's
@@ -279,19 +279,8 @@ class ScanService:
         stage: StageContext | None = None
         position = 0.0
         if request.drive_stage:
-            motion = self.motion
-            reading = motion.read()
-            position = reading.position_m
-            _, scale = motion.optics()
-            stage = StageContext(
-                kind=motion.profile.kind,
-                limits=motion.limits_wanted(),
-                position_m=reading.position_m,
-                state=reading.state,
-                loop_mode=motion.loop_mode(request.closed_loop),
-                image_scale=scale,
-                encoder_counts_per_m=motion.profile.encoder_counts_per_m,
-            )
+            stage = self.motion.stage_context(request.closed_loop)
+            position = stage.position_m
         pitch, magnification = self.motion.camera_optics()
         context = ScanContext(
             timing=snapshot.timing(),
@@ -357,7 +346,12 @@ class ScanService:
                 )
             motion = None
             if plan.stage is not None:
-                motion = ScanMotion(self.motion, plan.stage, self._line_period_writer(plan.timing))
+                motion = ScanMotion(
+                    self.motion.scan_drive(),
+                    plan.stage,
+                    device.config.motion,
+                    self._line_period_writer(plan.timing),
+                )
                 apply.undo_later(
                     lambda: motion.restore(stage_position),
                     f"stage stopped and back at {stage_position * 1e3:.3f} mm",

@@ -13,9 +13,13 @@ side, from the exposure and window in the sensor's registers and ``config/wheel.
   eq 1 without compensation) and that angle's uncertainty (eq 8), next to the wheel angle the
   FPGA latched at the exposure start (the frame header's ``stage_position``, 1e-4 deg).
 
-A wheel acquisition is a counted stream started by WHEEL_ACQUIRE instead of START_STREAM
-(``StreamService.acquire(start=...)``): the same USB reader, recording and state machine
-(idle -> streaming -> idle on STREAM_DONE).
+A wheel acquisition is planned whole before the camera is touched
+(``camd.daemon.wheel_plan.plan_wheel``, pure: every refusal is raised there), then applied step
+by step, each step with its undo (``camd.daemon.transaction.Apply``): the exposure registers,
+the compensation, then a counted stream started by WHEEL_ACQUIRE instead of START_STREAM
+(``StreamService.acquire(start=...)``: the same USB reader, recording and state machine,
+idle -> streaming -> idle on STREAM_DONE). A failure on the way, the stream's included, puts
+back what was changed and says so.
 """
 
 from __future__ import annotations
@@ -24,15 +28,14 @@ import math
 import threading
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from camd.daemon.device import DeviceAccess
 from camd.daemon.errors import BadRequest, SessionError
 from camd.daemon.models import (
+    StreamResponse,
     StreamStartRequest,
-    TimingResponse,
     WheelAcquireRequest,
     WheelAcquireResponse,
     WheelChannelInfo,
@@ -41,16 +44,15 @@ from camd.daemon.models import (
     WheelRegion,
     WheelStatus,
 )
-from camd.daemon.sensor_service import SensorService
+from camd.daemon.sensor_service import RegisterSnapshot, SensorService
 from camd.daemon.state import Request
 from camd.daemon.stream_service import StreamService, StreamStart
 from camd.daemon.transaction import Apply
+from camd.daemon.wheel_plan import WheelContext, WheelPlan, exposure_now, plan_wheel
 from camd.link.frame_stream import ReceivedFrame
-from camd.motion.wheel import FilterWheel, FpgaWheel, WheelReading, WheelSpeedError
+from camd.motion.wheel import FilterWheel, FpgaWheel, WheelSpeedError
 from camd.motion.wheel_profile import WheelProfile, load_wheel_profile
 from camd.store.recording import RecordingError, check_new_file
-from camd.timing import sequencer_frame_time_s
-from camd.timing.wheel import exposure_delay_s, imaging_centre_angle_deg
 
 ANGLE_UNIT_DEG = 1e-4
 """A wheel frame header's ``stage_position`` counts the wheel angle in these units."""
@@ -147,7 +149,7 @@ class WheelService:
             window_s=profile.window_s.value,
             device_frame_time_s=reading.frame_time_s,
             device_delay_s=reading.delay_s,
-            exposure=self._exposure_now(timing, compensated=compensated, speed_deg_s=speed),
+            exposure=exposure_now(profile, timing, compensated=compensated, speed_deg_s=speed),
             channels=self._channels_info(),
             time_s=reading.time_s,
         )
@@ -198,8 +200,9 @@ class WheelService:
         self.device.require(Request.WHEEL_SET)
         if on:
             timing = self.sensor.timing()
-            info = self._exposure_now(
-                timing, compensated=True, speed_deg_s=self.profile.speed_deg_s.value
+            profile = self.profile
+            info = exposure_now(
+                profile, timing, compensated=True, speed_deg_s=profile.speed_deg_s.value
             )
             if not info.fits:
                 raise BadRequest(
@@ -251,86 +254,12 @@ class WheelService:
     def _acquire(self, request: WheelAcquireRequest) -> WheelAcquireResponse:
         # The camera first, before the exposure registers or the compensation are changed.
         self.stream.preflight("take wheel frames")
-        profile = self.profile
-        channels = self._check_channels(request.channels)
-        reading: WheelReading = self.wheel.read()
-        speed = reading.speed_deg_s
-        if speed <= 0.0:
-            raise BadRequest(
-                "the filter wheel is stopped, so no entry pulse will come: start it first "
-                f"(`camctl wheel speed {profile.speed_deg_s.value:g}`)"
-            )
-        device_compensated = reading.compensation
-        compensated = device_compensated if request.compensated is None else request.compensated
-        timing = self.sensor.timing()
-        lines = timing.exposure_lines
-        if request.exposure_s is not None:
-            lines = self._exposure_lines(request.exposure_s, timing.line_period_s)
-        planned = self.exposure_info(
-            lines,
-            timing.window_rows,
-            timing.line_period_s,
-            compensated=compensated,
-            speed_deg_s=speed,
-            exposure_s=lines * timing.line_period_s
-            if request.exposure_s is not None
-            else timing.exposure_s,
-        )
-        if not planned.fits:
-            raise BadRequest(
-                f"wheel acquisition refused, nothing changed (exposure {lines} lines = "
-                f"{planned.exposure_s * 1e3:.6g} ms, window {timing.window_rows} rows, "
-                f"compensation {'on' if compensated else 'off'}): {planned.refusal}"
-            )
-        self._check_region(request.region, timing.window_rows, self.sensor.window_columns())
+        plan, snapshot = self._plan(request)
+        # The planner is pure; the file is checked here, still before anything is changed.
         self._check_record(request.record)
-
-        with Apply("wheel acquisition", self._events, source="wheel") as apply:
-            if lines != timing.exposure_lines:
-                snapshot = self.sensor.snapshot()
-                writes = self._exposure_writes(lines)
-                changed = snapshot.changed(writes)
-                apply.step(
-                    lambda: self.sensor.write(writes),
-                    lambda: self.sensor.restore(snapshot, changed),
-                    "registers " + ", ".join(changed),
-                )
-                timing = self.sensor.timing()
-            if compensated != device_compensated:
-                apply.step(
-                    lambda: self.wheel.set_compensation(compensated),
-                    lambda: self.wheel.set_compensation(device_compensated),
-                    f"delay compensation {'on' if device_compensated else 'off'}",
-                )
-            exposure = self._exposure_now(timing, compensated=compensated, speed_deg_s=speed)
-            means = _FrameMeans(request.region)
-            start = StreamStart(
-                command="WHEEL_ACQUIRE",
-                fields={"passes": request.passes, "channels": bytes(channels)},
-                # A frame waits at most a revolution for its channel's entry pulse.
-                frame_period_s=360.0 / speed + exposure.frame_time_s,
-                metadata={
-                    "wheel": profile.wheel,
-                    "channels": channels,
-                    "passes": request.passes,
-                    "compensation": "on" if compensated else "off",
-                    "speed_deg_s": speed,
-                    "frame_time_s": exposure.frame_time_s,
-                    "delay_s": exposure.applied_delay_s,
-                    "stage_position_unit": "wheel angle at the exposure start, 1e-4 deg",
-                },
-            )
-            stream = self.stream.acquire(
-                StreamStartRequest(
-                    frames=len(channels) * request.passes,
-                    record=request.record,
-                    timeout_s=request.timeout_s,
-                ),
-                start=start,
-                consumer=means,
-            )
-            apply.done()
+        stream, means = self._apply(plan, snapshot)
         device_after = self._device_numbers()
+        exposure, speed, channels = plan.exposure, plan.speed_deg_s, plan.channels
         frames = [
             self._frame(seen, stream.first_counter, channels, exposure, speed)
             for seen in means.frames()
@@ -340,8 +269,8 @@ class WheelService:
             "wheel",
             f"wheel acquisition: {len(frames)} of {stream.frames_requested} frames through "
             f"channels {','.join(map(str, channels))} x {request.passes}, compensation "
-            f"{'on' if compensated else 'off'}, T_frame {exposure.frame_time_s * 1e3:.6g} ms, "
-            f"delay {(exposure.applied_delay_s or 0.0) * 1e3:.6g} ms",
+            f"{'on' if plan.compensated else 'off'}, T_frame {exposure.frame_time_s * 1e3:.6g} "
+            f"ms, delay {(exposure.applied_delay_s or 0.0) * 1e3:.6g} ms",
         )
         return WheelAcquireResponse(
             channels=channels,
@@ -355,71 +284,60 @@ class WheelService:
             stream=stream,
         )
 
-    # -- the computation (docs/physics.md §4) ---------------------------------------------------------------
-
-    def _exposure_now(
-        self, timing: TimingResponse, *, compensated: bool, speed_deg_s: float
-    ) -> WheelExposureInfo:
-        """``exposure_info`` for the exposure the registers set now."""
-        return self.exposure_info(
-            timing.exposure_lines,
-            timing.window_rows,
-            timing.line_period_s,
-            compensated=compensated,
-            speed_deg_s=speed_deg_s,
-            exposure_s=timing.exposure_s,
-        )
-
-    def exposure_info(
-        self,
-        exposure_lines: int,
-        window_rows: int,
-        line_period_s: float,
-        *,
-        compensated: bool,
-        speed_deg_s: float,
-        exposure_s: float,
-    ) -> WheelExposureInfo:
-        """T_frame (eq 6), T_delay (eq 5), the fit, the imaging-centre offset and its error.
-
-        The offset is eq 4 with the wheel's actual speed: the entry point is a mark on the
-        wheel, ``w0 T_center`` before the centre (``w0`` the file's speed), so at another speed
-        a compensated frame lands ``(w - w0) T_center`` off the centre (docs/wheel.md). A
-        stopped wheel is computed at the file's speed (where it will be once started).
-        """
+    def _plan(self, request: WheelAcquireRequest) -> tuple[WheelPlan, RegisterSnapshot]:
+        """Read what the plan needs (the wheel, the registers), then plan: nothing is changed."""
         profile = self.profile
-        frame = sequencer_frame_time_s(exposure_lines, window_rows, line_period_s)
-        delay = exposure_delay_s(profile.t_center_s.value, frame)
-        speed = speed_deg_s if speed_deg_s > 0 else profile.speed_deg_s.value
-        common: dict[str, Any] = {
-            "exposure_s": exposure_s,
-            "exposure_lines": exposure_lines,
-            "window_rows": window_rows,
-            "line_period_s": line_period_s,
-            "frame_time_s": frame,
-            "delay_s": delay,
-            "compensated": compensated,
-        }
-        try:
-            fitted = profile.exposure(frame, compensated=compensated)
-        except ValueError as exc:
-            return WheelExposureInfo(
-                **common,
-                fits=False,
-                refusal=str(exc),
-                applied_delay_s=None,
-                centre_offset_deg=None,
-                centre_error_deg=None,
-            )
-        offset = imaging_centre_angle_deg(-profile.entry_lead_deg, speed, fitted.delay_s, frame)
-        return WheelExposureInfo(
-            **common,
-            fits=True,
-            refusal=None,
-            applied_delay_s=fitted.delay_s,
-            centre_offset_deg=offset,
-            centre_error_deg=fitted.centre_error_deg,
+        reading = self.wheel.read()
+        snapshot = self.sensor.snapshot()
+        context = WheelContext(
+            profile=profile,
+            speed_deg_s=reading.speed_deg_s,
+            compensated=reading.compensation,
+            timing=snapshot.timing(),
+            preview=snapshot.preview,
+            regmap=self.sensor.regmap,
+            columns=snapshot.columns(),
         )
+        return plan_wheel(request, context), snapshot
+
+    def _apply(
+        self, plan: WheelPlan, snapshot: RegisterSnapshot
+    ) -> tuple[StreamResponse, _FrameMeans]:
+        """Change the camera as planned, step by step, and take the frames; on a failure the
+        steps done so far are undone (newest first) and the error says what was restored. The
+        exposure and compensation stay set after a run that succeeds."""
+        request, sensor, wheel = plan.request, self.sensor, self.wheel
+        with Apply("wheel acquisition", self._events, source="wheel") as apply:
+            writes = plan.register_writes
+            if writes:
+                changed = snapshot.changed(writes)
+                apply.step(
+                    lambda: sensor.write(writes),
+                    lambda: sensor.restore(snapshot, changed),
+                    "registers " + ", ".join(changed),
+                )
+            if plan.compensated != plan.was_compensated:
+                apply.step(
+                    lambda: wheel.set_compensation(plan.compensated),
+                    lambda: wheel.set_compensation(plan.was_compensated),
+                    f"delay compensation {'on' if plan.was_compensated else 'off'}",
+                )
+            means = _FrameMeans(request.region)
+            start = StreamStart(
+                command="WHEEL_ACQUIRE",
+                fields=plan.stream_fields,
+                frame_period_s=plan.frame_period_s,
+                metadata=plan.metadata,
+            )
+            stream = self.stream.acquire(
+                StreamStartRequest(
+                    frames=plan.frames, record=request.record, timeout_s=request.timeout_s
+                ),
+                start=start,
+                consumer=means,
+            )
+            apply.done()
+        return stream, means
 
     # -- helpers ------------------------------------------------------------------------------------------
 
@@ -435,50 +353,6 @@ class WheelService:
             )
             for i, c in enumerate(profile.channels)
         ]
-
-    def _check_channels(self, channels: list[int]) -> list[int]:
-        count = self.profile.channel_count.value
-        if not 1 <= len(channels) <= count:
-            raise BadRequest(f"give 1 to {count} channels, got {len(channels)}")
-        for channel in channels:
-            try:
-                self.profile.check_channel(channel)
-            except ValueError as exc:
-                raise BadRequest(f"{exc}; choose channels from 0 to {count - 1}") from None
-        return list(channels)
-
-    def _exposure_lines(self, exposure_s: float, line_period_s: float) -> int:
-        """Whole lines ``round(T_exp / T_line)`` (docs/physics.md §3: T_exp = n T_line)."""
-        lines = round(exposure_s / line_period_s)
-        if lines < 1:
-            raise BadRequest(
-                f"exposure {exposure_s * 1e3:.6g} ms is less than half a line "
-                f"({line_period_s * 1e6:.4g} us): give at least one line"
-            )
-        return lines
-
-    def _exposure_writes(self, lines: int) -> dict[str, int | str]:
-        """The register write that sets ``lines`` exposure lines (the map's role, its bias)."""
-        regmap = self.sensor.regmap
-        name = regmap.role("exposure_lines")
-        if name is None:
-            raise BadRequest(
-                f"sensor {regmap.sensor} has no exposure register (role exposure_lines); "
-                "leave exposure_s out and set the exposure another way"
-            )
-        _, spec = regmap.resolve(name)
-        return {name: lines - (spec.bias if spec is not None else 0)}
-
-    @staticmethod
-    def _check_region(region: WheelRegion | None, rows: int, cols: int) -> None:
-        if region is None:
-            return
-        if region.row + region.rows > rows or region.col + region.cols > cols:
-            raise BadRequest(
-                f"region rows {region.row}..{region.row + region.rows - 1}, columns "
-                f"{region.col}..{region.col + region.cols - 1} does not fit the {rows} x {cols} "
-                "frame; make it smaller"
-            )
 
     @staticmethod
     def _check_record(record: str | None) -> None:

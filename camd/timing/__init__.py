@@ -9,8 +9,9 @@ paper). Bad inputs (non-positive periods or clocks, negative counts, non-finite 
 - §2 eqs 5-9, 13, TDI window: ``tdi_line_period_s``, ``turntable_line_period_s``,
   ``tdi_window`` -> ``TdiWindow``, ``synchronous_stage_speed_m_s``
 - §6, velocity mismatch: ``velocity_mismatch`` (dV/V), ``line_mismatch`` (M dV/V per line)
-- §2 eq 5 and §6 eq 9, synchronous motion: ``synchronous_motion`` -> ``SyncSolution``,
-  ``step_rate_hz``, ``turntable_angular_velocity_rad_s``
+- §2 eq 5 and §6 eq 9, synchronous motion: ``scan_speed`` -> ``ScanSpeed`` (the stage speed
+  for a line period), ``synchronous_motion`` -> ``SyncSolution``, ``step_rate_hz``,
+  ``turntable_angular_velocity_rad_s``
 - §7, motion compensation on a full-frame CCD: ``image_velocity_m_s``,
   ``row_step_interval_s``, ``electrode_step_interval_s``, ``row_step_modulation``,
   ``electrode_step_modulation`` and their means over the offset
@@ -42,8 +43,10 @@ from camd.timing.sequencer import (
     sequencer_line_period_s,
 )
 from camd.timing.sync import (
+    ScanSpeed,
     SyncSolution,
     line_mismatch,
+    scan_speed,
     step_rate_hz,
     synchronous_motion,
     turntable_angular_velocity_rad_s,
@@ -61,6 +64,7 @@ from camd.timing.tdi import (
 __all__ = [
     "EXACT_MULTIPLE_RTOL",
     "HR400_CLOCKS_PER_LINE",
+    "ScanSpeed",
     "SyncSolution",
     "TdiWindow",
     "electrode_step_interval_s",
@@ -76,6 +80,7 @@ __all__ = [
     "rolling_line_period_s",
     "row_step_interval_s",
     "row_step_modulation",
+    "scan_speed",
     "sequencer_frame_period_lines",
     "sequencer_frame_period_s",
     "sequencer_frame_time_s",

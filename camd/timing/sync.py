@@ -2,9 +2,11 @@
 
 docs/physics.md §2 eqs 5-9 and 13 [TAO12] give the line period from the scan speed and the window
 that fits it; §6 eq 9 [YUAN13] gives the synchronous speed for a line period and the stepper's
-step rate from it. ``synchronous_motion`` solves either way round (from a line period, or from a
-stage speed) and reports the numbers ``camctl sync`` shows; ``line_mismatch`` measures the
-mismatch each TDI line saw from the encoder counts the FPGA latches into the frame headers.
+step rate from it. ``scan_speed`` is that speed for a line period, the speed the stage runs at
+and their mismatch, written once for the scan planner (``camd.daemon.scan_plan``) and
+``synchronous_motion``, which solves either way round (from a line period, or from a stage
+speed) and reports the numbers ``camctl sync`` shows; ``line_mismatch`` measures the mismatch
+each TDI line saw from the encoder counts the FPGA latches into the frame headers.
 """
 
 from __future__ import annotations
@@ -46,6 +48,51 @@ def turntable_angular_velocity_rad_s(
     size = positive("pixel_size_m", pixel_size_m)
     period = positive("tdi_line_period_s", tdi_line_period_s)
     return size / (period * positive("radius_m", radius_m))
+
+
+@dataclass(frozen=True, slots=True)
+class ScanSpeed:
+    """A scan's stage speeds for one TDI line period (``scan_speed``).
+
+    ``sync_speed_m_s`` the synchronous stage speed ``p / (m T)``; ``speed_m_s`` the speed the
+    stage runs at (a magnitude: the scan direction is the caller's); ``dv_over_v`` their
+    mismatch ``(V - V_m) / V``.
+    """
+
+    sync_speed_m_s: float
+    speed_m_s: float
+    dv_over_v: float
+
+
+def scan_speed(
+    *,
+    pixel_pitch_m: float,
+    image_scale: float,
+    line_period_s: float,
+    stage_speed_m_s: float | None = None,
+    dv_over_v: float = 0.0,
+) -> ScanSpeed:
+    """The stage speed for a TDI line period: docs/physics.md §6, "Synchronous drive" (eq 9) and
+    "Velocity mismatch".
+
+    The synchronous speed moves the image one pitch per line period, ``V = p / (m T)`` (§6 eq 9
+    with ``n_mag = 1 / m``; §2's general eq 5 solved for the speed), ``m = image_scale`` the
+    focal-plane metres per stage metre. The stage runs at ``stage_speed_m_s`` (its magnitude),
+    or at ``V`` when that is None, times ``1 - dv_over_v``: a deliberate mismatch, 0 normally.
+    The mismatch reported is ``dV/V = (V - V_m) / V`` of the speed it runs at. ``line_period_s``
+    is the period the camera realises (whole clocks), not the one asked for.
+    """
+    period = positive("line_period_s", line_period_s)
+    offset = real("dv_over_v", dv_over_v)
+    if offset >= 1.0:
+        raise ValueError(
+            f"dv_over_v must be < 1 (at 1 or more the stage would stand or run backwards), "
+            f"got {dv_over_v!r}"
+        )
+    sync = synchronous_stage_speed_m_s(pixel_pitch_m, period, image_scale)
+    base = sync if stage_speed_m_s is None else abs(real("stage_speed_m_s", stage_speed_m_s))
+    speed = base * (1.0 - offset)
+    return ScanSpeed(sync_speed_m_s=sync, speed_m_s=speed, dv_over_v=velocity_mismatch(sync, speed))
 
 
 @dataclass(frozen=True, slots=True)
@@ -94,6 +141,8 @@ def synchronous_motion(
     - both: the stage runs at ``stage_speed_m_s`` against the line period; dV/V is their
       mismatch ``(V_sync - V) / V_sync``.
 
+    The speeds and the mismatch are ``scan_speed``'s for the line period.
+
     The window follows from the line period (eqs 6-9, 13). ``stages`` defaults to M0; more
     stages than the window has rows are refused with the numbers.
     """
@@ -114,9 +163,13 @@ def synchronous_motion(
             f"{window.n_lines} rows of {row_time_s * 1e6:.6g} us (M0 = {window.max_stages}); "
             f"use at most {window.max_stages} stages or a longer line period (a slower scan)"
         )
-    sync = synchronous_stage_speed_m_s(pitch, period, scale)
-    speed = sync if stage_speed_m_s is None else abs(real("stage_speed_m_s", stage_speed_m_s))
-    mismatch = velocity_mismatch(sync, speed)
+    solved = scan_speed(
+        pixel_pitch_m=pitch,
+        image_scale=scale,
+        line_period_s=period,
+        stage_speed_m_s=stage_speed_m_s,
+    )
+    sync, mismatch = solved.sync_speed_m_s, solved.dv_over_v
     return SyncSolution(
         line_period_s=period,
         row_time_s=float(row_time_s),
