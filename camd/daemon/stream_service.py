@@ -54,7 +54,13 @@ from camd.daemon.realtime import REALTIME
 from camd.daemon.sensor_service import SensorService
 from camd.daemon.state import Request, Trigger
 from camd.daemon.transaction import Apply
-from camd.link.frame_stream import HEADER_LOG, FrameStream, ReceivedFrame, StreamError
+from camd.link.frame_stream import (
+    HEADER_LOG,
+    PACK_BYTES,
+    FrameStream,
+    ReceivedFrame,
+    StreamError,
+)
 from camd.pipeline.background import Background, BackgroundCapture
 from camd.protocol.stream import HEADER_BYTES, StreamMode
 from camd.store.durability import says_disk_full
@@ -812,6 +818,8 @@ class StreamService:
                 queue_bytes=round(self.config.queue_mb * 1e6),
                 overflow=self.config.overflow,
                 read_bytes=self.config.read_bytes,
+                # Small frames packed into transfers, where the device can (docs/stream.md).
+                pack_bytes=0 if self.config.read_bytes else PACK_BYTES,
                 timeout_s=self.config.timeout_s,
                 thread_start=REALTIME.enter,
             )
