@@ -575,10 +575,13 @@ def test_expect_first_after_the_first_frame_still_counts_the_missing_ones(rig: R
 PACK_BYTES = 64 << 10  # 20 of these 3264-byte frames per transfer
 
 
+@pytest.mark.parametrize("pack_bytes", [PACK_BYTES, 16 << 10], ids=["20 a transfer", "5"])
 def test_packed_transfers_deliver_every_frame_bit_exact_in_few_reads(
-    sock_path: Path, bank: BankSource
+    sock_path: Path, bank: BankSource, pack_bytes: int
 ) -> None:
-    rig = Rig(sock_path, bank, pack_bytes=PACK_BYTES)
+    # 20 frames a transfer are checked in one numpy pass, 5 by decode_header (VECTOR_MIN_FRAMES)
+    per_transfer = pack_bytes // FRAME_BYTES
+    rig = Rig(sock_path, bank, pack_bytes=pack_bytes)
     batches: list[int] = []
 
     class Batches:
@@ -610,8 +613,9 @@ def test_packed_transfers_deliver_every_frame_bit_exact_in_few_reads(
             399,
         )
         assert stats.lost == stats.corrupt == stats.short == stats.overruns == 0
-        assert stats.reads <= 400 // 5  # the engine sends blocks of 64: 20 frames a transfer
-        assert sum(batches) == 400 and max(batches) == PACK_BYTES // FRAME_BYTES
+        # Transfers at least half full on average (the engine packs the blocks it sends).
+        assert stats.reads < 400 // (per_transfer // 2)
+        assert sum(batches) == 400 and max(batches) == per_transfer
         assert [h.counter for h, _ in rig.stream.header_log()] == list(range(256))
     finally:
         rig.close()

@@ -26,11 +26,14 @@ from camd.protocol.stream import (
     HEADER_BYTES,
     MAGIC,
     MAX_BITS,
+    U32_WRAP,
     VERSION,
     FrameFlags,
     FrameHeader,
+    StreamFormatError,
     StreamMode,
     crc32,
+    decode_header,
 )
 
 # The header's fields at their wire offsets (camd.protocol.stream), for a strided view over
@@ -128,6 +131,41 @@ def check_frames(
         & (fields["payload_bytes"] == stride - HEADER_BYTES)
     )
     return ok
+
+
+# Below this many frames a loop of decode_header costs less than the numpy pass (about 35 us
+# whatever the count, against 2.4 us a frame).
+VECTOR_MIN_FRAMES = 16
+
+
+def is_plain_run(buf: memoryview, fields: npt.NDArray[np.void], stride: int) -> bool:
+    """True if the frames whose headers ``fields`` views (from offset 0, ``stride`` apart)
+    are the usual run: every header good, every frame ``stride`` bytes of one shape, the
+    counters one apart, LAST on none but the last. Checked in one numpy pass, or by
+    ``decode_header`` for a few frames."""
+    count = fields.shape[0]
+    if count >= VECTOR_MIN_FRAMES:
+        counters = fields["counter"].astype(np.int64)
+        return bool(
+            check_frames(buf, fields, 0, stride).all()
+            and (fields["rows"] == fields["rows"][0]).all()
+            and ((np.diff(counters) & 0xFFFFFFFF) == 1).all()
+            and not (fields["flags"][:-1] & int(FrameFlags.LAST)).any()
+        )
+    try:
+        headers = [
+            decode_header(buf[o : o + HEADER_BYTES]) for o in range(0, count * stride, stride)
+        ]
+    except StreamFormatError:
+        return False
+    first = headers[0]
+    return all(
+        h.frame_bytes == stride
+        and (h.rows, h.cols) == (first.rows, first.cols)
+        and h.counter == (first.counter + i) % U32_WRAP
+        and (i == count - 1 or not h.flags & FrameFlags.LAST)
+        for i, h in enumerate(headers)
+    )
 
 
 def header_at(fields: npt.NDArray[np.void], i: int) -> FrameHeader:
