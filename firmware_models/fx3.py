@@ -49,6 +49,7 @@ from firmware_models.fx3_wire import (
     MSG,
     MSG_CLEAR_HALT,
     MSG_READY,
+    MSG_SET_PACKING,
     MSG_STALL,
     MSG_TRANSFER,
     SOCKET_BUFFER_BYTES,
@@ -106,6 +107,9 @@ class StreamSocketServer(UnixSocketServer):
         self._cond = threading.Condition()
         self._conn: _Connection | None = None
         self._halted = False
+        # Bytes of whole frames one transfer may hold, as the host asked (PACK_REQUEST); 0:
+        # one frame per transfer, which every new host finds.
+        self.pack_bytes = 0
 
     # -- lifecycle --------------------------------------------------------------------------------
 
@@ -285,6 +289,7 @@ class StreamSocketServer(UnixSocketServer):
             with self._cond:
                 old, self._conn = self._conn, conn
                 self._halted = False  # a new host: the endpoint starts clear
+                self.pack_bytes = 0
                 self.connections_accepted += 1
                 self._cond.notify_all()
             try:
@@ -308,6 +313,11 @@ class StreamSocketServer(UnixSocketServer):
         while len(conn.rx) >= MSG.size:
             kind, length = MSG.unpack_from(conn.rx)
             del conn.rx[: MSG.size]
+            if kind == MSG_SET_PACKING:
+                with self._cond:
+                    if self._conn is conn:
+                        self.pack_bytes = length
+                continue
             if kind != MSG_CLEAR_HALT or length != 0:
                 log.warning("stream socket: unknown host message %d/%d; hanging up", kind, length)
                 self._kill(conn)
@@ -661,7 +671,8 @@ class StreamEngine:
         c = self.counters
         rng = self._rng
         transfers: list[list[bytes | memoryview]] = []
-        kinds: list[tuple[bool, bool, int]] = []  # (cut short, corrupted, bytes) per transfer
+        kinds: list[tuple[bool, bool, int]] = []  # (cut short, corrupted, bytes) per frame
+        packed = 0  # bytes in the last transfer, while whole frames may join it (packing)
 
         def flush() -> bool:
             """Send the transfers gathered so far; count them sent, or all undelivered."""
@@ -739,8 +750,15 @@ class StreamEngine:
                 keep = int(rng.integers(1, total))  # 1 .. total - 1
                 parts = [head[:keep], payload[: max(0, keep - HEADER_BYTES)]]
                 short = True
-            transfers.append(parts)
-            kinds.append((short, corrupted, sum(len(p) for p in parts)))
+            nbytes = sum(len(p) for p in parts)
+            pack = server.pack_bytes
+            if packed and not short and transfers and packed + nbytes <= pack:
+                transfers[-1].extend(parts)  # packed: whole frames back to back
+                packed += nbytes
+            else:
+                transfers.append(parts)
+                packed = 0 if short or not pack else nbytes  # a cut-short frame ends its transfer
+            kinds.append((short, corrupted, nbytes))
             overflow = False
         if not flush():
             overflow = True

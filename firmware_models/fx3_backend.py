@@ -37,8 +37,10 @@ from firmware_models.fx3_wire import (
     MSG,
     MSG_CLEAR_HALT,
     MSG_READY,
+    MSG_SET_PACKING,
     MSG_STALL,
     MSG_TRANSFER,
+    PACK_REQUEST,
     SOCKET_BUFFER_BYTES,
 )
 from firmware_models.usb_device import (
@@ -314,6 +316,34 @@ class Fx3Backend(SimulatedUsbDevice):
         if n == 0:
             raise _Gone(f"the simulator closed the stream socket {self.path}")
         return n
+
+    def ctrl_transfer(
+        self,
+        dev_handle: Handle,
+        bmRequestType: int,
+        bRequest: int,
+        wValue: int,
+        wIndex: int,
+        data: array.array[int],
+        timeout: int,
+    ) -> int:
+        if bmRequestType != 0x40 or bRequest != PACK_REQUEST:
+            return int(
+                super().ctrl_transfer(
+                    dev_handle, bmRequestType, bRequest, wValue, wIndex, data, timeout
+                )
+            )
+        # The streamer's vendor request: frames packed into transfers of up to wValue KiB.
+        with self._lock:
+            self._check_handle(dev_handle)
+            sock = self._sock
+        assert sock is not None
+        try:
+            with self._send_lock:
+                sock.sendall(MSG.pack(MSG_SET_PACKING, wValue << 10))
+        except OSError as exc:
+            raise self._lost(sock, f"cannot send the packing request ({exc})") from None
+        return 0
 
     def clear_halt(self, dev_handle: Handle, ep: int) -> None:
         with self._lock:

@@ -47,10 +47,10 @@ from camd.store.tdi_recording import TdiRecorder
 from camd.store.recording import FrameRecorder
 from camd.protocol.stream import FrameFlags, FrameHeader, StreamMode, crc32
 kind, path = sys.argv[1], sys.argv[2]
-WIDTH, ROWS, COLS = (int(a) for a in sys.argv[3:6])
+WIDTH, ROWS, COLS, CHUNK = (int(a) for a in sys.argv[3:7])
 if kind == "scan":
     rec = TdiRecorder(path, width=WIDTH, mode="sum", metadata={"scan": {"lines": 0}},
-                      chunk_lines=4096, flush_period_s=0.02)
+                      chunk_lines=CHUNK, flush_period_s=0.02)
     i = 0
     while True:
         n = 7
@@ -82,11 +82,14 @@ def _env() -> dict[str, str]:
     return env
 
 
-def _kill_writer_after(kind: str, path: Path, flushed_at_least: int) -> int:
+def _kill_writer_after(
+    kind: str, path: Path, flushed_at_least: int, *, chunk_lines: int = 4096
+) -> int:
     """Run the writer until it has flushed ``flushed_at_least``, kill -9 it; the last flushed
-    count it printed."""
+    count it printed. A scan's writer flushes every 20 ms or ``chunk_lines`` lines."""
+    argv = (WIDTH, ROWS, COLS, chunk_lines)
     proc = subprocess.Popen(
-        [sys.executable, "-c", WRITER, kind, str(path), *(str(v) for v in (WIDTH, ROWS, COLS))],
+        [sys.executable, "-c", WRITER, kind, str(path), *(str(v) for v in argv)],
         stdout=subprocess.PIPE,
         text=True,
         env=_env(),
@@ -142,6 +145,22 @@ def test_a_scan_whose_writer_is_killed_keeps_every_flushed_line(tmp_path: Path) 
         assert f.attrs["finished"] is np.False_ and f.attrs["lines"] == n
         assert f.attrs["interrupted"] == INTERRUPTED and "recovered_utc" in f.attrs
     assert np.array_equal(read_tdi_scan(path).lines, expected)
+
+
+def test_a_scan_flushed_in_whole_chunks_whose_writer_is_killed_keeps_every_flushed_line(
+    tmp_path: Path,
+) -> None:
+    # Chunks of 14 lines, blocks of 7: every other append fills the recorder's line buffer,
+    # which goes to the file as one raw chunk (camd.store.line_buffer) before its count.
+    path = tmp_path / "scan.h5"
+    flushed = _kill_writer_after("scan", path, 300, chunk_lines=14)
+    scan = read_tdi_scan(path)
+    n = len(scan.lines)
+    assert n >= flushed >= 300
+    assert np.array_equal(scan.line_index, np.arange(n))
+    assert np.array_equal(scan.stages_used, np.full(n, 4)) and scan.complete.all()
+    expected = (np.arange(n)[:, None] * 3 + np.arange(WIDTH)[None, :]).astype(np.uint32)
+    assert np.array_equal(scan.lines, expected)
 
 
 def test_a_recording_whose_writer_is_killed_keeps_every_flushed_frame(tmp_path: Path) -> None:

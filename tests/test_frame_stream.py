@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 
 from camd.link import FrameStream, ReceivedFrame, StreamError, StreamStats
+from camd.link.packed import FrameBatch
 from camd.protocol.stream import (
     HEADER_BYTES,
     U32_WRAP,
@@ -28,8 +29,9 @@ from camd.protocol.stream import (
     payload_ok,
 )
 from firmware_models.fx3 import BankSource, StreamEngine, StreamSocketServer
-from firmware_models.fx3_backend import get_backend
+from firmware_models.fx3_backend import Fx3Backend, get_backend
 from firmware_models.inject import InjectSpec
+from firmware_models.usb_device import SimulatedUsbDevice
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -566,3 +568,153 @@ def test_expect_first_after_the_first_frame_still_counts_the_missing_ones(rig: R
     rig.stream.expect_end(25)
     assert rig.stream.wait_drained(30.0)
     assert (rig.stream.stats().frames, rig.stream.stats().lost) == (5, 2)
+
+
+# -- packed transfers (several frames per transfer, docs/stream.md "Packed transfers") ------------
+
+PACK_BYTES = 64 << 10  # 20 of these 3264-byte frames per transfer
+
+
+@pytest.mark.parametrize("pack_bytes", [PACK_BYTES, 16 << 10], ids=["20 a transfer", "5"])
+def test_packed_transfers_deliver_every_frame_bit_exact_in_few_reads(
+    sock_path: Path, bank: BankSource, pack_bytes: int
+) -> None:
+    # 20 frames a transfer are checked in one numpy pass, 5 by decode_header (VECTOR_MIN_FRAMES)
+    per_transfer = pack_bytes // FRAME_BYTES
+    rig = Rig(sock_path, bank, pack_bytes=pack_bytes)
+    batches: list[int] = []
+
+    class Batches:
+        """A consumer taking runs of frames (``on_batch``) besides the per-frame one."""
+
+        def __call__(self, frame: ReceivedFrame) -> None:
+            raise AssertionError("a consumer with on_batch gets batches")
+
+        def on_batch(self, batch: FrameBatch) -> None:
+            assert not batch.pixels.flags.writeable
+            assert batch.counters.tolist() == list(
+                range(int(batch.counters[0]), int(batch.counters[0]) + batch.count)
+            )
+            batches.append(batch.count)
+
+    rig.stream.add_consumer(Batches())
+    try:
+        stats = rig.run(400)
+        # stop() asked the device to go back to one frame per transfer (its thread reads it)
+        assert wait_until(lambda: rig.server.pack_bytes == 0)
+        assert [g.counter for g in rig.got] == list(range(400))
+        assert [g.index for g in rig.got] == list(range(400))
+        assert all(g.gap_before == 0 and g.ok for g in rig.got) and rig.bit_exact()
+        assert rig.got[-1].flags & FrameFlags.LAST
+        assert (stats.frames, stats.bytes, stats.first_counter, stats.last_counter) == (
+            400,
+            400 * FRAME_BYTES,
+            0,
+            399,
+        )
+        assert stats.lost == stats.corrupt == stats.short == stats.overruns == 0
+        # Transfers at least half full on average (the engine packs the blocks it sends).
+        assert stats.reads < 400 // (per_transfer // 2)
+        assert sum(batches) == 400 and max(batches) == per_transfer
+        assert [h.counter for h, _ in rig.stream.header_log()] == list(range(256))
+    finally:
+        rig.close()
+
+
+def test_packed_transfers_count_every_fault_as_one_frame_per_transfer_does(
+    sock_path: Path, bank: BankSource
+) -> None:
+    # The same seeded faults through both framings: the same counts, frame for frame.
+    spec = InjectSpec.parse("frame_drop=0.05,frame_corrupt=0.05,frame_short=0.05,frame_stall=0.03")
+    counts: dict[int, tuple[int, ...]] = {}
+    for pack_bytes in (0, PACK_BYTES):
+        rig = Rig(sock_path, bank, pack_bytes=pack_bytes)
+        try:
+            stats = rig.run(400, spec=spec, seed=9)
+            c = rig.engine.counters
+            assert stats.frames + stats.lost + stats.corrupt + stats.short == 400
+            assert stats.stalls == c.stalls and stats.short == c.shortened
+            assert stats.corrupt == c.corrupted and stats.lost == c.dropped + c.stalls
+            assert all(g.ok for g in rig.got) and rig.bit_exact()
+            gaps_add_up(rig, stats)
+            assert (stats.reads < 300) == bool(pack_bytes)
+            counts[pack_bytes] = (stats.frames, stats.lost, stats.corrupt, stats.short,
+                                  stats.stalls, stats.out_of_order)  # fmt: skip
+        finally:
+            rig.close()
+    assert counts[0] == counts[PACK_BYTES]
+
+
+def packed(*frames: list[bytes | memoryview]) -> list[bytes]:
+    """Frames back to back in one transfer."""
+    return [b"".join(bytes(p) for p in parts) for parts in frames]
+
+
+def test_a_packed_transfer_counts_crc_bad_lost_repeated_and_going_back_frames_exactly(
+    sock_path: Path, bank: BankSource
+) -> None:
+    rig = Rig(sock_path, bank, pack_bytes=PACK_BYTES)
+    rig.stream.start(max_frame_bytes=FRAME_BYTES)
+    assert rig.stream.packed
+    try:
+        send = rig.server.send_transfer
+        bad_crc = bytearray(b"".join(bytes(p) for p in raw_frame(bank, 1)))
+        bad_crc[HEADER_BYTES + 7] ^= 0x10  # a payload bit: the header is fine
+        f = {k: raw_frame(bank, k) for k in range(12)}
+        # 0, 1 (payload CRC bad), 2, 4 (3 lost), 4 again (a repeat), 5
+        assert send(packed(f[0], [bytes(bad_crc)], f[2], f[4], f[4], f[5]))
+        bad_header = bytearray(b"".join(bytes(p) for p in f[7]))
+        bad_header[10] ^= 0xFF  # its header CRC fails: the rest of the transfer is unframed
+        # 3 (going back), 6, 7 (bad header: corrupt), 8 (after it: lost with the rest)
+        assert send(packed(f[3], f[6], [bytes(bad_header)], f[8]))
+        cut = b"".join(bytes(p) for p in f[10])[: FRAME_BYTES // 2]
+        assert send(packed(f[9], [cut]))  # 9, then 10 cut short (its header intact)
+        assert send(packed(f[11]))
+        stats = finish(rig, 7)
+        assert [g.counter for g in rig.got] == [0, 2, 4, 5, 6, 9, 11]
+        assert [g.gap_before for g in rig.got] == [0, 1, 1, 0, 0, 2, 1]
+        assert (stats.corrupt, stats.lost, stats.short, stats.out_of_order) == (2, 2, 1, 2)
+        assert stats.frames == 7 and stats.reads == 4 and rig.bit_exact()
+        assert all(g.ok for g in rig.got)
+    finally:
+        rig.close()
+
+
+def test_a_device_that_does_not_pack_is_read_one_frame_per_transfer(
+    sock_path: Path, bank: BankSource
+) -> None:
+    class OneFramePerTransfer(Fx3Backend):
+        """An FX3 whose firmware does not know the packing request: it stalls it, as a
+        device stalls any request it does not know."""
+
+        ctrl_transfer = SimulatedUsbDevice.ctrl_transfer
+
+    server = StreamSocketServer(sock_path)
+    server.start()
+    engine = StreamEngine(bank, server=server)
+    stream = FrameStream(backend=OneFramePerTransfer(sock_path), pack_bytes=PACK_BYTES)
+    got: list[int] = []
+    stream.add_consumer(lambda frame: got.append(frame.header.counter))
+    try:
+        stream.open()
+        assert wait_until(lambda: server.connected)
+        stream.start(max_frame_bytes=FRAME_BYTES)
+        assert not stream.packed and server.pack_bytes == 0
+        engine.start(50, 0.0, pace=False)
+        assert engine.wait_idle(30.0)
+        stream.expect_end(engine.next_counter)
+        assert stream.wait_drained(30.0)
+        stream.stop()
+        stats = stream.stats()
+        assert got == list(range(50)) and stats.reads == stats.frames == 50
+    finally:
+        stream.close()
+        engine.close()
+        server.stop()
+
+
+def test_pack_bytes_must_be_whole_kib_with_whole_reads() -> None:
+    with pytest.raises(ValueError, match="pack_bytes = 1000 must be a whole number of KiB"):
+        FrameStream(pack_bytes=1000)
+    with pytest.raises(ValueError, match="pack_bytes needs whole-transfer reads"):
+        FrameStream(pack_bytes=PACK_BYTES, read_bytes=1024)

@@ -21,6 +21,7 @@ import numpy.typing as npt
 import pytest
 
 from camd.link.frame_stream import ReceivedFrame
+from camd.link.packed import FrameBatch, Run, header_fields, run_pixels
 from camd.pipeline import (
     Batch,
     Batcher,
@@ -31,7 +32,9 @@ from camd.pipeline import (
     TdiPipeline,
 )
 from camd.pipeline import batcher as batcher_module
-from camd.protocol.stream import FrameFlags, FrameHeader, StreamMode
+from camd.pipeline.background import BackgroundCapture
+from camd.pipeline.live import LiveTap
+from camd.protocol.stream import HEADER_BYTES, FrameFlags, FrameHeader, StreamMode, encode_header
 from camd.store.tdi_recording import TdiRecorder, TdiScan, read_tdi_scan
 from camd.tdi import TdiEngine
 from camd.timing import line_mismatch
@@ -413,6 +416,117 @@ def test_the_batcher_copies_every_layout_of_frame_exactly(
     batch = work.get_nowait()
     assert isinstance(batch, Batch) and batch.n == 5
     assert batch.frames.dtype == np.uint16 and np.array_equal(batch.frames, frames[:, :4])
+
+
+def packed_batch(
+    frames: npt.NDArray[np.uint16], first: int, *, gap_before: int = 0, index: int = 0
+) -> tuple[FrameBatch, list[ReceivedFrame]]:
+    """``frames`` as a packed transfer delivers them (one ``FrameBatch`` over the wire bytes,
+    counters from ``first``, encoder counts 10 per counter), and the same frames one by one."""
+    stride = HEADER_BYTES + frames[0].nbytes
+    singles = [
+        received(frame, first + k, encoder=10 * (first + k), gap_before=gap_before if k == 0
+                 else 0, index=index + k)
+        for k, frame in enumerate(frames)
+    ]  # fmt: skip
+    wire = bytearray(b"".join(encode_header(f.header) + f.pixels.tobytes() for f in singles))
+    run = Run(0, stride, len(frames), header_fields(wire, 0, stride, len(frames)))
+    batch = FrameBatch(run_pixels(wire, run, 0, len(frames)), run.fields, 0, gap_before, index)
+    return batch, singles
+
+
+def test_the_batcher_takes_a_run_of_frames_as_it_takes_them_one_by_one(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # Runs crossing batch boundaries, a gap before a run, a change of M and a frame of the
+    # wrong geometry: the same messages, in the same order, with the same contents.
+    monkeypatch.setattr(batcher_module, "BATCH_MAX_AGE_S", float("inf"))
+    monkeypatch.setattr(batcher_module, "MAX_BATCH_FRAMES", 5)
+    monkeypatch.setattr(batcher_module, "BATCH_BUFFERS", 16)  # no worker hands them back
+    frames = shifted_ramp(30, rows=6)
+    narrow = shifted_ramp(2, rows=3)  # fewer rows than the engine needs: dropped, a gap each
+    runs = [
+        packed_batch(frames[0:7], 0),
+        packed_batch(frames[9:12], 9, gap_before=2, index=7),
+        packed_batch(narrow, 12, index=10),
+        packed_batch(frames[14:30], 14, index=12),
+    ]
+    messages: dict[str, list[Message]] = {}
+    for how in ("batches", "frames"):
+        work: queue.Queue[Message] = queue.Queue()
+        batcher = Batcher(4, COLS, work)
+        for k, (batch, singles) in enumerate(runs):
+            if k == 3:
+                batcher.request_stages(2)
+            if how == "batches":
+                batcher.on_batch(batch)
+            else:
+                for frame in singles:
+                    batcher(frame)
+        batcher.flush()
+        messages[how] = [work.get_nowait() for _ in range(work.qsize())]
+        assert (batcher.frames, batcher.dropped) == (26, 2)
+    by_batch, by_frame = messages["batches"], messages["frames"]
+    assert [type(m) for m in by_batch] == [type(m) for m in by_frame]
+    assert StageChange(2) in by_batch and Gap(2) in by_batch and by_batch.count(Gap(1)) == 2
+    for a, b in zip(by_batch, by_frame, strict=True):
+        if isinstance(a, Batch):
+            assert isinstance(b, Batch)
+            assert np.array_equal(a.frames, b.frames)
+            assert a.counters.tolist() == b.counters.tolist()
+            assert a.encoder.tolist() == b.encoder.tolist()
+        else:
+            assert a == b
+
+
+class Clock:
+    """A clock that says what the test sets."""
+
+    now = 0.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+def test_the_live_tap_and_the_background_take_runs_of_frames_as_frames_one_by_one() -> None:
+    # A clock read once per run: the tap keeps what a call per frame at that time would keep;
+    # the background averages the same frames to the same mean.
+    frames = shifted_ramp(12, rows=6)
+    runs = [
+        packed_batch(frames[0:5], 0),
+        packed_batch(frames[5:8], 5, index=5),
+        packed_batch(frames[9:12], 9, gap_before=1, index=8),
+    ]
+    times = [0.0, 0.01, 0.2]  # a frame due, none due, one due again (20 a second at most)
+    seen: dict[str, list[tuple[object, ...]]] = {}
+    means: dict[str, npt.NDArray[np.float32]] = {}
+    for how in ("batches", "frames"):
+        clock = Clock()
+        tap = LiveTap(clock=clock)
+        capture = BackgroundCapture()
+        capture.start(10)
+        kept: list[tuple[object, ...]] = []
+        for (batch, singles), t in zip(runs, times, strict=True):
+            clock.now = t
+            if how == "batches":
+                tap.on_batch(batch)
+                capture.on_batch(batch)
+            else:
+                for frame in singles:
+                    tap(frame)
+                    capture(frame)
+            latest = tap.latest()
+            assert latest is not None
+            kept.append((latest.seq, latest.index, latest.counter, latest.skipped,
+                         latest.gap_before, tap.seen, tap.kept))  # fmt: skip
+        seen[how] = kept
+        background = capture.ready()
+        assert background is not None and background.frames == 10
+        assert (background.first_counter, background.last_counter) == (0, 10)
+        means[how] = background.pixels
+    assert seen["batches"] == seen["frames"]
+    assert seen["frames"][-1] == (2, 9, 9, 7, 1, 11, 2)
+    assert np.array_equal(means["batches"], means["frames"])
 
 
 FORBIDDEN = ("camd.daemon", "camd.motion", "camd.sensor", "camd.cli", "camd.bench", "camd.soak",

@@ -2,9 +2,9 @@
 
 Frames come from a simulated FX3 in its own process, unpaced (as fast as the host reads),
 replaying a bank of random frames larger than this machine's last-level cache, and go through
-the host path a scan uses, whole: pyusb bulk reads (``FrameStream``: header and payload CRC
-checks, counters, queue, dispatch), the batcher, the TDI engine and the HDF5 recorder
-(``TdiPipeline``). The rate frames get through the engine is the most the host sustains; the
+the host path a scan uses, whole: pyusb bulk reads of packed transfers, as the daemon asks
+for them (``FrameStream``: header and payload CRC checks, counters, queue, dispatch), the
+batcher, the TDI engine and the HDF5 recorder (``TdiPipeline``). The rate frames get through the engine is the most the host sustains; the
 CPU of each thread, per frame, says where it goes. The baseline is the sensor: the fastest line
 rate a window of M rows allows (one line of exposure: a frame every ``max(M, 2)`` line
 periods, docs/physics.md §3), so ``over_line_rate`` is the host's headroom with every core it
@@ -100,7 +100,7 @@ def measure(
 ) -> dict[str, Any]:
     """One profile: the host path on an unpaced stream of M x columns frames."""
     from camd.bench.streamer import FrameStreamer
-    from camd.link.frame_stream import FrameStream
+    from camd.link.frame_stream import PACK_BYTES, FrameStream
     from camd.pipeline.tdi_pipeline import TdiPipeline
     from camd.protocol.stream import HEADER_BYTES
     from camd.store.tdi_recording import TdiRecorder
@@ -123,7 +123,9 @@ def measure(
         # Load (or compile) the kernel first, as a scan does (camd.daemon.scan_service).
         TdiEngine(stages, cols).push_many(np.zeros((2, stages, cols), dtype=np.uint16))
         pipeline = TdiPipeline(engine, recorder, rows=stages)
-        stream = FrameStream(backend=backend, queue_frames=4096, queue_bytes=256_000_000)
+        stream = FrameStream(
+            backend=backend, queue_frames=4096, queue_bytes=256_000_000, pack_bytes=PACK_BYTES
+        )
         try:
             stream.open()
             pipeline.start()

@@ -23,7 +23,7 @@ from camd.daemon.config_camera import StreamSection
 from camd.daemon.errors import NoFrameDevice
 from camd.daemon.models import StreamFrameHeader, StreamHeadersResponse, StreamStats
 from camd.daemon.realtime import REALTIME
-from camd.link.frame_stream import HEADER_LOG, Consumer, FrameStream, StreamError
+from camd.link.frame_stream import HEADER_LOG, PACK_BYTES, Consumer, FrameStream, StreamError
 from camd.protocol.stream import StreamMode
 
 log = logging.getLogger(__name__)
@@ -101,6 +101,8 @@ class StreamReader:
                 queue_bytes=round(config.queue_mb * 1e6),
                 overflow=config.overflow,
                 read_bytes=config.read_bytes,
+                # Small frames packed into transfers, where the device can (docs/stream.md).
+                pack_bytes=0 if config.read_bytes else PACK_BYTES,
                 timeout_s=config.timeout_s,
                 thread_start=REALTIME.enter,
             )

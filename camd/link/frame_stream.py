@@ -28,6 +28,7 @@ import array
 import contextlib
 import dataclasses
 import errno
+import itertools
 import logging
 import threading
 import time
@@ -41,6 +42,7 @@ import numpy as np
 import usb.core
 import usb.util
 
+from camd.link.packed import FrameBatch, Run, header_at, header_fields, is_plain_run, run_pixels
 from camd.protocol.stream import (
     HEADER_BYTES,
     U32_WRAP,
@@ -71,6 +73,14 @@ DISPATCH_BURST = 16
 DISPATCH_BURST_BYTES = 256 << 10
 DISPATCH_WAIT_S = 0.002
 HEADER_LOG = 256  # headers kept per run for header_log() (docs/conformance.md)
+# The streamer's vendor request for packed transfers (docs/stream.md "Packed transfers"):
+# bmRequestType 0x40 (vendor, to the device), wValue = KiB of whole frames per transfer.
+PACK_REQUEST = 0xB5
+PACK_BYTES_MAX = 0xFFFF << 10  # wValue is 16 bits of KiB
+# What a reader of small frames asks for: tens of small frames per read, a quarter of a
+# millisecond of the fastest streams, a few hundred KiB of memory per slot.
+PACK_BYTES = 256 << 10
+_LAST = int(FrameFlags.LAST)
 _MAX_CONSECUTIVE_ERRORS = 10
 # The flag values with LAST set: a set lookup, where ``flags & FrameFlags.LAST`` makes a flag.
 _WITH_LAST = frozenset(
@@ -78,6 +88,8 @@ _WITH_LAST = frozenset(
 )
 
 Overflow = Literal["drop_newest", "drop_oldest"]
+# What the reader queues: one frame and its header, or (packed) a transfer's runs of frames.
+Queued = tuple["_Slot", "FrameHeader | list[Run]", int]
 OVERFLOW_POLICIES: tuple[Overflow, ...] = ("drop_newest", "drop_oldest")
 
 
@@ -187,6 +199,7 @@ class FrameStream:
         queue_bytes: int | None = None,
         overflow: Overflow = "drop_newest",
         read_bytes: int = 0,
+        pack_bytes: int = 0,
         timeout_s: float = 1.0,
         overflow_wait_s: float = OVERFLOW_WAIT_S,
         no_data_warning_s: float = NO_DATA_WARNING_S,
@@ -200,6 +213,15 @@ class FrameStream:
             raise ValueError(f"overflow = {overflow!r}: use one of {', '.join(OVERFLOW_POLICIES)}")
         if read_bytes < 0:
             raise ValueError(f"read_bytes = {read_bytes} must be >= 0 (0: whole frames)")
+        if not 0 <= pack_bytes <= PACK_BYTES_MAX or pack_bytes % 1024:
+            raise ValueError(
+                f"pack_bytes = {pack_bytes} must be a whole number of KiB from 0 (one frame per "
+                f"transfer) to {PACK_BYTES_MAX}"
+            )
+        if pack_bytes and read_bytes:
+            raise ValueError(
+                "pack_bytes needs whole-transfer reads: use read_bytes = 0 with pack_bytes"
+            )
         if not timeout_s > 0:
             raise ValueError(f"timeout_s = {timeout_s} must be positive")
         self.vendor_id = vendor_id
@@ -210,6 +232,8 @@ class FrameStream:
         self._capacity = queue_frames  # frames the queue holds this run: see start()
         self.overflow = overflow
         self.read_bytes = read_bytes
+        self.pack_bytes = pack_bytes
+        self._packed = False  # this run's transfers may hold several frames (start())
         self.timeout_s = timeout_s
         self.overflow_wait_s = overflow_wait_s
         self.no_data_warning_s = no_data_warning_s
@@ -229,7 +253,7 @@ class FrameStream:
         # One lock for the counters, the queue and the counter bookkeeping; held briefly.
         self._lock = threading.Lock()
         self._cond = threading.Condition(self._lock)
-        self._queue: deque[tuple[_Slot, FrameHeader, int]] = deque()
+        self._queue: deque[Queued] = deque()
         self._dispatching = False
         self._reader_waiting = False  # the reader waits for a queue place (the dispatcher wakes it)
         self._dispatcher_idle = False  # the dispatcher waits for frames (the reader wakes it)
@@ -422,9 +446,16 @@ class FrameStream:
         self._max_frame_bytes = max_frame_bytes
         p = self._packet_bytes
         slot_bytes = (max_frame_bytes + 1 + p - 1) // p * p
+        self._packed = self.pack_bytes > 0 and self._ask_packing(self.pack_bytes)
+        if self._packed:
+            # A slot holds a whole transfer: up to pack_bytes of frames, and one frame more
+            # than asked (a transfer that overfills the read is too long, as with one frame).
+            slot_bytes = max(slot_bytes, (self.pack_bytes + 1 + p - 1) // p * p)
         self._capacity = self.queue_capacity(slot_bytes)
-        self._burst = max(
-            1, min(DISPATCH_BURST, self._capacity, DISPATCH_BURST_BYTES // slot_bytes)
+        self._burst = (
+            1  # a transfer is a burst already
+            if self._packed
+            else max(1, min(DISPATCH_BURST, self._capacity, DISPATCH_BURST_BYTES // slot_bytes))
         )
         if slot_bytes != self._slot_bytes:
             self._slots = []
@@ -470,9 +501,32 @@ class FrameStream:
         self._reader = self._dispatcher = None
         with self._lock:
             self._t_stop = time.monotonic()
+        if self._packed:
+            # Back to one frame per transfer: another reader of this device may expect it.
+            self._ask_packing(0)
+            self._packed = False
         # A burst's slots go back to the allocator; the first few are kept for the next run.
         del self._slots[INITIAL_SLOTS:]
         self._free = list(self._slots)
+
+    @property
+    def packed(self) -> bool:
+        """True while the device packs several frames per transfer for this run."""
+        return self._packed
+
+    def _ask_packing(self, pack_bytes: int) -> bool:
+        """Ask the streamer to pack frames into transfers of up to ``pack_bytes`` (0: one
+        frame per transfer); False if it does not know the request (it stalls it)."""
+        try:
+            self._dev.ctrl_transfer(0x40, PACK_REQUEST, pack_bytes >> 10, INTERFACE, None)
+        except usb.core.USBError as exc:
+            if exc.errno == errno.EPIPE:
+                log.info("frame stream %s: the device sends one frame per transfer", self.ident)
+                return False
+            if exc.errno == errno.ENODEV:
+                return False  # gone: the reader says so
+            raise StreamError(f"cannot set the transfer packing of {self.ident}: {exc}") from exc
+        return True
 
     def expect_end(self, next_counter: int) -> None:
         """The device says the stream ended before ``next_counter``: frames after the last one
@@ -638,7 +692,11 @@ class FrameStream:
                         "corrupt",
                         n,
                         None,
-                        why=f"a transfer longer than max_frame_bytes={self._max_frame_bytes}",
+                        why=(
+                            f"a transfer longer than the {n - 1} bytes of packed frames asked for"
+                            if self._packed
+                            else f"a transfer longer than max_frame_bytes={self._max_frame_bytes}"
+                        ),
                     )
                     filled, discarding = 0, True
                     continue
@@ -648,7 +706,7 @@ class FrameStream:
                 if complete < 0:
                     filled, discarding = 0, True  # a bad header: skip to the transfer's end
                     continue
-            slot = self._frame(slot, filled)
+            slot = self._transfer(slot, filled) if self._packed else self._frame(slot, filled)
             filled = 0
 
     def _complete_size(self, slot: _Slot, filled: int) -> int | None:
@@ -690,8 +748,90 @@ class FrameStream:
                 self._settle_end(idle=False)
             return self._enqueue(slot, header, received_ns)
 
-    def _enqueue(self, slot: _Slot, header: FrameHeader, received_ns: int) -> _Slot:
-        """Queue the frame (lock held); the overflow policy decides when the queue is full."""
+    def _transfer(self, slot: _Slot, nbytes: int) -> _Slot:
+        """A whole packed transfer of ``nbytes`` is in ``slot``: check its frames, queue those
+        accepted; the slot to fill next. The usual transfer (frames of one size, every header
+        good, counters consecutive) is checked in one vectorised pass; any other goes frame
+        by frame, with exactly the rules and counts of one frame per transfer."""
+        received_ns = time.monotonic_ns()
+        view = slot.view
+        stride = HEADER_BYTES + int.from_bytes(view[40:44], "little") if nbytes >= 44 else 0
+        # (One frame alone: decode_header costs less than the numpy pass.)
+        if stride > HEADER_BYTES and nbytes % stride == 0 and nbytes > stride:
+            count = nbytes // stride
+            fields = header_fields(slot.buf, 0, stride, count)
+            if is_plain_run(view, fields, stride):
+                first, last = int(fields["counter"][0]), int(fields["counter"][-1])
+                with self._cond:
+                    if self._end is None and self._in_sequence(first):
+                        self._last_seen = last
+                        if int(fields["flags"][-1]) & _LAST:
+                            self._end = (last + 1) % U32_WRAP
+                            self._settle_end(idle=False)
+                        return self._enqueue(slot, [Run(0, stride, count, fields)], received_ns)
+        return self._transfer_by_frame(slot, nbytes, received_ns)
+
+    def _transfer_by_frame(self, slot: _Slot, nbytes: int, received_ns: int) -> _Slot:
+        """A packed transfer walked frame by frame: a bad header or a frame cut short ends
+        it (the rest cannot be framed: it stands for one frame, as a broken transfer does)."""
+        view = slot.view
+        runs: list[Run] = []
+        run: Run | None = None
+        shape: tuple[int, int] = (0, 0)
+        previous = 0  # the counter of the frame before, in the transfer
+        offset = 0
+        while offset < nbytes:
+            rest = nbytes - offset
+            if rest < HEADER_BYTES:
+                self._broken("short", rest, None)
+                break
+            try:
+                header = decode_header(view[offset : offset + HEADER_BYTES])
+            except StreamFormatError as exc:
+                self._broken("corrupt", rest, None, why=str(exc))
+                break
+            stride = header.frame_bytes
+            if stride > rest:
+                why = (
+                    f"frame {header.counter}: {rest} bytes left of a transfer, header says {stride}"
+                )
+                self._broken("short", rest, header.counter, why=why)
+                break
+            with self._cond:
+                accepted = self._in_sequence(header.counter)
+                if not accepted:
+                    self._stats.out_of_order += 1
+                else:
+                    if header.flags in _WITH_LAST:
+                        self._end = (header.counter + 1) % U32_WRAP
+                    if self._end is not None:
+                        self._settle_end(idle=False)
+            if not accepted:
+                run = None
+            elif (
+                run is not None
+                and run.stride == stride
+                and shape == (header.rows, header.cols)
+                and run.offset + run.count * stride == offset
+                and header.counter == (previous + 1) % U32_WRAP
+            ):
+                run.count += 1  # a run: the same size and shape, counters one apart
+            else:
+                run = Run(offset, stride, 1, header_fields(slot.buf, offset, stride, 1))
+                shape = (header.rows, header.cols)
+                runs.append(run)
+            previous = header.counter
+            offset += stride
+        if not runs:
+            return slot
+        for r in runs:
+            r.fields = header_fields(slot.buf, r.offset, r.stride, r.count)
+        with self._cond:
+            return self._enqueue(slot, runs, received_ns)
+
+    def _enqueue(self, slot: _Slot, header: FrameHeader | list[Run], received_ns: int) -> _Slot:
+        """Queue the frame, or a packed transfer's runs (lock held); the overflow policy
+        decides when the queue is full."""
         q = self._queue
         capacity = self._capacity
         if len(q) >= capacity and self.overflow_wait_s > 0:
@@ -704,10 +844,11 @@ class FrameStream:
             )
             self._reader_waiting = False
         if len(q) >= capacity:
-            self._stats.overruns += 1
             if self.overflow == "drop_newest":
+                self._stats.overruns += _frames_in(header)
                 return slot  # this frame is dropped: the slot is reused
-            old_slot, _, _ = q.popleft()
+            old_slot, old, _ = q.popleft()
+            self._stats.overruns += _frames_in(old)
             self._free.append(old_slot)
         q.append((slot, header, received_ns))
         if self._dispatcher_idle and (len(q) == 1 or len(q) >= self._burst):
@@ -809,8 +950,8 @@ class FrameStream:
         cond = self._cond
         queue = self._queue
         # The frame just handed to the consumers, accounted (counted, its slot freed) in the
-        # same lock section that takes the next one: one lock round per frame.
-        done: tuple[_Slot, FrameHeader | None] | None = None
+        # same lock section that takes the next one: one lock round per frame (or transfer).
+        done: tuple[_Slot, FrameHeader | _Delivered | None] | None = None
         while True:
             with cond:
                 if done is not None:
@@ -833,17 +974,32 @@ class FrameStream:
                 if self._reader_waiting or self._frame_watchers:
                     # A reader waiting for a queue place may go on; wait_frames sees the count.
                     cond.notify_all()
+            if isinstance(header, list):
+                done = (slot, self._deliver_runs(slot, header, received_ns, consumers, index))
+                continue
             done = (slot, None)
             if self._deliver(slot, header, received_ns, consumers, index):
                 done = (slot, header)
 
-    def _account(self, slot: _Slot, header: FrameHeader | None) -> None:
+    def _account(self, slot: _Slot, header: FrameHeader | _Delivered | None) -> None:
         """A frame went through the consumers (``header``; None: it was dropped, its payload
-        CRC mismatched): count it and free its slot (lock held)."""
+        CRC mismatched), or a packed transfer's frames did (``_Delivered``): count it and
+        free its slot (lock held)."""
         self._free.append(slot)
         s = self._stats
         if header is None:
             s.corrupt += 1
+            return
+        if isinstance(header, _Delivered):
+            s.corrupt += header.corrupt
+            if header.frames:
+                self._t_last_frame = time.monotonic()
+                s.frames += header.frames
+                s.bytes += header.bytes
+                self._pixels += header.pixels
+                if s.first_counter is None:
+                    s.first_counter = header.first_counter
+                s.last_counter = header.last_counter
             return
         self._t_last_frame = time.monotonic()
         s.frames += 1
@@ -852,6 +1008,103 @@ class FrameStream:
         if s.first_counter is None:
             s.first_counter = header.counter
         s.last_counter = header.counter
+
+    def _deliver_runs(
+        self,
+        slot: _Slot,
+        runs: list[Run],
+        received_ns: int,
+        consumers: tuple[Consumer, ...],
+        index: int,
+    ) -> _Delivered:
+        """A packed transfer: the payload CRCs of its runs, then every consumer with each
+        stretch of good frames (``on_batch`` with them all, else a call per frame)."""
+        done = _Delivered()
+        view = slot.view
+        for run in runs:
+            stride, payload = run.stride, run.stride - HEADER_BYTES
+            start = run.offset + HEADER_BYTES
+            computed = np.fromiter(
+                (
+                    payload_crc32(view[o : o + payload])
+                    for o in range(start, start + run.count * stride, stride)
+                ),
+                dtype=np.uint32,
+                count=run.count,
+            )
+            for i in range(min(run.count, HEADER_LOG - len(self._header_log))):
+                self._header_log.append((header_at(run.fields, i), int(computed[i])))
+            good = computed == run.fields["payload_crc32"]
+            if good.all():
+                stretches = [(0, run.count)]
+            else:
+                bad = np.flatnonzero(~good)
+                done.corrupt += len(bad)
+                counter = int(run.fields["counter"][bad[-1]])
+                self.problem = f"frame {counter}: payload CRC mismatch"
+                edges = [-1, *bad.tolist(), run.count]
+                stretches = [(a + 1, b) for a, b in itertools.pairwise(edges) if b > a + 1]
+            for a, b in stretches:
+                self._deliver_batch(slot, run, a, b, received_ns, consumers, index, done)
+                index += b - a
+        return done
+
+    def _deliver_batch(
+        self,
+        slot: _Slot,
+        run: Run,
+        a: int,
+        b: int,
+        received_ns: int,
+        consumers: tuple[Consumer, ...],
+        index: int,
+        done: _Delivered,
+    ) -> None:
+        """Frames ``a .. b - 1`` of ``run`` (good, consecutive) to every consumer."""
+        fields = run.fields[a:b]
+        counters = fields["counter"]
+        first = int(counters[0])
+        last = self._last_delivered
+        if last is None:
+            seen = self._first_seen if self._first_seen is not None else first
+            last = (seen - 1) % U32_WRAP
+        pixels = run_pixels(slot.buf, run, a, b)
+        batch = FrameBatch(pixels, fields, received_ns, (first - last - 1) % U32_WRAP, index)
+        k = b - a
+        for cb in consumers:
+            on_batch = getattr(cb, "on_batch", None)
+            if on_batch is not None:
+                try:
+                    on_batch(batch)
+                except Exception:
+                    with self._lock:
+                        self._stats.consumer_errors += k
+                    log.exception("frame stream: consumer %r failed on frames from %d", cb, first)
+                continue
+            for i in range(k):
+                frame = ReceivedFrame(
+                    header=header_at(fields, i),
+                    pixels=pixels[i],
+                    received_ns=received_ns,
+                    gap_before=batch.gap_before if i == 0 else 0,
+                    index=index + i,
+                )
+                try:
+                    cb(frame)
+                except Exception:
+                    with self._lock:
+                        self._stats.consumer_errors += 1
+                    log.exception(
+                        "frame stream: consumer %r failed on frame %d", cb, frame.header.counter
+                    )
+        last_counter = int(counters[-1])
+        self._last_delivered = last_counter
+        done.frames += k
+        done.bytes += k * run.stride
+        done.pixels += k * pixels.shape[1] * pixels.shape[2]
+        if done.first_counter is None:
+            done.first_counter = first
+        done.last_counter = last_counter
 
     def _deliver(
         self,
@@ -891,3 +1144,20 @@ class FrameStream:
                 log.exception("frame stream: consumer %r failed on frame %d", cb, header.counter)
         self._last_delivered = header.counter
         return True
+
+
+@dataclass(slots=True)
+class _Delivered:
+    """What a packed transfer's dispatch delivered, for ``_account``."""
+
+    frames: int = 0
+    bytes: int = 0
+    pixels: int = 0
+    corrupt: int = 0
+    first_counter: int | None = None
+    last_counter: int | None = None
+
+
+def _frames_in(queued: FrameHeader | list[Run]) -> int:
+    """Frames in a queue entry: one, or a packed transfer's runs."""
+    return sum(r.count for r in queued) if isinstance(queued, list) else 1

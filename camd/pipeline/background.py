@@ -27,6 +27,7 @@ import numpy as np
 import numpy.typing as npt
 
 from camd.link.frame_stream import ReceivedFrame
+from camd.link.packed import FrameBatch
 
 FRAMES_MIN = 1
 FRAMES_MAX = 1000
@@ -166,6 +167,22 @@ class BackgroundCapture:
             if job.done < job.wanted:
                 return
         self._complete(job, total)
+
+    def on_batch(self, batch: FrameBatch) -> None:
+        """A run of frames (a packed transfer's): nothing to do unless a background is being
+        captured; then frame by frame, as ever."""
+        if self._job is None:
+            return
+        for i in range(batch.count):
+            self(
+                ReceivedFrame(
+                    batch.header(i),
+                    batch.pixels[i],
+                    batch.received_ns,
+                    batch.gap_before if i == 0 else 0,
+                    batch.first_index + i,
+                )
+            )
 
     @staticmethod
     def _problem(

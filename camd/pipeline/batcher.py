@@ -18,6 +18,7 @@ import numpy as np
 import numpy.typing as npt
 
 from camd.link.frame_stream import ReceivedFrame
+from camd.link.packed import FrameBatch
 from camd.pipeline.messages import Batch, Gap, Message, StageChange
 from camd.protocol.stream import SMALL_PAYLOAD_BYTES
 
@@ -81,13 +82,7 @@ class Batcher:
 
     def __call__(self, frame: ReceivedFrame) -> None:
         with self._lock:
-            if frame.gap_before:
-                self._flush()
-                self._work.put(Gap(int(frame.gap_before)))
-            if self._pending_stages is not None:
-                self._flush()
-                self._work.put(StageChange(self._pending_stages))
-                self._pending_stages = None
+            self._markers(frame.gap_before)
             pixels = frame.pixels
             rows, cols = pixels.shape
             if rows < self.rows or cols != self.cols:
@@ -118,6 +113,62 @@ class Batcher:
             self.frames += 1
             if n == self.batch_frames or time.monotonic() - self._since > BATCH_MAX_AGE_S:
                 self._flush()
+
+    def on_batch(self, batch: FrameBatch) -> None:
+        """A run of consecutive frames (a packed transfer's): copied into the batch buffer in
+        as few numpy copies as the batch boundaries allow; the same messages, in the same
+        order, as a call per frame would queue."""
+        pixels = batch.pixels
+        k, rows, cols = pixels.shape
+        if rows < self.rows or cols != self.cols:
+            for i in range(k):  # not this scan's geometry: each frame dropped as a gap
+                self(
+                    ReceivedFrame(
+                        batch.header(i),
+                        pixels[i],
+                        batch.received_ns,
+                        batch.gap_before if i == 0 else 0,
+                        batch.first_index + i,
+                    )
+                )
+            return
+        counters = batch.counters
+        encoder = batch.stage_positions
+        src = pixels if rows == self.rows else pixels[:, : self.rows]
+        with self._lock:
+            self._markers(batch.gap_before)
+            done = 0
+            while done < k:
+                if self._buf is None:
+                    try:
+                        self._buf = self._free.get(timeout=CONSUMER_WAIT_S)
+                    except queue.Empty:
+                        for _ in range(k - done):  # the worker is this far behind
+                            self._drop()
+                        return
+                    self._buf_bytes = self._buf.data.cast("B")
+                    self._since = time.monotonic()
+                n = self._n
+                m = min(k - done, self.batch_frames - n)
+                self._buf[n : n + m] = src[done : done + m]
+                self._counters[n : n + m] = counters[done : done + m]
+                self._encoder[n : n + m] = encoder[done : done + m]
+                self._n = n = n + m
+                self.frames += m
+                done += m
+                if n == self.batch_frames or time.monotonic() - self._since > BATCH_MAX_AGE_S:
+                    self._flush()
+
+    def _markers(self, gap_before: int) -> None:
+        """Before the next frame (lock held): the gap before it and a pending change of M,
+        each ending the current batch."""
+        if gap_before:
+            self._flush()
+            self._work.put(Gap(int(gap_before)))
+        if self._pending_stages is not None:
+            self._flush()
+            self._work.put(StageChange(self._pending_stages))
+            self._pending_stages = None
 
     def release(self) -> None:
         """The scan has ended: give the batch buffers back to the allocator now. (The scan's

@@ -26,6 +26,7 @@ import numpy as np
 import numpy.typing as npt
 
 from camd.link.frame_stream import ReceivedFrame
+from camd.link.packed import FrameBatch
 
 MAX_RATE_HZ = 20.0
 """Frames a second the live view is given at most: more than a screen needs to look live."""
@@ -109,6 +110,26 @@ class LiveTap:
             )
             self._skipped = 0
             self._cond.notify_all()
+
+    def on_batch(self, batch: FrameBatch) -> None:
+        """A run of frames (a packed transfer's): what a call per frame would keep, with one
+        look at the clock (the first frame, if one is due), without a header per frame."""
+        k = batch.count
+        if self._clock() - self._last_kept_s < self.min_interval_s:
+            self.seen += k
+            self._skipped += k
+            return
+        self(
+            ReceivedFrame(
+                batch.header(0),
+                batch.pixels[0],
+                batch.received_ns,
+                batch.gap_before,
+                batch.first_index,
+            )
+        )
+        self.seen += k - 1
+        self._skipped += k - 1
 
     def latest(self) -> LiveFrame | None:
         """The newest kept frame (None before the first)."""

@@ -70,6 +70,7 @@ from camd.store.durability import (
     retry_held,
     write_failure,
 )
+from camd.store.line_buffer import write_rows
 from camd.store.nexus import Axis, camera_name, sensor_fields, write_nexus
 
 FORMAT = "camd-recording"
@@ -235,10 +236,12 @@ class FrameRecorder:
         self._frames: Any = None
         self._frames_flushed: Any = None
         self._columns: dict[str, Any] = {}
-        # The columns' values of the frames added since the last flush: a flush that fails on a
-        # full disk cannot simply be tried again (HDF5 then writes a new chunk without adding
-        # it to the dataset's index), so they are written afresh (``_failed``).
-        self._unflushed: list[dict[str, int]] = []
+        # The columns' values of the frames added since the last flush, written to the file by
+        # the next flush, one write per column instead of seven per frame; and written afresh
+        # after a failed write (a flush that fails on a full disk cannot simply be tried again:
+        # HDF5 then writes a new chunk without adding it to the dataset's index; ``_failed``).
+        self._unflushed: list[tuple[int, ...]] = []
+        self._columns_written = 0  # frames whose column values are in the datasets
         self.rows = self.cols = 0
         self._capacity = 0
         try:
@@ -394,6 +397,7 @@ class FrameRecorder:
             trim=self._trim_and_flush,
         )
         self.count = kept
+        self._columns_written = min(self._columns_written, kept)
         self.failed = (
             f"{write_failure(self.path, exc)}; the recording keeps the {kept} frames written before"
         )
@@ -406,6 +410,7 @@ class FrameRecorder:
     def _flush_count(self, *, regrow: bool = True) -> None:
         """Flush the frames so far, then their count; then (``regrow``) the headroom is made
         whole again (``Headroom.flush``: NoRoom if it cannot be, all flushed all the same)."""
+        self._put_columns()
         self._headroom.flush(regrow=False)
         if self._frames_flushed is not None:
             self._frames_flushed[0] = self.count
@@ -424,11 +429,11 @@ class FrameRecorder:
             self._headroom.flush(regrow=False)
             return
         flushed, count = self.flushed, self.count
-        for name, column in self._columns.items():
+        for column in self._columns.values():
             column.resize(flushed, axis=0)
             column.resize(count, axis=0)
-            if count > flushed:
-                column[flushed:count] = [values[name] for values in self._unflushed]
+        self._columns_written = flushed
+        self._put_columns()
         self._trim(f, count)
         self._headroom.flush(regrow=False)
         self._frames_flushed[0] = count
@@ -464,20 +469,33 @@ class FrameRecorder:
         if i >= self._capacity:
             self._reserve(max(2 * self._capacity, 16))
         self._headroom.ensure(pixels.nbytes + _MARGIN_BYTES)
-        self._frames[i] = pixels
-        values = {
-            "frame_counter": header.counter,
-            "timestamp_ns": header.timestamp_ns,
-            "received_unix_ns": received_ns + self._unix_offset_ns,
-            "flags": int(header.flags),
-            "stage_position": header.stage_position,
-            "payload_crc32": header.payload_crc32,
-            "gap_before": gap_before,
-        }
-        for name, value in values.items():
-            self._columns[name][i] = value
-        self._unflushed.append(values)
+        # A frame is one chunk: written as it is on disk, at once (no chunk cache to go
+        # through, nothing held), without h5py's selection machinery.
+        self._frames.id.write_direct_chunk((i, 0, 0), np.ascontiguousarray(pixels, dtype="<u2"))
+        # In _PER_FRAME's order; written by the next flush (``_put_columns``).
+        self._unflushed.append(
+            (
+                header.counter,
+                header.timestamp_ns,
+                received_ns + self._unix_offset_ns,
+                int(header.flags),
+                header.stage_position,
+                header.payload_crc32,
+                gap_before,
+            )
+        )
         self.count += 1
+
+    def _put_columns(self) -> None:
+        """Write the column values of the frames since the last flush (not flushed), one
+        hyperslab per column, unless they are in the datasets already."""
+        if self._columns_written >= self.count or not self._columns:
+            return
+        start = self.flushed
+        by_column = zip(*self._unflushed, strict=True)  # one tuple per column
+        for (name, dtype), values in zip(_PER_FRAME.items(), by_column, strict=True):
+            write_rows(self._columns[name], start, np.array(values, dtype=dtype))
+        self._columns_written = self.count
 
     def close(
         self, stream_stats: Mapping[str, Any] | None = None, *, ended_early: str | None = None

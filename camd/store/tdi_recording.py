@@ -67,6 +67,7 @@ from camd.store.durability import (
     retry_held,
     write_failure,
 )
+from camd.store.line_buffer import LineBuffer
 from camd.store.nexus import ENTRY, Axis, camera_name, profile_value, sensor_fields, write_nexus
 from camd.store.recording import FORMAT as RECORDING_FORMAT
 from camd.store.recording import (
@@ -247,10 +248,12 @@ class TdiRecorder:
         self._last_flush = time.monotonic()
         self._stage_change_count = 0
         self._stage_change_list: list[tuple[int, int]] = []
-        # The lines appended since the last flush, with their columns: a flush that fails on a
-        # full disk cannot simply be tried again (HDF5 then writes a new chunk without adding
-        # it to the dataset's index), so they are written afresh (``_failed``).
-        self._unflushed: list[tuple[npt.NDArray[Any], dict[str, npt.NDArray[Any]]]] = []
+        # The lines appended since the last flush, with their columns, written to the file by
+        # the next flush (camd.store.line_buffer); and written afresh after a failed write (a
+        # flush that fails on a full disk cannot simply be tried again: HDF5 then writes a new
+        # chunk without adding it to the dataset's index; ``_failed``).
+        self._pending = LineBuffer(width, dtype, chunk_lines, _COLUMNS)
+        self._in_file = 0  # lines in the datasets: the flushed ones, or all once written
         self._closed = False
         self.failed: str | None = None  # why writing stopped (a full disk), None while it works
         retry_held()  # a file an earlier full disk held open, closed if the space is back
@@ -442,46 +445,34 @@ class TdiRecorder:
             "m_dv_over_v": _float_column("m_dv_over_v", m_dv_over_v, n),
         }
         done_at = 0
+        pending = self._pending
         while done_at < n:
-            # At most chunk_lines lines wait unflushed, so at most two chunks of lines are
-            # dirty: the chunk cache holds them without writing one out to make room (an
-            # eviction that fails on a full disk loses its chunk), and the reserve covers them.
-            piece = min(n - done_at, self._chunk_lines - (self.lines - self._flushed_lines))
+            # At most chunk_lines lines wait unflushed (in memory, written by the next flush),
+            # so a flush writes at most two chunks of lines, which the reserve covers.
+            piece = min(n - done_at, pending.room)
             if piece <= 0:
                 self.flush()
                 continue
             part = slice(done_at, done_at + piece)
-            self._write(lines[part], {name: values[part] for name, values in columns.items()})
+            pending.add(lines[part], {name: values[part] for name, values in columns.items()})
+            self.lines += piece
+            self.complete_lines += int(np.count_nonzero(columns["complete"][part]))
             done_at += piece
-            if (
-                self.lines - self._flushed_lines >= self._chunk_lines
-                or time.monotonic() - self._last_flush >= self._flush_period_s
-            ):
+            if pending.room == 0 or time.monotonic() - self._last_flush >= self._flush_period_s:
                 self.flush()
 
-    def _write(self, lines: npt.NDArray[Any], columns: Mapping[str, npt.NDArray[Any]]) -> None:
-        """Append a piece of lines to the datasets (not flushed)."""
-        start, stop = self.lines, self.lines + lines.shape[0]
-        try:
-            self._lines.resize(stop, axis=0)
-            for column in self._columns.values():
-                column.resize(stop, axis=0)
-            self._lines[start:stop] = lines
-            for name, values in columns.items():
-                self._columns[name][start:stop] = values
-        except (OSError, RuntimeError) as exc:  # h5py reports a failed flush as RuntimeError
-            raise self._failed(exc) from None
-        self.lines = stop
-        self.complete_lines += int(np.count_nonzero(columns["complete"]))
-        # Copies: the caller may reuse its buffers once this returns.
-        self._unflushed.append((lines.copy(), {k: v.copy() for k, v in columns.items()}))
+    def _put_pending(self) -> None:
+        """Write the lines held in memory to the datasets (not flushed), unless they are."""
+        if self._in_file < self.lines:
+            self._pending.write(self._lines, self._columns, self._flushed_lines)
+            self._in_file = self.lines
 
     def _failed(self, exc: BaseException) -> RecordingError:
         """Writing failed (a full disk): put on disk every line appended before (``lines``),
         with their count, so that nothing but the lines that did not fit is lost and the file
         can be closed; the RecordingError to raise. On a clean ``NoRoom`` HDF5 has written
         nothing and flushes into the headroom's reserve; after a failed HDF5 write the lines
-        since the last flush are written afresh (``_unflushed``)."""
+        since the last flush are written afresh (``_pending``)."""
         kept = keep_after_failure(
             exc,
             written=self.lines,
@@ -491,6 +482,7 @@ class TdiRecorder:
             trim=self._trim_and_flush,
         )
         self.lines = kept  # complete_lines is counted again from the file by close()
+        self._pending.clear()
         self.failed = (
             f"{write_failure(self.path, exc)}; the scan file keeps the {kept} lines written before"
         )
@@ -499,36 +491,32 @@ class TdiRecorder:
     def _trim_and_flush(self, count: int) -> None:
         for dataset in (self._lines, *self._columns.values()):
             dataset.resize(count, axis=0)
+        self._in_file = count
         self._headroom.flush(regrow=False)
 
     def _flush_count(self, *, regrow: bool = True) -> None:
         """Flush the lines so far, then their count (``/lines_flushed``); then (``regrow``)
         the headroom is made whole again (``Headroom.flush``: NoRoom if it cannot be, all
         flushed all the same)."""
+        self._put_pending()
         self._headroom.flush(regrow=False)
         # Only now are the lines on disk: the count follows in a second, small flush.
         self._lines_flushed[0] = self.lines
         self._headroom.flush(regrow=False)
         self._flushed_lines = self.lines
-        self._unflushed.clear()
+        self._pending.clear()
         if regrow:
             self._headroom.ensure(0)
 
     def _rewrite_unflushed(self) -> None:
         """After a failed write: the lines since the last flush (and the stage changes)
-        written afresh, their chunks dropped first (HDF5 cannot be trusted to write them
-        again, see ``_unflushed``), then everything flushed, with the count."""
-        start = self._flushed_lines
+        written afresh from memory, their chunks dropped first (HDF5 cannot be trusted to
+        write them again, see ``_pending``), then everything flushed, with the count."""
         for dataset in (self._lines, *self._columns.values()):
-            dataset.resize(start, axis=0)
-        for lines, columns in self._unflushed:
-            stop = start + lines.shape[0]
-            self._lines.resize(stop, axis=0)
-            self._lines[start:stop] = lines
-            for name, values in columns.items():
-                self._columns[name].resize(stop, axis=0)
-                self._columns[name][start:stop] = values
-            start = stop
+            dataset.resize(self._flushed_lines, axis=0)
+        self._in_file = self._flushed_lines
+        self._put_pending()
+        start = self.lines
         changes = np.asarray(self._stage_change_list, dtype=np.int64).reshape(-1, 2)
         self._stage_changes.resize(0, axis=0)
         self._stage_changes.resize(len(changes), axis=0)
@@ -538,7 +526,7 @@ class TdiRecorder:
         self._lines_flushed[0] = start
         self._headroom.flush(regrow=False)
         self._flushed_lines = start
-        self._unflushed.clear()
+        self._pending.clear()
 
     def note_stage_change(self, line_index: SupportsIndex, stages: SupportsIndex) -> None:
         """Record that from line ``line_index`` on the scan sums ``stages`` stages.
