@@ -120,7 +120,7 @@ def measure(
         backend = get_backend(sock)
         recorder = TdiRecorder(Path(tmp) / "scan.h5", width=cols, mode="sum", metadata={})
         engine = TdiEngine(stages, cols)
-        # Load (or compile) the kernel first, as a scan does (camd.daemon.scan_service).
+        # Load (or compile) the kernel first, as a scan does (camd.daemon.scan_planner).
         TdiEngine(stages, cols).push_many(np.zeros((2, stages, cols), dtype=np.uint16))
         pipeline = TdiPipeline(engine, recorder, rows=stages)
         stream = FrameStream(

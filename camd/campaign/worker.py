@@ -3,7 +3,7 @@
     python -m camd.campaign.worker check FILE [--quick] [--url URL]
     python -m camd.campaign.worker run --url URL --job N --run K --file FILE --out DIR [--quick]
 
-The daemon (``camd.daemon.campaign_jobs``) starts it; nobody else needs to.
+The daemon (``camd.daemon.campaign_worker``, for its campaign jobs) starts it; nobody else needs to.
 
 ``check`` loads and checks a campaign without running it and prints ``{"file", "campaign",
 "profile", "steps"}`` as JSON; a campaign that cannot be run exits 2 with the reason as the

@@ -15,7 +15,7 @@ set, the optics, the stage) it computes, once, everything a scan needs (docs/sca
 - the TDI geometry (rows the engine reads, columns) and the file target with its planned size.
 
 Anything that cannot work is refused here, with a ``BadRequest`` that says what to change, so
-that a refused scan changes nothing. ``ScanService`` then applies the plan step by step and
+that a refused scan changes nothing. ``ScanApply`` then applies the plan step by step and
 puts back what it changed if a step fails (``camd.daemon.transaction``).
 """
 

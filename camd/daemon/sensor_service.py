@@ -43,7 +43,7 @@ from camd.daemon.register_plan import (
 )
 from camd.daemon.register_plan import (
     RegisterSnapshot as RegisterSnapshot,
-)  # ScanService plans on it
+)  # ScanPlanner plans on it
 from camd.daemon.state import Request, describe
 from camd.daemon.transaction import Apply
 from camd.sensor.bridge import RegisterBridge
