@@ -7,6 +7,7 @@ camd/daemon/models/: to change one, change the model and run that command
 (tests/test_client_requests.py fails while this file is stale). A method takes
 ``**options: Unpack[ScanRequestOptions]`` and sends only the keys it is given; the daemon's model
 supplies the others, so each default is written once, in the model (the comments here quote it).
+The keys a method takes as parameters of its own (e.g. ``ping``'s count) are not here.
 The module imports nothing of camd.
 """
 
@@ -16,8 +17,9 @@ from typing import Literal, TypedDict
 
 
 class ScanRequestOptions(TypedDict, total=False):
-    """The optional keys of ``ScanRequest``: POST /api/v1/scan/start: a push-broom scan with host
-    TDI (docs/scan.md). A key not given is not sent: the daemon's model supplies its default."""
+    """The optional keys of ``ScanRequest``, the keyword arguments of ``start_scan``: POST
+    /api/v1/scan/start: a push-broom scan with host TDI (docs/scan.md). A key not given is not
+    sent: the daemon's model supplies its default."""
 
     # the new HDF5 file, on the daemon's host: relative = in <data_dir>/scans; absolute = inside the
     # data directory or daemon.record_dirs (docs/api.md, Files); null = <data_dir>/scans/scan-<UTC
@@ -53,3 +55,169 @@ class ScanRequestOptions(TypedDict, total=False):
     binning: Literal["off", "2x2"]
     # write a PNG quicklook beside the file; default True
     quicklook: bool
+
+
+class PingRequestOptions(TypedDict, total=False):
+    """The optional keys of ``PingRequest`` but count, the keyword arguments of ``ping``: POST
+    /api/v1/ping. A key not given is not sent: the daemon's model supplies its default."""
+
+    # payload bytes per PING; default 16
+    size: int
+
+
+class LinkCommandRequestOptions(TypedDict, total=False):
+    """The optional keys of ``LinkCommandRequest`` but command and payload_hex, the keyword
+    arguments of ``link_command``: POST /api/v1/link/command: one COMMAND frame, for conformance
+    tests (docs/api.md). A key not given is not sent: the daemon's model supplies its default."""
+
+    # the opcode byte, 0..255, any (or give command); default None
+    opcode: int | None
+    # request fields by name, encoded and range-checked by the dictionary (needs command); bytes
+    # fields as hex strings; default None
+    fields: dict[str, int | float | str] | None
+    # send the identical frame (same sequence number) again after the answer, as a retry after a
+    # lost answer would; both answers are returned; default False
+    repeat: bool
+
+
+class StreamStartRequestOptions(TypedDict, total=False):
+    """The optional keys of ``StreamStartRequest`` but frames and timeout_s, the keyword arguments
+    of ``start_stream``: POST /api/v1/stream/start (returns at once) and /stream/acquire (returns
+    when done). A key not given is not sent: the daemon's model supplies its default."""
+
+    # set this imaging mode first; null keeps the current one; default None
+    mode: Literal["area", "tdi"] | None
+    # TDI stage count recorded with the frames (tdi mode: 1..window rows; null = all window rows);
+    # ignored in area mode; default None
+    stages: int | None
+    # FPGA-side 2x2 binning; default 'off'
+    binning: Literal["off", "2x2"]
+    # new HDF5 file to record the frames to, on the daemon's host: relative = in
+    # <data_dir>/recordings; absolute = inside the data directory or daemon.record_dirs
+    # (docs/api.md, Files); null records nothing; default None
+    record: str | None
+
+
+class StreamAcquireOptions(TypedDict, total=False):
+    """The optional keys of ``StreamStartRequest`` but frames, the keyword arguments of ``acquire``:
+    POST /api/v1/stream/start (returns at once) and /stream/acquire (returns when done). A key
+    not given is not sent: the daemon's model supplies its default."""
+
+    # set this imaging mode first; null keeps the current one; default None
+    mode: Literal["area", "tdi"] | None
+    # TDI stage count recorded with the frames (tdi mode: 1..window rows; null = all window rows);
+    # ignored in area mode; default None
+    stages: int | None
+    # FPGA-side 2x2 binning; default 'off'
+    binning: Literal["off", "2x2"]
+    # new HDF5 file to record the frames to, on the daemon's host: relative = in
+    # <data_dir>/recordings; absolute = inside the data directory or daemon.record_dirs
+    # (docs/api.md, Files); null records nothing; default None
+    record: str | None
+    # acquire only: give up after this long (default: twice the expected time plus 10 s); default
+    # None
+    timeout_s: float | None
+
+
+class ControlRequestOptions(TypedDict, total=False):
+    """The optional keys of ``ControlRequest`` but ttl_s, the keyword arguments of ``take_control``:
+    POST /api/v1/control: take (or renew) control. A key not given is not sent: the daemon's
+    model supplies its default."""
+
+    # take control from another client (logged as an event); default False
+    force: bool
+
+
+class MotionMoveRequestOptions(TypedDict, total=False):
+    """The optional keys of ``MotionMoveRequest`` but wait, the keyword arguments of ``move_stage``:
+    POST /api/v1/motion/move: go to a position and stop. A key not given is not sent: the
+    daemon's model supplies its default."""
+
+    # cruise speed; null = the speed limit; default None
+    speed_m_s: float | None
+
+
+class StageRequestOptions(TypedDict, total=False):
+    """The optional keys of ``StageRequest``, the keyword arguments of ``set_stage``: PUT
+    /api/v1/sim/stage. A key not given is not sent: the daemon's model supplies its default."""
+
+    # follow the synchronous speed; default True
+    track: bool
+    # speed when not tracking; default 0.0
+    speed_m_s: float
+
+
+class SimStageFaultsRequestOptions(TypedDict, total=False):
+    """The optional keys of ``SimStageFaultsRequest``, the keyword arguments of
+    ``set_stage_faults``: PUT /api/v1/sim/stage/faults: the simulated stage's imperfections. A
+    key not given is not sent: the daemon's model supplies its default."""
+
+    # relative step-rate error; default 0.0
+    error: float
+    # relative ripple amplitude; default 0.0
+    ripple: float
+    # relative RMS speed jitter; default 0.0
+    jitter: float
+    # relative drift per second; default 0.0
+    drift: float
+    # load / pull-out torque; default 0.0
+    load: float
+
+
+class SimFailNextRequestOptions(TypedDict, total=False):
+    """The optional keys of ``SimFailNextRequest``, the keyword arguments of ``fail_next``: POST
+    /api/v1/sim/fail-next: make one coming command fail (SIM_FAIL_NEXT), with a NAK (``error``),
+    a dropped line (``duration_s``), or a stream the camera ends early (``end_after_frames``). A
+    key not given is not sent: the daemon's model supplies its default."""
+
+    # commands of that kind to let through first; default 0
+    skip: int
+    # answer it with a NAK of this error, e.g. BUSY (docs/protocol.md); default None
+    error: str | None
+    # or: drop off the line for this long, s; default None
+    duration_s: float | None
+    # or: the command (START_STREAM, WHEEL_ACQUIRE) executes, and the camera ends the stream it
+    # starts after this many frames (STREAM_DONE); default None
+    end_after_frames: int | None
+
+
+class WheelAcquireRequestOptions(TypedDict, total=False):
+    """The optional keys of ``WheelAcquireRequest`` but region, the keyword arguments of
+    ``wheel_acquire``: POST /api/v1/wheel/acquire: one frame per channel per pass
+    (docs/wheel.md). A key not given is not sent: the daemon's model supplies its default."""
+
+    # times through the channel list; default 1
+    passes: int
+    # set this exposure first (whole lines: round(T_exp / T_line)); null keeps the registers';
+    # default None
+    exposure_s: float | None
+    # set compensation first; null keeps the wheel's setting; default None
+    compensated: bool | None
+    # new HDF5 file for the frames, on the daemon's host: relative = in <data_dir>/recordings;
+    # absolute = inside the data directory or daemon.record_dirs (docs/api.md, Files); null: none;
+    # default None
+    record: str | None
+    # give up after this long (default: twice a revolution per frame + 10 s); default None
+    timeout_s: float | None
+
+
+class CampaignStartRequestOptions(TypedDict, total=False):
+    """The optional keys of ``CampaignStartRequest``, the keyword arguments of ``start_campaign``:
+    POST /api/v1/campaigns/jobs. A key not given is not sent: the daemon's model supplies its
+    default."""
+
+    # output directory on the daemon's host: relative = in <data_dir>/campaigns; absolute = inside
+    # the data directory or daemon.record_dirs (docs/api.md, Files); null =
+    # <data_dir>/campaigns/<id>-<campaign>; default None
+    out: str | None
+    # the campaign's CI-sized overrides; default False
+    quick: bool
+
+
+class CampaignActionRequestOptions(TypedDict, total=False):
+    """The optional keys of ``CampaignActionRequest``, the keyword arguments of ``pause_campaign``,
+    ``abort_campaign``: POST /api/v1/campaigns/jobs/{id}/pause and /abort. A key not given is not
+    sent: the daemon's model supplies its default."""
+
+    # pause or abort a job another client started (logged as a warning); default False
+    force: bool

@@ -177,9 +177,9 @@ class StepExecutor:
             doc = dict(
                 self.client.acquire(
                     int(s.frames),
-                    mode=None if s.mode is None else str(s.mode),
+                    mode=None if s.mode is None else cast(Literal["area", "tdi"], str(s.mode)),
                     stages=None if s.stages is None else int(s.stages),
-                    binning=str(s.binning),
+                    binning=cast(Literal["off", "2x2"], str(s.binning)),
                     record=str(path),
                     timeout_s=None if s.timeout_s is None else float(s.timeout_s),
                 )

@@ -5,12 +5,17 @@ A request model's optional fields carry their defaults (``camd.daemon.models``).
 takes them as ``**options: Unpack[ScanRequestOptions]`` and sends only the keys it is given, so
 that the daemon's model supplies the others: each default is written once, in the model (the
 generated comments quote it), and the client's keyword arguments are the model's fields, of the
-model's types. ``tests/test_client_requests.py`` fails when the committed file is stale.
+model's types. ``tests/test_client_requests.py`` fails when the committed file is stale, and
+checks each method of ``CLIENT_REQUESTS`` against its model.
 
-One TypedDict per model of ``OPTIONS_OF``, named ``<Model>Options``, ``total=False``, with the
-model's fields that have a default, in field order, each keyed by the name the API reads (its
+``CLIENT_REQUESTS`` says how ``CamdClient``'s methods send each request model: the optional keys
+a method takes as parameters of its own (``own``: those its callers pass positionally, such as
+``ping(5)``'s count, whose default ``UNSET`` means "not sent", and those the client converts or
+that hold a model), the keys it never sends (``not_taken``), and the rest, its keyword options.
+One TypedDict per entry with options left, named ``<Model>Options`` unless the entry names it,
+``total=False``, with those fields in field order, each keyed by the name the API reads (its
 alias, else its name). The types are rendered as camd/client_types.py renders them
-(``camd.daemon.client_types_gen``); a field holding a model is refused.
+(``camd.daemon.client_types_gen``); a field holding a model is refused (take it as ``own``).
 
     python -m camd.daemon.client_requests_gen            write camd/client_requests.py
     python -m camd.daemon.client_requests_gen --check    exit 1 if the file differs from the render
@@ -19,6 +24,7 @@ alias, else its name). The types are rendered as camd/client_types.py renders th
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 from pydantic import BaseModel
@@ -36,13 +42,79 @@ from camd.daemon.client_types_gen import (
     render_type,
     summary,
 )
-from camd.daemon.models import ScanRequest
+from camd.daemon.models import (
+    ActivityRequest,
+    BackgroundRequest,
+    CampaignActionRequest,
+    CampaignStartRequest,
+    ControlRequest,
+    LinkCommandRequest,
+    MotionEnableRequest,
+    MotionMoveRequest,
+    PingRequest,
+    ScanRequest,
+    SimFailNextRequest,
+    SimStageFaultsRequest,
+    StageRequest,
+    StreamStartRequest,
+    WheelAcquireRequest,
+)
 
 COMMAND = "python -m camd.daemon.client_requests_gen"
 OUTPUT = Path(__file__).resolve().parents[1] / "client_requests.py"
 
-# The request models whose optional keys CamdClient's methods take as keyword arguments.
-OPTIONS_OF: tuple[type[BaseModel], ...] = (ScanRequest,)
+
+@dataclass(frozen=True)
+class ClientRequest:
+    """How ``CamdClient``'s ``methods`` send ``model``: its optional keys but ``own`` (parameters
+    of the methods' own, default ``UNSET``: not sent) and ``not_taken`` (never sent) are their
+    keyword options, the TypedDict ``name`` (default ``<Model>Options``)."""
+
+    model: type[BaseModel]
+    methods: tuple[str, ...]
+    own: tuple[str, ...] = ()
+    not_taken: tuple[str, ...] = ()
+    name: str = ""
+
+    @property
+    def options_name(self) -> str:
+        """The name of the TypedDict of the methods' keyword options."""
+        return self.name or f"{self.model.__name__}Options"
+
+    def options(self) -> list[tuple[str, FieldInfo]]:
+        """(key, field) of the optional fields the methods take as keyword options."""
+        fields = optional_fields(self.model)
+        keys = {key for key, _ in fields}
+        unknown = sorted((set(self.own) | set(self.not_taken)) - keys)
+        if unknown:
+            raise ClientTypesError(
+                f"{self.model.__name__} has no optional key {', '.join(unknown)}"
+            )
+        return [(k, f) for k, f in fields if k not in self.own and k not in self.not_taken]
+
+
+# Every client method that sends a request model with defaults, and how.
+CLIENT_REQUESTS: tuple[ClientRequest, ...] = (
+    ClientRequest(ScanRequest, ("start_scan",)),
+    ClientRequest(PingRequest, ("ping",), own=("count",)),
+    # payload_hex: the method takes the payload as bytes (``payload``) and sends it as hex.
+    ClientRequest(LinkCommandRequest, ("link_command",), own=("command", "payload_hex")),
+    # timeout_s bounds an acquisition only: a started stream runs until stopped.
+    ClientRequest(StreamStartRequest, ("start_stream",), own=("frames",), not_taken=("timeout_s",)),
+    ClientRequest(StreamStartRequest, ("acquire",), own=("frames",), name="StreamAcquireOptions"),
+    ClientRequest(BackgroundRequest, ("capture_background",), own=("frames",)),
+    ClientRequest(ControlRequest, ("take_control",), own=("ttl_s",)),
+    ClientRequest(ActivityRequest, ("set_activity",), own=("done", "total")),
+    ClientRequest(MotionEnableRequest, ("enable_stage",), own=("on",)),
+    # wait: the client always asks for an answer at once and polls (``wait_stage``) itself.
+    ClientRequest(MotionMoveRequest, ("move_stage",), not_taken=("wait",)),
+    ClientRequest(StageRequest, ("set_stage",)),
+    ClientRequest(SimStageFaultsRequest, ("set_stage_faults",)),
+    ClientRequest(SimFailNextRequest, ("fail_next",)),
+    ClientRequest(WheelAcquireRequest, ("wheel_acquire",), own=("region",)),
+    ClientRequest(CampaignStartRequest, ("start_campaign",)),
+    ClientRequest(CampaignActionRequest, ("pause_campaign", "abort_campaign")),
+)
 
 HEADER = f'''\
 # Generated from camd/daemon/models/ by `{COMMAND}`: do not edit.
@@ -54,6 +126,7 @@ camd/daemon/models/: to change one, change the model and run that command
 (tests/test_client_requests.py fails while this file is stale). A method takes
 ``**options: Unpack[ScanRequestOptions]`` and sends only the keys it is given; the daemon's model
 supplies the others, so each default is written once, in the model (the comments here quote it).
+The keys a method takes as parameters of its own (e.g. ``ping``'s count) are not here.
 The module imports nothing of camd.
 """
 
@@ -75,18 +148,26 @@ def optional_fields(model: type[BaseModel]) -> list[tuple[str, FieldInfo]]:
     return out
 
 
-def render_options(model: type[BaseModel], annotations: list[str] | None = None) -> list[str]:
-    """The ``<Model>Options`` TypedDict of ``model``'s optional fields."""
+def render_options(request: ClientRequest, annotations: list[str] | None = None) -> list[str]:
+    """The TypedDict of the keyword options of ``request``'s methods (none: no lines)."""
+    model = request.model
     if not is_request(model):
         raise ClientTypesError(f"{model.__name__} is not a request body")
-    fields = optional_fields(model)
+    fields = request.options()
     if not fields:
-        raise ClientTypesError(f"{model.__name__} has no optional field")
-    text = (
-        f"The optional keys of ``{model.__name__}``: {summary(model)} A key not given is not "
-        "sent: the daemon's model supplies its default."
+        return []
+    methods = ", ".join(f"``{m}``" for m in request.methods)
+    left_out = [*request.own, *request.not_taken]
+    taken = (
+        ""
+        if not left_out
+        else " but " + " and ".join(filter(None, [", ".join(left_out[:-1]), left_out[-1]]))
     )
-    lines = [f"class {model.__name__}Options(TypedDict, total=False):", *docstring_lines(text)]
+    text = (
+        f"The optional keys of ``{model.__name__}``{taken}, the keyword arguments of {methods}: "
+        f"{summary(model)} A key not given is not sent: the daemon's model supplies its default."
+    )
+    lines = [f"class {request.options_name}(TypedDict, total=False):", *docstring_lines(text)]
     lines.append("")
     for key, info in fields:
         if any(True for _ in nested_models(info.annotation)):
@@ -103,10 +184,10 @@ def render_options(model: type[BaseModel], annotations: list[str] | None = None)
     return lines
 
 
-def render_client_requests(models: Sequence[type[BaseModel]] = OPTIONS_OF) -> str:
-    """The text of camd/client_requests.py for ``models``."""
+def render_client_requests(requests: Sequence[ClientRequest] = CLIENT_REQUESTS) -> str:
+    """The text of camd/client_requests.py for ``requests``."""
     annotations: list[str] = []
-    classes = [render_options(model, annotations) for model in models]
+    classes = [lines for request in requests if (lines := render_options(request, annotations))]
     return module_text(HEADER, classes, annotations)
 
 

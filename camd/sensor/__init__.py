@@ -1,7 +1,9 @@
 """Sensor registers: maps as data, typed access through a bridge, the timing they set.
 
 - ``camd.sensor.regmap``: register maps (``config/sensors/<sensor>.toml``), validated at load
+  (their entries in ``regmap_entries``, the checks across entries in ``regmap_checks``)
 - ``camd.sensor.registers.SensorRegisters``: validated, verified access by name or address
+  (its writes planned by ``camd.sensor.write_plan``, pure)
 - ``camd.sensor.timing_view``: ``SensorTiming`` from the registers (pure)
 - ``camd.sensor.bridge.RegisterBridge``: how the host reaches the registers (FPGA, USB-SPI)
 

@@ -26,29 +26,29 @@ shows) except W1C flags with its reset value; ``diff(path)`` and ``diff(mapping)
 the names given. Write-only registers are compared through the shadow copy.
 
 Thread-safety is the caller's job: one ``SensorRegisters`` per bridge, one call at a time.
+
+What a request names and what writing it takes (the checks, the new values, the burst) is
+worked out before anything is sent by ``camd.sensor.write_plan.WritePlanner``, which touches no
+bus; ``SensorRegisters`` keeps the shadow copy and talks to the bridge.
 """
 
 from __future__ import annotations
 
-import contextlib
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from camd.sensor.bridge import BridgeError, RegisterBridge
 from camd.sensor.config_file import ConfigFileError, format_configuration, parse_configuration
 from camd.sensor.regmap import (
-    FieldSpec,
-    GroupSpec,
     RegisterAccessError,
     RegisterMap,
     RegisterSpec,
     RegisterValueError,
 )
 from camd.sensor.timing_view import SensorTiming, sensor_timing
-
-Value = int | str
+from camd.sensor.write_plan import Target, Value, WritePlan, WritePlanner, hex_value
 
 
 @dataclass(frozen=True, slots=True)
@@ -108,40 +108,6 @@ class VerifyError(BridgeError):
         )
 
 
-@dataclass(frozen=True, slots=True)
-class _Target:
-    """What a key names: a register, one of its fields, or a group."""
-
-    name: str
-    reg: RegisterSpec | None = None
-    field: FieldSpec | None = None
-    group: GroupSpec | None = None
-
-
-@dataclass
-class _Plan:
-    """Validated new register values of one write (or stage, or flush)."""
-
-    values: dict[str, int]
-    named: list[str]
-    holds: dict[str, list[GroupSpec]] = field(default_factory=dict)
-
-
-def _coerce(value: object) -> object:
-    """CLI values arrive as text: numbers become ints ("0x2F5", "757"), labels stay text."""
-    if isinstance(value, str):
-        text = value.strip()
-        try:
-            return int(text, 0)
-        except ValueError:
-            return text
-    return value
-
-
-def _hex(reg: RegisterSpec, value: int) -> str:
-    return f"0x{value:0{(reg.width + 3) // 4}X}"
-
-
 class SensorRegisters:
     """Register access for one sensor (``regmap``) through ``bridge``; see the module doc."""
 
@@ -150,6 +116,7 @@ class SensorRegisters:
         self.bridge = bridge
         self._shadow: dict[str, int] = {reg.name: reg.reset for reg in regmap.registers}
         self._dirty: set[str] = set()
+        self._planner = WritePlanner(regmap)
 
     # -- shadow copy ------------------------------------------------------------------------------
 
@@ -160,7 +127,7 @@ class SensorRegisters:
 
     def shadow_value(self, key: str | int) -> int:
         """The shadow copy of one register (by name or address)."""
-        return self._shadow[self._register(key).name]
+        return self._shadow[self._planner.register(key).name]
 
     def sync(self) -> list[RegisterReading]:
         """Read every readable register into the shadow copy; clears the dirty marks."""
@@ -178,7 +145,7 @@ class SensorRegisters:
         Nothing is sent until ``flush()``. Actions (soft reset, self-clearing bits, clearing
         W1C flags) cannot be staged: they would be lost in the shadow; use ``write``.
         """
-        plan = self._plan(assignments, self._shadow_of, staging=True)
+        plan = self._planner.plan(assignments, self._shadow_of, staging=True)
         for name, value in plan.values.items():
             self._apply(self.regmap.register(name), value)
             self._dirty.add(name)
@@ -193,8 +160,8 @@ class SensorRegisters:
             if any(member in self._dirty for member in group.registers):
                 names += [m for m in group.registers if m not in names]
         values = {name: self._shadow[name] for name in names}
-        plan = _Plan(values, names, self._holds(values))
-        burst = self._burst(plan, self._shadow_of)
+        plan = WritePlan(values, names, self._planner.holds(values))
+        burst = self._planner.burst(plan, self._shadow_of)
         self.bridge.write_burst([(reg.address, value) for reg, value in burst])
         written = self._after_burst(burst)
         read_back = self._verify(written) if verify else {}
@@ -210,7 +177,7 @@ class SensorRegisters:
         ``dump()``, and nothing is sent (docs/cli.md, camctl reg read). Raises
         RegisterAccessError for unknown names or addresses.
         """
-        target = self._target(key)
+        target = self._planner.target(key)
         if target.group is not None:
             regs = self.regmap.group_registers(target.group)
             values = {reg.name: self._read_or_shadow(reg) for reg in regs}
@@ -240,7 +207,7 @@ class SensorRegisters:
 
     def read_value(self, name: str) -> Value:
         """The device's value of ``REG`` (raw), ``REG.field`` (enum label or raw) or ``GROUP``."""
-        target = self._target(name)
+        target = self._planner.target(name)
         return self.regmap.value_of(target.name, self._read_device)
 
     def dump(self) -> list[RegisterReading]:
@@ -273,8 +240,8 @@ class SensorRegisters:
         """
         current = self._cached_reader()
 
-        plan = self._plan(assignments, current, staging=False)
-        burst = self._burst(plan, current)
+        plan = self._planner.plan(assignments, current, staging=False)
+        burst = self._planner.burst(plan, current)
         self.bridge.write_burst([(reg.address, value) for reg, value in burst])
         written = self._after_burst(burst)
         read_back = self._verify(written) if verify else {}
@@ -296,7 +263,7 @@ class SensorRegisters:
         def raw(reg: RegisterSpec) -> int:
             return current[reg.name]
 
-        plan = self._plan(assignments, raw, staging=False)
+        plan = self._planner.plan(assignments, raw, staging=False)
         after = {**current, **plan.values}
         timing = sensor_timing(
             self.regmap, lambda name: self.regmap.value_of(name, lambda reg: after[reg.name])
@@ -360,26 +327,26 @@ class SensorRegisters:
         ``against``: ``"reset"`` (reset values), the path of a saved configuration, or a
         mapping name -> expected value. Sorted by address.
         """
-        expected: list[tuple[_Target, int]]
+        expected: list[tuple[Target, int]]
         if isinstance(against, str) and against.strip().lower() == "reset":
             expected = [
-                (_Target(reg.name, reg), reg.reset)
+                (Target(reg.name, reg), reg.reset)
                 for reg in self.regmap.by_address()
                 if not reg.volatile and reg.access != "w1c"
             ]
         elif isinstance(against, str | Path):
             sensor, values = self._read_configuration_file(against)
             self.check_configuration(sensor, values, source=str(against))
-            expected = [(self._target(name), value) for name, value in values.items()]
+            expected = [(self._planner.target(name), value) for name, value in values.items()]
         else:
-            expected = [self._expectation(key, value) for key, value in against.items()]
+            expected = [self._planner.expectation(key, value) for key, value in against.items()]
         raw = self._cached_reader()
 
         diffs = []
         for target, want in expected:
-            got = self._raw_value(target, raw)
+            got = self._planner.raw_value(target, raw)
             if got != want:
-                diffs.append(RegisterDiff(target.name, self._address(target), want, got))
+                diffs.append(RegisterDiff(target.name, self._planner.address(target), want, got))
         return sorted(diffs, key=lambda d: (d.address, d.name))
 
     # -- resolution -------------------------------------------------------------------------------
@@ -398,60 +365,13 @@ class SensorRegisters:
 
         return raw
 
-    def _register(self, key: str | int) -> RegisterSpec:
-        target = self._target(key)
-        if target.reg is None or target.field is not None:
-            raise RegisterAccessError(f"{target.name} is not a register")
-        return target.reg
-
-    def _target(self, key: str | int) -> _Target:
-        if isinstance(key, bool) or not isinstance(key, int | str):
-            raise RegisterAccessError(f"{key!r} is not a register name or address")
-        if isinstance(key, str):
-            with contextlib.suppress(ValueError):
-                key = int(key.strip(), 0)
-        if isinstance(key, int):
-            reg = self.regmap.register(key)
-            return _Target(reg.name, reg)
-        target, field_spec = self.regmap.resolve(key)
-        if isinstance(target, GroupSpec):
-            return _Target(target.name, group=target)
-        if field_spec is None:
-            return _Target(target.name, target)
-        return _Target(f"{target.name}.{field_spec.name}", target, field_spec)
-
-    def _address(self, target: _Target) -> int:
-        if target.group is not None:
-            return self.regmap.group_registers(target.group)[0].address
-        assert target.reg is not None
-        return target.reg.address
-
-    def _raw_value(self, target: _Target, raw: Callable[[RegisterSpec], int]) -> int:
-        if target.group is not None:
-            regs = self.regmap.group_registers(target.group)
-            return self.regmap.join_group(target.group, {reg.name: raw(reg) for reg in regs})
-        assert target.reg is not None
-        value = raw(target.reg)
-        return target.field.extract(value) if target.field is not None else value
-
-    def _expectation(self, key: str, value: Value) -> tuple[_Target, int]:
-        target = self._target(key)
-        coerced = _coerce(value)
-        if isinstance(coerced, str):
-            if target.field is None:
-                raise RegisterValueError(f"{target.name}: {coerced!r} is not a number")
-            return target, target.field.to_raw(coerced, target.name)
-        if isinstance(coerced, bool) or not isinstance(coerced, int):
-            raise RegisterValueError(f"{target.name}: expected an integer, got {value!r}")
-        return target, coerced
-
     # -- device and shadow access -------------------------------------------------------------------
 
     def _read_device(self, reg: RegisterSpec) -> int:
         if not reg.readable:
             raise RegisterAccessError(
                 f"{reg.name} (0x{reg.address:02X}) is write-only: the sensor cannot return its "
-                f"value. The host's last written value is {_hex(reg, self._shadow[reg.name])} "
+                f"value. The host's last written value is {hex_value(reg, self._shadow[reg.name])} "
                 "(shadow copy; `camctl reg dump` lists it)"
             )
         return self.bridge.read(reg.address)
@@ -516,169 +436,9 @@ class SensorRegisters:
             raise VerifyError(mismatches)
         return read_back
 
-    # -- planning ---------------------------------------------------------------------------------
-
-    def _check_writable(self, reg: RegisterSpec, name: str, *, staging: bool) -> None:
-        if not reg.writable:
-            raise RegisterAccessError(
-                f"{name} (0x{reg.address:02X}) is read-only; it cannot be written"
-            )
-        if staging and reg.access == "w1c":
-            raise RegisterAccessError(
-                f"{name}: clearing flags is an action, it cannot be staged; use write"
-            )
-
-    def _plan(
-        self,
-        assignments: Mapping[str, Value],
-        current: Callable[[RegisterSpec], int],
-        *,
-        staging: bool,
-    ) -> _Plan:
-        if not assignments:
-            raise RegisterValueError("nothing to write: give one or more NAME=VALUE")
-        parsed: list[tuple[_Target, Any]] = []
-        for key, given in assignments.items():  # every pure check before any bus access
-            target = self._target(key)
-            value = _coerce(given)
-            if target.group is not None:
-                if isinstance(value, str):
-                    raise RegisterValueError(
-                        f"{target.name}: {value!r} is not a number; give an integer"
-                    )
-                parsed.append((target, self.regmap.split_group(target.group, value)))  # type: ignore[arg-type]
-                continue
-            reg = target.reg
-            assert reg is not None
-            self._check_writable(reg, target.name, staging=staging)
-            if target.field is None:
-                if isinstance(value, str):
-                    raise RegisterValueError(
-                        f"{reg.name}: {value!r} is not a number; give an integer (e.g. "
-                        f"{_hex(reg, reg.reset)}) or set a field by name, e.g. "
-                        f"{reg.name}.{reg.all_fields()[0].name}=..."
-                    )
-                raw = reg.check_value(value)  # type: ignore[arg-type]
-            else:
-                raw = target.field.to_raw(value, target.name)  # type: ignore[arg-type]
-            parsed.append((target, raw))
-        values: dict[str, int] = {}
-        named: list[str] = []
-        for target, raw in parsed:
-            if target.group is not None:
-                for reg, part in raw:
-                    values[reg.name] = part
-                    named.append(reg.name)
-                continue
-            reg = target.reg
-            assert reg is not None
-            named.append(reg.name)
-            if target.field is None:
-                values[reg.name] = raw
-            elif reg.access == "w1c":  # alone: RMW would write back every set flag, clearing it
-                values[reg.name] = target.field.insert(values.get(reg.name, 0), raw)
-            else:
-                base = values[reg.name] if reg.name in values else current(reg)
-                values[reg.name] = target.field.insert(base, raw)
-        if staging:
-            self._check_stageable(values)
-        plan = _Plan(values, named, self._holds(values))
-        self._check_window(plan, current)
-        return plan
-
-    def _check_stageable(self, values: Mapping[str, int]) -> None:
-        for name, value in values.items():
-            reg = self.regmap.register(name)
-            if self.regmap.is_soft_reset(reg, value) or value & reg.pulse_mask:
-                raise RegisterAccessError(
-                    f"{name} = {_hex(reg, value)} is an action (reset or self-clearing bit), "
-                    "which cannot be staged; use write"
-                )
-
-    def _holds(self, values: Mapping[str, int]) -> dict[str, list[GroupSpec]]:
-        """Hold register -> groups with registers in ``values`` (which must leave hold at 0)."""
-        holds: dict[str, list[GroupSpec]] = {}
-        for group in self.regmap.groups:
-            hold = self.regmap.hold_of(group)
-            if hold is None or not any(m in values for m in group.registers):
-                continue
-            hold_reg, hold_field = hold
-            if hold_reg.name in values and hold_field.extract(values[hold_reg.name]):
-                raise RegisterValueError(
-                    f"{hold_reg.name}.{hold_field.name} = 1 together with {group.name}: the "
-                    f"group write sets and clears the hold itself; leave {hold_reg.name}."
-                    f"{hold_field.name} at 0 or write it separately"
-                )
-            holds.setdefault(hold_reg.name, []).append(group)
-        return holds
-
-    def _check_window(self, plan: _Plan, current: Callable[[RegisterSpec], int]) -> None:
-        involved: set[str] = set()
-        for role in ("window_start_row", "window_rows", "window_start_column", "window_columns"):
-            name = self.regmap.role(role)
-            if name is None:
-                continue
-            target, _ = self.regmap.resolve(name)
-            if isinstance(target, GroupSpec):
-                involved.update(target.registers)
-            else:
-                involved.add(target.name)
-        if not involved & plan.values.keys():
-            return
-
-        def after(reg: RegisterSpec) -> int:
-            return plan.values[reg.name] if reg.name in plan.values else current(reg)
-
-        self.regmap.check_window(lambda name: self.regmap.value_of(name, after))
-
-    def _burst(
-        self, plan: _Plan, current: Callable[[RegisterSpec], int]
-    ) -> list[tuple[RegisterSpec, int]]:
-        """The writes in order: plain registers, then each hold: set, group parts, clear."""
-        held = {m for groups in plan.holds.values() for g in groups for m in g.registers}
-        burst = [
-            (self.regmap.register(name), value)
-            for name, value in plan.values.items()
-            if name not in held and name not in plan.holds
-        ]
-        for hold_name, groups in plan.holds.items():
-            hold_reg = self.regmap.register(hold_name)
-            clear = plan.values[hold_name] if hold_name in plan.values else current(hold_reg)
-            hold_set = clear
-            for group in groups:
-                hold = self.regmap.hold_of(group)
-                assert hold is not None
-                clear = hold[1].insert(clear, 0)
-                hold_set = hold[1].insert(hold_set, 1)
-            burst.append((hold_reg, hold_set))
-            for group in groups:
-                for reg in self.regmap.group_registers(group):
-                    if reg.name in plan.values:
-                        burst.append((reg, plan.values[reg.name]))
-            burst.append((hold_reg, clear))
-        return burst
-
     def check_configuration(self, sensor: str, values: Mapping[str, int], *, source: str) -> None:
         """Refuse a configuration for another sensor or with non-configurable registers."""
-        mine = self.regmap.sensor
-        if sensor != mine:
-            raise RegisterValueError(
-                f"{source} is a configuration for sensor {sensor!r}, but this camera's sensor is "
-                f"{mine!r}; load a configuration saved from a {mine} (`camctl reg save FILE`)"
-            )
-        for name in values:
-            if not self.regmap.has_register(name):
-                raise RegisterAccessError(
-                    f"{source}: registers.{name}: {mine} has no register named {name!r}; "
-                    "remove it (`camctl reg dump` lists the registers)"
-                )
-            reg = self.regmap.register(name)
-            if not reg.configurable:
-                kind = f"{'volatile ' if reg.volatile else ''}{reg.access.upper()}"
-                raise RegisterAccessError(
-                    f"{source}: registers.{name}: a {kind} register is not part of a "
-                    "configuration (only RW and WO non-volatile registers are); remove it"
-                )
+        self._planner.check_configuration(sensor, values, source=source)
 
     @staticmethod
     def _read_configuration_file(path: str | Path) -> tuple[str, dict[str, int]]:

@@ -6,7 +6,8 @@ runs every workload kind once and then the mix for ``warmup_minutes`` as a warm-
 daemon's resources as the start, then runs kinds drawn from a seeded weighted mix until the time
 is up, sampling the resources every
 ``sample_s``; the end sample follows the last item. Every HTTP request goes through one
-``_CountingClient`` (the campaign's too), which counts answers by class.
+``_CountingClient`` (the campaign's too), which counts answers by class. The kinds of item
+themselves (their requests and checks) are ``camd.soak.kinds``.
 
 Sources of the figures:
 
@@ -27,11 +28,10 @@ import collections
 import contextlib
 import os
 import random
-import shutil
 import statistics
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, cast
 
@@ -40,6 +40,7 @@ import httpx
 from camd.bench.common import proc_status_int
 from camd.cli._daemon_proc import DaemonProcess
 from camd.client import CamdClient, CamdError
+from camd.soak.kinds import MISSING_KINDS, WINDOW_ROWS, Frames, WorkloadKinds
 
 __all__ = [
     "KINDS",
@@ -54,16 +55,8 @@ KINDS = ("ping", "telemetry", "registers", "stream", "stare", "scan", "campaign"
 WEIGHTS = {
     "ping": 3, "telemetry": 3, "registers": 3, "stream": 2, "stare": 2, "scan": 2, "campaign": 1,
 }  # fmt: skip
-WINDOW_ROWS = 32  # a small window keeps frames cheap for the simulator's renderer
-CAMPAIGN = "example_stare"  # run --quick
-DEFAULT_GAIN = 0x0040  # hr400 reset values (config/sensors/hr400.toml)
-DEFAULT_OFFSET = 100
-SCAN_TIMEOUT_S = 120.0
 # The stream engine's counters of frames made but never delivered whole, by cause.
 INJECTED_KINDS = ("dropped", "corrupted", "shortened", "stalls", "undelivered")
-# The host's counters of frames of a stream never delivered (docs/stream.md: each counter of a
-# stream is exactly one of delivered, lost, corrupt, short, overruns).
-MISSING_KINDS = ("lost", "corrupt", "short", "overruns")
 ERRORS_KEPT = 20
 RSS_SAMPLES = 5  # RSS growth: median of the first 5 samples against that of the last 5
 
@@ -150,14 +143,6 @@ class _KindStats:
     seconds: float = 0.0
 
 
-@dataclass
-class _Frames:
-    acquisitions: int = 0
-    produced_requested: int = 0
-    delivered: int = 0
-    host: collections.Counter[str] = field(default_factory=collections.Counter)
-
-
 class _CountingClient(CamdClient):
     """``CamdClient`` counting every HTTP request it makes, by how it was answered."""
 
@@ -187,10 +172,6 @@ class _CountingClient(CamdClient):
             self.errors.append(" ".join(text.split())[:400])
 
 
-class CheckFailed(Exception):
-    """A workload item's own check failed (read-back, CRC, a campaign check)."""
-
-
 class Soak:
     """One soak run (module docstring). ``progress`` gets a line of text now and then."""
 
@@ -199,7 +180,7 @@ class Soak:
         self.progress = progress
         self.rng = random.Random(settings.seed)
         self.kinds: dict[str, _KindStats] = {k: _KindStats() for k in KINDS}
-        self.frames = _Frames()
+        self.frames = Frames()
         self.check_failures = 0
         self.recoveries: collections.Counter[str] = collections.Counter()
         self.items = 0
@@ -207,6 +188,7 @@ class Soak:
         self.t0 = 0.0
         self.daemon: DaemonProcess | None = None
         self.client: _CountingClient | None = None
+        self._kinds: WorkloadKinds | None = None  # once the client and the line period are known
         self.sim_pid: int | None = None
         self.link_before: dict[str, Any] = {}
         self.link_after: dict[str, Any] = {}
@@ -277,6 +259,9 @@ class Soak:
         self.sim_pid = (status.get("link") or {}).get("sim_pid")
         client.write_registers({"WIN_ROWS": WINDOW_ROWS})
         self.line_period_s = float(client.timing()["line_period_s"])
+        self._kinds = WorkloadKinds(
+            client, self.rng, self.s.work_dir, self.frames, self.line_period_s
+        )
         self.link_before = self._link()
         self.sim_before = self._sim_stats()
         self.t0 = time.monotonic()
@@ -326,13 +311,13 @@ class Soak:
 
     def _item(self, kind: str) -> None:
         """Run one workload item of ``kind``; count it, never raise for its failure."""
-        assert self.client is not None
+        assert self.client is not None and self._kinds is not None
         stats = self.kinds[kind]
         stats.runs += 1
         self.items += 1
         started = time.monotonic()
         try:
-            getattr(self, f"_do_{kind}")()
+            self._kinds.run(kind, self.items)
         except Exception as exc:  # CamdError, CheckFailed, or a bug: a failed item
             stats.failed += 1
             if not isinstance(exc, CamdError):  # the client noted those already
@@ -358,135 +343,7 @@ class Soak:
             with contextlib.suppress(CamdError):
                 action()
 
-    # -- the workload kinds ---------------------------------------------------------------------
-
-    def _do_ping(self) -> None:
-        assert self.client is not None
-        count = self.rng.randint(10, 50)
-        # Payloads up to 64 bytes, the size of the daemon's own commands: at BER 1e-4 a
-        # 256-byte frame is hit in 19 % of its crossings each way, and the link's 6 attempts
-        # then fail about once in 250 pings, a figure of the line, not of the daemon.
-        doc = self.client.ping(count=count, size=self.rng.choice((0, 16, 64)))
-        if doc["failed"] or doc["ok"] != count:
-            raise CheckFailed(
-                f"{doc['failed']} of {count} pings failed: {'; '.join(doc['errors'])}"
-            )
-
-    def _do_telemetry(self) -> None:
-        assert self.client is not None
-        c = self.client
-        c.status()
-        latest = c.telemetry()["latest"]
-        if latest:
-            channel = self.rng.choice(sorted(latest))
-            c.history(channel, since_s=-60.0, limit=100)
-        c.events(limit=20)
-        c.link()
-        c.timing()
-        c.stream()
-        c.scan()
-        c.motion()
-        c.sim_stream_stats()
-        c.metrics()
-
-    def _do_registers(self) -> None:
-        assert self.client is not None
-        c = self.client
-        wanted = {
-            "GAIN": (self.rng.randint(0, 3) << 8) | self.rng.randint(32, 255),
-            "OFFSET": self.rng.randint(0, 1023),
-        }
-        for values in (wanted, {"GAIN": DEFAULT_GAIN, "OFFSET": DEFAULT_OFFSET}):
-            c.write_registers(dict(values))
-            for name, value in values.items():
-                got = c.read_register(name)["value"]
-                if got != value:
-                    raise CheckFailed(f"{name} reads back {got} after writing {value}")
-
-    def _do_stream(self) -> None:
-        assert self.client is not None
-        frames = self.rng.randint(100, 400)
-        stages = self.rng.choice((4, 8, 16, WINDOW_ROWS))
-        doc = self.client.acquire(frames, mode="tdi", stages=stages, timeout_s=60.0)
-        self._count_frames(frames, dict(doc["stats"]))
-
-    def _do_stare(self) -> None:
-        from camd.store.recording import read_recording
-
-        assert self.client is not None
-        frames = self.rng.randint(5, 30)
-        path = self._new_file(f"stare-{self.items}.h5")
-        doc = self.client.acquire(frames, mode="area", record=str(path), timeout_s=60.0)
-        stats = dict(doc["stats"])
-        self._count_frames(frames, stats)
-        recording = read_recording(path)
-        bad = recording.crc_mismatches()
-        if bad or len(recording.frames) != stats["frames"]:
-            raise CheckFailed(
-                f"{path}: {len(recording.frames)} frames read back for {stats['frames']} "
-                f"delivered, {len(bad)} differing from the device's CRC (file kept)"
-            )
-        path.unlink()
-
-    def _do_scan(self) -> None:
-        assert self.client is not None
-        c = self.client
-        stages = self.rng.choice((1, 8, 16, WINDOW_ROWS))
-        lines = self.rng.randint(100, 400)
-        quicklook = self.rng.random() < 0.5
-        path = self._new_file(f"scan-{self.items}.h5")
-        c.start_scan(
-            stages, lines, out=str(path), line_period_s=WINDOW_ROWS * self.line_period_s,
-            quicklook=quicklook, drive_stage=False,
-        )  # fmt: skip
-        doc = c.wait_scan(SCAN_TIMEOUT_S)
-        self._count_frames(int(doc["frames_requested"]), dict(doc["stream"]))
-        if doc["state"] != "done":
-            raise CheckFailed(f"scan {path} ended {doc['state']}: {doc['error']} (file kept)")
-        path.unlink(missing_ok=True)
-        path.with_suffix(".png").unlink(missing_ok=True)
-
-    def _do_campaign(self) -> None:
-        from camd.campaign.loading import load_campaign
-        from camd.campaign.runner import CampaignRunner
-        from camd.campaign.spec import CampaignError
-        from camd.cli.camctl_campaign import campaigns_dir
-        from camd.store.recording import read_recording
-
-        assert self.client is not None
-        out = self.s.work_dir / f"campaign-{self.items}"
-        spec = load_campaign(campaigns_dir() / f"{CAMPAIGN}.yaml")
-        try:
-            outcome = CampaignRunner(self.client, spec, out, quick=True, sim=True).run()
-            passed, why = outcome.passed, "a check failed"
-        except CampaignError as exc:
-            passed, why = False, str(exc)
-        finally:
-            # Its stares' host counters are in the recordings it made.
-            for path in sorted((out / "raw").glob("*.h5")):
-                stream = read_recording(path).metadata.get("stream", {})
-                self._count_frames(int(stream.get("frames_requested", 0)), stream)
-            # The campaign seeds the simulator per step: vary the faults that follow it.
-            self.client.set_sim_seed(self.rng.randrange(2**31))
-        if not passed:
-            raise CheckFailed(f"campaign {CAMPAIGN} --quick failed: {why} (kept in {out})")
-        shutil.rmtree(out)
-
     # -- bookkeeping ----------------------------------------------------------------------------
-
-    def _new_file(self, name: str) -> Path:
-        path = self.s.work_dir / "files" / name
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.unlink(missing_ok=True)
-        return path
-
-    def _count_frames(self, requested: int, stats: dict[str, Any]) -> None:
-        f = self.frames
-        f.acquisitions += 1
-        f.produced_requested += requested
-        f.delivered += int(stats.get("frames", 0))
-        for key in (*MISSING_KINDS, "stalls", "out_of_order"):
-            f.host[key] += int(stats.get(key, 0))
 
     def _sample(self, what: str) -> None:
         assert self.daemon is not None

@@ -1,0 +1,103 @@
+"""The frame stream over USB (start, acquire, stop, counters, headers) and the live view's parts
+that a script reads: the background and the lines of a TDI scan (docs/stream.md,
+docs/live-view.md)."""
+
+from __future__ import annotations
+
+import json
+from typing import TYPE_CHECKING, Any, Unpack, cast
+
+import httpx
+
+from camd.client.connection import API, UNSET, HttpClient, Unset, given
+from camd.client_requests import StreamAcquireOptions, StreamStartRequestOptions
+from camd.client_types import BackgroundStatus, StreamHeadersResponse, StreamResponse
+
+if TYPE_CHECKING:
+    import numpy as np
+    import numpy.typing as npt
+
+
+class StreamClient(HttpClient):
+    """The client of the stream routes and of the live view's background and lines."""
+
+    def stream(self) -> StreamResponse:
+        """The current or last stream and the host's ingest counters."""
+        return cast(StreamResponse, self._json("GET", f"{API}/stream"))
+
+    def start_stream(
+        self, frames: int | Unset = UNSET, **options: Unpack[StreamStartRequestOptions]
+    ) -> StreamResponse:
+        """Start streaming and return at once (0 frames, the default: until ``stop_stream``)."""
+        body = {**given(frames=frames), **options}
+        return cast(StreamResponse, self._json("POST", f"{API}/stream/start", json=body))
+
+    def acquire(self, frames: int, **options: Unpack[StreamAcquireOptions]) -> StreamResponse:
+        """Take ``frames`` frames (recording them to the new HDF5 file ``record`` on the daemon's
+        host, if given: relative = in its data directory's recordings, docs/api.md "Files") and
+        return the counters when the stream has ended."""
+        body = {"frames": frames, **options}
+        # The daemon bounds the acquisition (by timeout_s, or twice the expected time); the
+        # answer may take that long, so only connecting is bounded by the client's timeout.
+        timeout_s = options.get("timeout_s")
+        read_s = None if timeout_s is None else timeout_s + 30.0
+        timeout = httpx.Timeout(self.timeout_s, read=read_s)
+        return cast(
+            StreamResponse, self._json("POST", f"{API}/stream/acquire", json=body, timeout=timeout)
+        )
+
+    def stop_stream(self) -> StreamResponse:
+        """Stop the stream (harmless when not streaming)."""
+        return cast(StreamResponse, self._json("POST", f"{API}/stream/stop"))
+
+    def stream_headers(self) -> StreamHeadersResponse:
+        """The headers of the first frames of the current or last stream, with the payload
+        CRC the host computed for each (frames the payload CRC rejected included)."""
+        return cast(StreamHeadersResponse, self._json("GET", f"{API}/stream/headers"))
+
+    # -- the live view's background and lines ---------------------------------------------------
+
+    def capture_background(self, frames: int | Unset = UNSET) -> BackgroundStatus:
+        """Start averaging the next ``frames`` (1..1000; not given: the daemon's default) frames
+        of the running stream into the live view's background and return at once;
+        ``background()`` shows when it is ready."""
+        return cast(
+            BackgroundStatus,
+            self._json("POST", f"{API}/live/background", json=given(frames=frames)),
+        )
+
+    def background(self) -> BackgroundStatus:
+        """The background's state: none, capturing, ready or failed."""
+        return cast(BackgroundStatus, self._json("GET", f"{API}/live/background"))
+
+    def background_frame(self) -> tuple[dict[str, Any], npt.NDArray[np.float32]]:
+        """The ready background: its description (seq, frames, rows, cols, mode, stages,
+        first_counter, last_counter, captured_t_s, mean_dn, std_dn, dtype) and its pixels,
+        float32 DN, shape (rows, cols)."""
+        import numpy as np  # only here: the rest of the client needs no numpy
+
+        response = self._request("GET", f"{API}/live/background/frame")
+        meta = json.loads(response.headers["X-Camd-Background"])
+        pixels = np.frombuffer(response.content, dtype="<f4").reshape(meta["rows"], meta["cols"])
+        return meta, pixels.astype(np.float32)
+
+    def clear_background(self) -> BackgroundStatus:
+        """Drop the background (and stop a capture)."""
+        return cast(BackgroundStatus, self._json("DELETE", f"{API}/live/background"))
+
+    def live_lines(
+        self, after: int = -1, *, max_lines: int = 512, timeout_s: float = 0.0
+    ) -> tuple[dict[str, Any], npt.NDArray[np.float32]]:
+        """The live view's lines of the running (or last) TDI scan with index > ``after``:
+        their description (scan, scan_seq, first_index, n, cols, index, complete, stages_used,
+        skipped, lines_done, lines_planned, state, dtype) and the lines, float32, shape
+        (n, cols). With none newer the daemon waits up to ``timeout_s`` (0..5) for one, then
+        answers n = 0. CamdError ``no_scan`` before the daemon's first scan."""
+        import numpy as np  # only here: the rest of the client needs no numpy
+
+        params: dict[str, Any] = {"after": after, "max": max_lines, "timeout_s": timeout_s}
+        timeout = self.timeout_s + max(0.0, timeout_s)
+        response = self._request("GET", f"{API}/live/lines", params=params, timeout=timeout)
+        meta = json.loads(response.headers["X-Camd-Lines"])
+        lines = np.frombuffer(response.content, dtype="<f4").reshape(meta["n"], meta["cols"])
+        return meta, lines.astype(np.float32)
