@@ -346,6 +346,9 @@ def test_camctl_wheel_commands(url: str) -> None:
 def test_polarisation_azimuth_is_independent_of_exposure_only_with_compensation(
     url: str, client: CamdClient
 ) -> None:
+    # From a known state: under xdist another test of this module may have run on this
+    # worker's daemon and left compensation on (each switches it as it needs).
+    client.set_wheel_compensation(False)
     doc = camctl_json(url, "wheel", "azimuth", "--exposures-ms", "3,15,60", "--step-deg", "30")
     assert doc["channels"] == [10, 11, 12] and doc["exposure_ms"] == [3.0, 15.0, 60.0]
     assert doc["reference_deg"] == [30.0 * i for i in range(12)]
