@@ -41,8 +41,8 @@ PROCESS_EVENTS = frozenset(
     | {"os.exec"}
 )
 # Processes a library starts to look something up, not the test: ctypes.util.find_library (pyusb
-# finding libusb) runs `ldconfig -p`.
-LOOKUP_COMMANDS = frozenset({"/sbin/ldconfig", "ldconfig"})
+# finding libusb) runs `ldconfig -p`, platform.uname() (a library's import) `uname -p`.
+LOOKUP_COMMANDS = frozenset({"/sbin/ldconfig", "ldconfig", "uname"})
 # Only this code is read; a library's is taken as it is (its processes are the guard's to see).
 OWN_PACKAGES = ("tests", "camd", "firmware_models", "conftest", "test_")
 
