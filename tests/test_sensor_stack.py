@@ -1,9 +1,9 @@
 """Sensor registers over the full stack, as a user drives them.
 
-camctl (subprocess) -> HTTP on loopback -> camd serve -> CommandLink -> real pty -> simulated
-FPGA -> SPI master model -> sensor register file; and the same with the register bridge switched
-to the simulated MCP2210 USB-SPI chip (pyusb API -> simulated backend -> Unix socket -> the
-simulator's SPI bus). Values are random but in range, from the register map itself.
+camctl (in process; one test as a command) -> HTTP on loopback -> camd serve -> CommandLink -> real
+pty -> simulated FPGA -> SPI master model -> sensor register file; and the same with the register
+bridge switched to the simulated MCP2210 USB-SPI chip (pyusb API -> simulated backend -> Unix
+socket -> the simulator's SPI bus). Values are random but in range, from the register map itself.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from camd.cli._daemon_proc import DaemonProcess
 from camd.client import CamdClient
 from camd.sensor.regmap import RegisterSpec, load_register_map
 from tests.realtime_support import as_the_unit
-from tests.test_camctl import NO_TOKEN, camctl, camctl_json
+from tests.test_camctl import NO_TOKEN, camctl, camctl_command_json, camctl_json
 
 HR400 = load_register_map("hr400")
 T_LINE_S = 513 / 25e6  # docs/physics.md §3: one line = 513 sequencer clocks (25 MHz assumed)
@@ -105,8 +105,8 @@ def test_every_rw_register_written_read_back_and_verified(url: str) -> None:
 
 
 def test_read_by_address_and_fields(url: str) -> None:
-    camctl_json(url, "reg", "write", "GAIN.analog=x4", "GAIN.digital=96")
-    read = camctl_json(url, "reg", "read", "0x20")
+    camctl_command_json(url, "reg", "write", "GAIN.analog=x4", "GAIN.digital=96")
+    read = camctl_command_json(url, "reg", "read", "0x20")
     assert read["name"] == "GAIN"
     assert read["fields"] == {"analog": "x4", "digital": 96}
     assert read["value"] == (2 << 8) | 96
