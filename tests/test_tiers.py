@@ -30,6 +30,19 @@ def two_levels_down(path):
         return url
 
 
+def a_first():  # reaches a process through c_starts, after a loop through b_loops_back
+    b_loops_back()
+    c_starts()
+
+
+def b_loops_back():
+    a_first()
+
+
+def c_starts():
+    subprocess.run(["true"], check=True)
+
+
 @pytest.fixture(scope="module")
 def url(tmp_path_factory):
     with a_daemon(tmp_path_factory.mktemp("d")) as url:
@@ -55,6 +68,14 @@ def test_through_helpers(tmp_path):
 
 def test_a_campaign_daemon(tmp_path):
     start_sim_daemon(tmp_path, "hr400")
+
+
+def test_through_a_loop():
+    a_first()
+
+
+def test_into_the_loop_from_its_other_end():
+    b_loops_back()
 
 
 def test_a_command():
@@ -118,6 +139,8 @@ def test_a_test_that_can_start_a_process_is_marked_daemon(pytester: pytest.Pytes
         "test_through_a_fixture_of_a_fixture",
         "test_through_helpers",
         "test_a_campaign_daemon",
+        "test_through_a_loop",
+        "test_into_the_loop_from_its_other_end",
         "test_a_command",
         "test_a_local_import",
         "TestInAClass::test_a_method_through_a_fixture",
