@@ -13,8 +13,9 @@ from hypothesis import settings
 
 from camd.daemon.config import RECORD_DIRS_ENV
 
-# The browser fixtures (``browser``, ``page``) for the tests of the pages the daemon serves.
-pytest_plugins = ["tests.browser"]
+# The browser fixtures (``browser``, ``page``) for the tests of the pages the daemon serves; the
+# ``daemon`` mark of the tests that start a process, and its check (the fast tier: -m "not daemon").
+pytest_plugins = ["tests.browser", "tests.tiers"]
 
 # The suite's daemons do not load the TDI kernels at start (daemon.tdi_warm_up, docs/config.md):
 # most never scan, and a scan loads them itself; about a second of a core per daemon saved.

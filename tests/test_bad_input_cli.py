@@ -1,6 +1,7 @@
-"""Bad input on the command line and in campaign files (issue 17): each case runs the real
-command, and gets the documented exit status (2: bad usage or invalid input), a one-line-ish
-message naming the fix, no traceback, and nothing created or changed."""
+"""Bad input on the command line and in campaign files (issue 17): each case runs the real command
+(camctl in process, from its entry point), and gets the documented exit status (2: bad usage or
+invalid input), a one-line-ish message naming the fix, no traceback, and nothing created or
+changed."""
 
 from __future__ import annotations
 

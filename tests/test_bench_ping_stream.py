@@ -12,7 +12,12 @@ from camd.bench.stream import bench_stream, transfer_bytes
 from camd.cli.camd_main import main
 from camd.protocol.stream import HEADER_BYTES
 
+# `camd bench ping` starts a daemon through camd_main's table of subcommands (module names),
+# which tests/tiers.py cannot follow.
+STARTS_A_DAEMON = pytest.mark.daemon
 
+
+@STARTS_A_DAEMON
 def test_ping_alternates_rounds_and_reports_the_median_ratio(
     capsys: pytest.CaptureFixture[str],
 ) -> None:
@@ -38,6 +43,7 @@ def test_ping_refuses_too_few_round_trips_per_round(capsys: pytest.CaptureFixtur
     assert main(["bench", "ping", "--size", "300"]) == 2
 
 
+@STARTS_A_DAEMON
 def test_ping_by_time_sizes_each_side_s_rounds_from_the_warm_up(
     capsys: pytest.CaptureFixture[str],
 ) -> None:

@@ -1,4 +1,6 @@
-"""camctl as a user runs it: a subprocess talking real HTTP on loopback to a live daemon.
+"""camctl as a user runs it: its entry point talking real HTTP on loopback to a live daemon,
+as a command (``camctl_command``) and, for the suite's many other camctl runs, in this process
+(``camctl``: the same code from ``main`` on, without a Python start each).
 
 The daemon runs the simulated camera (``camd serve --sim``); the lossy-line test adds bit errors
 and dropped frames and checks that 1000 pings all succeed through retries.
@@ -6,20 +8,27 @@ and dropped frames and checks that 1000 pings all succeed through retries.
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import os
 import socket
 import subprocess
 import sys
+import threading
 import time
+import traceback
 from collections.abc import Iterator
+from contextlib import redirect_stderr, redirect_stdout
 from pathlib import Path
+from subprocess import CompletedProcess  # not `subprocess.`: tests/tiers.py reads that as a start
 from typing import Any
 
 import pytest
 
 import camd
 from camd.cli._daemon_proc import DaemonProcess
+from camd.cli.camctl import main as camctl_main
 from camd.client import CamdClient
 
 HOST_KEYS = {"sent", "acked", "nacked", "retries", "timeouts", "crc_errors", "failed"}
@@ -28,15 +37,46 @@ NO_TOKEN = {"CAMD_TOKEN": ""}
 REPO_ROOT = str(Path(camd.__file__).resolve().parent.parent)
 
 
+CLIENT_ENV = ("CAMD_URL", "CAMD_TOKEN")  # what a user's shell may set for camctl
+
+
 def camctl_env() -> dict[str, str]:
     """Our environment without the client's variables, with this checkout importable."""
-    env = {k: v for k, v in os.environ.items() if k not in ("CAMD_URL", "CAMD_TOKEN")}
+    env = {k: v for k, v in os.environ.items() if k not in CLIENT_ENV}
     env["PYTHONPATH"] = os.pathsep.join(p for p in (REPO_ROOT, env.get("PYTHONPATH")) if p)
     return env
 
 
 def camctl(url: str, *args: str, timeout_s: float = 120) -> subprocess.CompletedProcess[str]:
-    """Run ``camctl --url URL ARGS...`` and return the finished process."""
+    """``camctl --url URL ARGS...`` run in this process, returned as the finished command.
+
+    The command's own code from its entry point on (``camd.cli.camctl.main``: its parser, its
+    client over real HTTP, its output and exit status) without starting a Python for it (0.35 to
+    0.45 s each, most of it imports): its stdout and stderr are captured, argparse's exit is its
+    exit status, an exception is a traceback on stderr and status 1, and it sees the environment
+    ``camctl_env`` gives the command (no $CAMD_URL, $CAMD_TOKEN). ``timeout_s`` bounds
+    ``camctl_command`` only (here the test's timeout does). ``camctl_command`` runs the
+    installed command itself; each command group keeps a test that does.
+    """
+    del timeout_s
+    argv = ["--url", url, *args]
+    out, err = io.StringIO(), io.StringIO()
+    with _IN_PROCESS, _without_client_env(), redirect_stdout(out), redirect_stderr(err):
+        try:
+            status = camctl_main(argv)
+        except SystemExit as exc:  # argparse: a usage error, --help, --version
+            status = _exit_status(exc.code)
+        except Exception:  # what the interpreter would print, and its status
+            traceback.print_exc()
+            status = 1
+    return CompletedProcess(["camctl", *argv], status, out.getvalue(), err.getvalue())
+
+
+def camctl_command(
+    url: str, *args: str, timeout_s: float = 120
+) -> subprocess.CompletedProcess[str]:
+    """Run ``camctl --url URL ARGS...`` as a command (``python -m camd.cli.camctl``) and return
+    the finished process."""
     return subprocess.run(
         [sys.executable, "-m", "camd.cli.camctl", "--url", url, *args],
         capture_output=True,
@@ -47,9 +87,40 @@ def camctl(url: str, *args: str, timeout_s: float = 120) -> subprocess.Completed
     )
 
 
+_IN_PROCESS = threading.Lock()  # one at a time: sys.stdout and sys.stderr are the process's
+
+
+@contextlib.contextmanager
+def _without_client_env() -> Iterator[None]:
+    saved = {key: os.environ.pop(key) for key in CLIENT_ENV if key in os.environ}
+    try:
+        yield
+    finally:
+        os.environ.update(saved)
+
+
+def _exit_status(code: object) -> int:
+    """The exit status ``sys.exit(code)`` gives a process (a message goes to stderr)."""
+    if code is None:
+        return 0
+    if isinstance(code, int):
+        return code
+    print(code, file=sys.stderr)
+    return 1
+
+
 def camctl_json(url: str, *args: str) -> Any:
     """Run a camctl command with --json; it must succeed and print exactly one JSON document."""
-    proc = camctl(url, *args, "--json")
+    return one_document(camctl(url, *args, "--json"))
+
+
+def camctl_command_json(url: str, *args: str) -> Any:
+    """``camctl_json`` run as a command (``camctl_command``)."""
+    return one_document(camctl_command(url, *args, "--json"))
+
+
+def one_document(proc: subprocess.CompletedProcess[str]) -> Any:
+    """What a successful camctl --json printed: exactly one JSON document."""
     assert proc.returncode == 0, proc.stderr
     assert "Traceback" not in proc.stderr
     return json.loads(proc.stdout)  # json.loads rejects anything after the one document
@@ -125,8 +196,8 @@ def test_telemetry_values_change_over_time(url: str) -> None:
         assert isinstance(sample["unit"], str), name
         assert sample["limit"] in ("ok", "yellow", "red"), name
     assert first["archive"].endswith((".sqlite", ".db", ".sqlite3"))
-    # Housekeeping arrives about every second: soon there is a newer sample (30 s: each
-    # camctl run is a Python start-up, which a busy machine can stretch to seconds).
+    # Housekeeping arrives about every second: soon there is a newer sample (30 s: a busy
+    # machine can stretch each camctl run to seconds).
     deadline = time.monotonic() + 30
     while True:
         time.sleep(1.0)

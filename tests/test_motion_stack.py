@@ -1,8 +1,8 @@
 """The scan stage and scan synchronisation over the full stack, as a user drives them.
 
-camctl (subprocess) or the client -> HTTP -> camd serve -> MOTOR_* commands over the pty ->
-the simulated stepper stage (firmware_models.motor / stage), whose true position moves the
-scene -> frames with the encoder latched in their headers -> TDI -> HDF5. The numbers are
+camctl (in process; one test as a command) or the client -> HTTP -> camd serve -> MOTOR_* commands
+over the pty -> the simulated stepper stage (firmware_models.motor / stage), whose true position
+moves the scene -> frames with the encoder latched in their headers -> TDI -> HDF5. The numbers are
 checked against docs/physics.md §2 and §6 worked out here.
 """
 
@@ -23,7 +23,7 @@ from camd.client import CamdClient
 from camd.sensor.profile import load_profile
 from camd.store.tdi_recording import read_tdi_scan
 from tests.realtime_support import as_the_unit
-from tests.test_camctl import NO_TOKEN, camctl, camctl_json
+from tests.test_camctl import NO_TOKEN, camctl, camctl_command, camctl_command_json, camctl_json
 
 # Real-time streaming / control loops: alone under xdist (tests/conftest.py).
 pytestmark = pytest.mark.exclusive
@@ -103,7 +103,7 @@ def eq8_at_the_lines(path: Path) -> tuple[float, float]:
 
 
 def test_sync_prints_the_contract_keys_with_the_equations_values(daemon: DaemonProcess) -> None:
-    doc = camctl_json(
+    doc = camctl_command_json(
         daemon.url, "sync", "--line-period-s", repr(T_LINE_S), "--stages", str(STAGES)
     )
     assert list(doc)[:10] == [
@@ -120,7 +120,7 @@ def test_sync_prints_the_contract_keys_with_the_equations_values(daemon: DaemonP
     assert doc["dv_over_v"] == 0.0 and doc["m_dv_over_v"] == 0.0
 
     # A stage 1 % slow against that line period: dV/V = +0.01, M dV/V = 0.96 (§6).
-    slow = camctl_json(
+    slow = camctl_command_json(
         daemon.url, "sync", "--line-period-s", repr(T_LINE_S), "--stages", str(STAGES),
         "--with-speed-m-s", repr(0.99 * SYNC_M_S),
     )  # fmt: skip
@@ -129,11 +129,13 @@ def test_sync_prints_the_contract_keys_with_the_equations_values(daemon: DaemonP
     assert slow["tolerance_ok"] is True
 
     # From a stage speed instead: T = p / (m V) (§2 eq 5 general form).
-    by_speed = camctl_json(daemon.url, "sync", "--speed-m-s", "0.05")
+    by_speed = camctl_command_json(daemon.url, "sync", "--speed-m-s", "0.05")
     assert by_speed["line_period_s"] == pytest.approx(PITCH_M / (MAGNIFICATION * 0.05))
     assert by_speed["n_lines"] == math.floor(by_speed["line_period_s"] / T_ROW_S)
 
-    too_many = camctl(daemon.url, "sync", "--line-period-s", repr(T_LINE_S), "--stages", "101")
+    too_many = camctl_command(
+        daemon.url, "sync", "--line-period-s", repr(T_LINE_S), "--stages", "101"
+    )
     assert too_many.returncode == 1
     assert "use at most 100 stages or a longer line period" in too_many.stderr
 

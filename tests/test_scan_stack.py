@@ -1,9 +1,10 @@
 """Push-broom scans over the full stack, as a user drives them.
 
-camctl scan (subprocess) -> HTTP -> camd serve -> registers for the line period (docs/physics.md §2)
--> START_STREAM -> simulated camera -> simulated FX3 -> FrameStream -> batches -> TdiEngine ->
-HDF5 + PNG, read back here. The sensor's ramp test pattern makes every frame known, so the TDI
-lines can be checked against eq 11 worked out here, independently of camd.tdi.
+camctl scan (in process; one test as a command) -> HTTP -> camd serve -> registers for the line
+period (docs/physics.md §2) -> START_STREAM -> simulated camera -> simulated FX3 -> FrameStream ->
+batches -> TdiEngine -> HDF5 + PNG, read back here. The sensor's ramp test pattern makes every
+frame known, so the TDI lines can be checked against eq 11 worked out here, independently of
+camd.tdi.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from camd.sensor.profile import load_profile
 from camd.store.tdi_recording import read_tdi_scan
 from camd.tdi import bin2x2
 from tests.nexus_support import nexus_plot
-from tests.test_camctl import camctl, camctl_json
+from tests.test_camctl import camctl, camctl_command_json, camctl_json
 from tests.test_sensor_stack import serve
 
 # Real-time streaming / control loops: alone under xdist (tests/conftest.py).
@@ -139,7 +140,7 @@ def test_stage_speed_sets_the_line_period_by_eq5(url: str, tmp_path: Path) -> No
     row = row_period_s(url)
     # A speed whose line period is 10.3 rows: 10 window rows and 0.3 rows of back path.
     speed = profile.pitch_m.value / (profile.magnification.value * 10.3 * row)
-    doc = camctl_json(
+    doc = camctl_command_json(
         url, "scan", "--no-stage", "--stages", "4", "--lines", "5", "--speed-m-s", repr(speed),
         "--out", str(tmp_path / "speed.h5"), "--no-quicklook",
     )  # fmt: skip

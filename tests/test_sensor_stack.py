@@ -1,9 +1,9 @@
 """Sensor registers over the full stack, as a user drives them.
 
-camctl (subprocess) -> HTTP on loopback -> camd serve -> CommandLink -> real pty -> simulated
-FPGA -> SPI master model -> sensor register file; and the same with the register bridge switched
-to the simulated MCP2210 USB-SPI chip (pyusb API -> simulated backend -> Unix socket -> the
-simulator's SPI bus). Values are random but in range, from the register map itself.
+camctl (in process; one test as a command) -> HTTP on loopback -> camd serve -> CommandLink -> real
+pty -> simulated FPGA -> SPI master model -> sensor register file; and the same with the register
+bridge switched to the simulated MCP2210 USB-SPI chip (pyusb API -> simulated backend -> Unix
+socket -> the simulator's SPI bus). Values are random but in range, from the register map itself.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from camd.cli._daemon_proc import DaemonProcess
 from camd.client import CamdClient
 from camd.sensor.regmap import RegisterSpec, load_register_map
 from tests.realtime_support import as_the_unit
-from tests.test_camctl import NO_TOKEN, camctl, camctl_json
+from tests.test_camctl import NO_TOKEN, camctl, camctl_command_json, camctl_json
 
 HR400 = load_register_map("hr400")
 T_LINE_S = 513 / 25e6  # docs/physics.md §3: one line = 513 sequencer clocks (25 MHz assumed)
@@ -56,6 +56,22 @@ def url(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory
     with serve(tmp_path_factory.mktemp(f"camd-{request.param}"), request.param) as daemon:
         yield daemon.url
     assert daemon.exit_code in (0, -15), daemon.log_path.read_text()
+
+
+@pytest.fixture(autouse=True)
+def registers_as_found(request: pytest.FixtureRequest) -> Iterator[None]:
+    """A test on the module's daemon leaves its registers as it found them: the daemon is
+    shared, and a random configuration left behind (LVDS_CTRL and TRAINING_WORD among it) made a
+    later test's `camctl train` fail its lanes, depending on which tests ran before it."""
+    if "url" not in request.fixturenames:
+        yield
+        return
+    url = request.getfixturevalue("url")
+    with CamdClient(url) as client:
+        found = client.register_config()
+    yield
+    with CamdClient(url) as client:
+        client.load_register_config(found)
 
 
 def random_value(reg: RegisterSpec, rng: random.Random) -> int:
@@ -105,8 +121,8 @@ def test_every_rw_register_written_read_back_and_verified(url: str) -> None:
 
 
 def test_read_by_address_and_fields(url: str) -> None:
-    camctl_json(url, "reg", "write", "GAIN.analog=x4", "GAIN.digital=96")
-    read = camctl_json(url, "reg", "read", "0x20")
+    camctl_command_json(url, "reg", "write", "GAIN.analog=x4", "GAIN.digital=96")
+    read = camctl_command_json(url, "reg", "read", "0x20")
     assert read["name"] == "GAIN"
     assert read["fields"] == {"analog": "x4", "digital": 96}
     assert read["value"] == (2 << 8) | 96

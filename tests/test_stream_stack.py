@@ -1,8 +1,9 @@
 """The frame stream over the full stack, as a user drives it.
 
-camctl (subprocess) -> HTTP on loopback -> camd serve -> START_STREAM over the pty -> simulated
-FPGA -> camera model -> LVDS link -> stream engine -> Unix socket -> simulated FX3 pyusb backend
--> usb.core.find / bulk reads in the daemon's FrameStream -> recorder (HDF5) -> read back here.
+camctl (in process; one test as a command) -> HTTP on loopback -> camd serve -> START_STREAM over
+the pty -> simulated FPGA -> camera model -> LVDS link -> stream engine -> Unix socket -> simulated
+FX3 pyusb backend -> usb.core.find / bulk reads in the daemon's FrameStream -> recorder (HDF5) ->
+read back here.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ import pytest
 from camd.client import CamdClient, CamdError
 from camd.store import read_recording
 from tests.nexus_support import nexus_plot
-from tests.test_camctl import camctl, camctl_json
+from tests.test_camctl import camctl, camctl_command_json, camctl_json
 from tests.test_sensor_stack import serve
 
 # Real-time streaming / control loops: alone under xdist (tests/conftest.py).
@@ -35,9 +36,9 @@ def url(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
 
 
 def test_stream_json_has_the_contract_keys_and_every_frame(url: str) -> None:
-    before = camctl_json(url, "sim", "stream")
-    doc = camctl_json(url, "stream", "--frames", "40", "--mode", "tdi", "--stages", "8")
-    after = camctl_json(url, "sim", "stream")
+    before = camctl_command_json(url, "sim", "stream")
+    doc = camctl_command_json(url, "stream", "--frames", "40", "--mode", "tdi", "--stages", "8")
+    after = camctl_command_json(url, "sim", "stream")
     assert list(doc)[: len(HEADLINE)] == HEADLINE
     assert (doc["frames"], doc["lost"], doc["corrupt"], doc["overruns"]) == (40, 0, 0, 0)
     assert (doc["mode"], doc["stages"], doc["rows"], doc["cols"], doc["bits"]) == (
@@ -55,7 +56,7 @@ def test_stream_json_has_the_contract_keys_and_every_frame(url: str) -> None:
     assert "camd_stream_frames 40.0" in metrics and "camd_stream_lost 0.0" in metrics
     assert "camd_stream_active 0.0" in metrics
     # A second stream carries on the frame counter where the first ended.
-    again = camctl_json(url, "stream", "--frames", "3", "--mode", "area")
+    again = camctl_command_json(url, "stream", "--frames", "3", "--mode", "area")
     assert again["first_counter"] == doc["first_counter"] + 40 and again["stages"] == 0
 
 

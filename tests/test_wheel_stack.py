@@ -1,9 +1,9 @@
 """The filter wheel over the full stack (docs/physics.md §4, docs/wheel.md), as a user drives it.
 
-CamdClient over real HTTP, or camctl as a subprocess -> camd serve -> WHEEL_* commands over the
-pty -> the simulated FPGA's wheel -> frames over the simulated FX3 -> FrameStream -> the wheel
-service. Every expected number is worked out here from docs/physics.md §4 and the instrument values
-(config/wheel.toml), not taken from camd.timing:
+CamdClient over real HTTP, or camctl (in process; one test as a command) -> camd serve -> WHEEL_*
+commands over the pty -> the simulated FPGA's wheel -> frames over the simulated FX3 -> FrameStream
+-> the wheel service. Every expected number is worked out here from docs/physics.md §4 and the
+instrument values (config/wheel.toml), not taken from camd.timing:
 
     T_line = 513 / 25 MHz = 20.52 us, T_frame = (n + k + 1) T_line             eq 6
     T_delay = T_center - T_frame / 2, T_center = 60 ms                          eq 5
@@ -24,7 +24,7 @@ import pytest
 
 from camd.client import CamdClient, CamdError
 from camd.store.recording import read_recording
-from tests.test_camctl import camctl, camctl_json
+from tests.test_camctl import camctl, camctl_command, camctl_json
 from tests.test_sensor_stack import serve
 
 # Real-time streaming / control loops: alone under xdist (tests/conftest.py).
@@ -214,7 +214,7 @@ def test_an_exposure_that_does_not_fit_is_refused_with_the_numbers_and_nothing_c
     assert after["exposure"] == wheel_before["exposure"]
     assert client.status()["state"] == "idle"
     # camctl says the same on stderr, exit status 1.
-    proc = camctl(url, "wheel", "acquire", "--channels", "11", "--exposure-ms", "120")
+    proc = camctl_command(url, "wheel", "acquire", "--channels", "11", "--exposure-ms", "120")
     assert proc.returncode == 1 and "light window of 120 ms" in proc.stderr
     assert registers(client) == before
 

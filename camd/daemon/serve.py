@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import gc
 import json
 import logging
 import os
@@ -408,6 +409,11 @@ def run(args: argparse.Namespace) -> int:
         return EXIT_CONFIG
     # Said once the daemon will run: a refused start's one line of error stands alone.
     backends.log_choice(config)
+    # What is loaded by now (the modules, their classes and pydantic models: most of the
+    # daemon's objects) lives as long as the daemon: kept out of the collector's passes, which
+    # then walk only what the daemon makes as it runs. A full pass holds every thread, the
+    # link's and the stream's too; the interpreter's passes at exit took 0.5-0.9 s of each stop.
+    gc.freeze()
     session = DeviceSession(config)
     try:
         session.start()
