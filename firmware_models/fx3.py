@@ -423,6 +423,10 @@ class StreamEngine:
         on_done: DoneCallback | None = None,
     ) -> None:
         self.source = source
+        # Told before each block which frames the source will be asked for (first counter,
+        # count), so that it can make them together (the imaging pipeline renders them in
+        # one go); None: the source makes each frame when asked.
+        self.prepare: Callable[[int, int], None] | None = None
         self.server = server
         self.inject = inject if inject is not None else InjectSpec()
         self.on_done = on_done
@@ -616,6 +620,7 @@ class StreamEngine:
                 wait_s = pacer.wait_s(count, stream.period_s, now_s=now)
                 if wait_s > 0:
                     self._wait(stream, wait_s)
+            self._announce(stream, count)
             block: list[tuple[FrameHeader, np.ndarray, bool, InjectSpec]] = []
             ended = False
             for _ in range(count):
@@ -647,6 +652,20 @@ class StreamEngine:
                 overflow = self._send_block(stream, block, overflow)
             if ended:
                 return
+
+    def _announce(self, stream: _Stream, count: int) -> None:
+        """Tell the source (``prepare``) which frames it is about to be asked for: the next
+        ``count``, or fewer where the stream ends, so it may make them together."""
+        if self.prepare is None:
+            return
+        with self._cond:
+            if stream.frames:
+                count = min(count, stream.frames - stream.produced)
+            if stream.end_after is not None:
+                count = min(count, stream.end_after - stream.produced)
+            first = self.next_counter
+        if count > 0:
+            self.prepare(first, count)
 
     def _send_block(
         self,
