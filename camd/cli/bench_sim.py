@@ -134,7 +134,12 @@ def measure(profile: str, rows: int, kind: str, seconds: float) -> dict[str, Any
             geometry = path.start(
                 device_time_s=1.0, mode="tdi", frames=0, stages=rows, binning=False
             )
-        time.sleep(WARM_UP_S)  # past the bank's first renders and the first maps
+        # Past the first frame (the fixed-pattern maps and the noise drawn on first use, the
+        # compiled kernels loaded), then the bank's first renders.
+        first_deadline = time.monotonic() + 60.0
+        while engine.counters.sent == 0 and time.monotonic() < first_deadline:
+            time.sleep(0.05)
+        time.sleep(WARM_UP_S)
         thread = engine._thread
         assert thread is not None and thread.native_id is not None
         c = engine.counters
