@@ -330,7 +330,10 @@ class CameraModel:
         cols)`` uint16 (halved and summed when binned) and each frame's largest code.
 
         The same frames, bit for bit, as one ``render`` per time in order: each frame takes its
-        own noise offset, in order, and every row is integrated on its own."""
+        own noise offset, in order, and every row is integrated on its own (to float32
+        rounding only where the frames move by very different amounts during their exposures,
+        a stage ramping within the block: the block's rows sum as many scene cells as its
+        widest motion needs, which may choose the scene's dense sum for all of them)."""
         settings = self.settings(sensor)
         row0, rows, col0, cols = settings.window
         times = np.asarray(times_s, dtype=np.float64).reshape(-1)

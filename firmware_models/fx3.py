@@ -61,11 +61,13 @@ log = logging.getLogger(__name__)
 
 _SEND_TICK_S = 0.25  # how often a blocked send looks whether it should give up
 # A paced stream makes and sends the frames due within BLOCK_S together, in one system call
-# (at the hr400's fastest line rate, 41 us per frame, one call per frame would be the limit);
-# a block goes out when its last frame is due, so no frame leaves early and, on schedule, none
-# more than BLOCK_S late. An unpaced stream, or one catching up, sends up to MAX_BLOCK_FRAMES
-# at a time (3 buffers each: well under the kernel's 1024 per sendmsg).
-BLOCK_S = 1e-3
+# (at the hr400's fastest line rate, 41 us per frame, one call per frame would be the limit;
+# the imaging pipeline renders such a block in one pass, and 2 ms rather than 1 ms took a
+# quarter off a rendered frame's CPU at 164 us frames); a block goes out when its last frame
+# is due, so no frame leaves early and, on schedule, none more than BLOCK_S late. An unpaced
+# stream, or one catching up, sends up to MAX_BLOCK_FRAMES at a time (3 buffers each: well
+# under the kernel's 1024 per sendmsg).
+BLOCK_S = 2e-3
 MAX_BLOCK_FRAMES = 64
 
 

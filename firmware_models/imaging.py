@@ -43,10 +43,10 @@ from firmware_models.sensor_link import SensorLink
 NS_PER_S = 1_000_000_000
 # Encoder counts are looked up for the frames starting within this much model time of the one
 # being made, at most ENCODER_BLOCK_FRAMES of them: one stage look-up costs about the same for
-# one time as for 32, and a command in between (a new revision) makes the rest looked up again.
+# one time as for 64, and a command in between (a new revision) makes the rest looked up again.
 ENCODER_AHEAD_S = 2e-3
 ENCODER_BLOCK_FRAMES = 64
-# The frames the stream engine makes together (``prepare``: those due within a millisecond)
+# The frames the stream engine makes together (``prepare``: those due within ``BLOCK_S``)
 # are rendered together, in blocks of at most this many pixels (frames x window pixels; a
 # larger frame alone): the per-frame cost of a render (about 1 ms of Python, against the
 # hr400's 41 us line period at one row) is paid once per block.
