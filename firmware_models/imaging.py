@@ -248,7 +248,7 @@ class ImagingPipeline:
         first, announced = self._announced
         ahead = (counter - first) % (1 << 32)
         count = 1
-        if ahead < announced and not self.frame_bank:
+        if ahead < announced:
             window_pixels = max(1, self.camera.rows * self.camera.columns)
             count = max(1, min(announced - ahead, RENDER_BLOCK_PIXELS // window_pixels))
         frames = self._make(k, count)
