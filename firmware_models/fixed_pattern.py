@@ -10,6 +10,7 @@ pattern whichever band it crosses first.
 
 from __future__ import annotations
 
+import threading
 from typing import Any
 
 import numpy as np
@@ -34,6 +35,8 @@ class FixedPattern:
         self._maps: tuple[Array, Array] | None = None
         # Bands of a large array's maps, drawn when a window first reads them.
         self.bands: dict[int, tuple[Array, Array]] = {}
+        # A warm-up thread may draw them while a stream's first frame wants them: once.
+        self._draw_lock = threading.Lock()
 
     @property
     def banded(self) -> bool:
@@ -60,20 +63,28 @@ class FixedPattern:
         """Band ``band`` (rows ``band * 256 ..``) of a large array's maps, from its own stream."""
         cached = self.bands.get(band)
         if cached is None:
-            p = self.profile
-            rows = min(_MAP_BAND_ROWS, p.rows.value - band * _MAP_BAND_ROWS)
-            rng = np.random.default_rng([self.seed, _FIXED_PATTERN_STREAM, band])
-            cached = self._draw(rng, (rows, p.columns.value))
-            self.bands[band] = cached
+            with self._draw_lock:
+                cached = self.bands.get(band)
+                if cached is None:
+                    p = self.profile
+                    rows = min(_MAP_BAND_ROWS, p.rows.value - band * _MAP_BAND_ROWS)
+                    rng = np.random.default_rng([self.seed, _FIXED_PATTERN_STREAM, band])
+                    cached = self._draw(rng, (rows, p.columns.value))
+                    self.bands[band] = cached
         return cached
 
     def _whole(self) -> tuple[Array, Array]:
         """Both maps of the whole array."""
-        if self._maps is None:
-            p = self.profile
-            rng = np.random.default_rng([self.seed, _FIXED_PATTERN_STREAM])
-            self._maps = self._draw(rng, (p.rows.value, p.columns.value))
-        return self._maps
+        maps = self._maps
+        if maps is None:
+            with self._draw_lock:
+                maps = self._maps
+                if maps is None:
+                    p = self.profile
+                    rng = np.random.default_rng([self.seed, _FIXED_PATTERN_STREAM])
+                    maps = self._draw(rng, (p.rows.value, p.columns.value))
+                    self._maps = maps
+        return maps
 
     def _draw(self, rng: np.random.Generator, shape: tuple[int, int]) -> tuple[Array, Array]:
         """QE * (1 + PRNU) and the dark-current map of ``shape`` pixels from ``rng``."""

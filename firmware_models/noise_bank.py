@@ -33,6 +33,7 @@ values, whatever else was drawn before. A frame larger than
 
 from __future__ import annotations
 
+import threading
 from typing import Any
 
 import numpy as np
@@ -57,6 +58,9 @@ class NoiseBank:
     def __init__(self, seed: int) -> None:
         self.seed = seed
         self._values: F32 = np.empty(0, dtype=np.float32)
+        # The bank only ever grows, under this lock: a warm-up thread may grow it while a
+        # stream takes from it, and a run found in it must stay in the array read after.
+        self._grow_lock = threading.Lock()
 
     @property
     def size(self) -> int:
@@ -110,12 +114,15 @@ class NoiseBank:
         """Draw the chunks up to ``values`` values that are not drawn yet (a warm-up may draw
         them ahead of the first frame; the values are the same whenever they are drawn)."""
         chunks = -(-values // CHUNK_VALUES)
-        have = self.size // CHUNK_VALUES
-        if chunks <= have:
+        if chunks <= self.size // CHUNK_VALUES:
             return
-        parts: list[Any] = [self._values]
-        parts += [self._chunk(c) for c in range(have, chunks)]
-        self._values = np.concatenate(parts)
+        with self._grow_lock:
+            have = self.size // CHUNK_VALUES
+            if chunks <= have:
+                return
+            parts: list[Any] = [self._values]
+            parts += [self._chunk(c) for c in range(have, chunks)]
+            self._values = np.concatenate(parts)
 
     def _chunk(self, index: int) -> F32:
         """Chunk ``index``: standard normal draws of its own stream, shifted and scaled to mean
