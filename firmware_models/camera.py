@@ -3,7 +3,8 @@
 ``CameraModel(profile, sensor)`` renders what the sensor whose registers ``sensor`` holds
 (``firmware_models.sensor.SensorModel``) would read out, for the camera ``profile`` describes
 (``camd.sensor.profile``). It reads the window, exposure, gain, offset, test pattern and timing
-from the registers on every render, so register writes take effect on the next frame.
+from the registers for every render (worked out once per register version: ``settings``), so
+register writes take effect on the next frame.
 
 One frame (``render(t_s)``; window row 0 ends its exposure at ``t_s``):
 
@@ -28,31 +29,35 @@ One frame (``render(t_s)``; window row 0 ends its exposure at ``t_s``):
    packet that sat in window row ``i`` when the exposure began.
 4. Electrons: ``QE * photons * (1 + PRNU)`` plus dark charge
    ``I_dark(T) * (1 + DSNU) * T_exp`` with ``I_dark(T) = I_ref * 2^((T - T_ref) / T_double)``.
-5. Temporal noise (docs/physics.md §5): photon and dark shot noise and read noise, drawn as ONE
+5. Temporal noise (docs/physics.md §5): photon and dark shot noise and read noise, as ONE
    Gaussian per pixel with mean ``S + D`` and variance ``S + D + sigma_read^2`` (the Poisson
    shot noise replaced by a Gaussian of the same mean and variance: mean and variance exact,
-   higher moments not; one draw keeps a 534 x 2048 frame fast). Then full-well clipping
-   (a saturated pixel reads the full-well charge, without read noise).
+   higher moments not), its standard normal taken from a pre-drawn bank at a random offset
+   per frame (``firmware_models.noise_bank``: what that changes, and what not). Then
+   full-well clipping (a saturated pixel reads the full-well charge, without read noise).
 6. ADC (docs/physics.md §5): ``DN = e K + B``, ``K`` the system gain for the gain register
    (``CameraProfile.system_gain_dn_per_e``), ``B`` the black level for the offset register;
    rounded to whole DN and clipped to ``[0, 2^adc_bits - 1]``; then the ADC's
    ``output_bits`` MSBs are kept (the IBIS5 drops 2 LSBs).
 7. Binning (``binning``; docs/physics.md §3): the FPGA sums 2x2 blocks (``camd.tdi.bin2x2``).
 
-Fixed-pattern maps (PRNU, DSNU) cover the whole array, drawn once from ``seed`` (an array of
-more than 8 Mpixel, the ftf5066's 33 Mpixel, draws them per band of 256 rows when a window
-first reads one, each band from its own seeded stream); temporal noise
-is drawn fresh for every frame from a separate seeded stream, so frames are independent and the
-same seed with the same sequence of renders gives identical frames. A test pattern other than
-``off`` in the sensor's test_pattern role replaces the pixels (``firmware_models.lvds``).
-The model does not advance the sensor's frame counter: whoever reads frames out does.
+Steps 4 to 6 are one compiled pass per frame (``firmware_models.render_kernels``), and step
+3's along-track sum over the scene's cells another; ``render_block`` renders several frames
+(the rows of all of them) in one go, as the imaging pipeline does at high line rates.
+
+Fixed-pattern maps (PRNU, DSNU) cover the whole array, drawn once from ``seed``
+(``firmware_models.fixed_pattern``); each frame's temporal noise starts at an offset drawn from
+a separate seeded stream, so frames are independent and the same seed with the same sequence
+of renders gives identical frames. A test pattern other than ``off`` in the sensor's
+test_pattern role replaces the pixels (``firmware_models.lvds``). The model does not advance
+the sensor's frame counter: whoever reads frames out does.
 """
 
 from __future__ import annotations
 
-import copy
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -64,20 +69,38 @@ from camd.sensor.timing_view import SensorTiming
 from camd.tdi.binning import bin2x2
 from camd.timing import synchronous_stage_speed_m_s
 from camd.timing.imc import IMC_MODES, ImcMode, charge_shift_schedule
+from firmware_models import render_kernels
+from firmware_models.fixed_pattern import FixedPattern
 from firmware_models.lvds import DEFAULT_TRAINING_WORD, TestPattern, pattern_frame
+from firmware_models.noise_bank import NoiseBank
+from firmware_models.render_kernels import Readout, read_out
 from firmware_models.scene import Scene, SceneSpec, build_scene
 from firmware_models.sensor import SensorModel
 from firmware_models.stage import LinearStage, Stage
 
 Array = npt.NDArray[Any]
 
-_FIXED_PATTERN_STREAM = 0x4650  # "FP": PRNU and DSNU maps
 _TEMPORAL_STREAM = 0x544E  # "TN": per-frame noise, independent of the fixed pattern
 DEFAULT_FILL_OF_RANGE = 0.25  # the default flat field fills a quarter of the output range
-_BANDED_MAP_PIXELS = 1 << 23  # larger arrays draw their fixed pattern per band of rows
-_MAP_BAND_ROWS = 256
+_SETTINGS_KEPT = 16  # register snapshots whose settings are kept (a stream's recent changes)
 _MAX_MOTION_PIECES = 64  # more distinct IMC pieces than this are merged into an occupation density
 _SAME_PIECE_ROWS = 1e-9  # pieces whose ends agree to this (rows) are integrated together
+
+
+@dataclass(frozen=True, slots=True)
+class RegisterSettings:
+    """What the sensor's registers set for a render, worked out once per register version
+    (reading a register goes through the register map's pydantic models: about a tenth of a
+    small frame's time when it was done per frame)."""
+
+    window: tuple[int, int, int, int]  # first row, rows, first column, columns (array indices)
+    timing: SensorTiming
+    shutter: str
+    gain_dn_per_e: float
+    black_dn: float
+    imc: tuple[ImcMode, float, int]
+    test_pattern: Array | None  # the frame a test pattern sends instead of pixels (read-only)
+    readout: Readout
 
 
 class CameraModel:
@@ -114,17 +137,17 @@ class CameraModel:
         # (a turntable carrying the sensor moves the image by its arc: 1).
         self.stage_image_scale: float | None = None
         # Per-row light transmission over each row's exposure (a filter-wheel channel):
-        # ``transmission(start_s, end_s)`` -> factor per row; None: everything passes.
+        # ``transmission(start_s, end_s)`` of one frame's rows -> factor per row (asked frame
+        # by frame: the channel is the wheel's at that frame); None: everything passes.
         self.transmission: Callable[[Array, Array], Array] | None = None
         self._noise = np.random.default_rng([seed, _TEMPORAL_STREAM])
+        self._bank = NoiseBank(seed)  # the standard normals the per-frame offsets index
         # The ideal stage is at position 0 at this device time (see ``stream_started``).
         self._ideal_origin_s = 0.0
         self._anchor_next_stream = False
-        # Drawn on first use: a 2048 x 2048 array takes ~0.1 s, and not every model renders.
-        self._maps: tuple[Array, Array] | None = None
-        # Bands of a large array's maps, drawn when a window first reads them; the dict is
-        # shared with ``frozen`` twins (a shallow copy), so a band is drawn once.
-        self._bands: dict[int, tuple[Array, Array]] = {}
+        self._fixed = FixedPattern(profile, seed)
+        # id(sensor) -> (sensor, its version then, the settings): see ``settings``.
+        self._settings: dict[int, tuple[SensorModel, int, RegisterSettings]] = {}
         self._default_photons = self._moderate_photons()
         self.scene: Scene = build_scene(
             SceneSpec(),
@@ -133,25 +156,25 @@ class CameraModel:
             default_photons=self._default_photons,
         )
 
-    def frozen(self, sensor: SensorModel) -> CameraModel:
-        """This camera reading ``sensor`` (a register snapshot) instead: renders from it never
-        see a register write half-way (the fixed pattern, noise stream, scene and stage are
-        shared)."""
-        if not self._banded_maps:
-            self._fixed_patterns()  # drawn once here, so the twin shares them
-        twin = copy.copy(self)
-        twin.sensor = sensor
-        return twin
-
     def reseed_noise(self, seed: int) -> None:
         """Restart the temporal noise stream as if the camera had been made with ``seed``.
 
-        The generator is reset in place, not replaced: ``frozen`` twins share it and must draw
-        from the restarted stream too, and the next stream starts the ideal stage at position
-        0 (``stream_started``). The fixed pattern keeps the start seed's maps."""
+        The next stream starts the ideal stage at position 0 (``stream_started``). The fixed
+        pattern and the noise bank keep the start seed's values: only the offsets at which
+        frames take their noise from the bank follow the new seed."""
         fresh = np.random.default_rng([seed, _TEMPORAL_STREAM])
         self._noise.bit_generator.state = fresh.bit_generator.state
         self._anchor_next_stream = True
+
+    def warm_up(self) -> None:
+        """Do now what the first frame of the present window would do first (load the compiled
+        kernels, draw the fixed pattern and the noise bank's values), without drawing from the
+        temporal noise stream: frames stay what they would have been."""
+        render_kernels.warm_up()
+        row0, rows, _, cols = self.window()
+        self._fixed.rows(row0, rows)
+        if self._bank.holds(rows * cols):
+            self._bank.grow_to(self._bank.span(rows * cols))
 
     def stream_started(self, t0_s: float) -> None:
         """A stream starts at device time ``t0_s``. After ``reseed_noise`` the ideal stage is
@@ -182,33 +205,35 @@ class CameraModel:
         )
         return self.scene
 
-    def synchronous_speed_m_s(self) -> float:
+    def synchronous_speed_m_s(self, timing: SensorTiming | None = None) -> float:
         """Stage speed that moves the image one row per TDI line period: ``p / (m T_TDI)``.
 
         docs/physics.md §2 (``T_line,TDI = p / v_image``) and §6 eq 9 (``V_t = n_mag p / T_L``,
         object side) with ``v_image = m v_stage``; ``T_TDI`` is the frame period the registers
-        set now (``SensorTiming.tdi_line_period_s``).
+        set now (``SensorTiming.tdi_line_period_s``), or ``timing``'s.
         """
+        timing = self.sensor.timing() if timing is None else timing
         return synchronous_stage_speed_m_s(
             self.profile.pitch_m.value,
-            self.sensor.timing().tdi_line_period_s,
+            timing.tdi_line_period_s,
             self.profile.magnification.value,
         )
 
-    def current_stage(self) -> Stage:
+    def current_stage(self, timing: SensorTiming | None = None) -> Stage:
         """The stage that moves the target now: ``stage``, or a linear stage at
-        ``stage_speed_m_s``, or (both None) at the synchronous speed."""
+        ``stage_speed_m_s``, or (both None) at the synchronous speed (of ``timing``'s line
+        period, default the registers' now)."""
         if self.stage is not None:
             return self.stage
-        speed = (
-            self.synchronous_speed_m_s() if self.stage_speed_m_s is None else self.stage_speed_m_s
-        )
+        speed = self.stage_speed_m_s
+        if speed is None:
+            speed = self.synchronous_speed_m_s(timing)
         return LinearStage(speed, -speed * self._ideal_origin_s)
 
-    def image_rows(self, t_s: npt.ArrayLike) -> Array:
+    def image_rows(self, t_s: npt.ArrayLike, timing: SensorTiming | None = None) -> Array:
         """Image displacement in rows at times ``t_s``: ``m x_stage(t) / p`` (docs/physics.md §2)."""
         times = np.asarray(t_s, dtype=np.float64)
-        position = self.current_stage().position_m(times)
+        position = self.current_stage(timing).position_m(times)
         image_scale = self.stage_image_scale
         if image_scale is None or self.stage is None:
             image_scale = self.profile.magnification.value
@@ -218,13 +243,24 @@ class CameraModel:
 
     # -- settings the registers make --------------------------------------------------------------
 
+    def settings(self, sensor: SensorModel | None = None) -> RegisterSettings:
+        """What the registers of ``sensor`` (default: the camera's; a stream passes register
+        snapshots) set for a render. Kept per register version: worked out again only after
+        a register changes."""
+        sensor = self.sensor if sensor is None else sensor
+        kept = self._settings.get(id(sensor))
+        if kept is not None and kept[0] is sensor and kept[1] == sensor.version:
+            return kept[2]
+        settings = self._work_out_settings(sensor)
+        if len(self._settings) >= _SETTINGS_KEPT:
+            self._settings.clear()
+        self._settings[id(sensor)] = (sensor, sensor.version, settings)
+        return settings
+
     @property
     def shutter(self) -> str:
         """The readout mode's shutter if it names one (IBIS5: rolling/global), else the profile's."""
-        mode = self.sensor.readout_mode if self.sensor.regmap.role("readout_mode") else None
-        if isinstance(mode, str) and mode in SHUTTERS:
-            return mode
-        return self.profile.shutter.value
+        return self.settings().shutter
 
     @property
     def rows(self) -> int:
@@ -243,13 +279,11 @@ class CameraModel:
 
     def system_gain_dn_per_e(self) -> float:
         """``K`` (ADC DN per electron) for the gain register's value now."""
-        gain = self.sensor.gain if self.sensor.regmap.role("gain") else None
-        return self.profile.system_gain_dn_per_e(self.profile.analog_gain_factor(gain))
+        return self.settings().gain_dn_per_e
 
     def black_level_dn(self) -> float:
         """Black level in ADC DN for the offset register's value now."""
-        offset = self.sensor.offset if self.sensor.regmap.role("offset") else None
-        return self.profile.black_level_for(offset)
+        return self.settings().black_dn
 
     def dark_factor(self) -> float:
         """Dark current at ``temperature_degc`` relative to the profile's reference temperature:
@@ -273,65 +307,68 @@ class CameraModel:
         clocks of the map's ``timing.clock_hz``) and ``IMC_PHASES`` (p, read-only); a sensor
         without them never compensates: ``("none", inf, 1)``.
         """
-        regmap = self.sensor.regmap
-        if not regmap.has_register("IMC_CTRL"):
-            return "none", math.inf, 1
-        mode = self.sensor.value("IMC_CTRL.mode")
-        if mode not in IMC_MODES:
-            raise ValueError(f"IMC_CTRL.mode is {mode!r}; the map must name none, row, electrode")
-        interval_s = int(self.sensor.value("IMC_STEP")) / regmap.timing.clock_hz
-        phases = int(self.sensor.value("IMC_PHASES"))
-        return mode, interval_s, phases
+        return self.settings().imc
 
     def window(self) -> tuple[int, int, int, int]:
         """(first row, rows, first column, columns) of the window, as array indices."""
-        regmap = self.sensor.regmap
-        timing = self.sensor.timing()
-        row0 = timing.window_start_row - regmap.first_row
-        col_start = regmap.role_count("window_start_column", self.sensor.value)
-        col0 = 0 if col_start is None else col_start - regmap.first_column
-        cols = regmap.role_count("window_columns", self.sensor.value) or regmap.columns
-        rows = timing.window_rows
-        if row0 < 0 or row0 + rows > regmap.rows or col0 < 0 or col0 + cols > regmap.columns:
-            raise ValueError(
-                f"window rows {row0}..{row0 + rows - 1}, columns {col0}..{col0 + cols - 1} "
-                f"(array indices) leave the {regmap.rows} x {regmap.columns} array; move or "
-                "shrink the window"
-            )
-        return row0, rows, col0, cols
+        return self.settings().window
 
     # -- frames -----------------------------------------------------------------------------------
 
     def render(self, t_s: float) -> Array:
         """One window frame (uint16, ``(rows, cols)``; halved when binned) whose window row 0
         ends its exposure at ``t_s``."""
-        row0, rows, col0, cols = self.window()
-        pattern = self._test_pattern(rows, cols)
-        if pattern is not None:
-            return bin2x2(pattern) if self.binning else pattern
-        timing = self.sensor.timing()
-        electrons = self._mean_electrons(t_s, timing, (row0, rows, col0, cols), np.float32)
-        p = self.profile
-        # One Gaussian per pixel: mean S + D, variance S + D + read^2 (module docstring, 5).
-        sigma = electrons + np.float32(p.read_noise_e.value**2)
-        np.sqrt(sigma, out=sigma)
-        sigma *= self._noise.standard_normal(electrons.shape, dtype=np.float32)
-        electrons += sigma
-        np.minimum(electrons, np.float32(p.full_well_e.value), out=electrons)
-        electrons *= np.float32(self.system_gain_dn_per_e())
-        electrons += np.float32(self.black_level_dn())
-        np.rint(electrons, out=electrons)
-        np.clip(electrons, 0.0, float(p.adc_max_dn), out=electrons)
-        frame = electrons.astype(np.uint16)
-        if p.output_shift_bits:
-            frame >>= p.output_shift_bits
-        return bin2x2(frame) if self.binning else frame
+        frames, _ = self.render_block([t_s])
+        frame: Array = frames[0]
+        return frame
+
+    def render_block(
+        self, times_s: Sequence[float] | Array, *, sensor: SensorModel | None = None
+    ) -> tuple[Array, npt.NDArray[np.int64]]:
+        """Frames whose window row 0 ends its exposure at each of ``times_s``, with the
+        registers of ``sensor`` (default: the camera's), all in one pass: ``(frames, rows,
+        cols)`` uint16 (halved and summed when binned) and each frame's largest code.
+
+        The same frames, bit for bit, as one ``render`` per time in order: each frame takes its
+        own noise offset, in order, and every row is integrated on its own (to float32
+        rounding only where the frames move by very different amounts during their exposures,
+        a stage ramping within the block: the block's rows sum as many scene cells as its
+        widest motion needs, which may choose the scene's dense sum for all of them)."""
+        settings = self.settings(sensor)
+        row0, rows, col0, cols = settings.window
+        times = np.asarray(times_s, dtype=np.float64).reshape(-1)
+        count = times.size
+        if settings.test_pattern is not None:
+            frames = np.empty((count, rows, cols), dtype=np.uint16)
+            frames[...] = settings.test_pattern
+            maxima = np.full(count, int(settings.test_pattern.max()), dtype=np.int64)
+        else:
+            timing = settings.timing
+            photons, start, end = self._photons(times, settings, np.float32)
+            response, dark = self._fixed.rows(row0, rows)
+            row_factor = np.ones((count, rows), dtype=np.float32)
+            if self.transmission is not None:
+                for f in range(count):  # one frame at a time: its channel is the wheel's then
+                    row_factor[f] = self.transmission(start[f], end[f])
+            codes, maxima = read_out(
+                photons,
+                response[:, col0 : col0 + cols],
+                dark[:, col0 : col0 + cols],
+                row_factor.reshape(-1),
+                self.dark_factor() * timing.exposure_s,
+                self._bank.take(self._noise, count, rows * cols),
+                settings.readout,
+            )
+            frames = codes.reshape(count, rows, cols)
+        if self.binning:
+            frames = bin2x2(frames)
+            maxima = frames.reshape(count, -1).max(axis=1).astype(np.int64)
+        return frames, maxima
 
     def expected_electrons(self, t_s: float, *, dtype: npt.DTypeLike = np.float32) -> Array:
         """Noise-free charge per pixel (signal + dark, full-well clipped) of ``render(t_s)``'s
         frame, including the fixed pattern; summed over 2x2 blocks when binned."""
-        window = self.window()
-        electrons = self._mean_electrons(t_s, self.sensor.timing(), window, dtype)
+        electrons = self._mean_electrons(t_s, dtype)
         np.minimum(electrons, self.profile.full_well_e.value, out=electrons)
         return bin2x2(electrons) if self.binning else electrons
 
@@ -341,8 +378,7 @@ class CameraModel:
         ``e K + B`` clipped to the ADC range, divided by ``2^(adc_bits - output_bits)`` (not
         floored), summed over 2x2 blocks when binned.
         """
-        window = self.window()
-        electrons = self._mean_electrons(t_s, self.sensor.timing(), window, dtype)
+        electrons = self._mean_electrons(t_s, dtype)
         p = self.profile
         np.minimum(electrons, p.full_well_e.value, out=electrons)
         dn = electrons * self.system_gain_dn_per_e() + self.black_level_dn()
@@ -355,56 +391,66 @@ class CameraModel:
     ) -> tuple[Array, Array]:
         """(start, end) of each window row's exposure for the frame whose row 0 ends at ``t_s``
         (docs/physics.md §2 eq 4, §3: a rolling shutter staggers rows by ``T_line``)."""
-        timing = self.sensor.timing() if timing is None else timing
+        settings = self.settings()
+        timing = settings.timing if timing is None else timing
         n = timing.window_rows if rows is None else rows
-        if self.shutter == "rolling":
-            end = t_s + np.arange(n, dtype=np.float64) * timing.line_period_s
-        else:
-            end = np.full(n, float(t_s))
-        return end - timing.exposure_s, end
+        start, end = _exposures(np.array([float(t_s)]), timing, n, settings.shutter)
+        return start[0], end[0]
 
     # -- internals --------------------------------------------------------------------------------
 
-    def _mean_electrons(
-        self,
-        t_s: float,
-        timing: SensorTiming,
-        window: tuple[int, int, int, int],
-        dtype: npt.DTypeLike,
-    ) -> Array:
-        row0, rows, col0, cols = window
-        start, end = self.exposure_times_s(t_s, timing, rows)
-        mode, interval_s, phases = self.imc()
-        if mode != "none" and self.shutter != "rolling":
-            electrons = self._compensated_photons(
-                float(start[0]), timing.exposure_s, (mode, interval_s, phases), window, dtype
-            )
-        else:
-            # Both ends in one stage call: a stepper's position may be costly to evaluate.
-            moved = self.image_rows(np.concatenate([start, end]))
-            electrons = self.scene.integrate(
-                row0,
-                rows,
-                cols,
-                moved[:rows],
-                moved[rows:],
-                None,
-                timing.exposure_s,
-                self.profile.aperture,
-                first_col=col0,
-                dtype=dtype,
-            )
-        response_rows, dark_rows = self._pattern_rows(row0, rows)
-        response = response_rows[:, col0 : col0 + cols]
-        dark_ref = dark_rows[:, col0 : col0 + cols]
-        electrons *= response
+    def _photons(
+        self, times: Array, settings: RegisterSettings, dtype: npt.DTypeLike
+    ) -> tuple[Array, Array, Array]:
+        """Photons per pixel of the frames whose row 0 ends at each of ``times`` (steps 1 to 3
+        of the module docstring), the rows of all frames one after the other: ``(frames x
+        rows, cols)``, or ``(frames x rows, 1)`` for a scene one column wide; and each row's
+        exposure start and end, ``(frames, rows)``."""
+        row0, rows, col0, cols = settings.window
+        timing = settings.timing
+        start, end = _exposures(times, timing, rows, settings.shutter)
+        mode, interval_s, phases = settings.imc
+        if mode != "none" and settings.shutter != "rolling":
+            photons = np.concatenate([
+                self._compensated_photons(
+                    float(first), timing.exposure_s, (mode, interval_s, phases), settings, dtype
+                )
+                for first in start[:, 0]
+            ])  # fmt: skip
+            return photons, start, end
+        n = start.size
+        # Both ends of every row in one stage call: a stepper's position may be costly.
+        moved = self.image_rows(np.concatenate([start.reshape(-1), end.reshape(-1)]), timing)
+        sensor_rows = np.tile(row0 + np.arange(rows, dtype=np.float64), times.size)
+        photons = self.scene.integrate_rows(
+            sensor_rows,
+            cols,
+            moved[:n],
+            moved[n:],
+            None,
+            timing.exposure_s,
+            self.profile.aperture,
+            first_col=col0,
+            dtype=dtype,
+        )
+        return photons, start, end
+
+    def _mean_electrons(self, t_s: float, dtype: npt.DTypeLike) -> Array:
+        """Expected electrons (signal with the fixed pattern, and dark charge) of the frame
+        whose row 0 ends at ``t_s``, before full-well clipping: ``(rows, cols)``."""
+        settings = self.settings()
+        row0, rows, col0, cols = settings.window
+        photons, start, end = self._photons(np.array([float(t_s)]), settings, dtype)
+        response_rows, dark_rows = self._fixed.rows(row0, rows)
+        electrons = np.empty((rows, cols), dtype=dtype)
+        electrons[...] = photons
+        electrons *= response_rows[:, col0 : col0 + cols]
         if self.transmission is not None:
-            factor = np.asarray(self.transmission(start, end), dtype=electrons.dtype)
+            factor = np.asarray(self.transmission(start[0], end[0]), dtype=electrons.dtype)
             electrons *= factor[:, np.newaxis]
         # Dark rate map at T_ref times the temperature factor, times the exposure.
-        scale = np.asarray(self.dark_factor() * timing.exposure_s, dtype=electrons.dtype)
-        dark = dark_ref * scale
-        electrons += dark
+        scale = np.asarray(self.dark_factor() * settings.timing.exposure_s, dtype=electrons.dtype)
+        electrons += dark_rows[:, col0 : col0 + cols] * scale
         return electrons
 
     def _compensated_photons(
@@ -412,17 +458,18 @@ class CameraModel:
         start_s: float,
         exposure_s: float,
         imc: tuple[ImcMode, float, int],
-        window: tuple[int, int, int, int],
+        settings: RegisterSettings,
         dtype: npt.DTypeLike,
     ) -> Array:
         """Photons per pixel of a full-frame exposure with the packets clocked along (module
         docstring, 3): the sum over the schedule's pieces of the scene's exact integral of an
         aperture moving linearly from (image displacement - packet shift) at the piece's start
         to that at its end, each for the piece's duration."""
-        row0, rows, col0, cols = window
+        row0, rows, col0, cols = settings.window
         mode, interval_s, phases = imc
         schedule = charge_shift_schedule(exposure_s, interval_s, mode, phases)
-        moved = self.image_rows(start_s + schedule.bounds_s)  # all rows expose together
+        # All rows expose together.
+        moved = self.image_rows(start_s + schedule.bounds_s, settings.timing)
         # Drift moves the image sideways by its own displacement; the packets only move along.
         lateral = self.scene.lateral_cols(np.full(rows, 0.5 * (moved[0] + moved[-1])))
         pieces = _merge_pieces(
@@ -438,63 +485,6 @@ class CameraModel:
         assert total is not None  # a schedule has at least one piece
         return total
 
-    @property
-    def _banded_maps(self) -> bool:
-        p = self.profile
-        return p.rows.value * p.columns.value > _BANDED_MAP_PIXELS
-
-    def _pattern_rows(self, row0: int, rows: int) -> tuple[Array, Array]:
-        """The fixed-pattern maps (``_fixed_patterns``) of array rows ``row0 .. row0 + rows - 1``
-        (all columns); a large array's from its bands."""
-        if not self._banded_maps:
-            response, dark = self._fixed_patterns()
-            return response[row0 : row0 + rows], dark[row0 : row0 + rows]
-        first, last = row0 // _MAP_BAND_ROWS, (row0 + rows - 1) // _MAP_BAND_ROWS
-        parts = [self._band(b) for b in range(first, last + 1)]
-        offset = row0 - first * _MAP_BAND_ROWS
-        if len(parts) == 1:
-            response, dark = parts[0]
-        else:
-            response = np.concatenate([r for r, _ in parts])
-            dark = np.concatenate([d for _, d in parts])
-        return response[offset : offset + rows], dark[offset : offset + rows]
-
-    def _band(self, band: int) -> tuple[Array, Array]:
-        """Band ``band`` (rows ``band * 256 ..``) of a large array's maps, from its own stream."""
-        cached = self._bands.get(band)
-        if cached is None:
-            p = self.profile
-            rows = min(_MAP_BAND_ROWS, p.rows.value - band * _MAP_BAND_ROWS)
-            rng = np.random.default_rng([self.seed, _FIXED_PATTERN_STREAM, band])
-            cached = self._draw_maps(rng, (rows, p.columns.value))
-            self._bands[band] = cached
-        return cached
-
-    def _fixed_patterns(self) -> tuple[Array, Array]:
-        """QE * (1 + PRNU) and the dark-current map at T_ref (e-/s, >= 0), whole array."""
-        if self._maps is not None:
-            return self._maps
-        p = self.profile
-        rng = np.random.default_rng([self.seed, _FIXED_PATTERN_STREAM])
-        self._maps = self._draw_maps(rng, (p.rows.value, p.columns.value))
-        return self._maps
-
-    def _draw_maps(self, rng: np.random.Generator, shape: tuple[int, int]) -> tuple[Array, Array]:
-        """QE * (1 + PRNU) and the dark-current map of ``shape`` pixels from ``rng``."""
-        p = self.profile
-        response = rng.standard_normal(shape, dtype=np.float32)
-        response *= np.float32(p.prnu_fraction.value)
-        response += np.float32(1.0)
-        response *= np.float32(p.quantum_efficiency.value)
-        np.maximum(response, 0.0, out=response)
-        dark = rng.standard_normal(shape, dtype=np.float32)
-        dark *= np.float32(p.dsnu_e_per_s.value)
-        dark += np.float32(p.dark_current_e_per_s.value)
-        # A pixel cannot have negative dark current; with DSNU <= 20 % of the mean this clips
-        # nothing in practice (5 sigma).
-        np.maximum(dark, 0.0, out=dark)
-        return response, dark
-
     def _moderate_photons(self) -> float:
         """Photons/pixel/s that fill DEFAULT_FILL_OF_RANGE of the output range at the current
         exposure (the lower of full well and the ADC range above the black level)."""
@@ -505,23 +495,56 @@ class CameraModel:
         per_photon_s = p.quantum_efficiency.value * p.fill_factor.value * timing.exposure_s
         return DEFAULT_FILL_OF_RANGE * range_e / max(per_photon_s, 1e-300)
 
-    def _test_pattern(self, rows: int, cols: int) -> Array | None:
+    def _work_out_settings(self, sensor: SensorModel) -> RegisterSettings:
+        """``settings`` from the registers themselves (see there)."""
+        p = self.profile
+        regmap = sensor.regmap
+        timing = sensor.timing()
+        mode = sensor.readout_mode if regmap.role("readout_mode") else None
+        shutter = mode if isinstance(mode, str) and mode in SHUTTERS else p.shutter.value
+        gain = sensor.gain if regmap.role("gain") else None
+        gain_dn_per_e = p.system_gain_dn_per_e(p.analog_gain_factor(gain))
+        offset = sensor.offset if regmap.role("offset") else None
+        black_dn = p.black_level_for(offset)
+        window = _window(sensor, timing)
+        pattern = self._test_pattern(sensor, window[1], window[3])
+        if pattern is not None:
+            pattern.flags.writeable = False  # shared by every frame of the settings
+        return RegisterSettings(
+            window=window,
+            timing=timing,
+            shutter=shutter,
+            gain_dn_per_e=gain_dn_per_e,
+            black_dn=black_dn,
+            imc=_imc(sensor),
+            test_pattern=pattern,
+            readout=Readout(
+                read_variance_e2=p.read_noise_e.value**2,
+                full_well_e=p.full_well_e.value,
+                gain_dn_per_e=gain_dn_per_e,
+                black_dn=black_dn,
+                adc_max_dn=p.adc_max_dn,
+                shift_bits=p.output_shift_bits,
+            ),
+        )
+
+    def _test_pattern(self, sensor: SensorModel, rows: int, cols: int) -> Array | None:
         """The frame a test pattern setting sends instead of pixels, or None for pixels."""
-        regmap = self.sensor.regmap
+        regmap = sensor.regmap
         if regmap.role("test_pattern") is None:
             return None
-        setting = self.sensor.test_pattern
+        setting = sensor.test_pattern
         if setting in ("off", 0):
             return None
         bits = self.profile.output_bits.value
         if setting == "test_data" and regmap.has_register("TEST_DATA"):
             # MT9M001: the sensor repeats the TEST_DATA register's value (mt9m001.toml).
-            value = int(self.sensor.value("TEST_DATA")) & ((1 << bits) - 1)
+            value = int(sensor.value("TEST_DATA")) & ((1 << bits) - 1)
             return np.full((rows, cols), value, dtype=np.uint16)
         name = setting.upper() if isinstance(setting, str) else ""
         kind = TestPattern[name] if name in TestPattern.__members__ else TestPattern.RAMP
         word_name = regmap.role("training_word")
-        word = DEFAULT_TRAINING_WORD if word_name is None else int(self.sensor.value(word_name))
+        word = DEFAULT_TRAINING_WORD if word_name is None else int(sensor.value(word_name))
         frame = pattern_frame(
             kind,
             rows,
@@ -532,6 +555,47 @@ class CameraModel:
         )
         assert frame is not None  # OFF was handled above
         return frame
+
+
+def _window(sensor: SensorModel, timing: SensorTiming) -> tuple[int, int, int, int]:
+    """(first row, rows, first column, columns) of the registers' window, array indices."""
+    regmap = sensor.regmap
+    row0 = timing.window_start_row - regmap.first_row
+    col_start = regmap.role_count("window_start_column", sensor.value)
+    col0 = 0 if col_start is None else col_start - regmap.first_column
+    cols = regmap.role_count("window_columns", sensor.value) or regmap.columns
+    rows = timing.window_rows
+    if row0 < 0 or row0 + rows > regmap.rows or col0 < 0 or col0 + cols > regmap.columns:
+        raise ValueError(
+            f"window rows {row0}..{row0 + rows - 1}, columns {col0}..{col0 + cols - 1} "
+            f"(array indices) leave the {regmap.rows} x {regmap.columns} array; move or "
+            "shrink the window"
+        )
+    return row0, rows, col0, cols
+
+
+def _imc(sensor: SensorModel) -> tuple[ImcMode, float, int]:
+    """``CameraModel.imc`` for the registers of ``sensor``."""
+    regmap = sensor.regmap
+    if not regmap.has_register("IMC_CTRL"):
+        return "none", math.inf, 1
+    mode = sensor.value("IMC_CTRL.mode")
+    if mode not in IMC_MODES:
+        raise ValueError(f"IMC_CTRL.mode is {mode!r}; the map must name none, row, electrode")
+    interval_s = int(sensor.value("IMC_STEP")) / regmap.timing.clock_hz
+    phases = int(sensor.value("IMC_PHASES"))
+    return mode, interval_s, phases
+
+
+def _exposures(times: Array, timing: SensorTiming, rows: int, shutter: str) -> tuple[Array, Array]:
+    """(start, end) of each row's exposure, ``(frames, rows)``, for frames whose row 0 ends
+    its exposure at each of ``times`` (a rolling shutter staggers rows by ``T_line``)."""
+    if shutter == "rolling":
+        offsets = np.arange(rows, dtype=np.float64) * timing.line_period_s
+    else:
+        offsets = np.zeros(rows)
+    end = times[:, np.newaxis] + offsets[np.newaxis, :]
+    return end - timing.exposure_s, end
 
 
 def _merge_pieces(start: Array, end: Array, durations_s: Array) -> list[tuple[float, float, float]]:

@@ -32,6 +32,11 @@ from firmware_models.scene import SceneSpec
 from firmware_models.usb_spi import SpiSocketServer
 
 DEFAULT_PROFILE = "hr400"
+WARM_UP_ENV = "CAMD_SIM_WARM_UP"
+"""Environment variable: ``0`` leaves the camera's first-frame work (compiled kernels, fixed
+pattern, noise bank: about a second of one core) to the first stream instead of doing it on a
+thread when the simulator starts (the test suite sets it: most of its simulators stream little
+or never)."""
 _PROFILE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
 _STOP_SIGNALS = (signal.SIGTERM, signal.SIGINT)
 
@@ -219,6 +224,10 @@ def main(argv: list[str] | None = None, *, prog: str = "python -m firmware_model
                 _start_line(args.json, tty_path, link, args.profile, inject, spi_path, usb_path),
                 flush=True,
             )
+            if os.environ.get(WARM_UP_ENV, "1") != "0":
+                threading.Thread(
+                    target=_warm_up, args=(model,), name="warm-up", daemon=True
+                ).start()
             server.serve()
         finally:
             model.close()
@@ -228,6 +237,15 @@ def main(argv: list[str] | None = None, *, prog: str = "python -m firmware_model
                 spi_server.stop()
             server.close()
     return 0
+
+
+def _warm_up(model: FpgaModel) -> None:
+    """The camera's first-frame work, ahead of the first stream (``CameraModel.warm_up``); a
+    failure here only means the first stream does it (and says why, if it fails again)."""
+    try:
+        model.camera.warm_up()
+    except Exception as exc:  # the stream reports a real failure; here it is only early
+        print(f"python -m firmware_models: warm-up skipped: {bounded(str(exc))}", file=sys.stderr)
 
 
 def _start_line(

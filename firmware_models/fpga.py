@@ -182,6 +182,7 @@ class FpgaModel:
             lock=self.lock,
         )
         self.stream.source = self.imaging_path.frame
+        self.stream.prepare = self.imaging_path.prepare
         self.stream.defects = self.imaging_path.defects = defects
         # register_readback_off_by_one: the register whose reads are off (None: no defect).
         self._off_by_one_address = (

@@ -55,17 +55,20 @@ from firmware_models.fx3_wire import (
     SOCKET_BUFFER_BYTES,
 )
 from firmware_models.inject import InjectSpec
+from firmware_models.pacing import Pacer
 from firmware_models.usb_device import UnixSocketServer
 
 log = logging.getLogger(__name__)
 
 _SEND_TICK_S = 0.25  # how often a blocked send looks whether it should give up
 # A paced stream makes and sends the frames due within BLOCK_S together, in one system call
-# (at the hr400's fastest line rate, 41 us per frame, one call per frame would be the limit);
-# a block goes out when its last frame is due, so no frame leaves early and none more than
-# BLOCK_S late. An unpaced stream sends MAX_BLOCK_FRAMES at a time (3 buffers each: well
+# (at the hr400's fastest line rate, 41 us per frame, one call per frame would be the limit;
+# the imaging pipeline renders such a block in one pass, and 2 ms rather than 1 ms took a
+# quarter off a rendered frame's CPU at 164 us frames); a block goes out when its last frame
+# is due, so no frame leaves early and, on schedule, none more than BLOCK_S late. An unpaced
+# stream, or one catching up, sends up to MAX_BLOCK_FRAMES at a time (3 buffers each: well
 # under the kernel's 1024 per sendmsg).
-BLOCK_S = 1e-3
+BLOCK_S = 2e-3
 MAX_BLOCK_FRAMES = 64
 
 
@@ -394,14 +397,15 @@ class StreamEngine:
     ``source(counter)`` for counter = ``first_counter``, +1, ... (mod 2**32); the source
     returns the frame's complete header (payload CRC included) and its (rows, cols) uint16
     pixels. Each frame goes out as one transfer (header + pixels by scatter-gather, no copy).
-    ``pace=True`` sends frames on a clock of ``period_s`` in wall time (a source more than a
-    period late moves the clock, so a slower source just makes the stream slower, without
-    bursts; nothing is dropped for that). Frames due within ``BLOCK_S`` of each other are made
-    and sent together when the last of them is due, in one system call (``MAX_BLOCK_FRAMES``
-    at a time unpaced): a line rate of tens of kHz is not a system call per frame. Frames
-    made while no host can
-    take them (none connected, or the endpoint halted) are discarded and counted
-    ``undelivered``, and the next frame sent carries DEVICE_OVERFLOW. ``pace=False`` sends as
+    ``pace=True`` sends frames on a clock of ``period_s`` in wall time, by deadlines
+    (``firmware_models.pacing``: frames made late are followed by the next at once until the
+    stream is back on schedule, within a bound; a source slower than the clock for good just
+    makes the stream slower; nothing is dropped for that). Frames due within ``BLOCK_S`` of
+    each other are made and sent together when the last of them is due, in one system call
+    (``MAX_BLOCK_FRAMES`` at a time unpaced, or behind the schedule): a line rate of tens of
+    kHz is not a system call per frame. Frames made while no host can take them (none
+    connected, or the endpoint halted) are discarded and counted ``undelivered``, and the
+    next frame sent carries DEVICE_OVERFLOW. ``pace=False`` sends as
     fast as the host reads, and waits (making nothing) while no host can take frames.
 
     A counted stream (``frames > 0``) ends by itself after that many frames, the last one
@@ -431,6 +435,10 @@ class StreamEngine:
         on_done: DoneCallback | None = None,
     ) -> None:
         self.source = source
+        # Told before each block which frames the source will be asked for (first counter,
+        # count), so that it can make them together (the imaging pipeline renders them in
+        # one go); None: the source makes each frame when asked.
+        self.prepare: Callable[[int, int], None] | None = None
         self.server = server
         self.inject = inject if inject is not None else InjectSpec()
         self.on_done = on_done
@@ -604,7 +612,7 @@ class StreamEngine:
         return max(1, min(MAX_BLOCK_FRAMES, int(BLOCK_S / stream.period_s)))
 
     def _stream(self, stream: _Stream) -> None:
-        due = time.monotonic()  # when the next frame is due (paced streams)
+        pacer = Pacer(time.monotonic())  # deadlines of a paced stream (firmware_models.pacing)
         overflow = False  # frames were undelivered since the last one sent
         while True:
             if not stream.pace:
@@ -617,15 +625,14 @@ class StreamEngine:
                         self._wait(stream, 0.05)
             count = self._block_frames(stream)
             if stream.pace and stream.period_s > 0:
-                # A block goes out when its last frame is due: no frame leaves before its time.
-                last_due = due + (count - 1) * stream.period_s
+                # A block goes out when its last frame is due: no frame leaves before its time;
+                # behind the schedule, the frames already due go at once (the stream catches up).
                 now = time.monotonic()
-                if last_due > now:
-                    self._wait(stream, last_due - now)
-                elif now - last_due > stream.period_s:
-                    # More than a period late (a slow render): the schedule moves, so the frames
-                    # after it do not come in a burst to catch up.
-                    due = now - (count - 1) * stream.period_s
+                count = pacer.block_frames(count, stream.period_s, MAX_BLOCK_FRAMES, now_s=now)
+                wait_s = pacer.wait_s(count, stream.period_s, now_s=now)
+                if wait_s > 0:
+                    self._wait(stream, wait_s)
+            self._announce(stream, count)
             block: list[tuple[FrameHeader, np.ndarray, bool, InjectSpec]] = []
             ended = False
             for _ in range(count):
@@ -650,13 +657,27 @@ class StreamEngine:
                 header, pixels = source(counter)
                 # On a clock, like the sensor: the sleep's wake-up latency does not accumulate.
                 # Read after the source, which may have changed the period (``set_period``).
-                due += stream.period_s
+                pacer.advance(stream.period_s)
                 # The faults in force when the frame was made (``inject`` may change any time).
                 block.append((header, pixels, last, self.inject))
             if block:
                 overflow = self._send_block(stream, block, overflow)
             if ended:
                 return
+
+    def _announce(self, stream: _Stream, count: int) -> None:
+        """Tell the source (``prepare``) which frames it is about to be asked for: the next
+        ``count``, or fewer where the stream ends, so it may make them together."""
+        if self.prepare is None:
+            return
+        with self._cond:
+            if stream.frames:
+                count = min(count, stream.frames - stream.produced)
+            if stream.end_after is not None:
+                count = min(count, stream.end_after - stream.produced)
+            first = self.next_counter
+        if count > 0:
+            self.prepare(first, count)
 
     def _send_block(
         self,

@@ -43,9 +43,14 @@ from firmware_models.sensor_link import SensorLink
 NS_PER_S = 1_000_000_000
 # Encoder counts are looked up for the frames starting within this much model time of the one
 # being made, at most ENCODER_BLOCK_FRAMES of them: one stage look-up costs about the same for
-# one time as for 32, and a command in between (a new revision) makes the rest looked up again.
+# one time as for 64, and a command in between (a new revision) makes the rest looked up again.
 ENCODER_AHEAD_S = 2e-3
-ENCODER_BLOCK_FRAMES = 32
+ENCODER_BLOCK_FRAMES = 64
+# The frames the stream engine makes together (``prepare``: those due within ``BLOCK_S``)
+# are rendered together, in blocks of at most this many pixels (frames x window pixels; a
+# larger frame alone): the per-frame cost of a render (about 1 ms of Python, against the
+# hr400's 41 us line period at one row) is paid once per block.
+RENDER_BLOCK_PIXELS = 1 << 18
 
 
 class StreamRefused(ValueError):
@@ -113,6 +118,10 @@ class ImagingPipeline:
         # Benchmarks: frames as fast as the host takes them, not on the sensor's clock.
         self.unpaced = False
         self._bank: dict[int, tuple[npt.NDArray[np.uint16], FrameFlags]] = {}
+        # Frames the engine announced it will ask for next (``prepare``), and frames made
+        # ahead in a block, waiting to be asked for: counter -> frame.
+        self._announced: tuple[int, int] = (0, 0)  # (first counter, count)
+        self._made: dict[int, tuple[FrameHeader, npt.NDArray[np.uint16]]] = {}
 
     @property
     def streaming(self) -> bool:
@@ -172,6 +181,8 @@ class ImagingPipeline:
         )
         self.geometry = geometry
         self._bank = {}
+        self._announced = (0, 0)
+        self._made = {}
         self._mode = StreamMode.TDI if mode == "tdi" else StreamMode.AREA
         self._adc_max = (1 << self.camera.bits) - 1
         self._history = [(-math.inf, self.sensor.snapshot())]
@@ -219,37 +230,84 @@ class ImagingPipeline:
         produced = self.engine.stop(notify=False)
         return produced, self.next_counter
 
+    def prepare(self, first_counter: int, count: int) -> None:
+        """The stream engine will ask for frames ``first_counter`` .. ``+ count - 1`` next (all
+        due already): ``frame`` makes them in blocks (``RENDER_BLOCK_PIXELS``)."""
+        self._announced = (first_counter % (1 << 32), count)
+
     def frame(self, counter: int) -> tuple[FrameHeader, npt.NDArray[np.uint16]]:
         """The stream engine's source: frame ``counter`` of the running stream."""
         geometry = self.geometry
         assert geometry is not None
+        counter %= 1 << 32
+        made = self._made.pop(counter, None)
+        if made is not None:
+            return made
+        self._made.clear()  # made ahead but not asked for: the stream was stopped or restarted
         k = (counter - geometry.first_counter) % (1 << 32)
-        start_s, period_s = self._frame_start(k)
+        first, announced = self._announced
+        ahead = (counter - first) % (1 << 32)
+        count = 1
+        if ahead < announced:
+            window_pixels = max(1, self.camera.rows * self.camera.columns)
+            count = max(1, min(announced - ahead, RENDER_BLOCK_PIXELS // window_pixels))
+        frames = self._make(k, count)
+        for i, made in enumerate(frames[1:], start=1):
+            self._made[(counter + i) % (1 << 32)] = made
+        return frames[0]
+
+    def _make(self, k0: int, count: int) -> list[tuple[FrameHeader, npt.NDArray[np.uint16]]]:
+        """Frames ``k0 .. k0 + count - 1`` of the stream, each with the registers in force at
+        its own start; frames with the same registers are rendered in one go."""
+        geometry = self.geometry
+        assert geometry is not None
+        clock = [self._frame_start(k) for k in range(k0, k0 + count)]
         with self.lock:
-            registers = self._registers_at(start_s)
-            self._rendered_s = max(self._rendered_s, start_s)
-        t_s = start_s + registers.timing().exposure_s
-        banked = self._bank.get(k % self.frame_bank) if self.frame_bank else None
-        if banked is None:
-            pixels, flags = self._render(t_s, geometry, registers)
+            registers = [self._registers_at(start_s) for start_s, _ in clock]
+            self._rendered_s = max(self._rendered_s, clock[-1][0])
+        made: list[tuple[FrameHeader, npt.NDArray[np.uint16]]] = []
+        i = 0
+        while i < count:
+            j = i + 1  # frames i .. j - 1 share their registers
+            while j < count and registers[j] is registers[i]:
+                j += 1
+            exposure_s = registers[i].timing().exposure_s
+            times = [start_s + exposure_s for start_s, _ in clock[i:j]]
             if self.frame_bank:
-                self._bank[k % self.frame_bank] = (pixels, flags)
-        else:
-            pixels, flags = banked
-        stamped = HEADER_PERIOD_FACTOR if self.defects.header_line_period_1pct else 1.0
-        header = frame_header(
-            pixels,
-            counter=counter,
-            timestamp_ns=round(t_s * NS_PER_S),
-            # header_line_period_1pct: a header field stamped wrong, the frame itself right.
-            line_period_ns=round(period_s * NS_PER_S * stamped),
-            bits=geometry.bits,
-            mode=self._mode,
-            stages=geometry.stages,
-            stage_position=self._stage_position(k, start_s),
-            flags=flags,
-        )
-        return header, pixels
+                rendered = [
+                    self._banked(k0 + i + n, t_s, geometry, registers[i])
+                    for n, t_s in enumerate(times)
+                ]
+            else:
+                rendered = self._render(times, geometry, registers[i])
+            stamped = HEADER_PERIOD_FACTOR if self.defects.header_line_period_1pct else 1.0
+            for n, (pixels, flags) in enumerate(rendered):
+                start_s, period_s = clock[i + n]
+                header = frame_header(
+                    pixels,
+                    counter=geometry.first_counter + k0 + i + n,
+                    timestamp_ns=round(times[n] * NS_PER_S),
+                    # header_line_period_1pct: a header field stamped wrong, the frame right.
+                    line_period_ns=round(period_s * NS_PER_S * stamped),
+                    bits=geometry.bits,
+                    mode=self._mode,
+                    stages=geometry.stages,
+                    stage_position=self._stage_position(k0 + i + n, start_s),
+                    flags=flags,
+                )
+                made.append((header, pixels))
+            i = j
+        return made
+
+    def _banked(
+        self, k: int, t_s: float, geometry: StreamGeometry, registers: SensorModel
+    ) -> tuple[npt.NDArray[np.uint16], FrameFlags]:
+        """Frame k from the replay bank: rendered the first time round, replayed after."""
+        banked = self._bank.get(k % self.frame_bank)
+        if banked is None:
+            banked = self._render([t_s], geometry, registers)[0]
+            self._bank[k % self.frame_bank] = banked
+        return banked
 
     def _frame_start(self, k: int) -> tuple[float, float]:
         """(start time, frame period) of frame k. Frames are made in order, so the clock
@@ -307,23 +365,28 @@ class ImagingPipeline:
         return counts[0]
 
     def _render(
-        self, t_s: float, geometry: StreamGeometry, registers: SensorModel
-    ) -> tuple[npt.NDArray[np.uint16], FrameFlags]:
-        """The window frame at ``t_s`` with those registers, through the link and binning, and
-        its flags."""
+        self, times: list[float], geometry: StreamGeometry, registers: SensorModel
+    ) -> list[tuple[npt.NDArray[np.uint16], FrameFlags]]:
+        """The window frames at ``times`` with those registers, through the link and binning,
+        with their flags."""
         # Not under the lock: a render takes milliseconds, and commands (the stage's closed
         # loop polls every 10 ms) must not wait for it.
-        raw = self.camera.frozen(registers).render(t_s)
+        raw, maxima = self.camera.render_block(times, sensor=registers)
+        count = len(times)
         with self.lock:
-            received = self.sensor_link.capture(raw)
-            self.sensor.note_frame()
+            received = self.sensor_link.capture_block(raw, int(maxima.max()))
+            self.sensor.note_frame(count)
+        if received is not raw:
+            maxima = received.reshape(count, -1).max(axis=1)
         flags = FrameFlags(0)
-        if int(received.max()) >= self._adc_max:
-            flags |= FrameFlags.SATURATED
-        if registers.test_pattern not in ("off", 0):
+        if self.camera.settings(registers).test_pattern is not None:
             flags |= FrameFlags.TEST_PATTERN
         pixels = np.ascontiguousarray(received, dtype=np.uint16)
         if geometry.binning:
             pixels = bin2x2(pixels).astype(np.uint16)
             flags |= FrameFlags.BINNED_2X2
-        return pixels, flags
+        saturated = maxima >= self._adc_max
+        return [
+            (pixels[n], flags | FrameFlags.SATURATED if saturated[n] else flags)
+            for n in range(count)
+        ]

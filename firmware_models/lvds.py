@@ -373,6 +373,36 @@ class LvdsLink:
         captured = self.receive_lanes(streams, alignment, idle_word=idle_word, rng=rng)
         return lanes_to_frame(captured, rows, cols)
 
+    def receive_block(self, frames: npt.NDArray[Any], alignment: Alignment) -> Words:
+        """``receive`` of each of ``frames`` (``(count, rows, cols)``), the lanes of all of them
+        at once (a stream's block: the lane model per frame was a third of a small frame's
+        time). The same words as one ``receive`` per frame where the link draws no noise; with
+        metastable or dead lanes the noise is drawn lane by lane for the whole block, so it
+        differs from frame-by-frame draws (the same distribution)."""
+        if frames.ndim != 3:
+            raise ValueError(f"need (count, rows, cols) frames, got shape {frames.shape}")
+        count = frames.shape[0]
+        rows, cols = _frame_shape(frames[0], self.lanes)
+        per_row = cols // self.lanes
+        streams = np.asarray(frames, dtype=np.uint16).reshape(count, rows, per_row, self.lanes)
+        sent = np.ascontiguousarray(streams.transpose(0, 3, 1, 2)).reshape(
+            count, self.lanes, rows * per_row
+        )
+        captured = self._receive_streams(sent, alignment, None, None)
+        back = captured.reshape(count, self.lanes, rows, per_row).transpose(0, 2, 3, 1)
+        return np.ascontiguousarray(back).reshape(count, rows, cols)
+
+    def bit_exact(self, alignment: Alignment) -> bool:
+        """Whether ``alignment`` receives every lane exactly as sent: each live lane's first
+        output word starts at the first sent bit, sampled inside the eye (no metastable
+        neighbour), and no lane is dead. ``receive`` then returns the frame's own words
+        (checked to fit the word size) and draws no noise, so a caller may skip it (the
+        frame's lane split and rejoin, two passes over it, a third of a small frame's time)."""
+        self._check_alignment(alignment)
+        if self.dead_lanes:
+            return False
+        return all(self._lane_offsets(lane, alignment) == (0, 0) for lane in range(self.lanes))
+
     def receive_lanes(
         self,
         streams: npt.NDArray[Any],
@@ -384,28 +414,39 @@ class LvdsLink:
         """Per-lane capture: (lanes, n) words sent -> (lanes, n) words the deserialisers output."""
         if streams.ndim != 2 or streams.shape[0] != self.lanes:
             raise ValueError(f"need ({self.lanes}, n) lane streams, got shape {streams.shape}")
+        sent = np.asarray(streams)[np.newaxis]
+        lanes: Words = self._receive_streams(sent, alignment, idle_word, rng)[0]
+        return lanes
+
+    def _receive_streams(
+        self,
+        sent: npt.NDArray[Any],
+        alignment: Alignment,
+        idle_word: int | None,
+        rng: np.random.Generator | None,
+    ) -> Words:
+        """``receive_lanes`` of several frames' lane streams, ``(frames, lanes, n)``."""
         self._check_alignment(alignment)
         mask = _mask(self.word_bits)
-        sent = np.asarray(streams)
         if sent.size and int(sent.max()) > mask:
             raise ValueError(f"sensor words exceed {self.word_bits} bits (max 0x{mask:X})")
         gen = self._rng if rng is None else rng
         idle = self.idle_word if idle_word is None else idle_word & mask
-        n = sent.shape[1]
-        out = np.empty((self.lanes, n), dtype=np.uint16)
+        count, _, n = sent.shape
+        out = np.empty((count, self.lanes, n), dtype=np.uint16)
         for lane in range(self.lanes):
             if lane in self.dead_lanes:
                 # An open input: the receiver resolves noise, a different word every time.
-                out[lane] = gen.integers(0, mask + 1, size=n, dtype=np.uint16)
+                out[:, lane] = gen.integers(0, mask + 1, size=(count, n), dtype=np.uint16)
                 continue
             offset, neighbour = self._lane_offsets(lane, alignment)
-            words = _bit_window(sent[lane], offset, n, self.word_bits, idle)
+            words = _bit_window(sent[:, lane], offset, n, self.word_bits, idle)
             if neighbour:
-                other = _bit_window(sent[lane], offset + neighbour, n, self.word_bits, idle)
+                other = _bit_window(sent[:, lane], offset + neighbour, n, self.word_bits, idle)
                 # Where the two candidate bits differ the flip-flop resolves either way.
-                noise = gen.integers(0, mask + 1, size=n, dtype=np.uint32)
+                noise = gen.integers(0, mask + 1, size=(count, n), dtype=np.uint32)
                 words ^= (words ^ other) & noise
-            out[lane] = words
+            out[:, lane] = words
         return out
 
     def _check_alignment(self, alignment: Alignment) -> None:
@@ -444,23 +485,24 @@ class LvdsLink:
 def _bit_window(
     sent: npt.NDArray[Any], offset: int, count: int, word_bits: int, idle: int
 ) -> npt.NDArray[np.uint32]:
-    """``count`` words read from the bit stream of ``sent`` starting ``offset`` bits in.
+    """``count`` words read from the bit stream of ``sent`` starting ``offset`` bits in (along
+    the last axis: one lane, or the same lane of several frames).
 
     Outside ``sent`` the stream is ``idle`` words. Each output word is the tail of one sent word
     and the head of the next: two shifts and an or, vectorised over the whole lane.
     """
     first, shift = divmod(offset, word_bits)  # floor division: offset may be negative
-    n = sent.shape[0]
+    n = sent.shape[-1]
     need = count + 1
-    window = np.full(need, idle, dtype=np.uint32)
+    window = np.full((*sent.shape[:-1], need), idle, dtype=np.uint32)
     lo, hi = max(first, 0), min(first + need, n)
     if lo < hi:
-        window[lo - first : hi - first] = sent[lo:hi]
+        window[..., lo - first : hi - first] = sent[..., lo:hi]
     mask = np.uint32(_mask(word_bits))
-    head: npt.NDArray[np.uint32] = (window[:-1] << np.uint32(shift)) & mask
+    head: npt.NDArray[np.uint32] = (window[..., :-1] << np.uint32(shift)) & mask
     if shift == 0:
         return head
-    tail: npt.NDArray[np.uint32] = window[1:] >> np.uint32(word_bits - shift)
+    tail: npt.NDArray[np.uint32] = window[..., 1:] >> np.uint32(word_bits - shift)
     return head | tail
 
 

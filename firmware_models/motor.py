@@ -788,14 +788,13 @@ class MotorController:
         (``StepperStage.overloaded``), from the segments in force (analytically)."""
         stage = self.stage
         faults = stage.faults
-        segments = stage.segments
+        segments = stage.segments_from(t_a)  # the one in force at t_a and after it
         corner = self.profile.sim.pullout_corner_m_s.value * self.profile.microsteps_per_m
         fraction = self.profile.sim.accel_torque_fraction.value
         full = self.profile.max_accel_hz_per_s
         out: list[tuple[float, float]] = []
         starts = [seg.t0_s for seg in segments]
-        j0 = max(int(np.searchsorted(starts, t_a, side="right")) - 1, 0)
-        for j in range(j0, len(segments)):
+        for j in range(len(segments)):
             seg = segments[j]
             if seg.t0_s >= t_b:
                 break

@@ -68,6 +68,7 @@ import numpy as np
 import numpy.typing as npt
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
+from firmware_models.render_kernels import weighted_rows
 from firmware_models.spec_text import key_values
 
 Array = npt.NDArray[Any]
@@ -447,13 +448,47 @@ class Scene:
         """
         if rows < 1 or cols < 1:
             raise ValueError(f"need rows >= 1 and cols >= 1, got {rows} x {cols}")
+        sensor_rows = first_row + np.arange(rows, dtype=np.float64)
+        along = self.integrate_rows(
+            sensor_rows, cols, d_start, d_end, lateral_cols, exposure_s, aperture,
+            first_col=first_col, dtype=dtype,
+        )  # fmt: skip
+        if along.shape[1] == cols:
+            return along
+        out = np.empty((rows, cols), dtype=dtype)
+        out[...] = along  # a scene one column wide: the same value across the window
+        return out
+
+    def integrate_rows(
+        self,
+        sensor_rows: npt.ArrayLike,
+        cols: int,
+        d_start: npt.ArrayLike,
+        d_end: npt.ArrayLike,
+        lateral_cols: npt.ArrayLike | None,
+        exposure_s: float,
+        aperture: float,
+        *,
+        first_col: int = 0,
+        dtype: npt.DTypeLike = np.float32,
+    ) -> Array:
+        """``integrate`` for any list of sensor rows (array indices, e.g. the window's rows
+        of several frames one after the other, each with its own motion), in one pass.
+
+        Returns ``(len(sensor_rows), cols)``, or ``(len(sensor_rows), 1)`` for a scene one
+        column wide without drift (the same value across each row: the caller broadcasts).
+        """
+        row_index = np.asarray(sensor_rows, dtype=np.float64).reshape(-1)
+        rows = row_index.size
+        if rows < 1 or cols < 1:
+            raise ValueError(f"need rows >= 1 and cols >= 1, got {rows} x {cols}")
         if exposure_s < 0.0:
             raise ValueError(f"exposure_s must be >= 0, got {exposure_s}")
-        d0 = np.broadcast_to(np.asarray(d_start, dtype=np.float64), (rows,))
-        d1 = np.broadcast_to(np.asarray(d_end, dtype=np.float64), (rows,))
+        d0 = _per_row(d_start, rows)
+        d1 = _per_row(d_end, rows)
         over = self.oversample
         # Aperture's lower edge in cells, at exposure start and end (row r spans [r, r + 1)).
-        lower = (first_row + np.arange(rows, dtype=np.float64) + (1.0 - aperture) / 2.0) * over
+        lower = (row_index + (1.0 - aperture) / 2.0) * over
         origin, weights = motion_weights(lower + d0 * over, lower + d1 * over, aperture * over)
         weights *= exposure_s / over  # cells x s -> rows x s
         n_cells = self.radiance.shape[0]
@@ -477,11 +512,16 @@ class Scene:
 
         if lateral is not None and width > 1:
             return _shift_columns(along, lateral, first_col, cols)
-        if along.shape[1] == cols:
-            return along
-        out = np.empty((rows, cols), dtype=dtype)
-        out[...] = along  # a scene one column wide: the same value across the window
-        return out
+        return along
+
+
+def _per_row(values: npt.ArrayLike, rows: int) -> FloatArray:
+    """One float64 value per row (a scalar repeated; an array of one per row as it is)."""
+    array = np.asarray(values, dtype=np.float64)
+    if array.shape == (rows,):
+        return array
+    result: FloatArray = np.broadcast_to(array, (rows,))
+    return result
 
 
 def motion_weights(
@@ -534,7 +574,7 @@ def _double_integral(z: FloatArray) -> FloatArray:
 
 
 def _weighted_rows(table: Array, cell_index: npt.NDArray[np.int64], weights: Array) -> Array:
-    """``out[i] = sum_k weights[i, k] * table[cell_index[i, k]]`` without a loop over rows."""
+    """``out[i] = sum_k weights[i, k] * table[cell_index[i, k]]`` (indices within the table)."""
     rows, span = weights.shape
     n_cells = table.shape[0]
     if n_cells <= 8 * span:
@@ -543,14 +583,8 @@ def _weighted_rows(table: Array, cell_index: npt.NDArray[np.int64], weights: Arr
         np.add.at(dense, (np.arange(rows)[:, None], cell_index), weights)
         product: Array = dense @ table
         return product
-    out = np.take(table, cell_index[:, 0], axis=0, mode="wrap")
-    out *= weights[:, :1]
-    term = np.empty_like(out)
-    for k in range(1, span):
-        np.take(table, cell_index[:, k], axis=0, out=term, mode="wrap")
-        term *= weights[:, k : k + 1]
-        out += term
-    return out
+    # Many cells: each row gathers its few, in one compiled pass (render_kernels).
+    return weighted_rows(table, cell_index, weights)
 
 
 def _shift_columns(along: Array, lateral: FloatArray, first_col: int, cols: int) -> Array:

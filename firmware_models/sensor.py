@@ -28,6 +28,7 @@ import contextlib
 import copy
 import random
 from collections import Counter
+from typing import Literal
 
 from camd.sensor.regmap import FieldSpec, GroupSpec, RegisterMap, RegisterSpec
 from camd.sensor.timing_view import SensorTiming, line_period_s, sensor_timing
@@ -52,6 +53,8 @@ class SensorModel:
         # timing() of the registers at a version: every frame asks, and the registers that
         # set it change only when a command writes them.
         self._timing: tuple[int, SensorTiming] | None = None
+        # note_frame's register and field (False: not looked up yet; None: no such role).
+        self._frame_counter: tuple[RegisterSpec, FieldSpec] | Literal[False] | None = False
         self.power_on_reset()
 
     def snapshot(self) -> SensorModel:
@@ -120,13 +123,14 @@ class SensorModel:
         """``REG`` (raw), ``REG.field`` (enum label or raw) or ``GROUP`` (joined), in force now."""
         return self.regmap.value_of(name, self._effective)
 
-    def note_frame(self) -> None:
-        """A frame was read out: the frame counter (``frame_counter`` role) advances, wrapping."""
-        name = self.regmap.role("frame_counter")
-        if name is None:
+    def note_frame(self, frames: int = 1) -> None:
+        """Frames were read out: the frame counter (``frame_counter`` role) advances by
+        ``frames``, wrapping."""
+        counter = self._frame_counter_field()
+        if counter is None:
             return
-        reg, field_spec = self._field(name)
-        count = (field_spec.extract(self._values[reg.address]) + 1) & field_spec.raw_max
+        reg, field_spec = counter
+        count = (field_spec.extract(self._values[reg.address]) + frames) & field_spec.raw_max
         self._values[reg.address] = field_spec.insert(self._values[reg.address], count)
 
     def set_status(self, name: str, value: int) -> None:
@@ -237,6 +241,14 @@ class SensorModel:
         if not isinstance(target, RegisterSpec):
             raise ValueError(f"{name} is a group, not a register field")
         return target, field_spec if field_spec is not None else target.all_fields()[0]
+
+    def _frame_counter_field(self) -> tuple[RegisterSpec, FieldSpec] | None:
+        """The ``frame_counter`` role's register and field, found once (a stream advances it
+        for every frame; the map does not change)."""
+        if self._frame_counter is False:
+            name = self.regmap.role("frame_counter")
+            self._frame_counter = None if name is None else self._field(name)
+        return self._frame_counter
 
     def _count(self, role: str) -> int:
         count = self.regmap.role_count(role, self.value)

@@ -55,6 +55,8 @@ class SensorLink:
         self.results: list[LaneTraining] = []
         self.trained = self.lvds is None
         self._seed = seed
+        self._exact = False  # capture_block: the alignment passes every bit as sent
+        self._exact_for: tuple[object, ...] | None = None  # ... for this alignment key
 
     # -- training ---------------------------------------------------------------------------
 
@@ -107,6 +109,31 @@ class SensorLink:
         if self.lvds is None:
             return frame
         return self.lvds.receive(frame, self.alignment)
+
+    def capture_block(self, frames: np.ndarray, max_code: int) -> np.ndarray:
+        """``capture`` of each of ``frames`` (``(count, rows, cols)``, whose largest word is
+        ``max_code``): the same array when the link passes every bit as sent (a parallel
+        interface, or LVDS lanes trained bit-exact: ``LvdsLink.bit_exact``), else a new one."""
+        if self.lvds is None:
+            return frames
+        key = self._alignment_key()
+        if key != self._exact_for:
+            self._exact = self.lvds.bit_exact(self.alignment)
+            self._exact_for = key
+        if self._exact and max_code >> self.lvds.word_bits == 0:
+            return frames
+        # Scrambled, or words too wide for the link (which ``receive`` refuses).
+        return self.lvds.receive_block(frames, self.alignment)
+
+    def _alignment_key(self) -> tuple[object, ...]:
+        """What ``bit_exact`` depends on (the alignment and the lanes' skews), to keep its
+        answer until one of them changes."""
+        assert self.lvds is not None
+        a = self.alignment
+        return (
+            tuple(a.taps), tuple(a.slips), tuple(a.shifts), a.latency,
+            tuple(self.lvds.skews), self.lvds.dead_lanes,
+        )  # fmt: skip
 
     # -- helpers ------------------------------------------------------------------------------
 

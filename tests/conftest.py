@@ -21,6 +21,9 @@ pytest_plugins = ["tests.browser", "tests.tiers"]
 # most never scan, and a scan loads them itself; about a second of a core per daemon saved.
 # tests/test_config.py starts one daemon with the warm-up, as shipped.
 os.environ.setdefault("CAMD_TDI_WARM_UP", "0")
+# Nor do their simulated cameras do their first frame's work when they start (compiled kernels,
+# fixed pattern, noise bank; docs/simulator.md): the first stream does it, if there is one.
+os.environ.setdefault("CAMD_SIM_WARM_UP", "0")
 
 
 @pytest.fixture(scope="session", autouse=True)

@@ -6,9 +6,11 @@ say they are.
 
 from __future__ import annotations
 
+import argparse
+
 import pytest
 
-from camd.bench.scan import bench_scan
+from camd.bench.scan import bench_scan, run
 
 # Real-time streaming / control loops: alone under xdist (tests/conftest.py).
 pytestmark = pytest.mark.exclusive
@@ -36,3 +38,28 @@ def test_bench_scan_reports_a_lossless_scan_against_the_line_rate() -> None:
     assert rss["at_5000_lines"] is None
     assert rss["peak"] >= rss["max_polled"] >= 10_000
     assert rss["end"] > 10_000
+
+
+def test_bench_scan_can_drive_the_stage_and_render_every_frame() -> None:
+    # --drive-stage --line-period-s 0.002 --frame-bank 0: the stage driven closed loop at the
+    # synchronous speed of a 2 ms line (55 mm/s, within the rail's 100 mm/s), every frame
+    # rendered from the moving scene.
+    result = bench_scan(
+        profile="hr400", stages=8, lines=24, frame_bank=0, drive_stage=True, line_period_s=2e-3
+    )
+    assert result["state"] == "done" and result["drive_stage"] is True
+    assert result["frame_bank"] == 0
+    assert (result["lines"], result["complete_lines"], result["lost_frames"]) == (31, 24, 0)
+    assert result["line_rate_hz"] == pytest.approx(500.0, rel=1e-6)
+    assert result["sim"]["produced"] == result["sim"]["sent"] == 31
+
+
+def test_bench_scan_refuses_a_line_period_that_is_not_positive(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    args = argparse.Namespace(
+        profile="hr400", stages=8, lines=24, frame_bank=4, drive_stage=True, line_period_s=0.0,
+        json=True,
+    )  # fmt: skip
+    assert run(args) == 2
+    assert capsys.readouterr().out == "camd bench scan: --line-period-s must be > 0 (seconds)\n"

@@ -59,6 +59,16 @@ def test_bad_options_exit_2_with_the_fix(
     assert {"stages": "--stages", "kinds": "--kinds", "seconds": "--seconds"}[option] in out
 
 
+def test_a_scene_is_rendered_and_a_bad_one_exits_2(capsys: pytest.CaptureFixture[str]) -> None:
+    case = measure("hr400", 8, "render", 0.2, "bars:lux=3")
+    assert case["frames_per_s"] > 0
+    args = argparse.Namespace(
+        profiles="hr400", stages="8", kinds="render", seconds=0.2, json=True, scene="bars:lux=x"
+    )
+    assert run(args) == 2
+    assert capsys.readouterr().out.startswith("camd bench sim: --scene 'bars:lux=x': scene lux")
+
+
 def test_windows_are_kept_within_what_each_sensor_allows() -> None:
     from camd.bench.common import window_rows_range, window_stages
 

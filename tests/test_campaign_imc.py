@@ -296,7 +296,7 @@ def test_large_array_fixed_pattern_is_drawn_per_band_consistently() -> None:
     ea = a.expected_electrons(1.0, dtype=np.float64)
     eb = b.expected_electrons(1.0, dtype=np.float64)
     assert np.array_equal(ea[16:], eb)
-    assert sorted(a._bands) == [0, 1] and sorted(b._bands) == [1]  # nothing else was drawn
+    assert sorted(a._fixed.bands) == [0, 1] and sorted(b._fixed.bands) == [1]  # no other band
     relative = ea / ea.mean()
     assert relative.std() == pytest.approx(profile.prnu_fraction.value, rel=0.05)
 

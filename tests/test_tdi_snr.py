@@ -61,3 +61,33 @@ def test_periodic_snr_separates_a_repeating_scene_from_noise() -> None:
     assert m.noise_dn == pytest.approx(3.0, rel=0.02)
     with pytest.raises(ValueError, match="two lines"):
         periodic_snr(lines[:5], np.arange(5), period=period, black_dn=0.0)
+
+
+def test_of_coinciding_model_curves_the_first_is_best() -> None:
+    """tdi_snr_model's summary: quadrature is sqrt(M) when one conversion's noise is negligible,
+    so their RMS against the measurement differ in the last bits of a float; which one is
+    "best" then followed the rounding (one noise realisation in six said sqrt_m). The first
+    listed of models equal to 1e-9 dB is best, however the rounding falls."""
+    from camd.campaign.measurements.tdi import snr_model_summary
+
+    measured = [[18.0, 21.0, 22.8], [24.3, 27.3, 29.1]]
+    sqrt_m = [[18.0, 21.01, 22.77], [24.3, 27.31, 29.08]]
+    for nudge in (-1e-14, 0.0, 1e-14):
+        quadrature = [[x + nudge for x in row] for row in sqrt_m]
+        r = snr_model_summary(
+            {},
+            stages=[1, 2, 3],
+            measured_db=measured,
+            tao12_db=[[x - 1.0 for x in row] for row in sqrt_m],
+            sqrt_m_db=sqrt_m,
+            quadrature_db=quadrature,
+        )
+        assert r["best_model"] == "sqrt_m", nudge
+        assert r["best_rms_db"] == pytest.approx(r["overall_rms_db"]["quadrature"], abs=1e-12)
+    # A real difference still decides.
+    closer = [[18.0, 21.0, 22.8], [24.3, 27.3, 29.1]]
+    r = snr_model_summary(
+        {}, stages=[1, 2, 3], measured_db=measured, tao12_db=sqrt_m, sqrt_m_db=sqrt_m,
+        quadrature_db=closer,
+    )  # fmt: skip
+    assert r["best_model"] == "quadrature"

@@ -6,8 +6,11 @@ pyusb -> FrameStream (CRCs, counters) -> batches -> TDI engine -> HDF5. The base
 line rate itself: the bench prints lines/s against it, the frames lost and overrun, and the CPU
 the daemon and the simulator used (from /proc).
 
-The simulator replays a bank of rendered frames (``[sim] frame_bank``): rendering the scene
-at 100 Mpix/s is beyond a small machine, and the host's work does not depend on the pixels.
+The simulator replays a bank of rendered frames (``[sim] frame_bank``): the host's work does
+not depend on the pixels. ``--frame-bank 0`` renders every frame from the moving scene instead.
+``--drive-stage`` drives the scan stage at the synchronous speed, closed loop, as a scan does by
+default (the simulator then follows the stage's trims while it streams); a line period the stage
+cannot follow is refused, so ``--line-period-s`` sets a longer one than the fastest.
 """
 
 from __future__ import annotations
@@ -43,6 +46,17 @@ def add_parser(which: Any) -> None:
     p.add_argument(
         "--frame-bank", type=int, default=DEFAULT_BANK, help=f"frames replayed ({DEFAULT_BANK})"
     )
+    p.add_argument(
+        "--drive-stage",
+        action="store_true",
+        help="drive the scan stage at the synchronous speed, closed loop (default: leave it)",
+    )
+    p.add_argument(
+        "--line-period-s",
+        type=float,
+        default=None,
+        help="TDI line period (default: the fastest the window allows, M x T_row)",
+    )
     p.add_argument("--json", action="store_true", help="print one JSON document")
 
 
@@ -69,7 +83,15 @@ RSS_MARK_LINES = 5000
 """Lines at which the daemon's memory is noted, to compare with the end of a long scan."""
 
 
-def bench_scan(*, profile: str, stages: int, lines: int, frame_bank: int) -> dict[str, Any]:
+def bench_scan(
+    *,
+    profile: str,
+    stages: int,
+    lines: int,
+    frame_bank: int,
+    drive_stage: bool = False,
+    line_period_s: float | None = None,
+) -> dict[str, Any]:
     """Run the scan and return the figures (see the module docstring)."""
     from camd.cli._daemon_proc import DaemonProcess
     from camd.client import CamdClient
@@ -84,15 +106,15 @@ def bench_scan(*, profile: str, stages: int, lines: int, frame_bank: int) -> dic
             client = CamdClient(daemon.url)
             client.wait_ready(60)
             row_s = float(client.timing()["line_period_s"])
-            period_s = stages * row_s
+            period_s = stages * row_s if line_period_s is None else line_period_s
             sims = _children(daemon.pid)
             before = [_cpu_s(daemon.pid), *(_cpu_s(p) for p in sims)]
             started = time.monotonic()
-            # The frame bank replays frames, so the stage cannot show in them: leave it alone
-            # and measure the pipeline.
+            # By default the stage is left alone (a frame bank's replayed frames cannot show
+            # it): the pipeline is measured.
             client.start_scan(
                 stages, lines, out=str(Path(tmp) / "scan.h5"), line_period_s=period_s,
-                quicklook=False, drive_stage=False,
+                quicklook=False, drive_stage=drive_stage,
             )  # fmt: skip
             # Poll (as wait_scan does) and note the daemon's memory on the way: at
             # RSS_MARK_LINES lines, and its largest over the scan.
@@ -147,6 +169,7 @@ def bench_scan(*, profile: str, stages: int, lines: int, frame_bank: int) -> dic
         "sim_cpu_load": load(1) if len(before) > 1 else None,
         "elapsed_s": doc["elapsed_s"],
         "frame_bank": frame_bank,
+        "drive_stage": drive_stage,
         "sim": dict(sim_stats),
         "state": doc["state"],
         # The daemon's resident memory (KiB): at RSS_MARK_LINES lines (None if the scan was
@@ -166,8 +189,16 @@ def run(args: argparse.Namespace) -> int:
     if args.stages < 1 or args.lines < 1 or args.frame_bank < 0:
         print("camd bench scan: --stages and --lines must be >= 1, --frame-bank >= 0")
         return 2
+    if args.line_period_s is not None and not args.line_period_s > 0:
+        print("camd bench scan: --line-period-s must be > 0 (seconds)")
+        return 2
     result = bench_scan(
-        profile=args.profile, stages=args.stages, lines=args.lines, frame_bank=args.frame_bank
+        profile=args.profile,
+        stages=args.stages,
+        lines=args.lines,
+        frame_bank=args.frame_bank,
+        drive_stage=args.drive_stage,
+        line_period_s=args.line_period_s,
     )
     if args.json:
         print(json.dumps(result))

@@ -11,7 +11,8 @@ the sensor; under 1, a scan on the simulator is paced by the simulator, not the 
 
 Two kinds of frames: ``bank`` replays a bank of rendered frames with fresh headers (what
 ``[sim] frame_bank`` and ``camd bench scan`` use), ``render`` renders every frame from the
-scene (the physics: noise, motion, the LVDS link).
+scene (the physics: noise, motion, the LVDS link, trained as the daemon trains it when it
+connects).
 """
 
 from __future__ import annotations
@@ -60,6 +61,11 @@ def add_parser(which: Any) -> None:
         help="bank (replayed frames, as bench scan uses) and/or render (default both)",
     )
     p.add_argument("--seconds", type=float, default=2.0, help="measuring time per case (2)")
+    p.add_argument(
+        "--scene",
+        default="",
+        help="the scene rendered, e.g. bars:lux=3 (docs/simulator.md; default: a flat field)",
+    )
     p.add_argument("--json", action="store_true", help="print one JSON document")
 
 
@@ -109,8 +115,9 @@ while s.recv_into(buf):
 """
 
 
-def measure(profile: str, rows: int, kind: str, seconds: float) -> dict[str, Any]:
-    """One case: the simulated camera ``profile`` with ``rows`` window rows, unpaced."""
+def measure(profile: str, rows: int, kind: str, seconds: float, scene: str = "") -> dict[str, Any]:
+    """One case: the simulated camera ``profile`` with ``rows`` window rows, unpaced, looking
+    at ``scene`` (a flat field if empty)."""
     from firmware_models.fpga import FpgaModel
     from firmware_models.fx3 import StreamSocketServer
 
@@ -121,6 +128,10 @@ def measure(profile: str, rows: int, kind: str, seconds: float) -> dict[str, Any
     reader: subprocess.Popen[bytes] | None = None
     try:
         _set_window(fpga, rows)
+        with fpga.lock:  # as the daemon does when it connects: frames pass the link as sent
+            fpga.sensor_link.train()
+            if scene:
+                fpga.camera.set_scene(scene)
         server.start()
         fpga.stream.server = server
         reader = subprocess.Popen([sys.executable, "-c", _DRAIN, str(sock)])
@@ -134,7 +145,12 @@ def measure(profile: str, rows: int, kind: str, seconds: float) -> dict[str, Any
             geometry = path.start(
                 device_time_s=1.0, mode="tdi", frames=0, stages=rows, binning=False
             )
-        time.sleep(WARM_UP_S)  # past the bank's first renders and the first maps
+        # Past the first frame (the fixed-pattern maps and the noise drawn on first use, the
+        # compiled kernels loaded), then the bank's first renders.
+        first_deadline = time.monotonic() + 60.0
+        while engine.counters.sent == 0 and time.monotonic() < first_deadline:
+            time.sleep(0.05)
+        time.sleep(WARM_UP_S)
         thread = engine._thread
         assert thread is not None and thread.native_id is not None
         c = engine.counters
@@ -185,11 +201,19 @@ def run(args: argparse.Namespace) -> int:
     if bad or not kinds:
         print(f"camd bench sim: --kinds {args.kinds!r}: use bank, render or bank,render")
         return 2
+    from firmware_models.scene import SceneSpec, SceneSpecError
+
+    scene = getattr(args, "scene", "")
+    try:
+        SceneSpec.parse(scene)
+    except SceneSpecError as exc:
+        print(f"camd bench sim: --scene {scene!r}: {exc}")
+        return 2
     cases = []
     for profile in profiles:
         for m in window_stages(profile, stages):
             for kind in kinds:
-                cases.append(measure(profile, m, kind, args.seconds))
+                cases.append(measure(profile, m, kind, args.seconds, scene))
                 if not args.json:
                     _print_case(cases[-1], header=len(cases) == 1)
     if args.json:

@@ -191,7 +191,8 @@ def snr_model_summary(
 ) -> Results:
     """Every condition of a sweep together (docs/physics.md §5): ``model_db`` {model: [per
     condition [per M]]}, ``overall_rms_db`` {model: RMS of measured - model over every point,
-    dB}, ``best_model`` (the smallest RMS: which model the camera follows) and its
+    dB}, ``best_model`` (the smallest RMS: which model the camera follows; of models equal to
+    1e-9 dB, the first of tao12, sqrt_m, quadrature) and its
     ``best_rms_db``; ``stages``; and ``condition_names`` (each condition's ``name``, or its
     text) to label plots. No inputs (``from_results``)."""
     del inputs
@@ -201,7 +202,10 @@ def snr_model_summary(
         name: float(np.sqrt(np.mean((measured - np.asarray(c, dtype=np.float64)) ** 2)))
         for name, c in model_db.items()
     }
-    best = min(rms, key=rms.__getitem__)
+    # Models whose curves coincide (quadrature is sqrt(M) when one conversion's noise is
+    # negligible) tie to the last bits of a float: the first of them, the simpler, is best.
+    order = list(model_db)
+    best = min(rms, key=lambda name: (round(rms[name], 9), order.index(name)))
     names = [str(c.get("name", c)) if isinstance(c, dict) else str(c) for c in (conditions or [])]
     return {
         "stages": [int(m) for m in stages],
