@@ -4,16 +4,12 @@ The compiled kernels (firmware_models.render_numba) give the bits of their numpy
 (firmware_models.render_kernels), which do the per-pass float32 work the renderer always did;
 a block of frames is the frames of one render each; the imaging pipeline makes the frames the
 stream engine announces together, and they are the frames it makes one at a time; the LVDS
-lane model of a block is that of its frames. And a frame of each profile's default window
-renders in well under its frame period of one core's time (CPU time of this process, so a
-busy machine does not fail it: 19.5 ms of CPU for the hr400's 10.96 ms frame before, about
-1.3 ms now, checked against half the period).
+lane model of a block is that of its frames. How fast a frame renders is a benchmark's to say,
+not a test's (`camd bench sim --kinds render`, docs/simulator.md): a time would be a busy
+machine's to fail.
 """
 
 from __future__ import annotations
-
-import statistics
-import time
 
 import numpy as np
 import pytest
@@ -27,8 +23,6 @@ from firmware_models.lvds import DEFAULT_TRAINING_WORD, Alignment, LvdsLink, tra
 from firmware_models.noise_bank import NoiseBank
 from firmware_models.render_kernels import Readout, read_out, weighted_rows
 from firmware_models.sensor import SensorModel
-
-PROFILES = ("hr400", "ibis5", "mt9m001", "uvccd", "ftf5066")
 
 
 def write(sensor: SensorModel, name: str, value: int) -> None:
@@ -173,23 +167,6 @@ def test_the_lane_model_of_a_block_is_that_of_its_frames() -> None:
     block = link.receive_block(frames, skewed)
     assert np.array_equal(block, np.stack([link.receive(f, skewed) for f in frames]))
     assert not np.array_equal(block, frames)
-
-
-@pytest.mark.parametrize("name", PROFILES)
-def test_a_default_window_frame_renders_in_under_half_its_frame_period(name: str) -> None:
-    """CPU time of this process per frame of the profile's default window (a bar target,
-    moving), median of 7 after one to load everything: under half the frame period."""
-    sensor = SensorModel(load_register_map(name))
-    cam = CameraModel(load_profile(name), sensor, seed=1)
-    cam.set_scene("bars:lux=3")
-    period_s = sensor.timing().frame_period_s
-    cam.render(0.0)
-    cpu = []
-    for k in range(1, 8):
-        c0 = time.process_time()
-        cam.render(k * period_s)
-        cpu.append(time.process_time() - c0)
-    assert statistics.median(cpu) < 0.5 * period_s, (name, cpu, period_s)
 
 
 def test_a_warm_up_changes_no_frame() -> None:

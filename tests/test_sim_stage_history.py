@@ -10,17 +10,22 @@ also after the old history is dropped.
 
 from __future__ import annotations
 
-import statistics
-import time
+import sys
+from collections.abc import Callable
+from functools import partial
+from pathlib import Path
+from types import FrameType
 
 import numpy as np
 import pytest
 
+import firmware_models
 from camd.motion.stage_profile import load_stage_profile
 from firmware_models.motor import MotorController
 from firmware_models.stage import Segment, StageFaults, StepperStage
 
 RAIL = load_stage_profile("linear_rail")
+SIMULATOR_DIR = str(Path(firmware_models.__file__).parent)
 TRIM_PERIOD_S = 0.03  # a closed loop's trim every 30 ms
 RATE_HZ = 2_000.0  # 0.2 m in 100 s: within the rail from mid-travel
 
@@ -36,23 +41,45 @@ def trimmed(trims: int) -> tuple[MotorController, float]:
     return motor, t_s
 
 
-def test_a_trim_costs_the_same_after_thousands_of_trims() -> None:
-    # CPU time of this process (not wall time), measured alternately on a young and an old
-    # history, median of 41 each: a busy machine slows both alike. The old one has 3,000
-    # trims (90 s, under the 120 s kept), 6,000 segments: walking them cost 10-15 times a trim
-    # of the young one (0.8 ms against 11 ms here); kept arrays cost both the same.
+def lines_run(call: Callable[[], object]) -> int:
+    """How many lines of the simulator's code (firmware_models) ``call`` runs: a count of the
+    work a command does that, unlike its time, a busy machine cannot change."""
+    count = 0
+
+    def local(frame: FrameType, event: str, arg: object) -> object:
+        nonlocal count
+        if event == "line":
+            count += 1
+        return local
+
+    def enter(frame: FrameType, event: str, arg: object) -> object:
+        return local if frame.f_code.co_filename.startswith(SIMULATOR_DIR) else None
+
+    sys.settrace(enter)
+    try:
+        call()
+    finally:
+        sys.settrace(None)
+    return count
+
+
+def test_a_trim_runs_the_same_code_after_thousands_of_trims() -> None:
+    # The old history has 3,000 trims behind it (90 s, under the 120 s kept), 6,000 segments.
+    # Walking them ran the stage's code once per segment: 55,150 lines of the simulator for a
+    # trim on the old history against 2,080 on the young one (and 10-15 times the CPU). Kept
+    # columns make a trim the same work at any age (244-276 lines on either); counted, not
+    # timed, so a busy machine cannot change the answer.
     young, t_young = trimmed(100)
     old, t_old = trimmed(3000)
     assert len(old.stage.segments) > 20 * len(young.stage.segments)
-    cpu: dict[str, list[float]] = {"young": [], "old": []}
-    for i in range(41):
-        for name, motor, t_s in (("young", young, t_young), ("old", old, t_old)):
-            rate = RATE_HZ * (1.0 + 1e-3 * (i % 5 - 2))
-            c0 = time.process_time()
-            motor.motor_set_rate(t_s + i * TRIM_PERIOD_S, rate_hz=rate)
-            cpu[name].append(time.process_time() - c0)
-    ratio = statistics.median(cpu["old"]) / max(statistics.median(cpu["young"]), 1e-6)
-    assert ratio < 2.0, f"a trim after 3,000 costs {ratio:.1f} times one after 100"
+    for i in range(5):
+        rate = RATE_HZ * (1.0 + 1e-3 * (i - 2))
+        lines = {
+            name: lines_run(partial(motor.motor_set_rate, t_s + i * TRIM_PERIOD_S, rate_hz=rate))
+            for name, motor, t_s in (("young", young, t_young), ("old", old, t_old))
+        }
+        assert lines["young"] > 50, lines  # the trace sees the simulator's code
+        assert lines["old"] <= lines["young"] + 40, f"trim {i}: {lines}"
 
 
 def reference_columns(stage: StepperStage) -> tuple[np.ndarray, np.ndarray]:
