@@ -45,6 +45,10 @@ Steps 4 to 6 are one compiled pass per frame (``firmware_models.render_kernels``
 3's along-track sum over the scene's cells another; ``render_block`` renders several frames
 (the rows of all of them) in one go, as the imaging pipeline does at high line rates.
 
+The parts: what the registers set (``firmware_models.camera_settings``), the frames' making
+(``camera_frames``: photons, electrons, noise, readout) and image motion compensation's
+photons (``camera_imc``); ``CameraModel`` holds the configuration they are made from.
+
 Fixed-pattern maps (PRNU, DSNU) cover the whole array, drawn once from ``seed``
 (``firmware_models.fixed_pattern``); each frame's temporal noise starts at an offset drawn from
 a separate seeded stream, so frames are independent and the same seed with the same sequence
@@ -55,52 +59,31 @@ the sensor's frame counter: whoever reads frames out does.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
 from camd.analysis.sensor_noise import dark_current_e_per_s
-from camd.sensor.profile import SHUTTERS, CameraProfile
+from camd.sensor.profile import CameraProfile
 from camd.sensor.timing_view import SensorTiming
 from camd.tdi.binning import bin2x2
 from camd.timing import synchronous_stage_speed_m_s
-from camd.timing.imc import IMC_MODES, ImcMode, charge_shift_schedule
+from camd.timing.imc import ImcMode
 from firmware_models import render_kernels
-from firmware_models.fixed_pattern import FixedPattern
-from firmware_models.lvds import DEFAULT_TRAINING_WORD, TestPattern, pattern_frame
-from firmware_models.noise_bank import NoiseBank
-from firmware_models.render_kernels import Readout, read_out
+from firmware_models.camera_frames import FrameMaker, exposures
+from firmware_models.camera_settings import RegisterSettings, work_out_settings
 from firmware_models.scene import Scene, SceneSpec, build_scene
 from firmware_models.sensor import SensorModel
 from firmware_models.stage import LinearStage, Stage
 
+__all__ = ["DEFAULT_FILL_OF_RANGE", "CameraModel", "RegisterSettings"]
+
 Array = npt.NDArray[Any]
 
-_TEMPORAL_STREAM = 0x544E  # "TN": per-frame noise, independent of the fixed pattern
 DEFAULT_FILL_OF_RANGE = 0.25  # the default flat field fills a quarter of the output range
 _SETTINGS_KEPT = 16  # register snapshots whose settings are kept (a stream's recent changes)
-_MAX_MOTION_PIECES = 64  # more distinct IMC pieces than this are merged into an occupation density
-_SAME_PIECE_ROWS = 1e-9  # pieces whose ends agree to this (rows) are integrated together
-
-
-@dataclass(frozen=True, slots=True)
-class RegisterSettings:
-    """What the sensor's registers set for a render, worked out once per register version
-    (reading a register goes through the register map's pydantic models: about a tenth of a
-    small frame's time when it was done per frame)."""
-
-    window: tuple[int, int, int, int]  # first row, rows, first column, columns (array indices)
-    timing: SensorTiming
-    shutter: str
-    gain_dn_per_e: float
-    black_dn: float
-    imc: tuple[ImcMode, float, int]
-    test_pattern: Array | None  # the frame a test pattern sends instead of pixels (read-only)
-    readout: Readout
 
 
 class CameraModel:
@@ -140,12 +123,10 @@ class CameraModel:
         # ``transmission(start_s, end_s)`` of one frame's rows -> factor per row (asked frame
         # by frame: the channel is the wheel's at that frame); None: everything passes.
         self.transmission: Callable[[Array, Array], Array] | None = None
-        self._noise = np.random.default_rng([seed, _TEMPORAL_STREAM])
-        self._bank = NoiseBank(seed)  # the standard normals the per-frame offsets index
         # The ideal stage is at position 0 at this device time (see ``stream_started``).
         self._ideal_origin_s = 0.0
         self._anchor_next_stream = False
-        self._fixed = FixedPattern(profile, seed)
+        self._frames = FrameMaker(self, seed)  # fixed pattern, noise: a camera's own
         # id(sensor) -> (sensor, its version then, the settings): see ``settings``.
         self._settings: dict[int, tuple[SensorModel, int, RegisterSettings]] = {}
         self._default_photons = self._moderate_photons()
@@ -162,8 +143,7 @@ class CameraModel:
         The next stream starts the ideal stage at position 0 (``stream_started``). The fixed
         pattern and the noise bank keep the start seed's values: only the offsets at which
         frames take their noise from the bank follow the new seed."""
-        fresh = np.random.default_rng([seed, _TEMPORAL_STREAM])
-        self._noise.bit_generator.state = fresh.bit_generator.state
+        self._frames.reseed(seed)
         self._anchor_next_stream = True
 
     def warm_up(self) -> None:
@@ -171,10 +151,7 @@ class CameraModel:
         kernels, draw the fixed pattern and the noise bank's values), without drawing from the
         temporal noise stream: frames stay what they would have been."""
         render_kernels.warm_up()
-        row0, rows, _, cols = self.window()
-        self._fixed.rows(row0, rows)
-        if self._bank.holds(rows * cols):
-            self._bank.grow_to(self._bank.span(rows * cols))
+        self._frames.warm_up(self.window())
 
     def stream_started(self, t0_s: float) -> None:
         """A stream starts at device time ``t0_s``. After ``reseed_noise`` the ideal stage is
@@ -251,7 +228,7 @@ class CameraModel:
         kept = self._settings.get(id(sensor))
         if kept is not None and kept[0] is sensor and kept[1] == sensor.version:
             return kept[2]
-        settings = self._work_out_settings(sensor)
+        settings = work_out_settings(self.profile, sensor)
         if len(self._settings) >= _SETTINGS_KEPT:
             self._settings.clear()
         self._settings[id(sensor)] = (sensor, sensor.version, settings)
@@ -334,41 +311,12 @@ class CameraModel:
         rounding only where the frames move by very different amounts during their exposures,
         a stage ramping within the block: the block's rows sum as many scene cells as its
         widest motion needs, which may choose the scene's dense sum for all of them)."""
-        settings = self.settings(sensor)
-        row0, rows, col0, cols = settings.window
-        times = np.asarray(times_s, dtype=np.float64).reshape(-1)
-        count = times.size
-        if settings.test_pattern is not None:
-            frames = np.empty((count, rows, cols), dtype=np.uint16)
-            frames[...] = settings.test_pattern
-            maxima = np.full(count, int(settings.test_pattern.max()), dtype=np.int64)
-        else:
-            timing = settings.timing
-            photons, start, end = self._photons(times, settings, np.float32)
-            response, dark = self._fixed.rows(row0, rows)
-            row_factor = np.ones((count, rows), dtype=np.float32)
-            if self.transmission is not None:
-                for f in range(count):  # one frame at a time: its channel is the wheel's then
-                    row_factor[f] = self.transmission(start[f], end[f])
-            codes, maxima = read_out(
-                photons,
-                response[:, col0 : col0 + cols],
-                dark[:, col0 : col0 + cols],
-                row_factor.reshape(-1),
-                self.dark_factor() * timing.exposure_s,
-                self._bank.take(self._noise, count, rows * cols),
-                settings.readout,
-            )
-            frames = codes.reshape(count, rows, cols)
-        if self.binning:
-            frames = bin2x2(frames)
-            maxima = frames.reshape(count, -1).max(axis=1).astype(np.int64)
-        return frames, maxima
+        return self._frames.render_block(times_s, self.settings(sensor))
 
     def expected_electrons(self, t_s: float, *, dtype: npt.DTypeLike = np.float32) -> Array:
         """Noise-free charge per pixel (signal + dark, full-well clipped) of ``render(t_s)``'s
         frame, including the fixed pattern; summed over 2x2 blocks when binned."""
-        electrons = self._mean_electrons(t_s, dtype)
+        electrons = self._frames.mean_electrons(t_s, self.settings(), dtype)
         np.minimum(electrons, self.profile.full_well_e.value, out=electrons)
         return bin2x2(electrons) if self.binning else electrons
 
@@ -378,7 +326,7 @@ class CameraModel:
         ``e K + B`` clipped to the ADC range, divided by ``2^(adc_bits - output_bits)`` (not
         floored), summed over 2x2 blocks when binned.
         """
-        electrons = self._mean_electrons(t_s, dtype)
+        electrons = self._frames.mean_electrons(t_s, self.settings(), dtype)
         p = self.profile
         np.minimum(electrons, p.full_well_e.value, out=electrons)
         dn = electrons * self.system_gain_dn_per_e() + self.black_level_dn()
@@ -394,96 +342,10 @@ class CameraModel:
         settings = self.settings()
         timing = settings.timing if timing is None else timing
         n = timing.window_rows if rows is None else rows
-        start, end = _exposures(np.array([float(t_s)]), timing, n, settings.shutter)
+        start, end = exposures(np.array([float(t_s)]), timing, n, settings.shutter)
         return start[0], end[0]
 
     # -- internals --------------------------------------------------------------------------------
-
-    def _photons(
-        self, times: Array, settings: RegisterSettings, dtype: npt.DTypeLike
-    ) -> tuple[Array, Array, Array]:
-        """Photons per pixel of the frames whose row 0 ends at each of ``times`` (steps 1 to 3
-        of the module docstring), the rows of all frames one after the other: ``(frames x
-        rows, cols)``, or ``(frames x rows, 1)`` for a scene one column wide; and each row's
-        exposure start and end, ``(frames, rows)``."""
-        row0, rows, col0, cols = settings.window
-        timing = settings.timing
-        start, end = _exposures(times, timing, rows, settings.shutter)
-        mode, interval_s, phases = settings.imc
-        if mode != "none" and settings.shutter != "rolling":
-            photons = np.concatenate([
-                self._compensated_photons(
-                    float(first), timing.exposure_s, (mode, interval_s, phases), settings, dtype
-                )
-                for first in start[:, 0]
-            ])  # fmt: skip
-            return photons, start, end
-        n = start.size
-        # Both ends of every row in one stage call: a stepper's position may be costly.
-        moved = self.image_rows(np.concatenate([start.reshape(-1), end.reshape(-1)]), timing)
-        sensor_rows = np.tile(row0 + np.arange(rows, dtype=np.float64), times.size)
-        photons = self.scene.integrate_rows(
-            sensor_rows,
-            cols,
-            moved[:n],
-            moved[n:],
-            None,
-            timing.exposure_s,
-            self.profile.aperture,
-            first_col=col0,
-            dtype=dtype,
-        )
-        return photons, start, end
-
-    def _mean_electrons(self, t_s: float, dtype: npt.DTypeLike) -> Array:
-        """Expected electrons (signal with the fixed pattern, and dark charge) of the frame
-        whose row 0 ends at ``t_s``, before full-well clipping: ``(rows, cols)``."""
-        settings = self.settings()
-        row0, rows, col0, cols = settings.window
-        photons, start, end = self._photons(np.array([float(t_s)]), settings, dtype)
-        response_rows, dark_rows = self._fixed.rows(row0, rows)
-        electrons = np.empty((rows, cols), dtype=dtype)
-        electrons[...] = photons
-        electrons *= response_rows[:, col0 : col0 + cols]
-        if self.transmission is not None:
-            factor = np.asarray(self.transmission(start[0], end[0]), dtype=electrons.dtype)
-            electrons *= factor[:, np.newaxis]
-        # Dark rate map at T_ref times the temperature factor, times the exposure.
-        scale = np.asarray(self.dark_factor() * settings.timing.exposure_s, dtype=electrons.dtype)
-        electrons += dark_rows[:, col0 : col0 + cols] * scale
-        return electrons
-
-    def _compensated_photons(
-        self,
-        start_s: float,
-        exposure_s: float,
-        imc: tuple[ImcMode, float, int],
-        settings: RegisterSettings,
-        dtype: npt.DTypeLike,
-    ) -> Array:
-        """Photons per pixel of a full-frame exposure with the packets clocked along (module
-        docstring, 3): the sum over the schedule's pieces of the scene's exact integral of an
-        aperture moving linearly from (image displacement - packet shift) at the piece's start
-        to that at its end, each for the piece's duration."""
-        row0, rows, col0, cols = settings.window
-        mode, interval_s, phases = imc
-        schedule = charge_shift_schedule(exposure_s, interval_s, mode, phases)
-        # All rows expose together.
-        moved = self.image_rows(start_s + schedule.bounds_s, settings.timing)
-        # Drift moves the image sideways by its own displacement; the packets only move along.
-        lateral = self.scene.lateral_cols(np.full(rows, 0.5 * (moved[0] + moved[-1])))
-        pieces = _merge_pieces(
-            moved[:-1] - schedule.shift_px, moved[1:] - schedule.shift_px, schedule.durations_s
-        )
-        total: Array | None = None
-        for lo, hi, duration_s in pieces:
-            photons = self.scene.integrate(
-                row0, rows, cols, lo, hi, lateral, duration_s, self.profile.aperture,
-                first_col=col0, dtype=dtype,
-            )  # fmt: skip
-            total = photons if total is None else total + photons
-        assert total is not None  # a schedule has at least one piece
-        return total
 
     def _moderate_photons(self) -> float:
         """Photons/pixel/s that fill DEFAULT_FILL_OF_RANGE of the output range at the current
@@ -494,161 +356,3 @@ class CameraModel:
         range_e = min(p.full_well_e.value, (p.adc_max_dn - self.black_level_dn()) / gain)
         per_photon_s = p.quantum_efficiency.value * p.fill_factor.value * timing.exposure_s
         return DEFAULT_FILL_OF_RANGE * range_e / max(per_photon_s, 1e-300)
-
-    def _work_out_settings(self, sensor: SensorModel) -> RegisterSettings:
-        """``settings`` from the registers themselves (see there)."""
-        p = self.profile
-        regmap = sensor.regmap
-        timing = sensor.timing()
-        mode = sensor.readout_mode if regmap.role("readout_mode") else None
-        shutter = mode if isinstance(mode, str) and mode in SHUTTERS else p.shutter.value
-        gain = sensor.gain if regmap.role("gain") else None
-        gain_dn_per_e = p.system_gain_dn_per_e(p.analog_gain_factor(gain))
-        offset = sensor.offset if regmap.role("offset") else None
-        black_dn = p.black_level_for(offset)
-        window = _window(sensor, timing)
-        pattern = self._test_pattern(sensor, window[1], window[3])
-        if pattern is not None:
-            pattern.flags.writeable = False  # shared by every frame of the settings
-        return RegisterSettings(
-            window=window,
-            timing=timing,
-            shutter=shutter,
-            gain_dn_per_e=gain_dn_per_e,
-            black_dn=black_dn,
-            imc=_imc(sensor),
-            test_pattern=pattern,
-            readout=Readout(
-                read_variance_e2=p.read_noise_e.value**2,
-                full_well_e=p.full_well_e.value,
-                gain_dn_per_e=gain_dn_per_e,
-                black_dn=black_dn,
-                adc_max_dn=p.adc_max_dn,
-                shift_bits=p.output_shift_bits,
-            ),
-        )
-
-    def _test_pattern(self, sensor: SensorModel, rows: int, cols: int) -> Array | None:
-        """The frame a test pattern setting sends instead of pixels, or None for pixels."""
-        regmap = sensor.regmap
-        if regmap.role("test_pattern") is None:
-            return None
-        setting = sensor.test_pattern
-        if setting in ("off", 0):
-            return None
-        bits = self.profile.output_bits.value
-        if setting == "test_data" and regmap.has_register("TEST_DATA"):
-            # MT9M001: the sensor repeats the TEST_DATA register's value (mt9m001.toml).
-            value = int(sensor.value("TEST_DATA")) & ((1 << bits) - 1)
-            return np.full((rows, cols), value, dtype=np.uint16)
-        name = setting.upper() if isinstance(setting, str) else ""
-        kind = TestPattern[name] if name in TestPattern.__members__ else TestPattern.RAMP
-        word_name = regmap.role("training_word")
-        word = DEFAULT_TRAINING_WORD if word_name is None else int(sensor.value(word_name))
-        frame = pattern_frame(
-            kind,
-            rows,
-            cols,
-            word_bits=bits,
-            lanes=regmap.output.lanes,
-            training_word=word & ((1 << bits) - 1),
-        )
-        assert frame is not None  # OFF was handled above
-        return frame
-
-
-def _window(sensor: SensorModel, timing: SensorTiming) -> tuple[int, int, int, int]:
-    """(first row, rows, first column, columns) of the registers' window, array indices."""
-    regmap = sensor.regmap
-    row0 = timing.window_start_row - regmap.first_row
-    col_start = regmap.role_count("window_start_column", sensor.value)
-    col0 = 0 if col_start is None else col_start - regmap.first_column
-    cols = regmap.role_count("window_columns", sensor.value) or regmap.columns
-    rows = timing.window_rows
-    if row0 < 0 or row0 + rows > regmap.rows or col0 < 0 or col0 + cols > regmap.columns:
-        raise ValueError(
-            f"window rows {row0}..{row0 + rows - 1}, columns {col0}..{col0 + cols - 1} "
-            f"(array indices) leave the {regmap.rows} x {regmap.columns} array; move or "
-            "shrink the window"
-        )
-    return row0, rows, col0, cols
-
-
-def _imc(sensor: SensorModel) -> tuple[ImcMode, float, int]:
-    """``CameraModel.imc`` for the registers of ``sensor``."""
-    regmap = sensor.regmap
-    if not regmap.has_register("IMC_CTRL"):
-        return "none", math.inf, 1
-    mode = sensor.value("IMC_CTRL.mode")
-    if mode not in IMC_MODES:
-        raise ValueError(f"IMC_CTRL.mode is {mode!r}; the map must name none, row, electrode")
-    interval_s = int(sensor.value("IMC_STEP")) / regmap.timing.clock_hz
-    phases = int(sensor.value("IMC_PHASES"))
-    return mode, interval_s, phases
-
-
-def _exposures(times: Array, timing: SensorTiming, rows: int, shutter: str) -> tuple[Array, Array]:
-    """(start, end) of each row's exposure, ``(frames, rows)``, for frames whose row 0 ends
-    its exposure at each of ``times`` (a rolling shutter staggers rows by ``T_line``)."""
-    if shutter == "rolling":
-        offsets = np.arange(rows, dtype=np.float64) * timing.line_period_s
-    else:
-        offsets = np.zeros(rows)
-    end = times[:, np.newaxis] + offsets[np.newaxis, :]
-    return end - timing.exposure_s, end
-
-
-def _merge_pieces(start: Array, end: Array, durations_s: Array) -> list[tuple[float, float, float]]:
-    """Linear pieces of aperture motion (rows, from ``start[j]`` to ``end[j]`` for
-    ``durations_s[j]``) as fewer pieces with the same time integral, ``(lo, hi, duration)``.
-
-    The photons a moving aperture collects depend only on how long it spends at each
-    displacement (the time integral of the scene over it), not on the order or direction of
-    the motion. So pieces that cover the same displacements (to 1e-9 rows: the matched IMC
-    sawtooth repeats one tooth) are integrated once with their durations added. If more than
-    ``_MAX_MOTION_PIECES`` distinct pieces remain (a mismatched clock drifting through many
-    positions), the occupation density is cut at every piece's ends into intervals of
-    constant density, each an equivalent linear piece (still exact); if still too many, its
-    mass is put on ``_MAX_MOTION_PIECES`` equal bins across the range (approximate within a
-    bin's width: docs/imc.md).
-    """
-    used = durations_s > 0.0
-    lo = np.minimum(start, end)[used]
-    hi = np.maximum(start, end)[used]
-    keys = np.stack([np.round(lo / _SAME_PIECE_ROWS), np.round(hi / _SAME_PIECE_ROWS)], axis=1)
-    _, first, group = np.unique(keys, axis=0, return_index=True, return_inverse=True)
-    tau = np.bincount(group.reshape(-1), weights=durations_s[used])
-    lo, hi = lo[first], hi[first]
-    if lo.size <= _MAX_MOTION_PIECES:
-        return [(float(a), float(b), float(t)) for a, b, t in zip(lo, hi, tau, strict=True)]
-    moving = hi - lo >= _SAME_PIECE_ROWS
-    edges = np.unique(np.concatenate([lo, hi]))
-    # Time per row on each interval between consecutive edges: +rate where a moving piece
-    # starts, -rate where it ends, summed up; a still piece is a point mass at its edge.
-    rate = tau[moving] / (hi[moving] - lo[moving])
-    change = np.zeros(edges.size)
-    np.add.at(change, np.searchsorted(edges, lo[moving]), rate)
-    np.add.at(change, np.searchsorted(edges, hi[moving]), -rate)
-    mass = np.cumsum(change)[:-1] * np.diff(edges)
-    points = np.zeros(edges.size)
-    np.add.at(points, np.searchsorted(edges, lo[~moving]), tau[~moving])
-    if np.count_nonzero(mass > 0.0) + np.count_nonzero(points) <= _MAX_MOTION_PIECES:
-        out = [(float(e), float(e), float(m)) for e, m in zip(edges, points, strict=True) if m]
-        out += [
-            (float(a), float(b), float(m))
-            for a, b, m in zip(edges[:-1], edges[1:], mass, strict=True)
-            if m > 0.0
-        ]
-        return out
-    # Still too many: the time spent below each of equal bins' edges (piecewise linear in the
-    # displacement between edges, stepping at the point masses) spread evenly over each bin.
-    bins = np.linspace(edges[0], edges[-1], _MAX_MOTION_PIECES + 1)
-    below_edges = np.cumsum(points) + np.concatenate([[0.0], np.cumsum(mass)])
-    below = np.interp(bins, edges, below_edges)
-    below[0], below[-1] = 0.0, float(tau.sum())
-    per_bin = np.diff(below)
-    return [
-        (float(a), float(b), float(m))
-        for a, b, m in zip(bins[:-1], bins[1:], per_bin, strict=True)
-        if m > 0.0
-    ]

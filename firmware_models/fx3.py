@@ -1,12 +1,14 @@
-"""The simulated EZ-USB FX3's device half: its socket server and the stream engine.
+"""The simulated EZ-USB FX3's device half: the stream engine and ``python -m firmware_models.fx3``.
 
 Runs in the simulator's process (``python -m firmware_models``, whose FPGA model and imaging
 pipeline feed the engine, or ``python -m firmware_models.fx3`` alone):
 
-- ``StreamSocketServer``: the simulator's end of the stream socket (one host at a time);
 - ``StreamEngine``: the FX3 firmware's job: takes frames from a source (the camera model, or a
-  ``BankSource`` of ready-made frames), paces them, injects faults (``InjectSpec.frame_*``)
-  and sends each frame as one USB transfer;
+  ``BankSource`` of ready-made frames, ``firmware_models.fx3_bank``), paces them and sends
+  them in blocks (``firmware_models.fx3_transfers``: each frame as one USB transfer, with the
+  injected faults, ``InjectSpec.frame_*``);
+- ``StreamSocketServer`` (``firmware_models.fx3_socket``): the simulator's end of the stream
+  socket (one host at a time);
 - ``python -m firmware_models.fx3 --socket PATH``: a streamer alone, for benchmarks.
 
 The host half, the pyusb backend the daemon loads (``Fx3Backend`` / ``get_backend``), is
@@ -18,13 +20,10 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import dataclasses
 import json
 import logging
 import os
-import selectors
 import signal
-import socket
 import sys
 import threading
 import time
@@ -35,32 +34,28 @@ from types import FrameType
 
 import numpy as np
 
-from camd.protocol.stream import (
-    HEADER_BYTES,
-    U32_WRAP,
-    FrameFlags,
-    FrameHeader,
-    StreamMode,
-    crc32,
-    pack_header,
-)
-from firmware_models.defects import COUNTER_SKIP_EVERY, NONE, crc32c
-from firmware_models.fx3_wire import (
-    MSG,
-    MSG_CLEAR_HALT,
-    MSG_READY,
-    MSG_SET_PACKING,
-    MSG_STALL,
-    MSG_TRANSFER,
-    SOCKET_BUFFER_BYTES,
-)
+from camd.protocol.stream import HEADER_BYTES, U32_WRAP, FrameHeader
+from firmware_models.defects import NONE
+from firmware_models.fx3_bank import BankSource
+from firmware_models.fx3_socket import StreamSocketServer
+from firmware_models.fx3_transfers import BlockFrame, BlockSender, StreamCounters
 from firmware_models.inject import InjectSpec
 from firmware_models.pacing import Pacer
-from firmware_models.usb_device import UnixSocketServer
+
+__all__ = [
+    "BLOCK_S",
+    "MAX_BLOCK_FRAMES",
+    "BankSource",
+    "DoneCallback",
+    "FrameSource",
+    "StreamCounters",
+    "StreamEngine",
+    "StreamSocketServer",
+    "main",
+]
 
 log = logging.getLogger(__name__)
 
-_SEND_TICK_S = 0.25  # how often a blocked send looks whether it should give up
 # A paced stream makes and sends the frames due within BLOCK_S together, in one system call
 # (at the hr400's fastest line rate, 41 us per frame, one call per frame would be the limit;
 # the imaging pipeline renders such a block in one pass, and 2 ms rather than 1 ms took a
@@ -72,309 +67,10 @@ BLOCK_S = 2e-3
 MAX_BLOCK_FRAMES = 64
 
 
-# -- the simulator's end of the socket ------------------------------------------------------
-
-
-class _Connection:
-    """The host's connection: sent on by the engine, read (CLEAR_HALT) by the accept thread."""
-
-    def __init__(self, sock: socket.socket) -> None:
-        self.sock = sock
-        self.send_lock = threading.RLock()
-        self.dead = False
-        self.rx = bytearray()
-
-
-class _Aborted(Exception):
-    """A send was given up (the engine is shutting down)."""
-
-
-class StreamSocketServer(UnixSocketServer):
-    """The simulator's end of the stream socket at ``path``: one host (backend) at a time.
-
-    A new connection replaces the previous one (a host that went away without closing must
-    not keep the device), which then reads ENODEV. The server holds the endpoint's halt
-    state: ``stall()`` halts it (STALL message) and the host's CLEAR_HALT clears it; a new
-    host finds it clear. A stale socket file (from a simulator that died) is replaced; a live
-    one is an error. ``stop()`` closes the connection and removes the socket file if it is
-    still this server's.
-    """
-
-    what = "the frame stream"
-    backlog = 4
-
-    def __init__(self, path: str | Path, *, send_buffer_bytes: int = SOCKET_BUFFER_BYTES) -> None:
-        super().__init__(path)
-        self.send_buffer_bytes = send_buffer_bytes
-        self.connections_accepted = 0
-        self._cond = threading.Condition()
-        self._conn: _Connection | None = None
-        self._halted = False
-        # Bytes of whole frames one transfer may hold, as the host asked (PACK_REQUEST); 0:
-        # one frame per transfer, which every new host finds.
-        self.pack_bytes = 0
-
-    # -- lifecycle --------------------------------------------------------------------------------
-
-    def stop(self) -> None:
-        """Close the listener and the connection, join the thread, remove the socket file."""
-        if self._thread is None:
-            return
-        self._stopping.set()
-        self._wake()
-        self._thread.join()
-        self._thread = None
-        with self._cond:
-            conn, self._conn = self._conn, None
-            self._cond.notify_all()
-        if conn is not None:
-            self._close(conn)
-        self._release()
-
-    # -- state ------------------------------------------------------------------------------------
-
-    @property
-    def connected(self) -> bool:
-        """A host is connected."""
-        with self._cond:
-            return self._conn is not None
-
-    @property
-    def halted(self) -> bool:
-        """The bulk endpoint is halted (a STALL the host has not cleared)."""
-        with self._cond:
-            return self._halted
-
-    @property
-    def ready(self) -> bool:
-        """A transfer can be sent now: a host is connected and the endpoint is not halted."""
-        with self._cond:
-            return self._conn is not None and not self._halted
-
-    def wait_connected(self, timeout_s: float) -> bool:
-        """Wait until a host is connected; False on timeout."""
-        with self._cond:
-            return self._cond.wait_for(lambda: self._conn is not None, timeout_s)
-
-    def wait_ready(self, timeout_s: float) -> bool:
-        """Wait until a transfer can be sent; False on timeout."""
-        with self._cond:
-            return self._cond.wait_for(
-                lambda: self._conn is not None and not self._halted, timeout_s
-            )
-
-    # -- sending (the engine's thread) ------------------------------------------------------------
-
-    def send_transfer(
-        self, parts: Sequence[bytes | memoryview], *, abort: Callable[[], bool] | None = None
-    ) -> bool:
-        """Send ``parts`` (concatenated) as one USB transfer; False if no host took it.
-
-        The parts go out with ``sendmsg`` (scatter-gather), so header and pixels are never
-        joined into a new buffer. ``abort()`` is asked while the host does not read; True
-        gives up the transfer (the connection is closed: it cannot be resynchronised)."""
-        return self.send_transfers([parts], abort=abort)
-
-    def send_transfers(
-        self,
-        transfers: Sequence[Sequence[bytes | memoryview]],
-        *,
-        abort: Callable[[], bool] | None = None,
-    ) -> bool:
-        """Send several transfers, in order, in as few ``sendmsg`` calls as the socket takes
-        (one system call for a block of frames instead of one per frame); False if no host
-        took them (then none of them counts as delivered: the connection is gone)."""
-        message: list[bytes | memoryview] = []
-        for parts in transfers:
-            message.append(MSG.pack(MSG_TRANSFER, sum(len(p) for p in parts)))
-            message.extend(parts)
-        return self._send(message, abort=abort, halt=False)
-
-    def stall(self) -> bool:
-        """Halt the bulk endpoint (a STALL message); False if no host is connected."""
-        return self._send([MSG.pack(MSG_STALL, 0)], abort=None, halt=True)
-
-    def _send(
-        self,
-        parts: list[bytes | memoryview],
-        *,
-        abort: Callable[[], bool] | None,
-        halt: bool,
-    ) -> bool:
-        with self._cond:
-            conn = self._conn
-            if conn is None or self._halted:
-                return False
-            if halt:
-                self._halted = True
-        with conn.send_lock:
-            if conn.dead:
-                return False
-            try:
-                _send_all(conn, parts, abort)
-            except (OSError, _Aborted):
-                self._kill(conn)
-                return False
-        return True
-
-    # -- the accept thread --------------------------------------------------------------------
-
-    def _wake(self) -> None:
-        if self._wake_w is not None:
-            with contextlib.suppress(OSError):
-                self._wake_w.send(b"x")
-
-    def _kill(self, conn: _Connection) -> None:
-        """Take ``conn`` out of service (any thread); the accept thread closes it."""
-        conn.dead = True
-        with contextlib.suppress(OSError):
-            conn.sock.shutdown(socket.SHUT_RDWR)
-        with self._cond:
-            if self._conn is conn:
-                self._conn = None
-                self._halted = False
-            self._cond.notify_all()
-        self._wake()
-
-    @staticmethod
-    def _close(conn: _Connection) -> None:
-        conn.dead = True
-        with contextlib.suppress(OSError):
-            conn.sock.shutdown(socket.SHUT_RDWR)
-        with conn.send_lock:  # a send in progress fails at once after the shutdown
-            conn.sock.close()
-
-    def _accept_loop(self) -> None:
-        assert self._listener is not None and self._wake_r is not None
-        registered: _Connection | None = None
-        with selectors.DefaultSelector() as sel:
-            sel.register(self._listener, selectors.EVENT_READ)
-            sel.register(self._wake_r, selectors.EVENT_READ)
-            while not self._stopping.is_set():
-                with self._cond:
-                    current = self._conn
-                if registered is not current:
-                    if registered is not None:
-                        sel.unregister(registered.sock)
-                        self._close(registered)
-                    if current is not None:
-                        sel.register(current.sock, selectors.EVENT_READ, current)
-                    registered = current
-                for key, _ in sel.select():
-                    if key.fileobj is self._wake_r:
-                        with contextlib.suppress(OSError):
-                            self._wake_r.recv(64)
-                    elif key.fileobj is self._listener:
-                        if not self._stopping.is_set():
-                            self._accept()
-                    elif isinstance(key.data, _Connection):
-                        self._control(key.data)
-            if registered is not None:
-                sel.unregister(registered.sock)
-                with self._cond:
-                    current = self._conn
-                if registered is not current:
-                    self._close(registered)  # stop() closes the current one
-
-    def _accept(self) -> None:
-        assert self._listener is not None
-        try:
-            sock, _ = self._listener.accept()
-        except OSError:
-            return
-        with contextlib.suppress(OSError):
-            sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, self.send_buffer_bytes)
-        sock.settimeout(_SEND_TICK_S)
-        conn = _Connection(sock)
-        # READY goes out before any transfer can (the send lock is held from before the
-        # connection is served): a host that has it knows no frame went elsewhere since.
-        with conn.send_lock:
-            with self._cond:
-                old, self._conn = self._conn, conn
-                self._halted = False  # a new host: the endpoint starts clear
-                self.pack_bytes = 0
-                self.connections_accepted += 1
-                self._cond.notify_all()
-            try:
-                sock.sendall(MSG.pack(MSG_READY, 0))
-            except OSError:
-                self._kill(conn)
-        if old is not None:
-            self._kill(old)  # the accept loop closes it on its next pass
-
-    def _control(self, conn: _Connection) -> None:
-        try:
-            data = conn.sock.recv(256)
-        except (TimeoutError, BlockingIOError):
-            return
-        except OSError:
-            data = b""
-        if not data:
-            self._kill(conn)  # the host closed the connection (unplugged)
-            return
-        conn.rx += data
-        while len(conn.rx) >= MSG.size:
-            kind, length = MSG.unpack_from(conn.rx)
-            del conn.rx[: MSG.size]
-            if kind == MSG_SET_PACKING:
-                with self._cond:
-                    if self._conn is conn:
-                        self.pack_bytes = length
-                continue
-            if kind != MSG_CLEAR_HALT or length != 0:
-                log.warning("stream socket: unknown host message %d/%d; hanging up", kind, length)
-                self._kill(conn)
-                return
-            with self._cond:
-                if self._conn is conn:
-                    self._halted = False
-                    self._cond.notify_all()
-
-
-def _send_all(
-    conn: _Connection, parts: list[bytes | memoryview], abort: Callable[[], bool] | None
-) -> None:
-    """sendmsg until every byte of ``parts`` is out; only memoryview slices, never joins."""
-    views = [memoryview(p) for p in parts if len(p)]
-    while views:
-        if conn.dead:
-            raise _Aborted
-        try:
-            n = conn.sock.sendmsg(views)
-        except (TimeoutError, BlockingIOError):
-            if abort is not None and abort():
-                raise _Aborted from None
-            continue
-        while n:
-            if n >= len(views[0]):
-                n -= len(views[0])
-                views.pop(0)
-            else:
-                views[0] = views[0][n:]
-                n = 0
-
-
 # -- the stream engine ----------------------------------------------------------------------
 
 FrameSource = Callable[[int], tuple[FrameHeader, np.ndarray]]
 DoneCallback = Callable[[int, int], None]
-
-
-@dataclass(slots=True)
-class StreamCounters:
-    """What the engine did since it was made (SIM_GET_STREAM_STATS)."""
-
-    produced: int = 0  # frames taken from the source (counters used)
-    sent: int = 0  # frames sent whole (including corrupted ones)
-    bytes_sent: int = 0  # bytes of every transfer, whole or short
-    dropped: int = 0  # injected: not sent
-    corrupted: int = 0  # injected: sent whole with one payload bit flipped
-    shortened: int = 0  # injected: the transfer ended early
-    stalls: int = 0  # injected: the endpoint halted; the frame in flight was lost
-    undelivered: int = 0  # made while no host could take them (none connected, or halted)
-
-    def as_dict(self) -> dict[str, int]:
-        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
 
 
 @dataclass(slots=True)
@@ -443,9 +139,9 @@ class StreamEngine:
         self.inject = inject if inject is not None else InjectSpec()
         self.on_done = on_done
         self.counters = StreamCounters()
+        self._sender = BlockSender(self.counters)  # the faults, the flags, the packing
         self.next_counter = 0
         self.defects = NONE  # deliberate defects (firmware_models.defects), off
-        self._counter_skew = 0  # stream_counter_skip: counter values skipped so far
         self._rng = np.random.default_rng(seed)
         self._cond = threading.Condition()
         self._pending: _Stream | None = None
@@ -633,7 +329,7 @@ class StreamEngine:
                 if wait_s > 0:
                     self._wait(stream, wait_s)
             self._announce(stream, count)
-            block: list[tuple[FrameHeader, np.ndarray, bool, InjectSpec]] = []
+            block: list[BlockFrame] = []
             ended = False
             for _ in range(count):
                 with self._cond:
@@ -661,7 +357,16 @@ class StreamEngine:
                 # The faults in force when the frame was made (``inject`` may change any time).
                 block.append((header, pixels, last, self.inject))
             if block:
-                overflow = self._send_block(stream, block, overflow)
+                overflow = self._sender.send(
+                    self.server,
+                    block,
+                    overflow,
+                    rng=self._rng,
+                    defects=self.defects,
+                    wait_ready=not stream.pace,
+                    stopped=lambda: stream.stop or self._closing,
+                    abort=self._abort_send,
+                )
             if ended:
                 return
 
@@ -678,207 +383,6 @@ class StreamEngine:
             first = self.next_counter
         if count > 0:
             self.prepare(first, count)
-
-    def _send_block(
-        self,
-        stream: _Stream,
-        block: list[tuple[FrameHeader, np.ndarray, bool, InjectSpec]],
-        overflow: bool,
-    ) -> bool:
-        """Send a block of frames with the faults, in one ``sendmsg`` where nothing comes
-        between them; return whether frames went undelivered since the last one sent (the
-        next frame sent then carries DEVICE_OVERFLOW)."""
-        server = self.server
-        c = self.counters
-        rng = self._rng
-        transfers: list[list[bytes | memoryview]] = []
-        kinds: list[tuple[bool, bool, int]] = []  # (cut short, corrupted, bytes) per frame
-        packed = 0  # bytes in the last transfer, while whole frames may join it (packing)
-
-        def flush() -> bool:
-            """Send the transfers gathered so far; count them sent, or all undelivered."""
-            if not transfers:
-                return True
-            assert server is not None
-            sent = server.send_transfers(transfers, abort=self._abort_send)
-            for short, corrupted, nbytes in kinds:
-                if not sent:
-                    c.undelivered += 1
-                    continue
-                c.bytes_sent += nbytes
-                # Each frame counts once: one both corrupted and cut short reaches the host short.
-                if short:
-                    c.shortened += 1
-                else:
-                    c.sent += 1
-                    if corrupted:
-                        c.corrupted += 1
-            transfers.clear()
-            kinds.clear()
-            return sent
-
-        for header, pixels, last, spec in block:
-            if not stream.pace and server is not None:
-                # As fast as the host reads: a halt in the block (an injected stall) waits
-                # for the host's clear, as it would before the next frame is made.
-                while not server.wait_ready(0.05) and not (stream.stop or self._closing):
-                    pass
-            if server is None or not server.ready:
-                c.undelivered += 1
-                overflow = True
-                continue
-            if spec.frame_drop and rng.random() < spec.frame_drop:
-                c.dropped += 1
-                continue
-            if spec.frame_stall and rng.random() < spec.frame_stall:
-                # The frames before it go out first: the halt comes after them on the wire.
-                if not flush():
-                    overflow = True
-                if not server.stall():
-                    c.undelivered += 1
-                    overflow = True
-                    continue
-                c.stalls += 1
-                continue
-            flags = header.flags
-            if overflow:
-                flags |= FrameFlags.DEVICE_OVERFLOW
-            if last:
-                flags |= FrameFlags.LAST
-            if flags != header.flags:
-                header = header._replace(flags=flags)
-            if self.defects.stream_counter_skip or self.defects.stream_crc_polynomial:
-                header = self._defective(header, pixels)
-            # Checked when the source made it (frame_header); the flags added are known ones.
-            head = pack_header(header)
-            payload = pixels.data.cast("B")
-            if len(payload) != header.payload_bytes:
-                raise ValueError(
-                    f"the source gave {len(payload)} payload bytes for a header saying "
-                    f"{header.payload_bytes} (counter {header.counter})"
-                )
-            corrupted = False
-            if spec.frame_corrupt and rng.random() < spec.frame_corrupt:
-                damaged = np.frombuffer(payload, dtype=np.uint8).copy()
-                bit = int(rng.integers(0, damaged.size * 8))
-                damaged[bit >> 3] ^= np.uint8(1 << (bit & 7))
-                payload = damaged.data
-                corrupted = True
-            parts: list[bytes | memoryview] = [head, payload]
-            short = False
-            if spec.frame_short and rng.random() < spec.frame_short:
-                total = HEADER_BYTES + len(payload)
-                keep = int(rng.integers(1, total))  # 1 .. total - 1
-                parts = [head[:keep], payload[: max(0, keep - HEADER_BYTES)]]
-                short = True
-            nbytes = sum(len(p) for p in parts)
-            pack = server.pack_bytes
-            if packed and not short and transfers and packed + nbytes <= pack:
-                transfers[-1].extend(parts)  # packed: whole frames back to back
-                packed += nbytes
-            else:
-                transfers.append(parts)
-                packed = 0 if short or not pack else nbytes  # a cut-short frame ends its transfer
-            kinds.append((short, corrupted, nbytes))
-            overflow = False
-        if not flush():
-            overflow = True
-        return overflow
-
-    def _defective(self, header: FrameHeader, pixels: np.ndarray) -> FrameHeader:
-        """The header as a defective FX3 frames it (firmware_models.defects); the header CRC
-        is computed afterwards, by ``pack_header``, and so stays right."""
-        if self.defects.stream_counter_skip:
-            if header.counter % COUNTER_SKIP_EVERY == COUNTER_SKIP_EVERY - 1:
-                self._counter_skew += 1
-            header = header._replace(counter=(header.counter + self._counter_skew) % U32_WRAP)
-        if self.defects.stream_crc_polynomial:
-            header = header._replace(payload_crc32=crc32c(pixels.data.cast("B")))
-        return header
-
-
-# -- ready-made frames ----------------------------------------------------------------------
-
-
-class BankSource:
-    """A frame source replaying a bank of ready-made frames (benchmarks, tests).
-
-    Frame ``counter`` is bank frame ``counter % len(frames)`` with a fresh counter and
-    timestamp (``t0_ns + counter * line_period_ns``); payload CRCs and the SATURATED flag
-    (some pixel at 2**bits - 1) are computed once per bank frame, so a frame costs the source
-    no pass over its pixels. ``stages`` defaults to the rows in TDI mode, 0 in area mode.
-    """
-
-    def __init__(
-        self,
-        frames: Sequence[np.ndarray],
-        *,
-        line_period_ns: int,
-        bits: int,
-        mode: StreamMode,
-        stages: int | None = None,
-        t0_ns: int = 0,
-    ) -> None:
-        if not frames:
-            raise ValueError("a bank source needs at least one frame")
-        self.line_period_ns = line_period_ns
-        self.bits = bits
-        self.mode = StreamMode(mode)
-        self.t0_ns = t0_ns
-        self.frames: list[np.ndarray] = []
-        self._crc: list[int] = []
-        self._flags: list[FrameFlags] = []
-        adc_max = (1 << bits) - 1
-        for i, frame in enumerate(frames):
-            if frame.ndim != 2 or frame.dtype != np.dtype("<u2"):
-                raise ValueError(f"bank frame {i} is {frame.ndim}-D {frame.dtype}, not 2-D uint16")
-            frame = np.ascontiguousarray(frame)
-            frame.flags.writeable = False  # shared by every replay: nobody may change it
-            self.frames.append(frame)
-            self._crc.append(crc32(frame.data))
-            saturated = bool((frame >= adc_max).any())
-            self._flags.append(FrameFlags.SATURATED if saturated else FrameFlags(0))
-        rows = self.frames[0].shape[0]
-        self.stages = stages if stages is not None else (rows if mode == StreamMode.TDI else 0)
-
-    @classmethod
-    def random(
-        cls,
-        rows: int,
-        cols: int,
-        *,
-        count: int = 4,
-        bits: int = 12,
-        seed: int = 0,
-        line_period_ns: int = 25_000,
-        mode: StreamMode = StreamMode.TDI,
-    ) -> BankSource:
-        """``count`` frames of uniform random ``bits``-bit pixels."""
-        rng = np.random.default_rng(seed)
-        bank = [
-            rng.integers(0, 1 << bits, size=(rows, cols), dtype=np.uint16) for _ in range(count)
-        ]
-        return cls(bank, line_period_ns=line_period_ns, bits=bits, mode=mode)
-
-    def __call__(self, counter: int) -> tuple[FrameHeader, np.ndarray]:
-        i = counter % len(self.frames)
-        frame = self.frames[i]
-        rows, cols = frame.shape
-        header = FrameHeader(
-            counter=counter,
-            timestamp_ns=(self.t0_ns + counter * self.line_period_ns) % (1 << 64),
-            line_period_ns=self.line_period_ns,
-            rows=rows,
-            cols=cols,
-            bits=self.bits,
-            mode=self.mode,
-            stages=self.stages,
-            stage_position=0,
-            flags=self._flags[i],
-            payload_bytes=frame.nbytes,
-            payload_crc32=self._crc[i],
-        )
-        return header, frame
 
 
 # -- python -m firmware_models.fx3 ------------------------------------------------------------

@@ -43,7 +43,8 @@ from camd.timing.imc import (
     row_step_modulation,
 )
 from firmware_models import ccd_imc
-from firmware_models.camera import CameraModel, _merge_pieces
+from firmware_models.camera import CameraModel
+from firmware_models.camera_imc import merge_pieces
 from firmware_models.scene import Scene, SceneSpec, SceneSpecError, build_scene
 from firmware_models.sensor import SensorModel
 from tests.campaign_support import report_images, run_shipped
@@ -296,7 +297,9 @@ def test_large_array_fixed_pattern_is_drawn_per_band_consistently() -> None:
     ea = a.expected_electrons(1.0, dtype=np.float64)
     eb = b.expected_electrons(1.0, dtype=np.float64)
     assert np.array_equal(ea[16:], eb)
-    assert sorted(a._fixed.bands) == [0, 1] and sorted(b._fixed.bands) == [1]  # no other band
+    assert sorted(a._frames.fixed.bands) == [0, 1] and sorted(b._frames.fixed.bands) == [
+        1
+    ]  # no other band
     relative = ea / ea.mean()
     assert relative.std() == pytest.approx(profile.prnu_fraction.value, rel=0.05)
 
@@ -394,7 +397,7 @@ def test_exact_model_agrees_with_the_time_stepped_model(mode: ccd_imc.Method) ->
 def test_merge_pieces_keeps_the_time_integral() -> None:
     """Identical teeth merge into one piece; many distinct pieces become intervals of constant
     occupation (exact) or, beyond 64, equal bins (approximate within a bin)."""
-    teeth = _merge_pieces(np.zeros(6), np.full(6, 0.25), np.full(6, 1.5e-3))
+    teeth = merge_pieces(np.zeros(6), np.full(6, 0.25), np.full(6, 1.5e-3))
     assert len(teeth) == 1 and teeth[0][:2] == (0.0, 0.25)
     assert teeth[0][2] == pytest.approx(9e-3, rel=1e-12)
 
@@ -414,7 +417,7 @@ def test_merge_pieces_keeps_the_time_integral() -> None:
     keep = lo <= hi
     start, end = lo[keep], hi[keep]
     tau = np.linspace(0.1, 1.0, start.size)
-    pieces = _merge_pieces(end, start, tau)  # direction does not matter
+    pieces = merge_pieces(end, start, tau)  # direction does not matter
     assert len(pieces) <= 64
     reference = integral(list(zip(start.tolist(), end.tolist(), tau.tolist(), strict=True)))
     assert integral(pieces) == pytest.approx(reference, rel=1e-12)
@@ -424,7 +427,7 @@ def test_merge_pieces_keeps_the_time_integral() -> None:
     start = rng.uniform(0.0, 2.0, 300)
     end = start + rng.uniform(-0.3, 0.3, 300)
     tau = rng.uniform(0.0, 1.0, 300)
-    binned = _merge_pieces(start, end, tau)
+    binned = merge_pieces(start, end, tau)
     assert len(binned) <= 64
     reference = integral(
         [(min(s, e), max(s, e), t) for s, e, t in zip(start, end, tau, strict=True)]

@@ -28,9 +28,8 @@ from firmware_models.stage import (
     Stage,
     StageFaults,
     StepperStage,
-    _ripple_u,
-    _ripple_x,
 )
+from firmware_models.stage_kinematics import ripple_u, ripple_x
 
 ROOT = Path(__file__).resolve().parents[1]
 STAGES = ROOT / "config" / "stages"
@@ -247,7 +246,7 @@ def test_ripple_amplitude_and_period_are_measured_back(ripple: float) -> None:
 def test_ripple_map_inverts(x: float, r: float, phase: float) -> None:
     k = 2 * math.pi / 0.025
     arr = np.array([x])
-    back = _ripple_x(_ripple_u(arr, r, k, phase), r, k, phase)
+    back = ripple_x(ripple_u(arr, r, k, phase), r, k, phase)
     assert back[0] == pytest.approx(x, abs=1e-12)
 
 
