@@ -164,7 +164,7 @@ def test_pixels_are_a_read_only_view_into_a_slot(rig: Rig) -> None:
 
     def inspect(frame: ReceivedFrame) -> None:
         address = frame.pixels.__array_interface__["data"][0]
-        slots = [s.buf.buffer_info()[0] + HEADER_BYTES for s in rig.stream._slots]
+        slots = [s.buf.buffer_info()[0] + HEADER_BYTES for s in rig.stream._queue.slots]
         seen.append(
             (frame.pixels.flags.writeable, frame.pixels.flags.owndata, slots.index(address))
         )
@@ -395,7 +395,7 @@ def test_slots_are_allocated_as_the_queue_grows_and_given_back_at_stop(
     try:
         slow.burst()
         assert slow.slots_at_start == 3  # the reader's, the dispatcher's, one queued
-        assert rig.stream._slot_bytes == SLOT_BYTES
+        assert rig.stream._queue.slot_bytes == SLOT_BYTES
         # 4 queued + the dispatcher's + the reader's: the queue's length plus two, no more.
         assert rig.stream.allocated_slots == 6
         release.set()
@@ -482,7 +482,7 @@ def test_bad_headers_oversize_and_counters_going_back(sock_path: Path, bank: Ban
 def test_a_zero_length_packet_ends_a_skipped_transfer(sock_path: Path, bank: BankSource) -> None:
     rig = raw_rig(sock_path, bank)
     try:
-        read_size = rig.stream._slot_bytes  # 4096: one frame + 1 byte, in whole packets
+        read_size = rig.stream._queue.slot_bytes  # 4096: one frame + 1 byte, in whole packets
         assert rig.server.send_transfer(raw_frame(bank, 0))
         # Too long, and a whole number of reads: the device ends it with a zero-length packet.
         assert rig.server.send_transfer([bytes(2 * read_size)])

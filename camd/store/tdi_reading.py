@@ -1,0 +1,115 @@
+"""A TDI scan read back (``read_tdi_scan``), also one still being written (SWMR).
+
+The file's layout is ``camd.store.tdi_layout``'s (listed in ``camd.store.tdi_recording``'s
+docstring); files of every format version up to ``FORMAT_VERSION`` read, the columns an older
+one lacks filled in. ``camd.store.tdi_recording`` exports these names too.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+import numpy.typing as npt
+
+from camd.store.nexus import ENTRY
+from camd.store.recording import FORMAT as RECORDING_FORMAT
+from camd.store.recording import RecordingError, unflatten_attrs
+from camd.store.tdi_layout import ADDED_IN_2, COLUMNS, FORMAT, FORMAT_VERSION
+
+
+@dataclass(frozen=True, slots=True)
+class TdiScan:
+    """A TDI scan read back: the lines, each line's bookkeeping, the metadata."""
+
+    path: Path
+    lines: npt.NDArray[Any]  # (L, N) uint32 ("sum") or float32 ("mean")
+    line_index: npt.NDArray[np.int64]
+    frame_counter: npt.NDArray[np.uint32]
+    stages_used: npt.NDArray[np.uint16]
+    complete: npt.NDArray[np.bool_]
+    stage_position: npt.NDArray[np.int32]  # encoder count at each line's frame start
+    m_dv_over_v: npt.NDArray[np.float32]  # M dV/V each line saw (NaN: unknown)
+    stage_changes: npt.NDArray[np.int64]  # (K, 2): [line index, stages]
+    attrs: dict[str, Any]  # root attributes
+    metadata: dict[str, dict[str, Any]]  # profile, registers, timing, scan, counters, ...
+
+
+def read_tdi_scan(path: Path | str) -> TdiScan:
+    """Read a whole TDI scan into memory, also one still being written (SWMR).
+
+    RecordingError for a missing file, a file that is not HDF5 or not a camd TDI scan, or a
+    scan format newer than this camd reads.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise RecordingError(f"{path} does not exist (or is not a file); check the path")
+    try:
+        f = h5py.File(path, "r", swmr=True)
+    except BlockingIOError as exc:
+        raise RecordingError(
+            f"cannot open {path}: another program has it open for writing without SWMR "
+            f"(a camd frame recording being made?): {exc}; wait until it is closed"
+        ) from None
+    except OSError as exc:
+        raise RecordingError(f"cannot open {path} as HDF5: {exc}") from None
+    with f:
+        fmt = f.attrs.get("format")
+        if isinstance(fmt, bytes):
+            fmt = fmt.decode(errors="replace")
+        if fmt == RECORDING_FORMAT:
+            raise RecordingError(
+                f"{path} is a camd frame recording (format {RECORDING_FORMAT!r}), not a TDI "
+                "scan; read it with camd.store.read_recording"
+            )
+        if fmt != FORMAT:
+            raise RecordingError(
+                f"{path} is not a camd TDI scan (format={fmt!r}, expected {FORMAT!r})"
+            )
+        version = int(f.attrs.get("format_version", 0))
+        if version > FORMAT_VERSION:
+            raise RecordingError(
+                f"{path} is TDI scan format {version}; this camd reads up to {FORMAT_VERSION}: "
+                "upgrade camd"
+            )
+        try:
+            # While the scan is written, the datasets may have grown unequally: keep the lines
+            # every one of them has.
+            present = [name for name in COLUMNS if name in f or name not in ADDED_IN_2]
+            n = min(len(f[name]) for name in ("lines", *present))
+            if "lines_flushed" in f and not bool(f.attrs.get("finished", False)):
+                n = min(n, int(f["lines_flushed"][0]))  # beyond it: not on disk yet
+            lines = np.asarray(f["lines"][:n])
+            columns = {
+                name: (
+                    np.asarray(f[name][:n], dtype=t)
+                    if name in f
+                    else np.full(n, ADDED_IN_2[name], dtype=t)
+                )
+                for name, t in COLUMNS.items()
+            }
+            stage_changes = np.asarray(f["stage_changes"][...], dtype=np.int64).reshape(-1, 2)
+        except KeyError as exc:
+            raise RecordingError(f"{path} is a damaged TDI scan: {exc}") from None
+        attrs = unflatten_attrs(dict(f.attrs))
+        meta = {
+            name: unflatten_attrs(dict(node.attrs))
+            for name, node in f.items()
+            if isinstance(node, h5py.Group) and name != ENTRY
+        }
+    return TdiScan(
+        path=path,
+        lines=lines,
+        line_index=columns["line_index"],
+        frame_counter=columns["frame_counter"],
+        stages_used=columns["stages_used"],
+        complete=columns["complete"].astype(bool),
+        stage_position=columns["stage_position"],
+        m_dv_over_v=columns["m_dv_over_v"],
+        stage_changes=stage_changes,
+        attrs=attrs,
+        metadata=meta,
+    )
