@@ -67,15 +67,8 @@ class BenchError(RuntimeError):
     """The bench cannot run or a viewer failed; the message says what to change."""
 
 
-def add_parser(which: Any) -> None:
-    """Register ``camd bench live`` on the ``camd bench`` subparsers."""
-    p = which.add_parser(
-        "live",
-        help="stream ingest with live viewers attached vs none",
-        description="Stream ingest of the daemon (frames and MB received per second) with N live "
-        "viewers attached (B) against none (A), in alternating rounds on one continuous stream "
-        "of the simulated hr400; prints the median B/A.",
-    )
+def add_options(p: argparse.ArgumentParser) -> None:
+    """The options of ``camd bench live`` but ``--json`` (camd.bench.command adds it)."""
     p.add_argument(
         "--rounds", type=int, default=DEFAULT_ROUNDS, help=f"A/B rounds ({DEFAULT_ROUNDS})"
     )
@@ -121,7 +114,6 @@ def add_parser(which: Any) -> None:
         help="the simulated camera on CPU 0 alone, the daemon and the viewers on the others, "
         "as on a test PC with the camera outside it (default: on with 2 CPUs or more)",
     )
-    p.add_argument("--json", action="store_true", help="print one JSON document")
 
 
 # -- which viewers --------------------------------------------------------------------------

@@ -30,14 +30,8 @@ DEFAULT_STAGES = 96
 DEFAULT_BANK = 64
 
 
-def add_parser(which: Any) -> None:
-    """Register ``camd bench scan`` on the ``camd bench`` subparsers."""
-    p = which.add_parser(
-        "scan",
-        help="a TDI scan at the sensor's line rate: lines/s, losses, CPU",
-        description="A scan through the daemon at the fastest line period M window rows allow, "
-        "against that line rate.",
-    )
+def add_options(p: argparse.ArgumentParser) -> None:
+    """The options of ``camd bench scan`` but ``--json`` (camd.bench.command adds it)."""
     p.add_argument("--profile", default="hr400", help="simulated camera profile (default hr400)")
     p.add_argument(
         "--stages", type=int, default=DEFAULT_STAGES, help=f"M = window rows ({DEFAULT_STAGES})"
@@ -57,7 +51,6 @@ def add_parser(which: Any) -> None:
         default=None,
         help="TDI line period (default: the fastest the window allows, M x T_row)",
     )
-    p.add_argument("--json", action="store_true", help="print one JSON document")
 
 
 def _cpu_s(pid: int) -> float | None:
