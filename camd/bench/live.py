@@ -479,7 +479,7 @@ def bench_live(
 ) -> dict[str, Any]:
     """Run the bench and return its figures (module docstring). ``progress(text)``, if given,
     is called with a line per phase."""
-    from camd.cli._daemon_proc import DaemonProcess
+    from camd.cli._daemon_proc import DaemonProcess, write_sim_config
     from camd.client import CamdClient
 
     if pin is None:
@@ -492,11 +492,7 @@ def bench_live(
     say = progress or (lambda text: None)
     load_before = os.getloadavg()[0]
     with tempfile.TemporaryDirectory(prefix="camd-bench-live-") as tmp:
-        config = Path(tmp) / "camd.toml"
-        config.write_text(
-            f'[sensor]\nname = "{PROFILE}"\n'
-            f'[sim]\nprofile = "{PROFILE}"\nframe_bank = {frame_bank}\nscene = "bars"\n'
-        )
+        config = write_sim_config(Path(tmp), PROFILE, frame_bank=frame_bank, scene="bars")
         with DaemonProcess(tmp, extra_args=["--config", str(config)]) as daemon:
             client = CamdClient(daemon.url, timeout_s=60, client="camd bench live")
             group: Viewers | None = None

@@ -86,15 +86,11 @@ def bench_scan(
     line_period_s: float | None = None,
 ) -> dict[str, Any]:
     """Run the scan and return the figures (see the module docstring)."""
-    from camd.cli._daemon_proc import DaemonProcess
+    from camd.cli._daemon_proc import DaemonProcess, write_sim_config
     from camd.client import CamdClient
 
     with tempfile.TemporaryDirectory(prefix="camd-bench-scan-") as tmp:
-        config = Path(tmp) / "camd.toml"
-        config.write_text(
-            f'[sensor]\nname = "{profile}"\n'
-            f'[sim]\nprofile = "{profile}"\nframe_bank = {frame_bank}\nscene = "bars:lux=3"\n'
-        )
+        config = write_sim_config(Path(tmp), profile, frame_bank=frame_bank, scene="bars:lux=3")
         with DaemonProcess(tmp, extra_args=["--config", str(config)]) as daemon:
             client = CamdClient(daemon.url)
             client.wait_ready(60)

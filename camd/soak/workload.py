@@ -38,7 +38,7 @@ from typing import Any, cast
 import httpx
 
 from camd.bench.common import proc_status_int
-from camd.cli._daemon_proc import DaemonProcess
+from camd.cli._daemon_proc import DaemonProcess, write_sim_config
 from camd.client import CamdClient, CamdError
 from camd.soak.kinds import MISSING_KINDS, WINDOW_ROWS, Frames, WorkloadKinds
 
@@ -94,12 +94,7 @@ def build_inject(ber: float, drop: float, frame_faults: float, extra: str = "") 
 
 def write_hr400_config(work_dir: Path, seed: int) -> Path:
     """``work_dir/camd.toml``: the soaks' daemon, a simulated hr400 seeded with ``seed``."""
-    config = work_dir / "camd.toml"
-    config.write_text(
-        f'[sim]\nprofile = "hr400"\nseed = {seed}\n[sensor]\nname = "hr400"\n',
-        encoding="utf-8",
-    )
-    return config
+    return write_sim_config(work_dir, "hr400", seed=seed)
 
 
 def inject_text(keys: dict[str, float]) -> str:
