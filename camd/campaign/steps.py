@@ -104,20 +104,18 @@ def check_camera(
     )
 
 
+@dataclass(eq=False)
 class StepExecutor:
     """Executes step instances for a run into ``out_dir`` (acquisitions into ``raw_dir``)
     through ``client``. ``seed`` is the campaign's seed; ``sim`` says whether the daemon drives
     the simulated camera (None: ask the daemon, once).
     """
 
-    def __init__(
-        self, client: CamdClient, seed: int, out_dir: Path, raw_dir: Path, sim: bool | None
-    ) -> None:
-        self.client = client
-        self.seed = seed
-        self.out_dir = out_dir
-        self.raw_dir = raw_dir
-        self.sim = sim
+    client: CamdClient
+    seed: int
+    out_dir: Path
+    raw_dir: Path
+    sim: bool | None
 
     def execute(self, step: Any, key: str, names: dict[str, Any], level: Level) -> dict[str, Any]:
         """Carry out one step instance (``key``) with ``names`` (the parameters, the sweep's
