@@ -67,15 +67,8 @@ class BenchError(RuntimeError):
     """The bench cannot run or a viewer failed; the message says what to change."""
 
 
-def add_parser(which: Any) -> None:
-    """Register ``camd bench live`` on the ``camd bench`` subparsers."""
-    p = which.add_parser(
-        "live",
-        help="stream ingest with live viewers attached vs none",
-        description="Stream ingest of the daemon (frames and MB received per second) with N live "
-        "viewers attached (B) against none (A), in alternating rounds on one continuous stream "
-        "of the simulated hr400; prints the median B/A.",
-    )
+def add_options(p: argparse.ArgumentParser) -> None:
+    """The options of ``camd bench live`` but ``--json`` (camd.bench.command adds it)."""
     p.add_argument(
         "--rounds", type=int, default=DEFAULT_ROUNDS, help=f"A/B rounds ({DEFAULT_ROUNDS})"
     )
@@ -121,7 +114,6 @@ def add_parser(which: Any) -> None:
         help="the simulated camera on CPU 0 alone, the daemon and the viewers on the others, "
         "as on a test PC with the camera outside it (default: on with 2 CPUs or more)",
     )
-    p.add_argument("--json", action="store_true", help="print one JSON document")
 
 
 # -- which viewers --------------------------------------------------------------------------
@@ -487,7 +479,7 @@ def bench_live(
 ) -> dict[str, Any]:
     """Run the bench and return its figures (module docstring). ``progress(text)``, if given,
     is called with a line per phase."""
-    from camd.cli._daemon_proc import DaemonProcess
+    from camd.cli._daemon_proc import DaemonProcess, write_sim_config
     from camd.client import CamdClient
 
     if pin is None:
@@ -500,11 +492,7 @@ def bench_live(
     say = progress or (lambda text: None)
     load_before = os.getloadavg()[0]
     with tempfile.TemporaryDirectory(prefix="camd-bench-live-") as tmp:
-        config = Path(tmp) / "camd.toml"
-        config.write_text(
-            f'[sensor]\nname = "{PROFILE}"\n'
-            f'[sim]\nprofile = "{PROFILE}"\nframe_bank = {frame_bank}\nscene = "bars"\n'
-        )
+        config = write_sim_config(Path(tmp), PROFILE, frame_bank=frame_bank, scene="bars")
         with DaemonProcess(tmp, extra_args=["--config", str(config)]) as daemon:
             client = CamdClient(daemon.url, timeout_s=60, client="camd bench live")
             group: Viewers | None = None

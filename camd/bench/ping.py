@@ -55,23 +55,16 @@ MAX_PER_ROUND = 100_000  # the API's most PINGs per request
 CALIBRATION = 200  # round trips timed per side to size the rounds
 
 
-def add_parser(which: Any) -> None:
-    """Register ``camd bench ping`` on the ``camd bench`` subparsers."""
-    ping = which.add_parser(
-        "ping",
-        help="command round trip vs a bare pty echo",
-        description="Round trip of PING through the daemon and the simulated camera, against a "
-        "bare pty echo of the same bytes by a separate process, alternated in rounds.",
-    )
-    ping.add_argument(
+def add_options(p: argparse.ArgumentParser) -> None:
+    """The options of ``camd bench ping`` but ``--json`` (camd.bench.command adds it)."""
+    p.add_argument(
         "--count",
         type=int,
         default=0,
         help="round trips per side, in all (default 0: as many as fit in --seconds a round)",
     )
-    ping.add_argument("--size", type=int, default=16, help="PING payload bytes, 0..256 (16)")
-    add_round_options(ping)
-    ping.add_argument("--json", action="store_true", help="print one JSON document")
+    p.add_argument("--size", type=int, default=16, help="PING payload bytes, 0..256 (16)")
+    add_round_options(p)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -45,15 +45,8 @@ BANK_MB_MAX = 2048
 THREADS = {"read": "camd-frame-read", "dispatch": "camd-frame-dispatch", "tdi": "camd-tdi-worker"}
 
 
-def add_parser(which: Any) -> None:
-    """Register ``camd bench pipeline`` on the ``camd bench`` subparsers."""
-    p = which.add_parser(
-        "pipeline",
-        help="the host's scan path as fast as it goes: headroom over the line rate, CPU/frame",
-        description="Frames from an unpaced simulated FX3 through FrameStream, the batcher, "
-        "the TDI engine and the HDF5 recorder: the sustained frame rate against the fastest "
-        "line rate M rows allow, and the CPU per frame of each stage.",
-    )
+def add_options(p: argparse.ArgumentParser) -> None:
+    """The options of ``camd bench pipeline`` but ``--json`` (camd.bench.command adds it)."""
     p.add_argument(
         "--profiles",
         default=",".join(DEFAULT_PROFILES),
@@ -74,7 +67,6 @@ def add_parser(which: Any) -> None:
         default=0.0,
         help="size of the replayed frame bank, MB (default 0: twice the last-level cache)",
     )
-    p.add_argument("--json", action="store_true", help="print one JSON document")
 
 
 def _threads() -> dict[str, int]:

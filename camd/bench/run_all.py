@@ -118,14 +118,8 @@ BENCHES: tuple[Bench, ...] = (
 NAMES = tuple(b.name for b in BENCHES)
 
 
-def add_parser(which: Any) -> None:
-    """Register ``camd bench all`` on the ``camd bench`` subparsers."""
-    p = which.add_parser(
-        "all",
-        help="every benchmark, one document of ratios",
-        description="Runs every benchmark in its own process and prints their ratios against "
-        "their baselines (and the counts that must be zero) in one document.",
-    )
+def add_options(p: argparse.ArgumentParser) -> None:
+    """The options of ``camd bench all`` but ``--json`` (camd.bench.command adds it)."""
     p.add_argument(
         "--quick",
         action="store_true",
@@ -135,7 +129,6 @@ def add_parser(which: Any) -> None:
         "--only", type=_names, default=NAMES, metavar="NAMES", help="run only these, e.g. tdi,sim"
     )
     p.add_argument("--skip", type=_names, default=(), metavar="NAMES", help="leave these out")
-    p.add_argument("--json", action="store_true", help="print one JSON document")
 
 
 def _names(text: str) -> tuple[str, ...]:

@@ -30,14 +30,8 @@ DEFAULT_STAGES = 96
 DEFAULT_BANK = 64
 
 
-def add_parser(which: Any) -> None:
-    """Register ``camd bench scan`` on the ``camd bench`` subparsers."""
-    p = which.add_parser(
-        "scan",
-        help="a TDI scan at the sensor's line rate: lines/s, losses, CPU",
-        description="A scan through the daemon at the fastest line period M window rows allow, "
-        "against that line rate.",
-    )
+def add_options(p: argparse.ArgumentParser) -> None:
+    """The options of ``camd bench scan`` but ``--json`` (camd.bench.command adds it)."""
     p.add_argument("--profile", default="hr400", help="simulated camera profile (default hr400)")
     p.add_argument(
         "--stages", type=int, default=DEFAULT_STAGES, help=f"M = window rows ({DEFAULT_STAGES})"
@@ -57,7 +51,6 @@ def add_parser(which: Any) -> None:
         default=None,
         help="TDI line period (default: the fastest the window allows, M x T_row)",
     )
-    p.add_argument("--json", action="store_true", help="print one JSON document")
 
 
 def _cpu_s(pid: int) -> float | None:
@@ -93,15 +86,11 @@ def bench_scan(
     line_period_s: float | None = None,
 ) -> dict[str, Any]:
     """Run the scan and return the figures (see the module docstring)."""
-    from camd.cli._daemon_proc import DaemonProcess
+    from camd.cli._daemon_proc import DaemonProcess, write_sim_config
     from camd.client import CamdClient
 
     with tempfile.TemporaryDirectory(prefix="camd-bench-scan-") as tmp:
-        config = Path(tmp) / "camd.toml"
-        config.write_text(
-            f'[sensor]\nname = "{profile}"\n'
-            f'[sim]\nprofile = "{profile}"\nframe_bank = {frame_bank}\nscene = "bars:lux=3"\n'
-        )
+        config = write_sim_config(Path(tmp), profile, frame_bank=frame_bank, scene="bars:lux=3")
         with DaemonProcess(tmp, extra_args=["--config", str(config)]) as daemon:
             client = CamdClient(daemon.url)
             client.wait_ready(60)

@@ -36,14 +36,8 @@ DEFAULT_BANK = 64
 WARM_UP_S = 0.5
 
 
-def add_parser(which: Any) -> None:
-    """Register ``camd bench sim`` on the ``camd bench`` subparsers."""
-    p = which.add_parser(
-        "sim",
-        help="the simulated camera's frame rate against the sensor's line rate",
-        description="The simulated camera streaming unpaced into a reader in its own process: "
-        "frames/s against the fastest line rate a window of M rows allows.",
-    )
+def add_options(p: argparse.ArgumentParser) -> None:
+    """The options of ``camd bench sim`` but ``--json`` (camd.bench.command adds it)."""
     p.add_argument(
         "--profiles",
         default=",".join(DEFAULT_PROFILES),
@@ -66,7 +60,6 @@ def add_parser(which: Any) -> None:
         default="",
         help="the scene rendered, e.g. bars:lux=3 (docs/simulator.md; default: a flat field)",
     )
-    p.add_argument("--json", action="store_true", help="print one JSON document")
 
 
 class _SensorBridge:

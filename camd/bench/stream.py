@@ -55,26 +55,18 @@ BANK_MAX_BYTES = 2 << 30
 """The largest frame bank: the simulator holds it in memory."""
 
 
-def add_parser(which: Any) -> None:
-    """Register ``camd bench stream`` on the ``camd bench`` subparsers."""
-    stream = which.add_parser(
-        "stream",
-        help="frame ingest vs bare bulk reads on the same two threads",
-        description="Frame ingest (FrameStream with a no-op consumer) against bare bulk reads "
-        "of the same USB stream on the same two threads (reads into a ring of slots, handed "
-        "to a second thread untouched), from a simulated FX3 in its own process, alternated.",
-    )
-    stream.add_argument("--rows", type=int, default=534, help="window rows (default 534, hr400)")
-    stream.add_argument("--cols", type=int, default=2048, help="window columns (default 2048)")
-    add_round_options(stream)
-    stream.add_argument(
+def add_options(p: argparse.ArgumentParser) -> None:
+    """The options of ``camd bench stream`` but ``--json`` (camd.bench.command adds it)."""
+    p.add_argument("--rows", type=int, default=534, help="window rows (default 534, hr400)")
+    p.add_argument("--cols", type=int, default=2048, help="window columns (default 2048)")
+    add_round_options(p)
+    p.add_argument(
         "--bank-mb",
         type=float,
         default=0.0,
         help="the simulator's frame bank, MB (default 0: twice the last-level cache)",
     )
-    stream.add_argument("--queue-frames", type=int, default=8, help="FrameStream queue (default 8)")
-    stream.add_argument("--json", action="store_true", help="print one JSON document")
+    p.add_argument("--queue-frames", type=int, default=8, help="FrameStream queue (default 8)")
 
 
 def run(args: argparse.Namespace) -> int:

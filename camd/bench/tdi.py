@@ -89,50 +89,42 @@ class TdiMismatch(RuntimeError):
     """The engine's output differs from ``tdi_batch``'s on the same frames."""
 
 
-def add_parser(which: Any) -> None:
-    """Register ``camd bench tdi`` on the ``camd bench`` subparsers."""
-    tdi = which.add_parser(
-        "tdi",
-        help="TDI engine vs np.copyto of the same bytes, one thread each",
-        description="The TDI engine's integer, fractional, drift and push-one-frame paths "
-        "against np.copyto of the same input bytes, one thread each, in Gpix/s "
-        "of input, A/B alternated, on frame sets larger than the last-level cache.",
-    )
-    add_round_options(tdi)
-    tdi.add_argument(
+def add_options(p: argparse.ArgumentParser) -> None:
+    """The options of ``camd bench tdi`` but ``--json`` (camd.bench.command adds it)."""
+    add_round_options(p)
+    p.add_argument(
         "--block",
         type=int,
         default=0,
         help="frames per push_many call (default 0: the daemon's batch for the frame size)",
     )
-    tdi.add_argument(
+    p.add_argument(
         "--frames-mb",
         type=float,
         default=0.0,
         help="size of each frame set in MB (default 0: twice the last-level cache, at least "
         "256 MiB)",
     )
-    tdi.add_argument(
+    p.add_argument(
         "--kernel",
         choices=("auto", "numba", "numpy"),
         default="auto",
         help="the engine's kernel (default auto: numba when it imports)",
     )
-    tdi.add_argument(
+    p.add_argument(
         "--shapes",
         type=_parse_shapes,
         default=SHAPES,
         metavar="MxN[,MxN...]",
         help="stages x width to measure (default 96x2048,32x4096)",
     )
-    tdi.add_argument(
+    p.add_argument(
         "--paths",
         type=_parse_paths,
         default=tuple(PATHS),
         metavar="P[,P...]",
         help="paths to measure (default integer,fractional,drift,push)",
     )
-    tdi.add_argument("--json", action="store_true", help="print one JSON document")
 
 
 def _parse_shapes(text: str) -> tuple[tuple[int, int], ...]:

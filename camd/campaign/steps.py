@@ -18,7 +18,7 @@ import math
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal, cast
+from typing import Any, Literal, TypeVar, cast
 
 from camd.campaign.acquisitions import run_acquisition
 from camd.campaign.measurements import MEASUREMENTS, Acquired
@@ -39,6 +39,8 @@ from camd.campaign.state import instance_seed
 from camd.client import CamdClient, CamdError
 
 __all__ = ["Level", "StepExecutor", "check_camera", "plain"]
+
+T = TypeVar("T")
 
 
 @dataclass
@@ -102,20 +104,18 @@ def check_camera(
     )
 
 
+@dataclass(eq=False)
 class StepExecutor:
     """Executes step instances for a run into ``out_dir`` (acquisitions into ``raw_dir``)
     through ``client``. ``seed`` is the campaign's seed; ``sim`` says whether the daemon drives
     the simulated camera (None: ask the daemon, once).
     """
 
-    def __init__(
-        self, client: CamdClient, seed: int, out_dir: Path, raw_dir: Path, sim: bool | None
-    ) -> None:
-        self.client = client
-        self.seed = seed
-        self.out_dir = out_dir
-        self.raw_dir = raw_dir
-        self.sim = sim
+    client: CamdClient
+    seed: int
+    out_dir: Path
+    raw_dir: Path
+    sim: bool | None
 
     def execute(self, step: Any, key: str, names: dict[str, Any], level: Level) -> dict[str, Any]:
         """Carry out one step instance (``key``) with ``names`` (the parameters, the sweep's
@@ -253,24 +253,22 @@ class StepExecutor:
         return scan.summary()
 
     def _measure(self, step: MeasureStep, level: Level) -> dict[str, Any]:
-        inputs = {}
-        for arg, source in step.inputs.items():
-            try:
-                inputs[arg] = level.acquired(source)
-            except KeyError:
-                raise CampaignError(
-                    f"step {step.id}: inputs.{arg}: step {source!r} has not acquired anything "
-                    "before this step (inputs name an earlier acquire step in scope)"
-                ) from None
+        inputs = {
+            arg: _earlier(
+                level.acquired,
+                source,
+                f"step {step.id}: inputs.{arg}: step {source!r} has not acquired anything "
+                "before this step (inputs name an earlier acquire step in scope)",
+            )
+            for arg, source in step.inputs.items()
+        }
         kwargs = dict(step.args)
         for arg, name in step.from_results.items():
-            try:
-                kwargs[arg] = level.result(name)
-            except KeyError:
-                raise CampaignError(
-                    f"step {step.id}: from_results.{arg}: no result {name!r} measured before "
-                    "this step"
-                ) from None
+            kwargs[arg] = _earlier(
+                level.result,
+                name,
+                f"step {step.id}: from_results.{arg}: no result {name!r} measured before this step",
+            )
         produced = MEASUREMENTS[step.function](inputs, **kwargs)
         wanted = step.results if step.results is not None else list(produced)
         missing = [n for n in wanted if n not in produced]
@@ -315,6 +313,15 @@ class StepExecutor:
             raise CampaignError(
                 f"`{key}` drives the simulated camera only; this daemon runs hardware"
             )
+
+
+def _earlier(find: Callable[[str], T], name: str, refusal: str) -> T:
+    """What an earlier step left under ``name`` (``find`` raises KeyError where there is none);
+    CampaignError with ``refusal`` where there is none."""
+    try:
+        return find(name)
+    except KeyError:
+        raise CampaignError(refusal) from None
 
 
 def _resolved(step: Any, names: dict[str, Any]) -> Any:

@@ -22,8 +22,7 @@ import threading
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from types import TracebackType
-from typing import IO
+from typing import IO, TypedDict, Unpack
 
 import camd
 
@@ -207,12 +206,7 @@ class DaemonProcess:
     def __enter__(self) -> DaemonProcess:
         return self.start()
 
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.stop()
 
     # -- internals --------------------------------------------------------------------------------
@@ -278,27 +272,43 @@ def _child_env(overrides: Mapping[str, str] | None) -> dict[str, str]:
     return env
 
 
-def start_sim_daemon(
-    data_dir: Path,
-    profile: str,
-    *,
-    seed: int | None = None,
-    defects: Sequence[str] = (),
-    record_dirs: Sequence[Path] = (),
-) -> DaemonProcess:
-    """``camd serve --sim`` simulating camera ``profile`` (with ``seed`` and the deliberate
-    ``defects`` when given), its config, data and log in ``data_dir``, recording also into
-    ``record_dirs``; started. What ``camctl campaign run --sim`` and ``camd conform --sim`` run
-    on. DaemonStartError if it does not start."""
-    data_dir.mkdir(parents=True, exist_ok=True)
+class SimConfig(TypedDict, total=False):
+    """The simulator's settings a daemon's config may give (docs/config.md, [sim]), but its
+    profile: the default of each is the daemon's."""
+
+    seed: int
+    defects: Sequence[str]
+    frame_bank: int
+    scene: str
+
+
+def write_sim_config(data_dir: Path, profile: str, **sim: Unpack[SimConfig]) -> Path:
+    """``data_dir/camd.toml`` for ``camd serve --sim`` on camera ``profile`` (the simulator's and
+    the sensor's) with the ``sim`` settings given; its path."""
     lines = ["[sim]", f"profile = {json.dumps(profile)}"]
-    if seed is not None:
-        lines.append(f"seed = {int(seed)}")
-    if defects:
-        lines.append(f"defects = {json.dumps(list(defects))}")
+    if "seed" in sim:
+        lines.append(f"seed = {int(sim['seed'])}")
+    if sim.get("defects"):
+        lines.append(f"defects = {json.dumps(list(sim['defects']))}")
+    if "frame_bank" in sim:
+        lines.append(f"frame_bank = {int(sim['frame_bank'])}")
+    if "scene" in sim:
+        lines.append(f"scene = {json.dumps(sim['scene'])}")
     lines += ["[sensor]", f"name = {json.dumps(profile)}"]
     config = data_dir / "camd.toml"
     config.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return config
+
+
+def start_sim_daemon(
+    data_dir: Path, profile: str, *, record_dirs: Sequence[Path] = (), **sim: Unpack[SimConfig]
+) -> DaemonProcess:
+    """``camd serve --sim`` simulating camera ``profile`` with the ``sim`` settings given (a
+    ``seed``, deliberate ``defects``, ...), its config, data and log in ``data_dir``, recording
+    also into ``record_dirs``; started. What ``camctl campaign run --sim`` and ``camd conform
+    --sim`` run on. DaemonStartError if it does not start."""
+    data_dir.mkdir(parents=True, exist_ok=True)
+    config = write_sim_config(data_dir, profile, **sim)
     daemon = DaemonProcess(
         data_dir,
         record_dirs=record_dirs,

@@ -37,7 +37,7 @@ from camd.cli import (
     camctl_stream,
     camctl_wheel,
 )
-from camd.cli.camctl_device import positive_float
+from camd.cli.camctl_args import positive_float
 from camd.cli.camctl_sensor import CommandFailed, NothingRunning, UsageError
 from camd.client import DEFAULT_URL, CamdClient, CamdError, DaemonUnreachable
 from camd.datafile import bounded

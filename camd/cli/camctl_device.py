@@ -3,8 +3,8 @@ history), events, mode, reset, control and the emergency stop.
 
 Like every command group (``camctl_sensor``, ``camctl_stream``, ...): ``add_parsers`` adds the
 commands to camctl's parser, ``COMMANDS`` makes one API call each and returns the document
-``--json`` prints, ``RENDER`` prints it as tables (``camctl_format``). Also the argument types
-the global options share with them (``positive_float``, ``int_range``).
+``--json`` prints, ``RENDER`` prints it as tables (``camctl_format``); the argument types of
+their options are in ``camctl_args``.
 """
 
 from __future__ import annotations
@@ -16,6 +16,7 @@ from typing import Any
 from rich.console import Console
 from rich.text import Text
 
+from camd.cli.camctl_args import finite_number, int_range, positive_float
 from camd.cli.camctl_format import (
     control_text,
     estop_text,
@@ -27,38 +28,9 @@ from camd.cli.camctl_format import (
     telemetry_table,
 )
 from camd.cli.camctl_sensor import CommandFailed, UsageError
-from camd.cli.camctl_stream import finite_number
 from camd.client import CamdClient
 
 MODES = ("area", "tdi")
-
-
-def positive_float(text: str) -> float:
-    """An argument type: a number > 0 (``--timeout``, ``--ttl-s``)."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not value > 0:
-        raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
-    return value
-
-
-def int_range(lo: int, hi: int) -> Callable[[str], int]:
-    """An argument type: an integer from ``lo`` to ``hi``, named ``integer`` in argparse's
-    messages."""
-
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-        if not lo <= value <= hi:
-            raise argparse.ArgumentTypeError(f"must be from {lo} to {hi}, got {value}")
-        return value
-
-    parse.__name__ = "integer"
-    return parse
 
 
 def add_parsers(command: Callable[[str, str], argparse.ArgumentParser]) -> None:

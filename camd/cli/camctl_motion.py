@@ -27,7 +27,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.progress import BarColumn, Progress, TaskProgressColumn, TextColumn
 
-from camd.cli.camctl_stream import count_arg, finite_number, si_number
+from camd.cli.camctl_args import count_arg, finite_number, si_number
 from camd.client import CamdClient
 from camd.client_types import MotionStatus, StageOperationModel
 

@@ -31,13 +31,9 @@ from rich.console import Console
 from rich.markup import escape
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
+from camd.cli.camctl_args import count_arg, finite_number
 from camd.cli.camctl_sensor import CommandFailed, UsageError
-from camd.cli.camctl_stream import (
-    count_arg,
-    daemon_file,
-    finite_number,
-    refuse_a_stop_of_nothing,
-)
+from camd.cli.camctl_stream import daemon_file, refuse_a_stop_of_nothing
 from camd.client import CamdClient
 from camd.client_types import ScanResponse
 

@@ -26,6 +26,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
+from camd.cli.camctl_args import actions
 from camd.client import CamdClient
 from camd.client_types import RegisterConfig
 from camd.sensor.config_file import ConfigFileError, format_configuration, parse_configuration
@@ -65,13 +66,7 @@ def _assignment(text: str) -> tuple[str, int | str]:
 def add_parsers(command: Callable[[str, str], argparse.ArgumentParser]) -> None:
     """Add the sensor commands through camctl's ``command(name, help)`` factory."""
     p = command("reg", "read, write, dump, diff, save and load sensor registers")
-    reg = p.add_subparsers(dest="reg_command", metavar="ACTION", required=True)
-
-    def action(name: str, help_text: str) -> argparse.ArgumentParser:
-        sp = reg.add_parser(name, help=help_text, description=help_text)
-        sp.add_argument("--json", action="store_true", default=argparse.SUPPRESS,
-                        help="print exactly one JSON document on stdout")  # fmt: skip
-        return sp
+    action = actions(p, "reg_command")
 
     sp = action("read", "read one register by name or address (e.g. WIN_ROWS, 0x11)")
     sp.add_argument("key", metavar="NAME|ADDR")

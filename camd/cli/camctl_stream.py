@@ -22,9 +22,7 @@ absolute path the daemon answers.
 from __future__ import annotations
 
 import argparse
-import math
 import os
-import re
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -32,6 +30,7 @@ from typing import Any
 from rich.console import Console
 from rich.markup import escape
 
+from camd.cli.camctl_args import actions, count_arg, finite_number, number_within
 from camd.cli.camctl_sensor import CommandFailed, NothingRunning, UsageError
 from camd.client import CamdClient
 from camd.client_types import StreamResponse
@@ -40,55 +39,7 @@ DEFAULT_FRAMES = 100
 _HEADLINE = ("frames", "lost", "corrupt", "overruns", "mpix_per_s", "mbyte_per_s")
 
 
-def count_arg(text: str) -> int:
-    """argparse type: a whole number >= 0 (decimal or 0x hex)."""
-    try:
-        value = int(text, 0)
-    except ValueError:
-        value = -1
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number >= 0")
-    return value
-
-
-_WITH_UNIT = re.compile(r"\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*([a-zµ/]+)\s*")
-_TO_SI = {"m": 1.0, "cm": 1e-2, "mm": 1e-3, "um": 1e-6, "µm": 1e-6, "m/s": 1.0,
-          "cm/s": 1e-2, "mm/s": 1e-3, "um/s": 1e-6, "µm/s": 1e-6}  # fmt: skip
-
-
-def si_number(text: str) -> float:
-    """argparse type: a finite number in the SI unit the option names, written without one;
-    ``100mm`` is refused with the number to give instead (0.1)."""
-    match = _WITH_UNIT.fullmatch(text)
-    if match is not None and match.group(2) in _TO_SI:
-        value = float(match.group(1)) * _TO_SI[match.group(2)]
-        what = "speed in m/s" if match.group(2).endswith("/s") else "distance in metres"
-        raise argparse.ArgumentTypeError(
-            f"{text!r} is not a number: give the {what}, without a unit, e.g. {value:g} for "
-            f"{match.group(1)} {match.group(2)}"
-        )
-    return finite_number(text)
-
-
-def finite_number(text: str) -> float:
-    """argparse type: a finite number (nan and inf are refused here, not by the daemon)."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"must be a finite number, got {text}")
-    return value
-
-
-def _speed(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        value = -1.0
-    if not 0.0 <= value <= 10.0:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a speed in m/s between 0 and 10")
-    return value
+_speed = number_within(0.0, 10.0, "{text!r} is not a speed in m/s between 0 and 10")
 
 
 def add_parsers(command: Callable[[str, str], argparse.ArgumentParser]) -> None:
@@ -124,13 +75,7 @@ def add_parsers(command: Callable[[str, str], argparse.ArgumentParser]) -> None:
     p.add_argument("--binning", action="store_true", help="FPGA-side 2x2 binning")
 
     p = command("sim", "the simulated camera's world: scene, stage, stream faults")
-    sim = p.add_subparsers(dest="sim_command", metavar="ACTION", required=True)
-
-    def action(name: str, help_text: str) -> argparse.ArgumentParser:
-        sp = sim.add_parser(name, help=help_text, description=help_text)
-        sp.add_argument("--json", action="store_true", default=argparse.SUPPRESS,
-                        help="print exactly one JSON document on stdout")  # fmt: skip
-        return sp
+    action = actions(p, "sim_command")
 
     sp = action("scene", "set the scene, e.g. 'flat:photons=2e4', 'bars:lux=3', 'edge:angle_deg=5'")
     sp.add_argument("spec", metavar="SPEC")

@@ -26,6 +26,7 @@ from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
+from camd.cli.camctl_args import actions, number_within
 from camd.cli.camctl_sensor import UsageError
 from camd.cli.camctl_stream import daemon_file
 from camd.client import CamdClient
@@ -63,14 +64,7 @@ def _positive(text: str) -> float:
     return value
 
 
-def _speed(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        value = -1.0
-    if not 0.0 <= value <= 360.0:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a speed in deg/s from 0 to 360")
-    return value
+_speed = number_within(0.0, 360.0, "{text!r} is not a speed in deg/s from 0 to 360")
 
 
 def _on_off(text: str) -> bool:
@@ -97,13 +91,7 @@ def add_parsers(command: Callable[[str, str], argparse.ArgumentParser]) -> None:
         "wheel",
         "the filter wheel: status, speed, delay compensation, acquisitions, azimuth measurement",
     )
-    sub = p.add_subparsers(dest="wheel_command", metavar="ACTION")
-
-    def action(name: str, help_text: str) -> argparse.ArgumentParser:
-        sp = sub.add_parser(name, help=help_text, description=help_text)
-        sp.add_argument("--json", action="store_true", default=argparse.SUPPRESS,
-                        help="print exactly one JSON document on stdout")  # fmt: skip
-        return sp
+    action = actions(p, "wheel_command", required=False)
 
     action("status", "speed, angle, compensation and camd's numbers for the exposure set now")
     sp = action("speed", "turn the wheel at a constant speed (0 stops it)")

@@ -30,6 +30,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 from urllib.parse import quote
 
+from camd.cli.camctl_args import int_range
+
 if TYPE_CHECKING:
     from rich.console import Console
 
@@ -82,7 +84,7 @@ def add_parser(sub: Any) -> None:
     )
     p.add_argument(
         "--pings",
-        type=_pings_arg,
+        type=int_range(1, 100_000),
         default=DEFAULT_PINGS,
         metavar="N",
         help=f"number of pings, 1..100000 (default {DEFAULT_PINGS})",
@@ -98,16 +100,6 @@ def add_parser(sub: Any) -> None:
         action="store_true",
         help="skip step 10, the two short campaign runs (about 20 s)",
     )
-
-
-def _pings_arg(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if not 1 <= value <= 100_000:
-        raise argparse.ArgumentTypeError(f"must be from 1 to 100000, got {value}")
-    return value
 
 
 class DemoFailed(Exception):

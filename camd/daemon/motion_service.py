@@ -48,7 +48,7 @@ from camd.daemon.stage_drive import (
     wait_stopped,
 )
 from camd.daemon.state import Request
-from camd.daemon.transaction import Apply
+from camd.daemon.transaction import Apply, apply_one
 from camd.motion.stage import (
     MOVE_DURATION_MAX_S,
     STOPPED_STATES,
@@ -294,13 +294,14 @@ class MotionService:
             with stage_errors():
                 stage.run(speed)
 
-        with Apply("stage run", self._events, source="motion") as apply:
-            apply.step(
-                lambda: run_at(speed_m_s),
-                lambda: run_at(was),
-                f"stage speed back at {was * 1e3:.6g} mm/s",
-            )
-            apply.done()
+        apply_one(
+            "stage run",
+            self._events,
+            lambda: run_at(speed_m_s),
+            lambda: run_at(was),
+            f"stage speed back at {was * 1e3:.6g} mm/s",
+            source="motion",
+        )
         return self.status()
 
     def _check_not_stopped_hard(self) -> StageReading:
@@ -357,13 +358,14 @@ class MotionService:
             with stage_errors():
                 return stage.move_to(request.position_m, request.speed_m_s)
 
-        with Apply("stage move", self._events, source="motion") as apply:
-            duration = apply.step(
-                move,
-                lambda: self._back_to(stood),
-                f"stage stopped and back at {stood * 1e3:.3f} mm",
-            )
-            apply.done()
+        duration = apply_one(
+            "stage move",
+            self._events,
+            move,
+            lambda: self._back_to(stood),
+            f"stage stopped and back at {stood * 1e3:.3f} mm",
+            source="motion",
+        )
         speed = limits.max_speed_m_s if request.speed_m_s is None else request.speed_m_s
         self._start_operation("move", before, request.position_m, speed, duration)
         if request.wait:

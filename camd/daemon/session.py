@@ -62,7 +62,7 @@ from camd.daemon.sensor_service import SensorService
 from camd.daemon.state import Request, State, Trigger
 from camd.daemon.stream_service import StreamService
 from camd.daemon.telemetry_service import TelemetryService
-from camd.daemon.transaction import Apply
+from camd.daemon.transaction import apply_one
 from camd.daemon.wheel_service import WheelService
 from camd.link import CommandLink, Response
 from camd.pipeline.background import BackgroundCapture
@@ -363,11 +363,13 @@ class DeviceSession:
         self._require(Request.MODE)
         device = self.device
         before = device.mode or "area"
-        with Apply("mode change", self._event) as apply:
-            now = apply.step(
-                lambda: device.set_mode(mode), lambda: device.set_mode(before), f"mode {before}"
-            )
-            apply.done()
+        now = apply_one(
+            "mode change",
+            self._event,
+            lambda: device.set_mode(mode),
+            lambda: device.set_mode(before),
+            f"mode {before}",
+        )
         return ModeResponse(mode=cast(Any, now))
 
     def reset(self) -> StatusResponse:

@@ -201,3 +201,20 @@ class Apply:
             note = inner.words()
             level = "error" if "could NOT" in note else "warning"
             self._events(level, self._source, f"{self.what}: a part of it failed; {note}")
+
+
+def apply_one(
+    what: str,
+    events: EventLog,
+    action: Callable[[], T],
+    undo: Callable[[], Any],
+    label: str,
+    source: str = "api",
+) -> T:
+    """A request that changes one thing: ``action`` as the one step of an ``Apply`` of its own
+    (``what`` the request, ``undo`` what puts it back if the answer is lost, ``label`` what that
+    restores); what ``action`` returns."""
+    with Apply(what, events, source) as apply:
+        result = apply.step(action, undo, label)
+        apply.done()
+    return result

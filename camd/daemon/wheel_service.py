@@ -47,7 +47,7 @@ from camd.daemon.models import (
 from camd.daemon.sensor_service import RegisterSnapshot, SensorService
 from camd.daemon.state import Request
 from camd.daemon.stream_service import StreamService, StreamStart
-from camd.daemon.transaction import Apply
+from camd.daemon.transaction import Apply, apply_one
 from camd.daemon.wheel_plan import WheelContext, WheelPlan, exposure_now, plan_wheel
 from camd.link.frame_stream import ReceivedFrame
 from camd.motion.wheel import FilterWheel, FpgaWheel, WheelSpeedError
@@ -173,13 +173,14 @@ class WheelService:
         except WheelSpeedError as exc:
             raise BadRequest(str(exc)) from None
         before = wheel.read().speed_deg_s
-        with Apply("wheel speed change", self._events, source="wheel") as apply:
-            apply.step(
-                lambda: wheel.set_speed(speed_deg_s),
-                lambda: wheel.set_speed(before),
-                f"wheel speed {before:g} deg/s",
-            )
-            apply.done()
+        apply_one(
+            "wheel speed change",
+            self._events,
+            lambda: wheel.set_speed(speed_deg_s),
+            lambda: wheel.set_speed(before),
+            f"wheel speed {before:g} deg/s",
+            source="wheel",
+        )
         nominal = self.profile.speed_deg_s.value
         message = f"filter wheel speed set to {speed_deg_s:g} deg/s"
         level = "info"
@@ -212,13 +213,14 @@ class WheelService:
                 )
         wheel = self.wheel
         before = wheel.read().compensation
-        with Apply("delay compensation switch", self._events, source="wheel") as apply:
-            apply.step(
-                lambda: wheel.set_compensation(on),
-                lambda: wheel.set_compensation(before),
-                f"delay compensation {'on' if before else 'off'}",
-            )
-            apply.done()
+        apply_one(
+            "delay compensation switch",
+            self._events,
+            lambda: wheel.set_compensation(on),
+            lambda: wheel.set_compensation(before),
+            f"delay compensation {'on' if before else 'off'}",
+            source="wheel",
+        )
         self.device.log_event(
             "info", "wheel", f"exposure delay compensation {'on' if on else 'off'}"
         )

@@ -247,6 +247,15 @@ class BackgroundCapture:
             self._error = why
         job.total = None
 
+    def _begin(self, job: _Job | None) -> None:
+        """From nothing: a capture of ``job`` ("capturing"), or none at all ("none")."""
+        with self._lock:
+            self._job = self._last_job = job
+            self._state = "none" if job is None else "capturing"
+            self._background = None
+            self._saved_to = []
+            self._error = None
+
     # -- requests (any thread) --------------------------------------------------------------------
 
     def start(self, frames: int = FRAMES_DEFAULT) -> None:
@@ -255,13 +264,7 @@ class BackgroundCapture:
             raise ValueError(
                 f"frames must be {FRAMES_MIN}..{FRAMES_MAX} for a background, got {frames}"
             )
-        job = _Job(frames)
-        with self._lock:
-            self._job = self._last_job = job
-            self._state = "capturing"
-            self._background = None
-            self._saved_to = []
-            self._error = None
+        self._begin(_Job(frames))
 
     def fail(self, why: str, then: str) -> bool:
         """Fail the running capture (the daemon: its stream ended) with the message "``why``
@@ -275,12 +278,7 @@ class BackgroundCapture:
 
     def clear(self) -> None:
         """Drop the background and stop a capture: the state is "none" again."""
-        with self._lock:
-            self._job = self._last_job = None
-            self._state = "none"
-            self._background = None
-            self._saved_to = []
-            self._error = None
+        self._begin(None)
 
     def ready(self) -> Background | None:
         """The background, when one is ready."""

@@ -27,7 +27,6 @@ from __future__ import annotations
 import collections
 import contextlib
 import os
-import random
 import shutil
 import subprocess
 import time
@@ -38,9 +37,9 @@ from typing import Any
 
 import h5py
 
-from camd.cli._daemon_proc import DaemonProcess, DaemonStartError
+from camd.cli._daemon_proc import DaemonProcess
 from camd.client import CamdError
-from camd.soak.workload import SoakAborted, _CountingClient, write_hr400_config
+from camd.soak.workload import SoakAborted, SoakRun, _CountingClient, write_hr400_config
 
 __all__ = ["EdgeSettings", "EdgeSoak", "fill_disk", "mounted_tmpfs"]
 
@@ -107,22 +106,16 @@ class EdgeSettings:
     timeout_s: float = 60.0
 
 
-class EdgeSoak:
+class EdgeSoak(SoakRun[EdgeSettings]):
     """One edge soak (module docstring); ``progress`` gets a line of text now and then."""
 
     def __init__(self, settings: EdgeSettings, progress: Callable[[str], None]) -> None:
-        self.s = settings
-        self.progress = progress
-        self.rng = random.Random(settings.seed)
-        self.daemon: DaemonProcess | None = None
-        self.client: _CountingClient | None = None
+        super().__init__(settings, progress)
         self.counts: collections.Counter[str] = collections.Counter()
         self.violations: list[str] = []
         self.files: dict[str, Any] = {"checked": 0, "unopenable": []}
         self.checked: set[Path] = set()
         self.job_dirs: list[Path] = []
-        self.error: str | None = None
-        self.interrupted = False
         self.t0 = 0.0
         self.fill_at: list[float] = []
         self.fill_until: float | None = None
@@ -144,32 +137,19 @@ class EdgeSoak:
 
     def _run_on(self, disk: Path) -> None:
         config = write_hr400_config(self.s.work_dir, self.s.seed)
-        self.daemon = DaemonProcess(
+        daemon = DaemonProcess(
             disk,
             extra_args=["--config", str(config)],
             env={"CAMD_TOKEN": ""},
             log_name="../daemon.log",  # beside the disk: a full disk must not stop the log
             start_timeout_s=120.0,
         )
-        try:
-            self.daemon.start()
-        except DaemonStartError as exc:
-            raise SoakAborted(f"the daemon did not start: {exc}") from None
-        try:
-            try:
-                self._loop(disk)
-            except KeyboardInterrupt:
-                self.interrupted = True
-            except SoakAborted as exc:
-                self.error = str(exc)
-            except CamdError as exc:
-                self.error = f"{exc.message} (API code {exc.code})"
-        finally:
+
+        def empty_disk() -> None:
             with contextlib.suppress(OSError):
                 (disk / "filler").unlink(missing_ok=True)
-            if self.client is not None:
-                self.client.close()
-            self.daemon.stop()
+
+        self._on_daemon(daemon, lambda: self._loop(disk), tidy=empty_disk)
         # What is left on the disk once the daemon has stopped (its files closed).
         self.checked.clear()
         self._check(sorted(disk.rglob("*.h5")))
@@ -208,13 +188,11 @@ class EdgeSoak:
             self._line()
 
     def _alive(self) -> None:
-        assert self.daemon is not None
-        if not self.daemon.running:
+        try:
+            super()._alive()
+        except SoakAborted:
             self.counts["crashes"] += 1
-            raise SoakAborted(
-                f"the daemon exited (status {self.daemon.stop()}) during the soak; its log is "
-                f"{self.daemon.log_path}"
-            )
+            raise
 
     def _estop_gap(self) -> float:
         return self.s.estop_every_s * self.rng.uniform(0.8, 1.2)

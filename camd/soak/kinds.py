@@ -49,25 +49,18 @@ class Frames:
             self.host[key] += int(stats.get(key, 0))
 
 
+@dataclass(eq=False)
 class WorkloadKinds:
     """The workload's items, one method a kind (``ping``, ``stream``, ...), each given the
     item's number (the name of the files it makes). ``client`` makes the requests, ``rng``
     draws their sizes, ``work_dir`` holds their files, ``frames`` counts their frames;
     ``line_period_s`` is the registers' line period (a scan runs at a multiple of it)."""
 
-    def __init__(
-        self,
-        client: CamdClient,
-        rng: random.Random,
-        work_dir: Path,
-        frames: Frames,
-        line_period_s: float,
-    ) -> None:
-        self.client = client
-        self.rng = rng
-        self.work_dir = work_dir
-        self.frames = frames
-        self.line_period_s = line_period_s
+    client: CamdClient
+    rng: random.Random
+    work_dir: Path
+    frames: Frames
+    line_period_s: float
 
     def run(self, kind: str, item: int) -> None:
         """Run item number ``item``, of ``kind``."""

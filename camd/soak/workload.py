@@ -33,12 +33,12 @@ import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, cast
+from typing import Any, Generic, Protocol, TypeVar, cast
 
 import httpx
 
 from camd.bench.common import proc_status_int
-from camd.cli._daemon_proc import DaemonProcess
+from camd.cli._daemon_proc import DaemonProcess, write_sim_config
 from camd.client import CamdClient, CamdError
 from camd.soak.kinds import MISSING_KINDS, WINDOW_ROWS, Frames, WorkloadKinds
 
@@ -94,12 +94,7 @@ def build_inject(ber: float, drop: float, frame_faults: float, extra: str = "") 
 
 def write_hr400_config(work_dir: Path, seed: int) -> Path:
     """``work_dir/camd.toml``: the soaks' daemon, a simulated hr400 seeded with ``seed``."""
-    config = work_dir / "camd.toml"
-    config.write_text(
-        f'[sim]\nprofile = "hr400"\nseed = {seed}\n[sensor]\nname = "hr400"\n',
-        encoding="utf-8",
-    )
-    return config
+    return write_sim_config(work_dir, "hr400", seed=seed)
 
 
 def inject_text(keys: dict[str, float]) -> str:
@@ -172,13 +167,77 @@ class _CountingClient(CamdClient):
             self.errors.append(" ".join(text.split())[:400])
 
 
-class Soak:
-    """One soak run (module docstring). ``progress`` gets a line of text now and then."""
+class _Seeded(Protocol):
+    seed: int
 
-    def __init__(self, settings: SoakSettings, progress: Callable[[str], None]) -> None:
+
+SettingsT = TypeVar("SettingsT", bound=_Seeded)
+
+
+class SoakRun(Generic[SettingsT]):
+    """What both soaks share: their settings (``s``), a progress line now and then, a random
+    generator seeded from the settings, their daemon and counting client, and how a run on the
+    daemon starts and ends (``interrupted`` by Ctrl-C, or ``error`` set by a lost daemon or a
+    refused set-up)."""
+
+    def __init__(self, settings: SettingsT, progress: Callable[[str], None]) -> None:
         self.s = settings
         self.progress = progress
         self.rng = random.Random(settings.seed)
+        self.daemon: DaemonProcess | None = None
+        self.client: _CountingClient | None = None
+        self.interrupted = False
+        self.error: str | None = None
+
+    def _on_daemon(
+        self,
+        daemon: DaemonProcess,
+        body: Callable[[], None],
+        *,
+        then: Callable[[], None] = lambda: None,
+        tidy: Callable[[], None] = lambda: None,
+    ) -> None:
+        """Start ``daemon`` (SoakAborted if it does not start) and run ``body`` on it: Ctrl-C,
+        SoakAborted and an API error end the body, noted, and ``then`` runs; whatever happens,
+        ``tidy`` runs, the client is closed and the daemon stopped."""
+        from camd.cli._daemon_proc import DaemonStartError
+
+        self.daemon = daemon
+        try:
+            daemon.start()
+        except DaemonStartError as exc:
+            raise SoakAborted(f"the daemon did not start: {exc}") from None
+        try:
+            try:
+                body()
+            except KeyboardInterrupt:
+                self.interrupted = True
+            except SoakAborted as exc:
+                self.error = str(exc)
+            except CamdError as exc:  # the set-up itself failed
+                self.error = f"{exc.message} (API code {exc.code})"
+            then()
+        finally:
+            tidy()
+            if self.client is not None:
+                self.client.close()
+            daemon.stop()
+
+    def _alive(self) -> None:
+        """SoakAborted, with the daemon's exit status and log, if the daemon has exited."""
+        assert self.daemon is not None
+        if not self.daemon.running:
+            raise SoakAborted(
+                f"the daemon exited (status {self.daemon.stop()}) during the soak; its log is "
+                f"{self.daemon.log_path}"
+            )
+
+
+class Soak(SoakRun[SoakSettings]):
+    """One soak run (module docstring). ``progress`` gets a line of text now and then."""
+
+    def __init__(self, settings: SoakSettings, progress: Callable[[str], None]) -> None:
+        super().__init__(settings, progress)
         self.kinds: dict[str, _KindStats] = {k: _KindStats() for k in KINDS}
         self.frames = Frames()
         self.check_failures = 0
@@ -186,8 +245,6 @@ class Soak:
         self.items = 0
         self.samples: list[dict[str, Any]] = []
         self.t0 = 0.0
-        self.daemon: DaemonProcess | None = None
-        self.client: _CountingClient | None = None
         self._kinds: WorkloadKinds | None = None  # once the client and the line period are known
         self.sim_pid: int | None = None
         self.link_before: dict[str, Any] = {}
@@ -195,8 +252,6 @@ class Soak:
         self.sim_before: dict[str, int] = {}
         self.sim_after: dict[str, int] = {}
         self.line_period_s = 0.0
-        self.interrupted = False
-        self.error: str | None = None
         self.started_s = 0.0
         self.warmup_s = 0.0
 
@@ -205,35 +260,16 @@ class Soak:
     def run(self) -> dict[str, Any]:
         """Run the soak; the result document (``camd.soak.command`` prints it). SoakAborted if the
         daemon does not start; a daemon lost later ends the run early with ``error`` set."""
-        from camd.cli._daemon_proc import DaemonStartError
-
         data = self.s.work_dir / "daemon"
         config = write_hr400_config(self.s.work_dir, self.s.seed)
-        self.daemon = DaemonProcess(
+        daemon = DaemonProcess(
             data,
             inject=inject_text(self.s.inject),
             record_dirs=[self.s.work_dir],  # stares, scans and campaigns beside its data
             extra_args=["--config", str(config)],
             env={"CAMD_TOKEN": ""},
         )
-        try:
-            self.daemon.start()
-        except DaemonStartError as exc:
-            raise SoakAborted(f"the daemon did not start: {exc}") from None
-        try:
-            try:
-                self._run_on_daemon()
-            except KeyboardInterrupt:
-                self.interrupted = True
-            except SoakAborted as exc:
-                self.error = str(exc)
-            except CamdError as exc:  # the set-up itself failed
-                self.error = f"{exc.message} (API code {exc.code})"
-            self._collect_end()
-        finally:
-            if self.client is not None:
-                self.client.close()
-            self.daemon.stop()
+        self._on_daemon(daemon, self._run_on_daemon, then=self._collect_end)
         return self.result()
 
     def _collect_end(self) -> None:
@@ -292,14 +328,6 @@ class Soak:
                 self._sample("periodic")
                 next_sample += self.s.sample_s
         self._collect_end()
-
-    def _alive(self) -> None:
-        assert self.daemon is not None
-        if not self.daemon.running:
-            raise SoakAborted(
-                f"the daemon exited (status {self.daemon.stop()}) during the soak; its log is "
-                f"{self.daemon.log_path}"
-            )
 
     def _sim_stats(self) -> dict[str, int]:
         assert self.client is not None

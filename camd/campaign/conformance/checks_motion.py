@@ -13,7 +13,7 @@ from camd.client_types import StreamFrameHeader
 
 from .checks_link import stage_kept, wait_stopped
 from .checks_stream import frame_stream_used
-from .engine import CheckFailed, Evidence, Unit, check_function
+from .engine import CheckFailed, Evidence, Unit, check_function, conclude
 from .raw import ack_values, answer_text, send
 
 MOVE_STEPS = 200  # a short move: tens of milliseconds at half the maximum rate
@@ -62,9 +62,7 @@ def stage_move_check(unit: Unit) -> Evidence:
                 problems.append(
                     f"move {name}: stopped at {got['steps']} steps ({got['state']}), not {want}"
                 )
-        if problems:
-            raise CheckFailed("; ".join(problems), evidence)
-        return evidence
+        return conclude(problems, evidence)
 
 
 @check_function("stage_limits")
@@ -99,9 +97,7 @@ def stage_limits_check(unit: Unit) -> Evidence:
         wrong = [f"{c['case']}: {c['answer']}" for c in cases if not c["ok"]]
         if after != start:
             wrong.append(f"the stage moved from {start} to {after} steps")
-        if wrong:
-            raise CheckFailed("; ".join(wrong), evidence)
-        return evidence
+        return conclude(wrong, evidence)
 
 
 @check_function("stage_home")

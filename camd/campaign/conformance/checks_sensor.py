@@ -12,7 +12,7 @@ from typing import Any
 
 from camd.sensor.regmap import RegisterSpec, RegisterValueError
 
-from .engine import CheckFailed, Evidence, Unit, check_function
+from .engine import CheckFailed, Evidence, Unit, check_function, conclude
 from .raw import ack_values, answer_text, send
 
 
@@ -83,9 +83,7 @@ def registers_rw_check(unit: Unit) -> Evidence:
     # Test values of the LVDS registers (training word, test pattern) may untrain the link.
     if trained and ack_values(unit, "GET_SENSOR")["trained"] != "yes":
         evidence["retrained"] = bool(unit.client.train()["trained"])
-    if wrong:
-        raise CheckFailed("; ".join(wrong), evidence)
-    return evidence
+    return conclude(wrong, evidence)
 
 
 @check_function("registers_ro")
@@ -107,9 +105,7 @@ def registers_ro_check(unit: Unit) -> Evidence:
         elif not reg.volatile and after != before:
             wrong.append(f"{reg.name} changed from 0x{before:X} to 0x{after:X}")
     evidence: Evidence = {"registers": rows}
-    if wrong:
-        raise CheckFailed("; ".join(wrong), evidence)
-    return evidence
+    return conclude(wrong, evidence)
 
 
 @check_function("registers_wo")
@@ -154,6 +150,4 @@ def lvds_training_check(unit: Unit) -> Evidence:
         problems.append(f"GET_LANE says lanes {unlocked} are not locked")
     if sensor["trained"] != "yes":
         problems.append("GET_SENSOR says the link is not trained")
-    if problems:
-        raise CheckFailed("; ".join(problems), evidence)
-    return evidence
+    return conclude(problems, evidence)

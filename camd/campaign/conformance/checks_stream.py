@@ -20,7 +20,7 @@ from camd.client import CamdError
 from camd.client_types import StreamFrameHeader, StreamResponse
 from camd.protocol.stream import FrameFlags
 
-from .engine import CheckFailed, CheckNotRun, Evidence, Unit, check_function
+from .engine import CheckFailed, CheckNotRun, Evidence, Unit, check_function, conclude
 from .raw import ack_values
 
 STREAM_FRAMES = 12  # enough differences for a median period, few enough to be quick
@@ -132,9 +132,7 @@ def stream_headers_check(unit: Unit) -> Evidence:
         if bad:
             problems.append(f"frame {i} (counter {h['counter']}): {', '.join(bad)} wrong")
             evidence.setdefault("wrong_headers", []).append(_brief(h))
-    if problems:
-        raise CheckFailed("; ".join(problems[:5]), evidence)
-    return evidence
+    return conclude(problems[:5], evidence)
 
 
 @check_function("stream_counters")
@@ -170,9 +168,7 @@ def stream_counters_check(unit: Unit) -> Evidence:
             f"device sent {s.response['frames_sent']}, host saw {len(counters)} headers, of "
             f"{STREAM_FRAMES} asked"
         )
-    if problems:
-        raise CheckFailed("; ".join(problems), evidence)
-    return evidence
+    return conclude(problems, evidence)
 
 
 @check_function("stream_crc")

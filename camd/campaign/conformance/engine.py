@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import time
 import traceback
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any, Literal
 
@@ -73,6 +73,14 @@ class CheckFailed(Exception):
         super().__init__(reason)
         self.reason = reason
         self.evidence = evidence
+
+
+def conclude(problems: Sequence[str], evidence: Evidence) -> Evidence:
+    """A check's end: its ``evidence`` when it found no problem, else CheckFailed with every
+    problem in one reason (``; `` between them) and the same evidence."""
+    if problems:
+        raise CheckFailed("; ".join(problems), evidence)
+    return evidence
 
 
 @dataclass(frozen=True, slots=True)

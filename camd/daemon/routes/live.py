@@ -8,6 +8,7 @@ import json
 from typing import Any
 
 import anyio
+import numpy.typing as npt
 from fastapi import APIRouter, Query, Response, WebSocket, WebSocketDisconnect
 
 from camd.daemon.api_token import TOKEN_COOKIE, token_ok
@@ -159,14 +160,7 @@ def get_live_background_frame(session: Session) -> Response:
             "capture one while something streams: POST /api/v1/live/background "
             '{"frames": 16}, then poll GET /api/v1/live/background',
         )
-    return Response(
-        content=background.pixels.astype("<f4", copy=False).tobytes(),
-        media_type="application/octet-stream",
-        headers={
-            "X-Camd-Background": json.dumps(background.meta()),
-            "Cache-Control": "no-store",
-        },
-    )
+    return _float32(background.pixels, "X-Camd-Background", json.dumps(background.meta()))
 
 
 @router.get("/lines", response_class=Response, responses=FRAME_RESPONSES)
@@ -203,12 +197,15 @@ def get_live_lines(
             "no scan has run since the daemon started: the live lines are those of the "
             "running or last TDI scan; start one (`camctl scan --stages 8 --lines 1000`)",
         )
+    # Compact: with 2048 lines the flags and indices make a header of tens of kB.
+    return _float32(chunk.data, "X-Camd-Lines", json.dumps(chunk.meta(), separators=(",", ":")))
+
+
+def _float32(pixels: npt.NDArray[Any], header: str, description: str) -> Response:
+    """``pixels`` as raw little-endian float32, row by row, with their JSON ``description`` in
+    the header ``header``; never cached (the next answer differs)."""
     return Response(
-        content=chunk.data.astype("<f4", copy=False).tobytes(),
+        content=pixels.astype("<f4", copy=False).tobytes(),
         media_type="application/octet-stream",
-        # Compact: with 2048 lines the flags and indices make a header of tens of kB.
-        headers={
-            "X-Camd-Lines": json.dumps(chunk.meta(), separators=(",", ":")),
-            "Cache-Control": "no-store",
-        },
+        headers={header: description, "Cache-Control": "no-store"},
     )
