@@ -567,3 +567,33 @@ def test_the_simulated_camera_is_spawned_before_the_daemon_imports_its_session(
         assert spawned[0] < where[0], f"{module} was imported before the simulator was started"
     # What only a scan's quicklook needs (OpenCV, 25 ms of a core) is not loaded at start.
     assert not [text for text in lines if text.split("|")[-1].strip() == "cv2"]
+
+
+# -- the stop: the simulated camera ends at once -------------------------------------------------------
+
+
+def test_the_simulated_camera_ends_without_the_interpreters_teardown(tmp_path: Path) -> None:
+    # Stopped, the simulator has closed its pty and sockets and has nothing left to save; the
+    # interpreter's teardown after that (0.1-0.5 s) only delayed each daemon's stop, which waits
+    # for it. An exit handler registered before it runs shows whether the teardown ran.
+    code = (
+        "import atexit, runpy; atexit.register(print, 'teardown ran', flush=True); "
+        "runpy.run_module('firmware_models', run_name='__main__', alter_sys=True)"
+    )
+    link = tmp_path / "camera.tty"
+    proc = subprocess.Popen(
+        [sys.executable, "-c", code, "--json", "--link", str(link)],
+        cwd=REPO, env=child_env(), stdout=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        line = read_line(proc, 30.0)
+        assert json.loads(line)["link"] == str(link), line
+        proc.send_signal(signal.SIGTERM)
+        rest, _ = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0
+    assert "teardown ran" not in rest
+    assert not link.exists()  # its own cleanup did run
