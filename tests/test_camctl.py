@@ -273,6 +273,11 @@ def test_lossy_line_1000_pings_all_succeed_through_retries(tmp_path: Path) -> No
         extra_args=["--config", str(config)],
         env=NO_TOKEN,
     ) as daemon:
+        # The camera first: "camd serving" says the API serves, not that the camera has been
+        # probed (and on this line its probe and training take retries); camctl run in process
+        # asks within milliseconds of that line, where its own start used to take 0.4 s.
+        with CamdClient(daemon.url) as client:
+            client.wait_ready(60)
         doc = camctl_json(daemon.url, "ping", "--count", "1000")
         link = camctl_json(daemon.url, "link")
     assert (doc["count"], doc["ok"], doc["failed"]) == (1000, 1000, 0), doc.get("errors")

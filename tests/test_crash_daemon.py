@@ -2,7 +2,8 @@
 a new daemon on the same data directory; and a disk that fills up under a running recording.
 
 Each test runs a real ``camd serve --sim`` (the simulated camera through the same code paths)
-and opens the files afterwards with plain h5py and camd's readers.
+and opens the files afterwards with plain h5py and camd's readers. The full-disk tests that leave
+the daemon serving share one, put back as it was found after each (tests/daemon_reset.py).
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ import sys
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -27,6 +29,7 @@ from camd.client import CamdClient, CamdError
 from camd.store.recording import read_recording
 from camd.store.tdi_recording import read_tdi_scan
 from tests.crash_support import NO_HEADROOM, blocks_past_end, fill_disk, small_disk, wait_for
+from tests.daemon_reset import Found, put_back
 
 REPO_ROOT = str(Path(__file__).resolve().parent.parent)
 NO_TOKEN = {"CAMD_TOKEN": ""}
@@ -45,6 +48,30 @@ def _daemon(data: Path) -> Iterator[tuple[DaemonProcess, CamdClient]]:
     finally:
         client.close()
         daemon.stop()
+
+
+@dataclass(frozen=True)
+class Shared:
+    """The module's daemon for the tests that do not kill it, with its data directory."""
+
+    client: CamdClient
+    data: Path
+
+
+@pytest.fixture(scope="module")
+def shared_daemon(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Shared, Found]]:
+    data = tmp_path_factory.mktemp("camd-crash-shared") / "data"
+    with _daemon(data) as (_, client):
+        yield Shared(client, data), Found.of(client)
+
+
+@pytest.fixture
+def shared(shared_daemon: tuple[Shared, Found]) -> Iterator[Shared]:
+    """The module's daemon, put back as it was found after each test (tests/daemon_reset.py):
+    the full-disk tests stop its recordings, not the daemon, and leave it serving."""
+    daemon, found = shared_daemon
+    yield daemon
+    put_back(daemon.client, found)
 
 
 def _kill9(daemon: DaemonProcess) -> None:
@@ -150,10 +177,12 @@ def test_a_daemon_killed_mid_stare_leaves_a_file_that_the_next_one_repairs(
     assert read_recording(tmp_path / "after.h5").attrs["finished"] is True
 
 
-def test_a_full_disk_stops_a_stare_and_the_daemon_keeps_serving(tmp_path: Path) -> None:
-    data = tmp_path / "data"
+def test_a_full_disk_stops_a_stare_and_the_daemon_keeps_serving(
+    tmp_path: Path, shared: Shared
+) -> None:
+    client, data = shared.client, shared.data
     # 2.2 MB frames, flushed once a second: room for a few seconds of them.
-    with small_disk(tmp_path / "small", 400) as disk, _daemon(data) as (_, client):
+    with small_disk(tmp_path / "small", 400) as disk:
         out = disk / "stare.h5"
         client.start_stream(0, mode="area", record=str(out))
         wait_for("5 frames on disk", lambda: client.stream()["frames_flushed"] >= 5)
@@ -180,9 +209,11 @@ def test_a_full_disk_stops_a_stare_and_the_daemon_keeps_serving(tmp_path: Path) 
         assert list((data / "open-recordings").glob("*.json")) == []
 
 
-def test_a_full_disk_stops_a_scan_and_the_daemon_keeps_serving(tmp_path: Path) -> None:
-    data = tmp_path / "data"
-    with small_disk(tmp_path / "small", 64) as disk, _daemon(data) as (_, client):
+def test_a_full_disk_stops_a_scan_and_the_daemon_keeps_serving(
+    tmp_path: Path, shared: Shared
+) -> None:
+    client, data = shared.client, shared.data
+    with small_disk(tmp_path / "small", 64) as disk:
         out = disk / "scan.h5"
         client.start_scan(8, 0, out=str(out), quicklook=False, drive_stage=False)
         wait_for("200 lines on disk", lambda: client.scan()["lines_flushed"] >= 200)
@@ -211,12 +242,12 @@ def _journal(data: Path) -> list[str]:
 
 
 def test_a_stare_that_fills_the_disk_is_a_507_and_keeps_every_frame_written(
-    tmp_path: Path,
+    tmp_path: Path, shared: Shared
 ) -> None:
-    data = tmp_path / "data"
+    client, data = shared.client, shared.data
     # 2.2 MB frames at up to 60 a second: 150 of them fit the 400 MiB disk with the headroom,
     # so the stare starts.
-    with small_disk(tmp_path / "small", 400) as disk, _daemon(data) as (_, client):
+    with small_disk(tmp_path / "small", 400) as disk:
         out = disk / "stare.h5"
         answer: dict[str, Any] = {}
 
@@ -230,7 +261,16 @@ def test_a_stare_that_fills_the_disk_is_a_507_and_keeps_every_frame_written(
         thread = threading.Thread(target=stare)
         thread.start()
         # The disk fills while the stare runs (150 frames take seconds; filling, a fraction).
-        wait_for("3 frames", lambda: client.stream()["stats"]["frames"] >= 3)
+        # This stare's frames: the daemon is shared, and its stream document shows the last
+        # test's stream until this one starts.
+        wait_for(
+            "3 frames",
+            lambda: (
+                (doc := client.stream())["recording"] == str(out)
+                and doc["streaming"]
+                and doc["stats"]["frames"] >= 3
+            ),
+        )
         assert _journal(data) == [str(out)]  # noted while it is open
         fill_disk(disk)
         thread.join(WAIT_S)
@@ -298,10 +338,10 @@ def test_a_daemon_killed_on_a_full_disk_leaves_a_file_the_next_repairs_there(
 
 
 def test_a_start_the_disk_cannot_hold_is_refused_with_nothing_left_behind(
-    tmp_path: Path,
+    tmp_path: Path, shared: Shared
 ) -> None:
-    data = tmp_path / "data"
-    with small_disk(tmp_path / "small", 20) as disk, _daemon(data) as (_, client):
+    client, data = shared.client, shared.data
+    with small_disk(tmp_path / "small", 20) as disk:
         # The issue's stare: 8 frames of the hr400's 534 x 2048 window into 20 MiB fit only
         # without the 4 MiB the recorder keeps to close the file if the disk fills.
         out = disk / "stare.h5"

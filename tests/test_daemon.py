@@ -530,3 +530,70 @@ def test_simulator_killed_then_replaced(tmp_path: Path) -> None:
                 new_sim.wait()
         code = d.stop()
     assert code == 0, d.stderr()
+
+
+# -- the start: the simulated camera starts while the daemon still imports ---------------------------
+
+
+def test_the_simulated_camera_is_spawned_before_the_daemon_imports_its_session(
+    tmp_path: Path,
+) -> None:
+    # The simulator's start (its own imports, about 0.4 s of a core) runs beside the daemon's
+    # import of the session, the API and uvicorn, not after them (camd/daemon/serve.py). Seen
+    # in order, not timed: Python's import-time report (PYTHONPROFILEIMPORTTIME) and the
+    # daemon's log share its stderr, so the spawn's log line comes before the session's import.
+    d = Daemon(tmp_path, FAST)
+    env = child_env()
+    env["PYTHONPROFILEIMPORTTIME"] = "1"
+    with open(d.stderr_path, "w") as err:
+        d.proc = subprocess.Popen(d.cmd, cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=err, text=True)  # fmt: skip
+    try:
+        line = read_line(d.proc, 30.0)
+        assert line.startswith("camd serving http://"), f"{line!r}\n{d.stderr()[-3000:]}"
+        d.url = line.split()[2]
+        assert d.status()["link"]["sim_pid"] is not None
+    finally:
+        code = d.stop()
+    assert code == 0, d.stderr()[-3000:]
+    lines = d.stderr().splitlines()
+    spawned = [i for i, text in enumerate(lines) if "starting the simulated camera:" in text]
+    imported = {
+        module: [i for i, text in enumerate(lines) if text.split("|")[-1].strip() == module]
+        for module in ("camd.daemon.session", "camd.daemon.api", "uvicorn")
+    }
+    assert len(spawned) == 1, lines[-40:]
+    for module, where in imported.items():
+        assert len(where) == 1, (module, where)
+        assert spawned[0] < where[0], f"{module} was imported before the simulator was started"
+    # What only a scan's quicklook needs (OpenCV, 25 ms of a core) is not loaded at start.
+    assert not [text for text in lines if text.split("|")[-1].strip() == "cv2"]
+
+
+# -- the stop: the simulated camera ends at once -------------------------------------------------------
+
+
+def test_the_simulated_camera_ends_without_the_interpreters_teardown(tmp_path: Path) -> None:
+    # Stopped, the simulator has closed its pty and sockets and has nothing left to save; the
+    # interpreter's teardown after that (0.1-0.5 s) only delayed each daemon's stop, which waits
+    # for it. An exit handler registered before it runs shows whether the teardown ran.
+    code = (
+        "import atexit, runpy; atexit.register(print, 'teardown ran', flush=True); "
+        "runpy.run_module('firmware_models', run_name='__main__', alter_sys=True)"
+    )
+    link = tmp_path / "camera.tty"
+    proc = subprocess.Popen(
+        [sys.executable, "-c", code, "--json", "--link", str(link)],
+        cwd=REPO, env=child_env(), stdout=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        line = read_line(proc, 30.0)
+        assert json.loads(line)["link"] == str(link), line
+        proc.send_signal(signal.SIGTERM)
+        rest, _ = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0
+    assert "teardown ran" not in rest
+    assert not link.exists()  # its own cleanup did run

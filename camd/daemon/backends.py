@@ -31,22 +31,7 @@ log = logging.getLogger(__name__)
 
 def simulator_process(config: Config) -> SimulatorProcess | None:
     """The simulated camera to spawn (``link.device = "sim"``), or None for hardware."""
-    if config.link.device != "sim":
-        return None
-    sim = config.sim
-    return SimulatorProcess(
-        config.sim_link_path,
-        inject=sim.inject,
-        hk_period_s=sim.hk_period_s,
-        seed=sim.seed,
-        profile=sim.profile,
-        spi_socket=config.sim_spi_socket,
-        usb_socket=config.sim_usb_socket,
-        scene=sim.scene,
-        frame_bank=sim.frame_bank,
-        stage=config.stage.profile,
-        defects=tuple(sim.defects),
-    )
+    return SimulatorProcess.for_config(config)
 
 
 def simulator_control(device: DeviceAccess) -> SimulatorControl:

@@ -2,22 +2,19 @@
 
 Order of events: validate the config and the data directory (exit 2 on error), bind the listening
 socket (exit 2 if the port is in use; so that it fails before anything is spawned), start the
-device session (the simulator too with ``--sim``), serve HTTP with uvicorn, and once listening
-print exactly one line on stdout, ``camd serving http://HOST:PORT`` with the actual port, and
-send READY=1. SIGTERM or SIGINT: STOPPING=1, finish the open requests, stop the session
-(terminating the simulator), exit 0.
+simulator with ``--sim`` (spawned at once, waited for by the session), import and start the
+device session, serve HTTP with uvicorn (camd/daemon/server.py), and once listening print exactly
+one line on stdout, ``camd serving http://HOST:PORT`` with the actual port, and send READY=1.
+SIGTERM or SIGINT: STOPPING=1, finish the open requests, stop the session (terminating the
+simulator), exit 0.
 
-uvicorn runs with ``TimedH11Protocol`` (a client must send each request within
-``api.request_timeout_s``) and the log handlers filter every record through ``RedactSecrets``
-(the token never reaches the log).
+The log handlers filter every record through ``RedactSecrets`` (the token never reaches the
+log).
 """
 
 from __future__ import annotations
 
 import argparse
-import asyncio
-import gc
-import json
 import logging
 import os
 import re
@@ -27,18 +24,15 @@ import sqlite3
 import sys
 from pathlib import Path
 from types import FrameType
-from typing import Any, cast
+from typing import Any
 
-import h11
-import uvicorn
-from uvicorn.protocols.http.h11_impl import H11Protocol
-
-from camd.daemon import backends, heap, notify
-from camd.daemon.api import create_app
+# Light on purpose: the session, the API and uvicorn (camd/daemon/server.py) are imported in
+# run(), once the simulated camera is spawned, so that its start runs beside their loading.
+from camd.daemon import heap
 from camd.daemon.config import Config, ConfigError, load_config, with_overrides
 from camd.daemon.errors import SimulatorError
 from camd.daemon.realtime import REALTIME
-from camd.daemon.session import DeviceSession
+from camd.daemon.simulator import SimulatorProcess
 
 log = logging.getLogger("camd.serve")
 
@@ -47,7 +41,6 @@ EXIT_RUNTIME = 1  # could not start the camera session
 EXIT_CONFIG = (
     2  # the config or the command line is invalid: also a port in use, an unusable data dir
 )
-GRACEFUL_SHUTDOWN_S = 5  # open HTTP requests get this long to finish after SIGTERM
 
 
 def add_parser(sub: Any) -> None:
@@ -150,137 +143,6 @@ def _bind(host: str, port: int) -> socket.socket:
 def url_host(host: str) -> str:
     """``host`` as written in a URL (IPv6 literals in brackets)."""
     return f"[{host}]" if ":" in host and not host.startswith("[") else host
-
-
-class _Server(uvicorn.Server):
-    """uvicorn's server, telling us when it listens and when a stop signal arrives."""
-
-    def __init__(self, config: uvicorn.Config, session: DeviceSession, url: str) -> None:
-        super().__init__(config)
-        self.session = session
-        self.url = url
-        self.stopping_sent = False
-
-    async def startup(self, sockets: list[socket.socket] | None = None) -> None:
-        await super().startup(sockets=sockets)
-        if not self.started:
-            return
-        # The one line on stdout that scripts and tests wait for.
-        print(f"camd serving {self.url}", flush=True)
-        notify.ready(f"serving {self.url}; camera {self.session.state.value}")
-
-    def handle_exit(self, sig: int, frame: FrameType | None) -> None:
-        """SIGTERM/SIGINT: uvicorn's graceful stop, plus STOPPING=1 and the session's abort."""
-        super().handle_exit(sig, frame)
-        if not self.stopping_sent:
-            self.stopping_sent = True
-            notify.stopping(f"stopping on signal {signal.Signals(sig).name}")
-        self.session.abort()  # a long ping run must not hold the shutdown
-
-
-class TimedH11Protocol(H11Protocol):
-    """uvicorn's HTTP/1.1 protocol with a deadline on each request's arrival.
-
-    uvicorn times out a keep-alive connection between requests, but not a request that is
-    being sent: a client that sends half its headers, or a body shorter than its
-    Content-Length, or nothing at all after connecting, holds its connection (and the memory
-    of what it sent) for ever. Here a client has ``request_timeout_s`` (``api.request_timeout_s``)
-    from the moment the daemon waits for a request (the connection opened, or the previous
-    answer went out) until the request is complete, headers and body; trickling bytes does not
-    extend it. Then a client that had sent part of a request gets a 408 with the API's error
-    body, and the connection is closed. While the daemon works on a complete request (a stare
-    may take minutes), no deadline runs. A subclass, not a middleware: the headers are the
-    server's to read, and the app sees a request only once they are in.
-    """
-
-    request_timeout_s = 10.0  # set on the subclass that `timed_protocol` makes
-
-    def connection_made(self, transport: asyncio.BaseTransport) -> None:
-        self._deadline: asyncio.TimerHandle | None = None
-        self._seen_state: object = h11.IDLE  # the client's side of h11's state machine
-        self._upgraded = False  # a WebSocket's now: no HTTP request on it to wait for
-        super().connection_made(cast(asyncio.Transport, transport))  # a stream's, from asyncio
-        self._watch_request()
-
-    def data_received(self, data: bytes) -> None:
-        super().data_received(data)
-        self._watch_request()
-
-    def on_response_complete(self) -> None:
-        super().on_response_complete()
-        self._watch_request()
-
-    def handle_websocket_upgrade(self, event: h11.Request) -> None:
-        # The WebSocket protocol takes the connection over; h11 here still waits for the
-        # upgrade request's end, which never comes through this object.
-        self._upgraded = True
-        self._cancel_deadline()
-        super().handle_websocket_upgrade(event)
-
-    def connection_lost(self, exc: Exception | None) -> None:
-        self._cancel_deadline()
-        super().connection_lost(exc)
-
-    def _cancel_deadline(self) -> None:
-        if self._deadline is not None:
-            self._deadline.cancel()
-            self._deadline = None
-
-    def _watch_request(self) -> None:
-        """Run the deadline while the daemon waits for (the rest of) a request; a new one gets
-        a fresh deadline, a complete one none."""
-        if self._upgraded:
-            return
-        state = self.conn.their_state
-        waiting = state in (h11.IDLE, h11.SEND_BODY)
-        new_request = state is h11.IDLE and self._seen_state is not h11.IDLE
-        self._seen_state = state
-        if not waiting or new_request:
-            self._cancel_deadline()
-        if waiting and self._deadline is None and not self.transport.is_closing():
-            self._deadline = self.loop.call_later(self.request_timeout_s, self._timed_out)
-
-    def _timed_out(self) -> None:
-        self._deadline = None
-        if self.transport.is_closing():
-            return
-        state = self.conn.their_state
-        cycle = self.cycle if state is h11.SEND_BODY else None
-        if state is h11.SEND_BODY:
-            partial = cycle is not None and not cycle.response_started
-        else:  # between requests: part of the next one's headers, or nothing
-            partial = bool(self.conn.trailing_data[0])
-        if cycle is not None:
-            cycle.disconnected = True  # the app's answer, if it ever comes, goes nowhere
-            cycle.message_event.set()  # and a read of the body ends
-        if partial:
-            self.transport.write(self._timeout_answer())
-        log.debug(
-            "closed a connection from %s: its request was not complete within %g s",
-            self.client,
-            self.request_timeout_s,
-        )
-        self.transport.close()
-
-    def _timeout_answer(self) -> bytes:
-        body = json.dumps(
-            {
-                "error": f"the request was not complete within {self.request_timeout_s:g} s "
-                "(api.request_timeout_s): its headers or its body stopped coming; the "
-                "connection is closed",
-                "code": "request_timeout",
-            }
-        ).encode()
-        head = (
-            "HTTP/1.1 408 Request Timeout\r\ncontent-type: application/json\r\n"
-            f"content-length: {len(body)}\r\nconnection: close\r\n\r\n"
-        )
-        return head.encode() + body
-
-
-def timed_protocol(request_timeout_s: float) -> type[TimedH11Protocol]:
-    """The HTTP protocol class uvicorn is to use, with this request timeout."""
-    return type("TimedH11Protocol", (TimedH11Protocol,), {"request_timeout_s": request_timeout_s})
 
 
 # A token in a logged URL (?token=, the camd_token cookie) or header (Bearer): uvicorn logs each
@@ -407,55 +269,26 @@ def run(args: argparse.Namespace) -> int:
         print(f"camd serve: {refusal}", file=sys.stderr)
         sock.close()
         return EXIT_CONFIG
-    # Said once the daemon will run: a refused start's one line of error stands alone.
-    backends.log_choice(config)
-    # What is loaded by now (the modules, their classes and pydantic models: most of the
-    # daemon's objects) lives as long as the daemon: kept out of the collector's passes, which
-    # then walk only what the daemon makes as it runs. A full pass holds every thread, the
-    # link's and the stream's too; the interpreter's passes at exit took 0.5-0.9 s of each stop.
-    gc.freeze()
-    session = DeviceSession(config)
+    # The simulated camera starts now, beside the import of the daemon's heavy half (the
+    # session, the API, uvicorn: camd/daemon/server.py), not after it.
+    simulator = SimulatorProcess.for_config(config)
     try:
-        session.start()
+        if simulator is not None:
+            simulator.spawn()
+        from camd.daemon import server
+
+        session = server.start_session(config, simulator)
     except SimulatorError as exc:
         print(f"camd serve: cannot start the simulated camera: {exc}", file=sys.stderr)
-        session.stop()
         sock.close()
         return EXIT_CONFIG if exc.usage else EXIT_RUNTIME
     except (OSError, sqlite3.Error) as exc:
         print(f"camd serve: {unusable_data_dir(config.daemon.data_dir, exc)}", file=sys.stderr)
-        session.stop()
         sock.close()
         return EXIT_CONFIG
-
-    # Campaign jobs' workers reach the API at this URL; jobs the last daemon was running when
-    # it stopped run on (their workers wait until the API answers).
-    session.campaigns.jobs.attach(url, config.api.token)
-    session.campaigns.jobs.resume_interrupted()
-    server = _Server(
-        uvicorn.Config(
-            create_app(session, token=config.api.token),
-            http=timed_protocol(config.api.request_timeout_s),
-            log_config=None,  # keep our logging setup (uvicorn's would print access logs to stdout)
-            log_level=config.daemon.log_level,
-            access_log=config.daemon.log_level == "debug",
-            lifespan="off",
-            timeout_graceful_shutdown=GRACEFUL_SHUTDOWN_S,
-            # The live view's frames are noise-dominated 16-bit pixels that deflate barely
-            # shrinks, and compressing each frame once per viewer cost the stream's ingest ~10 %
-            # with three viewers (`camd bench live`): send them as they are.
-            ws_per_message_deflate=False,
-        ),
-        session,
-        url,
-    )
     try:
-        if not stop_requested:
-            server.run(sockets=[sock])
+        server.serve_api(session, config, sock, url, bool(stop_requested))
     finally:
-        if not server.stopping_sent:
-            notify.stopping("stopping")
-        session.stop()
         sock.close()
     log.info("camd stopped")
     return EXIT_OK

@@ -59,6 +59,7 @@ from camd.daemon.output_paths import RECORDINGS_FOLDER, SCANS_FOLDER
 from camd.daemon.realtime import REALTIME
 from camd.daemon.scan_service import ScanService
 from camd.daemon.sensor_service import SensorService
+from camd.daemon.simulator import SimulatorProcess
 from camd.daemon.state import Request, State, Trigger
 from camd.daemon.stream_service import StreamService
 from camd.daemon.telemetry_service import TelemetryService
@@ -96,8 +97,17 @@ def _join_camd_threads(timeout_s: float) -> None:
 class DeviceSession:
     """The daemon's view of one camera; see the module docstring."""
 
-    def __init__(self, config: Config, *, dictionary: Dictionary | None = None) -> None:
+    def __init__(
+        self,
+        config: Config,
+        *,
+        dictionary: Dictionary | None = None,
+        simulator: SimulatorProcess | None = None,
+    ) -> None:
         self.config = config
+        # `camd serve` spawns the simulated camera before it imports this module (serve.py);
+        # otherwise ``start`` spawns it, as the config says.
+        self._simulator = simulator or backends.simulator_process(config)
         self.dictionary = dictionary or load_dictionary()
         # Built first: the device access's event log writes into its archive.
         self.telemetry = TelemetryService(config, self._event, self._red_limit)
@@ -183,7 +193,7 @@ class DeviceSession:
         self.telemetry.open()
         self._event("info", "daemon", f"camd {camd.__version__} started (pid {os.getpid()})")
         self._recover_recordings()
-        self.connection.open(backends.simulator_process(self.config))
+        self.connection.open(self._simulator)
         # Compile (or load) the TDI kernels now rather than when the first scan starts.
         if self.config.daemon.tdi_warm_up:
             threading.Thread(target=_warm_tdi, name="camd-tdi-warm-up", daemon=True).start()

@@ -5,6 +5,10 @@ the simulated USB devices, waits for its one JSON start line, and stops it (SIGT
 SIGKILL). The child gets SIGTERM when the daemon dies, even by SIGKILL (Linux). ``start`` may
 be called again after the child died: the same command, so the same options, pty link and
 sockets (``camd.daemon.sim_supervisor`` does that); never after ``stop``.
+
+``camd serve`` spawns the child (``spawn``) as soon as its config is read, before it imports the
+session, the API and uvicorn: the child's start (its own imports, about 0.4 s of a core) then
+runs beside the daemon's instead of after it, and ``start`` only waits for its line.
 """
 
 from __future__ import annotations
@@ -19,10 +23,13 @@ import subprocess
 import sys
 import threading
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import camd
 from camd.daemon.errors import SimulatorError
+
+if TYPE_CHECKING:
+    from camd.daemon.config import Config
 
 log = logging.getLogger(__name__)
 
@@ -63,6 +70,8 @@ class SimulatorProcess:
         defects: tuple[str, ...] = (),
     ) -> None:
         self.link_path = link_path
+        self.spi_socket = spi_socket
+        self.usb_socket = usb_socket
         self.command = [
             sys.executable,
             "-m",
@@ -95,6 +104,28 @@ class SimulatorProcess:
         self._proc: subprocess.Popen[str] | None = None
         self._lock = threading.Lock()  # start and stop: a stopped process is never started
         self._stopped = False
+        self._spawned_unwaited = False  # spawn() ran; the next start() waits for that child
+
+    @classmethod
+    def for_config(cls, config: Config) -> SimulatorProcess | None:
+        """The simulated camera the config asks for (``link.device = "sim"``), not started;
+        None for hardware."""
+        if config.link.device != "sim":
+            return None
+        sim = config.sim
+        return cls(
+            config.sim_link_path,
+            inject=sim.inject,
+            hk_period_s=sim.hk_period_s,
+            seed=sim.seed,
+            profile=sim.profile,
+            spi_socket=config.sim_spi_socket,
+            usb_socket=config.sim_usb_socket,
+            scene=sim.scene,
+            frame_bank=sim.frame_bank,
+            stage=config.stage.profile,
+            defects=tuple(sim.defects),
+        )
 
     @property
     def pid(self) -> int | None:
@@ -146,19 +177,25 @@ class SimulatorProcess:
         except OSError:
             pass  # already gone, or not a symlink: nothing of ours to remove
 
+    def spawn(self) -> None:
+        """Start the child now without waiting for its start line (``start`` waits for it):
+        what the daemon does meanwhile runs beside the child's start. Starts no thread: the
+        daemon limits its malloc arenas before its first thread (camd/daemon/heap.py)."""
+        with self._lock:
+            self._spawn_locked()
+            self._spawned_unwaited = True
+
     def start(self, timeout_s: float = SIM_START_TIMEOUT_S) -> dict[str, Any]:
-        """Spawn the simulator and return its JSON start line as a dict.
+        """Spawn the simulator (unless ``spawn`` just did) and return its JSON start line as a
+        dict.
 
         Raises SimulatorError if it exits or stays silent for ``timeout_s`` (it is then killed),
         or if ``stop`` was called (the daemon is shutting down).
         """
         with self._lock:
-            if self._stopped:
-                raise SimulatorError("the simulated camera is not started: the daemon is stopping")
-            if self._proc is not None and self._proc.poll() is None:
-                raise RuntimeError(f"the simulated camera already runs (pid {self._proc.pid})")
-            self.info = {}
-            self._spawn()
+            if not self._spawned_unwaited:
+                self._spawn_locked()
+            self._spawned_unwaited = False
         proc = self._proc
         assert proc is not None and proc.stdout is not None
         lines: queue.Queue[str] = queue.Queue()
@@ -191,7 +228,20 @@ class SimulatorProcess:
             ) from None
         return self.info
 
+    def _spawn_locked(self) -> None:
+        if self._stopped:
+            raise SimulatorError("the simulated camera is not started: the daemon is stopping")
+        if self._proc is not None and self._proc.poll() is None:
+            raise RuntimeError(f"the simulated camera already runs (pid {self._proc.pid})")
+        self.info = {}
+        self._spawn()
+
     def _spawn(self) -> None:
+        # The child listens on its sockets there: private to the daemon's user (made first:
+        # the link's folder may be the same one).
+        for socket_path in (self.spi_socket, self.usb_socket):
+            if socket_path is not None:
+                socket_path.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
         self.link_path.parent.mkdir(parents=True, exist_ok=True)
         env = dict(os.environ)
         # The child is not the service: it must not talk to systemd in our name.
