@@ -93,6 +93,7 @@ class FpgaModel:
         )
         self.stream.source = self.imaging_path.frame
         self.stream.prepare = self.imaging_path.prepare
+        self.stream.ready = self.imaging_path.ready
         self.stream.defects = self.imaging_path.defects = defects
         # The scan stage: a stepper the MOTOR_* commands drive (firmware_models.fpga_motion).
         stage_profile = stage if isinstance(stage, StageProfile) else load_stage_profile(stage)

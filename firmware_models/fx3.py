@@ -135,6 +135,12 @@ class StreamEngine:
         # count), so that it can make them together (the imaging pipeline renders them in
         # one go); None: the source makes each frame when asked.
         self.prepare: Callable[[int, int], None] | None = None
+        # Called once as each stream begins, before its clock starts and before any frame is
+        # counted: the source's first-frame work (the imaging pipeline's compiled kernels,
+        # fixed pattern and noise bank, up to a second of a core when cold), so that a frame
+        # in progress is never that far behind its time; a host draining a stop gives the
+        # frames the camera counted one read timeout (docs/stream.md). None: nothing to do.
+        self.ready: Callable[[], None] | None = None
         self.server = server
         self.inject = inject if inject is not None else InjectSpec()
         self.on_done = on_done
@@ -308,6 +314,11 @@ class StreamEngine:
         return max(1, min(MAX_BLOCK_FRAMES, int(BLOCK_S / stream.period_s)))
 
     def _stream(self, stream: _Stream) -> None:
+        if self.ready is not None:
+            try:
+                self.ready()
+            except Exception:  # the first frame then does the work, and fails if it must
+                log.exception("stream engine: getting the source ready failed")
         pacer = Pacer(time.monotonic())  # deadlines of a paced stream (firmware_models.pacing)
         overflow = False  # frames were undelivered since the last one sent
         while True:

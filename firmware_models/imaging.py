@@ -121,6 +121,7 @@ class ImagingPipeline:
         # Frames the engine announced it will ask for next (``prepare``), and frames made
         # ahead in a block, waiting to be asked for: counter -> frame.
         self._announced: tuple[int, int] = (0, 0)  # (first counter, count)
+        self._ready_window: tuple[int, int, int, int] | None = None  # warmed for (ready)
         self._made: dict[int, tuple[FrameHeader, npt.NDArray[np.uint16]]] = {}
 
     @property
@@ -229,6 +230,16 @@ class ImagingPipeline:
         the end (STOP_STREAM's acknowledge, or its own event): no STREAM_DONE from here."""
         produced = self.engine.stop(notify=False)
         return produced, self.next_counter
+
+    def ready(self) -> None:
+        """The stream engine's ``ready``: the camera's first-frame work for the present window
+        (``CameraModel.warm_up``), once per window, before a stream's clock starts. Not under
+        the FPGA's lock, which commands need meanwhile (the work changes no register state)."""
+        with self.lock:
+            window = self.camera.window()
+        if window != self._ready_window:
+            self.camera.warm_up()
+            self._ready_window = window
 
     def prepare(self, first_counter: int, count: int) -> None:
         """The stream engine will ask for frames ``first_counter`` .. ``+ count - 1`` next (all

@@ -184,6 +184,38 @@ def test_n_frames_in_n_out_bit_exact(server: StreamSocketServer, bank: BankSourc
     engine.close()
 
 
+def test_a_stream_begins_once_its_source_is_ready_and_a_stop_meanwhile_counts_no_frame(
+    server: StreamSocketServer, bank: BankSource
+) -> None:
+    """The source's first-frame work (``ready``: the imaging pipeline's kernels, fixed pattern
+    and noise bank, up to a second cold) comes before the stream's first frame is counted. A
+    stop meanwhile ends the stream with 0 frames produced, none to drain: before, the frame in
+    progress was counted while it waited on that work, STOP_STREAM said 1 sent, and a host
+    that heard nothing for one read timeout counted it lost."""
+    done: list[tuple[int, int]] = []
+    engine = StreamEngine(bank, server=server, on_done=lambda n, nxt: done.append((n, nxt)))
+    _backend, dev = connected(server)
+    working, release = threading.Event(), threading.Event()
+
+    def ready() -> None:
+        working.set()
+        assert release.wait(30.0)
+
+    engine.ready = ready
+    engine.start(0, 0.001, first_counter=7)
+    assert working.wait(30.0)
+    assert engine.stop() == 0  # asked during the work: no frame counted
+    release.set()
+    assert engine.wait_idle(30.0)
+    assert done == [(0, 7)] and engine.counters.produced == engine.counters.sent == 0
+    # Ready, a stream counts and sends its frames from its first.
+    engine.ready = lambda: None
+    engine.start(3, 0.0, pace=False)
+    assert [split(read_transfer(dev))[0].counter for _ in range(3)] == [7, 8, 9]
+    assert engine.wait_idle(30.0) and done[-1] == (3, 10)
+    engine.close()
+
+
 def test_a_stream_the_camera_ends_early_sends_that_many_and_says_so(
     server: StreamSocketServer, bank: BankSource
 ) -> None:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import random
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -244,6 +245,12 @@ def test_untrained_daemon_refuses_to_stream(tmp_path: Path) -> None:
         assert proc.returncode == 1
         assert "cannot write sensor registers: a stream is running" in proc.stderr
         assert "stop it with `camctl stream --stop`" in proc.stderr
+        # The camera's first frame of this window comes once its first-frame work is done
+        # (docs/simulator.md): stop after frames came, so that there is something to drain.
+        with CamdClient(daemon.url) as client:
+            deadline = time.monotonic() + 60
+            while client.stream()["stats"]["frames"] < 1 and time.monotonic() < deadline:
+                time.sleep(0.05)
         stopped = camctl_json(daemon.url, "stream", "--stop")
         assert stopped["streaming"] is False
         # Stopping drains: every frame the camera made was delivered, none lost.
