@@ -51,6 +51,7 @@ from firmware_models.usb_device import (
     Handle,
     InterfaceDescriptor,
     SimulatedUsbDevice,
+    UsbDescriptors,
     usb_error,
 )
 
@@ -74,9 +75,7 @@ class StreamLinkError(ConnectionError):
 
 def _descriptors(
     serial: str,
-) -> tuple[
-    DeviceDescriptor, ConfigurationDescriptor, InterfaceDescriptor, list[EndpointDescriptor]
-]:
+) -> UsbDescriptors:
     device = DeviceDescriptor(
         VENDOR_ID,
         PRODUCT_ID,
@@ -103,7 +102,7 @@ def _descriptors(
         bInterval=0,
         extra_descriptors=list(companion),
     )
-    return device, configuration, interface, [endpoint]
+    return UsbDescriptors(device, configuration, interface, [endpoint])
 
 
 class _Gone(Exception):
@@ -128,13 +127,9 @@ class Fx3Backend(SimulatedUsbDevice):
         kernel_driver: str | None = None,
         connect_timeout_s: float = 2.0,
     ) -> None:
-        device, configuration, interface, endpoints = _descriptors(serial)
         super().__init__(
             name="FX3",
-            device=device,
-            configuration=configuration,
-            interface=interface,
-            endpoints=endpoints,
+            descriptors=_descriptors(serial),
             strings={1: MANUFACTURER, 2: PRODUCT, 3: serial},
             kernel_driver=kernel_driver,
         )

@@ -10,7 +10,7 @@ path is the transport's business (see ``firmware_models.pty_server``).
 from __future__ import annotations
 
 import math
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
@@ -28,90 +28,69 @@ class InjectSpecError(ValueError):
     """An ``--inject`` text or value is invalid; the message says which key and what is allowed."""
 
 
+def _knob(lo: float, hi: float, description: str) -> Any:
+    """A fault knob of ``InjectSpec``: 0 (off) by default, accepted from ``lo`` to ``hi``."""
+    return Field(default=0.0, ge=lo, le=hi, description=description)
+
+
 class InjectSpec(BaseModel):
     """Fault rates for the simulated line. All zero (the default) means a perfect line."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    ber: float = Field(
-        default=0.0, ge=0.0, le=0.01, description="bit error rate per bit, each direction"
+    ber: float = _knob(0.0, 0.01, "bit error rate per bit, each direction")
+    drop: float = _knob(0.0, 0.5, "probability a frame is dropped, each direction")
+    garbage: float = _knob(
+        0.0,
+        0.5,
+        f"probability of a burst of 1..{GARBAGE_MAX_BYTES} random bytes before a sent frame",
     )
-    drop: float = Field(
-        default=0.0, ge=0.0, le=0.5, description="probability a frame is dropped, each direction"
-    )
-    garbage: float = Field(
-        default=0.0,
-        ge=0.0,
-        le=0.5,
-        description=(
-            f"probability of a burst of 1..{GARBAGE_MAX_BYTES} random bytes before a sent frame"
-        ),
-    )
-    delay_ms: float = Field(
-        default=0.0, ge=0.0, le=1000.0, description="latency added to every response, milliseconds"
-    )
+    delay_ms: float = _knob(0.0, 1000.0, "latency added to every response, milliseconds")
     # The USB frame stream (firmware_models.fx3.StreamEngine), rates per frame.
-    frame_drop: float = Field(
-        default=0.0,
-        ge=0.0,
-        le=0.5,
-        description="probability a stream frame is not sent (its counter is used up)",
+    frame_drop: float = _knob(
+        0.0, 0.5, "probability a stream frame is not sent (its counter is used up)"
     )
-    frame_corrupt: float = Field(
-        default=0.0,
-        ge=0.0,
-        le=0.5,
-        description="probability a stream frame is sent with one payload bit flipped after its CRC",
+    frame_corrupt: float = _knob(
+        0.0, 0.5, "probability a stream frame is sent with one payload bit flipped after its CRC"
     )
-    frame_short: float = Field(
-        default=0.0,
-        ge=0.0,
-        le=0.5,
-        description="probability a stream frame's USB transfer ends early (a truncated frame)",
+    frame_short: float = _knob(
+        0.0, 0.5, "probability a stream frame's USB transfer ends early (a truncated frame)"
     )
-    frame_stall: float = Field(
-        default=0.0,
-        ge=0.0,
-        le=0.5,
-        description="probability the bulk endpoint halts instead of sending a frame "
+    frame_stall: float = _knob(
+        0.0,
+        0.5,
+        "probability the bulk endpoint halts instead of sending a frame "
         "(the frame is lost; nothing is sent until the host clears the halt)",
     )
 
     # The stepper scan stage (firmware_models.stage / firmware_models.motor): its
     # imperfections, the knobs SIM_SET_STAGE_FAULTS sets; not line faults (FaultInjector
     # ignores them; ``stage_faults()`` hands them to MotorController.set_faults). 0: none.
-    stage_error: float = Field(
-        default=0.0,
-        ge=-0.1,
-        le=0.1,
-        description="stage: relative step-rate error (speed too high by this fraction; "
+    stage_error: float = _knob(
+        -0.1,
+        0.1,
+        "stage: relative step-rate error (speed too high by this fraction; "
         "5e-5 is a clock 50 ppm fast)",
     )
-    stage_ripple: float = Field(
-        default=0.0,
-        ge=0.0,
-        le=0.2,
-        description="stage: relative amplitude of the periodic speed ripple "
+    stage_ripple: float = _knob(
+        0.0,
+        0.2,
+        "stage: relative amplitude of the periodic speed ripple "
         "(period: the stage profile's ripple_period_m)",
     )
-    stage_jitter: float = Field(
-        default=0.0,
-        ge=0.0,
-        le=0.2,
-        description="stage: relative rms random speed jitter "
+    stage_jitter: float = _knob(
+        0.0,
+        0.2,
+        "stage: relative rms random speed jitter "
         "(correlated over the stage profile's jitter_corr_s)",
     )
-    stage_drift: float = Field(
-        default=0.0,
-        ge=-0.1,
-        le=0.1,
-        description="stage: relative speed drift per second of continuous running",
+    stage_drift: float = _knob(
+        -0.1, 0.1, "stage: relative speed drift per second of continuous running"
     )
-    stage_load: float = Field(
-        default=0.0,
-        ge=0.0,
-        le=3.0,
-        description="stage: load torque as a fraction of the motor's pull-out torque "
+    stage_load: float = _knob(
+        0.0,
+        3.0,
+        "stage: load torque as a fraction of the motor's pull-out torque "
         "(above what the motor delivers at the speed, it misses steps)",
     )
 

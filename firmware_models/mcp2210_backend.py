@@ -50,6 +50,7 @@ from firmware_models.usb_device import (
     Handle,
     InterfaceDescriptor,
     SimulatedUsbDevice,
+    UsbDescriptors,
     usb_error,
 )
 
@@ -390,11 +391,7 @@ HID_REPORT_DESCRIPTOR = bytes.fromhex(
 _HID_DESCRIPTOR = struct.pack("<BBHBBBH", 9, 0x21, 0x0111, 0, 1, 0x22, len(HID_REPORT_DESCRIPTOR))
 
 
-def _descriptors(
-    vendor_id: int, product_id: int
-) -> tuple[
-    DeviceDescriptor, ConfigurationDescriptor, InterfaceDescriptor, list[EndpointDescriptor]
-]:
+def _descriptors(vendor_id: int, product_id: int) -> UsbDescriptors:
     device = DeviceDescriptor(
         vendor_id,
         product_id,
@@ -420,7 +417,7 @@ def _descriptors(
         EndpointDescriptor(EP_IN, bmAttributes=0x03, wMaxPacketSize=REPORT_BYTES, bInterval=1),
         EndpointDescriptor(EP_OUT, bmAttributes=0x03, wMaxPacketSize=REPORT_BYTES, bInterval=1),
     ]
-    return device, configuration, interface, endpoints
+    return UsbDescriptors(device, configuration, interface, endpoints)
 
 
 # -- the pyusb backend ------------------------------------------------------------------------
@@ -448,13 +445,9 @@ class Mcp2210Backend(SimulatedUsbDevice):
     ) -> None:
         self.chip = Mcp2210Chip(target, cs_pin=cs_pin, clock=clock)
         self.serial = serial
-        device, configuration, interface, endpoints = _descriptors(vendor_id, product_id)
         super().__init__(
             name="MCP2210",
-            device=device,
-            configuration=configuration,
-            interface=interface,
-            endpoints=endpoints,
+            descriptors=_descriptors(vendor_id, product_id),
             strings={1: MANUFACTURER, 2: PRODUCT, 3: serial},
             kernel_driver="HID",
         )

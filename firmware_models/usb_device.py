@@ -27,8 +27,7 @@ import threading
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from types import TracebackType
-from typing import Self
+from typing import NamedTuple, Self
 
 import usb.backend
 import usb.core
@@ -171,6 +170,16 @@ class EndpointDescriptor:
         )
 
 
+class UsbDescriptors(NamedTuple):
+    """A simulated device's descriptors: the device, its one configuration with one
+    interface, and that interface's endpoints (what ``SimulatedUsbDevice`` enumerates)."""
+
+    device: DeviceDescriptor
+    configuration: ConfigurationDescriptor
+    interface: InterfaceDescriptor
+    endpoints: Sequence[EndpointDescriptor]
+
+
 # -- errors -----------------------------------------------------------------------------------
 
 # libusb error codes, as pyusb's libusb1 backend reports them
@@ -226,14 +235,12 @@ class SimulatedUsbDevice(usb.backend.IBackend):  # type: ignore[misc]
         self,
         *,
         name: str,
-        device: DeviceDescriptor,
-        configuration: ConfigurationDescriptor,
-        interface: InterfaceDescriptor,
-        endpoints: Sequence[EndpointDescriptor],
+        descriptors: UsbDescriptors,
         strings: Mapping[int, str],
         kernel_driver: str | None = None,
     ) -> None:
         super().__init__()
+        device, configuration, interface, endpoints = descriptors
         self.name = name
         self.kernel_driver = kernel_driver
         self.kernel_driver_attached = kernel_driver is not None
@@ -559,12 +566,7 @@ class UnixSocketServer:
         self.start()
         return self
 
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.stop()
 
     def start(self) -> None:

@@ -19,6 +19,13 @@ import usb.core
 import usb.util
 
 from camd.link.frame_types import StreamError, log
+from camd.link.usb_access import (
+    ClaimStep,
+    configure_and_claim,
+    detach_kernel_driver,
+    release_device,
+    usb_listing,
+)
 
 VENDOR_ID = 0x04B4  # Cypress FX3
 PRODUCT_ID = 0x00F1  # the FX3 SDK's streamer example
@@ -51,17 +58,10 @@ class StreamDevice:
         stream's bytes per bulk read) must be whole packets of its endpoint."""
         if self.dev is not None:
             return
-        try:
+        with usb_listing(StreamError, self.hint()):
             dev = usb.core.find(
                 idVendor=self.vendor_id, idProduct=self.product_id, backend=self.backend
             )
-        except usb.core.NoBackendError:
-            raise StreamError(
-                "pyusb found no USB library: install libusb-1.0 (Debian/Ubuntu: "
-                "`apt install libusb-1.0-0`)"
-            ) from None
-        except usb.core.USBError as exc:
-            raise StreamError(f"cannot list USB devices ({exc}); {self.hint()}") from exc
         if dev is None:
             raise StreamError(f"no USB frame-stream device {self.ident} found; {self.hint()}")
         try:
@@ -93,36 +93,24 @@ class StreamDevice:
         )
 
     def _claim(self, dev: Any) -> None:
-        try:
-            active = bool(dev.is_kernel_driver_active(INTERFACE))
-        except NotImplementedError:
-            active = False
-        except usb.core.USBError as exc:
-            raise StreamError(
-                f"cannot open the USB frame-stream device {self.ident}: {exc}; {self.hint()}"
-            ) from exc
-        if active:
-            try:
-                dev.detach_kernel_driver(INTERFACE)
-            except usb.core.USBError as exc:
-                raise StreamError(
-                    f"cannot detach the kernel driver of {self.ident}: {exc}"
-                ) from exc
+        if detach_kernel_driver(dev, INTERFACE, self._claim_failed):
             self._detached = True
-        try:
-            dev.get_active_configuration()
-        except usb.core.USBError:
-            try:
-                dev.set_configuration()
-            except usb.core.USBError as exc:
-                raise StreamError(f"cannot configure {self.ident}: {exc}") from exc
-        try:
-            usb.util.claim_interface(dev, INTERFACE)
-        except usb.core.USBError as exc:
-            raise StreamError(
-                f"cannot claim interface {INTERFACE} of {self.ident}: {exc}; is another "
-                "program (another camd) reading the camera?"
-            ) from exc
+        configure_and_claim(dev, INTERFACE, self._claim_failed)
+
+    def _claim_failed(self, step: ClaimStep, exc: usb.core.USBError) -> StreamError:
+        """What ``_claim`` raises when ``step`` fails."""
+        if step == "open":
+            return StreamError(
+                f"cannot open the USB frame-stream device {self.ident}: {exc}; {self.hint()}"
+            )
+        if step == "detach":
+            return StreamError(f"cannot detach the kernel driver of {self.ident}: {exc}")
+        if step == "configure":
+            return StreamError(f"cannot configure {self.ident}: {exc}")
+        return StreamError(
+            f"cannot claim interface {INTERFACE} of {self.ident}: {exc}; is another "
+            "program (another camd) reading the camera?"
+        )
 
     def _endpoint(self, dev: Any) -> Any:
         intf = dev.get_active_configuration()[(INTERFACE, 0)]
@@ -141,13 +129,8 @@ class StreamDevice:
         dev, self.dev = self.dev, None
         if dev is None:
             return
-        with contextlib.suppress(usb.core.USBError):
-            usb.util.release_interface(dev, INTERFACE)
-        if self._detached:
-            with contextlib.suppress(usb.core.USBError, NotImplementedError):
-                dev.attach_kernel_driver(INTERFACE)
-            self._detached = False
-        usb.util.dispose_resources(dev)
+        reattach, self._detached = self._detached, False
+        release_device(dev, INTERFACE, reattach=reattach)  # a driver not given back: no matter
 
     def ask_packing(self, pack_bytes: int) -> bool:
         """Ask the streamer to pack frames into transfers of up to ``pack_bytes`` (0: one

@@ -13,7 +13,6 @@ and the host asks again. docs/usb-spi.md describes the commands used.
 
 from __future__ import annotations
 
-import contextlib
 import errno
 import logging
 import math
@@ -26,6 +25,13 @@ from typing import Any
 import usb.core
 import usb.util
 
+from camd.link.usb_access import (
+    ClaimStep,
+    configure_and_claim,
+    detach_kernel_driver,
+    release_device,
+    usb_listing,
+)
 from camd.sensor.bridge import BridgeError, RegisterBridge
 from camd.sensor.regmap import SpiLayout
 from camd.sensor.spi_frame import decode_spi_response, encode_spi_frame
@@ -72,6 +78,13 @@ _STATUS_TEXT = {
     0xFD: "access denied: wrong password",
 }
 
+# What failed, step by step, when the interface is claimed (camd.link.usb_access).
+_CLAIM_FAILURES: dict[ClaimStep, str] = {
+    "open": "cannot open the MCP2210",
+    "detach": "cannot detach the kernel HID driver",
+    "configure": "cannot configure the MCP2210",
+    "claim": "cannot claim the MCP2210's interface",
+}
 _NOT_FOUND_HINT = (
     "check the cable and the bridge's power, that `lsusb -d 04d8:00de` lists it, and that "
     "this user may open it (udev rule systemd/99-camd.rules, group plugdev; see docs/usb-spi.md)"
@@ -156,15 +169,9 @@ class Mcp2210Bridge(RegisterBridge):
             dev, self._dev = self._dev, None
             if dev is None:
                 return
-            # Gone or never claimed: nothing to release.
-            with contextlib.suppress(usb.core.USBError):
-                usb.util.release_interface(dev, _INTERFACE)
-            if self._detached:
-                try:
-                    dev.attach_kernel_driver(_INTERFACE)
-                except (usb.core.USBError, NotImplementedError) as exc:
-                    log.warning("MCP2210: could not re-attach the kernel HID driver: %s", exc)
-            usb.util.dispose_resources(dev)
+            failed = release_device(dev, _INTERFACE, reattach=self._detached)
+            if failed is not None:
+                log.warning("MCP2210: could not re-attach the kernel HID driver: %s", failed)
 
     # -- chip commands --------------------------------------------------------------------------
 
@@ -207,19 +214,12 @@ class Mcp2210Bridge(RegisterBridge):
 
     def _find(self, backend: Any, vendor_id: int, product_id: int, serial: str | None) -> Any:
         ident = f"VID 0x{vendor_id:04X}, PID 0x{product_id:04X}"
-        try:
+        with usb_listing(BridgeError, _NOT_FOUND_HINT):
             found = list(
                 usb.core.find(
                     find_all=True, idVendor=vendor_id, idProduct=product_id, backend=backend
                 )
             )
-        except usb.core.NoBackendError:
-            raise BridgeError(
-                "pyusb found no USB library: install libusb-1.0 (Debian/Ubuntu: "
-                "`apt install libusb-1.0-0`)"
-            ) from None
-        except usb.core.USBError as exc:
-            raise BridgeError(f"cannot list USB devices ({exc}); {_NOT_FOUND_HINT}") from exc
         if serial is not None:
             ident += f", serial {serial}"
             found = [d for d in found if self._serial_of(d) == serial]
@@ -234,30 +234,13 @@ class Mcp2210Bridge(RegisterBridge):
         return found[0]
 
     def _claim(self) -> None:
-        dev = self._dev
-        try:
-            active = bool(dev.is_kernel_driver_active(_INTERFACE))
-        except NotImplementedError:
-            active = False  # platforms without kernel drivers to detach
-        except usb.core.USBError as exc:
-            raise self._usb_error("cannot open the MCP2210", exc) from exc
-        if active:
-            try:
-                dev.detach_kernel_driver(_INTERFACE)
-            except usb.core.USBError as exc:
-                raise self._usb_error("cannot detach the kernel HID driver", exc) from exc
+        if detach_kernel_driver(self._dev, _INTERFACE, self._claim_failed):
             self._detached = True
-        try:
-            dev.get_active_configuration()
-        except usb.core.USBError:
-            try:
-                dev.set_configuration()
-            except usb.core.USBError as exc:
-                raise self._usb_error("cannot configure the MCP2210", exc) from exc
-        try:
-            usb.util.claim_interface(dev, _INTERFACE)
-        except usb.core.USBError as exc:
-            raise self._usb_error("cannot claim the MCP2210's interface", exc) from exc
+        configure_and_claim(self._dev, _INTERFACE, self._claim_failed)
+
+    def _claim_failed(self, step: ClaimStep, exc: usb.core.USBError) -> BridgeError:
+        """What ``_claim`` raises when ``step`` fails."""
+        return self._usb_error(_CLAIM_FAILURES[step], exc)
 
     def _configure(self) -> None:
         # A transaction left half-done by a previous program would swallow our first frame.

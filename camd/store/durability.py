@@ -42,6 +42,7 @@ import datetime as dt
 import errno
 import functools
 import os
+from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -174,6 +175,54 @@ def keep_after_failure(
             trim(flushed)
         return flushed
     return written
+
+
+class FlushedWriter(ABC):
+    """A writer of a file with a ``Headroom`` (``FrameRecorder``, ``TdiRecorder``): what it
+    keeps when a write fails (``keep_after_failure``) and its last flush before the close,
+    through the steps each writer implements for its own data and count."""
+
+    _headroom: Headroom
+
+    @abstractmethod
+    def _flush_count(self, *, regrow: bool = True) -> None:
+        """Flush the data so far, then its count; then (``regrow``) the headroom is made
+        whole again (``Headroom.flush``: NoRoom if it cannot be, all flushed all the same)."""
+
+    @abstractmethod
+    def _rewrite_unflushed(self) -> None:
+        """After a failed write: the data since the last flush written afresh, then
+        everything flushed, with the count."""
+
+    @abstractmethod
+    def _trim_and_flush(self, count: int) -> None:
+        """Go back to ``count`` (frames or lines) on disk."""
+
+    @abstractmethod
+    def _failed(self, exc: BaseException) -> OSError:
+        """Writing failed: keep what can be kept (``_keep_after``); the error to raise."""
+
+    def _keep_after(self, exc: BaseException, *, written: int, flushed: int) -> int:
+        """``keep_after_failure`` with this writer's steps; how many frames or lines are kept."""
+        return keep_after_failure(
+            exc,
+            written=written,
+            flushed=flushed,
+            flush=lambda: self._flush_count(regrow=False),
+            rewrite=self._rewrite_unflushed,
+            trim=self._trim_and_flush,
+        )
+
+    def _flush_before_close(self, margin_bytes: int) -> None:
+        """The data and its count on disk before the close, while the headroom is there (room
+        for ``margin_bytes`` asked first): if the file cannot be reopened to be finished, it is
+        whole but for its attributes. A failure goes through ``_failed``, which records it."""
+        try:
+            with contextlib.suppress(NoRoom):  # a full disk: the headroom's reserve serves
+                self._headroom.ensure(margin_bytes)
+            self._flush_count(regrow=False)
+        except (OSError, RuntimeError) as exc:
+            self._failed(exc)
 
 
 FINISH_BYTES = 1 << 20  # room a closed file is given before it is reopened to be finished

@@ -42,7 +42,6 @@ viewer shows it; ``read_recording`` puts it back together. ``None`` values are n
 
 from __future__ import annotations
 
-import contextlib
 import datetime as dt
 import os
 import shutil
@@ -60,12 +59,11 @@ import numpy.typing as npt
 from camd.protocol.stream import FrameHeader, StreamMode, crc32
 from camd.store.durability import (
     FLUSH_PERIOD_S,
+    FlushedWriter,
     Headroom,
-    NoRoom,
     close_writer,
     create_file,
     discard_new_file,
-    keep_after_failure,
     reopen_to_finish,
     retry_held,
     write_failure,
@@ -181,7 +179,7 @@ def unflatten_attrs(attrs: Mapping[str, Any]) -> dict[str, Any]:
     return out
 
 
-class FrameRecorder:
+class FrameRecorder(FlushedWriter):
     """Appends streamed frames to a new HDF5 file; ``close(stats)`` finishes it.
 
     The file is created at once with its metadata (so a bad path fails before the stream
@@ -388,14 +386,7 @@ class FrameRecorder:
         and the file can be closed; the error to raise. On a clean ``NoRoom`` HDF5 has
         written nothing and flushes into the headroom's reserve; after a failed HDF5 write the
         columns since the last flush are written afresh (``_unflushed``)."""
-        kept = keep_after_failure(
-            exc,
-            written=self.count,
-            flushed=self.flushed,
-            flush=lambda: self._flush_count(regrow=False),
-            rewrite=self._rewrite_unflushed,
-            trim=self._trim_and_flush,
-        )
+        kept = self._keep_after(exc, written=self.count, flushed=self.flushed)
         self.count = kept
         self._columns_written = min(self._columns_written, kept)
         self.failed = (
@@ -511,14 +502,7 @@ class FrameRecorder:
             return self.path
         self._closed = True
         if self.failed is None:
-            # The frames and their count on disk before the close, while the headroom is
-            # there: if the file cannot be reopened below, it is whole but for its attributes.
-            try:
-                with contextlib.suppress(NoRoom):  # a full disk: the headroom's reserve serves
-                    self._headroom.ensure(_MARGIN_BYTES)
-                self._flush_count(regrow=False)
-            except (OSError, RuntimeError) as exc:
-                self._failed(exc)
+            self._flush_before_close(_MARGIN_BYTES)
         count = self.count
         why = close_writer(self._file, self.path, self)
         if why is not None:

@@ -47,7 +47,6 @@ keeps and how the file is closed; the layout above is made and checked in
 
 from __future__ import annotations
 
-import contextlib
 import time
 from collections.abc import Mapping
 from pathlib import Path
@@ -59,12 +58,11 @@ import numpy.typing as npt
 
 from camd.store.durability import (
     FLUSH_PERIOD_S,
+    FlushedWriter,
     Headroom,
-    NoRoom,
     close_writer,
     create_file,
     discard_new_file,
-    keep_after_failure,
     reopen_to_finish,
     retry_held,
     write_failure,
@@ -103,7 +101,7 @@ _RESERVE_MIN_BYTES = 4 << 20  # the least space held back for finishing the file
 _MARGIN_BYTES = 512 << 10
 
 
-class TdiRecorder:
+class TdiRecorder(FlushedWriter):
     """Appends TDI lines to a new HDF5 file (layout in the module docstring).
 
     The file is created at once with its metadata (so a bad path fails before the scan starts)
@@ -276,14 +274,7 @@ class TdiRecorder:
         can be closed; the RecordingError to raise. On a clean ``NoRoom`` HDF5 has written
         nothing and flushes into the headroom's reserve; after a failed HDF5 write the lines
         since the last flush are written afresh (``_pending``)."""
-        kept = keep_after_failure(
-            exc,
-            written=self.lines,
-            flushed=self._flushed_lines,
-            flush=lambda: self._flush_count(regrow=False),
-            rewrite=self._rewrite_unflushed,
-            trim=self._trim_and_flush,
-        )
+        kept = self._keep_after(exc, written=self.lines, flushed=self._flushed_lines)
         self.lines = kept  # complete_lines is counted again from the file by close()
         self._pending.clear()
         self.failed = (
@@ -394,14 +385,7 @@ class TdiRecorder:
             else:
                 root[name] = value
         if self.failed is None:
-            # The lines and their count on disk before the close, while the headroom is there:
-            # if the file cannot be reopened below, it is whole but for its attributes.
-            try:
-                with contextlib.suppress(NoRoom):  # a full disk: the headroom's reserve serves
-                    self._headroom.ensure(self._flush_bytes())
-                self._flush_count(regrow=False)
-            except (OSError, RuntimeError) as exc:
-                self._failed(exc)
+            self._flush_before_close(self._flush_bytes())
         self._closed = True
         why = close_writer(self._file, self.path, self)
         if why is not None:
