@@ -21,6 +21,7 @@ import resource
 import shutil
 import subprocess
 import sys
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -101,6 +102,33 @@ def thread_scheduling(pid: int) -> dict[int, tuple[str, int, int]]:
     return threads
 
 
+def running_in_group(pgid: int) -> int:
+    """How many processes of process group ``pgid`` are running (state R) now."""
+    running = 0
+    for stat_path in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            stat = stat_path.read_text()
+        except OSError:
+            continue  # gone meanwhile
+        # Fields after "(comm)": state, ppid, pgrp.
+        state, _, pgrp = stat[stat.rindex(")") + 2 :].split()[:3]
+        running += state == "R" and int(pgrp) == pgid
+    return running
+
+
+def wait_hog_running(pgid: int, workers: int, timeout_s: float = 30.0) -> None:
+    """Until ``workers`` processes of the hog's process group ``pgid`` run at once: its
+    workers have started spinning (a poll instead of a fixed wait; a busy machine may take
+    longer to start them)."""
+    deadline = time.monotonic() + timeout_s
+    while running_in_group(pgid) < workers:
+        if time.monotonic() > deadline:
+            raise AssertionError(
+                f"the CPU hog's {workers} workers did not run within {timeout_s} s"
+            )
+        time.sleep(0.05)
+
+
 @contextmanager
 def cpu_hog(workers: int = 4) -> Iterator[str]:
     """A CPU hog of normal priority while the block runs: ``stress-ng --cpu N`` if installed,
@@ -114,6 +142,12 @@ def cpu_hog(workers: int = 4) -> Iterator[str]:
         procs = [subprocess.Popen(spin, start_new_session=True) for _ in range(workers)]
         what = f"{workers} spinning Python processes"
     try:
+        # Spinning before the block starts (each spinner is its own group's only process).
+        if len(procs) == 1:
+            wait_hog_running(procs[0].pid, workers)
+        else:
+            for proc in procs:
+                wait_hog_running(proc.pid, 1)
         yield what
     finally:
         for proc in procs:
