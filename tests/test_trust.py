@@ -23,8 +23,8 @@ from tests.test_camctl import camctl
 from tests.test_sensor_stack import serve
 
 # Not ``exclusive``: refusals, one acquisition at a time, busy errors; the scans run slowly
-# (25 ms lines) or until stopped, and nothing is asked of their timing. Checked beside
-# `stress-ng --cpu 2`.
+# (20 ms lines, binned: inside the daemon's queue) or until stopped, and nothing is asked of
+# their timing. Checked beside `stress-ng --cpu 2`.
 
 
 @contextlib.contextmanager
