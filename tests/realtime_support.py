@@ -21,6 +21,7 @@ import resource
 import shutil
 import subprocess
 import sys
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -28,6 +29,13 @@ from pathlib import Path
 REPO_ROOT = Path(__file__).resolve().parent.parent
 UNIT = REPO_ROOT / "systemd" / "camd.service"
 CAP_SYS_RESOURCE = 24  # linux/capability.h
+# The daemon's and its simulator's first-scan work done when they start, as shipped
+# (daemon.tdi_warm_up, docs/config.md; docs/simulator.md), which the suite turns off for its
+# other daemons (tests/conftest.py). A closed-loop scan's stage runs from its first frame's
+# request: a first scan that waits a second or more for compiled kernels, the fixed pattern and
+# the noise bank lets the stage run on (a loaded run's first scan took 9 s and 1.1 m of rail,
+# and the next scan rewound it for 11 s), and makes the first scan's loop a warm-up's.
+WARM_UP_AS_SHIPPED = {"CAMD_TDI_WARM_UP": "1", "CAMD_SIM_WARM_UP": "1"}
 POLICIES = {0: "SCHED_OTHER", 1: "SCHED_FIFO", 2: "SCHED_RR"}
 
 
@@ -94,6 +102,33 @@ def thread_scheduling(pid: int) -> dict[int, tuple[str, int, int]]:
     return threads
 
 
+def running_in_group(pgid: int) -> int:
+    """How many processes of process group ``pgid`` are running (state R) now."""
+    running = 0
+    for stat_path in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            stat = stat_path.read_text()
+        except OSError:
+            continue  # gone meanwhile
+        # Fields after "(comm)": state, ppid, pgrp.
+        state, _, pgrp = stat[stat.rindex(")") + 2 :].split()[:3]
+        running += state == "R" and int(pgrp) == pgid
+    return running
+
+
+def wait_hog_running(pgid: int, workers: int, timeout_s: float = 30.0) -> None:
+    """Until ``workers`` processes of the hog's process group ``pgid`` run at once: its
+    workers have started spinning (a poll instead of a fixed wait; a busy machine may take
+    longer to start them)."""
+    deadline = time.monotonic() + timeout_s
+    while running_in_group(pgid) < workers:
+        if time.monotonic() > deadline:
+            raise AssertionError(
+                f"the CPU hog's {workers} workers did not run within {timeout_s} s"
+            )
+        time.sleep(0.05)
+
+
 @contextmanager
 def cpu_hog(workers: int = 4) -> Iterator[str]:
     """A CPU hog of normal priority while the block runs: ``stress-ng --cpu N`` if installed,
@@ -107,6 +142,12 @@ def cpu_hog(workers: int = 4) -> Iterator[str]:
         procs = [subprocess.Popen(spin, start_new_session=True) for _ in range(workers)]
         what = f"{workers} spinning Python processes"
     try:
+        # Spinning before the block starts (each spinner is its own group's only process).
+        if len(procs) == 1:
+            wait_hog_running(procs[0].pid, workers)
+        else:
+            for proc in procs:
+                wait_hog_running(proc.pid, 1)
         yield what
     finally:
         for proc in procs:

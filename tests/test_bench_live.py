@@ -12,8 +12,9 @@ import pytest
 
 from camd.bench import live as bench_live
 
-# Streams in real time: alone under xdist (tests/conftest.py).
-pytestmark = pytest.mark.exclusive
+# Not ``exclusive``: no figure is held to a rate (the benchmark's job, not a test's); the
+# checks are that the figures add up, which a busy machine changes nothing of. Checked beside
+# `stress-ng --cpu 2`.
 
 
 def test_one_short_round_with_websocket_viewers() -> None:

@@ -16,8 +16,9 @@ from camd.bench.common import last_level_cache_bytes
 from camd.bench.pipeline import line_rate_hz, measure, run
 from camd.protocol.stream import HEADER_BYTES
 
-# Real-time streaming: alone under xdist (tests/conftest.py).
-pytestmark = pytest.mark.exclusive
+# Not ``exclusive``: the stream is unpaced (the simulator sends as fast as the host reads, so
+# nothing is lost however slow the host), and no figure is held to a rate: the checks are that
+# the figures add up. Checked beside `stress-ng --cpu 2`.
 
 HR400_LINE_S = 513 / 25e6  # config/sensors/hr400.toml: 513 sequencer clocks at 25 MHz
 

@@ -12,8 +12,8 @@ import pytest
 
 from camd.bench.scan import bench_scan, run
 
-# Real-time streaming / control loops: alone under xdist (tests/conftest.py).
-pytestmark = pytest.mark.exclusive
+# Not ``exclusive``: 31 frames, fewer than the daemon's queue holds, so a busy machine delays
+# them but loses none, and no figure is held to a rate. Checked beside `stress-ng --cpu 2`.
 
 
 def test_bench_scan_reports_a_lossless_scan_against_the_line_rate() -> None:

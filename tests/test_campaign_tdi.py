@@ -17,8 +17,9 @@ from camd.cli.camctl_campaign import campaigns_dir, run_on_own_sim
 from camd.sensor.profile import load_profile
 from tests.campaign_support import report_images, run_shipped
 
-# Campaign acquisitions stream in real time: alone under xdist (tests/conftest.py).
-pytestmark = pytest.mark.exclusive
+# Not ``exclusive``: the numbers are statistics of the simulator's seeded frames, which a late
+# host receives late but whole (the simulated camera loses no frame for lateness:
+# firmware_models/fx3.py), on the simulator's ideal stage. Checked beside `stress-ng --cpu 2`.
 
 
 def test_tdi_snr_stages(tmp_path: Path) -> None:

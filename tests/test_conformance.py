@@ -15,7 +15,6 @@ import shutil
 import signal
 import subprocess
 import sys
-import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -31,6 +30,7 @@ from camd.cli.camd_main import main as camd_main
 from camd.client import CamdClient
 from camd.protocol import PayloadError, load_dictionary
 from firmware_models.defects import DEFECTS, crc32c
+from tests.realtime_support import wait_hog_running
 
 ROOT = Path(__file__).resolve().parent.parent
 DICTIONARY = load_dictionary()
@@ -233,7 +233,7 @@ def test_timing_checks_pass_under_a_cpu_hog(daemon: DaemonProcess, tmp_path: Pat
         ["stress-ng", "--cpu", "4", "--timeout", "120s", "--quiet"], start_new_session=True
     )
     try:
-        time.sleep(2.0)  # the hog's workers running
+        wait_hog_running(hog.pid, 4)  # its own process group: its 4 workers spinning
         with CamdClient(daemon.url, timeout_s=60) as client:
             result = run_conformance(
                 client, tmp_path, only=["stream.headers", "stream.frame_period", "wheel.*"]

@@ -20,8 +20,9 @@ from camd.daemon.errors import NotInControl
 from tests.test_camctl import camctl, camctl_json
 from tests.test_trust import small_window_daemon
 
-# Scans stream in real time: alone under xdist (tests/conftest.py).
-pytestmark = pytest.mark.exclusive
+# Not ``exclusive``: who may change what, and what a refusal says; the one scan runs at the
+# window's own rate until stopped, and nothing is asked of its frames. Checked beside
+# `stress-ng --cpu 2`.
 
 
 @pytest.fixture(scope="module")

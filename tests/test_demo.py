@@ -22,8 +22,9 @@ import camd
 from camd.cli.demo import live_page_url
 from tests.campaign_support import report_images
 
-# Real-time streaming / control loops: alone under xdist (tests/conftest.py).
-pytestmark = pytest.mark.exclusive
+# The demo's runs stream full frames in real time (200 of 534 x 2048 pixels, more than the
+# daemon's queue holds, with no overrun asked): ``exclusive``, alone under xdist
+# (tests/conftest.py). The address test runs nothing.
 
 REPO_ROOT = str(Path(camd.__file__).resolve().parent.parent)
 
@@ -41,6 +42,7 @@ def demo_env() -> dict[str, str]:
     return env
 
 
+@pytest.mark.exclusive
 def test_demo_runs_and_writes_its_summary(tmp_path: Path) -> None:
     out = tmp_path / "demo"
     env = demo_env()
@@ -151,6 +153,7 @@ def is_camd_serve(pid: int) -> bool:
     return b"camd" in command and b"serve" in command
 
 
+@pytest.mark.exclusive
 def test_demo_keep_leaves_the_daemon_running_until_ctrl_c(tmp_path: Path) -> None:
     """``camd demo --keep``: after its steps the daemon serves a streaming live view at the
     address it printed, until SIGINT; then everything stops and the demo exits 0."""

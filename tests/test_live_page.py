@@ -27,8 +27,9 @@ from camd.cli._daemon_proc import DaemonProcess
 from camd.client import CamdClient
 from tests.browser import PageLog, artifacts_dir
 
-# Real-time streams and a browser: alone under xdist (tests/conftest.py).
-pytestmark = pytest.mark.exclusive
+# Not ``exclusive``: what the page shows (pixel values, colours, the waterfall's marks against
+# the file, who holds control), each waited for with a generous timeout; a busy machine makes
+# the page slower, not wrong. Checked beside `stress-ng --cpu 2`.
 
 TOKEN = "live-s3cret"
 ROWS = 64

@@ -22,11 +22,12 @@ from camd.cli._daemon_proc import DaemonProcess
 from camd.client import CamdClient
 from camd.sensor.profile import load_profile
 from camd.store.tdi_recording import read_tdi_scan
-from tests.realtime_support import as_the_unit
+from tests.realtime_support import WARM_UP_AS_SHIPPED, as_the_unit
 from tests.test_camctl import NO_TOKEN, camctl, camctl_command, camctl_command_json, camctl_json
 
-# Real-time streaming / control loops: alone under xdist (tests/conftest.py).
-pytestmark = pytest.mark.exclusive
+# The scans whose closed loop is measured (the mismatch, the MTF at the smears the lines had)
+# are ``exclusive``: alone under xdist (tests/conftest.py), a busy machine's late corrections
+# being no loop's fault. The equations, the stage's moves and the refusals are not timed.
 
 T_ROW_S = 513 / 25e6  # hr400 row time: 513 sequencer clocks at 25 MHz (docs/physics.md §3)
 ROWS = 100  # the scans' window: T_line,TDI = 100 rows = 2.052 ms
@@ -40,12 +41,16 @@ DISTURBANCE = {"error": -0.005, "ripple": 0.01}  # a clock 0.5 % slow and 1 % sp
 SCENE = "edge:angle_deg=5"
 
 
-def start_daemon(tmp: Path, motion: str = "") -> DaemonProcess:
+def start_daemon(tmp: Path, config_text: str = "") -> DaemonProcess:
     config = tmp / "camd.toml"
-    config.write_text(f"[motion]\n{motion}\n")
-    # As systemd/camd.service starts it: the closed loop's threads real-time, the rest nice.
+    config.write_text(config_text)
+    # As systemd/camd.service starts it: the closed loop's threads real-time, the rest nice;
+    # its first scan's work done at start (tests/realtime_support.py).
     return DaemonProcess(
-        tmp, extra_args=["--config", str(config)], env=NO_TOKEN, wrapper=as_the_unit()
+        tmp,
+        extra_args=["--config", str(config)],
+        env={**NO_TOKEN, **WARM_UP_AS_SHIPPED},
+        wrapper=as_the_unit(),
     )
 
 
@@ -175,6 +180,7 @@ def test_stage_moves_homes_stops_and_refuses_with_reasons(
 # -- scans: open loop blurs, closed loop holds (docs/physics.md §6) -------------------------------------
 
 
+@pytest.mark.exclusive
 def test_disturbed_stage_open_loop_blurs_closed_loop_holds(
     client: CamdClient, tmp_path: Path
 ) -> None:
@@ -241,6 +247,7 @@ def test_disturbed_stage_open_loop_blurs_closed_loop_holds(
         assert loop["time_s"].shape[0] == closed["motion"]["loop_samples"]
 
 
+@pytest.mark.exclusive
 def test_mtf_at_nyquist_follows_the_smear_model(client: CamdClient, tmp_path: Path) -> None:
     """MTF at Nyquist for smears of 0, 1 and 2 pixels over M stages (docs/physics.md §6 eq 8:
     sinc(p f M dV/V) = sinc(smear / 2) at Nyquist) times the detector terms (eq 3).
@@ -308,10 +315,14 @@ def test_scans_beyond_the_stage_are_refused_before_anything_is_written(
     assert camctl_json(daemon.url, "status")["state"] == "idle"
 
 
+@pytest.mark.exclusive
 def test_line_period_correction_follows_the_stage(tmp_path: Path) -> None:
     """The other closed loop (TAO12): the line period follows the stage, coarse by window
     rows, fine by the back path (docs/physics.md §2 eqs 8-9)."""
-    with start_daemon(tmp_path, 'correct = "line_period"') as d, CamdClient(d.url) as client:
+    with (
+        start_daemon(tmp_path, '[motion]\ncorrect = "line_period"\n') as d,
+        CamdClient(d.url) as client,
+    ):
         client.wait_ready(60)
         client.set_scene(SCENE)
         client.set_stage_faults(**DISTURBANCE)
@@ -335,24 +346,41 @@ def test_line_period_correction_follows_the_stage(tmp_path: Path) -> None:
         assert periods.max() > periods.min() * 1.005
 
 
-def test_turntable_carries_the_sensor_eq5(tmp_path: Path) -> None:
-    """A turntable (TAO12's rig, docs/physics.md §2 eq 5): the sensor rides at l = 0.1 m, the image
-    moves with the arc (image scale 1), T = a / (w l)."""
-    config = tmp_path / "camd.toml"
-    config.write_text('[stage]\nprofile = "turntable"\n')
-    daemon = DaemonProcess(
-        tmp_path, extra_args=["--config", str(config)], env=NO_TOKEN, wrapper=as_the_unit()
-    )
+@pytest.fixture(scope="module")
+def turntable(tmp_path_factory: pytest.TempPathFactory) -> Iterator[DaemonProcess]:
+    """A daemon whose stage is a turntable (TAO12's rig, docs/physics.md §2 eq 5)."""
+    tmp = tmp_path_factory.mktemp("camd-turntable")
+    daemon = start_daemon(tmp, '[stage]\nprofile = "turntable"\n')
     with daemon as d, CamdClient(d.url) as client:
         client.wait_ready(60)
-        doc = camctl_json(d.url, "sync", "--line-period-s", repr(T_LINE_S))
-        # w = a / (T l) = 11 um / (2.052 ms x 0.1 m) = 0.053606 rad/s; arc speed w l.
-        assert doc["angular_velocity_rad_s"] == pytest.approx(0.0536062378, rel=1e-8)
-        assert doc["image_scale"] == 1.0
-        assert doc["sync_speed"] == pytest.approx(0.00536062378, rel=1e-8)
-        arc_per_microstep = 2 * math.pi * 0.1 / (200 * 16 * 180)  # 180:1 worm gear
-        assert doc["step_rate_hz"] == pytest.approx(0.00536062378 / arc_per_microstep, rel=1e-8)
         client.set_scene(SCENE)
+        yield d
+    assert daemon.exit_code in (0, -15), daemon.log_path.read_text()
+
+
+def turntable_sync(daemon: DaemonProcess) -> dict[str, object]:
+    return camctl_json(daemon.url, "sync", "--line-period-s", repr(T_LINE_S))
+
+
+def test_turntable_carries_the_sensor_eq5(turntable: DaemonProcess) -> None:
+    """A turntable (TAO12's rig, docs/physics.md §2 eq 5): the sensor rides at l = 0.1 m, the image
+    moves with the arc (image scale 1), T = a / (w l). (Its scan, closed loop, is the next
+    test: that one needs the machine alone, this one does not.)"""
+    doc = turntable_sync(turntable)
+    # w = a / (T l) = 11 um / (2.052 ms x 0.1 m) = 0.053606 rad/s; arc speed w l.
+    assert doc["angular_velocity_rad_s"] == pytest.approx(0.0536062378, rel=1e-8)
+    assert doc["image_scale"] == 1.0
+    assert doc["sync_speed"] == pytest.approx(0.00536062378, rel=1e-8)
+    arc_per_microstep = 2 * math.pi * 0.1 / (200 * 16 * 180)  # 180:1 worm gear
+    assert doc["step_rate_hz"] == pytest.approx(0.00536062378 / arc_per_microstep, rel=1e-8)
+
+
+@pytest.mark.exclusive
+def test_turntable_scan_holds_the_arc_speed_closed_loop(
+    turntable: DaemonProcess, tmp_path: Path
+) -> None:
+    with CamdClient(turntable.url) as client:
+        sync_speed = turntable_sync(turntable)["sync_speed"]
         result = scan(client, tmp_path / "table.h5", lines=150, closed_loop=True)
-        assert result["motion"]["stage_speed_m_s"] == pytest.approx(doc["sync_speed"])
+        assert result["motion"]["stage_speed_m_s"] == pytest.approx(sync_speed)
         assert result["mismatch_max"] < 0.2

@@ -22,6 +22,7 @@ from camd.client import CamdClient
 from camd.daemon.realtime import Decision, decide
 from tests.realtime_support import (
     UNIT_GRANT,
+    WARM_UP_AS_SHIPPED,
     as_the_unit,
     cpu_hog,
     thread_scheduling,
@@ -143,17 +144,22 @@ def test_the_unit_grants_real_time_and_its_filters_allow_it() -> None:
 # -- the daemon, started as the unit starts it ----------------------------------------------------
 
 
-def start(tmp: Path, wrapper: list[str], config: str = "") -> DaemonProcess:
+def start(
+    tmp: Path, wrapper: list[str], config: str = "", *, warm_up: bool = False
+) -> DaemonProcess:
+    """A daemon under ``wrapper``; ``warm_up``: its first scan's work done at start, as shipped
+    (tests/realtime_support.py), for a daemon that scans in real time."""
     tmp.mkdir(exist_ok=True)
     (tmp / "camd.toml").write_text(config)
+    env = {**NO_TOKEN, **(WARM_UP_AS_SHIPPED if warm_up else {})}
     return DaemonProcess(
-        tmp, extra_args=["--config", str(tmp / "camd.toml")], env=NO_TOKEN, wrapper=wrapper
+        tmp, extra_args=["--config", str(tmp / "camd.toml")], env=env, wrapper=wrapper
     )
 
 
 @pytest.fixture(scope="module")
 def unit_daemon(tmp_path_factory: pytest.TempPathFactory) -> Iterator[DaemonProcess]:
-    with start(tmp_path_factory.mktemp("camd-rt"), as_the_unit()) as daemon:
+    with start(tmp_path_factory.mktemp("camd-rt"), as_the_unit(), warm_up=True) as daemon:
         with CamdClient(daemon.url, timeout_s=60) as client:
             client.wait_ready(60)
             client.set_scene("edge:angle_deg=5")

@@ -25,8 +25,10 @@ from tests.nexus_support import nexus_plot
 from tests.test_camctl import camctl, camctl_command_json, camctl_json
 from tests.test_sensor_stack import serve
 
-# Real-time streaming / control loops: alone under xdist (tests/conftest.py).
-pytestmark = pytest.mark.exclusive
+# Not ``exclusive`` but for the scan that runs until stopped (its length is the host's polling,
+# and a late host's scan outgrows the daemon's queue): the other scans are a few hundred frames
+# of a small window, which a late host receives late but whole (the simulated camera loses no
+# frame for lateness: firmware_models/fx3.py). Checked beside `stress-ng --cpu 2`.
 
 ROWS = 16
 CLOCK_HZ = 25e6  # hr400 sequencer clock (config/sensors/hr400.toml)
@@ -153,6 +155,7 @@ def test_stage_speed_sets_the_line_period_by_eq5(url: str, tmp_path: Path) -> No
     assert doc["quicklook"] is None and doc["complete_lines"] == 5
 
 
+@pytest.mark.exclusive
 def test_stages_change_mid_scan_without_stopping_the_stream(
     url: str, ramp: None, tmp_path: Path
 ) -> None:
