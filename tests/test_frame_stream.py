@@ -89,6 +89,12 @@ class Rig:
             self.engine.inject = spec
         self.engine._rng = np.random.default_rng(seed)
         self.stream.start(max_frame_bytes=FRAME_BYTES)
+        if self.stream.packed:
+            # The device's socket thread takes the packing request in its own time: frames sent
+            # before it did go one a transfer (a busy machine's run read 400 frames in 400
+            # reads). The daemon asks before START_STREAM, over another line; here, wait.
+            asked = self.stream.pack_bytes
+            assert wait_until(lambda: self.server.pack_bytes == asked)
         self.engine.start(frames, 0.0, pace=False)
         assert self.engine.wait_idle(30.0)
         self.stream.expect_end(self.engine.next_counter)
