@@ -74,7 +74,8 @@ from camd.timing.imc import ImcMode
 from firmware_models import render_kernels
 from firmware_models.camera_frames import FrameMaker, exposures
 from firmware_models.camera_settings import RegisterSettings, work_out_settings
-from firmware_models.scene import Scene, SceneSpec, build_scene
+from firmware_models.scene import Scene, build_scene
+from firmware_models.scene_spec import SceneSpec
 from firmware_models.sensor import SensorModel
 from firmware_models.stage import LinearStage, Stage
 

@@ -28,7 +28,7 @@ from firmware_models.fpga import FpgaModel
 from firmware_models.fx3 import StreamSocketServer
 from firmware_models.inject import FaultInjector, InjectSpec
 from firmware_models.pty_server import PtyServer
-from firmware_models.scene import SceneSpec
+from firmware_models.scene_spec import SceneSpec
 from firmware_models.usb_spi import SpiSocketServer
 
 DEFAULT_PROFILE = "hr400"

@@ -45,7 +45,8 @@ from camd.timing.imc import (
 from firmware_models import ccd_imc
 from firmware_models.camera import CameraModel
 from firmware_models.camera_imc import merge_pieces
-from firmware_models.scene import Scene, SceneSpec, SceneSpecError, build_scene
+from firmware_models.scene import Scene, build_scene
+from firmware_models.scene_spec import SceneSpec, SceneSpecError
 from firmware_models.sensor import SensorModel
 from tests.campaign_support import report_images, run_shipped
 

@@ -33,7 +33,8 @@ from camd.analysis.mtf import (
     slanted_edge_mtf,
     tdi_integration_ratio,
 )
-from firmware_models.scene import SceneSpec, build_scene
+from firmware_models.scene import build_scene
+from firmware_models.scene_spec import SceneSpec
 
 FloatArray = npt.NDArray[np.float64]
 TWO_OVER_PI = 2.0 / math.pi  # sinc(0.5) = sin(pi/2) / (pi/2)

@@ -30,7 +30,8 @@ from camd.analysis.mtf import (
     pixel_noise_dn,
     slanted_edge_mtf,
 )
-from firmware_models.scene import SceneSpec, build_scene
+from firmware_models.scene import build_scene
+from firmware_models.scene_spec import SceneSpec
 from tests.test_mtf import render_edge
 
 FloatArray = npt.NDArray[np.float64]

@@ -9,14 +9,12 @@ import cv2
 import numpy as np
 import pytest
 
-from firmware_models.scene import (
+from firmware_models.scene import Scene, build_scene, motion_weights
+from firmware_models.scene_spec import (
     BAR_FREQUENCIES_CY_PER_PX,
-    Scene,
     SceneSpec,
     SceneSpecError,
-    build_scene,
     lux_to_photons_per_pixel_s,
-    motion_weights,
 )
 
 # -- the spec --------------------------------------------------------------------------------------

@@ -194,7 +194,7 @@ def run(args: argparse.Namespace) -> int:
     if bad or not kinds:
         print(f"camd bench sim: --kinds {args.kinds!r}: use bank, render or bank,render")
         return 2
-    from firmware_models.scene import SceneSpec, SceneSpecError
+    from firmware_models.scene_spec import SceneSpec, SceneSpecError
 
     scene = getattr(args, "scene", "")
     try:
