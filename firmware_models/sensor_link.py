@@ -2,7 +2,7 @@
 
 For an LVDS sensor (HR400: 8 lanes) the FPGA must align every lane before imaging
 (docs/physics.md §3): it switches the sensor to its training pattern over SPI, lets
-``firmware_models.lvds.train`` scan the delay taps, bit-slip and shift the lanes, then switches
+``firmware_models.lvds_training.train`` scan the delay taps, bit-slip and shift the lanes, then switches
 the sensor to a PRBS test image and counts bit errors in a captured frame to prove the result.
 The sensor's test-pattern register is restored afterwards. A parallel-interface sensor needs no
 training and is always ready.
@@ -15,14 +15,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from camd.sensor.regmap import FieldSpec, RegisterMap, RegisterSpec
-from firmware_models.lvds import (
-    Alignment,
-    LaneTraining,
-    LvdsLink,
-    TrainingResult,
-    train,
-    verify,
-)
+from firmware_models.lvds import Alignment, LvdsLink
+from firmware_models.lvds_training import LaneTraining, TrainingResult, train, verify
 from firmware_models.spi import SpiMaster
 
 VERIFY_ROWS = 16  # rows of the PRBS frame captured to check a training

@@ -13,7 +13,6 @@ from firmware_models.lvds import (
     LaneSkew,
     LvdsLink,
     TestPattern,
-    bit_errors,
     check_training_word,
     frame_to_lanes,
     lanes_to_frame,
@@ -21,10 +20,9 @@ from firmware_models.lvds import (
     prbs_frame,
     ramp_frame,
     rotations,
-    train,
     training_frame,
-    verify,
 )
+from firmware_models.lvds_training import bit_errors, train, verify
 
 
 def _late_bits(link: LvdsLink, lane: int, tap: int) -> int:

@@ -19,7 +19,8 @@ from camd.sensor.regmap import load_register_map
 from firmware_models import render_kernels
 from firmware_models.camera import CameraModel
 from firmware_models.fpga import FpgaModel
-from firmware_models.lvds import DEFAULT_TRAINING_WORD, Alignment, LvdsLink, train
+from firmware_models.lvds import DEFAULT_TRAINING_WORD, Alignment, LvdsLink
+from firmware_models.lvds_training import train
 from firmware_models.noise_bank import NoiseBank
 from firmware_models.render_kernels import Readout, read_out, weighted_rows
 from firmware_models.sensor import SensorModel
