@@ -23,6 +23,10 @@ from firmware_models.sensor import SensorModel
 from firmware_models.sensor_link import SensorLink
 from firmware_models.wheel import FilterWheel
 
+# docs/protocol.md WHEEL_SET_SPEED: slower than this but not 0 is refused (OUT_OF_RANGE); the
+# period of a slower turn would not fit the answer's f32 (a denormal speed made it 2.6e47 s).
+MIN_SPEED_DEG_S = 1e-7
+
 
 class WheelCommands:
     """The filter wheel: its speed, the exposure delay compensation, acquisitions."""
@@ -76,6 +80,13 @@ class WheelCommands:
         if self.imaging_path.streaming and self.camera.transmission is not None:
             raise Nak("ILLEGAL_STATE", "WHEEL_SET_SPEED refused during a wheel acquisition")
         speed = f32_decimal(float(request["speed_deg_s"]))
+        if 0.0 < speed < MIN_SPEED_DEG_S:
+            # Checked before the wheel is touched: a refused command changes nothing.
+            raise Nak(
+                "OUT_OF_RANGE",
+                f"speed {speed:.6g} deg/s is too slow: its period does not fit the answer's f32; "
+                f"use 0 (stop) or at least {MIN_SPEED_DEG_S:g} deg/s",
+            )
         self.wheel.set_speed(speed, self._wheel_time_s(now_s))
         return Outcome(spec.encode_response(period_s=360.0 / speed if speed > 0 else 0.0))
 

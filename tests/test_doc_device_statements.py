@@ -303,6 +303,20 @@ def test_the_wheel_turns_from_power_on_and_its_windows_are_angles(unit: Unit) ->
     assert unit.ack("WHEEL_GET", now + (ahead + 0.04) / spin)["channel"] == 255
 
 
+def test_a_wheel_speed_too_slow_for_its_period_is_refused_and_changes_nothing(unit: Unit) -> None:
+    # Found by test_fpga_model's fuzzing: the speed 1.4e-45 deg/s (payload 00 00 00 01) made a
+    # period of 2.6e47 s that no f32 holds, and the simulator answered INTERNAL.
+    _said("A speed above 0 and below 1e-7 deg/s (a turn in 114 years, whose period might not fit "
+          "the answer) is refused with OUT_OF_RANGE and changes nothing.")  # fmt: skip
+    before = unit.ack("WHEEL_GET", 1.0)["speed_deg_s"]
+    for raw in (b"\x00\x00\x00\x01", struct.pack(">f", 9.9e-8)):
+        assert unit.send("WHEEL_SET_SPEED", 1.0, raw=raw).kind == "OUT_OF_RANGE"
+    assert unit.ack("WHEEL_GET", 1.0)["speed_deg_s"] == before
+    slowest = unit.ack("WHEEL_SET_SPEED", 1.0, speed_deg_s=1e-6)["period_s"]
+    assert slowest == pytest.approx(3.6e8, rel=1e-6)
+    assert unit.ack("WHEEL_SET_SPEED", 1.0, speed_deg_s=0.0)["period_s"] == 0.0
+
+
 def test_a_refused_read_only_write_leaves_the_spi_error_flag_clear(unit: Unit) -> None:
     _said("a refused write never reaches the sensor, so it does not set the sensor's SPI "
           "error flag")  # fmt: skip

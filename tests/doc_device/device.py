@@ -731,6 +731,8 @@ class DocDevice:
 
     def _wheel_set_speed(self, r: dict[str, Any], now_s: float, ev: list[Frame]) -> dict[str, Any]:
         speed = float(r["speed_deg_s"])
+        if 0.0 < speed < 1e-7:  # docs/protocol.md WHEEL_SET_SPEED: its period would not fit
+            raise Refused("OUT_OF_RANGE", f"WHEEL_SET_SPEED: {speed:g} deg/s is too slow")
         self.wheel.set_speed(speed, now_s)
         return {"period_s": 360.0 / speed if speed > 0 else 0.0}
 
