@@ -52,6 +52,26 @@ settings.register_profile("camd", deadline=None)
 settings.load_profile("camd")
 
 
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """The modules with ``exclusive`` tests first, their exclusive tests first within them.
+
+    An exclusive test waits until no other test runs (below), and the other workers wait while
+    it runs. At the start of a run every worker begins at once, so the exclusive tests run one
+    after another with nothing to wait for; later in the run each would first wait for the
+    longest test then running on another worker. The order is otherwise kept (a stable sort),
+    so a module's tests stay together and share its daemon.
+    """
+    exclusive_modules = {
+        item.nodeid.split("::")[0] for item in items if item.get_closest_marker("exclusive")
+    }
+
+    def order(item: pytest.Item) -> tuple[int, int]:
+        module_first = 0 if item.nodeid.split("::")[0] in exclusive_modules else 1
+        return module_first, 0 if item.get_closest_marker("exclusive") else 1
+
+    items.sort(key=order)
+
+
 @pytest.hookimpl(hookwrapper=True, tryfirst=True)
 def pytest_runtest_protocol(item: pytest.Item) -> Iterator[None]:
     """Under pytest-xdist, a test marked ``exclusive`` runs while no other test does.
@@ -62,6 +82,11 @@ def pytest_runtest_protocol(item: pytest.Item) -> Iterator[None]:
     holds it alone (flock on a file named after the run, which the workers share). Without
     xdist there is one process and nothing to share.
 
+    Every test passes a turnstile (a second lock) on its way in; an exclusive test holds the
+    turnstile while it waits and runs, so no test starts after it asked. Without it, flock
+    would go on granting the shared lock to the other workers' next tests, and the exclusive
+    test's worker could wait for as long as they kept one running.
+
     A hook wrapping the whole test (setup, call, teardown) from outside, not a fixture: the
     wait for the lock must not count against the test's timeout (pytest-timeout starts its
     clock inside this), since a test may wait minutes behind an exclusive one.
@@ -70,11 +95,16 @@ def pytest_runtest_protocol(item: pytest.Item) -> Iterator[None]:
     if "PYTEST_XDIST_WORKER" not in os.environ or run is None:
         yield
         return
-    path = Path(tempfile.gettempdir()) / f"camd-cpu-share-{run}.lock"
+    base = Path(tempfile.gettempdir()) / f"camd-cpu-share-{run}"
     exclusive = item.get_closest_marker("exclusive") is not None
-    with open(path, "a") as lock:
+    with open(f"{base}.lock", "a") as lock, open(f"{base}.turnstile", "a") as turnstile:
+        fcntl.flock(turnstile, fcntl.LOCK_EX)
         fcntl.flock(lock, fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH)
+        if not exclusive:
+            fcntl.flock(turnstile, fcntl.LOCK_UN)
         try:
             yield
         finally:
             fcntl.flock(lock, fcntl.LOCK_UN)
+            if exclusive:
+                fcntl.flock(turnstile, fcntl.LOCK_UN)
