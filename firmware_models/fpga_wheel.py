@@ -51,7 +51,7 @@ class WheelCommands:
         self.defects = defects
         self.compensation = False
         self.polarizer_deg: float | None = None  # the scene's reference polariser, if any
-        self._until_s = 0.0  # model time the last wheel acquisition's frames reach
+        self._lead_s = 0.0  # how far the wheel's clock runs ahead of the device's (below)
 
     def handlers(self) -> dict[str, Handler]:
         """The commands of this group."""
@@ -71,8 +71,14 @@ class WheelCommands:
 
     def _wheel_time_s(self, now_s: float) -> float:
         """Where the wheel's model time is: a wheel acquisition runs ahead of the wall clock
-        (its frames are not paced), and the wheel is read and set there."""
-        return max(now_s - self.state.power_on_s, self._until_s)
+        (its frames are not paced), and the wheel is read and set there.
+
+        The wheel's clock keeps that lead afterwards and goes on at the wall clock's rate: a
+        clock held at the acquisition's end until the wall caught up made two WHEEL_GETs 0.2 s
+        apart read the same time, and conformance's wheel.speed measured the wheel as standing
+        (a busy machine, the check right after a wheel acquisition of several turns).
+        """
+        return now_s - self.state.power_on_s + self._lead_s
 
     def wheel_set_speed(
         self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float
@@ -157,7 +163,7 @@ class WheelCommands:
                     t = start + frame
         except ValueError as exc:
             raise Nak("OUT_OF_RANGE", f"WHEEL_ACQUIRE refused: {exc}") from None
-        self._until_s = t
+        self._lead_s = max(self._lead_s, t - (now_s - self.state.power_on_s))
         self.camera.transmission = self._transmission()
         try:
             geometry = self.imaging_path.start(

@@ -53,23 +53,18 @@ settings.load_profile("camd")
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """The modules with ``exclusive`` tests first, their exclusive tests first within them.
+    """The modules with ``exclusive`` tests first.
 
     An exclusive test waits until no other test runs (below), and the other workers wait while
-    it runs. At the start of a run every worker begins at once, so the exclusive tests run one
-    after another with nothing to wait for; later in the run each would first wait for the
-    longest test then running on another worker. The order is otherwise kept (a stable sort),
-    so a module's tests stay together and share its daemon.
+    it runs. Near the start of a run the other workers are in those modules' short tests, not
+    in the suite's long ones, so an exclusive test waits less for them. The order is otherwise
+    kept (a stable sort): a module's tests stay together, in their order, and share its daemon.
     """
     exclusive_modules = {
         item.nodeid.split("::")[0] for item in items if item.get_closest_marker("exclusive")
     }
 
-    def order(item: pytest.Item) -> tuple[int, int]:
-        module_first = 0 if item.nodeid.split("::")[0] in exclusive_modules else 1
-        return module_first, 0 if item.get_closest_marker("exclusive") else 1
-
-    items.sort(key=order)
+    items.sort(key=lambda item: item.nodeid.split("::")[0] not in exclusive_modules)
 
 
 @pytest.hookimpl(hookwrapper=True, tryfirst=True)

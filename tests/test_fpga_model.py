@@ -609,3 +609,25 @@ def test_any_command_frame_gets_exactly_one_answer(seq: int, opcode: int, payloa
         code, detail = model.dictionary.decode_nak(answer.payload)
         assert model.dictionary.error(code).name != "INTERNAL", detail
         assert detail
+
+
+def test_the_wheels_clock_runs_on_after_an_acquisition_ran_ahead(
+    model: FpgaModel, dictionary: Dictionary
+) -> None:
+    # A wheel acquisition's frames are made ahead of the wall clock; the wheel's clock keeps
+    # the lead and runs on at the wall's rate. It used to stand still at the acquisition's end
+    # until the wall caught up, so conformance's wheel.speed saw a standing wheel.
+    ack_values(dictionary, "TRAIN", call(model, "TRAIN", seq=5))
+    got = ack_values(
+        dictionary, "WHEEL_ACQUIRE", call(model, "WHEEL_ACQUIRE", seq=6, now_s=1.0,
+                                          channels=bytes([12, 0, 12]), passes=2)
+    )  # fmt: skip
+    assert got["frames"] == 6
+    model.imaging_path.stop()
+    first = ack_values(dictionary, "WHEEL_GET", call(model, "WHEEL_GET", seq=7, now_s=1.1))
+    second = ack_values(dictionary, "WHEEL_GET", call(model, "WHEEL_GET", seq=8, now_s=1.3))
+    # Several turns of 4.9 s ahead of the wall (power-on at 0), then 0.2 s later 0.2 s on.
+    assert float(first["time_s"]) > 1.1 + 4.9
+    assert float(second["time_s"]) - float(first["time_s"]) == pytest.approx(0.2, abs=1e-6)
+    turned = (float(second["angle_deg"]) - float(first["angle_deg"])) % 360.0
+    assert turned == pytest.approx(0.2 * float(first["speed_deg_s"]), rel=1e-4)
