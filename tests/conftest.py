@@ -14,8 +14,9 @@ from hypothesis import settings
 from camd.daemon.config import RECORD_DIRS_ENV
 
 # The browser fixtures (``browser``, ``page``) for the tests of the pages the daemon serves; the
-# ``daemon`` mark of the tests that start a process, and its check (the fast tier: -m "not daemon").
-pytest_plugins = ["tests.browser", "tests.tiers"]
+# ``daemon`` mark of the tests that start a process, and its check (the fast tier: -m "not daemon");
+# the order the modules go to the workers (tests/schedule.py).
+pytest_plugins = ["tests.browser", "tests.tiers", "tests.schedule"]
 
 # The suite's daemons do not load the TDI kernels at start (daemon.tdi_warm_up, docs/config.md):
 # most never scan, and a scan loads them itself; about a second of a core per daemon saved.
@@ -50,21 +51,6 @@ def started_processes_keep_their_bytecode(tmp_path_factory: pytest.TempPathFacto
 # No per-example deadline: CI machines are slow and shared; a slow example is not a failure.
 settings.register_profile("camd", deadline=None)
 settings.load_profile("camd")
-
-
-def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """The modules with ``exclusive`` tests first.
-
-    An exclusive test waits until no other test runs (below), and the other workers wait while
-    it runs. Near the start of a run the other workers are in those modules' short tests, not
-    in the suite's long ones, so an exclusive test waits less for them. The order is otherwise
-    kept (a stable sort): a module's tests stay together, in their order, and share its daemon.
-    """
-    exclusive_modules = {
-        item.nodeid.split("::")[0] for item in items if item.get_closest_marker("exclusive")
-    }
-
-    items.sort(key=lambda item: item.nodeid.split("::")[0] not in exclusive_modules)
 
 
 @pytest.hookimpl(hookwrapper=True, tryfirst=True)
