@@ -166,14 +166,14 @@ def test_build_inject_spreads_the_frame_fault_rate() -> None:
 
 
 def test_a_short_edge_soak_stops_fills_and_checks_everything(tmp_path: Path) -> None:
-    """``camd soak --edges`` for 40 s: emergency stops during campaign jobs, the data disk
+    """``camd soak --edges`` for 27 s: emergency stops during campaign jobs, the data disk
     filled once and emptied, every figure reported, and the daemon holding up to all of it."""
     if not REQUIRE_MOUNT and os.geteuid() != 0:
         pytest.skip("camd soak --edges mounts a tmpfs: root only (CI runs as root)")
     work = tmp_path / "edges"
     proc = _soak(
-        "--edges", "--minutes", "0.7", "--estop-every-s", "12", "--disk-fills", "1",
-        "--fill-hold-s", "8", "--json", "--out", str(work),
+        "--edges", "--minutes", "0.45", "--estop-every-s", "9", "--disk-fills", "1",
+        "--fill-hold-s", "6", "--json", "--out", str(work),
     )  # fmt: skip
     assert proc.returncode == 0, proc.stderr
     doc = json.loads(proc.stdout)
