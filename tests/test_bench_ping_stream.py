@@ -8,6 +8,7 @@ import statistics
 
 import pytest
 
+from camd.bench.ping import MAX_PER_ROUND, MIN_PER_ROUND
 from camd.bench.stream import bench_stream, transfer_bytes
 from camd.cli.camd_main import main
 from camd.protocol.stream import HEADER_BYTES
@@ -48,11 +49,13 @@ def test_ping_by_time_sizes_each_side_s_rounds_from_the_warm_up(
     capsys: pytest.CaptureFixture[str],
 ) -> None:
     # --count 0 (the default): each turn as many round trips as the warm-up says fit in
-    # --seconds; the echo is faster than the daemon, so it gets more of them.
+    # --seconds, within the bounds. Which side gets more is a matter of timing (the echo is
+    # usually faster; on a busy machine, with 6 workers on 2 cores, it once got 32 to camd's
+    # 35), so it is not asserted.
     assert main(["bench", "ping", "--seconds", "0.05", "--rounds", "1", "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
     per_round = doc["count_per_round"]
-    assert 10 <= per_round["camd"] <= per_round["baseline"] <= 100_000
+    assert all(MIN_PER_ROUND <= n <= MAX_PER_ROUND for n in per_round.values()), per_round
     assert doc["count"] == per_round["camd"] and doc["failed"] == 0
 
 
