@@ -11,6 +11,7 @@ import argparse
 import pytest
 
 from camd.bench.scan import bench_scan, run
+from camd.cli.camd_main import main
 
 # Not ``exclusive``: 31 frames, fewer than the daemon's queue holds, so a busy machine delays
 # them but loses none, and no figure is held to a rate. Checked beside `stress-ng --cpu 2`.
@@ -63,3 +64,20 @@ def test_bench_scan_refuses_a_line_period_that_is_not_positive(
     )  # fmt: skip
     assert run(args) == 2
     assert capsys.readouterr().out == "camd bench scan: --line-period-s must be > 0 (seconds)\n"
+
+
+@pytest.mark.daemon  # through camd's command table, which tests/tiers.py does not follow
+def test_a_scan_the_daemon_refuses_is_its_message_not_a_traceback(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    # 25,000 lines of 1.2 ms with the stage driven need 3.1 m of travel; the rail has 1.2 m.
+    # The daemon says so; camd bench used to end in a traceback around that message.
+    code = main(["bench", "scan", "--drive-stage", "--stages", "1", "--line-period-s",
+                 "0.0012", "--lines", "25000"])  # fmt: skip
+    assert code == 1
+    err = capsys.readouterr().err
+    assert err.startswith(
+        "camd bench scan: error: the scan needs 3097.6 mm of travel at 91.67 mm/s but the soft "
+        "limits leave 1200.0 mm; scan fewer lines, or slower"
+    ), err
+    assert "Traceback" not in err

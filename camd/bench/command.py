@@ -22,6 +22,7 @@ it is the fair one). One module of ``camd.bench`` per benchmark, named as its su
 from __future__ import annotations
 
 import argparse
+import sys
 from dataclasses import dataclass
 from types import ModuleType
 from typing import Any
@@ -37,6 +38,7 @@ from camd.bench import (
     stream,
     tdi,
 )
+from camd.client import CamdError
 
 
 @dataclass(frozen=True, slots=True)
@@ -130,4 +132,10 @@ def add_parser(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    return int(_BENCHES[args.bench].module.run(args))
+    try:
+        return int(_BENCHES[args.bench].module.run(args))
+    except CamdError as exc:
+        # The daemon refused what the benchmark asked (a scan too long for the stage's travel,
+        # say): its message says what to change; a traceback would bury it.
+        print(f"camd bench {args.bench}: error: {exc.message}", file=sys.stderr)
+        return 1
