@@ -5,7 +5,7 @@ from __future__ import annotations
 import fcntl
 import os
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
@@ -68,12 +68,17 @@ def pytest_runtest_protocol(item: pytest.Item) -> Iterator[None]:
     would go on granting the shared lock to the other workers' next tests, and the exclusive
     test's worker could wait for as long as they kept one running.
 
+    An exclusive test whose real-time part ends before the test does hands the lock back
+    then with the ``end_exclusive`` fixture: it holds it shared, like any other test, for the
+    rest.
+
     A hook wrapping the whole test (setup, call, teardown) from outside, not a fixture: the
     wait for the lock must not count against the test's timeout (pytest-timeout starts its
     clock inside this), since a test may wait minutes behind an exclusive one.
     """
     run = os.environ.get("PYTEST_XDIST_TESTRUNUID")
     if "PYTEST_XDIST_WORKER" not in os.environ or run is None:
+        item.stash[_END_EXCLUSIVE] = lambda: None
         yield
         return
     base = Path(tempfile.gettempdir()) / f"camd-cpu-share-{run}"
@@ -83,9 +88,24 @@ def pytest_runtest_protocol(item: pytest.Item) -> Iterator[None]:
         fcntl.flock(lock, fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH)
         if not exclusive:
             fcntl.flock(turnstile, fcntl.LOCK_UN)
+
+        def end_exclusive() -> None:
+            fcntl.flock(lock, fcntl.LOCK_SH)  # the other workers' tests may start again
+            fcntl.flock(turnstile, fcntl.LOCK_UN)
+
+        item.stash[_END_EXCLUSIVE] = end_exclusive
         try:
             yield
         finally:
             fcntl.flock(lock, fcntl.LOCK_UN)
-            if exclusive:
-                fcntl.flock(turnstile, fcntl.LOCK_UN)
+            fcntl.flock(turnstile, fcntl.LOCK_UN)  # held by an exclusive test still; else a no-op
+
+
+_END_EXCLUSIVE = pytest.StashKey[Callable[[], None]]()
+
+
+@pytest.fixture
+def end_exclusive(request: pytest.FixtureRequest) -> Callable[[], None]:
+    """Call it where an ``exclusive`` test's real-time part ends: other tests may run beside
+    the rest of it (tests/test_demo.py: the demo's campaigns, after its streams and scans)."""
+    return request.node.stash[_END_EXCLUSIVE]

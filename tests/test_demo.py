@@ -11,6 +11,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import IO
 
@@ -24,7 +25,12 @@ from tests.campaign_support import report_images
 
 # The demo's runs stream full frames in real time (200 of 534 x 2048 pixels, more than the
 # daemon's queue holds, with no overrun asked): ``exclusive``, alone under xdist
-# (tests/conftest.py). The address test runs nothing.
+# (tests/conftest.py), until its streams and scans are done. Its campaigns (step 10) run on
+# their own simulated cameras, as tests/test_campaign_tdi.py and test_campaign_mtf.py run the
+# same campaigns beside other tests, so other tests may run beside them (``end_exclusive``):
+# the exclusive part of the whole demo was 35-37 s, 12-14 s of it before step 10.
+# The address test runs nothing.
+CAMPAIGN_STEP = "10. test campaigns (short runs)"
 
 REPO_ROOT = str(Path(camd.__file__).resolve().parent.parent)
 
@@ -43,26 +49,40 @@ def demo_env() -> dict[str, str]:
 
 
 @pytest.mark.exclusive
-def test_demo_runs_and_writes_its_summary(tmp_path: Path) -> None:
+def test_demo_runs_and_writes_its_summary(
+    tmp_path: Path, end_exclusive: Callable[[], None]
+) -> None:
     out = tmp_path / "demo"
-    env = demo_env()
-    proc = subprocess.run(
+    proc = subprocess.Popen(
         [sys.executable, "-m", "camd", "demo", "--out", str(out), "--pings", "200"],
-        capture_output=True,
-        text=True,
-        timeout=300,
-        env=env,
-        check=False,
-    )
-    assert proc.returncode == 0, proc.stdout + proc.stderr
-    assert "Traceback" not in proc.stderr
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=demo_env(),
+    )  # fmt: skip
+    stderr: list[str] = []
+    reader = threading.Thread(target=lambda: stderr.extend(proc.stderr or ()), daemon=True)
+    reader.start()
+    try:
+        stdout: list[str] = []
+        for line in proc.stdout or ():
+            stdout.append(line)
+            if line.startswith(CAMPAIGN_STEP):
+                end_exclusive()
+        returncode = proc.wait(timeout=300)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    reader.join(timeout=10)
+    out_text, err_text = "".join(stdout), "".join(stderr)
+    assert returncode == 0, out_text + err_text
+    assert "Traceback" not in err_text
+    assert any(line.startswith(CAMPAIGN_STEP) for line in stdout), out_text
     summary_path = out / "demo-summary.json"
-    final = proc.stdout.strip().splitlines()[-1]
+    final = out_text.strip().splitlines()[-1]
     # The live view's address, early (right after the daemon's) and in the summary.
     summary = json.loads(summary_path.read_text())
     live_url = summary["daemon"]["url"] + "/live"
     assert summary["live_url"] == live_url and "keep" not in summary
-    lines = proc.stdout.splitlines()
+    lines = out_text.splitlines()
     assert any(line.startswith(f"live view: {live_url} ") for line in lines[:10]), lines[:10]
     assert final.startswith("demo OK: 200 pings, ")
     assert " 0 failed" in final and final.endswith(f"summary in {summary_path}")
@@ -154,7 +174,9 @@ def is_camd_serve(pid: int) -> bool:
 
 
 @pytest.mark.exclusive
-def test_demo_keep_leaves_the_daemon_running_until_ctrl_c(tmp_path: Path) -> None:
+def test_demo_keep_leaves_the_daemon_running_until_ctrl_c(
+    tmp_path: Path, end_exclusive: Callable[[], None]
+) -> None:
     """``camd demo --keep``: after its steps the daemon serves a streaming live view at the
     address it printed, until SIGINT; then everything stops and the demo exits 0."""
     out = tmp_path / "demo"
@@ -189,6 +211,8 @@ def test_demo_keep_leaves_the_daemon_running_until_ctrl_c(tmp_path: Path) -> Non
             if match := re.search(r"daemon pid (\d+) serving", line):
                 daemon_pid = int(match.group(1))
             if "Ctrl-C to stop" in line:
+                # Streams and scans done; what follows checks the kept live view, not a rate.
+                end_exclusive()
                 break
         addresses = [m.group(1) for x in stdout if (m := re.match(r"live view: (\S+)", x))]
         # Printed early (before the steps) and again, the same, before waiting.
