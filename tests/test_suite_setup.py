@@ -53,5 +53,6 @@ def test_an_exclusive_test_hands_the_cpu_back_where_it_says(
 
     assert not could("lock", fcntl.LOCK_SH) and not could("turnstile", fcntl.LOCK_EX)
     end_exclusive()
-    assert could("lock", fcntl.LOCK_SH) and could("turnstile", fcntl.LOCK_EX)
+    # Not whether the turnstile is free now: another worker's test may take it at once.
+    assert could("lock", fcntl.LOCK_SH)
     assert not could("lock", fcntl.LOCK_EX)  # still held shared until the test ends

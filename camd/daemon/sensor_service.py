@@ -71,6 +71,7 @@ class SensorService:
         self.streaming = False  # what GET_SENSOR said at the last connect
         self._training: TrainResponse | None = None
         self._lost: tuple[float, str] | None = None  # when and how the last training was lost
+        self._trained_by_event_s: float | None = None  # LINK_TRAINED without TRAIN's answer
         # One connect check at a time: a reset's own check and the probe after its BOOT each
         # used to find the link untrained, and train it twice.
         self._connect_lock = threading.Lock()
@@ -97,6 +98,7 @@ class SensorService:
         self.device_sensor = str(values["sensor"])
         was_trained = self.trained
         self.trained = values["trained"] == "yes"
+        self._trained_by_event_s = None
         if was_trained and not self.trained and self._lost is None:
             self._lost = (time.time(), "the camera restarted")
         self.streaming = values["imaging"] == "yes"
@@ -128,13 +130,20 @@ class SensorService:
             )
             return True
         if name == "LINK_TRAINED":
-            lanes = (
-                "every lane locked" if values.get("locked") == "yes" else "not every lane locked"
-            )
+            locked = values.get("locked") == "yes"
+            lanes = "every lane locked" if locked else "not every lane locked"
             self.device.log_event(
                 "info", "device", f"the camera finished LVDS training (LINK_TRAINED): {lanes}, "
                 f"{values.get('bit_errors')} bit errors"
             )  # fmt: skip
+            if locked and values.get("bit_errors") == 0 and not self.trained:
+                # The camera trained although TRAIN's answer never came (a busy camera answered
+                # after the host's attempts ran out): its event says the link is trained, and
+                # imaging must not be refused as untrained.
+                self.trained = True
+                self._lost = None
+                self._training = None  # an earlier training's figures are not this one's
+                self._trained_by_event_s = time.time()
             return True
         return False
 
@@ -267,6 +276,7 @@ class SensorService:
         bit_errors = int(values["bit_errors"])
         self.trained = locked and bit_errors == 0
         self._lost = None
+        self._trained_by_event_s = None
         self._training = TrainResponse(
             sensor=self.regmap.sensor,
             interface=self.interface,
@@ -327,6 +337,12 @@ class SensorService:
             last = "" if t is None else f", after the last training at {_clock(t.t_s)}"
             return f"LVDS link not trained: it lost its training at {_clock(lost_s)} ({how}){last}"
         if t is None:
+            if self.trained and self._trained_by_event_s is not None:
+                return (
+                    f"LVDS link trained (the camera's LINK_TRAINED event at "
+                    f"{_clock(self._trained_by_event_s)}: every lane locked, 0 bit errors; "
+                    "TRAIN's answer did not come, so `camctl train` measures its lanes)"
+                )
             if self.trained:
                 return (
                     "LVDS link trained (found trained when the camera connected; "
