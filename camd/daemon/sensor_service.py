@@ -326,43 +326,12 @@ class SensorService:
 
     def training_summary(self) -> str:
         """One sentence on the link's training, for events, refusals and the train document."""
-        t = self._training
         if self.interface != "lvds":
             return (
                 f"{self.regmap.sensor} {self.interface} interface: nothing to train (no LVDS "
                 "lanes); the sensor's data reaches the FPGA as it is"
             )
-        if not self.trained and self._lost is not None:
-            lost_s, how = self._lost
-            last = "" if t is None else f", after the last training at {_clock(t.t_s)}"
-            return f"LVDS link not trained: it lost its training at {_clock(lost_s)} ({how}){last}"
-        if t is None:
-            if self.trained and self._trained_by_event_s is not None:
-                return (
-                    f"LVDS link trained (the camera's LINK_TRAINED event at "
-                    f"{_clock(self._trained_by_event_s)}: every lane locked, 0 bit errors; "
-                    "TRAIN's answer did not come, so `camctl train` measures its lanes)"
-                )
-            if self.trained:
-                return (
-                    "LVDS link trained (found trained when the camera connected; "
-                    "`camctl train` measures its lanes)"
-                )
-            return "LVDS link not trained yet"
-        unlocked = [str(lane.lane) for lane in t.lane_results if not lane.locked]
-        if self.trained:
-            return (
-                f"LVDS link trained: {t.locked_lanes}/{t.lanes} lanes locked, "
-                f"{t.bit_errors} bit errors in {t.verified_bits} PRBS bits"
-            )
-        if unlocked:
-            return (
-                f"LVDS training failed: lane(s) {', '.join(unlocked)} did not lock "
-                f"({t.locked_lanes}/{t.lanes} locked)"
-            )
-        if t.bit_errors:
-            return f"LVDS training failed: {t.bit_errors} bit errors in the PRBS check"
-        return "LVDS link not trained (lost since the last training)"
+        return lvds_summary(self.trained, self._training, self._lost, self._trained_by_event_s)
 
     def mismatch(self) -> str | None:
         """What is wrong when the camera reports another sensor than ``sensor.name`` (None
@@ -486,3 +455,45 @@ def _key(text: str) -> str | int:
         return int(text, 0)
     except ValueError:
         return text
+
+
+def lvds_summary(
+    trained: bool,
+    t: TrainResponse | None,
+    lost: tuple[float, str] | None,
+    trained_by_event_s: float | None,
+) -> str:
+    """``SensorService.training_summary`` of an LVDS link: whether it is trained, from the last
+    training ``t`` (None: none since the daemon started), when and how it was ``lost``, and
+    when a LINK_TRAINED event without TRAIN's answer said it was trained."""
+    if not trained and lost is not None:
+        lost_s, how = lost
+        last = "" if t is None else f", after the last training at {_clock(t.t_s)}"
+        return f"LVDS link not trained: it lost its training at {_clock(lost_s)} ({how}){last}"
+    if t is None:
+        if trained and trained_by_event_s is not None:
+            return (
+                f"LVDS link trained (the camera's LINK_TRAINED event at "
+                f"{_clock(trained_by_event_s)}: every lane locked, 0 bit errors; "
+                "TRAIN's answer did not come, so `camctl train` measures its lanes)"
+            )
+        if trained:
+            return (
+                "LVDS link trained (found trained when the camera connected; "
+                "`camctl train` measures its lanes)"
+            )
+        return "LVDS link not trained yet"
+    unlocked = [str(lane.lane) for lane in t.lane_results if not lane.locked]
+    if trained:
+        return (
+            f"LVDS link trained: {t.locked_lanes}/{t.lanes} lanes locked, "
+            f"{t.bit_errors} bit errors in {t.verified_bits} PRBS bits"
+        )
+    if unlocked:
+        return (
+            f"LVDS training failed: lane(s) {', '.join(unlocked)} did not lock "
+            f"({t.locked_lanes}/{t.lanes} locked)"
+        )
+    if t.bit_errors:
+        return f"LVDS training failed: {t.bit_errors} bit errors in the PRBS check"
+    return "LVDS link not trained (lost since the last training)"
