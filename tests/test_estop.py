@@ -227,7 +227,7 @@ def test_a_killed_worker_gives_control_back_at_once(daemon: DaemonProcess) -> No
             ),
         )
         assert client.control()["holder"] == f"campaign-job-{job['id']}"
-        pid = _worker_pid(job["id"])
+        pid = _worker_pid(job["id"], daemon.pid)
         os.kill(pid, signal.SIGKILL)
         killed_at = time.monotonic()
         wait_for("control to be free", lambda: client.control()["holder"] is None, timeout_s=30.0)
@@ -247,19 +247,24 @@ def test_a_killed_worker_gives_control_back_at_once(daemon: DaemonProcess) -> No
             client.abort_campaign(job["id"])
 
 
-def _worker_pid(job_id: int) -> int:
-    """The pid of job ``job_id``'s worker (from /proc: the daemon does not publish it)."""
+def _worker_pid(job_id: int, daemon_pid: int) -> int:
+    """The pid of job ``job_id``'s worker under the daemon ``daemon_pid`` (from /proc: the
+    daemon does not publish it). Its parent must be that daemon: another test's daemon on
+    another worker has a job of that number too, and killing its worker failed both tests."""
     for entry in Path("/proc").iterdir():
         if not entry.name.isdigit():
             continue
-        with contextlib.suppress(OSError):
+        with contextlib.suppress(OSError, ValueError, IndexError):
             argv = (entry / "cmdline").read_bytes().split(b"\0")
+            status = (entry / "status").read_text()
+            ppid = int(status.split("PPid:", 1)[1].split()[0])
             if (
-                b"camd.campaign.worker" in argv
+                ppid == daemon_pid
+                and b"camd.campaign.worker" in argv
                 and argv[argv.index(b"--job") + 1] == str(job_id).encode()
             ):
                 return int(entry.name)
-    raise AssertionError(f"no worker process for job {job_id}")
+    raise AssertionError(f"no worker process for job {job_id} under daemon {daemon_pid}")
 
 
 def test_the_latch_outlives_the_daemon_and_a_camera_that_comes_back_turning(
