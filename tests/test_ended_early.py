@@ -132,7 +132,14 @@ def test_a_stare_stopped_by_another_client_is_not_done(
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=camctl_env(),
     )  # fmt: skip
     try:
-        wait_for("3 frames on disk", lambda: client.stream()["frames_flushed"] >= 3)
+
+        def flushed() -> bool:
+            # A stare that ended at once (refused) says why, instead of a 120 s wait for frames.
+            if stare.poll() is not None:
+                raise AssertionError(f"the stare ended first: {stare.communicate()}")
+            return int(client.stream()["frames_flushed"]) >= 3
+
+        wait_for("3 frames on disk", flushed)
         stopped = client.stop_stream()
         _, err = stare.communicate(timeout=WAIT_S)
     finally:
