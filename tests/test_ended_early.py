@@ -127,7 +127,7 @@ def test_a_stare_stopped_by_another_client_is_not_done(
 ) -> None:
     out = tmp_path / "stopped.h5"
     stare = subprocess.Popen(
-        [sys.executable, "-m", "camd.cli.camctl", "--url", url, "stare", "--frames", "100000",
+        [sys.executable, "-m", "camd.cli.camctl", "--url", url, "stare", "--frames", "20000",
          "--out", str(out)],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=camctl_env(),
     )  # fmt: skip
@@ -150,10 +150,10 @@ def test_a_stare_stopped_by_another_client_is_not_done(
     kept, sent = stopped["frames_flushed"], stopped["frames_sent"]
     assert sent is not None and stopped["ended_early"] is None  # as asked, by its stopper
     assert (
-        "camctl: error: the stream was stopped before its 100000 frames (`camctl stream "
+        "camctl: error: the stream was stopped before its 20000 frames (`camctl stream "
         "--stop`, an emergency stop or the daemon stopping): "
-        f"{stopped['stats']['frames']} of 100000 frames delivered, {stopped['stats']['lost']} "
-        f"lost, {100000 - sent} not "
+        f"{stopped['stats']['frames']} of 20000 frames delivered, {stopped['stats']['lost']} "
+        f"lost, {20000 - sent} not "
         f"sent; the recording {out} is closed with {kept} of them" in err
     )
     assert read_recording(out).attrs["frames"] == kept >= 3
