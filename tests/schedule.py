@@ -4,7 +4,8 @@
 on real time (a simulated camera's frame periods, a stage's moves, a link's timeouts, daemons
 starting) more than it computes. Measured on the 2-core machine: with 2 workers the cores were
 24-74 % idle through the run (vmstat every 10 s), with 3 workers the run used 1.03 cores on
-average (766 s of CPU in 743 s), with 4 workers 1.35 (747 s in 554 s), and every test passed. ``PYTEST_XDIST_AUTO_NUM_WORKERS=N`` or ``-n N`` chooses another number.
+average (766 s of CPU in 743 s), with 4 workers 1.35 (747 s in 554 s), and every test passed.
+``PYTEST_XDIST_AUTO_NUM_WORKERS=N`` or ``-n N`` chooses another number.
 
 pytest runs with ``--dist loadscope --no-loadscope-reorder`` (pyproject.toml): each module (or
 test class) goes whole to one worker, so its tests share the module's daemon, and the workers
