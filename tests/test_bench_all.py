@@ -7,7 +7,7 @@ import json
 import pytest
 
 from camd.bench import run_all as bench_all
-from camd.bench.run_all import BENCHES, NAMES, Bench, run_one
+from camd.bench.run_all import BENCHES, NAMES, Bench, four_figures, run_one
 from camd.cli.camd_main import main
 
 TINY_TDI = ("--shapes", "6x64", "--frames-mb", "1", "--seconds", "0.02", "--rounds", "1")
@@ -68,3 +68,9 @@ def test_names_are_checked(capsys: pytest.CaptureFixture[str]) -> None:
     assert "unknown benchmark warp: choose from ping, stream, tdi" in capsys.readouterr().err
     assert main(["bench", "all", "--only", "tdi", "--skip", "tdi"]) == 2
     assert "leave no benchmark to run" in capsys.readouterr().err
+
+
+def test_the_summary_keeps_four_significant_figures_of_a_small_ratio() -> None:
+    assert four_figures(0.00098103) == 0.000981
+    assert four_figures(123.456) == 123.5
+    assert four_figures(1.0) == 1.0

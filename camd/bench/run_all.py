@@ -135,6 +135,12 @@ def _names(text: str) -> tuple[str, ...]:
     return choice_list(text, NAMES, "benchmark")
 
 
+def four_figures(value: float) -> float:
+    """A ratio to four significant figures, not four decimals: a ratio of 0.00098103 reads
+    0.000981, not 0.001 (a tiny benchmark's ratio lost its digits)."""
+    return float(f"{value:.4g}")
+
+
 def run_one(bench: Bench, *, quick: bool, python: str = sys.executable) -> Doc:
     """One benchmark in its own process: its document, exit status, time, figures."""
     argv = [
@@ -197,7 +203,7 @@ def bench_all(
         "machine": before,
         "loadavg_after": machine()["loadavg"],
         "wall_s": round(time.perf_counter() - t0, 1),
-        "ratios": {k: round(v, 4) if isinstance(v, float) else v for k, v in ratios.items()},
+        "ratios": {k: four_figures(v) if isinstance(v, float) else v for k, v in ratios.items()},
         "checks": checks,
         "failed": [n for n, e in benches.items() if "error" in e or e["exit_status"] != 0],
         "benches": benches,
