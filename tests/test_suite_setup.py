@@ -1,4 +1,5 @@
-"""What the suite sets up for the processes its tests start (tests/conftest.py)."""
+"""What the suite sets up for its processes: their bytecode (tests/bytecode.py) and their share of
+the CPU (tests/cpu_share.py)."""
 
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ from pathlib import Path
 import pytest
 
 import camd
+from tests import cpu_share
 
 
 def test_the_processes_the_tests_start_keep_their_bytecode() -> None:
@@ -34,7 +36,7 @@ def test_an_exclusive_test_hands_the_cpu_back_where_it_says(
     end_exclusive: Callable[[], None],
 ) -> None:
     # Under xdist an exclusive test holds the run's lock alone and the turnstile with it
-    # (tests/conftest.py); end_exclusive() leaves it the lock shared, as every test holds it,
+    # (tests/cpu_share.py); end_exclusive() leaves it the lock shared, as every test holds it,
     # so the other workers' tests start again. Without xdist there is no lock: a no-op.
     run = os.environ.get("PYTEST_XDIST_TESTRUNUID")
     if "PYTEST_XDIST_WORKER" not in os.environ or run is None:
@@ -56,3 +58,73 @@ def test_an_exclusive_test_hands_the_cpu_back_where_it_says(
     # Not whether the turnstile is free now: another worker's test may take it at once.
     assert could("lock", fcntl.LOCK_SH)
     assert not could("lock", fcntl.LOCK_EX)  # still held shared until the test ends
+
+
+def test_the_gate_opens_once_every_exclusive_test_has_ended(tmp_path: Path) -> None:
+    base = tmp_path / "run"
+    tests = frozenset({"tests/test_a.py::test_x", "tests/test_b.py::test_y"})
+    cpu_share.say_ended(base, "tests/test_a.py::test_x")
+    assert cpu_share.ended(base) == {"tests/test_a.py::test_x"}
+    cpu_share.say_ended(base, "tests/test_b.py::test_y")
+    cpu_share.wait_for_the_exclusive_tests(base, tests)  # returns: both have ended
+    assert cpu_share.ended(base) == tests
+
+
+def test_the_gate_opens_when_no_exclusive_test_ends_for_the_stall_limit(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # A worker lost in the middle of an exclusive test never says it ended: the run goes on.
+    monkeypatch.setattr(cpu_share, "GATE_STALL_S", 0.3)
+    monkeypatch.setattr(cpu_share, "GATE_POLL_S", 0.05)
+    cpu_share.wait_for_the_exclusive_tests(tmp_path / "run", frozenset({"tests/t.py::lost"}))
+
+
+GATED_RUN = {
+    "pytest.ini": "[pytest]\nmarkers =\n    exclusive: runs alone\n",
+    "conftest.py": 'pytest_plugins = ["tests.schedule", "tests.cpu_share"]\n',
+    "test_a_mixed.py": (
+        "import os, time, pytest\n"
+        "def log(what):\n"
+        "    with open(os.environ['GATE_LOG'], 'a') as f:\n"
+        "        f.write(f'{what} {time.time()!r}\\n')\n"
+        "def test_first():\n"
+        "    log('first_start'); time.sleep(1.5)\n"
+        "@pytest.mark.exclusive\n"
+        "def test_alone():\n"
+        "    log('alone_start'); time.sleep(0.5); log('alone_end')\n"
+    ),
+    "test_b_other.py": (
+        "from test_a_mixed import log\n"
+        "def test_one():\n    log('other_start')\n"
+        "def test_two():\n    log('other_start')\n"
+    ),
+}
+
+
+@pytest.mark.daemon
+def test_no_test_of_another_module_starts_before_the_exclusive_tests_end(tmp_path: Path) -> None:
+    # Two workers: one takes the module with the exclusive test (sent first), the other the
+    # module without. Without the gate, the other module's tests ran during test_first, before
+    # the exclusive test had even asked for the CPU, and an exclusive test then waited for
+    # whatever long test the other workers had started.
+    for name, text in GATED_RUN.items():
+        (tmp_path / name).write_text(text, encoding="utf-8")
+    log = tmp_path / "log"
+    repo = Path(__file__).resolve().parents[1]
+    env = {**os.environ, "GATE_LOG": str(log), "PYTHONPATH": f"{repo}:{tmp_path}"}
+    env.pop("PYTEST_ADDOPTS", None)
+    env.pop("PYTEST_XDIST_WORKER", None)
+    env.pop("PYTEST_XDIST_TESTRUNUID", None)
+    done = subprocess.run(
+        [sys.executable, "-m", "pytest", "-q", "-n", "2", "--dist", "loadscope",
+         "--no-loadscope-reorder", "-p", "no:cacheprovider", "--rootdir", str(tmp_path),
+         "-c", str(tmp_path / "pytest.ini"), str(tmp_path)],
+        cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stdout + done.stderr
+    events: dict[str, list[float]] = {}
+    for line in log.read_text(encoding="utf-8").splitlines():
+        what, when = line.split()
+        events.setdefault(what, []).append(float(when))
+    assert len(events["other_start"]) == 2, events
+    assert min(events["other_start"]) >= events["alone_end"][0], events
