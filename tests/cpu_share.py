@@ -15,11 +15,13 @@ An exclusive test waits for the tests then running on the other workers to end. 
 one (a 32 s soak, a 20 s campaign job) the whole run stood still: in a timeline of a
 fresh-clone run, 4 workers, the 9 exclusive tests ran 100 s and the waits around them cost the
 workers 320 s between them. So the exclusive tests go first: the modules that hold them are
-sent to the workers first (tests/schedule.py), and a test of any other module starts only once
-every exclusive test of the run has ended (each one that ends says so in a file the workers
-share). A worker's modules come in the order sent, so a worker waiting there holds no
-exclusive test behind it; and if no exclusive test ends for ``GATE_STALL_S`` (a worker lost
-mid-test), the others go on.
+sent to the workers first (tests/schedule.py), and a test of any other module that starts a
+process (marked ``daemon``, tests/tiers.py: the long ones) starts only once every exclusive test
+of the run has ended; each one that ends says so in a file the workers share. The tests that
+start no process (milliseconds to a few seconds) run in between, in the time the other workers
+would stand idle, so an exclusive test waits for short tests only. A worker's modules come in
+the order sent, so a worker waiting there holds no exclusive test behind it; and if no
+exclusive test ends for ``GATE_STALL_S`` (a worker lost mid-test), the others go on.
 
 An exclusive test whose real-time part ends before the test does hands the lock back then with
 the ``end_exclusive`` fixture: it holds it shared, like any other test, for the rest, and counts
@@ -111,7 +113,8 @@ def pytest_runtest_protocol(item: pytest.Item) -> Iterator[None]:
     base = run_files(run)
     runs = _exclusive(item)
     exclusive = item.nodeid in runs.tests
-    if not exclusive and module_of(item.nodeid) not in runs.modules:
+    gated = item.get_closest_marker("daemon") is not None
+    if gated and not exclusive and module_of(item.nodeid) not in runs.modules:
         wait_for_the_exclusive_tests(base, runs.tests)
     with open(f"{base}.lock", "a") as lock, open(f"{base}.turnstile", "a") as turnstile:
         fcntl.flock(turnstile, fcntl.LOCK_EX)

@@ -12,13 +12,16 @@ test class) goes whole to one worker, so its tests share the module's daemon, an
 take the modules in the order sorted here:
 
 1. The modules with ``exclusive`` tests first. An exclusive test waits until no other test runs
-   (tests/conftest.py) and the other workers wait while it runs; at the start of a run the
-   other workers are in those modules' short tests, so it waits less for them than it would
-   behind the suite's long ones.
-2. Then the longest first, from tests/module_seconds.json (each module's seconds in a recent
-   run; a module not in it counts 1 s): a run does not end waiting on a long module that one
-   worker started last while the others stand idle. xdist's own order (most tests first) put a
-   37 s module of 2 tests at the very end.
+   and the other workers wait while it runs (tests/cpu_share.py): a test that starts a process
+   (marked ``daemon``, tests/tiers.py) in any other module starts only once every exclusive
+   test has ended.
+2. Then the modules that start no process: their tests are short (milliseconds to a few
+   seconds), so the workers run them while the exclusive tests go on, and an exclusive test
+   that asks for the CPU waits only for the short tests then running.
+3. Then the rest, the longest first, from tests/module_seconds.json (each module's seconds in a
+   recent run; a module not in it counts 1 s): a run does not end waiting on a long module that
+   one worker started last while the others stand idle. xdist's own order (most tests first)
+   put a 37 s module of 2 tests at the very end.
 
 ``pytest --record-module-seconds`` rewrites the file from the run it ends. Stale figures only
 make the order less good; they never change what a test does.
@@ -54,10 +57,11 @@ def recorded_seconds(path: Path = SECONDS_FILE) -> dict[str, float]:
 def module_order(items: list[pytest.Item], seconds: dict[str, float]) -> list[pytest.Item]:
     """``items`` with their modules in the order above; each module's own order kept."""
     exclusive = {module_of(i.nodeid) for i in items if i.get_closest_marker("exclusive")}
+    processes = {module_of(i.nodeid) for i in items if i.get_closest_marker("daemon")}
 
-    def key(item: pytest.Item) -> tuple[bool, float]:
+    def key(item: pytest.Item) -> tuple[bool, bool, float]:
         module = module_of(item.nodeid)
-        return module not in exclusive, -seconds.get(module, UNKNOWN_MODULE_S)
+        return module not in exclusive, module in processes, -seconds.get(module, UNKNOWN_MODULE_S)
 
     return sorted(items, key=key)  # stable: a module's tests keep their order
 
@@ -78,6 +82,7 @@ def pytest_addoption(parser: pytest.Parser) -> None:
     )
 
 
+@pytest.hookimpl(trylast=True)  # after tests/tiers.py has marked the tests that start processes
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     items[:] = module_order(items, recorded_seconds())
 

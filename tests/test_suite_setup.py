@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 import camd
-from tests import cpu_share
+from tests import cpu_share, schedule
 
 
 def test_the_processes_the_tests_start_keep_their_bytecode() -> None:
@@ -80,7 +80,7 @@ def test_the_gate_opens_when_no_exclusive_test_ends_for_the_stall_limit(
 
 
 GATED_RUN = {
-    "pytest.ini": "[pytest]\nmarkers =\n    exclusive: runs alone\n",
+    "pytest.ini": "[pytest]\nmarkers =\n    exclusive: runs alone\n    daemon: starts one\n",
     "conftest.py": 'pytest_plugins = ["tests.schedule", "tests.cpu_share"]\n',
     "test_a_mixed.py": (
         "import os, time, pytest\n"
@@ -94,8 +94,11 @@ GATED_RUN = {
         "    log('alone_start'); time.sleep(0.5); log('alone_end')\n"
     ),
     "test_b_other.py": (
+        "import pytest\n"
         "from test_a_mixed import log\n"
+        "@pytest.mark.daemon\n"
         "def test_one():\n    log('other_start')\n"
+        "@pytest.mark.daemon\n"
         "def test_two():\n    log('other_start')\n"
     ),
 }
@@ -104,9 +107,9 @@ GATED_RUN = {
 @pytest.mark.daemon
 def test_no_test_of_another_module_starts_before_the_exclusive_tests_end(tmp_path: Path) -> None:
     # Two workers: one takes the module with the exclusive test (sent first), the other the
-    # module without. Without the gate, the other module's tests ran during test_first, before
-    # the exclusive test had even asked for the CPU, and an exclusive test then waited for
-    # whatever long test the other workers had started.
+    # module without, whose tests start processes (marked daemon: the long ones). Without the
+    # gate, they ran during test_first, before the exclusive test had even asked for the CPU,
+    # and an exclusive test then waited for whatever long test the other workers had started.
     for name, text in GATED_RUN.items():
         (tmp_path / name).write_text(text, encoding="utf-8")
     log = tmp_path / "log"
@@ -128,3 +131,45 @@ def test_no_test_of_another_module_starts_before_the_exclusive_tests_end(tmp_pat
         events.setdefault(what, []).append(float(when))
     assert len(events["other_start"]) == 2, events
     assert min(events["other_start"]) >= events["alone_end"][0], events
+
+
+class _Item:
+    """What the module order reads of a collected test: its node id and its marks."""
+
+    def __init__(self, nodeid: str, *marks: str) -> None:
+        self.nodeid = nodeid
+        self.marks = marks
+
+    def get_closest_marker(self, name: str) -> str | None:
+        return name if name in self.marks else None
+
+
+def test_modules_go_exclusive_first_then_those_that_start_no_process_then_longest_first() -> None:
+    items = [
+        _Item("tests/test_long.py::a", "daemon"),
+        _Item("tests/test_pure_short.py::a"),
+        _Item("tests/test_mixed.py::b", "daemon"),
+        _Item("tests/test_mixed.py::a"),
+        _Item("tests/test_rt.py::second"),
+        _Item("tests/test_rt.py::first", "daemon", "exclusive"),
+        _Item("tests/test_pure_long.py::a"),
+        _Item("tests/test_short.py::a", "daemon"),
+    ]
+    seconds = {
+        "tests/test_long.py": 60.0,
+        "tests/test_mixed.py": 30.0,
+        "tests/test_pure_long.py": 8.0,
+        "tests/test_pure_short.py": 0.5,
+        "tests/test_short.py": 2.0,
+    }
+    ordered = schedule.module_order(items, seconds)  # type: ignore[arg-type]
+    assert [i.nodeid for i in ordered] == [
+        "tests/test_rt.py::second",  # a module's own order is kept
+        "tests/test_rt.py::first",
+        "tests/test_pure_long.py::a",
+        "tests/test_pure_short.py::a",
+        "tests/test_long.py::a",
+        "tests/test_mixed.py::b",
+        "tests/test_mixed.py::a",
+        "tests/test_short.py::a",
+    ]
