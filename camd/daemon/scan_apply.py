@@ -1,8 +1,9 @@
 """A scan's plan applied step by step, each step with its undo, up to its running stream.
 
 ``ScanApply`` is handed the device access, the sensor, stream, motion and simulator services,
-the live view's background and waterfall, and the scan service's lock (for the scans it
-starts). It applies a plan made by ``camd.daemon.scan_planner`` through an ``Apply``
+and the live view's background and waterfall; the scan service (``camd.daemon.scan_service``)
+is handed it, takes those parts from it and shares its lock (held around the current scan, and
+handed to each scan's run). It applies a plan made by ``camd.daemon.scan_planner`` through an ``Apply``
 (``camd.daemon.transaction``): the scene, the TDI mode, the registers (read back: they must
 set the planned timing), the simulator's ideal stage, the scan stage through
 ``camd.daemon.scan_motion.ScanMotion`` on the motion service's ``StageDrive`` (with the closed
@@ -51,7 +52,6 @@ class ScanApply:
         *,
         background: BackgroundCapture | None,
         live_lines: LiveLines | None,
-        lock: threading.Lock,
     ) -> None:
         self.device = device
         self.sensor = sensor
@@ -60,7 +60,7 @@ class ScanApply:
         self.sim = sim
         self.background = background  # the live view's, stored in the scan's file when ready
         self.live_lines = live_lines  # the live view's waterfall (None: no live lines)
-        self._lock = lock  # the scan service's, handed to each scan's run
+        self.lock = threading.Lock()  # the scan service's too, handed to each scan's run
 
     def apply(
         self,
@@ -128,7 +128,7 @@ class ScanApply:
                 device=device,
                 stream=self.stream,
                 live_lines=self.live_lines,
-                lock=self._lock,
+                lock=self.lock,
             )
             if self.live_lines is not None:
                 self.live_lines.reset(plan.columns, scan=str(plan.path), lines_planned=plan.frames)
