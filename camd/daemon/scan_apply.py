@@ -17,6 +17,7 @@ from __future__ import annotations
 import math
 import threading
 from collections.abc import Callable
+from dataclasses import KW_ONLY, dataclass, field
 
 from camd.daemon.acquisition import Acquisition
 from camd.daemon.device import DeviceAccess
@@ -39,28 +40,20 @@ from camd.store.recording import RecordingError
 from camd.store.tdi_recording import TdiRecorder
 
 
+@dataclass(eq=False)
 class ScanApply:
     """Apply scan plans, with their undo (module docstring)."""
 
-    def __init__(
-        self,
-        device: DeviceAccess,
-        sensor: SensorService,
-        stream: StreamService,
-        motion: MotionService,
-        sim: SimulatorControl,
-        *,
-        background: BackgroundCapture | None,
-        live_lines: LiveLines | None,
-    ) -> None:
-        self.device = device
-        self.sensor = sensor
-        self.stream = stream
-        self.motion = motion
-        self.sim = sim
-        self.background = background  # the live view's, stored in the scan's file when ready
-        self.live_lines = live_lines  # the live view's waterfall (None: no live lines)
-        self.lock = threading.Lock()  # the scan service's too, handed to each scan's run
+    device: DeviceAccess
+    sensor: SensorService
+    stream: StreamService
+    motion: MotionService
+    sim: SimulatorControl
+    _: KW_ONLY
+    background: BackgroundCapture | None  # the live view's, stored in the scan's file when ready
+    live_lines: LiveLines | None  # the live view's waterfall (None: no live lines)
+    # The scan service's lock too, handed to each scan's run.
+    lock: threading.Lock = field(default_factory=threading.Lock, init=False)
 
     def apply(
         self,
