@@ -48,6 +48,8 @@ and ``"none"`` are the same (the first row step falls at the end of the exposure
 
 from __future__ import annotations
 
+from typing import TypedDict, Unpack
+
 import numpy as np
 import numpy.typing as npt
 
@@ -73,6 +75,18 @@ REN15_IMAGE_VELOCITY_M_S = 0.09 * 0.05 / 0.3
 
 _MAX_BLOCK_ELEMENTS = 1 << 21
 """Largest (offsets x time steps x electrodes) temporary per block: bounds memory, not speed."""
+
+
+class PointBeamOptions(TypedDict, total=False):
+    """``point_beam_profile``'s keyword arguments, for the functions that pass them on: each
+    default stays written once, in ``point_beam_profile``."""
+
+    pixel_m: float
+    phases: int
+    method: Method
+    exposure_cycles: int
+    time_steps_per_cycle: int
+    image_velocity_m_s: float
 
 
 def point_beam_profile(
@@ -176,14 +190,7 @@ def modulation(profile: npt.ArrayLike) -> FloatArray:
 
 
 def point_beam_modulation(
-    a_m: float | npt.ArrayLike,
-    *,
-    pixel_m: float = REN15_PIXEL_M,
-    phases: int = 4,
-    method: Method = "electrode",
-    exposure_cycles: int = 1,
-    time_steps_per_cycle: int = 400,
-    image_velocity_m_s: float = REN15_IMAGE_VELOCITY_M_S,
+    a_m: float | npt.ArrayLike, **beam: Unpack[PointBeamOptions]
 ) -> FloatArray:
     """Modulation of the model's point-beam image for each start offset in ``a_m``.
 
@@ -191,29 +198,10 @@ def point_beam_modulation(
     Compare with ``camd.timing.imc.row_step_modulation`` / ``electrode_step_modulation``
     (docs/physics.md §7 [REN15]).
     """
-    return modulation(
-        point_beam_profile(
-            a_m,
-            pixel_m=pixel_m,
-            phases=phases,
-            method=method,
-            exposure_cycles=exposure_cycles,
-            time_steps_per_cycle=time_steps_per_cycle,
-            image_velocity_m_s=image_velocity_m_s,
-        )
-    )
+    return modulation(point_beam_profile(a_m, **beam))
 
 
-def mean_point_beam_modulation(
-    *,
-    pixel_m: float = REN15_PIXEL_M,
-    phases: int = 4,
-    method: Method = "electrode",
-    exposure_cycles: int = 1,
-    time_steps_per_cycle: int = 400,
-    offsets: int = 512,
-    image_velocity_m_s: float = REN15_IMAGE_VELOCITY_M_S,
-) -> float:
+def mean_point_beam_modulation(*, offsets: int = 512, **beam: Unpack[PointBeamOptions]) -> float:
     """The model's modulation averaged over ``a`` uniform in ``[0, w)`` (midpoint rule).
 
     ``offsets`` offsets at ``(i + 1/2) w / offsets``; compare with
@@ -221,16 +209,6 @@ def mean_point_beam_modulation(
     (47/96). The rule's error falls as ``1 / offsets**2`` (the curves are piecewise quadratic).
     """
     n = count("offsets", offsets, 1)
-    pixel = positive("pixel_m", pixel_m)
+    pixel = positive("pixel_m", beam.get("pixel_m", REN15_PIXEL_M))
     a = (np.arange(n) + 0.5) * (pixel / n)
-    return float(
-        point_beam_modulation(
-            a,
-            pixel_m=pixel,
-            phases=phases,
-            method=method,
-            exposure_cycles=exposure_cycles,
-            time_steps_per_cycle=time_steps_per_cycle,
-            image_velocity_m_s=image_velocity_m_s,
-        ).mean()
-    )
+    return float(point_beam_modulation(a, **beam).mean())

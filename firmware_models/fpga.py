@@ -115,40 +115,15 @@ class FpgaModel:
         self.housekeeping = HousekeepingModel(seed=seed, power_on_s=power_on_s)
         self.state = DeviceState(self.dictionary, power_on_s)
         self.link = CommandLink(self.state, defects=defects)
-        self.control = ControlCommands(
-            self.state,
-            self.link,
-            self.receiver,
-            self.housekeeping,
-            self.imaging_path,
-            self.sensor_link,
-        )
-        self._wheel_commands = WheelCommands(
-            self.state,
-            self.wheel,
-            self.camera,
-            self.sensor,
-            self.sensor_link,
-            self.imaging_path,
-            defects=defects,
-        )
+        self.control = ControlCommands(self)
+        self._wheel_commands = WheelCommands(self)
         self.link.table = dispatch_table([
             self.control,
-            SensorCommands(
-                self.state,
-                self.sensor,
-                self.spi,
-                self.spi_slave,
-                self.sensor_link,
-                self.imaging_path,
-                defects=defects,
-            ),
-            StreamCommands(
-                self.state, self.camera, self.sensor_link, self.imaging_path, self.stream
-            ),
-            MotionCommands(self.state, self.motor, self.camera),
+            SensorCommands(self),
+            StreamCommands(self),
+            MotionCommands(self),
             self._wheel_commands,
-            SimCommands(self.state, self.link, self.injector, self.camera, self.stream),
+            SimCommands(self),
         ])  # fmt: skip
 
     # -- frames in, frames out ------------------------------------------------------------

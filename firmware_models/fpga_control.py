@@ -6,41 +6,21 @@ PING, GET_STATUS, GET_HOUSEKEEPING, RESET, SET_MODE and GET_LINK_STATS (docs/sim
 
 from __future__ import annotations
 
-from camd.protocol import CommandSpec, Decoder, Frame
+from camd.protocol import CommandSpec, Frame
 from camd.protocol.dictionary import FieldValue
 from firmware_models.fpga_commands import (
     FW_VERSION,
     U32_WRAP,
-    DeviceState,
     Handler,
     Outcome,
     wrap_u32,
 )
-from firmware_models.fpga_link import CommandLink
-from firmware_models.housekeeping import HousekeepingModel
-from firmware_models.imaging import ImagingPipeline
-from firmware_models.sensor_link import SensorLink
+from firmware_models.fpga_parts import PartsGroup
 
 
-class ControlCommands:
+class ControlCommands(PartsGroup):
     """Status, housekeeping, mode, RESET and the link's counters (``receiver``: the device's
     frame decoder, whose CRC errors, resyncs and dropped bytes GET_LINK_STATS reports)."""
-
-    def __init__(
-        self,
-        state: DeviceState,
-        link: CommandLink,
-        receiver: Decoder,
-        housekeeping: HousekeepingModel,
-        imaging_path: ImagingPipeline,
-        sensor_link: SensorLink,
-    ) -> None:
-        self.state = state
-        self.link = link
-        self.receiver = receiver
-        self.housekeeping = housekeeping
-        self.imaging_path = imaging_path
-        self.sensor_link = sensor_link
 
     def handlers(self) -> dict[str, Handler]:
         """The commands of this group."""
@@ -55,8 +35,8 @@ class ControlCommands:
 
     def housekeeping_values(self, now_s: float) -> dict[str, float | int]:
         """The HOUSEKEEPING packet's fields sampled at ``now_s``."""
-        values: dict[str, float | int] = dict(self.housekeeping.sample(now_s))
-        values["executed"] = self.link.counters.executed % U32_WRAP
+        values: dict[str, float | int] = dict(self.parts.housekeeping.sample(now_s))
+        values["executed"] = self.parts.link.counters.executed % U32_WRAP
         return values
 
     def ping(self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float) -> Outcome:
@@ -65,13 +45,13 @@ class ControlCommands:
     def get_status(
         self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float
     ) -> Outcome:
-        state = self.state
+        state = self.parts.state
         return Outcome(
             spec.encode_response(
                 mode=state.mode,
                 device_state=state.device_state,
                 fault_code=state.fault_code,
-                uptime_s=self.housekeeping.uptime_s(now_s),
+                uptime_s=self.parts.housekeeping.uptime_s(now_s),
                 fw_version=FW_VERSION,
                 boot_count=state.boot_count,
             )
@@ -86,17 +66,17 @@ class ControlCommands:
         # Link counters and the at-most-once record deliberately survive (firmware_models.
         # fpga_link). The FPGA's deserializer restarts too: the sensor link must be trained
         # again. The sensor's registers are the sensor's and survive an FPGA reset.
-        state = self.state
+        state = self.parts.state
         state.mode = "area"
         state.fault_code = 0
-        self.imaging_path.stop()  # the reset stops the sequencer: no STREAM_DONE
-        self.sensor_link.untrain()
+        self.parts.imaging_path.stop()  # the reset stops the sequencer: no STREAM_DONE
+        self.parts.sensor_link.untrain()
         state.boot_count = (state.boot_count + 1) % 0x10000
-        self.housekeeping.restart_uptime(now_s)
+        self.parts.housekeeping.restart_uptime(now_s)
         return Outcome(spec.encode_response(), (state.event("BOOT", boot_count=state.boot_count),))
 
     def set_mode(self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float) -> Outcome:
-        state = self.state
+        state = self.parts.state
         state.require_no_fault(spec)
         mode = str(request["mode"])
         events: tuple[Frame, ...] = ()
@@ -108,8 +88,8 @@ class ControlCommands:
     def get_link_stats(
         self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float
     ) -> Outcome:
-        rx = self.receiver.stats
-        counters = self.link.counters
+        rx = self.parts.receiver.stats
+        counters = self.parts.link.counters
         values = {
             "rx_frames": counters.rx_frames,
             "crc_errors": rx.crc_errors,

@@ -12,36 +12,30 @@ from __future__ import annotations
 from camd.motion.stage_profile import StageProfile
 from camd.protocol import CommandSpec
 from camd.protocol.dictionary import FieldValue, f32_decimal
-from firmware_models.camera import CameraModel
 from firmware_models.errors import Nak
-from firmware_models.fpga_commands import DeviceState, Handler, Outcome
+from firmware_models.fpga_commands import Handler, Outcome
+from firmware_models.fpga_parts import PartsGroup
 from firmware_models.inject import InjectSpec
-from firmware_models.motor import MotorController
 from firmware_models.stage import StageFaults
 
 # Stopping the stage, and reading it, are always allowed: a fault must not keep it moving.
 _ALLOWED_IN_FAULT = ("MOTOR_ESTOP", "MOTOR_STOP", "MOTOR_GET", "MOTOR_GET_LIMITS", "SIM_GET_STAGE")
 
 
-class MotionCommands:
+class MotionCommands(PartsGroup):
     """The stepper controller's commands, and which stage moves the target."""
-
-    def __init__(self, state: DeviceState, motor: MotorController, camera: CameraModel) -> None:
-        self.state = state
-        self.motor = motor
-        self.camera = camera
 
     def handlers(self) -> dict[str, Handler]:
         """The commands of this group."""
         return {
-            **{name: self.motor_command for name in self.motor.commands},
+            **{name: self.motor_command for name in self.parts.motor.commands},
             "SIM_SET_STAGE": self.sim_set_stage,
         }
 
     def motor_command(
         self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float
     ) -> Outcome:
-        state = self.state
+        state = self.parts.state
         if spec.name not in _ALLOWED_IN_FAULT:
             state.require_no_fault(spec)
         t = now_s - state.power_on_s
@@ -50,17 +44,19 @@ class MotionCommands:
             else v
             for k, v in request.items()
         }  # fmt: skip
-        answer = self.motor.handle(spec.name, t, values)
+        answer = self.parts.motor.handle(spec.name, t, values)
         if spec.name == "MOTOR_ENABLE" and request["enable"] == "on":
             self._ride_the_stepper()
-        events = tuple(state.event(n, **v) for n, v in self.motor.poll_events(t))
+        events = tuple(state.event(n, **v) for n, v in self.parts.motor.poll_events(t))
         return Outcome(spec.encode_response(**answer), events)
 
     def _ride_the_stepper(self) -> None:
         """From now on the target moves with the stepper stage (module docs)."""
-        profile = self.motor.profile
-        self.camera.stage = self.motor.stage
-        self.camera.stage_image_scale = profile.image_scale(self.camera.profile.magnification.value)
+        profile = self.parts.motor.profile
+        self.parts.camera.stage = self.parts.motor.stage
+        self.parts.camera.stage_image_scale = profile.image_scale(
+            self.parts.camera.profile.magnification.value
+        )
 
     def sim_set_stage(
         self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float
@@ -69,9 +65,9 @@ class MotionCommands:
         speed = f32_decimal(float(request["speed_m_s"]))
         if not track and speed <= 0.0:
             raise Nak("OUT_OF_RANGE", "SIM_SET_STAGE: a fixed speed must be > 0 m/s")
-        self.camera.stage_speed_m_s = None if track else speed
-        self.camera.stage = None  # an ideal stage from now on, not the stepper
-        sync = self.camera.synchronous_speed_m_s()
+        self.parts.camera.stage_speed_m_s = None if track else speed
+        self.parts.camera.stage = None  # an ideal stage from now on, not the stepper
+        sync = self.parts.camera.synchronous_speed_m_s()
         now = sync if track else speed
         return Outcome(spec.encode_response(speed_m_s=now, sync_speed_m_s=sync))
 

@@ -12,39 +12,22 @@ import struct
 from camd.protocol import CommandSpec, Frame
 from camd.protocol.dictionary import FieldValue
 from camd.sensor.regmap import RegisterMap, RegisterSpec
-from firmware_models.defects import Defects
 from firmware_models.errors import Nak
-from firmware_models.fpga_commands import DeviceState, Handler, Outcome, wrap_u32
-from firmware_models.imaging import ImagingPipeline
-from firmware_models.sensor import SensorModel
-from firmware_models.sensor_link import SensorLink
-from firmware_models.spi import SpiMaster, SpiSlave
+from firmware_models.fpga_commands import Handler, Outcome, wrap_u32
+from firmware_models.fpga_parts import DeviceParts, PartsGroup
 
 
-class SensorCommands:
+class SensorCommands(PartsGroup):
     """The sensor's registers (through ``spi``, the FPGA's SPI master) and its LVDS link."""
 
-    def __init__(
-        self,
-        state: DeviceState,
-        sensor: SensorModel,
-        spi: SpiMaster,
-        spi_slave: SpiSlave,
-        sensor_link: SensorLink,
-        imaging_path: ImagingPipeline,
-        *,
-        defects: Defects,
-    ) -> None:
-        self.state = state
-        self.regmap = sensor.regmap
-        self.sensor = sensor
-        self.spi = spi
-        self.spi_slave = spi_slave
-        self.sensor_link = sensor_link
-        self.imaging_path = imaging_path
+    def __init__(self, parts: DeviceParts) -> None:
+        super().__init__(parts)
+        self.regmap = parts.sensor.regmap
         # register_readback_off_by_one: the register whose reads are off (None: no defect).
         self._off_by_one_address = (
-            _off_by_one_register(self.regmap) if defects.register_readback_off_by_one else None
+            _off_by_one_register(self.regmap)
+            if parts.defects.register_readback_off_by_one
+            else None
         )
 
     def handlers(self) -> dict[str, Handler]:
@@ -89,7 +72,7 @@ class SensorCommands:
             raise Nak(
                 "REG_WRITE_ONLY", f"REG_READ: register {reg.name} (0x{address:02X}) is write-only"
             )
-        value = self.spi.read(address)
+        value = self.parts.spi.read(address)
         if address == self._off_by_one_address:
             value = (value + 1) & reg.mask  # register_readback_off_by_one
         return Outcome(spec.encode_response(address=address, value=value))
@@ -97,8 +80,8 @@ class SensorCommands:
     def reg_write(self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float) -> Outcome:
         address, value = int(request["address"]), int(request["value"])
         self._check_write(spec, address, value)
-        self.spi.write(address, value)
-        self.imaging_path.note_registers(now_s - self.state.power_on_s)
+        self.parts.spi.write(address, value)
+        self.parts.imaging_path.note_registers(now_s - self.parts.state.power_on_s)
         return Outcome(spec.encode_response(address=address, value=value))
 
     def reg_write_burst(
@@ -116,18 +99,18 @@ class SensorCommands:
         for address, value in pairs:  # all checked before the first is written
             self._check_write(spec, address, value)
         for address, value in pairs:
-            self.spi.write(address, value)
-        self.imaging_path.note_registers(now_s - self.state.power_on_s)
+            self.parts.spi.write(address, value)
+        self.parts.imaging_path.note_registers(now_s - self.parts.state.power_on_s)
         return Outcome(spec.encode_response(count=len(pairs)))
 
     def sim_get_spi_stats(
         self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float
     ) -> Outcome:
         values = {
-            "transactions": self.spi_slave.transactions,
-            "reads": sum(self.sensor.reads.values()),
-            "writes": sum(self.sensor.writes.values()),
-            "errors": self.spi_slave.errors,
+            "transactions": self.parts.spi_slave.transactions,
+            "reads": sum(self.parts.sensor.reads.values()),
+            "writes": sum(self.parts.sensor.writes.values()),
+            "errors": self.parts.spi_slave.errors,
         }
         return Outcome(spec.encode_response(**wrap_u32(values)))
 
@@ -136,24 +119,24 @@ class SensorCommands:
     def get_sensor(
         self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float
     ) -> Outcome:
-        link = self.sensor_link
+        link = self.parts.sensor_link
         return Outcome(
             spec.encode_response(
                 interface=self.regmap.output.interface,
                 lanes=link.lanes,
                 trained="yes" if link.trained else "no",
-                imaging="yes" if self.imaging_path.streaming else "no",
+                imaging="yes" if self.parts.imaging_path.streaming else "no",
                 sensor=self.regmap.sensor,
             )
         )
 
     def train(self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float) -> Outcome:
-        self.state.require_no_fault(spec)
-        if self.imaging_path.streaming:
+        self.parts.state.require_no_fault(spec)
+        if self.parts.imaging_path.streaming:
             raise Nak("ILLEGAL_STATE", "TRAIN refused while imaging; send STOP_IMAGING first")
-        report = self.sensor_link.train()
+        report = self.parts.sensor_link.train()
         locked = "yes" if report.locked else "no"
-        event = self.state.event("LINK_TRAINED", locked=locked, bit_errors=report.bit_errors)
+        event = self.parts.state.event("LINK_TRAINED", locked=locked, bit_errors=report.bit_errors)
         return Outcome(
             spec.encode_response(
                 lanes=report.lanes,
@@ -167,7 +150,7 @@ class SensorCommands:
 
     def get_lane(self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float) -> Outcome:
         lane = int(request["lane"])
-        link = self.sensor_link
+        link = self.parts.sensor_link
         if lane >= link.lanes:
             raise Nak(
                 "OUT_OF_RANGE",
@@ -191,16 +174,16 @@ class SensorCommands:
     def sim_reskew(
         self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float
     ) -> Outcome:
-        was_trained = self.sensor_link.trained
-        self.sensor_link.reskew(int(request["seed"]))
+        was_trained = self.parts.sensor_link.trained
+        self.parts.sensor_link.reskew(int(request["seed"]))
         events: tuple[Frame, ...] = ()
-        if was_trained and not self.sensor_link.trained:
-            events = (self.state.event("LINK_LOST"),)
-            if self.imaging_path.streaming:
+        if was_trained and not self.parts.sensor_link.trained:
+            events = (self.parts.state.event("LINK_LOST"),)
+            if self.parts.imaging_path.streaming:
                 # Garbled frames are no frames: the FPGA stops the stream and says so.
-                produced, next_counter = self.imaging_path.stop()
+                produced, next_counter = self.parts.imaging_path.stop()
                 events += (
-                    self.state.event(
+                    self.parts.state.event(
                         "STREAM_DONE", frames_sent=produced, next_counter=next_counter
                     ),
                 )

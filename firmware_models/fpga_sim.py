@@ -10,34 +10,19 @@ from __future__ import annotations
 
 from camd.protocol import CommandSpec
 from camd.protocol.dictionary import FieldValue, f32_decimal
-from firmware_models.camera import CameraModel
 from firmware_models.errors import Nak
-from firmware_models.fpga_commands import DeviceState, Handler, Outcome, wrap_u32
-from firmware_models.fpga_link import ArmedFailure, CommandLink
-from firmware_models.fx3 import StreamEngine
-from firmware_models.inject import FaultInjector, InjectSpec
+from firmware_models.fpga_commands import Handler, Outcome, wrap_u32
+from firmware_models.fpga_link import ArmedFailure
+from firmware_models.fpga_parts import PartsGroup
+from firmware_models.inject import InjectSpec
 
 # The commands that start a counted stream (SIM_FAIL_NEXT end_stream applies).
 _STREAM_STARTS = ("START_STREAM", "WHEEL_ACQUIRE")
 
 
-class SimCommands:
+class SimCommands(PartsGroup):
     """The line's fault injector (``injector``), the device's fault, SIM_FAIL_NEXT (armed on
     ``link``), the scene and the seed of what differs from one acquisition to the next."""
-
-    def __init__(
-        self,
-        state: DeviceState,
-        link: CommandLink,
-        injector: FaultInjector,
-        camera: CameraModel,
-        stream: StreamEngine,
-    ) -> None:
-        self.state = state
-        self.link = link
-        self.injector = injector
-        self.camera = camera
-        self.stream = stream
 
     def handlers(self) -> dict[str, Handler]:
         """The commands of this group."""
@@ -53,7 +38,10 @@ class SimCommands:
     def sim_get_injected(
         self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float
     ) -> Outcome:
-        values = {**self.injector.counters(), "executed_twice": self.link.counters.executed_twice}
+        values = {
+            **self.parts.injector.counters(),
+            "executed_twice": self.parts.link.counters.executed_twice,
+        }
         return Outcome(spec.encode_response(**wrap_u32(values)))
 
     def sim_set_inject(
@@ -61,29 +49,29 @@ class SimCommands:
     ) -> Outcome:
         rates = {name: f32_decimal(float(value)) for name, value in request.items()}
         # Keys the command does not carry (added to InjectSpec later) keep their value.
-        merged = {**self.injector.spec.model_dump(), **rates}
+        merged = {**self.parts.injector.spec.model_dump(), **rates}
         try:
-            self.injector.set(InjectSpec.checked(**merged))
+            self.parts.injector.set(InjectSpec.checked(**merged))
         except ValueError as exc:
             raise Nak("OUT_OF_RANGE", str(exc)) from None
-        self.stream.inject = self.injector.spec  # the frame_* rates, for the next frame
+        self.parts.stream.inject = self.parts.injector.spec  # the frame_* rates, for the next frame
         return Outcome(spec.encode_response())
 
     def sim_set_fault(
         self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float
     ) -> Outcome:
         code = int(request["fault_code"])
-        self.state.fault_code = code
-        return Outcome(spec.encode_response(), (self.state.event("FAULT", fault_code=code),))
+        self.parts.state.fault_code = code
+        return Outcome(spec.encode_response(), (self.parts.state.event("FAULT", fault_code=code),))
 
     def sim_fail_next(
         self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float
     ) -> Outcome:
         action = str(request["action"])
         if action == "off":
-            self.link.arm(None)
+            self.parts.link.arm(None)
             return Outcome(spec.encode_response())
-        dictionary = self.state.dictionary
+        dictionary = self.parts.state.dictionary
         opcode = int(request["opcode"])
         if dictionary.command_for_opcode(opcode) is None:
             raise Nak(
@@ -112,7 +100,7 @@ class SimCommands:
                 f"SIM_FAIL_NEXT: end_stream needs a command that starts a stream (START_STREAM, "
                 f"WHEEL_ACQUIRE), not opcode 0x{opcode:02X}",
             )
-        self.link.arm(
+        self.parts.link.arm(
             ArmedFailure(
                 action, opcode, int(request["skip"]), code, duration_s, int(request["frames"])
             )
@@ -123,7 +111,7 @@ class SimCommands:
         self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float
     ) -> Outcome:
         try:
-            self.camera.set_scene(str(request["spec"]))
+            self.parts.camera.set_scene(str(request["spec"]))
         except (ValueError, OSError) as exc:
             raise Nak("OUT_OF_RANGE", f"SIM_SET_SCENE: {exc}") from None
         return Outcome(spec.encode_response())
@@ -134,6 +122,6 @@ class SimCommands:
         # Only the streams that make one acquisition differ from the next: a campaign resumed
         # after a restart re-seeds before each step and so sees the noise it saw the first time.
         seed = int(request["seed"])
-        self.camera.reseed_noise(seed)
-        self.stream.reseed(seed)
+        self.parts.camera.reseed_noise(seed)
+        self.parts.stream.reseed(seed)
         return Outcome(spec.encode_response())

@@ -9,30 +9,14 @@ from __future__ import annotations
 
 from camd.protocol import CommandSpec
 from camd.protocol.dictionary import FieldValue
-from firmware_models.camera import CameraModel
 from firmware_models.errors import Nak
-from firmware_models.fpga_commands import U32_WRAP, DeviceState, Handler, Outcome, wrap_u32
-from firmware_models.fx3 import StreamEngine
-from firmware_models.imaging import ImagingPipeline, StreamRefused
-from firmware_models.sensor_link import SensorLink
+from firmware_models.fpga_commands import U32_WRAP, Handler, Outcome, wrap_u32
+from firmware_models.fpga_parts import PartsGroup
+from firmware_models.imaging import StreamRefused
 
 
-class StreamCommands:
+class StreamCommands(PartsGroup):
     """Streams of window frames from the camera to the host."""
-
-    def __init__(
-        self,
-        state: DeviceState,
-        camera: CameraModel,
-        sensor_link: SensorLink,
-        imaging_path: ImagingPipeline,
-        stream: StreamEngine,
-    ) -> None:
-        self.state = state
-        self.camera = camera
-        self.sensor_link = sensor_link
-        self.imaging_path = imaging_path
-        self.stream = stream
 
     def handlers(self) -> dict[str, Handler]:
         """The commands of this group."""
@@ -46,18 +30,18 @@ class StreamCommands:
     def start_stream(
         self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float
     ) -> Outcome:
-        state = self.state
+        state = self.parts.state
         state.require_no_fault(spec)
-        if self.imaging_path.streaming:
+        if self.parts.imaging_path.streaming:
             raise Nak("ILLEGAL_STATE", "START_STREAM refused: already streaming; STOP_STREAM first")
-        if not self.sensor_link.trained:
+        if not self.parts.sensor_link.trained:
             raise Nak(
                 "LINK_UNTRAINED",
                 "START_STREAM refused: the sensor's LVDS link is not trained; send TRAIN first",
             )
-        self.camera.transmission = None  # a plain stream: no wheel in the light path
+        self.parts.camera.transmission = None  # a plain stream: no wheel in the light path
         try:
-            geometry = self.imaging_path.start(
+            geometry = self.parts.imaging_path.start(
                 device_time_s=now_s - state.power_on_s,
                 mode=state.mode,
                 frames=int(request["frames"]),
@@ -81,18 +65,18 @@ class StreamCommands:
     def stop_stream(
         self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float
     ) -> Outcome:
-        produced, next_counter = self.imaging_path.stop()
+        produced, next_counter = self.parts.imaging_path.stop()
         return Outcome(spec.encode_response(frames_sent=produced, next_counter=next_counter))
 
     def get_stream(
         self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float
     ) -> Outcome:
-        server = self.stream.server
+        server = self.parts.stream.server
         return Outcome(
             spec.encode_response(
-                streaming="yes" if self.imaging_path.streaming else "no",
-                frames_sent=self.stream.frames_produced % U32_WRAP,
-                next_counter=self.imaging_path.next_counter,
+                streaming="yes" if self.parts.imaging_path.streaming else "no",
+                frames_sent=self.parts.stream.frames_produced % U32_WRAP,
+                next_counter=self.parts.imaging_path.next_counter,
                 host_connected="yes" if server is not None and server.connected else "no",
             )
         )
@@ -100,6 +84,6 @@ class StreamCommands:
     def sim_get_stream_stats(
         self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float
     ) -> Outcome:
-        counters = self.stream.counters.as_dict()
+        counters = self.parts.stream.counters.as_dict()
         names = [f.name for f in spec.response]
         return Outcome(spec.encode_response(**wrap_u32({k: counters[k] for k in names})))

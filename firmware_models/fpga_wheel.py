@@ -14,41 +14,21 @@ from typing import Any
 
 from camd.protocol import CommandSpec
 from camd.protocol.dictionary import FieldValue, f32_decimal
-from firmware_models.camera import CameraModel
-from firmware_models.defects import Defects
 from firmware_models.errors import Nak
-from firmware_models.fpga_commands import DeviceState, Handler, Outcome
-from firmware_models.imaging import ImagingPipeline, StreamRefused
-from firmware_models.sensor import SensorModel
-from firmware_models.sensor_link import SensorLink
-from firmware_models.wheel import FilterWheel
+from firmware_models.fpga_commands import Handler, Outcome
+from firmware_models.fpga_parts import DeviceParts, PartsGroup
+from firmware_models.imaging import StreamRefused
 
 # docs/protocol.md WHEEL_SET_SPEED: slower than this but not 0 is refused (OUT_OF_RANGE); the
 # period of a slower turn would not fit the answer's f32 (a denormal speed made it 2.6e47 s).
 MIN_SPEED_DEG_S = 1e-7
 
 
-class WheelCommands:
+class WheelCommands(PartsGroup):
     """The filter wheel: its speed, the exposure delay compensation, acquisitions."""
 
-    def __init__(
-        self,
-        state: DeviceState,
-        wheel: FilterWheel,
-        camera: CameraModel,
-        sensor: SensorModel,
-        sensor_link: SensorLink,
-        imaging_path: ImagingPipeline,
-        *,
-        defects: Defects,
-    ) -> None:
-        self.state = state
-        self.wheel = wheel
-        self.camera = camera
-        self.sensor = sensor
-        self.sensor_link = sensor_link
-        self.imaging_path = imaging_path
-        self.defects = defects
+    def __init__(self, parts: DeviceParts) -> None:
+        super().__init__(parts)
         self.compensation = False
         self.polarizer_deg: float | None = None  # the scene's reference polariser, if any
         self._lead_s = 0.0  # how far the wheel's clock runs ahead of the device's (below)
@@ -65,9 +45,9 @@ class WheelCommands:
 
     def _timing(self) -> tuple[float, float, float]:
         """(T_frame, T_delay for the registers now, exposure) (docs/physics.md §4 eqs 5, 6)."""
-        timing = self.sensor.timing()
+        timing = self.parts.sensor.timing()
         frame = timing.frame_time_s
-        return frame, self.wheel.profile.t_center_s.value - frame / 2, timing.exposure_s
+        return frame, self.parts.wheel.profile.t_center_s.value - frame / 2, timing.exposure_s
 
     def _wheel_time_s(self, now_s: float) -> float:
         """Where the wheel's model time is: a wheel acquisition runs ahead of the wall clock
@@ -78,12 +58,12 @@ class WheelCommands:
         apart read the same time, and conformance's wheel.speed measured the wheel as standing
         (a busy machine, the check right after a wheel acquisition of several turns).
         """
-        return now_s - self.state.power_on_s + self._lead_s
+        return now_s - self.parts.state.power_on_s + self._lead_s
 
     def wheel_set_speed(
         self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float
     ) -> Outcome:
-        if self.imaging_path.streaming and self.camera.transmission is not None:
+        if self.parts.imaging_path.streaming and self.parts.camera.transmission is not None:
             raise Nak("ILLEGAL_STATE", "WHEEL_SET_SPEED refused during a wheel acquisition")
         speed = f32_decimal(float(request["speed_deg_s"]))
         if 0.0 < speed < MIN_SPEED_DEG_S:
@@ -93,17 +73,17 @@ class WheelCommands:
                 f"speed {speed:.6g} deg/s is too slow: its period does not fit the answer's f32; "
                 f"use 0 (stop) or at least {MIN_SPEED_DEG_S:g} deg/s",
             )
-        self.wheel.set_speed(speed, self._wheel_time_s(now_s))
+        self.parts.wheel.set_speed(speed, self._wheel_time_s(now_s))
         return Outcome(spec.encode_response(period_s=360.0 / speed if speed > 0 else 0.0))
 
     def wheel_get(self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float) -> Outcome:
         t = self._wheel_time_s(now_s)
         frame, delay, _ = self._timing()
-        channel = self.wheel.channel_at(t)
+        channel = self.parts.wheel.channel_at(t)
         return Outcome(
             spec.encode_response(
-                speed_deg_s=self.wheel.speed_deg_s(t),
-                angle_deg=self.wheel.angle_deg(t),
+                speed_deg_s=self.parts.wheel.speed_deg_s(t),
+                angle_deg=self.parts.wheel.angle_deg(t),
                 channel=255 if channel is None else channel,
                 compensation="on" if self.compensation else "off",
                 frame_time_s=frame,
@@ -119,7 +99,7 @@ class WheelCommands:
         frame, delay, _ = self._timing()
         if on:
             try:
-                self.wheel.profile.exposure(frame, compensated=True)
+                self.parts.wheel.profile.exposure(frame, compensated=True)
             except ValueError as exc:
                 raise Nak("OUT_OF_RANGE", f"WHEEL_COMPENSATION refused: {exc}") from None
         self.compensation = on
@@ -128,16 +108,16 @@ class WheelCommands:
     def wheel_acquire(
         self, spec: CommandSpec, request: dict[str, FieldValue], now_s: float
     ) -> Outcome:
-        self.state.require_no_fault(spec)
-        if self.imaging_path.streaming:
+        self.parts.state.require_no_fault(spec)
+        if self.parts.imaging_path.streaming:
             raise Nak("ILLEGAL_STATE", "WHEEL_ACQUIRE refused: streaming; STOP_STREAM first")
-        if not self.sensor_link.trained:
+        if not self.parts.sensor_link.trained:
             raise Nak(
                 "LINK_UNTRAINED",
                 "WHEEL_ACQUIRE refused: the sensor's LVDS link is not trained; TRAIN first",
             )
         raw = bytes(request["channels"])  # type: ignore[arg-type]
-        count = self.wheel.profile.channel_count.value
+        count = self.parts.wheel.profile.channel_count.value
         if not raw or any(c >= count for c in raw):
             raise Nak(
                 "OUT_OF_RANGE",
@@ -145,28 +125,28 @@ class WheelCommands:
                 f"numbers 0..{count - 1}",
             )
         t = self._wheel_time_s(now_s)
-        if self.wheel.speed_deg_s(t) <= 0.0:
+        if self.parts.wheel.speed_deg_s(t) <= 0.0:
             raise Nak("ILLEGAL_STATE", "WHEEL_ACQUIRE refused: the wheel is stopped; "
                       "WHEEL_SET_SPEED first")  # fmt: skip
         frame, _, _ = self._timing()
-        line = self.sensor.timing().line_period_s
+        line = self.parts.sensor.timing().line_period_s
         # wheel_ignores_delay: the scheduler exposes at the entry pulse whatever is switched on.
-        delayed = self.compensation and not self.defects.wheel_ignores_delay
+        delayed = self.compensation and not self.parts.defects.wheel_ignores_delay
         starts: list[float] = []
         stamps: list[int] = []
         try:
             for _ in range(int(request["passes"])):
                 for channel in raw:
-                    start = self.wheel.exposure_schedule(channel, t, frame, delayed)
+                    start = self.parts.wheel.exposure_schedule(channel, t, frame, delayed)
                     starts.append(start + line)  # row 0 resets one line into the frame
-                    stamps.append(round(float(self.wheel.angle_deg(start)) * 1e4))
+                    stamps.append(round(float(self.parts.wheel.angle_deg(start)) * 1e4))
                     t = start + frame
         except ValueError as exc:
             raise Nak("OUT_OF_RANGE", f"WHEEL_ACQUIRE refused: {exc}") from None
-        self._lead_s = max(self._lead_s, t - (now_s - self.state.power_on_s))
-        self.camera.transmission = self._transmission()
+        self._lead_s = max(self._lead_s, t - (now_s - self.parts.state.power_on_s))
+        self.parts.camera.transmission = self._transmission()
         try:
-            geometry = self.imaging_path.start(
+            geometry = self.parts.imaging_path.start(
                 device_time_s=starts[0],
                 mode="area",
                 frames=len(starts),
@@ -174,12 +154,12 @@ class WheelCommands:
                 binning=False,
                 schedule_s=starts,
                 stamps=stamps,
-                end_after=self.state.end_stream_after,
+                end_after=self.parts.state.end_stream_after,
             )
         except StreamRefused as exc:
-            self.camera.transmission = None
+            self.parts.camera.transmission = None
             raise Nak("OUT_OF_RANGE", f"WHEEL_ACQUIRE refused: {exc}") from None
-        delay = self.wheel.profile.t_center_s.value - frame / 2 if self.compensation else 0
+        delay = self.parts.wheel.profile.t_center_s.value - frame / 2 if self.compensation else 0
         return Outcome(
             spec.encode_response(
                 frames=len(starts),
@@ -194,7 +174,7 @@ class WheelCommands:
     def _transmission(self) -> Callable[[Any, Any], Any]:
         """The light a frame's rows get through the wheel (``CameraModel.transmission``), with
         the polariser set now."""
-        wheel, polarizer = self.wheel, self.polarizer_deg
+        wheel, polarizer = self.parts.wheel, self.polarizer_deg
 
         def transmission(start_s: Any, end_s: Any) -> Any:
             mid = 0.5 * (float(start_s.min()) + float(end_s.max()))

@@ -48,7 +48,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
-from typing import Any, Literal
+from typing import Any, Literal, Unpack
 
 import numpy as np
 
@@ -59,7 +59,13 @@ from firmware_models.motor_limits import MotorLimits
 from firmware_models.motor_plan import LOOKAHEAD_S, Event, MotionPlan, MotionPlanner, StopReason
 from firmware_models.motor_profiles import move_profile, ramp_profile, rebase, trapezoid_time_s
 from firmware_models.motor_stall import StallCheck
-from firmware_models.stage import Segment, StageFaults, StepperStage, power_on_position_m
+from firmware_models.stage import (
+    Segment,
+    StageFaults,
+    StageOptions,
+    StepperStage,
+    power_on_position_m,
+)
 
 __all__ = [
     "ENCODER_RATE_WINDOW_S",
@@ -83,29 +89,15 @@ ENCODER_RATE_WINDOW_S = 0.01  # MOTOR_GET encoder_rate_hz: counts per second ove
 
 class MotorController:
     """The FPGA's stepper controller for one stage (see the module docstring): the MOTOR_*
-    commands' checks and answers, on the motion planner, the counters and the limits."""
+    commands' checks and answers, on the motion planner, the counters and the limits. The
+    keyword arguments are the stage's (``StageOptions``); it starts at its power-on position."""
 
-    def __init__(
-        self,
-        profile: StageProfile,
-        *,
-        seed: int = 0,
-        faults: StageFaults | None = None,
-        t0_s: float = 0.0,
-        grid_s: float | None = None,
-        history_s: float | None = None,
-    ) -> None:
+    def __init__(self, profile: StageProfile, **stage: Unpack[StageOptions]) -> None:
         self.profile = profile
         self._d = profile.metres_per_microstep
         p0 = round(power_on_position_m(profile) * profile.microsteps_per_m)
-        extra: dict[str, float] = {}
-        if grid_s is not None:
-            extra["grid_s"] = grid_s
-        if history_s is not None:
-            extra["history_s"] = history_s
-        self.stage = StepperStage(
-            profile, seed=seed, faults=faults, t0_s=t0_s, position_m=p0 * self._d, **extra
-        )
+        self.stage = StepperStage(profile, position_m=p0 * self._d, **stage)
+        t0_s = self.stage.t0_s
         self.limits = MotorLimits(profile)
         self.counter = StepCounter(self.stage, t0_s)
         self.stall = StallCheck(profile, self.stage)

@@ -57,7 +57,7 @@ from __future__ import annotations
 import math
 import threading
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol, TypedDict
 
 import numpy as np
 import numpy.typing as npt
@@ -122,6 +122,17 @@ def power_on_position_m(profile: StageProfile) -> float:
     circumference = profile.circumference_m
     assert circumference is not None
     return circumference / 2.0
+
+
+class StageOptions(TypedDict, total=False):
+    """``StepperStage``'s keyword arguments but ``position_m``, for ``MotorController``, which
+    passes them on: each default stays written once, in ``StepperStage``."""
+
+    seed: int
+    faults: StageFaults | None
+    t0_s: float
+    grid_s: float
+    history_s: float
 
 
 class StepperStage:

@@ -35,12 +35,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Literal, overload
+from typing import Any, Literal, TypeVar
 
 import numpy as np
 import numpy.typing as npt
 
 FloatArray = npt.NDArray[np.float64]
+# A model of a frequency takes a float or an array of them and answers in kind.
+FloatOrArray = TypeVar("FloatOrArray", float, FloatArray)
 
 NYQUIST_CY_PER_PX = 0.5
 """The sampling (Nyquist) frequency of a pixel grid, 1 / (2 p), in cycles per pixel."""
@@ -81,13 +83,9 @@ def _out(value: FloatArray | float) -> Any:
     return float(arr) if arr.ndim == 0 else arr
 
 
-@overload
-def sinc(x: float) -> float: ...
-@overload
-def sinc(x: FloatArray) -> FloatArray: ...
-def sinc(x: float | FloatArray) -> float | FloatArray:
+def sinc(x: FloatOrArray) -> FloatOrArray:
     """Normalised ``sinc(x) = sin(pi x) / (pi x)``, ``sinc(0) = 1`` (docs/physics.md §6, after eq 3)."""
-    result: float | FloatArray = _out(np.sinc(_as_float_array("x", x)))
+    result: FloatOrArray = _out(np.sinc(_as_float_array("x", x)))
     return result
 
 
@@ -97,13 +95,7 @@ def _stages(stages: int) -> int:
     return int(stages)
 
 
-@overload
-def mtf_velocity_mismatch(f_cy_per_px: float, stages: int, dv_over_v: float) -> float: ...
-@overload
-def mtf_velocity_mismatch(f_cy_per_px: FloatArray, stages: int, dv_over_v: float) -> FloatArray: ...
-def mtf_velocity_mismatch(
-    f_cy_per_px: float | FloatArray, stages: int, dv_over_v: float
-) -> float | FloatArray:
+def mtf_velocity_mismatch(f_cy_per_px: FloatOrArray, stages: int, dv_over_v: float) -> FloatOrArray:
     """Velocity-mismatch MTF ``|sinc(p f M dV/V)|`` (docs/physics.md §6 eq 8, [YUAN13]).
 
     Over ``M`` stages the image smears by ``M p |dV/V|``; the line spread function is a
@@ -118,7 +110,7 @@ def mtf_velocity_mismatch(
     m = _stages(stages)
     dv = float(_as_float_array("dv_over_v", dv_over_v))
     f = _as_float_array("f_cy_per_px", f_cy_per_px)
-    result: float | FloatArray = _out(np.abs(np.sinc(f * m * dv)))
+    result: FloatOrArray = _out(np.abs(np.sinc(f * m * dv)))
     return result
 
 
@@ -135,15 +127,9 @@ def _fraction(name: str, value: float, what: str) -> float:
     return v
 
 
-@overload
-def mtf_detector(f_cy_per_px: float, *, fill_width: float, integration_ratio: float) -> float: ...
-@overload
 def mtf_detector(
-    f_cy_per_px: FloatArray, *, fill_width: float, integration_ratio: float
-) -> FloatArray: ...
-def mtf_detector(
-    f_cy_per_px: float | FloatArray, *, fill_width: float, integration_ratio: float
-) -> float | FloatArray:
+    f_cy_per_px: FloatOrArray, *, fill_width: float, integration_ratio: float
+) -> FloatOrArray:
     """Detector MTF ``sinc(f q) * sinc(f p T_int / T_L)`` (docs/physics.md §6 eq 3, [YUAN13]).
 
     ``MTF_geo = sinc(f q)``: the photosensitive width ``q`` as a fraction of the pitch
@@ -159,36 +145,18 @@ def mtf_detector(
         "T_int / T_L: the pixel integrates for at most one line period",
     )
     f = _as_float_array("f_cy_per_px", f_cy_per_px)
-    result: float | FloatArray = _out(np.abs(np.sinc(f * q) * np.sinc(f * ratio)))
+    result: FloatOrArray = _out(np.abs(np.sinc(f * q) * np.sinc(f * ratio)))
     return result
 
 
-@overload
 def mtf_tdi_model(
-    f_cy_per_px: float,
+    f_cy_per_px: FloatOrArray,
     *,
     stages: int,
     dv_over_v: float,
     fill_width: float,
     integration_ratio: float | None = None,
-) -> float: ...
-@overload
-def mtf_tdi_model(
-    f_cy_per_px: FloatArray,
-    *,
-    stages: int,
-    dv_over_v: float,
-    fill_width: float,
-    integration_ratio: float | None = None,
-) -> FloatArray: ...
-def mtf_tdi_model(
-    f_cy_per_px: float | FloatArray,
-    *,
-    stages: int,
-    dv_over_v: float,
-    fill_width: float,
-    integration_ratio: float | None = None,
-) -> float | FloatArray:
+) -> FloatOrArray:
     """``MTF_detector * MTF_dV``: eq 3 times eq 8 of docs/physics.md §6 [YUAN13].
 
     Of eq 2 (``MTF_optics * MTF_detector * MTF_sampling * MTF_readout * MTF_dV``) this includes
@@ -203,7 +171,7 @@ def mtf_tdi_model(
     f = _as_float_array("f_cy_per_px", f_cy_per_px)
     det = mtf_detector(f, fill_width=fill_width, integration_ratio=ratio)
     dv = mtf_velocity_mismatch(f, stages, dv_over_v)
-    result: float | FloatArray = _out(det * dv)
+    result: FloatOrArray = _out(det * dv)
     return result
 
 
@@ -951,9 +919,8 @@ def _dirichlet(x: FloatArray, m: int) -> FloatArray:
     return result
 
 
-@overload
 def mtf_rolling_tdi_model(
-    f_cy_per_px: float,
+    f_cy_per_px: FloatOrArray,
     *,
     stages: int,
     dv_over_v: float,
@@ -961,28 +928,7 @@ def mtf_rolling_tdi_model(
     integration_ratio: float,
     row_skew: float = 0.0,
     cell_px: float = 0.0,
-) -> float: ...
-@overload
-def mtf_rolling_tdi_model(
-    f_cy_per_px: FloatArray,
-    *,
-    stages: int,
-    dv_over_v: float,
-    fill_width: float,
-    integration_ratio: float,
-    row_skew: float = 0.0,
-    cell_px: float = 0.0,
-) -> FloatArray: ...
-def mtf_rolling_tdi_model(
-    f_cy_per_px: float | FloatArray,
-    *,
-    stages: int,
-    dv_over_v: float,
-    fill_width: float,
-    integration_ratio: float,
-    row_skew: float = 0.0,
-    cell_px: float = 0.0,
-) -> float | FloatArray:
+) -> FloatOrArray:
     """Along-track MTF of M-stage digital TDI on a rolling-shutter sensor under velocity
     mismatch: the terms of docs/physics.md §6 eq 3 and eq 8 [YUAN13] as this rig makes them, with
     what ``mtf_tdi_model`` (eq 3 times eq 8 as written) leaves out. ``f_cy_per_px`` is on the
@@ -1018,7 +964,7 @@ def mtf_rolling_tdi_model(
     f = _as_float_array("f_cy_per_px", f_cy_per_px)
     speed = 1.0 - dv  # image rows per line period
     slip = 1.0 - speed * (1.0 - skew)
-    result: float | FloatArray = _out(
+    result: FloatOrArray = _out(
         np.abs(np.sinc(f * q) * np.sinc(f * speed * ratio))
         * _dirichlet(f * slip, m)
         * np.sinc(f * cell) ** 2

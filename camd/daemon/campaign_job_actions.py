@@ -27,6 +27,7 @@ import os
 import threading
 import time
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
@@ -38,28 +39,21 @@ from camd.daemon.estop import RELEASE_HINT
 from camd.daemon.output_paths import resolve_output
 
 
+@dataclass(eq=False)
 class JobActions:
     """Start, pause, resume and abort campaign jobs (module docstring)."""
 
-    def __init__(
-        self,
-        lock: threading.RLock,
-        store: JobStore,
-        workers: CampaignWorkers,
-        events: Events,
-        stop_acquisition: Callable[[], object],
-        estop_latched: Callable[[], bool],
-        campaigns: CampaignDirs,
-        record_dirs: Sequence[Path],
-    ) -> None:
-        self._lock = lock
-        self._store = store
-        self._workers = workers
-        self._events = events
-        self._stop_acquisition = stop_acquisition
-        self._estop_latched = estop_latched
-        self._campaigns = campaigns
-        self._record_dirs = tuple(record_dirs)  # where else an out directory may be
+    _lock: threading.RLock
+    _store: JobStore
+    _workers: CampaignWorkers
+    _events: Events
+    _stop_acquisition: Callable[[], object]
+    _estop_latched: Callable[[], bool]
+    _campaigns: CampaignDirs
+    _record_dirs: Sequence[Path]  # where else an out directory may be
+
+    def __post_init__(self) -> None:
+        self._record_dirs = tuple(self._record_dirs)  # the caller's list may change later
 
     # -- starting -------------------------------------------------------------------------------
 

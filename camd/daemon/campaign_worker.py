@@ -26,6 +26,7 @@ import subprocess
 import threading
 import time
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -55,26 +56,20 @@ def worker_client(job_id: int) -> str:
     return f"campaign-job-{job_id}"
 
 
+@dataclass(eq=False)
 class CampaignWorkers:
     """The running workers, by job id (module docstring)."""
 
-    def __init__(
-        self,
-        python: str,
-        lock: threading.RLock,
-        store: JobStore,
-        events: Events,
-        exited: Callable[[int, int], None],
-    ) -> None:
-        self._python = python
-        self._lock = lock  # the campaign jobs': guards the workers with the jobs
-        self._store = store
-        self._events = events
-        self._exited = exited
-        self._procs: dict[int, subprocess.Popen[bytes]] = {}
-        self._url: str | None = None
-        self._token = ""
-        self.stopping = False  # the daemon's stop has begun: it stops the workers itself
+    _python: str
+    _lock: threading.RLock  # the campaign jobs': guards the workers with the jobs
+    _store: JobStore
+    _events: Events
+    _exited: Callable[[int, int], None]
+    _procs: dict[int, subprocess.Popen[bytes]] = field(default_factory=dict, init=False)
+    _url: str | None = field(default=None, init=False)
+    _token: str = field(default="", init=False)
+    # The daemon's stop has begun: it stops the workers itself.
+    stopping: bool = field(default=False, init=False)
 
     def attach(self, url: str, token: str) -> None:
         """Where the workers find the API (known once the daemon has bound its socket)."""

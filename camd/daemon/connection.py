@@ -25,6 +25,7 @@ import logging
 import threading
 import time
 from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 
 from camd.daemon import heap, notify
 from camd.daemon.config import HOUSEKEEPING_PACKET
@@ -59,35 +60,30 @@ PRUNE_PERIOD_S = 3600.0  # how often old telemetry samples are deleted
 HEAP_TRIM_PERIOD_S = 30.0  # how often the C heap's free pages go back to the system (heap.py)
 
 
+@dataclass(eq=False)
 class Connection:
     """The link to one camera, its probe, polls and service loop (module docstring)."""
 
-    def __init__(
-        self,
-        device: DeviceAccess,
-        telemetry: TelemetryService,
-        sensor: SensorService,
-        stream: StreamService,
-        motion: MotionService,
-        estop: EstopService,
-    ) -> None:
-        self.device = device
-        self.telemetry = telemetry
-        self.sensor = sensor
-        self.stream = stream
-        self.motion = motion
-        self.estop = estop
-        self.sim_process: SimulatorProcess | None = None
-        self.sim_supervisor: SimSupervisor | None = None
-        self.stop_stage_on_connect = False  # a scan was cut off (DeviceSession.start)
-        self._stop = threading.Event()
-        self._wake = threading.Event()
-        self._probe_needed = threading.Event()
-        self._thread: threading.Thread | None = None
-        self._unsubscribe: Callable[[], None] | None = None
-        self._poll_error: str | None = None
-        self._unanswered_since: float | None = None  # monotonic: the first unanswered poll's
-        self._silent_reason: str | None = None  # why a camera on an open port is disconnected
+    device: DeviceAccess
+    telemetry: TelemetryService
+    sensor: SensorService
+    stream: StreamService
+    motion: MotionService
+    estop: EstopService
+    sim_process: SimulatorProcess | None = field(default=None, init=False)
+    sim_supervisor: SimSupervisor | None = field(default=None, init=False)
+    # A scan was cut off (DeviceSession.start).
+    stop_stage_on_connect: bool = field(default=False, init=False)
+    _stop: threading.Event = field(default_factory=threading.Event, init=False)
+    _wake: threading.Event = field(default_factory=threading.Event, init=False)
+    _probe_needed: threading.Event = field(default_factory=threading.Event, init=False)
+    _thread: threading.Thread | None = field(default=None, init=False)
+    _unsubscribe: Callable[[], None] | None = field(default=None, init=False)
+    _poll_error: str | None = field(default=None, init=False)
+    # Monotonic: the first unanswered poll's.
+    _unanswered_since: float | None = field(default=None, init=False)
+    # Why a camera on an open port is disconnected.
+    _silent_reason: str | None = field(default=None, init=False)
 
     # -- lifecycle ------------------------------------------------------------------------------
 

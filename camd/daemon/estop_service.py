@@ -12,7 +12,7 @@ again (``hold``).
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import asdict
+from dataclasses import KW_ONLY, asdict, dataclass
 
 from camd.daemon.control import ANONYMOUS
 from camd.daemon.device import DeviceAccess
@@ -23,23 +23,16 @@ from camd.daemon.motion_service import MotionService
 from camd.daemon.wheel_service import WheelService
 
 
+@dataclass(eq=False)
 class EstopService:
     """The emergency stop of one device session (module docstring)."""
 
-    def __init__(
-        self,
-        device: DeviceAccess,
-        motion: MotionService,
-        wheel: WheelService,
-        *,
-        stop_acquisition: Callable[[], bool],
-        pause_job: Callable[[], bool],
-    ) -> None:
-        self.device = device
-        self.motion = motion
-        self.wheel = wheel
-        self._stop_acquisition = stop_acquisition
-        self._pause_job = pause_job
+    device: DeviceAccess
+    motion: MotionService
+    wheel: WheelService
+    _: KW_ONLY
+    stop_acquisition: Callable[[], bool]
+    pause_job: Callable[[], bool]
 
     def engage(self, client: str = ANONYMOUS) -> EstopResponse:
         """Emergency stop, never refused, and latched (camd.daemon.estop): first the latch, so
@@ -52,9 +45,9 @@ class EstopService:
         failed: list[str] = []
         for what, action in (
             ("stage", self.motion.emergency_stop_now),
-            ("acquisition", self._stop_acquisition),
+            ("acquisition", self.stop_acquisition),
             ("wheel", self.wheel.stop_now),
-            ("campaign job", self._pause_job),
+            ("campaign job", self.pause_job),
         ):
             try:
                 if action():

@@ -13,6 +13,7 @@ import contextlib
 import logging
 import random
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -45,15 +46,13 @@ log = logging.getLogger("camd.daemon.session")
 PING_ERRORS_MAX = 5
 
 
+@dataclass(eq=False)
 class LinkCommands:
     """PING runs, raw commands and link counters for one device session (module docstring)."""
 
-    def __init__(
-        self, device: DeviceAccess, sim: SimulatorControl, stopping: Callable[[], bool]
-    ) -> None:
-        self.device = device
-        self.sim = sim
-        self._stopping = stopping
+    device: DeviceAccess
+    sim: SimulatorControl
+    _stopping: Callable[[], bool]
 
     def host_counters(self) -> dict[str, int]:
         """The link's host-side counters."""

@@ -1,8 +1,9 @@
 """A scan's plan applied step by step, each step with its undo, up to its running stream.
 
 ``ScanApply`` is handed the device access, the sensor, stream, motion and simulator services,
-the live view's background and waterfall, and the scan service's lock (for the scans it
-starts). It applies a plan made by ``camd.daemon.scan_planner`` through an ``Apply``
+and the live view's background and waterfall; the scan service (``camd.daemon.scan_service``)
+is handed it, takes those parts from it and shares its lock (held around the current scan, and
+handed to each scan's run). It applies a plan made by ``camd.daemon.scan_planner`` through an ``Apply``
 (``camd.daemon.transaction``): the scene, the TDI mode, the registers (read back: they must
 set the planned timing), the simulator's ideal stage, the scan stage through
 ``camd.daemon.scan_motion.ScanMotion`` on the motion service's ``StageDrive`` (with the closed
@@ -16,6 +17,7 @@ from __future__ import annotations
 import math
 import threading
 from collections.abc import Callable
+from dataclasses import KW_ONLY, dataclass, field
 
 from camd.daemon.acquisition import Acquisition
 from camd.daemon.device import DeviceAccess
@@ -38,29 +40,20 @@ from camd.store.recording import RecordingError
 from camd.store.tdi_recording import TdiRecorder
 
 
+@dataclass(eq=False)
 class ScanApply:
     """Apply scan plans, with their undo (module docstring)."""
 
-    def __init__(
-        self,
-        device: DeviceAccess,
-        sensor: SensorService,
-        stream: StreamService,
-        motion: MotionService,
-        sim: SimulatorControl,
-        *,
-        background: BackgroundCapture | None,
-        live_lines: LiveLines | None,
-        lock: threading.Lock,
-    ) -> None:
-        self.device = device
-        self.sensor = sensor
-        self.stream = stream
-        self.motion = motion
-        self.sim = sim
-        self.background = background  # the live view's, stored in the scan's file when ready
-        self.live_lines = live_lines  # the live view's waterfall (None: no live lines)
-        self._lock = lock  # the scan service's, handed to each scan's run
+    device: DeviceAccess
+    sensor: SensorService
+    stream: StreamService
+    motion: MotionService
+    sim: SimulatorControl
+    _: KW_ONLY
+    background: BackgroundCapture | None  # the live view's, stored in the scan's file when ready
+    live_lines: LiveLines | None  # the live view's waterfall (None: no live lines)
+    # The scan service's lock too, handed to each scan's run.
+    lock: threading.Lock = field(default_factory=threading.Lock, init=False)
 
     def apply(
         self,
@@ -128,7 +121,7 @@ class ScanApply:
                 device=device,
                 stream=self.stream,
                 live_lines=self.live_lines,
-                lock=self._lock,
+                lock=self.lock,
             )
             if self.live_lines is not None:
                 self.live_lines.reset(plan.columns, scan=str(plan.path), lines_planned=plan.frames)

@@ -38,21 +38,15 @@ class PlannedScan:
     stage_position_m: float
 
 
+@dataclass(eq=False)
 class ScanPlanner:
     """Read, plan and check a scan before anything is changed (module docstring)."""
 
-    def __init__(
-        self,
-        sensor: SensorService,
-        motion: MotionService,
-        sim: SimulatorControl,
-        background: BackgroundCapture | None,
-    ) -> None:
-        self.sensor = sensor
-        self.motion = motion
-        self.sim = sim
-        # The live view's background: stored in every scan started while it is ready.
-        self.background = background
+    sensor: SensorService
+    motion: MotionService
+    sim: SimulatorControl
+    # The live view's background: stored in every scan started while it is ready.
+    background: BackgroundCapture | None
 
     def plan(self, request: ScanRequest, path: Path) -> PlannedScan:
         """The scan of ``request`` into the file ``path``, planned and checked; BadRequest

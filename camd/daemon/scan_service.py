@@ -34,22 +34,14 @@ document (``scan_status``). ``ScanService`` serves the requests and keeps the cu
 from __future__ import annotations
 
 import datetime as dt
-import threading
 
-from camd.daemon.device import DeviceAccess
 from camd.daemon.errors import BadRequest
 from camd.daemon.models import ScanRequest, ScanResponse
-from camd.daemon.motion_service import MotionService
 from camd.daemon.scan_apply import ScanApply
 from camd.daemon.scan_plan import max_stages, scan_path
 from camd.daemon.scan_planner import ScanPlanner
 from camd.daemon.scan_run import FINISH_TIMEOUT_S, ScanRun
 from camd.daemon.scan_status import mismatch_gauges, scan_response
-from camd.daemon.sensor_service import SensorService
-from camd.daemon.sim_control import SimulatorControl
-from camd.daemon.stream_service import StreamService
-from camd.pipeline.background import BackgroundCapture
-from camd.pipeline.live import LiveLines
 from camd.tdi import stage_taps
 
 SHUTDOWN_WAIT_S = 8.0  # at shutdown, how long the scan's finisher may take to end it
@@ -58,32 +50,14 @@ SHUTDOWN_WAIT_S = 8.0  # at shutdown, how long the scan's finisher may take to e
 class ScanService:
     """Start, watch, re-stage and stop push-broom scans."""
 
-    def __init__(
-        self,
-        device: DeviceAccess,
-        sensor: SensorService,
-        stream: StreamService,
-        motion: MotionService,
-        sim: SimulatorControl,
-        *,
-        background: BackgroundCapture | None = None,
-        live_lines: LiveLines | None = None,
-    ) -> None:
-        self.device = device
-        self.stream = stream
-        self._lock = threading.Lock()
+    def __init__(self, apply: ScanApply) -> None:
+        """``apply`` applies the scans' plans; the service takes the parts it needs from it."""
+        self.device = apply.device
+        self.stream = apply.stream
+        self._lock = apply.lock
         self._scan: ScanRun | None = None
-        self._planner = ScanPlanner(sensor, motion, sim, background)
-        self._apply = ScanApply(
-            device,
-            sensor,
-            stream,
-            motion,
-            sim,
-            background=background,
-            live_lines=live_lines,
-            lock=self._lock,
-        )
+        self._planner = ScanPlanner(apply.sensor, apply.motion, apply.sim, apply.background)
+        self._apply = apply
 
     def mismatch_gauges(self) -> dict[str, float]:
         """The current (or last) scan's M |dV/V| for the metrics: last batch, max, RMS."""

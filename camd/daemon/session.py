@@ -57,6 +57,7 @@ from camd.daemon.models import (
 from camd.daemon.motion_service import MotionService
 from camd.daemon.output_paths import RECORDINGS_FOLDER, SCANS_FOLDER
 from camd.daemon.realtime import REALTIME
+from camd.daemon.scan_apply import ScanApply
 from camd.daemon.scan_service import ScanService
 from camd.daemon.sensor_service import SensorService
 from camd.daemon.simulator import SimulatorProcess
@@ -139,13 +140,15 @@ class DeviceSession:
         # The live view's waterfall: the newest integrated lines of the running or last scan.
         self.live_lines = LiveLines(LIVE_LINES_MAX)
         self.scan = ScanService(
-            device,
-            self.sensor,
-            self.stream,
-            self.motion,
-            self.sim,
-            background=background,
-            live_lines=self.live_lines,
+            ScanApply(
+                device,
+                self.sensor,
+                self.stream,
+                self.motion,
+                self.sim,
+                background=background,
+                live_lines=self.live_lines,
+            )
         )
         self.wheel = WheelService(device, self.sensor, self.stream)
         self.control = Control(

@@ -19,9 +19,8 @@ from __future__ import annotations
 import random
 import threading
 import time
-from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Unpack
 
 from camd.link.link_port import (
     ConnectionChange,
@@ -29,6 +28,7 @@ from camd.link.link_port import (
     LinkDown,
     LinkError,
     LinkPort,
+    LinkPortOptions,
     Message,
     Pending,
     Subscriber,
@@ -36,7 +36,6 @@ from camd.link.link_port import (
 )
 from camd.protocol import (
     MAX_PAYLOAD,
-    Dictionary,
     Frame,
     FrameType,
     PayloadError,
@@ -100,37 +99,22 @@ class CommandLink(LinkPort):
 
     ``port`` is anything pyserial opens: a device path (``/dev/ttyUSB0``, a symlink to a pty) or
     a pyserial URL. ``timeout_s`` is the wait for each attempt; a command is sent at most
-    ``1 + retries`` times.
+    ``1 + retries`` times. The other keyword arguments are ``LinkPort``'s (``LinkPortOptions``).
     """
 
     def __init__(
         self,
         port: str,
         *,
-        dictionary: Dictionary | None = None,
-        baudrate: int = 921_600,
         timeout_s: float = 0.1,
         retries: int = 5,
-        reconnect_min_s: float = 0.1,
-        reconnect_max_s: float = 2.0,
-        frame_timeout_s: float | None = None,
-        thread_start: Callable[[str], object] | None = None,
-        may_open: Callable[[], str | None] | None = None,
+        **options: Unpack[LinkPortOptions],
     ) -> None:
         if timeout_s <= 0:
             raise ValueError(f"timeout_s must be > 0, got {timeout_s}")
         if retries < 0:
             raise ValueError(f"retries must be >= 0, got {retries}")
-        super().__init__(
-            port,
-            dictionary=dictionary,
-            baudrate=baudrate,
-            reconnect_min_s=reconnect_min_s,
-            reconnect_max_s=reconnect_max_s,
-            frame_timeout_s=frame_timeout_s,
-            thread_start=thread_start,
-            may_open=may_open,
-        )
+        super().__init__(port, **options)
         self.timeout_s = timeout_s
         self.retries = retries
         self._request_lock = threading.Lock()  # one command in flight

@@ -13,8 +13,10 @@ from __future__ import annotations
 
 import array
 import errno
+import threading
 import time
 from collections.abc import Callable
+from dataclasses import KW_ONLY, dataclass, field
 
 import usb.core
 
@@ -40,6 +42,7 @@ _WITH_LAST = frozenset(
 )
 
 
+@dataclass(eq=False)
 class FrameReader:
     """One run's reader of ``device`` into ``queue``, counting in ``ledger``.
 
@@ -47,28 +50,21 @@ class FrameReader:
     per transfer this run; ``read_bytes``, ``timeout_s``, ``no_data_warning_s``: the
     stream's (``FrameStream``)."""
 
-    def __init__(
-        self,
-        device: StreamDevice,
-        ledger: FrameLedger,
-        queue: FrameQueue,
-        *,
-        max_frame_bytes: int,
-        packed: bool,
-        read_bytes: int,
-        timeout_s: float,
-        no_data_warning_s: float,
-    ) -> None:
-        self.device = device
-        self.ident = device.ident
-        self.max_frame_bytes = max_frame_bytes
-        self.packed = packed
-        self.read_bytes = read_bytes
-        self.timeout_s = timeout_s
-        self.no_data_warning_s = no_data_warning_s
-        self._ledger = ledger
-        self._queue = queue
-        self._cond = queue.cond
+    device: StreamDevice
+    _ledger: FrameLedger
+    _queue: FrameQueue
+    _: KW_ONLY
+    max_frame_bytes: int
+    packed: bool
+    read_bytes: int
+    timeout_s: float
+    no_data_warning_s: float
+    ident: str = field(init=False)
+    _cond: threading.Condition = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.ident = self.device.ident
+        self._cond = self._queue.cond
 
     def run(self, thread_start: Callable[[str], object] | None) -> None:
         """The thread's body: read until the queue says stop; never die silently."""

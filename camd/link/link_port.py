@@ -16,7 +16,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
-from typing import Self
+from typing import Self, TypedDict
 
 import serial
 
@@ -96,6 +96,19 @@ class Pending:
     opcode: int
     done: threading.Event = field(default_factory=threading.Event)
     frame: Frame | None = None
+
+
+class LinkPortOptions(TypedDict, total=False):
+    """``LinkPort``'s keyword arguments, for a subclass that passes them on
+    (``CommandLink(port, **options)``): each default stays written once, in ``LinkPort``."""
+
+    dictionary: Dictionary | None
+    baudrate: int
+    reconnect_min_s: float
+    reconnect_max_s: float
+    frame_timeout_s: float | None
+    thread_start: Callable[[str], object] | None
+    may_open: Callable[[], str | None] | None
 
 
 class LinkPort:

@@ -586,17 +586,27 @@ class Recording:
         ]
 
 
-def read_recording(path: Path | str) -> Recording:
-    """Read a whole recording into memory; RecordingError if it is not one."""
-    path = Path(path)
+def open_for_reading(path: Path, *, held_for_writing: str | None = None) -> h5py.File:
+    """``path`` opened for reading, SWMR: also a file still being written, or one whose writer
+    died. RecordingError for a missing file or one HDF5 cannot open; ``held_for_writing`` is
+    what to say instead when another program holds the file open for writing without SWMR, with
+    ``{exc}`` for HDF5's words (None: the same as for any file HDF5 cannot open)."""
     if not path.is_file():
         raise RecordingError(f"{path} does not exist (or is not a file); check the path")
     try:
-        # SWMR read: also a recording still being written, or one whose writer died.
-        f = h5py.File(path, "r", swmr=True)
+        return h5py.File(path, "r", swmr=True)
+    except BlockingIOError as exc:
+        if held_for_writing is None:
+            raise RecordingError(f"cannot open {path} as HDF5: {exc}") from None
+        raise RecordingError(f"cannot open {path}: " + held_for_writing.format(exc=exc)) from None
     except OSError as exc:
         raise RecordingError(f"cannot open {path} as HDF5: {exc}") from None
-    with f:
+
+
+def read_recording(path: Path | str) -> Recording:
+    """Read a whole recording into memory; RecordingError if it is not one."""
+    path = Path(path)
+    with open_for_reading(path) as f:
         if f.attrs.get("format") != FORMAT:
             raise RecordingError(f"{path} is not a camd recording (no format={FORMAT!r})")
         version = int(f.attrs.get("format_version", 0))

@@ -17,7 +17,7 @@ import numpy.typing as npt
 
 from camd.store.nexus import ENTRY
 from camd.store.recording import FORMAT as RECORDING_FORMAT
-from camd.store.recording import RecordingError, unflatten_attrs
+from camd.store.recording import RecordingError, open_for_reading, unflatten_attrs
 from camd.store.tdi_layout import ADDED_IN_2, COLUMNS, FORMAT, FORMAT_VERSION
 
 
@@ -38,6 +38,13 @@ class TdiScan:
     metadata: dict[str, dict[str, Any]]  # profile, registers, timing, scan, counters, ...
 
 
+# What read_tdi_scan says when another program holds the file open for writing without SWMR.
+_HELD_FOR_WRITING = (
+    "another program has it open for writing without SWMR (a camd frame recording being "
+    "made?): {exc}; wait until it is closed"
+)
+
+
 def read_tdi_scan(path: Path | str) -> TdiScan:
     """Read a whole TDI scan into memory, also one still being written (SWMR).
 
@@ -45,18 +52,7 @@ def read_tdi_scan(path: Path | str) -> TdiScan:
     scan format newer than this camd reads.
     """
     path = Path(path)
-    if not path.is_file():
-        raise RecordingError(f"{path} does not exist (or is not a file); check the path")
-    try:
-        f = h5py.File(path, "r", swmr=True)
-    except BlockingIOError as exc:
-        raise RecordingError(
-            f"cannot open {path}: another program has it open for writing without SWMR "
-            f"(a camd frame recording being made?): {exc}; wait until it is closed"
-        ) from None
-    except OSError as exc:
-        raise RecordingError(f"cannot open {path} as HDF5: {exc}") from None
-    with f:
+    with open_for_reading(path, held_for_writing=_HELD_FOR_WRITING) as f:
         fmt = f.attrs.get("format")
         if isinstance(fmt, bytes):
             fmt = fmt.decode(errors="replace")

@@ -14,7 +14,7 @@ at the daemon's batch sizes (``camd bench tdi``), so the engine no longer splits
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any, Literal, TypedDict, Unpack
 
 import numpy as np
 import numpy.typing as npt
@@ -352,16 +352,20 @@ class TdiEngine:
         return result
 
 
+class TdiOptions(TypedDict, total=False):
+    """``TdiEngine``'s keyword arguments, for ``tdi_batch``, which passes them on: each default
+    stays written once, in ``TdiEngine``."""
+
+    mode: Mode
+    out_bits: int | None
+    rows_per_line: float
+    cols_per_line: float
+    reverse: bool
+    kernel: Kernel
+
+
 def tdi_batch(
-    frames: npt.NDArray[Any],
-    stages: int,
-    mode: Mode = "sum",
-    out_bits: int | None = None,
-    rows_per_line: float = 1.0,
-    cols_per_line: float = 0.0,
-    reverse: bool = False,
-    *,
-    kernel: Kernel = "auto",
+    frames: npt.NDArray[Any], stages: int, **options: Unpack[TdiOptions]
 ) -> tuple[npt.NDArray[Any], npt.NDArray[np.bool_]]:
     """TDI of a whole stack of frames (F, rows, N) at once: ``(lines (F, N), complete (F,))``.
 
@@ -370,17 +374,7 @@ def tdi_batch(
     arr = np.asarray(frames)
     if arr.ndim != 3:
         raise ValueError(f"tdi_batch takes frames of shape (F, rows, N), got shape {arr.shape}")
-    engine = TdiEngine(
-        stages,
-        arr.shape[2],
-        mode=mode,
-        out_bits=out_bits,
-        rows_per_line=rows_per_line,
-        cols_per_line=cols_per_line,
-        reverse=reverse,
-        kernel=kernel,
-    )
-    block = engine.push_many(arr)
+    block = TdiEngine(stages, arr.shape[2], **options).push_many(arr)
     return block.data, block.complete
 
 

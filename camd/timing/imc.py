@@ -22,7 +22,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from fractions import Fraction
-from typing import Literal, overload
+from typing import Literal, NotRequired, TypedDict, Unpack, overload
 
 import numpy as np
 import numpy.typing as npt
@@ -264,6 +264,18 @@ def _triangle_integral(z: FloatArray) -> FloatArray:
     return result
 
 
+class PointBeamSetup(TypedDict):
+    """``point_beam_profile``'s keyword arguments, for ``point_beam_means``, which passes them
+    on: each default stays written once, in ``point_beam_profile``."""
+
+    pixel_m: float
+    image_velocity_m_s: float
+    exposure_s: float
+    mode: ImcMode
+    electrode_interval_s: NotRequired[float | None]
+    phases: NotRequired[int]
+
+
 def point_beam_profile(
     a_m: float | npt.ArrayLike,
     *,
@@ -361,16 +373,7 @@ class PointBeamMeans:
     square_sum: float
 
 
-def point_beam_means(
-    *,
-    pixel_m: float,
-    image_velocity_m_s: float,
-    exposure_s: float,
-    mode: ImcMode,
-    electrode_interval_s: float | None = None,
-    phases: int = ELECTRODE_FORM_PHASES,
-    offsets: int = 1024,
-) -> PointBeamMeans:
+def point_beam_means(*, offsets: int = 1024, **beam: Unpack[PointBeamSetup]) -> PointBeamMeans:
     """``point_beam_profile``'s modulation and squared profile averaged over ``a``.
 
     Midpoint rule over ``offsets`` offsets ``(i + 1/2) w / offsets``; the curves are piecewise
@@ -379,17 +382,9 @@ def point_beam_means(
     p = 4), the means of the closed forms.
     """
     n = count("offsets", offsets, 1)
-    w = positive("pixel_m", pixel_m)
+    w = positive("pixel_m", beam["pixel_m"])
     a = (np.arange(n) + 0.5) * (w / n)
-    _, profile = point_beam_profile(
-        a,
-        pixel_m=w,
-        image_velocity_m_s=image_velocity_m_s,
-        exposure_s=exposure_s,
-        mode=mode,
-        electrode_interval_s=electrode_interval_s,
-        phases=phases,
-    )
+    _, profile = point_beam_profile(a, **beam)
     return PointBeamMeans(
         modulation=float(profile_modulation(profile).mean()),
         square_sum=float(np.sum(profile * profile, axis=-1).mean()),

@@ -34,6 +34,7 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any, Literal
 
+from camd.campaign.registry import register_in
 from camd.client import CamdClient, CamdError
 from camd.protocol import Dictionary, load_dictionary
 from camd.sensor.regmap import RegisterMap, load_register_map
@@ -158,14 +159,7 @@ _REGISTRY: dict[str, CheckFunction] = {}
 
 def check_function(name: str) -> Callable[[CheckFunction], CheckFunction]:
     """Register ``fn(unit, **args) -> evidence`` as the check function ``name``."""
-
-    def register(fn: CheckFunction) -> CheckFunction:
-        if name in _REGISTRY:
-            raise ValueError(f"check function {name!r} is registered twice")
-        _REGISTRY[name] = fn
-        return fn
-
-    return register
+    return register_in(_REGISTRY, "check function", name)
 
 
 def registered() -> dict[str, CheckFunction]:

@@ -31,6 +31,7 @@ import numpy as np
 import numpy.typing as npt
 
 from camd.analysis.emva import Region
+from camd.campaign.registry import register_in
 
 if TYPE_CHECKING:
     from camd.store.recording import Recording
@@ -100,14 +101,7 @@ MEASUREMENTS: dict[str, Measurement] = {}
 
 def measurement(name: str) -> Callable[[Measurement], Measurement]:
     """Register ``fn`` as the measurement ``name`` (campaign files refer to it by that name)."""
-
-    def register(fn: Measurement) -> Measurement:
-        if name in MEASUREMENTS:
-            raise ValueError(f"measurement {name!r} is registered twice")
-        MEASUREMENTS[name] = fn
-        return fn
-
-    return register
+    return register_in(MEASUREMENTS, "measurement", name)
 
 
 def region_arg(region: list[int] | None) -> Region:
