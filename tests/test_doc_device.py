@@ -193,11 +193,20 @@ def test_camctl_reads_a_write_only_register_as_the_host_copy(
 @pytest.fixture(scope="module")
 def conformance(unit: tuple[PtyDevice, DaemonProcess], tmp_path_factory: pytest.TempPathFactory
                 ) -> dict[str, Any]:  # fmt: skip
-    _, daemon = unit
+    device, daemon = unit
     out = tmp_path_factory.mktemp("doc-conform")
+    # --destructive: motion.home too, so MOTOR_HOME's valid case is exercised; this fixture runs
+    # last. From the middle of the rail homing is 0.6 m at 20 mm/s, 30 s; the stage goes to the
+    # daemon's low soft limit first at full speed (0.5 m, about 5 s), and homes from 0.1 m (5 s).
+    with CamdClient(daemon.url, timeout_s=60) as client:
+        client.enable_stage(True)
+        try:
+            client.move_stage(0.1, speed_m_s=0.1)
+        finally:
+            client.enable_stage(False)
+            with device.lock:
+                device.device.stage.low, device.device.stage.high = POWER_ON_LIMITS
     proc = subprocess.run(
-        # --destructive: motion.home too (the stage runs 0.6 m to its home switch at 20 mm/s,
-        # about 30 s), so MOTOR_HOME's valid case is exercised; this fixture runs last.
         [sys.executable, "-m", "camd", "conform", "--url", daemon.url, "--out", str(out),
          "--json", "--destructive"],
         capture_output=True, text=True, timeout=600, env={**os.environ, **NO_TOKEN},

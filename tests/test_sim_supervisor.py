@@ -256,7 +256,7 @@ def acquire(d: Daemon, frames: int) -> dict[str, Any]:
     r = d.post(f"{API}/stream/acquire", json={"frames": frames, "mode": "area"})
     assert r.status_code == 200, r.text
     doc: dict[str, Any] = r.json()
-    assert doc["stats"]["frames"] == frames and not doc["streaming"], doc
+    assert doc["stats"]["frames"] == frames and not doc["streaming"], json.dumps(doc, indent=1)
     return doc
 
 
