@@ -23,6 +23,11 @@ would stand idle, so an exclusive test waits for short tests only. A worker's mo
 the order sent, so a worker waiting there holds no exclusive test behind it; and if no
 exclusive test ends for ``GATE_STALL_S`` (a worker lost mid-test), the others go on.
 
+While an exclusive test waits or runs, one test that starts no process may run beside it (one
+at a time, on a lock of their own): that is at most one core's worth of numpy or parsing, less
+than the two CPU hogs (``stress-ng --cpu 2``) beside which the whole suite, exclusive tests
+included, must pass. Without it three workers stood idle through the 90 s of exclusive tests.
+
 An exclusive test whose real-time part ends before the test does hands the lock back then with
 the ``end_exclusive`` fixture: it holds it shared, like any other test, for the rest, and counts
 as ended.
@@ -39,6 +44,7 @@ import tempfile
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import TextIO
 
 import pytest
 
@@ -52,7 +58,8 @@ def module_of(nodeid: str) -> str:
 
 
 def run_files(run: str) -> Path:
-    """The base name of this run's shared files (``.lock``, ``.turnstile``, ``.ended``)."""
+    """The base name of this run's shared files (``.lock``, ``.turnstile``, ``.beside``,
+    ``.ended``)."""
     return Path(tempfile.gettempdir()) / f"camd-cpu-share-{run}"
 
 
@@ -103,6 +110,14 @@ def wait_for_the_exclusive_tests(base: Path, tests: frozenset[str]) -> None:
         time.sleep(GATE_POLL_S)
 
 
+def _try(f: TextIO, how: int) -> bool:
+    try:
+        fcntl.flock(f, how | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return False
+    return True
+
+
 @pytest.hookimpl(hookwrapper=True, tryfirst=True)
 def pytest_runtest_protocol(item: pytest.Item) -> Iterator[None]:
     run = os.environ.get("PYTEST_XDIST_TESTRUNUID")
@@ -113,14 +128,25 @@ def pytest_runtest_protocol(item: pytest.Item) -> Iterator[None]:
     base = run_files(run)
     runs = _exclusive(item)
     exclusive = item.nodeid in runs.tests
-    gated = item.get_closest_marker("daemon") is not None
-    if gated and not exclusive and module_of(item.nodeid) not in runs.modules:
+    starts_processes = item.get_closest_marker("daemon") is not None
+    if starts_processes and not exclusive and module_of(item.nodeid) not in runs.modules:
         wait_for_the_exclusive_tests(base, runs.tests)
-    with open(f"{base}.lock", "a") as lock, open(f"{base}.turnstile", "a") as turnstile:
-        fcntl.flock(turnstile, fcntl.LOCK_EX)
-        fcntl.flock(lock, fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH)
-        if not exclusive:
-            fcntl.flock(turnstile, fcntl.LOCK_UN)
+    beside = not starts_processes and not exclusive  # may run beside an exclusive test
+    with (
+        open(f"{base}.lock", "a") as lock,
+        open(f"{base}.turnstile", "a") as turnstile,
+        open(f"{base}.beside", "a") as one_beside,
+    ):
+        if beside and not _try(turnstile, fcntl.LOCK_EX):
+            # An exclusive test waits or runs: one test that starts no process at a time runs
+            # beside it, holding no lock but this one.
+            fcntl.flock(one_beside, fcntl.LOCK_EX)
+        else:
+            if not beside:
+                fcntl.flock(turnstile, fcntl.LOCK_EX)
+            fcntl.flock(lock, fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH)
+            if not exclusive:
+                fcntl.flock(turnstile, fcntl.LOCK_UN)
         said = False
 
         def end_exclusive() -> None:
@@ -137,6 +163,7 @@ def pytest_runtest_protocol(item: pytest.Item) -> Iterator[None]:
         finally:
             fcntl.flock(lock, fcntl.LOCK_UN)
             fcntl.flock(turnstile, fcntl.LOCK_UN)  # held by an exclusive test still; else a no-op
+            fcntl.flock(one_beside, fcntl.LOCK_UN)  # a no-op unless it ran beside one
             if exclusive and not said:
                 say_ended(base, item.nodeid)
 
@@ -160,5 +187,5 @@ def pytest_unconfigure(config: pytest.Config) -> None:
     run = config.getoption("testrunuid", None)
     if run is None or hasattr(config, "workerinput"):
         return
-    for suffix in (".lock", ".turnstile", ".ended"):
+    for suffix in (".lock", ".turnstile", ".beside", ".ended"):
         Path(f"{run_files(run)}{suffix}").unlink(missing_ok=True)

@@ -90,8 +90,24 @@ GATED_RUN = {
         "def test_first():\n"
         "    log('first_start'); time.sleep(1.5)\n"
         "@pytest.mark.exclusive\n"
-        "def test_alone():\n"
-        "    log('alone_start'); time.sleep(0.5); log('alone_end')\n"
+        "def test_alone(tmp_path_factory):\n"
+        "    log('alone_start')\n"
+        "    flags = tmp_path_factory.getbasetemp().parent\n"
+        "    (flags / 'alone.flag').touch()\n"
+        "    deadline = time.monotonic() + 20\n"
+        "    while not (flags / 'pure.flag').exists() and time.monotonic() < deadline:\n"
+        "        time.sleep(0.05)\n"
+        "    log('alone_end')\n"
+        "    assert (flags / 'pure.flag').exists(), 'no test ran beside the exclusive one'\n"
+    ),
+    "test_c_pure.py": (
+        "import time, pytest\n"
+        "@pytest.mark.parametrize('n', range(60))\n"
+        "def test_short(n, tmp_path_factory):\n"
+        "    flags = tmp_path_factory.getbasetemp().parent\n"
+        "    if (flags / 'alone.flag').exists():\n"
+        "        (flags / 'pure.flag').touch()\n"
+        "    time.sleep(0.1)\n"
     ),
     "test_b_other.py": (
         "import pytest\n"
@@ -105,11 +121,15 @@ GATED_RUN = {
 
 
 @pytest.mark.daemon
-def test_no_test_of_another_module_starts_before_the_exclusive_tests_end(tmp_path: Path) -> None:
+def test_no_test_that_starts_a_process_in_another_module_starts_before_the_exclusive_tests_end(
+    tmp_path: Path,
+) -> None:
     # Two workers: one takes the module with the exclusive test (sent first), the other the
     # module without, whose tests start processes (marked daemon: the long ones). Without the
     # gate, they ran during test_first, before the exclusive test had even asked for the CPU,
     # and an exclusive test then waited for whatever long test the other workers had started.
+    # A third module's tests start no process: one of them runs beside the exclusive test
+    # (test_alone waits for it, and fails without it).
     for name, text in GATED_RUN.items():
         (tmp_path / name).write_text(text, encoding="utf-8")
     log = tmp_path / "log"
