@@ -724,3 +724,24 @@ def test_pack_bytes_must_be_whole_kib_with_whole_reads() -> None:
         FrameStream(pack_bytes=1000)
     with pytest.raises(ValueError, match="pack_bytes needs whole-transfer reads"):
         FrameStream(pack_bytes=PACK_BYTES, read_bytes=1024)
+
+
+def test_frames_the_device_sent_after_its_reader_failed_are_lost_once_it_stops(
+    sock_path: Path, bank: BankSource
+) -> None:
+    # The reader gave up (its device went away: a handle to a camera that restarted) and the
+    # device then says it sent counters 0..2 (START_STREAM's answer, then STREAM_DONE): none
+    # can arrive any more, so once the reader is stopped the three count as lost, not as
+    # nothing. Before, an acquisition could answer 3 frames asked, 0 delivered and 0 lost.
+    rig = Rig(sock_path, bank)
+    try:
+        rig.stream.start(max_frame_bytes=FRAME_BYTES)
+        rig.server.stop()
+        assert wait_until(lambda: rig.stream.error is not None)
+        rig.stream.expect_first(0)
+        rig.stream.expect_end(3)
+        rig.stream.stop()
+        stats = rig.stream.stats()
+        assert (stats.frames, stats.lost) == (0, 3)
+    finally:
+        rig.close()

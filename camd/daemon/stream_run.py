@@ -386,7 +386,8 @@ class StreamRun:
         lock held. Early: the daemon stopped it itself (its recording failed); the camera
         could not say what it sent (it went away, its link failed, a reset: ``why``); or it
         ended the stream with fewer frames than asked for, or a stream until stopped at all.
-        Not sent: of a counted stream, the frames asked for that the camera did not send (by
+        The camera sent them all but the USB reader failed: early too (broken). Not sent: of a
+        counted stream, the frames asked for that the camera did not send (by
         its own count; if it could not say, those the host never accounted for), however it
         ended (also when stopped on request)."""
         requested = int(self._info["frames_requested"])
@@ -397,6 +398,8 @@ class StreamRun:
             pass
         elif frames_sent is None:
             early = why
+        elif reader is not None and reader.error and reader.stats().frames < frames_sent:
+            early = self._broken = f"the USB frame stream failed: {reader.error}"  # not all read
         elif requested == 0 or frames_sent < requested:
             of = f" of {requested}" if requested else ""
             early = f"the camera ended the stream after {frames_sent}{of} frames (STREAM_DONE)"

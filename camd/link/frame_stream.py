@@ -316,6 +316,10 @@ class FrameStream:
         self._reader_thread = self._dispatcher_thread = None
         with self._lock:
             self._ledger.t_stop = time.monotonic()
+            # Frames the device said it sent (expect_end) that have not come cannot come now:
+            # lost. A reader that gave up on an error (its device gone) never saw the line go
+            # quiet, which is what counts them otherwise.
+            self._ledger.settle_end(idle=True)
         if self._packed:
             # Back to one frame per transfer: another reader of this device may expect it.
             self._device.ask_packing(0)
