@@ -36,8 +36,9 @@ def test_an_exclusive_test_hands_the_cpu_back_where_it_says(
     end_exclusive: Callable[[], None],
 ) -> None:
     # Under xdist an exclusive test holds the run's lock alone and the turnstile with it
-    # (tests/cpu_share.py); end_exclusive() leaves it the lock shared, as every test holds it,
-    # so the other workers' tests start again. Without xdist there is no lock: a no-op.
+    # (tests/cpu_share.py); end_exclusive() gives both back, so the other workers' tests start
+    # again, and holds the lock of the one test beside an exclusive one instead. Without
+    # xdist there is no lock: a no-op.
     run = os.environ.get("PYTEST_XDIST_TESTRUNUID")
     if "PYTEST_XDIST_WORKER" not in os.environ or run is None:
         end_exclusive()
@@ -55,9 +56,10 @@ def test_an_exclusive_test_hands_the_cpu_back_where_it_says(
 
     assert not could("lock", fcntl.LOCK_SH) and not could("turnstile", fcntl.LOCK_EX)
     end_exclusive()
-    # Not whether the turnstile is free now: another worker's test may take it at once.
-    assert could("lock", fcntl.LOCK_SH)
-    assert not could("lock", fcntl.LOCK_EX)  # still held shared until the test ends
+    # Not whether the lock or the turnstile is free now: another worker's test may take them
+    # at once. The rest of this test is the one test beside the next exclusive one.
+    assert not could("beside", fcntl.LOCK_EX)
+    assert os.environ["PYTEST_CURRENT_TEST"].split(" ")[0] in cpu_share.ended(base)
 
 
 def test_the_gate_opens_once_every_exclusive_test_has_ended(tmp_path: Path) -> None:
