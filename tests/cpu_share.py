@@ -12,21 +12,23 @@ on granting the shared lock to the other workers' next tests, and the exclusive 
 could wait for as long as they kept one running.
 
 An exclusive test waits for the tests then running on the other workers to end. Behind a long
-one (a 32 s soak, a 20 s campaign job) the whole run stood still: in a timeline of a
-fresh-clone run, 4 workers, the 9 exclusive tests ran 100 s and the waits around them cost the
-workers 320 s between them. So the exclusive tests go first: the modules that hold them are
-sent to the workers first (tests/schedule.py), and a test of any other module that starts a
-process (marked ``daemon``, tests/tiers.py: the long ones) starts only once every exclusive test
-of the run has ended; each one that ends says so in a file the workers share. The tests that
-start no process (milliseconds to a few seconds) run in between, in the time the other workers
-would stand idle, so an exclusive test waits for short tests only. A worker's modules come in
-the order sent, so a worker waiting there holds no exclusive test behind it; and if no
-exclusive test ends for ``GATE_STALL_S`` (a worker lost mid-test), the others go on.
+one (a 32 s soak, a 20 s campaign job) the whole run stood still: in a timeline of a fresh-clone
+run, 4 workers, the 9 exclusive tests ran 100 s and the workers stood 405 s in all between
+tests, 201 s of it while no exclusive test ran (waiting behind other long tests). So the
+exclusive tests go first: the modules that hold them are sent to the workers first
+(tests/schedule.py), and a test of any other module that starts a process (marked ``daemon``,
+tests/tiers.py: the long ones) starts only once every exclusive test of the run has ended; each
+one that ends says so in a file the workers share. The tests that start no process (milliseconds
+to a few seconds) run in between, in the time the other workers would stand idle, so an
+exclusive test waits for short tests only. A worker's modules come in the order sent, so a
+worker waiting there holds no exclusive test behind it; and if no exclusive test ends for
+``GATE_STALL_S`` (a worker lost mid-test), the others go on.
 
 While an exclusive test waits or runs, one test that starts no process may run beside it (one
 at a time, on a lock of their own): that is at most one core's worth of numpy or parsing, less
 than the two CPU hogs (``stress-ng --cpu 2``) beside which the whole suite, exclusive tests
-included, must pass. Without it three workers stood idle through the 90 s of exclusive tests.
+included, must pass. In a fresh-clone run 114 tests (32 s of them) ran beside the exclusive
+ones, in time three workers would otherwise have stood idle.
 
 An exclusive test whose real-time part ends before the test does hands the lock back then with
 the ``end_exclusive`` fixture, and counts as ended: for the rest it is the one test beside the
