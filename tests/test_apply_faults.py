@@ -44,10 +44,10 @@ HR400 = load_register_map("hr400")
 READABLE = sum(reg.readable for reg in HR400.registers)  # REG_READs of a write's snapshot
 WRITES = {"GAIN": 0x150, "OFFSET": 120, "BACK_PATH": 30}  # plain registers, each read back
 # The link's defaults (config/camd.toml): reconnect_max_s + (1 + retries) x timeout_s + 5 s.
-RESTORE_WAIT_S = 2.0 + 6 * 0.1 + 5.0
-# A dropped line that comes back: it outlasts the host's 0.6 s of attempts (2.4 s to spare for
-# a busy machine's late retries) and ends well inside the restore's wait (5.2 s to spare).
-SILENCE_S = 3.0
+RESTORE_WAIT_S = 2.0 + 21 * 0.1 + 5.0  # sim.link_retries = 20 (docs/config.md)
+# A dropped line that comes back: it outlasts the host's 2.1 s of attempts (2.4 s to spare for
+# a busy machine's late retries) and ends well inside the restore's wait (4.6 s to spare).
+SILENCE_S = 4.5
 
 
 @pytest.fixture(scope="module")

@@ -53,6 +53,16 @@ def test_defaults_give_a_simulated_camera_on_loopback() -> None:
     assert cfg.sim.profile == "hr400"
 
 
+def test_the_simulated_camera_gets_more_re_sends_than_a_real_one() -> None:
+    # docs/config.md sim.link_retries: a process on a busy host, held back for 600 ms once.
+    sim = config_from_dict({}, env=NO_ENV)
+    assert (sim.sim.link_retries, sim.link_retries) == (20, 20)
+    real = config_from_dict({"link": {"device": "/dev/ttyUSB0", "retries": 7}}, env=NO_ENV)
+    assert real.link_retries == 7  # sim.link_retries is for the simulator only
+    tuned = config_from_dict({"sim": {"link_retries": 3}}, env=NO_ENV)
+    assert tuned.link_retries == 3
+
+
 def test_data_dir_is_expanded_and_derived_paths_follow(tmp_path: Path) -> None:
     cfg = config_from_dict({"daemon": {"data_dir": "~/x/camd"}}, env=NO_ENV)
     assert cfg.daemon.data_dir == Path.home() / "x" / "camd"

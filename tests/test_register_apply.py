@@ -30,7 +30,7 @@ from tests.test_camctl import NO_TOKEN
 MT9M001 = load_register_map("mt9m001")
 READABLE = sum(reg.readable for reg in MT9M001.registers)  # REG_READs of a write's snapshot
 GAINS = ["GAIN_GREEN1", "GAIN_BLUE", "GAIN_RED", "GAIN_GREEN2"]  # what GLOBAL_GAIN sets
-SILENCE_S = 3.0  # as tests/test_apply_faults.py: outlasts the host's attempts, ends in the wait
+SILENCE_S = 4.5  # as tests/test_apply_faults.py: outlasts the host's attempts, ends in the wait
 
 
 @pytest.fixture(scope="module")

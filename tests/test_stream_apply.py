@@ -27,7 +27,7 @@ from tests.test_apply_faults import failing, refused
 from tests.test_trust import small_window_daemon
 
 ROWS = 16  # small_window_daemon's window
-SILENCE_S = 3.0  # as tests/test_apply_faults.py: outlasts the host's attempts, ends in the wait
+SILENCE_S = 4.5  # as tests/test_apply_faults.py: outlasts the host's attempts, ends in the wait
 
 
 @pytest.fixture(scope="module")

@@ -119,6 +119,13 @@ class Config(Section):
         return self.link.device == "sim"
 
     @property
+    def link_retries(self) -> int:
+        """Re-sends of a command after a timeout: ``sim.link_retries`` for the simulated camera
+        (the machine it shares may hold it back: 600 ms without an answer was seen with the
+        test suite's four workers on two cores), else ``link.retries``."""
+        return self.sim.link_retries if self.simulated_link else self.link.retries
+
+    @property
     def stream_backend(self) -> UsbBackend:
         """``stream.backend`` with "auto" resolved: the simulated FX3 with the simulated link,
         libusb (real hardware) with a serial port."""

@@ -60,6 +60,13 @@ class SimSection(Section):
         default=1.0, gt=0, le=3600, description="period of unsolicited housekeeping"
     )
     seed: int = Field(default=0, ge=0, description="random seed of the simulator (noise, faults)")
+    link_retries: int = Field(
+        default=20,
+        ge=0,
+        le=100,
+        description="re-sends of a command to the simulated camera, in place of link.retries: "
+        "a process on this host, which a busy host holds back for hundreds of milliseconds",
+    )
     profile: str = Field(
         default="hr400", pattern=r"^[a-z0-9_]+$", description="camera profile to simulate"
     )

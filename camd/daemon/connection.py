@@ -105,7 +105,7 @@ class Connection:
             dictionary=device.dictionary,
             baudrate=cfg.baudrate,
             timeout_s=cfg.timeout_s,
-            retries=cfg.retries,
+            retries=config.link_retries,
             reconnect_min_s=cfg.reconnect_min_s,
             reconnect_max_s=cfg.reconnect_max_s,
             thread_start=REALTIME.enter,

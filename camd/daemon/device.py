@@ -252,9 +252,12 @@ class DeviceAccess:
     @property
     def restore_wait_s(self) -> float:
         """How long ``wait_usable`` waits: the longest reconnect backoff, one command's attempts
-        (``link.reconnect_max_s``, ``link.timeout_s``, ``link.retries``) and a grace, seconds."""
+        (``link.reconnect_max_s``, ``link.timeout_s``, ``link.retries`` or ``sim.link_retries``)
+        and a grace, seconds."""
         cfg = self.config.link
-        return cfg.reconnect_max_s + (1 + cfg.retries) * cfg.timeout_s + RESTORE_GRACE_S
+        return (
+            cfg.reconnect_max_s + (1 + self.config.link_retries) * cfg.timeout_s + RESTORE_GRACE_S
+        )
 
     def wait_usable(self) -> str | None:
         """Wait until the camera answers again after a lost link or a silent device: the port

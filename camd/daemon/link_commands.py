@@ -81,7 +81,7 @@ class LinkCommands:
                 break
             except DeviceTimeout as exc:
                 failed += 1
-                retries += self.device.config.link.retries  # every re-send went unanswered too
+                retries += self.device.config.link_retries  # every re-send went unanswered too
                 errors.setdefault(str(exc))
                 continue
             except DeviceRejected as exc:
