@@ -53,6 +53,7 @@ import pytest
 MARK = "exclusive"
 GATE_STALL_S = 300.0  # pytest-timeout's limit: an exclusive test that runs longer has failed
 GATE_POLL_S = 0.25
+STOPPING = "*"  # said by a worker whose session stops early (-x, --maxfail): the rest never run
 
 
 def module_of(nodeid: str) -> str:
@@ -103,7 +104,7 @@ def wait_for_the_exclusive_tests(base: Path, tests: frozenset[str]) -> None:
     progress = time.monotonic()
     while True:
         done = ended(base)
-        if tests <= done:
+        if tests <= done or STOPPING in done:
             return
         if len(done) != seen:
             seen, progress = len(done), time.monotonic()
@@ -172,6 +173,8 @@ def pytest_runtest_protocol(item: pytest.Item) -> Iterator[None]:
             fcntl.flock(one_beside, fcntl.LOCK_UN)  # a no-op unless it ran beside one
             if exclusive and not said:
                 say_ended(base, item.nodeid)
+            if item.session.shouldfail or item.session.shouldstop:
+                say_ended(base, STOPPING)  # the exclusive tests after this one will not run
 
 
 @pytest.fixture

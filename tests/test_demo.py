@@ -25,7 +25,7 @@ from tests.campaign_support import report_images
 
 # The demo's runs stream full frames in real time (200 of 534 x 2048 pixels, more than the
 # daemon's queue holds, with no overrun asked): ``exclusive``, alone under xdist
-# (tests/conftest.py), until its streams and scans are done. Its campaigns (step 10) run on
+# (tests/cpu_share.py), until its streams and scans are done. Its campaigns (step 10) run on
 # their own simulated cameras, as tests/test_campaign_tdi.py and test_campaign_mtf.py run the
 # same campaigns beside other tests, so other tests may run beside them (``end_exclusive``):
 # the exclusive part of the whole demo was 35-37 s, 12-14 s of it before step 10.

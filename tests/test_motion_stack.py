@@ -26,7 +26,7 @@ from tests.realtime_support import WARM_UP_AS_SHIPPED, as_the_unit
 from tests.test_camctl import NO_TOKEN, camctl, camctl_command, camctl_command_json, camctl_json
 
 # The scans whose closed loop is measured (the mismatch, the MTF at the smears the lines had)
-# are ``exclusive``: alone under xdist (tests/conftest.py), a busy machine's late corrections
+# are ``exclusive``: alone under xdist (tests/cpu_share.py), a busy machine's late corrections
 # being no loop's fault. The equations, the stage's moves and the refusals are not timed.
 
 T_ROW_S = 513 / 25e6  # hr400 row time: 513 sequencer clocks at 25 MHz (docs/physics.md §3)

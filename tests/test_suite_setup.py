@@ -122,17 +122,12 @@ GATED_RUN = {
 }
 
 
-@pytest.mark.daemon
-def test_no_test_that_starts_a_process_in_another_module_starts_before_the_exclusive_tests_end(
-    tmp_path: Path,
-) -> None:
-    # Two workers: one takes the module with the exclusive test (sent first), the other the
-    # module without, whose tests start processes (marked daemon: the long ones). Without the
-    # gate, they ran during test_first, before the exclusive test had even asked for the CPU,
-    # and an exclusive test then waited for whatever long test the other workers had started.
-    # A third module's tests start no process: one of them runs beside the exclusive test
-    # (test_alone waits for it, and fails without it).
-    for name, text in GATED_RUN.items():
+def gated_run(
+    tmp_path: Path, files: dict[str, str] = GATED_RUN, *options: str
+) -> tuple[subprocess.CompletedProcess[str], Path]:
+    """A pytest run on two workers of ``files`` with this suite's scheduling and CPU sharing;
+    its result and the log its tests write."""
+    for name, text in files.items():
         (tmp_path / name).write_text(text, encoding="utf-8")
     log = tmp_path / "log"
     repo = Path(__file__).resolve().parents[1]
@@ -143,9 +138,23 @@ def test_no_test_that_starts_a_process_in_another_module_starts_before_the_exclu
     done = subprocess.run(
         [sys.executable, "-m", "pytest", "-q", "-n", "2", "--dist", "loadscope",
          "--no-loadscope-reorder", "-p", "no:cacheprovider", "--rootdir", str(tmp_path),
-         "-c", str(tmp_path / "pytest.ini"), str(tmp_path)],
-        cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120,
+         "-c", str(tmp_path / "pytest.ini"), *options, str(tmp_path)],
+        cwd=tmp_path, env=env, capture_output=True, text=True, timeout=240,
     )  # fmt: skip
+    return done, log
+
+
+@pytest.mark.daemon
+def test_no_test_that_starts_a_process_in_another_module_starts_before_the_exclusive_tests_end(
+    tmp_path: Path,
+) -> None:
+    # Two workers: one takes the module with the exclusive test (sent first), the other the
+    # module without, whose tests start processes (marked daemon: the long ones). Without the
+    # gate, they ran during test_first, before the exclusive test had even asked for the CPU,
+    # and an exclusive test then waited for whatever long test the other workers had started.
+    # A third module's tests start no process: one of them runs beside the exclusive test
+    # (test_alone waits for it, and fails without it).
+    done, log = gated_run(tmp_path)
     assert done.returncode == 0, done.stdout + done.stderr
     events: dict[str, list[float]] = {}
     for line in log.read_text(encoding="utf-8").splitlines():
@@ -195,3 +204,19 @@ def test_modules_go_exclusive_first_then_those_that_start_no_process_then_longes
         "tests/test_mixed.py::a",
         "tests/test_short.py::a",
     ]
+
+
+@pytest.mark.daemon
+def test_a_run_that_stops_at_its_first_failure_does_not_wait_at_the_gate(tmp_path: Path) -> None:
+    # -x: test_first fails, so the exclusive test after it never runs. Its worker says the run
+    # is stopping, and the other worker's tests stop waiting at the gate: the run ends now, not
+    # when the gate's stall limit (300 s) has passed (the subprocess is given 240 s).
+    # No module without processes: the other worker's first tests are the gated ones.
+    files = {k: v for k, v in GATED_RUN.items() if k != "test_c_pure.py"}
+    files["test_a_mixed.py"] = files["test_a_mixed.py"].replace(
+        "log('first_start'); time.sleep(1.5)", "log('first_start'); time.sleep(1.5); assert 0"
+    )
+    done, log = gated_run(tmp_path, files, "-x")
+    shown = done.stdout + done.stderr
+    assert "FAILED test_a_mixed.py::test_first" in shown and "stopping after 1 failures" in shown
+    assert "alone_start" not in log.read_text(encoding="utf-8")
