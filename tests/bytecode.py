@@ -32,11 +32,15 @@ PREWARM_TIMEOUT_S = 300.0  # a cold collection takes about 15 s; a stuck one mus
 
 
 def bytecode_dir(config: pytest.Config) -> Path:
-    """The pytest cache's directory for it (kept between runs), or a temporary one without it."""
+    """The pytest cache's directory for it, kept between runs; without the cache (``-p
+    no:cacheprovider``) one directory of this user's under the temporary directory, also kept
+    (a new one per run would be left behind by every run)."""
     cache = getattr(config, "cache", None)
     if cache is not None:
         return Path(cache.mkdir("camd-bytecode"))
-    return Path(tempfile.mkdtemp(prefix="camd-test-bytecode-"))
+    where = Path(tempfile.gettempdir()) / f"camd-test-bytecode-{os.getuid()}"
+    where.mkdir(mode=0o700, exist_ok=True)
+    return where
 
 
 def keep_bytecode(config: pytest.Config) -> None:
@@ -65,10 +69,10 @@ def shares(files: list[Path], n: int) -> list[list[Path]]:
     """``files`` in ``n`` shares of about equal size, largest first."""
     groups: list[list[Path]] = [[] for _ in range(n)]
     sizes = [0] * n
-    for f in sorted(files, key=lambda f: -f.stat().st_size):
+    for size, f in sorted(((f.stat().st_size, f) for f in files), reverse=True):
         i = sizes.index(min(sizes))
         groups[i].append(f)
-        sizes[i] += f.stat().st_size
+        sizes[i] += size
     return [g for g in groups if g]
 
 

@@ -7,14 +7,13 @@ import fcntl
 import os
 import subprocess
 import sys
-import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
 import pytest
 
 import camd
-from tests import cpu_share, schedule
+from tests import bytecode, cpu_share, schedule
 
 
 def test_the_processes_the_tests_start_keep_their_bytecode() -> None:
@@ -43,7 +42,7 @@ def test_an_exclusive_test_hands_the_cpu_back_where_it_says(
     if "PYTEST_XDIST_WORKER" not in os.environ or run is None:
         end_exclusive()
         return
-    base = Path(tempfile.gettempdir()) / f"camd-cpu-share-{run}"
+    base = cpu_share.run_files(run)
 
     def could(name: str, how: int) -> bool:
         with open(f"{base}.{name}", "a") as other:  # another open file: another holder
@@ -220,3 +219,14 @@ def test_a_run_that_stops_at_its_first_failure_does_not_wait_at_the_gate(tmp_pat
     shown = done.stdout + done.stderr
     assert "FAILED test_a_mixed.py::test_first" in shown and "stopping after 1 failures" in shown
     assert "alone_start" not in log.read_text(encoding="utf-8")
+
+
+def test_the_compile_shares_are_balanced_by_size(tmp_path: Path) -> None:
+    files = []
+    for name, size in (("a", 5), ("b", 4), ("c", 3), ("d", 2)):
+        (tmp_path / name).write_bytes(b"x" * size)
+        files.append(tmp_path / name)
+    # Largest first, each to the lighter share: a+d = 7 and b+c = 7 bytes.
+    assert bytecode.shares(files, 2) == [[tmp_path / "a", tmp_path / "d"],
+                                          [tmp_path / "b", tmp_path / "c"]]  # fmt: skip
+    assert bytecode.shares(files[:1], 2) == [[tmp_path / "a"]]  # no empty share
