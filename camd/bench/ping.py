@@ -153,6 +153,9 @@ def bench_ping(
         client = CamdClient(d.url)
         echo = PtyEcho()
         try:
+            # The daemon serves before its camera has answered and its sensor is checked; a
+            # PING before then is refused (disconnected), so wait as the other benches do.
+            client.wait_ready(60)
             # Warm (connection, link, simulator) and time both sides, to size the rounds.
             t0 = time.perf_counter()
             client.ping(count=CALIBRATION, size=size)
