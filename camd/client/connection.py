@@ -148,50 +148,66 @@ class HttpClient:
         return f"{type(self).__name__}({self.url!r})"
 
     def _json(self, method: str, path: str, **kwargs: Any) -> dict[str, Any]:
-        response = self._request(method, path, **kwargs)
-        try:
-            doc = response.json()
-        except ValueError:
-            raise CamdError(
-                f"{method} {path}: the answer from {self.url} is not JSON "
-                f"({_snippet(response.text)}); is this URL a camd daemon?",
-                code="bad_response",
-                http_status=response.status_code,
-            ) from None
-        if not isinstance(doc, dict):
-            raise CamdError(
-                f"{method} {path}: expected a JSON object from {self.url}, got {_snippet(doc)}",
-                code="bad_response",
-                http_status=response.status_code,
-            )
-        return doc
+        return json_document(method, path, self.url, self._request(method, path, **kwargs))
 
     def _request(self, method: str, path: str, **kwargs: Any) -> httpx.Response:
         try:
             response = self._http.request(method, path, **kwargs)
-        except (httpx.ConnectError, httpx.ConnectTimeout) as exc:
-            raise DaemonUnreachable(self.url, _reason(exc)) from None
-        except httpx.TimeoutException:
-            timeout = kwargs.get("timeout", self.timeout_s)
-            raise CamdError(
-                f"{method} {path}: the daemon at {self.url} did not answer within "
-                f"{timeout:g} s; raise the timeout (camctl --timeout) or check the daemon's log",
-                code="timeout",
-            ) from None
         except httpx.TransportError as exc:
-            # Connected but the exchange broke (daemon died mid-request, not an HTTP server).
-            raise CamdError(
-                f"{method} {path}: the connection to {self.url} failed ({_reason(exc)}); "
-                "check that the daemon is still running and that the URL is camd's",
-                code="transport",
-            ) from None
+            timeout = kwargs.get("timeout", self.timeout_s)
+            raise transport_error(method, path, self.url, exc, timeout) from None
         if response.is_success:
             return response
-        raise _api_error(method, path, response)
+        raise api_error(method, path, response)
 
 
-def _api_error(method: str, path: str, response: httpx.Response) -> CamdError:
-    """Build the CamdError of a non-2xx answer from its {"error", "code"} body."""
+def json_document(method: str, path: str, url: str, response: httpx.Response) -> dict[str, Any]:
+    """The JSON object a successful answer from ``url`` carries; CamdError ``bad_response`` if
+    it is not one. Shared with the asynchronous client of ``camd.bluesky``."""
+    try:
+        doc = response.json()
+    except ValueError:
+        raise CamdError(
+            f"{method} {path}: the answer from {url} is not JSON "
+            f"({_snippet(response.text)}); is this URL a camd daemon?",
+            code="bad_response",
+            http_status=response.status_code,
+        ) from None
+    if not isinstance(doc, dict):
+        raise CamdError(
+            f"{method} {path}: expected a JSON object from {url}, got {_snippet(doc)}",
+            code="bad_response",
+            http_status=response.status_code,
+        )
+    return doc
+
+
+def transport_error(
+    method: str, path: str, url: str, exc: httpx.TransportError, timeout: object
+) -> CamdError:
+    """The CamdError of a request that got no HTTP answer (``exc``, httpx's): nothing answers
+    at ``url``, no answer within ``timeout`` (seconds, or an ``httpx.Timeout``), or a broken
+    exchange. Shared with the asynchronous client of ``camd.bluesky``."""
+    if isinstance(exc, httpx.ConnectError | httpx.ConnectTimeout):
+        return DaemonUnreachable(url, _reason(exc))
+    if isinstance(exc, httpx.TimeoutException):
+        within = f"{timeout:g} s" if isinstance(timeout, int | float) else "its timeout"
+        return CamdError(
+            f"{method} {path}: the daemon at {url} did not answer within "
+            f"{within}; raise the timeout (camctl --timeout) or check the daemon's log",
+            code="timeout",
+        )
+    # Connected but the exchange broke (daemon died mid-request, not an HTTP server).
+    return CamdError(
+        f"{method} {path}: the connection to {url} failed ({_reason(exc)}); "
+        "check that the daemon is still running and that the URL is camd's",
+        code="transport",
+    )
+
+
+def api_error(method: str, path: str, response: httpx.Response) -> CamdError:
+    """Build the CamdError of a non-2xx answer from its {"error", "code"} body (shared with the
+    asynchronous client of ``camd.bluesky``)."""
     try:
         body = response.json()
     except ValueError:
