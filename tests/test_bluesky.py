@@ -21,7 +21,7 @@ import pytest
 from bluesky import RunEngine
 from bluesky import plan_stubs as bps
 from bluesky import plans as bp
-from bluesky.preprocessors import finalize_wrapper
+from bluesky.preprocessors import finalize_wrapper, run_decorator, stage_decorator
 from bluesky.utils import FailedStatus
 from event_model import DocumentNames, schema_validators
 from ophyd_async.core import TriggerInfo, init_devices
@@ -286,3 +286,31 @@ def test_a_plan_that_fails_mid_scan_stops_the_scan_and_gives_control_back(
 
 def test_the_client_is_named_as_bluesky_by_default(url: str) -> None:
     assert CamdConnection(url).client == "bluesky:" + default_client_name()
+
+
+def test_a_stare_kicked_off_for_events_of_two_frames_writes_one_file(
+    url: str, engine: RunEngine, connection: CamdConnection
+) -> None:
+    with init_devices():
+        cam = CamdStareDetector(connection)
+
+    @stage_decorator([cam])
+    @run_decorator()
+    def fly() -> Any:
+        info = TriggerInfo(number_of_events=3, collections_per_event=2)
+        yield from bps.prepare(cam, info, wait=True)
+        yield from bps.kickoff(cam, wait=True)
+        yield from bps.declare_stream(cam, name="primary", collect=True)
+        yield from bps.complete(cam, wait=True)
+        yield from bps.collect(cam, name="primary")
+
+    docs = run(engine, fly())
+    ((path, indices, frames),) = docs.data("cam")
+    assert indices == (0, 3)
+    recording = read_recording(path)  # one stream of 3 x 2 frames
+    assert recording.frames.shape == (6, ROWS, 2048)
+    assert frames.shape == (3, 2, ROWS, 2048)
+    assert np.array_equal(frames.reshape(6, ROWS, 2048), recording.frames)
+    (descriptor,) = docs.named("descriptor")
+    # Declared before the stream's first answer: the frame's size was not known yet.
+    assert descriptor["data_keys"]["cam"]["shape"] == [2, None, None]
