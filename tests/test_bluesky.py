@@ -152,11 +152,15 @@ def test_stage_scan_takes_a_stare_at_each_position(
         cam = CamdStareDetector(connection)
         stage = CamdStage(connection)
     with CamdClient(url) as client:
-        assert client.motion()["reading"]["state"] == "disabled"  # as powered up
-    docs = run(engine, bp.scan([cam], stage, 0.001, 0.003, 3))
+        reading = client.motion()["reading"]
+    assert reading["state"] == "disabled"  # as powered up
+    # Millimetres from where it stands (the simulated stage powers up inside its travel):
+    # short moves, a short test.
+    targets = [reading["position_m"] + step for step in (0.001, 0.002, 0.003)]
+    docs = run(engine, bp.scan([cam], stage, targets[0], targets[-1], 3))
     events = docs.named("event")
     positions = [event["data"]["stage"] for event in events]
-    assert positions == pytest.approx([0.001, 0.002, 0.003], abs=2e-6)  # an encoder count
+    assert positions == pytest.approx(targets, abs=2e-6)  # an encoder count
     (descriptor,) = docs.named("descriptor")
     assert descriptor["data_keys"]["stage"]["units"] == "m"
     for (path, _, frames), position in zip(docs.data("cam"), positions, strict=True):
@@ -170,7 +174,7 @@ def test_stage_scan_takes_a_stare_at_each_position(
         # Staging energised the released motor, unstaging released it again; it stays where
         # the scan left it, and reads so.
         assert motion["reading"]["state"] == "disabled"
-        assert motion["reading"]["position_m"] == pytest.approx(0.003, abs=2e-6)
+        assert motion["reading"]["position_m"] == pytest.approx(targets[-1], abs=2e-6)
     assert control_holder(url) is None
 
 
