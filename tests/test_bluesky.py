@@ -12,6 +12,7 @@ acquisition takes a fraction of a second.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -145,9 +146,9 @@ def test_count_of_stares_points_into_the_recordings(url: str, engine: RunEngine)
         assert recording.frames.shape == (1, ROWS, 2048) and recording.frames.any()
 
 
-def test_stage_scan_takes_a_stare_at_each_position(
-    url: str, engine: RunEngine, connection: CamdConnection
-) -> None:
+def test_stage_scan_takes_a_stare_at_each_position(url: str, engine: RunEngine) -> None:
+    # A short lease: a renewal left running after the run would take control back within 0.5 s.
+    connection = CamdConnection(url, client="bluesky:test", lease_ttl_s=1.5)
     with init_devices():
         cam = CamdStareDetector(connection)
         stage = CamdStage(connection)
@@ -175,7 +176,18 @@ def test_stage_scan_takes_a_stare_at_each_position(
         # the scan left it, and reads so.
         assert motion["reading"]["state"] == "disabled"
         assert motion["reading"]["position_m"] == pytest.approx(targets[-1], abs=2e-6)
+    # The detector and the stage were staged at once (bluesky's stage_all): one lease, given
+    # back once, and nothing renews it afterwards.
     assert control_holder(url) is None
+    time.sleep(2.0)
+    assert control_holder(url) is None
+    with pytest.raises(FailedStatus) as caught:
+        engine(bps.mv(stage, 5.0))  # beyond the travel: the daemon's refusal, nothing moved
+    error = caught.value.__cause__
+    assert isinstance(error, CamdError) and error.code == "bad_request"
+    assert error.message.startswith("position 5.0 m is outside the soft limits [0.0, 1.2] m")
+    with CamdClient(url) as client:
+        assert client.motion()["reading"]["position_m"] == pytest.approx(targets[-1], abs=2e-6)
 
 
 def test_push_broom_fly_scan_collects_the_scan_file(

@@ -76,6 +76,9 @@ class CamdConnection:
         self._http: httpx.AsyncClient | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._holders: set[str] = set()
+        # bluesky stages a plan's devices at once: taking and giving back the lease must not
+        # interleave (two takes would start two renewers, one of them never stopped).
+        self._lease_lock: asyncio.Lock | None = None
         self._renewer: asyncio.Task[None] | None = None
         self.lease_error: CamdError | None = None  # why the last renewal failed, if it did
 
@@ -92,7 +95,13 @@ class CamdConnection:
                 base_url=self.url, headers=self._headers, timeout=self.timeout_s
             )
             self._loop = loop
+            self._lease_lock = asyncio.Lock()
         return self._http
+
+    def _lock(self) -> asyncio.Lock:
+        self._client()  # the lock belongs to the loop, as the HTTP client does
+        assert self._lease_lock is not None
+        return self._lease_lock
 
     async def request(
         self,
@@ -139,22 +148,24 @@ class CamdConnection:
         """Hold control for ``holder`` (a device being staged): the first holder takes the lease
         (CamdError ``not_in_control`` naming who holds the camera when another client does),
         and the lease is renewed while anyone holds it."""
-        if not self._holders:
-            await self._take()
-            self._renewer = asyncio.get_running_loop().create_task(
-                self._renew(), name=f"camd-lease-{self.client}"
-            )
-        self._holders.add(holder)
+        async with self._lock():
+            if not self._holders:
+                await self._take()
+                self._renewer = asyncio.get_running_loop().create_task(
+                    self._renew(), name=f"camd-lease-{self.client}"
+                )
+            self._holders.add(holder)
 
     async def release_control(self, holder: str) -> None:
         """``holder`` (a device being unstaged) no longer needs control: the last one gives the
         lease back. Never raises: an unstage after an error must not hide that error (a lease
         that cannot be given back expires after ``lease_ttl_s``; a warning says so)."""
-        if holder not in self._holders:
-            return
-        self._holders.discard(holder)
-        if not self._holders:
-            await self._give_back()
+        async with self._lock():
+            if holder not in self._holders:
+                return
+            self._holders.discard(holder)
+            if not self._holders:
+                await self._give_back()
 
     async def staged(self, holder: str, ready: Callable[[], Awaitable[None]]) -> None:
         """A device's stage: hold control for ``holder``, then ``ready()`` (the device's own
