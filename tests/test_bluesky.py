@@ -36,6 +36,7 @@ from camd.bluesky import (
     push_broom,
     read_stream_datum,
 )
+from camd.cli._daemon_proc import DaemonProcess
 from camd.client import CamdClient, CamdError, default_client_name
 from camd.store.recording import read_recording
 from camd.store.tdi_reading import read_tdi_scan
@@ -330,3 +331,23 @@ def test_a_stare_kicked_off_for_events_of_two_frames_writes_one_file(
     (descriptor,) = docs.named("descriptor")
     # Declared before the stream's first answer: the frame's size was not known yet.
     assert descriptor["data_keys"]["cam"]["shape"] == [2, None, None]
+
+
+def test_the_token_comes_from_camd_token(
+    engine: RunEngine, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    with DaemonProcess(tmp_path, env={"CAMD_TOKEN": "s3cret"}) as daemon:
+        with CamdClient(daemon.url, token="s3cret") as client:
+            client.wait_ready(60)
+        monkeypatch.setenv("CAMD_TOKEN", "s3cret")
+        with init_devices():
+            wheel = CamdFilterWheel(CamdConnection(daemon.url))
+        monkeypatch.delenv("CAMD_TOKEN")
+        with init_devices():
+            stranger = CamdFilterWheel(CamdConnection(daemon.url))
+        docs = run(engine, bp.count([wheel], num=1))  # staged (control), read, unstaged
+        assert len(docs.named("event")) == 1
+        with pytest.raises(FailedStatus) as caught:
+            engine(bp.count([stranger], num=1))
+    error = caught.value.__cause__
+    assert isinstance(error, CamdError) and (error.http_status, error.code) == (401, "unauthorized")
