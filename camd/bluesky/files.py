@@ -35,14 +35,11 @@ MIMETYPE = "application/x-hdf5"
 @dataclass
 class FileSegment:
     """One acquisition's file: ``name`` as sent to the daemon, ``path`` as the daemon resolved
-    it (None until it answers), ``written`` the collections (frames or lines) on disk,
-    ``shape`` and ``dtype`` of one collection once known."""
+    it (None until it answers), ``written`` the collections (frames or lines) on disk."""
 
     name: str
     path: str | None = None
     written: int = 0
-    shape: tuple[int, ...] | None = None
-    dtype: str | None = None
     bundle: ComposeStreamResourceBundle | None = field(default=None, repr=False)
     emitted: int = 0  # events whose StreamDatum has been emitted
 
@@ -94,10 +91,8 @@ class CamdFiles(StreamableDataProvider):
         segment.path = path
         segment.written = max(segment.written, written)
         if shape is not None:
-            segment.shape = shape
             self.shape = shape
         if dtype is not None:
-            segment.dtype = dtype
             self.dtype = dtype
         self._set_written(sum(s.written for s in self.segments))
 
@@ -133,14 +128,14 @@ class CamdFiles(StreamableDataProvider):
             yield "stream_datum", segment.bundle.compose_stream_datum(indices)
 
     def _resource(self, segment: FileSegment, per_event: int) -> ComposeStreamResourceBundle:
-        shape = segment.shape if segment.shape is not None else self.shape
+        # No chunk_shape: the chunking is the file's (camd.store, and a compressed file's
+        # differs); a reader asks the dataset.
         return ComposeStreamResource()(
             mimetype=MIMETYPE,
             uri=file_uri(str(segment.path)),
             data_key=self.data_key,
             parameters={
                 "dataset": self.dataset,
-                "chunk_shape": (1, *shape),
                 "collections_per_event": per_event,
                 "swmr": True,
             },
