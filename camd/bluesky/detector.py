@@ -207,8 +207,8 @@ class StareAcquireLogic(CamdAcquireLogic):
                 doc = await self.connection.get("/stream")
                 if _same_file(doc.get("recording"), segment.name):
                     _update_stare(files, segment, doc)
-                else:
-                    files.update(segment, path=segment.path or "", written=segment.written)
+                else:  # not started yet: the daemon is setting it up
+                    files.touch()
             doc = acquire.result()
         finally:
             acquire.cancel()

@@ -59,13 +59,11 @@ class CamdFiles(StreamableDataProvider):
         *,
         shape: tuple[int | None, ...],
         dtype: str,
-        collections_per_event: int = 1,
     ) -> None:
         self.data_key = data_key
         self.dataset = dataset
         self.shape = shape
         self.dtype = dtype
-        self.collections_per_event = collections_per_event
         self.segments: list[FileSegment] = []
         signal, self._set_written = soft_signal_r_and_setter(int, 0)
         self.collections_written_signal = signal
@@ -94,10 +92,14 @@ class CamdFiles(StreamableDataProvider):
             self.shape = shape
         if dtype is not None:
             self.dtype = dtype
+        self.touch()
+
+    def touch(self) -> None:
+        """Set the signal the detector waits on to what it holds: news that the acquisition is
+        alive while it has nothing on disk yet (ophyd-async times out a wait without news)."""
         self._set_written(sum(s.written for s in self.segments))
 
     async def make_datakeys(self, collections_per_event: int) -> dict[str, DataKey]:
-        self.collections_per_event = collections_per_event
         uri = file_uri(self.segments[-1].path) if self.segments and self.segments[-1].path else ""
         return {
             self.data_key: DataKey(
