@@ -9,10 +9,12 @@ import socket
 from collections.abc import Iterator
 from pathlib import Path
 
+import httpx
 import pytest
 
 from camd.cli._daemon_proc import DaemonProcess, DaemonStartError
 from camd.client import CamdClient, CamdError, DaemonUnreachable, normalise_url
+from camd.client.connection import transport_error
 
 NO_TOKEN = {"CAMD_TOKEN": ""}
 
@@ -192,3 +194,17 @@ def test_timing_response_is_sensor_timing_under_the_api_name() -> None:
 
     assert issubclass(TimingResponse, SensorTiming)
     assert not inspect.get_annotations(TimingResponse)
+
+
+def test_a_wait_bounded_by_an_httpx_timeout_says_its_read_limit() -> None:
+    """An acquisition's request is bounded by an httpx.Timeout (connect short, read as long as
+    the acquisition may take): its timeout names the read limit (it raised TypeError formatting
+    the Timeout before)."""
+    timeout = httpx.Timeout(30.0, read=70.0)
+    error = transport_error(
+        "POST", "/api/v1/stream/acquire", "http://h", httpx.ReadTimeout("x"), timeout
+    )
+    assert error.code == "timeout"
+    assert error.message.startswith(
+        "POST /api/v1/stream/acquire: the daemon at http://h did not answer within 70 s; "
+    )

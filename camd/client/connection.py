@@ -191,6 +191,8 @@ def transport_error(
     if isinstance(exc, httpx.ConnectError | httpx.ConnectTimeout):
         return DaemonUnreachable(url, _reason(exc))
     if isinstance(exc, httpx.TimeoutException):
+        if isinstance(timeout, httpx.Timeout):  # a request that waits for an acquisition
+            timeout = timeout.read
         within = f"{timeout:g} s" if isinstance(timeout, int | float) else "its timeout"
         return CamdError(
             f"{method} {path}: the daemon at {url} did not answer within "
