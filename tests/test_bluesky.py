@@ -351,3 +351,35 @@ def test_the_token_comes_from_camd_token(
             engine(bp.count([stranger], num=1))
     error = caught.value.__cause__
     assert isinstance(error, CamdError) and (error.http_status, error.code) == (401, "unauthorized")
+
+
+def test_stopping_the_stage_ends_its_move_where_it_stands(
+    url: str, engine: RunEngine, connection: CamdConnection
+) -> None:
+    with init_devices():
+        stage = CamdStage(connection)
+
+    def plan() -> Any:
+        yield from bps.stage(stage, wait=True)
+        start = yield from bps.rd(stage)
+        yield from bps.mv(stage.speed_m_s, 0.01)
+        yield from bps.abs_set(stage, start + 0.05, group="move")  # 5 s at 10 mm/s
+        yield from bps.sleep(0.5)
+        yield from bps.stop(stage)
+        try:
+            yield from bps.wait(group="move")
+            failure = None
+        except FailedStatus as exc:
+            failure = exc.__cause__
+        yield from bps.sleep(0.5)
+        location = yield from bps.locate(stage)
+        yield from bps.unstage(stage, wait=True)
+        return start, failure, location
+
+    start, failure, location = engine(plan()).plan_result
+    assert str(failure) == "Device stage was stopped."  # the move did not succeed
+    assert location["setpoint"] == pytest.approx(start + 0.05)
+    with CamdClient(url) as client:
+        reading = client.motion()["reading"]
+    assert start < reading["position_m"] < start + 0.04  # stopped well short of the target
+    assert reading["position_m"] == pytest.approx(location["readback"], abs=2e-6)
