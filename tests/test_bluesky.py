@@ -383,3 +383,20 @@ def test_stopping_the_stage_ends_its_move_where_it_stands(
         reading = client.motion()["reading"]
     assert start < reading["position_m"] < start + 0.04  # stopped well short of the target
     assert reading["position_m"] == pytest.approx(location["readback"], abs=2e-6)
+
+
+def test_a_scan_that_does_not_fit_is_refused_at_kickoff_and_nothing_is_written(
+    url: str, engine: RunEngine, connection: CamdConnection
+) -> None:
+    with init_devices():
+        tdi = CamdScanDetector(connection, stages=100, options={"drive_stage": False})
+    with CamdClient(url) as client:
+        before = client.scan()["file"]
+    with pytest.raises(FailedStatus) as caught:
+        engine(push_broom(tdi, 10))
+    error = caught.value.__cause__
+    assert isinstance(error, CamdError) and (error.http_status, error.code) == (400, "bad_request")
+    assert error.message.startswith("stages = 100 needs 100 window rows but the scan's frames")
+    with CamdClient(url) as client:
+        assert client.scan()["file"] == before  # no scan started
+    assert control_holder(url) is None
