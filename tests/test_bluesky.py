@@ -232,7 +232,7 @@ def test_a_scan_ended_early_fails_complete_with_the_daemons_words(
 
 
 def test_control_held_elsewhere_refuses_the_run_and_changes_nothing(
-    url: str, engine: RunEngine, connection: CamdConnection, tmp_path: Path
+    url: str, engine: RunEngine, connection: CamdConnection
 ) -> None:
     with init_devices():
         cam = CamdStareDetector(connection)
