@@ -6,8 +6,10 @@ in this process: two TDI scans (M = 32 on an hr400, M = 8 on an ibis5), a stare,
 run's stare, a recording whose writer "died" (a copy taken after a flush, before the close), a
 foreign HDF5 file and a file that is not HDF5. Through Tiled's own client: the metadata searches
 find exactly the right nodes, every array reads back bit-exact against h5py, a Dask client reads
-them chunk by chunk, a file written after the start appears after ``camd archive index``, the
-key is required and never logged, and docs/archive.md's Dask example computes what h5py does.
+them chunk by chunk, a file written after the start appears after ``camd archive index`` (and
+one removed disappears), a file being written is indexed as far as it is on disk and replaced as
+it grows, the key is required and never logged, docs/archive.md's Dask example computes what
+h5py does, and a bad data directory is refused with nothing made.
 """
 
 from __future__ import annotations
@@ -259,6 +261,39 @@ def test_a_file_written_after_the_start_appears_after_index(archive: Archive) ->
     assert "stare" not in c["recordings"]
     with h5py.File(archive.data_dir / "scans" / "late_m16.h5", "r") as f:
         assert np.array_equal(c["scans"]["late_m16"]["lines"].read(), f["lines"][()])
+
+
+def test_a_file_being_written_is_replaced_as_it_grows(
+    archive: Archive, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = archive.data_dir / "recordings" / "growing.h5"
+    rec = start_stare(path, 3, seed=4)  # open for writing (SWMR) in this process, as the daemon
+    c = archive.client()
+
+    def index_and_read() -> tuple[str, Any, np.ndarray]:
+        # In this process (camd's main, as the command runs it): Tiled is loaded already.
+        assert camd_main(["archive", "index", str(archive.data_dir)]) == 0
+        counts = capsys.readouterr().out.split(": ", 1)[1].split(", ")
+        node = c["recordings"]["growing"]
+        return ", ".join(counts[:2]), node.metadata, node["frames"].read()
+
+    try:
+        rec.flush()
+        counts, meta, frames = index_and_read()
+        assert (counts, meta["finished"], meta["frames"], len(frames)) == (
+            "1 added, 0 replaced", False, 3, 3)  # fmt: skip
+        px = np.full((6, 10), 7, np.uint16)
+        rec.add(header(3, px), px, received_ns=3)
+        rec.flush()
+        counts, meta, frames = index_and_read()
+        assert (counts, meta["finished"], meta["frames"]) == ("0 added, 1 replaced", False, 4)
+        assert np.array_equal(frames[3], px)
+    finally:
+        rec.close()
+    counts, meta, frames = index_and_read()
+    assert (counts, meta["finished"], meta["frames"]) == ("0 added, 1 replaced", True, 4)
+    with h5py.File(path, "r") as f:
+        assert np.array_equal(frames, f["frames"][()])
 
 
 @pytest.mark.parametrize("made", ["missing", "file", "empty"])

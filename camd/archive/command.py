@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import math
 import sys
 from pathlib import Path
 
@@ -59,22 +58,10 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     )
     serve.add_argument("--public", action="store_true",
                        help="anyone who reaches the port may read, without the key")  # fmt: skip
-    serve.add_argument(
-        "--index-every",
-        type=float,
-        default=0.0,
-        metavar="S",
-        help="index again every S seconds while serving (default 0: only at the start)",
-    )
 
 
 def run(args: argparse.Namespace) -> int:
     prog = f"camd archive {args.action}"
-    every_s = getattr(args, "index_every", 0.0)
-    if not (math.isfinite(every_s) and every_s >= 0):
-        print(f"{prog}: error: --index-every must be a number of seconds >= 0, got {every_s}",
-              file=sys.stderr)  # fmt: skip
-        return EXIT_USAGE
     try:
         # Tiled is optional: say how to install it rather than show a traceback.
         import tiled  # noqa: F401
@@ -111,7 +98,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"{prog}: API key in {where}" + (" (reading is public)" if args.public else ""),
               file=sys.stderr)  # fmt: skip
         return serve(data_dir, uri, host=args.host, port=args.port, key=key,
-                     public=args.public, index_every_s=args.index_every)  # fmt: skip
+                     public=args.public)  # fmt: skip
     except ArchiveError as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return EXIT_USAGE

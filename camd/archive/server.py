@@ -5,7 +5,7 @@ port is taken), make the catalogue if it is new and index the data directory int
 separate catalogue connection, closed before serving), build Tiled's app over the catalogue
 with its single-user API key (or anonymous reading with ``--public``), then print one line on
 stdout, ``camd archive serving http://HOST:PORT/api/v1/``, and serve until SIGINT or SIGTERM.
-With ``--index-every S`` the server indexes again every S seconds while it serves.
+``camd archive index`` (another process) adds the files written since.
 
 The key is never printed nor logged: the log handlers pass every record through the daemon's
 ``RedactSecrets`` with the key, which replaces it (in a URL's ``?api_key=`` or a header alike)
@@ -112,7 +112,6 @@ def serve(
     port: int,
     key: str,
     public: bool,
-    index_every_s: float,
 ) -> int:
     """Index, then serve until SIGINT or SIGTERM (module docstring); the exit status."""
     import uvicorn
@@ -129,24 +128,11 @@ def serve(
     # log_config None: uvicorn's records go to the root handlers, which redact the key.
     server = uvicorn.Server(uvicorn.Config(app, log_config=None, access_log=True))
 
-    async def reindex() -> None:
-        while True:
-            await asyncio.sleep(index_every_s)
-            try:
-                log.info("indexed %s: %s", data_dir, await index_once(uri, data_dir))
-            except Exception:  # the next round may succeed; the server goes on serving
-                log.exception("indexing %s failed", data_dir)
-
     async def run() -> None:
-        task = asyncio.create_task(reindex()) if index_every_s > 0 else None
         bound_host, bound_port = sock.getsockname()[:2]
         print(f"camd archive serving http://{url_host(bound_host)}:{bound_port}{API_PATH}",
               flush=True)  # fmt: skip
-        try:
-            await server.serve(sockets=[sock])
-        finally:
-            if task is not None:
-                task.cancel()
+        await server.serve(sockets=[sock])
 
     asyncio.run(run())
     return 0
