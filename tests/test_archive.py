@@ -18,6 +18,7 @@ import json
 import os
 import re
 import shutil
+import socket
 import subprocess
 import sys
 import threading
@@ -27,6 +28,7 @@ from pathlib import Path
 from typing import Any
 
 import h5py
+import hdf5plugin
 import httpx
 import numpy as np
 import pytest
@@ -87,6 +89,18 @@ def write_stare(path: Path, frames: int, *, seed: int) -> None:
     start_stare(path, frames, seed=seed).close()
 
 
+def compress_frames(path: Path) -> None:
+    """The file's /frames rewritten with Bitshuffle + LZ4 (hdf5plugin), as a compressed
+    recording stores them: same values, same chunks, same names (the NeXus link too)."""
+    with h5py.File(path, "r+") as f:
+        frames, attrs = f["frames"][()], dict(f["frames"].attrs)
+        del f["entry/data/frames"], f["frames"]
+        f.create_dataset("frames", data=frames, chunks=(1, *frames.shape[1:]),
+                         **hdf5plugin.Bitshuffle(cname="lz4"))  # fmt: skip
+        f["frames"].attrs.update(attrs)
+        f["entry/data/frames"] = f["frames"]
+
+
 @dataclass
 class Archive:
     data_dir: Path
@@ -112,6 +126,9 @@ def archive(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Archive]:
     write_scan(data / "scans" / "hr400_m32.h5", name="hr400", stages=32, lines=40)
     write_scan(data / "scans" / "ibis5_m8.h5", name="ibis5", stages=8, lines=20)
     write_stare(data / "recordings" / "stare.h5", 5, seed=1)
+    write_stare(data / "recordings" / "compressed.h5", 4, seed=5)
+    compress_frames(data / "recordings" / "compressed.h5")
+    write_stare(data / "recordings" / "empty.h5", 0, seed=0)  # stopped before its first frame
     write_stare(data / "campaigns" / "run1" / "raw" / "dark__0.h5", 3, seed=2)
     (data / "campaigns" / "run1" / "state.json").write_text(json.dumps(
         {"campaign": "tdi_snr_stages", "completed": {"dark[0]": {"file": "raw/dark__0.h5"}}}
@@ -160,7 +177,8 @@ def test_searches_by_metadata_find_exactly_the_right_nodes(archive: Archive) -> 
     assert paths(c.search_deep(Key("stages") == 32)) == {"scans/hr400_m32"}
     assert paths(c.search_deep(Key("profile") == "ibis5")) == {"scans/ibis5_m8"}
     assert paths(c.search_deep(Key("mode") == "stare")) == {
-        "recordings/stare", "recordings/crashed", "campaigns/run1/raw/dark__0"}  # fmt: skip
+        "recordings/stare", "recordings/crashed", "recordings/compressed", "recordings/empty",
+        "campaigns/run1/raw/dark__0"}  # fmt: skip
     assert paths(c.search_deep(Key("finished") == False)) == {"recordings/crashed"}  # noqa: E712
     assert paths(c.search_deep(Key("campaign.name") == "tdi_snr_stages")) == {
         "campaigns/run1/raw/dark__0"}  # fmt: skip
@@ -172,7 +190,9 @@ def test_searches_by_metadata_find_exactly_the_right_nodes(archive: Archive) -> 
         "finished": True}  # fmt: skip
     assert scan["date"] == scan["created_utc"][:10]
     # The foreign HDF5 file and the file that is not HDF5 are not nodes.
-    assert sorted(c["recordings"]) == ["crashed", "stare"]
+    assert sorted(c["recordings"]) == ["compressed", "crashed", "empty", "stare"]
+    empty = c["recordings"]["empty"]
+    assert (empty.metadata["frames"], empty.metadata["finished"], list(empty)) == (0, True, [])
 
 
 def test_every_array_reads_back_bit_exact_against_h5py(archive: Archive) -> None:
@@ -188,8 +208,10 @@ def test_every_array_reads_back_bit_exact_against_h5py(archive: Archive) -> None
                 assert (served.dtype, served.shape) == (stored.dtype, stored.shape), (path, key)
                 assert served.tobytes() == stored.tobytes(), (path, key)
                 checked += 1
-    # 2 scans x (lines + 6 columns), 2 stares x (frames + 7 columns)
-    assert checked == 2 * 7 + 2 * 8
+    # 2 scans x (lines + 6 columns), 3 stares x (frames + 7 columns); the empty stare has none
+    assert checked == 2 * 7 + 3 * 8
+    with h5py.File(archive.data_dir / "recordings" / "compressed.h5", "r") as f:
+        assert "32008" in f["frames"]._filters  # Bitshuffle's filter id: compressed indeed
 
 
 def test_a_crashed_recording_is_served_up_to_its_last_flush(archive: Archive) -> None:
@@ -254,7 +276,7 @@ def test_a_file_written_after_the_start_appears_after_index(archive: Archive) ->
     done = camd("archive", "index", str(archive.data_dir))
     assert done.returncode == 0, done.stderr
     assert done.stdout == (
-        f"indexed {archive.data_dir}: 1 added, 0 replaced, 1 removed, 4 unchanged, 1 skipped\n"
+        f"indexed {archive.data_dir}: 1 added, 0 replaced, 1 removed, 6 unchanged, 1 skipped\n"
     )
     assert "skipped recordings/garbage.h5: cannot open" in done.stderr
     assert paths(c.search_deep(Key("stages") == 16)) == {"scans/late_m16"}
@@ -320,3 +342,16 @@ def test_a_bad_data_dir_is_refused_and_nothing_is_made(
     assert sorted(os.listdir(tmp_path)) == before
     if made == "empty":
         assert os.listdir(target) == []
+
+
+def test_a_port_in_use_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    (tmp_path / "scans").mkdir()
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        assert camd_main(["archive", "serve", str(tmp_path), "--port", str(port)]) == 2
+    assert capsys.readouterr().err.endswith(
+        f"camd archive serve: error: cannot listen on 127.0.0.1:{port}: Address already in use; "
+        "stop what uses the port or choose another with --port\n"
+    )

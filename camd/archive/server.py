@@ -118,7 +118,13 @@ def serve(
     from tiled.config import Authentication
     from tiled.server.app import build_app
 
-    sock = bind_listening_socket(host, port)
+    try:
+        sock = bind_listening_socket(host, port)
+    except OSError as exc:
+        raise ArchiveError(
+            f"cannot listen on {host}:{port}: {exc.strerror or exc}; stop what uses the port "
+            "or choose another with --port"
+        ) from None
     init_catalogue(uri)
     log.info("indexed %s: %s", data_dir, asyncio.run(index_once(uri, data_dir)))
     app = build_app(
