@@ -14,6 +14,7 @@ h5py does, and a bad data directory is refused with nothing made.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import re
@@ -143,11 +144,19 @@ def archive(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Archive]:
         f["x"] = np.arange(3)
     (data / "recordings" / "garbage.h5").write_bytes(b"not HDF5 at all")
 
+    with serving(data) as (url, proc, stderr):
+        key = (data / "archive" / "api_key").read_text().strip()
+        yield Archive(data, url, key, proc, stderr)
+
+
+@contextlib.contextmanager
+def serving(data: Path, *options: str) -> Iterator[tuple[str, subprocess.Popen[str], list[str]]]:
+    """``camd archive serve DATA --port 0 OPTIONS`` as a child process, until the block ends:
+    its URL (from its one stdout line), the process and its stderr lines so far."""
     proc = subprocess.Popen(
-        [sys.executable, "-m", "camd", "archive", "serve", str(data), "--port", "0"],
+        [sys.executable, "-m", "camd", "archive", "serve", str(data), "--port", "0", *options],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )  # fmt: skip
-    assert proc.stdout is not None and proc.stderr is not None
     stderr: list[str] = []
     threading.Thread(target=lambda: stderr.extend(proc.stderr or ()), daemon=True).start()
     found: list[str] = []
@@ -160,11 +169,10 @@ def archive(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Archive]:
     match = re.fullmatch(r"camd archive serving (http://127\.0\.0\.1:\d+/api/v1/)\n", line)
     try:
         assert match, f"no serving line: {line!r}; stderr: {''.join(stderr)[-2000:]}"
-        key = (data / "archive" / "api_key").read_text().strip()
-        yield Archive(data, match.group(1), key, proc, stderr)
+        yield match.group(1), proc, stderr
     finally:
         proc.terminate()
-        proc.wait(30)
+        assert proc.wait(30) == 0  # SIGTERM: a clean stop
 
 
 def paths(results: Any) -> set[str]:
@@ -249,6 +257,16 @@ def test_the_key_is_required_and_never_logged(archive: Archive) -> None:
     log = "".join(archive.stderr)
     assert "GET /api/v1/metadata/scans?api_key=*** HTTP/1.1" in log
     assert archive.key not in log
+
+
+def test_public_reading_needs_no_key_beside_another_server(archive: Archive) -> None:
+    # A second server over the same SQLite catalogue: the one machine's several readers.
+    with serving(archive.data_dir, "--public") as (url, _, stderr):
+        assert httpx.get(url + "metadata/scans", timeout=30).status_code == 200
+        public = from_uri(url, api_key=None)
+        assert paths(public.search_deep(Key("stages") == 32)) == {"scans/hr400_m32"}
+        assert paths(archive.client().search_deep(Key("stages") == 32)) == {"scans/hr400_m32"}
+    assert "(reading is public)" in "".join(stderr)
 
 
 def test_docs_dask_example_computes_the_level_per_scan(

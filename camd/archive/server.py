@@ -18,9 +18,11 @@ import asyncio
 import logging
 import os
 import secrets
+import signal
 import stat
 import sys
 from pathlib import Path
+from types import FrameType
 
 from camd.archive.catalogue import index, init_catalogue, open_catalogue
 from camd.daemon.serve import RedactSecrets, bind_listening_socket, url_host
@@ -133,6 +135,14 @@ def serve(
     )
     # log_config None: uvicorn's records go to the root handlers, which redact the key.
     server = uvicorn.Server(uvicorn.Config(app, log_config=None, access_log=True))
+
+    def stop(signum: int, frame: FrameType | None) -> None:
+        server.should_exit = True
+
+    # uvicorn takes SIGINT and SIGTERM over while it serves, and raises the one it caught again
+    # once it has stopped, under the handlers it found: these, so that a stop exits 0.
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, stop)
 
     async def run() -> None:
         bound_host, bound_port = sock.getsockname()[:2]
