@@ -291,14 +291,17 @@ def test_a_file_written_after_the_start_appears_after_index(archive: Archive) ->
     assert paths(c.search_deep(Key("stages") == 16)) == set()
     write_scan(archive.data_dir / "scans" / "late_m16.h5", name="hr400", stages=16, lines=10)
     (archive.data_dir / "recordings" / "stare.h5").unlink()
+    (archive.data_dir / "recordings" / "compressed.h5").write_bytes(b"damaged")
     done = camd("archive", "index", str(archive.data_dir))
     assert done.returncode == 0, done.stderr
     assert done.stdout == (
-        f"indexed {archive.data_dir}: 1 added, 0 replaced, 1 removed, 6 unchanged, 1 skipped\n"
+        f"indexed {archive.data_dir}: 1 added, 0 replaced, 2 removed, 5 unchanged, 2 skipped\n"
     )
     assert "skipped recordings/garbage.h5: cannot open" in done.stderr
+    assert "skipped recordings/compressed.h5: cannot open" in done.stderr
     assert paths(c.search_deep(Key("stages") == 16)) == {"scans/late_m16"}
-    assert "stare" not in c["recordings"]
+    # Gone, and no longer readable: neither keeps a node that would serve what is not there.
+    assert sorted(c["recordings"]) == ["crashed", "empty"]
     with h5py.File(archive.data_dir / "scans" / "late_m16.h5", "r") as f:
         assert np.array_equal(c["scans"]["late_m16"]["lines"].read(), f["lines"][()])
 

@@ -10,7 +10,7 @@ The array's chunks are the file's (one frame; the scan's blocks of lines), so a 
 reads one chunk per task, lazily.
 
 ``index`` brings a catalogue up to date with a data directory: new files added, files whose size
-or modification time changed replaced, nodes of files gone removed. It writes the database
+or modification time changed replaced, nodes of files gone (or no longer readable) removed. It writes the database
 directly (no server needed, none in the way: a running server reads what it wrote on the next
 request).
 """
@@ -36,7 +36,6 @@ from camd.archive.describe import (
     ArchivedFile,
     ArrayPart,
     NotCamdFile,
-    RecordingError,
     camd_files,
     describe,
     file_stamp,
@@ -128,18 +127,19 @@ async def index(catalogue: CatalogContainerAdapter, data_dir: Path) -> IndexRepo
     seen: set[str] = set()
     for path in camd_files(data_dir):
         relative = path.relative_to(data_dir).as_posix()
-        seen.add(relative)
         old = indexed.get(relative)
-        if old is not None and all(old[1].get(k) == v for k, v in file_stamp(path).items()):
-            report.unchanged += 1
-            continue
         try:
+            if old is not None and all(old[1].get(k) == v for k, v in file_stamp(path).items()):
+                seen.add(relative)
+                report.unchanged += 1
+                continue
             described = await asyncio.to_thread(describe, path, data_dir)
         except NotCamdFile:
             continue  # someone else's HDF5 file: not the archive's business
-        except (RecordingError, OSError) as exc:
+        except OSError as exc:  # RecordingError too: not HDF5, damaged, gone since listed
             report.skipped.append((relative, str(exc)))
-            continue
+            continue  # and a node it had goes below: its file is no longer what it served
+        seen.add(relative)
         if old is not None:
             await _delete(catalogue, old[0])
         try:

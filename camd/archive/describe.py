@@ -24,7 +24,6 @@ from camd.store.recording import (
 )
 from camd.store.recording import (
     PER_FRAME_COLUMNS,
-    RecordingError,
     file_format,
     read_recording_info,
 )
@@ -36,7 +35,6 @@ __all__ = [
     "ArchivedFile",
     "ArrayPart",
     "NotCamdFile",
-    "RecordingError",
     "camd_files",
     "describe",
     "file_stamp",
@@ -91,7 +89,8 @@ def file_stamp(path: Path) -> dict[str, int]:
 
 def describe(path: Path, data_dir: Path) -> ArchivedFile:
     """``path`` (inside ``data_dir``) as the archive shows it; NotCamdFile for an HDF5 file
-    that is not camd's, RecordingError for one that cannot be read (names the file and why)."""
+        that is not camd's, ``camd.store.RecordingError`` for one that cannot be read (naming the file
+    and why), OSError for one gone since it was listed."""
     relative = path.relative_to(data_dir)
     stamp = file_stamp(path)  # before reading: a file that grows meanwhile is indexed again
     fmt = file_format(path)
