@@ -376,3 +376,27 @@ def test_a_port_in_use_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[
         f"camd archive serve: error: cannot listen on 127.0.0.1:{port}: Address already in use; "
         "stop what uses the port or choose another with --port\n"
     )
+
+
+def test_an_unreachable_catalogue_is_refused_without_its_password(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    (tmp_path / "scans").mkdir()
+    with socket.socket() as closed:  # a port that nothing listens on
+        closed.bind(("127.0.0.1", 0))
+        port = closed.getsockname()[1]
+    uri = f"postgresql://camd:hunter2@127.0.0.1:{port}/archive"
+    assert camd_main(["archive", "index", str(tmp_path), "--catalog", uri]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(
+        f"camd archive index: error: cannot open the catalogue "
+        f"postgresql://camd:***@127.0.0.1:{port}/archive: ConnectionRefusedError: "
+    )
+    assert err.endswith(
+        "; check --catalog (a PostgreSQL server must be reachable, an SQLite file's folder "
+        "writable)\n"
+    )
+    assert "hunter2" not in err
+    assert sorted(os.listdir(tmp_path)) == [
+        "scans"
+    ]  # no archive folder: the catalogue is elsewhere

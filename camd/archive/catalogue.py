@@ -43,11 +43,13 @@ from camd.archive.describe import (
 
 __all__ = [
     "HDF5_MIMETYPE",
+    "CatalogueError",
     "IndexReport",
     "catalogue_uri",
     "index",
     "init_catalogue",
     "open_catalogue",
+    "shown_uri",
 ]
 
 HDF5_MIMETYPE = "application/x-hdf5"
@@ -85,10 +87,30 @@ def init_catalogue(uri: str) -> bool:
             await engine.dispose()
         return False
 
-    made = asyncio.run(setup())
-    if made:
-        stamp_head(ALEMBIC_INI_TEMPLATE_PATH, ALEMBIC_DIR, database)
+    try:
+        made = asyncio.run(setup())
+        if made:
+            stamp_head(ALEMBIC_INI_TEMPLATE_PATH, ALEMBIC_DIR, database)
+    except Exception as exc:  # the database's driver's own errors: unreachable, refused, ...
+        raise CatalogueError(
+            f"cannot open the catalogue {shown_uri(uri)}: {type(exc).__name__}: {exc}; check "
+            "--catalog (a PostgreSQL server must be reachable, an SQLite file's folder writable)"
+        ) from None
     return made
+
+
+class CatalogueError(Exception):
+    """The catalogue cannot be opened or made; the message says which and why (no password)."""
+
+
+def shown_uri(uri: str) -> str:
+    """``uri`` as it may be shown: its password, if any, as ``***``."""
+    from sqlalchemy.engine import make_url
+
+    try:
+        return make_url(uri).render_as_string(hide_password=True)
+    except Exception:  # not a URL SQLAlchemy reads: show nothing of it that could be secret
+        return "(the --catalog given)"
 
 
 def open_catalogue(uri: str, data_dir: Path) -> CatalogContainerAdapter:

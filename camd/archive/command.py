@@ -69,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"{prog}: error: Tiled is not installed: pip install 'camd[archive]'",
               file=sys.stderr)  # fmt: skip
         return EXIT_USAGE
-    from camd.archive.catalogue import catalogue_uri, init_catalogue
+    from camd.archive.catalogue import CatalogueError, catalogue_uri, init_catalogue
     from camd.archive.server import (
         ArchiveError,
         api_key,
@@ -82,15 +82,22 @@ def run(args: argparse.Namespace) -> int:
     try:
         data_dir = check_data_dir(args.data_dir)
         folder = data_dir / ARCHIVE_FOLDER
-        if args.catalog is None:
-            folder.mkdir(exist_ok=True)
+        key_file = getattr(args, "api_key_file", None)  # serve only
+        if args.catalog is None or (args.action == "serve" and key_file is None):
+            try:
+                folder.mkdir(exist_ok=True)
+            except OSError as exc:
+                raise ArchiveError(
+                    f"cannot make {folder} for the catalogue and the key: "
+                    f"{exc.strerror or exc}; give --catalog (and --api-key-file) elsewhere"
+                ) from None
         uri = catalogue_uri(args.catalog or str(folder / CATALOGUE_FILE))
         if args.action == "index":
             setup_logging("")
             init_catalogue(uri)
             print(f"indexed {data_dir}: {asyncio.run(index_once(uri, data_dir))}")
             return 0
-        key, where = api_key(args.api_key_file or folder / KEY_FILE)
+        key, where = api_key(key_file or folder / KEY_FILE)
         setup_logging(key)
         if args.public and args.host not in ("127.0.0.1", "::1", "localhost"):
             print(f"{prog}: warning: --public on {args.host}: anyone who reaches port "
@@ -99,9 +106,9 @@ def run(args: argparse.Namespace) -> int:
               file=sys.stderr)  # fmt: skip
         return serve(data_dir, uri, host=args.host, port=args.port, key=key,
                      public=args.public)  # fmt: skip
-    except ArchiveError as exc:
+    except (ArchiveError, CatalogueError) as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
-    except OSError as exc:  # the port taken, the catalogue's folder not writable
+    except OSError as exc:  # a key file that cannot be read or made
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
