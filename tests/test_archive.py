@@ -40,6 +40,7 @@ from camd.cli.camd_main import main as camd_main
 from camd.protocol.stream import FrameFlags, FrameHeader, StreamMode, crc32
 from camd.store.recording import FrameRecorder
 from camd.store.tdi_recording import TdiRecorder
+from tests.crash_support import wait_for
 
 ROOT = Path(__file__).resolve().parents[1]
 ARCHIVE_MD = ROOT / "docs" / "archive.md"
@@ -254,9 +255,13 @@ def test_the_key_is_required_and_never_logged(archive: Archive) -> None:
     keyed = httpx.get(archive.url + "metadata/scans", params={"api_key": archive.key}, timeout=30)
     assert keyed.status_code == 200
     assert (archive.data_dir / "archive" / "api_key").stat().st_mode & 0o777 == 0o600
-    log = "".join(archive.stderr)
-    assert "GET /api/v1/metadata/scans?api_key=*** HTTP/1.1" in log
-    assert archive.key not in log
+    # The access line comes after the response: wait for it to reach the pipe and the reader.
+    wait_for(
+        "the keyed request's access line",
+        lambda: "GET /api/v1/metadata/scans?api_key=*** HTTP/1.1" in "".join(archive.stderr),
+        timeout_s=30,
+    )
+    assert archive.key not in "".join(archive.stderr)
 
 
 def test_public_reading_needs_no_key_beside_another_server(archive: Archive) -> None:
