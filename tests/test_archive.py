@@ -271,7 +271,7 @@ def test_public_reading_needs_no_key_beside_another_server(archive: Archive) -> 
         public = from_uri(url, api_key=None)
         assert paths(public.search_deep(Key("stages") == 32)) == {"scans/hr400_m32"}
         assert paths(archive.client().search_deep(Key("stages") == 32)) == {"scans/hr400_m32"}
-    assert "(reading is public)" in "".join(stderr)
+        wait_for("the public notice", lambda: "(reading is public)" in "".join(stderr), 30)
 
 
 def test_docs_dask_example_computes_the_level_per_scan(
