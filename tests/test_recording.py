@@ -11,6 +11,7 @@ import pytest
 
 from camd.protocol.stream import FrameFlags, StreamMode, frame_header
 from camd.store import FrameRecorder, RecordingError, read_recording
+from camd.store.recording import file_format, read_recording_info
 
 ROWS, COLS = 6, 10
 
@@ -90,6 +91,23 @@ def test_metadata_round_trips(tmp_path: Path) -> None:
     assert rec.metadata["registers"] == {"WIN_START": 757, "WIN_ROWS": 534}
     # None is not stored; everything else is.
     assert rec.metadata["timing"] == {"line_period_s": 20.52e-6, "gain": "x2"}
+
+
+def test_the_info_is_the_readers_metadata_and_count_without_the_frames(tmp_path: Path) -> None:
+    path = tmp_path / "stare.h5"
+    _record(path, _frames(3))
+    rec, info = read_recording(path), read_recording_info(path)
+    assert (info.path, info.frames, info.attrs, info.metadata) == (
+        path, 3, rec.attrs, rec.metadata)  # fmt: skip
+    assert file_format(path) == "camd-recording"
+    with pytest.raises(RecordingError, match="is not a camd recording"):
+        read_recording_info(_plain_hdf5(tmp_path / "other.h5"))
+
+
+def _plain_hdf5(path: Path) -> Path:
+    with h5py.File(path, "w") as f:
+        f["x"] = np.arange(3)
+    return path
 
 
 def test_a_corrupted_file_is_caught_by_the_device_crc(tmp_path: Path) -> None:

@@ -17,6 +17,7 @@ import pytest
 
 from camd.store import FrameRecorder, RecordingError
 from camd.store.quicklook import write_quicklook_png
+from camd.store.tdi_reading import read_tdi_scan_info
 from camd.store.tdi_recording import TdiRecorder, read_tdi_scan
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
@@ -196,6 +197,16 @@ def test_metadata_round_trips(scan_path: Path) -> None:
     # Flattened dotted names, so that any HDF5 viewer shows them.
     with h5py.File(scan_path, "r") as f:
         assert f["profile"].attrs["array.columns"] == 2048
+
+
+def test_the_info_is_the_readers_metadata_and_count_without_the_lines(scan_path: Path) -> None:
+    with TdiRecorder(scan_path, width=WIDTH, mode="sum", metadata=META) as rec:
+        Block("sum", 0, 40).append_to(rec)
+    scan, info = read_tdi_scan(scan_path), read_tdi_scan_info(scan_path)
+    assert (info.path, info.lines, info.attrs, info.metadata) == (
+        scan_path, 40, scan.attrs, scan.metadata)  # fmt: skip
+    assert info.columns == ("line_index", "frame_counter", "stages_used", "complete",
+                            "stage_position", "m_dv_over_v")  # fmt: skip
 
 
 def test_close_writes_counters_and_extra_attributes_once(scan_path: Path) -> None:

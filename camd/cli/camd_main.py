@@ -1,4 +1,4 @@
-"""``camd``: the server-side command (serve, sim, demo, bench, soak, conform).
+"""``camd``: the server-side command (serve, sim, demo, bench, soak, conform, archive).
 
 Each subcommand lives in its own module with ``add_parser(subparsers)`` and ``run(args) -> int``:
 the user's commands here in ``camd.cli`` (serve in ``camd.daemon``), the tools that measure camd
@@ -24,6 +24,7 @@ _SUBCOMMANDS = {
     "bench": "camd.bench.command",
     "soak": "camd.soak.command",
     "conform": "camd.cli.conform",
+    "archive": "camd.archive.command",
 }
 
 

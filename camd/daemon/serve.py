@@ -121,7 +121,7 @@ def build_config(args: argparse.Namespace) -> Config:
     )
 
 
-def _bind(host: str, port: int) -> socket.socket:
+def bind_listening_socket(host: str, port: int) -> socket.socket:
     """A listening TCP socket on host:port (IPv4 or IPv6, as the host resolves)."""
     candidates = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
     # "localhost" may resolve to ::1 first; clients mostly try 127.0.0.1, so prefer IPv4.
@@ -243,7 +243,7 @@ def run(args: argparse.Namespace) -> int:
         return EXIT_CONFIG
     host, port = config.api.host, config.api.port
     try:
-        sock = _bind(host, port)
+        sock = bind_listening_socket(host, port)
     except OSError as exc:
         print(
             f"camd serve: cannot listen on {host}:{port}: {exc.strerror or exc}; stop the other "

@@ -46,7 +46,8 @@ import datetime as dt
 import os
 import shutil
 import time
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
 from dataclasses import dataclass
 from importlib import metadata as importlib_metadata
 from pathlib import Path
@@ -603,9 +604,33 @@ def open_for_reading(path: Path, *, held_for_writing: str | None = None) -> h5py
         raise RecordingError(f"cannot open {path} as HDF5: {exc}") from None
 
 
-def read_recording(path: Path | str) -> Recording:
-    """Read a whole recording into memory; RecordingError if it is not one."""
-    path = Path(path)
+@dataclass(frozen=True, slots=True)
+class RecordingInfo:
+    """A recording described without its pixels: what an index of many files needs (``camd
+    archive``), read in milliseconds whatever the file's size."""
+
+    path: Path
+    frames: int  # frames on disk: up to /frames_flushed while the file is unfinished
+    attrs: dict[str, Any]  # root attributes
+    metadata: dict[str, dict[str, Any]]  # profile, registers, timing, stream
+
+
+PER_FRAME_COLUMNS = tuple(_PER_FRAME)
+"""The per-frame datasets (frame_counter, timestamp_ns, ...), each as long as /frames."""
+
+
+def file_format(path: Path | str) -> str:
+    """The ``format`` a camd HDF5 file says it has at its root (``FORMAT``, or a TDI scan's
+    ``camd.store.tdi_layout.FORMAT``), "" for an HDF5 file that says none: how a reader of
+    many files chooses the reader of each. RecordingError for a file HDF5 cannot open."""
+    with open_for_reading(Path(path)) as f:
+        fmt = f.attrs.get("format", "")
+    return fmt.decode(errors="replace") if isinstance(fmt, bytes) else str(fmt)
+
+
+@contextmanager
+def _open_recording(path: Path) -> Iterator[h5py.File]:
+    """``path`` open for reading once it is known to be a recording this camd reads."""
     with open_for_reading(path) as f:
         if f.attrs.get("format") != FORMAT:
             raise RecordingError(f"{path} is not a camd recording (no format={FORMAT!r})")
@@ -615,11 +640,37 @@ def read_recording(path: Path | str) -> Recording:
                 f"{path} is recording format {version}; this camd reads up to {FORMAT_VERSION}: "
                 "upgrade camd"
             )
-        n = len(f["frames"])
-        if "frames_flushed" in f and not bool(f.attrs.get("finished", True)):
-            n = min(n, int(f["frames_flushed"][0]))  # beyond it: not on disk yet
+        yield f
+
+
+def _frames_on_disk(f: h5py.File) -> int:
+    n = len(f["frames"])
+    if "frames_flushed" in f and not bool(f.attrs.get("finished", True)):
+        n = min(n, int(f["frames_flushed"][0]))  # beyond it: not on disk yet
+    return n
+
+
+def _recording_metadata(f: h5py.File) -> tuple[dict[str, Any], dict[str, dict[str, Any]]]:
+    """The root attributes and the metadata groups, as nested dicts of plain values."""
+    attrs = unflatten_attrs(dict(f.attrs))
+    meta = {group: unflatten_attrs(dict(f[group].attrs)) for group in METADATA_GROUPS}
+    return attrs, meta
+
+
+def read_recording_info(path: Path | str) -> RecordingInfo:
+    """A recording's metadata and how many frames it holds, without reading the frames;
+    RecordingError as ``read_recording``."""
+    path = Path(path)
+    with _open_recording(path) as f:
+        return RecordingInfo(path, _frames_on_disk(f), *_recording_metadata(f))
+
+
+def read_recording(path: Path | str) -> Recording:
+    """Read a whole recording into memory; RecordingError if it is not one."""
+    path = Path(path)
+    with _open_recording(path) as f:
+        n = _frames_on_disk(f)
         frames = np.asarray(f["frames"][:n], dtype=np.uint16)
         columns = {name: np.asarray(f[name][:n]) for name in _PER_FRAME}
-        attrs = unflatten_attrs(dict(f.attrs))
-        meta = {group: unflatten_attrs(dict(f[group].attrs)) for group in METADATA_GROUPS}
+        attrs, meta = _recording_metadata(f)
     return Recording(path, frames, columns, attrs, meta)
