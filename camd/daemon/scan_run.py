@@ -266,6 +266,8 @@ class ScanRun:
                 "yellow": limits.yellow,
                 "red": limits.red,
                 "counts_per_pixel": self.pipeline.counts_per_pixel,
+                # the stage's position in m from /stage_position (the file's NXpositioner)
+                "encoder_counts_per_m": self.motion.plan.encoder_counts_per_m,
             }
             if motion.loop_samples:
                 datasets["motion_loop"] = self.motion.record.arrays()
