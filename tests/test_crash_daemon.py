@@ -223,6 +223,9 @@ def test_a_full_disk_stops_a_scan_and_the_daemon_keeps_serving(
         assert status["state"] == "failed"
         assert f"the disk holding {disk} is full" in (status["error"] or "")
         wait_for("idle", lambda: client.status()["state"] == "idle")
+        # A failed scan says so at once, and closes its file after (its NeXus entry's end_time
+        # and counters are written then): the journal says when the file is closed.
+        wait_for("the file closed", lambda: _journal(data) == [])
         assert client.ping(3)["ok"] == 3
         scan = read_tdi_scan(out)
         assert len(scan.lines) == scan.attrs["lines"] == status["lines_flushed"] >= 200

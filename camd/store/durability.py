@@ -622,5 +622,5 @@ def recover_file(path: Path, reason: str = INTERRUPTED) -> Recovered | None:
             if "complete" in f:
                 attrs["complete_lines"] = int(np.count_nonzero(f["complete"][:count]))
         f.attrs.update(attrs)
-        finish_nexus(f, _end_time(f, kind, count, last_write_s))
+        finish_nexus(f, end_time=_end_time(f, kind, count, last_write_s))
     return Recovered(path, kind, count, expected, max(0, longest - count))

@@ -29,7 +29,8 @@ scientific data). Everything a measurement is lives in one entry::
     /entry/campaign_step   NXnote: the campaign step that made the file (its control
                            activity), if any
     /entry/camd            NXcollection: the root's camd attributes (format, format_version,
-                           finished, ...) as fields
+                           finished, ...) as fields, written when the file is closed or
+                           repaired (when they have their final values)
     /entry/<group>         each metadata group of the file (profile, registers, timing, scan,
                            stream, counters, motion, ...): NXparameters for the settings a run
                            is made with (timing, scan, stream, motion), NXcollection for the
@@ -48,8 +49,10 @@ fields, written when the file is made and brought up to date when it is closed o
 (``finish_nexus``). A NeXus validator (nexusformat's ``nxcheck``) finds nothing to act on in
 the entry: what it still reports is camd's layout at the root (the root's datasets, which
 NXroot does not define, and its attributes), outside any entry, where NeXus readers do not look.
-Everything in the entry but ``end_time`` and the close's values is made when the file is
-created, before it goes to SWMR mode (whose writer may not add objects).
+Everything in the entry but ``end_time``, ``camd`` and the close's values (counters, motion,
+the stage's position in m) is made when the file is created, before it goes to SWMR mode (whose
+writer may not add objects): a recording's settings when it is opened, its data and detector
+with the first frame (which gives their shape).
 """
 
 from __future__ import annotations
@@ -205,19 +208,32 @@ def _stored(value: Any) -> Any:
 
 
 def _put(group: h5py.Group, name: str, value: Any, units: str = "") -> None:
-    """The field ``name`` of ``group`` set to ``value`` (replaced if it was another one)."""
+    """The field ``name`` of ``group`` set to ``value``: written over in place if it has the
+    same shape and type, else replaced."""
     value = _stored(value)
-    if name in group:
-        old = group[name]
-        same = isinstance(old, h5py.Dataset) and old.shape == np.shape(value)
-        if same and old.dtype == np.asarray(value).dtype:
+    old = group.get(name)
+    if old is not None:
+        if (
+            isinstance(old, h5py.Dataset)
+            and old.shape == np.shape(value)
+            and _same_type(old, value)
+        ):
             old[()] = value
         else:
             del group[name]
-    if name not in group:
+            old = None
+    if old is None:
         group[name] = value
     if units:
         group[name].attrs["units"] = units
+
+
+def _same_type(dataset: h5py.Dataset, value: Any) -> bool:
+    """Whether ``value`` can be written over ``dataset``'s as it is: text over text, else the
+    same numpy type."""
+    if isinstance(value, (str, bytes)):
+        return h5py.check_string_dtype(dataset.dtype) is not None
+    return bool(dataset.dtype == np.asarray(value).dtype)
 
 
 def _link(group: h5py.Group, name: str, target: h5py.Dataset) -> None:
@@ -235,58 +251,45 @@ def _write_values(group: h5py.Group, values: Mapping[str, Any], *, with_units: b
     ``with_units``); a described value (``{"value": v, "source": ...}``, a camera profile's)
     the field ``v`` with the rest as its attributes; any other mapping a nested NXcollection;
     None left out."""
-    for name, value in values.items():
+    for key, value in values.items():
         if value is None:
             continue
+        name = key.replace("/", "_")  # a field's name, not a path into the file
         units = units_of(name) if with_units else ""
         if isinstance(value, Mapping):
-            if "value" in value and not any(isinstance(v, Mapping) for v in value.values()):
+            if "value" in value and _is_flat(value):
                 _put(group, name, value["value"], units)
-                for key, about in value.items():
-                    if key != "value" and about is not None:
-                        group[name].attrs[key] = _stored(about)
+                for what, about in value.items():
+                    if what != "value" and about is not None:
+                        group[name].attrs[what] = _stored(about)
                 continue
             _write_values(_group(group, name, "NXcollection"), value, with_units=with_units)
             continue
         _put(group, name, value, units)
 
 
-def _unflatten(attrs: Mapping[str, Any]) -> dict[str, Any]:
-    """Dotted attribute names (``adc.adc_bits``) back to nested dicts (values as stored)."""
-    out: dict[str, Any] = {}
-    for name, value in attrs.items():
-        node = out
-        *parents, leaf = name.split(".")
-        for part in parents:
-            child = node.setdefault(part, {})
-            if not isinstance(child, dict):  # ``a`` and ``a.b`` both: keep the group
-                child = node[part] = {"value": child}
-            node = child
-        if isinstance(node.get(leaf), dict):
-            node[leaf]["value"] = value
-        else:
-            node[leaf] = value
-    return out
-
-
-def write_settings(f: h5py.File) -> None:
-    """The entry's copy of the metadata groups of ``f`` (every root group but the entry: their
-    attributes as fields with units, their datasets linked), the sample, the campaign step and
-    the stage's known settings: made when the file is, brought up to date when it is closed."""
-    entry = f[ENTRY]
-    for name, node in f.items():
+def write_settings(f: h5py.File, groups: Mapping[str, Mapping[str, Any]]) -> None:
+    """The entry's copy of the metadata ``groups`` (each root group's name and the values it
+    was given, nested, as its writer has them: not read back from the file, which costs a
+    millisecond an attribute on a busy host) as fields with units, merged into what the entry
+    has; the root groups' datasets linked; the sample, the campaign step and the stage's known
+    settings. Made when the file is (the entry too), brought up to date when it is closed."""
+    entry = _group(f, ENTRY, "NXentry")
+    for name, values in groups.items():
         if name in (ENTRY, ACTIVITY_GROUP, SAMPLE_GROUP) or name in ENTRY_NAMES:
             continue  # the sample and the campaign step have their own NeXus classes
-        if not isinstance(node, h5py.Group):
-            continue
-        values = _unflatten(dict(node.attrs))
-        flat = _is_flat(values) and not any(isinstance(n, h5py.Group) for n in node.values())
+        have = entry.get(name)
+        was = have.attrs.get("NX_class") if isinstance(have, h5py.Group) else None
+        flat = _is_flat(values) and was != "NXcollection"
         nx_class = "NXparameters" if name in PARAMETER_GROUPS and flat else "NXcollection"
-        target = _group(entry, name, nx_class)
-        _write_values(target, values, with_units=name not in _NO_UNITS)
+        _write_values(_group(entry, name, nx_class), values, with_units=name not in _NO_UNITS)
+    for name, node in f.items():
+        if not isinstance(node, h5py.Group) or name == ENTRY or not len(node):
+            continue
         for child, dataset in node.items():
             if isinstance(dataset, h5py.Dataset):
-                _link(target, child, dataset)
+                # A group with datasets (motion_loop, background) is a record, no parameter set.
+                _link(_group(entry, name, "NXcollection"), child, dataset)
                 units = units_of(child)
                 if units and "units" not in dataset.attrs:
                     dataset.attrs["units"] = units
@@ -370,7 +373,7 @@ def write_nexus(
     datasets it links). ``detector`` maps NXdetector field names to (value, units); a None
     value is left out. The axes are in the signal's dimension order. ``tdi``: the TDI
     settings (None values left out); ``stage``: the root dataset of the stage's encoder counts.
-    The metadata groups already in ``f`` are copied into the entry (``write_settings``)."""
+    The metadata groups are the writer's to copy (``write_settings``), before or after."""
     f.attrs.update(
         {
             "NX_class": "NXroot",
@@ -430,8 +433,6 @@ def write_nexus(
         if "units" not in raw.attrs:
             raw.attrs["units"] = "counts"
             raw.attrs["long_name"] = "encoder count at each line's (frame's) start"
-    _write_camd(f)
-    write_settings(f)
 
 
 def _write_camd(f: h5py.File) -> None:
@@ -443,13 +444,18 @@ def _write_camd(f: h5py.File) -> None:
         _put(camd, name, value, units_of(name))
 
 
-def finish_nexus(f: h5py.File, end_time: str | None = None) -> None:
+def finish_nexus(
+    f: h5py.File,
+    groups: Mapping[str, Mapping[str, Any]] | None = None,
+    end_time: str | None = None,
+) -> None:
     """Bring a closed (or repaired) file's entry up to date: ``end_time`` (default now, UTC),
-    the root's camd attributes and the metadata groups as they are now. Nothing for a file
-    without an entry (a format before NeXus)."""
+    the root's camd attributes, the metadata ``groups`` the close added to (``write_settings``;
+    none for a repair: a dead writer changed none). Nothing for a file without an entry (a
+    format before NeXus)."""
     if ENTRY not in f:
         return
     stamp = end_time or dt.datetime.now(dt.UTC).isoformat(timespec="milliseconds")
     _put(f[ENTRY], "end_time", stamp)
     _write_camd(f)
-    write_settings(f)
+    write_settings(f, groups or {})

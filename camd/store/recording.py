@@ -17,9 +17,12 @@ One file per recording::
                        /background/mean_dn (rows, cols) float32, its attributes say how it was
                        captured (frames, rows, cols, mode, stages, first_counter, last_counter,
                        captured_utc); see ``write_background``
-    /entry             the NeXus entry (format 3; ``camd.store.nexus``): NXdata with /frames as
-                       its signal against frame_counter, row and column, NXdetector with the
-                       sensor, for viewers that know NeXus (silx, h5web, nexusformat)
+    /sample, /activity groups the daemon gives (the scene, the campaign step), and any other
+    /entry             the NeXus entry (format 3, all of the file since 4; ``camd.store.nexus``):
+                       NXdata with /frames as its signal against frame_counter, row and column,
+                       NXdetector with the sensor, every dataset (hard links) and every metadata
+                       group's values with units, end_time, for tools that know NeXus (silx,
+                       h5web, nexusformat)
 
 Root attributes: ``format`` ("camd-recording"), ``format_version``, ``mode``, ``bits``,
 ``rows``, ``cols``, ``line_period_s``, ``created_utc``, ``camd_version``, ``frames_expected``,
@@ -77,6 +80,7 @@ from camd.store.nexus import (
     finish_nexus,
     sensor_fields,
     write_nexus,
+    write_settings,
 )
 
 FORMAT = "camd-recording"
@@ -204,8 +208,8 @@ class FrameRecorder(FlushedWriter):
     saying so, the file keeps every frame written before it (their count flushed at once, with
     the space the recorder held back), and the recorder then refuses further frames (``failed``
     says why). The frame geometry (rows, columns, bits, mode, line period) is taken from the
-    first frame's header unless given; a later frame of another shape is refused. ``metadata`` maps group name (profile, registers, timing, stream)
-    to a dict. ``background_dn`` (with ``background_attrs``) is stored as ``/background``.
+    first frame's header unless given; a later frame of another shape is refused. ``metadata`` maps group name (profile, registers, timing, stream,
+    and any other but the datasets' and the entry's names) to a dict. ``background_dn`` (with ``background_attrs``) is stored as ``/background``.
     """
 
     def __init__(
@@ -301,6 +305,8 @@ class FrameRecorder(FlushedWriter):
             self._file.create_group(group).attrs.update(flatten_attrs(given.get(group, {})))
         if background_dn is not None:
             write_background(self._file, background_dn, background_attrs or {})
+        # The settings' NeXus copy now, not with the first frame: it takes tens of ms.
+        write_settings(self._file, {g: given.get(g, {}) for g in (*METADATA_GROUPS, *given)})
         self._headroom.flush()
 
     def _create(
@@ -581,7 +587,7 @@ class FrameRecorder(FlushedWriter):
         f.attrs.update(attrs)
         if stream_stats:
             f["stream"].attrs.update(flatten_attrs(stream_stats))
-        finish_nexus(f)
+        finish_nexus(f, {"stream": stream_stats or {}})
 
     def __enter__(self) -> FrameRecorder:
         return self

@@ -31,6 +31,7 @@ from camd.store.nexus import (
     profile_value,
     sensor_fields,
     write_nexus,
+    write_settings,
 )
 from camd.store.recording import camd_version, flatten_attrs
 
@@ -181,7 +182,8 @@ class TdiDatasets:
             }
         )
         refused: list[str] = []
-        for group in (*METADATA_GROUPS, *(g for g in metadata if g not in METADATA_GROUPS)):
+        groups = (*METADATA_GROUPS, *(g for g in metadata if g not in METADATA_GROUPS))
+        for group in groups:
             node = f.create_group(group)
             refused += store_attrs(node, metadata.get(group, {}), f"{group}.")
         if refused:
@@ -207,6 +209,7 @@ class TdiDatasets:
         )
         self.lines_flushed = f.create_dataset("lines_flushed", data=np.zeros(1, dtype=np.int64))
         _write_nexus(f, mode, width, metadata, created_utc)
+        write_settings(f, {group: metadata.get(group, {}) for group in groups})
 
     def resize(self, count: int) -> None:
         """Every per-line dataset (the lines and their columns) to ``count`` lines."""
@@ -382,5 +385,5 @@ def finish_file(
         node = f.require_group(check_group_name(group, "close() dataset group"))
         for name, array in arrays.items():
             node.create_dataset(name, data=np.asarray(array))
-    finish_nexus(f)
+    finish_nexus(f, groups)
     return refused
