@@ -8,6 +8,7 @@ import logging
 from pathlib import Path
 from typing import Any
 
+import hdf5plugin  # noqa: F401  # registers HDF5's compression filters for every reader here
 import numpy as np
 from nexusformat.nexus import NXfield, nxload
 from nexusformat.nexus.validate import logger as nxcheck_logger
