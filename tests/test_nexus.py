@@ -13,6 +13,7 @@ import pytest
 from nexusformat.nexus import nxload
 
 from camd.protocol.stream import FrameFlags, FrameHeader, StreamMode, crc32
+from camd.store.durability import recover_file
 from camd.store.recording import FrameRecorder, RecordingError, read_recording
 from camd.store.tdi_recording import TdiRecorder, read_tdi_scan
 from tests.nexus_support import nexus_plot, nxcheck, silx_nxdata
@@ -383,3 +384,43 @@ def test_a_metadata_group_cannot_take_a_name_the_entry_holds(tmp_path: Path) -> 
     with pytest.raises(RecordingError, match="'data' cannot be a metadata group of the recording"):
         FrameRecorder(tmp_path / "b.h5", metadata={"data": {"x": 1}})
     assert not (tmp_path / "a.h5").exists() and not (tmp_path / "b.h5").exists()
+
+
+def test_files_of_the_first_nexus_formats_read_and_repair_as_before(tmp_path: Path) -> None:
+    """A scan of format 4 and a recording of format 3 (the entry's data and detector only, the
+    TDI settings as NXdetector fields): read as before; the repair of one whose writer died
+    gives it an end_time and leaves the rest of its entry as it was."""
+    data = field_scan(tmp_path / "scan.h5")
+    frames = field_stare(tmp_path / "stare.h5")
+    for name, version in (("scan.h5", 4), ("stare.h5", 3)):
+        with h5py.File(tmp_path / name, "r+") as f:
+            entry = f["entry"]
+            for part in list(entry):
+                if part not in ("data", "instrument", "title", "start_time", "program_name"):
+                    del entry[part]
+            del entry["instrument/stage"]
+            detector = entry["instrument/detector"]
+            for part in ("tdi", "per_line", "per_frame"):
+                if part in detector:
+                    del detector[part]
+            if name == "scan.h5":
+                detector["tdi_stages"], detector["tdi_mode"] = 4, "sum"
+            for attr in ("file_time", "creator", "creator_version"):
+                del f.attrs[attr]
+            # As a dead writer left it: not finished (the repair's flags aside).
+            f.attrs.update({"format_version": version, "finished": False})
+    scan = read_tdi_scan(tmp_path / "scan.h5")
+    assert np.array_equal(scan.lines, data) and scan.attrs["format_version"] == 4
+    assert np.array_equal(read_recording(tmp_path / "stare.h5").frames, frames)
+    for name in ("scan.h5", "stare.h5"):
+        assert recover_file(tmp_path / name) is not None
+        with h5py.File(tmp_path / name, "r") as f:
+            start = dt.datetime.fromisoformat(f["entry/start_time"][()].decode())
+            end = dt.datetime.fromisoformat(f["entry/end_time"][()].decode())
+            assert start <= end
+            assert f["entry/camd/interrupted"][()].decode() == f.attrs["interrupted"]
+            assert f["entry/data"].attrs["signal"] in ("lines", "frames")
+        assert recover_file(tmp_path / name) is not None  # again: still unfinished, the same
+    with h5py.File(tmp_path / "scan.h5", "r") as f:  # its old detector as it was
+        assert (f["entry/instrument/detector/tdi_stages"][()], f["lines"].shape) == (4, data.shape)
+    assert np.array_equal(read_tdi_scan(tmp_path / "scan.h5").lines, data)

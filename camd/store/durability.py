@@ -583,12 +583,19 @@ def _utc(t_s: float) -> str:
 
 
 def _end_time(f: h5py.File, kind: str, count: int, last_write_s: float) -> str:
-    """When a dead writer's data end: a recording's last kept frame's arrival, else the file's
-    last write (its modification time before the repair touched it)."""
+    """When a dead writer's data end: a recording's last kept frame's arrival (if it is after
+    the file was made: a host clock set back says nothing), else the file's last write (its
+    modification time before the repair touched it)."""
     if kind == "recording" and count and "received_unix_ns" in f:
-        arrived_ns = int(f["received_unix_ns"][count - 1])
-        if arrived_ns > 0:
-            return _utc(arrived_ns / 1e9)
+        arrived_s = int(f["received_unix_ns"][count - 1]) / 1e9
+        created = f.attrs.get("created_utc", "")
+        try:
+            text = created.decode() if isinstance(created, bytes) else str(created)
+            created_s = dt.datetime.fromisoformat(text).timestamp()
+        except ValueError:
+            created_s = 0.0
+        if arrived_s >= created_s:
+            return _utc(arrived_s)
     return _utc(last_write_s)
 
 
