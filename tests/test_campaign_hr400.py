@@ -140,6 +140,12 @@ def test_emva_snr_exposure_quick(tmp_path: Path) -> None:
     assert "exposures[2]/lit" in files and "saturated" in files
     with h5py.File(out / files["exposures[2]/lit"], "r") as f:
         assert f["frames"].shape == (FRAMES, 32, 1024)
+        # Its NeXus entry names the campaign step that made it (an NXnote: docs/scan.md).
+        note = f["entry/campaign_step"]
+        assert note.attrs["NX_class"] == "NXnote"
+        text = note["description"][()].decode()
+        assert text.startswith("campaign emva_snr_exposure: step "), text
+        assert text.endswith(" acquire exposures[2]/lit"), text
     check_report(out, plots=3)
 
 

@@ -218,6 +218,7 @@ def test_a_full_disk_stops_a_scan_and_the_daemon_keeps_serving(
         client.start_scan(8, 0, out=str(out), quicklook=False, drive_stage=False)
         wait_for("200 lines on disk", lambda: client.scan()["lines_flushed"] >= 200)
         fill_disk(disk)
+        # A failed scan shows "failed" once its file is closed: read at once, it is whole.
         wait_for("the scan to end", lambda: client.scan()["state"] not in ("running",))
         status = client.scan()
         assert status["state"] == "failed"

@@ -7,6 +7,7 @@ filling up under a running daemon) are in tests/test_crash_daemon.py.
 
 from __future__ import annotations
 
+import datetime as dt
 import json
 import os
 import shutil
@@ -144,6 +145,18 @@ def test_a_scan_whose_writer_is_killed_keeps_every_flushed_line(tmp_path: Path) 
         assert f["lines_flushed"][0] == n
         assert f.attrs["finished"] is np.False_ and f.attrs["lines"] == n
         assert f.attrs["interrupted"] == INTERRUPTED and "recovered_utc" in f.attrs
+        # The NeXus entry ends when the dead writer last wrote, and says the file is unfinished.
+        start, end, recovered_at = (
+            dt.datetime.fromisoformat(text)
+            for text in (
+                f["entry/start_time"][()].decode(),
+                f["entry/end_time"][()].decode(),
+                f.attrs["recovered_utc"],
+            )
+        )
+        assert start < end <= recovered_at
+        assert (f["entry/camd/lines"][()], f["entry/camd/finished"][()]) == (n, False)
+        assert f["entry/data/lines"].shape == (n, WIDTH)
     assert np.array_equal(read_tdi_scan(path).lines, expected)
 
 
@@ -178,6 +191,12 @@ def test_a_recording_whose_writer_is_killed_keeps_every_flushed_frame(tmp_path: 
     with h5py.File(path, "r") as f:
         assert f["frames"].shape == (n, ROWS, COLS) and f.attrs["frames"] == n
         assert f.attrs["interrupted"] == INTERRUPTED
+        # The NeXus entry ends at the last kept frame's arrival.
+        last_ns = int(f["received_unix_ns"][n - 1])
+        end = dt.datetime.fromisoformat(f["entry/end_time"][()].decode())
+        assert end == dt.datetime.fromtimestamp(last_ns // 1_000_000 / 1e3, dt.UTC)
+        assert end >= dt.datetime.fromisoformat(f["entry/start_time"][()].decode())
+        assert f["entry/camd/frames"][()] == n
     again = read_recording(path)
     assert np.array_equal(again.frames, rec.frames)
     assert recover_file(path) is not None  # idempotent: still unfinished, nothing lost

@@ -22,6 +22,7 @@ from camd.cli._daemon_proc import DaemonProcess
 from camd.client import CamdClient
 from camd.sensor.profile import load_profile
 from camd.store.tdi_recording import read_tdi_scan
+from tests.nexus_support import nxcheck
 from tests.realtime_support import WARM_UP_AS_SHIPPED, as_the_unit
 from tests.test_camctl import NO_TOKEN, camctl, camctl_command, camctl_command_json, camctl_json
 
@@ -39,6 +40,7 @@ UM_PER_MICROSTEP = 5e-3 / 3200  # config/stages/linear_rail.toml: 5 mm lead, 200
 SYNC_M_S = PITCH_M / (MAGNIFICATION * T_LINE_S)  # docs/physics.md §6 eq 9: 53.606 mm/s
 DISTURBANCE = {"error": -0.005, "ripple": 0.01}  # a clock 0.5 % slow and 1 % speed ripple
 SCENE = "edge:angle_deg=5"
+STEP = "campaign motion: step 1/1 acquire closed_loop"
 
 
 def start_daemon(tmp: Path, config_text: str = "") -> DaemonProcess:
@@ -187,7 +189,10 @@ def test_disturbed_stage_open_loop_blurs_closed_loop_holds(
     perfect = scan(client, tmp_path / "perfect.h5", closed_loop=False)
     client.set_stage_faults(**DISTURBANCE)
     opened = scan(client, tmp_path / "open.h5", closed_loop=False)
-    closed = scan(client, tmp_path / "closed.h5", closed_loop=True)
+    # As a campaign's step: the client in control says what it does, and the file keeps it.
+    with client.holding_control():
+        client.set_activity(STEP, 0, 1)
+        closed = scan(client, tmp_path / "closed.h5", closed_loop=True)
 
     # A perfect stage run open loop: the image moves exactly as the equations say.
     assert perfect["mismatch_max"] == pytest.approx(0.0, abs=0.02)
@@ -245,6 +250,24 @@ def test_disturbed_stage_open_loop_blurs_closed_loop_holds(
         loop = f["motion_loop"]
         assert set(loop) >= {"time_s", "encoder_m", "measured_m_s", "command_m_s"}
         assert loop["time_s"].shape[0] == closed["motion"]["loop_samples"]
+        # Its NeXus entry (docs/scan.md, "NeXus"): the stage as an NXpositioner, its position
+        # in m from the 1 um encoder; the scene as the NXsample; the step as an NXnote.
+        stage = f["entry/instrument/stage"]
+        assert stage.attrs["NX_class"] == "NXpositioner"
+        assert np.array_equal(stage["raw_value"][()], tdi.stage_position)
+        assert stage["value"].attrs["units"] == "m"
+        assert np.allclose(stage["value"][()], tdi.stage_position * 1e-6, rtol=1e-12)
+        assert stage["velocity"][()] == pytest.approx(SYNC_M_S, rel=0.01)
+        assert f["entry/sample/name"][()].decode() == SCENE
+        assert f["entry/campaign_step/description"][()].decode() == STEP
+        assert f["entry/campaign_step/sequence_index"][()] == 1
+    assert tdi.metadata["activity"]["text"] == STEP
+    # Written by the daemon with the camera's whole profile: nothing in the entry for a NeXus
+    # validator to report, only camd's root layout (tests/test_nexus.py lists it).
+    found = nxcheck(tmp_path / "closed.h5")
+    assert found["error"] == []
+    assert all(w.startswith(("/: ", "/lines", "/line_index", "/frame_counter", "/stage",
+                             "/complete", "/m_dv_over_v", "/lines_flushed")) for w in found["warning"])  # fmt: skip
 
 
 @pytest.mark.exclusive

@@ -80,7 +80,7 @@ def test_metadata_round_trips(tmp_path: Path) -> None:
     path = tmp_path / "stare.h5"
     _record(path, _frames(2))
     rec = read_recording(path)
-    assert rec.attrs["format"] == "camd-recording" and rec.attrs["format_version"] == 3
+    assert rec.attrs["format"] == "camd-recording" and rec.attrs["format_version"] == 4
     assert rec.attrs["mode"] == "area" and rec.attrs["bits"] == 12
     assert rec.attrs["frames"] == 2 and rec.attrs["frames_expected"] == 2
     assert rec.attrs["line_period_s"] == pytest.approx(0.011)

@@ -109,8 +109,8 @@ def test_scan_records_eq11_lines_with_flags_metadata_and_quicklook(
     assert np.array_equal(nexus["signal_values"], scan.lines)
     assert nexus["axis_values"][0].tolist() == list(range(37))
     det = nexus["detector"]
-    assert det["tdi_stages"] == (8, None) and det["tdi_window_rows"] == (12, None)
-    assert det["tdi_mode"] == ("sum", None) and det["local_name"] == ("hr400", None)
+    assert nexus["tdi"] == {"stages": 8, "window_rows": 12, "mode": "sum"}
+    assert det["local_name"] == ("hr400", None)
     assert det["x_pixel_size"] == (profile.pitch_m.value, "m")
     assert det["frame_time"][0] == pytest.approx(timing["tdi_line_period_s"])
     assert det["frame_time"][1] == "s"

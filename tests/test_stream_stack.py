@@ -16,7 +16,7 @@ import pytest
 
 from camd.client import CamdClient, CamdError
 from camd.store import read_recording
-from tests.nexus_support import nexus_plot
+from tests.nexus_support import nexus_plot, nxcheck
 from tests.test_camctl import camctl, camctl_command_json, camctl_json
 from tests.test_sensor_stack import serve
 
@@ -103,6 +103,15 @@ def test_stare_records_frames_bit_exactly_with_metadata(url: str, tmp_path: Path
     assert det["bit_depth_readout"] == (12, None) and det["local_name"] == ("hr400", None)
     assert det["frame_time"][0] == pytest.approx(rec.attrs["line_period_s"])
     assert nexus["title"] == f"frames, hr400, {ROWS} x 2048, area mode"
+    assert nexus["signal_attrs"]["interpretation"] == "image"
+    # The daemon names the simulated camera's scene (the file's NXsample), and nothing in the
+    # entry is for a NeXus validator to report: only camd's root layout (tests/test_nexus.py).
+    with CamdClient(url) as client:
+        scene = client.sim_settings()["scene"]
+    assert rec.metadata["sample"] == {"scene": scene}
+    found = nxcheck(tmp_path / "ramp.h5")
+    assert found["error"] == [] and "NXsample: /entry/sample" in found["groups"]
+    assert [w for w in found["warning"] if w.startswith("/entry")] == []
 
 
 def test_binned_stare_halves_the_frame_and_adds_two_bits(url: str, tmp_path: Path) -> None:

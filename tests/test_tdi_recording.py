@@ -176,7 +176,7 @@ def test_metadata_round_trips(scan_path: Path) -> None:
     meta = {**META, "motion": {"stage_speed_m_s": 0.0125}}
     TdiRecorder(scan_path, width=WIDTH, mode="sum", metadata=meta).close()
     scan = read_tdi_scan(scan_path)
-    assert scan.attrs["format"] == "camd-tdi-scan" and scan.attrs["format_version"] == 4
+    assert scan.attrs["format"] == "camd-tdi-scan" and scan.attrs["format_version"] == 5
     assert isinstance(scan.attrs["camd_version"], str)
     assert scan.attrs["created_utc"].startswith("20")
     assert scan.metadata["profile"] == {

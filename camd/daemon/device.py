@@ -131,6 +131,10 @@ class DeviceAccess:
         )
         # The recordings open for writing, on disk: what a restart after a crash must repair.
         self.recordings = RecordingJournal(config.daemon.data_dir / "open-recordings")
+        # What every new recording's and scan's file says of its context, as metadata groups:
+        # the scene in front of the camera ("sample") and the campaign step asking for it
+        # ("activity"); the session sets it once the simulator and control exist.
+        self.file_context: Callable[[], dict[str, dict[str, Any]]] = dict
         self._events = events
         self._lock = FairLock()
         self._mode: str | None = None

@@ -18,6 +18,7 @@ import math
 import threading
 from collections.abc import Callable
 from dataclasses import KW_ONLY, dataclass, field
+from typing import Any
 
 from camd.daemon.acquisition import Acquisition
 from camd.daemon.device import DeviceAccess
@@ -198,6 +199,7 @@ class ScanApply:
                     "registers": sensor.register_values(),
                     "timing": plan.timing.model_dump(),
                     "scan": scan_meta,
+                    **self._file_context(request.scene),
                 },
                 background_dn=None if background is None else background.pixels,
                 background_attrs=None if background is None else background.recording_attrs(),
@@ -206,6 +208,14 @@ class ScanApply:
             journal.closed(plan.path)  # no file was left (TdiRecorder removes what it began)
             raise BadRequest(str(exc)) from None
         return recorder
+
+    def _file_context(self, scene: str | None) -> dict[str, dict[str, Any]]:
+        """The scan file's context (``DeviceAccess.file_context``), with the scene the scan
+        asks for (set while the scan starts, maybe after this file is made)."""
+        context = self.device.file_context()
+        if scene is not None:
+            context["sample"] = {"scene": scene}
+        return context
 
 
 def _discard(recorder: TdiRecorder, journal: RecordingJournal) -> None:

@@ -79,6 +79,9 @@ class ScanRun:
         self.acquisition = acquisition  # released once the file is closed
         self.state = "starting"
         self.error: str | None = None
+        # A failure met while the scan runs (a write failed): the scan shows "failed" once its
+        # file is closed (``_finish``), so that a client that sees it ended may read the file.
+        self.failing = False
         self.quicklook: Path | None = None
         self.started_mono = time.monotonic()
         self.started_cpu = time.process_time()
@@ -154,7 +157,7 @@ class ScanRun:
     # -- running (the pipeline's callbacks, on its worker thread: they must not wait) -----------
 
     def _worker_failed(self) -> None:
-        self.state, self.error = "failed", self.pipeline.error
+        self.failing, self.error = True, self.pipeline.error
         threading.Thread(target=self._stop_quietly, name="camd-scan-stop", daemon=True).start()
 
     def _mismatch_red(self) -> None:
@@ -184,13 +187,13 @@ class ScanRun:
             self.motion.finish()
         final = "stopped" if self.stop_requested else "done"
         broken, early = stream.broken, stream.ended_early
-        if broken is not None and self.state != "failed" and not self.stop_requested:
-            self.state, self.error = "failed", f"the stream ended early: {broken}"
-        elif early is not None and self.state != "failed" and not self.stop_requested:
+        if broken is not None and not self.failing and not self.stop_requested:
+            self.failing, self.error = True, f"the stream ended early: {broken}"
+        elif early is not None and not self.failing and not self.stop_requested:
             # The camera ended the stream before the scan's frames were all sent: the file
             # holds the lines that came, and the scan is not done.
             final, self.error = "ended_early", f"the stream ended early: {early}"
-        if self.state == "failed":
+        if self.failing:
             final = "failed"
         self._close_file(final)
         stats = stream.stats()
@@ -227,6 +230,8 @@ class ScanRun:
                 self.motion.finish()  # a stage must not run on without its daemon
             self.pipeline.finish(flush=False)
             self.not_sent_frames = self._stream.frames_not_sent
+            if self.failing:
+                self.state = "failed"
             self._close_file(self.state)
             self.done.set()
             self.live_end(self.state)
@@ -266,6 +271,8 @@ class ScanRun:
                 "yellow": limits.yellow,
                 "red": limits.red,
                 "counts_per_pixel": self.pipeline.counts_per_pixel,
+                # the stage's position in m from /stage_position (the file's NXpositioner)
+                "encoder_counts_per_m": self.motion.plan.encoder_counts_per_m,
             }
             if motion.loop_samples:
                 datasets["motion_loop"] = self.motion.record.arrays()

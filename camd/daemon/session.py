@@ -27,6 +27,7 @@ the watchdog).
 from __future__ import annotations
 
 import contextlib
+import datetime as dt
 import logging
 import os
 import threading
@@ -155,6 +156,7 @@ class DeviceSession:
             device.acquisition, lambda level, source, message: self._event(level, source, message)
         )
         self.campaigns = CampaignService(device, self.control, self._stop_acquisition_now)
+        device.file_context = self._file_context
         self.estop = EstopService(
             device,
             self.motion,
@@ -276,6 +278,26 @@ class DeviceSession:
     def uptime_s(self) -> float:
         """Seconds since this session was created."""
         return time.monotonic() - self._started_mono
+
+    def _file_context(self) -> dict[str, dict[str, Any]]:
+        """A new file's context (``DeviceAccess.file_context``): the simulated camera's scene
+        (the file's NXsample) and what the client in control says it does, e.g. a campaign's
+        step (its NXnote); camd.store.nexus."""
+        context: dict[str, dict[str, Any]] = {}
+        if self.sim.available:
+            context["sample"] = {"scene": self.sim.scene}
+        holder, said = self.control.holder(), self.control.activity()
+        if holder is not None and said is not None and said.client == holder.client:
+            context["activity"] = {
+                "text": said.text,
+                "done": said.done,
+                "total": said.total,
+                "client": said.client,
+                "set_utc": dt.datetime.fromtimestamp(said.t_s, dt.UTC).isoformat(
+                    timespec="milliseconds"
+                ),
+            }
+        return context
 
     # -- operations for the API -----------------------------------------------------------------
 

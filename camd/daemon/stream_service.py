@@ -389,6 +389,7 @@ class StreamService:
             "registers": sensor.register_values(),
             "timing": sensor.timing().model_dump(),
             "stream": stream,
+            **self.device.file_context(),  # the scene, the campaign step (camd.store.nexus)
         }
 
     def _recording_failed(self, cause: str) -> None:

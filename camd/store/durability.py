@@ -52,6 +52,8 @@ from typing import Any
 import h5py
 import numpy as np
 
+from camd.store.nexus import finish_nexus
+
 FLUSH_PERIOD_S = 1.0  # a recorder flushes at least this often while data arrives
 INTERRUPTED = "the daemon stopped without closing the file (killed, crashed or lost power)"
 
@@ -301,8 +303,12 @@ def release_tail(path: Path) -> None:
     try:
         fn = _fallocate()
         size = os.fstat(fd).st_size
-        if fn is None or fn(fd, _KEEP_SIZE | _PUNCH_HOLE, size, _TAIL_MAX) != 0:
-            os.ftruncate(fd, size)  # frees the blocks past the end on most file systems
+        if fn is not None:
+            fn(fd, _KEEP_SIZE | _PUNCH_HOLE, size, _TAIL_MAX)  # tmpfs gives them back so
+        # ext4 punches no hole past the file's size (measured: a repair that adds 2 KB of
+        # objects kept its 30 MB headroom): a truncate to the same size frees the blocks past
+        # the end there, and on most file systems.
+        os.ftruncate(fd, size)
     except OSError:
         pass  # a few MB stay allocated: harmless
     finally:
@@ -572,11 +578,38 @@ def _count_and_datasets(f: h5py.File) -> tuple[str, int, int, list[str]]:
     return kind, count, expected, per_element
 
 
+def _utc(t_s: float) -> str:
+    return dt.datetime.fromtimestamp(t_s, dt.UTC).isoformat(timespec="milliseconds")
+
+
+def _end_time(f: h5py.File, kind: str, count: int, last_write_s: float) -> str:
+    """When a dead writer's data end: a recording's last kept frame's arrival (if it is after
+    the file was made: a host clock set back says nothing), else the file's last write (its
+    modification time before the repair touched it)."""
+    if kind == "recording" and count and "received_unix_ns" in f:
+        arrived_s = int(f["received_unix_ns"][count - 1]) / 1e9
+        created = f.attrs.get("created_utc", "")
+        try:
+            text = created.decode() if isinstance(created, bytes) else str(created)
+            created_s = dt.datetime.fromisoformat(text).timestamp()
+        except ValueError:
+            created_s = 0.0
+        if arrived_s >= created_s:
+            return _utc(arrived_s)
+    return _utc(last_write_s)
+
+
 def recover_file(path: Path, reason: str = INTERRUPTED) -> Recovered | None:
     """Make a file whose writer died whole again: clear its write flags, trim every per-frame
-    (per-line) dataset to the flushed count, and mark it incomplete (``finished`` False,
-    ``interrupted`` = ``reason`` and ``recovered_utc``). None if the file was finished after
-    all (its writer closed it). RecoveryError if it cannot be opened or is not camd's."""
+    (per-line) dataset to the flushed count, mark it incomplete (``finished`` False,
+    ``interrupted`` = ``reason`` and ``recovered_utc``) and give its NeXus entry an
+    ``end_time`` (the last kept frame's arrival, or the dead writer's last write) and the root's
+    new values (``camd.store.nexus.finish_nexus``). None if the file was finished after all
+    (its writer closed it). RecoveryError if it cannot be opened or is not camd's."""
+    try:
+        last_write_s = path.stat().st_mtime
+    except OSError:
+        last_write_s = dt.datetime.now(dt.UTC).timestamp()
     with open_for_repair(path) as f:
         if bool(f.attrs.get("finished", False)):
             return None
@@ -596,4 +629,5 @@ def recover_file(path: Path, reason: str = INTERRUPTED) -> Recovered | None:
             if "complete" in f:
                 attrs["complete_lines"] = int(np.count_nonzero(f["complete"][:count]))
         f.attrs.update(attrs)
+        finish_nexus(f, end_time=_end_time(f, kind, count, last_write_s))
     return Recovered(path, kind, count, expected, max(0, longest - count))

@@ -17,9 +17,12 @@ One file per recording::
                        /background/mean_dn (rows, cols) float32, its attributes say how it was
                        captured (frames, rows, cols, mode, stages, first_counter, last_counter,
                        captured_utc); see ``write_background``
-    /entry             the NeXus entry (format 3; ``camd.store.nexus``): NXdata with /frames as
-                       its signal against frame_counter, row and column, NXdetector with the
-                       sensor, for viewers that know NeXus (silx, h5web, nexusformat)
+    /sample, /activity groups the daemon gives (the scene, the campaign step), and any other
+    /entry             the NeXus entry (format 3, all of the file since 4; ``camd.store.nexus``):
+                       NXdata with /frames as its signal against frame_counter, row and column,
+                       NXdetector with the sensor, every dataset (hard links) and every metadata
+                       group's values with units, end_time, for tools that know NeXus (silx,
+                       h5web, nexusformat)
 
 Root attributes: ``format`` ("camd-recording"), ``format_version``, ``mode``, ``bits``,
 ``rows``, ``cols``, ``line_period_s``, ``created_utc``, ``camd_version``, ``frames_expected``,
@@ -70,12 +73,24 @@ from camd.store.durability import (
     write_failure,
 )
 from camd.store.line_buffer import write_rows
-from camd.store.nexus import Axis, camera_name, sensor_fields, write_nexus
+from camd.store.nexus import (
+    ENTRY,
+    ENTRY_NAMES,
+    Axis,
+    camera_name,
+    finish_nexus,
+    sensor_fields,
+    write_nexus,
+    write_settings,
+)
 
 FORMAT = "camd-recording"
 # 2: SWMR (HDF5 1.10 format), /frames_flushed, the ``finished`` attribute; 3: the NeXus entry
-# (camd.store.nexus). A reader needs neither: older files read as before.
-FORMAT_VERSION = 3
+# (camd.store.nexus); 4: the entry holds every dataset (hard links: the root's names stay) and
+# every setting (the metadata groups as NXparameters/NXcollection fields with units, the stage
+# as an NXpositioner, the sample, the campaign step), the signal's units and interpretation,
+# end_time. A reader needs none of these: older files read as before.
+FORMAT_VERSION = 4
 METADATA_GROUPS = ("profile", "registers", "timing", "stream")
 BACKGROUND_GROUP = "background"
 # Space kept to finish the file on a full disk (durability.Headroom): what HDF5 may hold unwritten
@@ -94,6 +109,10 @@ _PER_FRAME: dict[str, npt.DTypeLike] = {
     "payload_crc32": np.uint32,
     "gap_before": np.uint32,
 }
+
+
+# The root's datasets: no metadata group may take their names.
+_RESERVED_NAMES = frozenset({"frames", "frames_flushed", *_PER_FRAME})
 
 
 class RecordingError(OSError):
@@ -190,8 +209,8 @@ class FrameRecorder(FlushedWriter):
     saying so, the file keeps every frame written before it (their count flushed at once, with
     the space the recorder held back), and the recorder then refuses further frames (``failed``
     says why). The frame geometry (rows, columns, bits, mode, line period) is taken from the
-    first frame's header unless given; a later frame of another shape is refused. ``metadata`` maps group name (profile, registers, timing, stream)
-    to a dict. ``background_dn`` (with ``background_attrs``) is stored as ``/background``.
+    first frame's header unless given; a later frame of another shape is refused. ``metadata`` maps group name (profile, registers, timing, stream,
+    and any other but the datasets' and the entry's names) to a dict. ``background_dn`` (with ``background_attrs``) is stored as ``/background``.
     """
 
     def __init__(
@@ -210,6 +229,13 @@ class FrameRecorder(FlushedWriter):
         flush_period_s: float = FLUSH_PERIOD_S,
     ) -> None:
         self.path = Path(path)
+        for group in metadata or {}:
+            if group in (ENTRY, BACKGROUND_GROUP, *ENTRY_NAMES, *_RESERVED_NAMES):
+                raise RecordingError(
+                    f"{group!r} cannot be a metadata group of the recording {self.path}: it "
+                    "names one of its datasets, its background or a part of its NeXus entry; "
+                    "use another name"
+                )
         retry_held()  # a file an earlier full disk held open, closed if the space is back
         if self.path.exists():
             raise RecordingError(
@@ -274,12 +300,14 @@ class FrameRecorder(FlushedWriter):
                 "finished": False,
             }
         )
-        for group in METADATA_GROUPS:
-            self._file.create_group(group).attrs.update(
-                flatten_attrs((metadata or {}).get(group, {}))
-            )
+        given = metadata or {}
+        # The four groups always; any other the caller gives (the sample, the campaign step).
+        for group in (*METADATA_GROUPS, *(g for g in given if g not in METADATA_GROUPS)):
+            self._file.create_group(group).attrs.update(flatten_attrs(given.get(group, {})))
         if background_dn is not None:
             write_background(self._file, background_dn, background_attrs or {})
+        # The settings' NeXus copy now, not with the first frame: it takes tens of ms.
+        write_settings(self._file, {g: given.get(g, {}) for g in (*METADATA_GROUPS, *given)})
         self._headroom.flush()
 
     def _create(
@@ -330,7 +358,6 @@ class FrameRecorder(FlushedWriter):
         timing = self._metadata.get("timing", {})
         stream = self._metadata.get("stream", {})
         camera = camera_name(profile)
-        stages = stream.get("stages") if mode == "tdi" else None
         write_nexus(
             f,
             title=f"frames, {camera}, {rows} x {cols}, {mode} mode",
@@ -342,14 +369,16 @@ class FrameRecorder(FlushedWriter):
                 "bit_depth_readout": (bits or None, ""),
                 "frame_time": (line_period_s or None, "s"),
                 "count_time": (timing.get("exposure_s"), "s"),
-                "tdi_stages": (stages, ""),
             },
+            tdi={"stages": stream.get("stages")} if mode == "tdi" else None,
             signal="frames",
             axes=(
                 Axis("frame_counter", link="frame_counter", long_name="device frame counter"),
                 Axis("row", values=np.arange(rows), long_name="window row (pixel)"),
                 Axis("column", values=np.arange(cols), long_name="column (pixel)"),
             ),
+            per_element=("per_frame", (*_PER_FRAME, "frames_flushed")),
+            stage="stage_position",
         )
 
     def _reserve(self, frames: int) -> None:
@@ -559,6 +588,7 @@ class FrameRecorder(FlushedWriter):
         f.attrs.update(attrs)
         if stream_stats:
             f["stream"].attrs.update(flatten_attrs(stream_stats))
+        finish_nexus(f, {"stream": stream_stats or {}})
 
     def __enter__(self) -> FrameRecorder:
         return self
@@ -575,7 +605,7 @@ class Recording:
     frames: npt.NDArray[np.uint16]
     columns: dict[str, npt.NDArray[Any]]  # frame_counter, timestamp_ns, ... (see the module)
     attrs: dict[str, Any]  # root attributes
-    metadata: dict[str, dict[str, Any]]  # profile, registers, timing, stream
+    metadata: dict[str, dict[str, Any]]  # profile, registers, timing, stream, and any other
 
     def crc_mismatches(self) -> list[int]:
         """Indices of frames whose pixels no longer match the device's payload CRC."""
@@ -653,7 +683,11 @@ def _frames_on_disk(f: h5py.File) -> int:
 def _recording_metadata(f: h5py.File) -> tuple[dict[str, Any], dict[str, dict[str, Any]]]:
     """The root attributes and the metadata groups, as nested dicts of plain values."""
     attrs = unflatten_attrs(dict(f.attrs))
-    meta = {group: unflatten_attrs(dict(f[group].attrs)) for group in METADATA_GROUPS}
+    meta = {
+        name: unflatten_attrs(dict(node.attrs))
+        for name, node in f.items()
+        if isinstance(node, h5py.Group) and name not in (ENTRY, BACKGROUND_GROUP)
+    }
     return attrs, meta
 
 

@@ -21,13 +21,28 @@ import h5py
 import numpy as np
 import numpy.typing as npt
 
-from camd.store.nexus import ENTRY, Axis, camera_name, profile_value, sensor_fields, write_nexus
+from camd.store.nexus import (
+    ENTRY,
+    ENTRY_NAMES,
+    ROOT_NEXUS_ATTRS,
+    Axis,
+    camera_name,
+    finish_nexus,
+    profile_value,
+    sensor_fields,
+    write_nexus,
+    write_settings,
+)
 from camd.store.recording import camd_version, flatten_attrs
 
 FORMAT = "camd-tdi-scan"
 # 2: /stage_position, /m_dv_over_v and close()'s datasets; 3: /lines_flushed; 4: the NeXus
-# entry (camd.store.nexus). A reader needs none of these: older files read as before.
-FORMAT_VERSION = 4
+# entry (camd.store.nexus); 5: the entry holds every dataset (hard links: the root's names
+# stay) and every setting (the metadata groups as NXparameters/NXcollection fields with units,
+# the stage as an NXpositioner, the sample, the campaign step), the signal's units and
+# interpretation, the TDI settings in an NXcollection, end_time. A reader needs none of these:
+# older files read as before.
+FORMAT_VERSION = 5
 MODES: dict[str, type[np.generic]] = {"sum": np.uint32, "mean": np.float32}
 METADATA_GROUPS = ("profile", "registers", "timing", "scan", "counters")
 # The per-line columns besides /lines, with their stored types.
@@ -53,8 +68,7 @@ RESERVED_ROOT = frozenset(
         "lines",
         "complete_lines",
         "finished",
-        "NX_class",  # the NeXus root's (camd.store.nexus)
-        "default",
+        *ROOT_NEXUS_ATTRS,  # the NeXus root's (camd.store.nexus)
     }
 )
 _COLUMN_CHUNK = 4096  # lines per chunk of the 1-D columns
@@ -78,11 +92,19 @@ def store_attrs(node: h5py.Group, values: Mapping[str, Any], where: str) -> list
 
 def check_group_name(name: object, what: str) -> str:
     """``name`` if it can be a group of a scan file, else ValueError saying why (``what``)."""
-    if not isinstance(name, str) or not name or "/" in name or name in DATASETS or name == ENTRY:
+    if (
+        not isinstance(name, str)
+        or not name
+        or "/" in name
+        or name in DATASETS
+        or name == ENTRY
+        or name in ENTRY_NAMES
+    ):
         raise ValueError(
             f"{what} {name!r} cannot be an HDF5 group of a TDI scan: use a non-empty name "
             f"without '/' that is not one of the datasets ({', '.join(sorted(DATASETS))}) "
-            f"nor the NeXus entry ({ENTRY!r})"
+            f"nor the NeXus entry ({ENTRY!r}) nor a name the entry holds "
+            f"({', '.join(sorted(ENTRY_NAMES))})"
         )
     return name
 
@@ -160,7 +182,8 @@ class TdiDatasets:
             }
         )
         refused: list[str] = []
-        for group in (*METADATA_GROUPS, *(g for g in metadata if g not in METADATA_GROUPS)):
+        groups = (*METADATA_GROUPS, *(g for g in metadata if g not in METADATA_GROUPS))
+        for group in groups:
             node = f.create_group(group)
             refused += store_attrs(node, metadata.get(group, {}), f"{group}.")
         if refused:
@@ -186,6 +209,7 @@ class TdiDatasets:
         )
         self.lines_flushed = f.create_dataset("lines_flushed", data=np.zeros(1, dtype=np.int64))
         _write_nexus(f, mode, width, metadata, created_utc)
+        write_settings(f, {group: metadata.get(group, {}) for group in groups})
 
     def resize(self, count: int) -> None:
         """Every per-line dataset (the lines and their columns) to ``count`` lines."""
@@ -227,15 +251,15 @@ def _write_nexus(
             "bit_depth_readout": (profile_value(profile, "output_bits"), ""),
             "frame_time": (timing.get("tdi_line_period_s"), "s"),
             "count_time": (timing.get("exposure_s"), "s"),
-            "tdi_stages": (stages, ""),
-            "tdi_mode": (mode, ""),
-            "tdi_window_rows": (timing.get("n_lines"), ""),
         },
+        tdi={"mode": mode, "stages": stages, "window_rows": timing.get("n_lines")},
         signal="lines",
         axes=(
             Axis("line_index", link="line_index", long_name="TDI line index"),
             Axis("column", values=np.arange(width), long_name="column (pixel)"),
         ),
+        per_element=("per_line", (*COLUMNS, "stage_changes", "lines_flushed")),
+        stage="stage_position",
     )
 
 
@@ -361,4 +385,5 @@ def finish_file(
         node = f.require_group(check_group_name(group, "close() dataset group"))
         for name, array in arrays.items():
             node.create_dataset(name, data=np.asarray(array))
+    finish_nexus(f, groups)
     return refused

@@ -17,12 +17,15 @@ One file per scan, appended to while the scan runs::
     /motion_loop    group of 1-D datasets: the closed loop's polls (written by ``close``, if any)
     /background     group, if given: the live view's background (``mean_dn`` float32 image and
                     its attributes, as in ``camd.store.recording.write_background``)
-    /entry          the NeXus entry (format 4; ``camd.store.nexus``): NXdata with /lines as
-                    its signal against line_index and column, NXdetector with the sensor and
-                    the TDI settings, for viewers that know NeXus (silx, h5web, nexusformat)
+    /entry          the NeXus entry (format 4, all of the file since 5; ``camd.store.nexus``):
+                    NXdata with /lines as its signal against line_index and column, NXdetector
+                    with the sensor and the TDI settings, every dataset (hard links), the stage,
+                    every metadata group's values with units, end_time, for tools that know
+                    NeXus (silx, h5web, nexusformat)
 
 Root attributes: ``format`` ("camd-tdi-scan"), ``format_version``, ``mode`` ("sum" or "mean"),
-``width``, ``created_utc``, ``camd_version``, NeXus's ``NX_class`` and ``default``, ``lines``,
+``width``, ``created_utc``, ``camd_version``, NeXus's ``NX_class``, ``default``, ``file_time``,
+``creator`` and ``creator_version``, ``lines``,
 ``complete_lines`` and ``finished``
 (False, 0 and 0 until the scan is closed), plus whatever ``close`` is given. Nested metadata is
 flattened to dotted attribute names (``array.columns``) as in ``camd.store.recording``;
