@@ -57,6 +57,10 @@ class FrameLedger:
         # ended, until the device says where this one starts (``expect_first``); None: unknown.
         self.run_start: int | None = None
         self.late = 0  # frames of an earlier run set aside in this one
+        self.frame_in = False  # a frame of this run came (its counter known)
+        # Kinds of the broken transfers without a counter before it: those beyond the counters
+        # missing before this run's first are an earlier run's (``_set_aside_early``).
+        self.early_broken: list[str] = []
         self.error: StreamError | None = None
         self.problem: str | None = None
 
@@ -70,6 +74,8 @@ class FrameLedger:
             self.run_start = self.ended_at  # it ended with none of its frames received
         self.late = 0
         self.ended_at = None
+        self.frame_in = False
+        self.early_broken = []
         self.stats = StreamStats()
         self.pixels = 0
         self.last_seen = None
@@ -103,14 +109,33 @@ class FrameLedger:
             self.last_seen = self.first_seen = counter
             self.broken_before_first = self.unattributed
             self.unattributed = 0
+            self.frame_in = True
             return True
         step = (counter - self.last_seen) % U32_WRAP
         if step == 0 or step >= U32_WRAP // 2:
             return False
+        if not self.frame_in:
+            # The run's first frame, after ``expect_first``: a broken transfer before it with
+            # no counter missing to stand for is an earlier run's.
+            self.frame_in = True
+            self.unattributed -= self._set_aside_early(self.unattributed - (step - 1))
         self.stats.lost += max(0, step - 1 - self.unattributed)
         self.unattributed = 0
         self.last_seen = counter
         return True
+
+    def _set_aside_early(self, count: int) -> int:
+        """The first ``count`` broken transfers before this run's first frame stand for none of
+        its frames (the rest of a frame of the run before, cut in two by its stop): set aside
+        as late, not counted broken in this run; how many (lock held)."""
+        kinds, self.early_broken = self.early_broken[: max(0, count)], []
+        for kind in kinds:
+            if kind == "short":
+                self.stats.short -= 1
+            else:
+                self.stats.corrupt -= 1
+        self.late += len(kinds)
+        return len(kinds)
 
     def settle_end(self, *, idle: bool) -> None:
         """Account the end of the stream if it is due (lock held)."""
@@ -151,6 +176,8 @@ class FrameLedger:
             elif self.first_seen is not None:
                 missing = (self.first_seen - first) % U32_WRAP
                 if missing < U32_WRAP // 2:
+                    excess = self.broken_before_first - missing  # standing for no frame of it
+                    self.broken_before_first -= self._set_aside_early(excess)
                     self.stats.lost += max(0, missing - self.broken_before_first)
                     self.broken_before_first = 0
             self.cond.notify_all()
@@ -167,6 +194,8 @@ class FrameLedger:
                 self.stats.corrupt += 1
             if counter is None:
                 self.unattributed += 1  # the next counter gap has one frame less lost
+                if not self.frame_in:
+                    self.early_broken.append(kind)
             else:
                 self.in_sequence(counter)  # known: this frame is accounted, not lost
         detail = why or f"a {kind} transfer of {nbytes} bytes"

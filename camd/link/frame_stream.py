@@ -359,7 +359,9 @@ class FrameStream:
         """Frames of an earlier run that arrived during this one, set aside: never delivered
         nor counted in this run's ``stats``. The device had counted them (its answer to the
         stop), but they came after the host had accounted that run's end (they count as
-        ``lost`` there) and stopped reading it: a device slow to send its last frames."""
+        ``lost`` there) and stopped reading it: a device slow to send its last frames. The
+        rest of a frame that the stop cut in two counts here too (a broken transfer before
+        this run's first frame with no counter missing for it to stand for)."""
         with self._lock:
             return self._ledger.late
 
