@@ -28,6 +28,15 @@ from camd.protocol.stream import StreamMode
 
 log = logging.getLogger(__name__)
 
+# How long the line must be quiet, after a stream's end was announced (STOP_STREAM's or
+# STREAM_DONE's next_counter), before the frames the camera counted that have not come count as
+# lost. One read timeout (0.2 s) is ample for a camera, but a simulator starved of CPU on a busy
+# host went 600 ms without answering, and it sends a block it was making when stopped only when
+# that is done: given one read timeout, such frames were lost to their stream and came during the
+# next one. Well inside the drain's limit (stream_run.DRAIN_TIMEOUT_S, 5 s); a stream whose last
+# frames really were lost takes this long to stop.
+END_QUIET_S = 2.0
+
 
 class StreamReader:
     """The USB reader (opened on first use) and the frame consumers (module docstring)."""
@@ -104,6 +113,7 @@ class StreamReader:
                 # Small frames packed into transfers, where the device can (docs/stream.md).
                 pack_bytes=0 if config.read_bytes else PACK_BYTES,
                 timeout_s=config.timeout_s,
+                end_quiet_s=END_QUIET_S,
                 thread_start=REALTIME.enter,
             )
             reader.open()

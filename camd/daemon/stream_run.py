@@ -348,11 +348,13 @@ class StreamRun:
             if not self.streaming:
                 return
             reader = self.reader.current
+            late = 0
             if reader is not None:
                 if next_counter is not None:
                     reader.expect_end(next_counter)
                     reader.wait_drained(DRAIN_TIMEOUT_S)
                 reader.stop()
+                late = reader.late_frames
             early, not_sent = self._shortfall(frames_sent, why, on_request, reader)
             self._ended_early, self._frames_not_sent = early, not_sent
             if reader is not None:
@@ -367,6 +369,13 @@ class StreamRun:
             self.device.acquisition.release(claimed)
         stats = self.reader.stats()
         short = f", {not_sent} not sent" if not_sent else ""
+        # Frames the camera sent after the host had ended the stream before (counted lost
+        # there), which came during this one: set aside, not this stream's.
+        before = (
+            f"; {late} frames of the stream before came after it had ended, set aside"
+            if late
+            else ""
+        )
         self.device.log_event(
             "info"
             if early is None and stats.lost == stats.corrupt == stats.overruns == 0
@@ -374,7 +383,7 @@ class StreamRun:
             "stream",
             f"stream ended ({early or why}): {stats.frames} frames delivered, {stats.lost} lost, "
             f"{stats.corrupt} corrupt, {stats.overruns} overruns{short}, "
-            f"{stats.mbyte_per_s:.1f} MB/s",
+            f"{stats.mbyte_per_s:.1f} MB/s{before}",
         )
         self.device.fire(Trigger.STREAM_STOPPED, None)
         self.announced.set()

@@ -47,8 +47,8 @@ class FrameReader:
     """One run's reader of ``device`` into ``queue``, counting in ``ledger``.
 
     ``max_frame_bytes``: the run's largest frame; ``packed``: the device packs several frames
-    per transfer this run; ``read_bytes``, ``timeout_s``, ``no_data_warning_s``: the
-    stream's (``FrameStream``)."""
+    per transfer this run; ``read_bytes``, ``timeout_s``, ``no_data_warning_s``,
+    ``end_quiet_s``: the stream's (``FrameStream``)."""
 
     device: StreamDevice
     _ledger: FrameLedger
@@ -59,6 +59,7 @@ class FrameReader:
     read_bytes: int
     timeout_s: float
     no_data_warning_s: float
+    end_quiet_s: float
     ident: str = field(init=False)
     _cond: threading.Condition = field(init=False)
 
@@ -107,9 +108,13 @@ class FrameReader:
                     # up the frame and skip whatever of it still comes.
                     ledger.broken("short", filled, self._counter_in(slot, filled))
                     filled, discarding = 0, True
-                idle_s = time.monotonic() - last_data
+                now = time.monotonic()
+                idle_s = now - last_data
                 with self._cond:
-                    ledger.settle_end(idle=True)
+                    # Quiet since the last data and since the device said where it ended: the
+                    # frames it counted that have not come are not coming (lost).
+                    quiet_s = min(idle_s, now - ledger.end_told)
+                    ledger.settle_end(idle=quiet_s >= self.end_quiet_s)
                     self._cond.notify_all()
                 self._warn_idle(idle_s)
                 continue
@@ -211,6 +216,8 @@ class FrameReader:
             ledger.broken(kind, nbytes, header.counter, why=why)
             return slot
         with self._cond:
+            if ledger.take_late(header.counter):
+                return slot  # an earlier run's, after its end: not this run's
             if not ledger.in_sequence(header.counter):
                 ledger.stats.out_of_order += 1
                 return slot
@@ -236,7 +243,12 @@ class FrameReader:
                 first, last = int(fields["counter"][0]), int(fields["counter"][-1])
                 ledger = self._ledger
                 with self._cond:
-                    if ledger.end is None and ledger.in_sequence(first):
+                    # (An earlier run's frames, late, go frame by frame: set aside there.)
+                    if (
+                        ledger.end is None
+                        and not ledger.is_late(first)
+                        and ledger.in_sequence(first)
+                    ):
                         ledger.last_seen = last
                         if int(fields["flags"][-1]) & _LAST:
                             ledger.end = (last + 1) % U32_WRAP
@@ -272,8 +284,9 @@ class FrameReader:
                 ledger.broken("short", rest, header.counter, why=why)
                 break
             with self._cond:
-                accepted = ledger.in_sequence(header.counter)
-                if not accepted:
+                if ledger.take_late(header.counter):
+                    accepted = False  # an earlier run's, after its end: not this run's
+                elif not (accepted := ledger.in_sequence(header.counter)):
                     ledger.stats.out_of_order += 1
                 else:
                     if header.flags in _WITH_LAST:

@@ -111,9 +111,14 @@ class FrameStream:
     ``read_bytes``: bytes per bulk read; 0 (default) reads a whole frame per read (zero copy);
     a positive value, a multiple of the endpoint's packet size, makes frames span several
     reads (each read is then copied into the slot). ``timeout_s``: each bulk read's timeout;
-    ``stop()`` may take that long. Use: ``open()``, ``add_consumer``, ``start(max_frame_bytes=)``,
-    ... ``expect_end(n)``, ``wait_drained()``, ``stop()``, ``close()``; ``start`` and ``stop``
-    may repeat on one open stream.
+    ``stop()`` may take that long. ``end_quiet_s``: frames the device said it sent
+    (``expect_end``) that have not come count as lost once a read times out with the line quiet
+    that long since the last data and since ``expect_end`` (0: at the first read timeout); a
+    device slow to send its last frames (a loaded simulator) then still has them delivered.
+    Use: ``open()``, ``add_consumer``, ``start(max_frame_bytes=)``, ... ``expect_end(n)``,
+    ``wait_drained()``, ``stop()``, ``close()``; ``start`` and ``stop`` may repeat on one open
+    stream: frames of an earlier run that come during a later one are set aside
+    (``late_frames``).
     """
 
     def __init__(
@@ -130,6 +135,7 @@ class FrameStream:
         timeout_s: float = 1.0,
         overflow_wait_s: float = OVERFLOW_WAIT_S,
         no_data_warning_s: float = NO_DATA_WARNING_S,
+        end_quiet_s: float = 0.0,
         thread_start: Callable[[str], object] | None = None,
     ) -> None:
         if queue_frames < 1:
@@ -151,6 +157,8 @@ class FrameStream:
             )
         if not timeout_s > 0:
             raise ValueError(f"timeout_s = {timeout_s} must be positive")
+        if not end_quiet_s >= 0:
+            raise ValueError(f"end_quiet_s = {end_quiet_s} must be >= 0 (0: one read timeout)")
         self.vendor_id = vendor_id
         self.product_id = product_id
         self.backend = backend
@@ -163,6 +171,7 @@ class FrameStream:
         self.timeout_s = timeout_s
         self.overflow_wait_s = overflow_wait_s
         self.no_data_warning_s = no_data_warning_s
+        self.end_quiet_s = end_quiet_s
         # Called as ``thread_start("frame_reader")`` and ``thread_start("frame_dispatcher")``
         # from inside each thread when it starts: how the daemon gives the reader real-time
         # scheduling (camd/daemon/realtime.py).
@@ -292,6 +301,7 @@ class FrameStream:
             read_bytes=self.read_bytes,
             timeout_s=self.timeout_s,
             no_data_warning_s=self.no_data_warning_s,
+            end_quiet_s=self.end_quiet_s,
         )
         self._dispatcher_thread = threading.Thread(
             target=self._dispatcher.run,
@@ -340,8 +350,20 @@ class FrameStream:
 
     def expect_first(self, first_counter: int) -> None:
         """The device says the stream's first frame has counter ``first_counter`` (START_STREAM's
-        answer): frames missing before the first one received count as lost too."""
+        answer): frames missing before the first one received count as lost too, and frames
+        before it are an earlier run's (``late_frames``)."""
         self._ledger.expect_first(first_counter)
+
+    @property
+    def late_frames(self) -> int:
+        """Frames of an earlier run that arrived during this one, set aside: never delivered
+        nor counted in this run's ``stats``. The device had counted them (its answer to the
+        stop), but they came after the host had accounted that run's end (they count as
+        ``lost`` there) and stopped reading it: a device slow to send its last frames. The
+        rest of a frame that the stop cut in two counts here too (a broken transfer before
+        this run's first frame with no counter missing for it to stand for)."""
+        with self._lock:
+            return self._ledger.late
 
     def header_log(self) -> list[tuple[FrameHeader, int]]:
         """The first ``HEADER_LOG`` frames of the run whose header passed its checks, in
