@@ -91,6 +91,9 @@ class StreamRun:
         self.stop_cause: str | None = None  # the daemon stopped the stream itself: why
         self._link_lost = False
         self._frames_not_sent = 0  # of the last counted stream, once ended (``_shortfall``)
+        # Which stream this is (one more at each ``begin``): what the daemon decided about one
+        # stream, from another thread and later, must not act on the next.
+        self.generation = 0
 
     # -- what the last stream was ---------------------------------------------------------------
 
@@ -150,6 +153,7 @@ class StreamRun:
         """A stream is about to be asked for: its recording and consumer attached and the
         reader started first, so that no frame is missed."""
         with self.lock:
+            self.generation += 1
             self.finished.clear()
             self.announced.clear()
             self._broken = None

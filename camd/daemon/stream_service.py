@@ -397,15 +397,27 @@ class StreamService:
         reader's dispatch thread (which stopping joins); the daemon goes on serving."""
         # Not under the lock: this runs on the dispatcher, which finishing joins holding it.
         self._run.stop_cause = cause
+        generation = self._run.generation  # the stream whose frame could not be written
+        threading.Thread(
+            target=self.stop_stream_of,
+            args=(generation,),
+            name="camd-recording-failed",
+            daemon=True,
+        ).start()
 
-        def stop() -> None:
+    def stop_stream_of(self, generation: int) -> bool:
+        """Stop the stream ``generation`` (``StreamRun.generation``) if it still runs; True if
+        this stopped it. A stop decided for one stream, run late on a busy host, must not stop
+        the next one: under the start lock no stream starts between the check and the stop."""
+        with self._start_lock:
+            if not (self.streaming and self._run.generation == generation):
+                return False
             try:
-                if self.streaming:
-                    self.stop()
+                self.stop()
             except SessionError as exc:
                 self.device.log_event("warning", "stream", f"could not stop the stream: {exc}")
-
-        threading.Thread(target=stop, name="camd-recording-failed", daemon=True).start()
+                return False
+            return True
 
     def _events(self, level: str, source: str, message: str) -> None:
         self.device.log_event(level, source, message)
