@@ -35,8 +35,10 @@ from camd.daemon.transaction import Apply
 from camd.motion.closed_loop import LinePeriodSetting
 from camd.pipeline.background import Background, BackgroundCapture
 from camd.pipeline.live import LiveLines
+from camd.store.durability import FLUSH_PERIOD_S
 from camd.store.journal import RecordingJournal
 from camd.store.recording import RecordingError
+from camd.store.tdi_layout import chunk_lines_for
 from camd.store.tdi_recording import TdiRecorder
 
 
@@ -201,6 +203,10 @@ class ScanApply:
                 },
                 background_dn=None if background is None else background.pixels,
                 background_attrs=None if background is None else background.recording_attrs(),
+                chunk_lines=chunk_lines_for(plan.timing.tdi_line_period_s, FLUSH_PERIOD_S),
+                compression=self.device.config.store.compression_for(
+                    request.compression, request.compression_level
+                ),
             )
         except (RecordingError, ValueError) as exc:
             journal.closed(plan.path)  # no file was left (TdiRecorder removes what it began)
