@@ -201,6 +201,12 @@ def test_the_config_chooses_the_filter_and_refuses_what_it_does_not_know() -> No
     # A request's own choice wins over the config's.
     assert chosen.store.compression_for("off", None) == Compression("off", None)
     assert chosen.store.compression_for("gzip", None) == Compression("gzip", 1)
+    # The fastest scans are stored uncompressed unless their request names a compression.
+    default = config_from_dict({}).store
+    assert default.scan_compression_max_mbyte_s == 100.0
+    assert default.compression_for(None, None, mbyte_s=199.6) == Compression("off", None)
+    assert default.compression_for(None, None, mbyte_s=4.2) == DEFAULT
+    assert default.compression_for("bitshuffle-lz4", None, mbyte_s=199.6) == DEFAULT
     for store, message in (
         ({"compression": "zip"}, "store.compression: unknown compression 'zip': choose one of "
                                  "'off', 'bitshuffle-lz4'"),
@@ -211,6 +217,8 @@ def test_the_config_chooses_the_filter_and_refuses_what_it_does_not_know() -> No
         ({"compression_level": 2}, "store.compression_level: compression 'bitshuffle-lz4' has "
                                    "no levels"),
         ({"compression": 3}, "store.compression: 3 is an integer, the wrong type"),
+        ({"scan_compression_max_mbyte_s": -1.0}, "store.scan_compression_max_mbyte_s: -1.0 is "
+                                                 "out of range"),
     ):  # fmt: skip
         with pytest.raises(ConfigError) as refused:
             config_from_dict({"store": store})

@@ -218,6 +218,12 @@ def test_a_request_chooses_its_compression_and_the_config_gives_the_rest(rig: Ri
         assert (lines.attrs["compression"], lines.attrs["compression_level"]) == ("blosc2-zstd", 1)
         assert set(lines._filters) == {"32026"}
         assert lines.chunks == (250, 2048)  # what arrives in 0.75 s at 3 ms a line
+    # A scan at 2.7 MB/s of lines (under store.scan_compression_max_mbyte_s) takes the default.
+    client.start_scan(4, 5, out="default-scan.h5", line_period_s=3e-3, drive_stage=False,
+                      quicklook=False)  # fmt: skip
+    assert client.wait_scan(WAIT_S)["state"] == "done"
+    with h5py.File(data / "scans" / "default-scan.h5", "r") as f:
+        assert f["lines"].attrs["compression"] == "bitshuffle-lz4"
     scan = read_tdi_scan(data / "scans" / "blosc.h5")
     assert len(scan.lines) == 5 + 4 - 1 and int(scan.complete.sum()) == 5  # and M - 1 partial
 

@@ -26,7 +26,14 @@ from pydantic import (
     model_validator,
 )
 
-from camd.store.compression import DEFAULT, FILTERS, Compression, check_level, check_name
+from camd.store.compression import (
+    DEFAULT,
+    FILTERS,
+    OFF,
+    Compression,
+    check_level,
+    check_name,
+)
 
 TOKEN_ENV = "CAMD_TOKEN"
 """Environment variable that supplies ``api.token`` (it wins over the file)."""
@@ -178,13 +185,26 @@ class StoreSection(Section):
         default=None,
         description="the filter's level, for those that have levels; absent = its default",
     )
+    scan_compression_max_mbyte_s: float = Field(
+        default=100.0,
+        ge=0.0,
+        le=1e6,
+        description="a scan whose lines come faster than this (MB/s of stored lines) is not "
+        "compressed unless its request names a compression: the filter's CPU would slow the "
+        "fastest scans' host path below the line rate",
+    )
 
-    def compression_for(self, name: str | None, level: int | None) -> Compression:
-        """A request's compression (``name`` and ``level``, checked by its model), or this
-        section's when the request names none."""
-        if name is None:
-            return Compression.of(self.compression, self.compression_level)
-        return Compression.of(name, level)
+    def compression_for(
+        self, name: str | None, level: int | None, *, mbyte_s: float = 0.0
+    ) -> Compression:
+        """A request's compression (``name`` and ``level``, checked by its model), or, when
+        the request names none, this section's; off for a scan whose lines come at more than
+        ``scan_compression_max_mbyte_s`` (``mbyte_s``: their rate)."""
+        if name is not None:
+            return Compression.of(name, level)
+        if mbyte_s > self.scan_compression_max_mbyte_s:
+            return Compression.of(OFF)
+        return Compression.of(self.compression, self.compression_level)
 
 
 class ApiSection(Section):

@@ -19,6 +19,8 @@ import threading
 from collections.abc import Callable
 from dataclasses import KW_ONLY, dataclass, field
 
+import numpy as np
+
 from camd.daemon.acquisition import Acquisition
 from camd.daemon.device import DeviceAccess
 from camd.daemon.errors import BadRequest, DeviceRejected, SessionError
@@ -38,7 +40,7 @@ from camd.pipeline.live import LiveLines
 from camd.store.durability import FLUSH_PERIOD_S
 from camd.store.journal import RecordingJournal
 from camd.store.recording import RecordingError
-from camd.store.tdi_layout import chunk_lines_for
+from camd.store.tdi_layout import MODES, chunk_lines_for
 from camd.store.tdi_recording import TdiRecorder
 
 
@@ -190,6 +192,7 @@ class ScanApply:
             raise SessionError(
                 f"cannot note the scan in {journal.folder}: {exc}; check the data directory"
             ) from None
+        lines_bytes = plan.columns * np.dtype(MODES[request.mode]).itemsize  # one line, stored
         try:
             recorder = TdiRecorder(
                 plan.path,
@@ -205,7 +208,9 @@ class ScanApply:
                 background_attrs=None if background is None else background.recording_attrs(),
                 chunk_lines=chunk_lines_for(plan.timing.tdi_line_period_s, FLUSH_PERIOD_S),
                 compression=self.device.config.store.compression_for(
-                    request.compression, request.compression_level
+                    request.compression,
+                    request.compression_level,
+                    mbyte_s=lines_bytes / plan.timing.tdi_line_period_s / 1e6,
                 ),
             )
         except (RecordingError, ValueError) as exc:
