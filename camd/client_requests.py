@@ -21,6 +21,13 @@ class ScanRequestOptions(TypedDict, total=False):
     /api/v1/scan/start: a push-broom scan with host TDI (docs/scan.md). A key not given is not
     sent: the daemon's model supplies its default."""
 
+    # compress the file's frames (lines) with this lossless filter, or off: one of off, bitshuffle-
+    # lz4, bitshuffle-zstd, blosc2-zstd, gzip, lzf (docs/stream.md, Compression); null = the
+    # config's store.compression; default None
+    compression: str | None
+    # the filter's level, for filters that have levels (with compression); null = the filter's
+    # default; default None
+    compression_level: int | None
     # the new HDF5 file, on the daemon's host: relative = in <data_dir>/scans; absolute = inside the
     # data directory or daemon.record_dirs (docs/api.md, Files); null = <data_dir>/scans/scan-<UTC
     # time>.h5; default None
@@ -85,6 +92,13 @@ class StreamStartRequestOptions(TypedDict, total=False):
     of ``start_stream``: POST /api/v1/stream/start (returns at once) and /stream/acquire (returns
     when done). A key not given is not sent: the daemon's model supplies its default."""
 
+    # compress the file's frames (lines) with this lossless filter, or off: one of off, bitshuffle-
+    # lz4, bitshuffle-zstd, blosc2-zstd, gzip, lzf (docs/stream.md, Compression); null = the
+    # config's store.compression; default None
+    compression: str | None
+    # the filter's level, for filters that have levels (with compression); null = the filter's
+    # default; default None
+    compression_level: int | None
     # set this imaging mode first; null keeps the current one; default None
     mode: Literal["area", "tdi"] | None
     # TDI stage count recorded with the frames (tdi mode: 1..window rows; null = all window rows);
@@ -103,6 +117,13 @@ class StreamAcquireOptions(TypedDict, total=False):
     POST /api/v1/stream/start (returns at once) and /stream/acquire (returns when done). A key
     not given is not sent: the daemon's model supplies its default."""
 
+    # compress the file's frames (lines) with this lossless filter, or off: one of off, bitshuffle-
+    # lz4, bitshuffle-zstd, blosc2-zstd, gzip, lzf (docs/stream.md, Compression); null = the
+    # config's store.compression; default None
+    compression: str | None
+    # the filter's level, for filters that have levels (with compression); null = the filter's
+    # default; default None
+    compression_level: int | None
     # set this imaging mode first; null keeps the current one; default None
     mode: Literal["area", "tdi"] | None
     # TDI stage count recorded with the frames (tdi mode: 1..window rows; null = all window rows);

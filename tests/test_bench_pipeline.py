@@ -38,7 +38,8 @@ def test_a_case_takes_frames_through_every_stage_and_adds_up() -> None:
     # integer TDI), none lost or corrupt on a clean stream.
     assert case["frames_in"] > 0 and case["lines"] == case["frames_in"]
     assert (case["lost"], case["corrupt"]) == (0, 0)
-    assert case["file_mb"] > case["lines"] * 2048 * 4 / 1e6 * 0.5  # the lines are on disk
+    # The lines are on disk, compressed as a scan's are (Bitshuffle + LZ4: a few times smaller).
+    assert case["file_mb"] > case["lines"] * 2048 * 4 / 1e6 * 0.1
     assert case["over_line_rate"] == pytest.approx(case["frames_per_s"] / case["line_rate_hz"])
     us = case["cpu_us_per_frame"]
     assert set(us) == {"read", "dispatch", "engine", "record", "other"}

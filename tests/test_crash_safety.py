@@ -1,5 +1,8 @@
 """Recordings survive their writer: a kill -9 keeps every flushed frame or line, a full disk
-ends the recording with a readable file, and a file left open is repaired (camd.store).
+ends the recording with a readable file, and a file left open is repaired (camd.store). The
+writers compress by default (camd.store.compression), so these files are compressed: the
+repair trims compressed chunks, and a full disk meets compressed frames of noise, each a
+little larger than its pixels.
 
 The daemon-level versions (a daemon killed mid-scan and mid-stare, then started again; a disk
 filling up under a running daemon) are in tests/test_crash_daemon.py.
@@ -142,6 +145,9 @@ def test_a_scan_whose_writer_is_killed_keeps_every_flushed_line(tmp_path: Path) 
     assert journal.entries() == [] and blocks_past_end(path) < NO_HEADROOM
     with h5py.File(path, "r") as f:  # now any HDF5 reader opens it
         assert f["lines"].shape == (n, WIDTH) and len(f["line_index"]) == n
+        # compressed (the default), its last chunk cut by the trim and compressed again
+        assert f["lines"].attrs["compression"] == "bitshuffle-lz4"
+        assert set(f["lines"]._filters) == {"32008"}
         assert f["lines_flushed"][0] == n
         assert f.attrs["finished"] is np.False_ and f.attrs["lines"] == n
         assert f.attrs["interrupted"] == INTERRUPTED and "recovered_utc" in f.attrs
@@ -197,6 +203,8 @@ def test_a_recording_whose_writer_is_killed_keeps_every_flushed_frame(tmp_path: 
         assert end == dt.datetime.fromtimestamp(last_ns // 1_000_000 / 1e3, dt.UTC)
         assert end >= dt.datetime.fromisoformat(f["entry/start_time"][()].decode())
         assert f["entry/camd/frames"][()] == n
+        assert f["frames"].attrs["compression"] == "bitshuffle-lz4"  # the default
+        assert set(f["frames"]._filters) == {"32008"}
     again = read_recording(path)
     assert np.array_equal(again.frames, rec.frames)
     assert recover_file(path) is not None  # idempotent: still unfinished, nothing lost
@@ -328,7 +336,9 @@ def test_the_journal_survives_a_restart_and_names_each_file_once(tmp_path: Path)
 # 534 x 2048 frames (the hr400's default window, 2.2 MB each) into a 20 MiB disk, the recorder
 # dropped afterwards as the daemon drops it. Before the headroom the disk filled while HDF5's
 # 8 MiB chunk cache still held three frames, their close failed half-way and collecting the
-# recorder's Dataset objects crashed the process (SIGSEGV in H5D_close).
+# recorder's Dataset objects crashed the process (SIGSEGV in H5D_close). The pixels are noise
+# over the whole 16-bit range: compressed (the recorder's default), each frame takes a little
+# more than its 2.2 MB, which the headroom must allow for.
 STARE_ON_A_SMALL_DISK = """
 import gc, json, sys
 import numpy as np
@@ -339,9 +349,9 @@ rec = FrameRecorder(path, frames_expected=8)
 rng = np.random.default_rng(3)
 added, error = 0, None
 for i in range(8):
-    pixels = rng.integers(0, 4096, (534, 2048), dtype=np.uint16)
+    pixels = rng.integers(0, 65536, (534, 2048), dtype=np.uint16)
     header = FrameHeader(counter=i, timestamp_ns=i, line_period_ns=1000, rows=534, cols=2048,
-        bits=12, mode=StreamMode.AREA, stages=0, stage_position=0, flags=FrameFlags(0),
+        bits=16, mode=StreamMode.AREA, stages=0, stage_position=0, flags=FrameFlags(0),
         payload_bytes=pixels.nbytes, payload_crc32=crc32(pixels.astype("<u2").tobytes()))
     try:
         rec.add(header, pixels, received_ns=i)

@@ -24,12 +24,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import h5py
 import httpx
 import pytest
 
 from camd.cli._daemon_proc import DaemonProcess
 from camd.client import CamdClient
 from camd.store import read_recording
+from camd.store.tdi_recording import read_tdi_scan
 from tests.device_snapshot import snapshot
 from tests.test_camctl import camctl, camctl_env, camctl_json
 from tests.test_output_paths import NEVER, REFUSED, Tree, fill, listing, make_tree
@@ -152,6 +154,78 @@ def test_a_relative_scan_goes_into_the_scans_folder(rig: Rig) -> None:
     assert doc["state"] == "done", doc
     assert doc["file"] == str(rig.tree.data / "scans" / "rel-scan.h5")
     assert (rig.tree.data / "scans" / "rel-scan.h5").is_file()
+
+
+# A stare's, a stream's and a scan's compression (docs/api.md), refused with the valid choices.
+COMPRESSION_REFUSED = [
+    pytest.param("stare", {"compression": "zip"},
+                 "compression: 'zip' is not valid (unknown compression 'zip': choose one of "
+                 "'off', 'bitshuffle-lz4', 'bitshuffle-zstd', 'blosc2-zstd', 'gzip', 'lzf')",
+                 id="stare-unknown-filter"),
+    pytest.param("stream", {"compression_level": 3},
+                 "compression_level: 3 is not valid (compression_level needs compression: name "
+                 "the filter it is a level of (one of 'off', 'bitshuffle-lz4'",
+                 id="stream-level-without-filter"),
+    pytest.param("scan", {"compression": "gzip", "compression_level": 12},
+                 "compression_level: 12 is not valid (compression level 12 is out of range for "
+                 "'gzip': choose 1..9 (default 1))", id="scan-level-out-of-range"),
+    pytest.param("scan", {"compression": "bitshuffle-lz4", "compression_level": 1},
+                 "compression 'bitshuffle-lz4' has no levels", id="scan-level-of-no-levels"),
+    pytest.param("stare", {"compression": 7},
+                 "compression: 7 is an integer, the wrong type; use null or a string",
+                 id="stare-filter-not-a-string"),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(("endpoint", "compression", "message"), COMPRESSION_REFUSED)
+def test_a_bad_compression_is_refused_with_the_valid_choices_and_nothing_is_made(
+    rig: Rig, endpoint: str, compression: dict[str, Any], message: str
+) -> None:
+    path, field, body = ENDPOINTS[endpoint]
+    before = daemon_files(rig.tree), snapshot(rig.client)
+    headers = {"X-Camd-Client": CLIENT}
+    with httpx.Client(base_url=rig.url, timeout=60, headers=headers) as h:
+        response = h.post(f"{API}{path}", json={**body, field: "compressed.h5", **compression})
+    assert response.status_code == 400, response.text
+    assert response.json()["code"] == "bad_request"
+    assert message in response.json()["error"], response.json()["error"]
+    assert (daemon_files(rig.tree), snapshot(rig.client)) == before
+
+
+def test_a_request_chooses_its_compression_and_the_config_gives_the_rest(rig: Rig) -> None:
+    """By default (camd.toml's store.compression) a stare and a scan are compressed with
+    Bitshuffle + LZ4; a request's own compression wins; every one reads back whole."""
+    client, data = rig.client, rig.tree.data
+    for name, options, expected in (
+        ("default.h5", {}, ("bitshuffle-lz4", None, {"32008"})),
+        ("off.h5", {"compression": "off"}, ("off", None, set())),
+        ("gzip.h5", {"compression": "gzip", "compression_level": 4}, ("gzip", 4,
+                                                                      {"shuffle", "gzip"})),
+    ):  # fmt: skip
+        client.acquire(3, record=name, **options)  # type: ignore[arg-type]
+        file = data / "recordings" / name
+        stare = read_recording(file)
+        assert len(stare.frames) == 3 and stare.crc_mismatches() == []
+        with h5py.File(file, "r") as f:
+            frames = f["frames"]
+            got = (frames.attrs["compression"], frames.attrs.get("compression_level"))
+            assert (*got, set(frames._filters)) == expected, name
+    client.start_scan(4, 5, out="blosc.h5", line_period_s=3e-3, drive_stage=False,
+                      quicklook=False, compression="blosc2-zstd")  # fmt: skip
+    assert client.wait_scan(WAIT_S)["state"] == "done"
+    with h5py.File(data / "scans" / "blosc.h5", "r") as f:
+        lines = f["lines"]
+        assert (lines.attrs["compression"], lines.attrs["compression_level"]) == ("blosc2-zstd", 1)
+        assert set(lines._filters) == {"32026"}
+        assert lines.chunks == (250, 2048)  # what arrives in 0.75 s at 3 ms a line
+    # A scan at 2.7 MB/s of lines (under store.scan_compression_max_mbyte_s) takes the default.
+    client.start_scan(4, 5, out="default-scan.h5", line_period_s=3e-3, drive_stage=False,
+                      quicklook=False)  # fmt: skip
+    assert client.wait_scan(WAIT_S)["state"] == "done"
+    with h5py.File(data / "scans" / "default-scan.h5", "r") as f:
+        assert f["lines"].attrs["compression"] == "bitshuffle-lz4"
+    scan = read_tdi_scan(data / "scans" / "blosc.h5")
+    assert len(scan.lines) == 5 + 4 - 1 and int(scan.complete.sum()) == 5  # and M - 1 partial
 
 
 def test_camctl_sends_a_relative_name_and_prints_where_the_daemon_wrote(

@@ -356,11 +356,12 @@ def test_another_process_reads_a_scan_being_written(scan_path: Path) -> None:
         assert seen["lines"] == 5 and seen["index"] == list(range(5))
         assert seen["sum"] == int(block.data[:5].sum(dtype=np.uint64))
         assert seen["stage_changes"] == [[0, 4]] and seen["finished"] is False
-        # No explicit flush: the recorder flushes itself once chunk_lines lines are waiting.
+        # No explicit flush: the recorder flushes itself at every chunk's end (line 8: a chunk
+        # is written whole, once, which a compressed one needs), so lines 8..12 wait.
         block[5:13].append_to(rec)
         seen = _read_in_another_process(scan_path)
-        assert seen["lines"] == 13
-        assert seen["sum"] == int(block.data[:13].sum(dtype=np.uint64))
+        assert seen["lines"] == 8
+        assert seen["sum"] == int(block.data[:8].sum(dtype=np.uint64))
         block[13:].append_to(rec)
     seen = _read_in_another_process(scan_path)
     assert seen["lines"] == 30 and seen["finished"] is True

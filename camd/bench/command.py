@@ -15,6 +15,8 @@ it is the fair one). One module of ``camd.bench`` per benchmark, named as its su
   sensor's fastest line rate;
 - ``scan``: a scan through the daemon at the sensor's line rate;
 - ``live``: the daemon's ingest with live viewers against none;
+- ``store``: each compression filter's ratio and one-core write rate through camd's writers
+  against no compression and the camera's full-window data rate;
 - ``fuzz``: the API fuzzed from its own /openapi.json (counts, no baseline);
 - ``all``: every one of them, one document of ratios.
 """
@@ -35,6 +37,7 @@ from camd.bench import (
     run_all,
     scan,
     sim,
+    store,
     stream,
     tdi,
 )
@@ -98,6 +101,13 @@ _BENCHES = {
         "Stream ingest of the daemon (frames and MB received per second) with N live "
         "viewers attached (B) against none (A), in alternating rounds on one continuous stream "
         "of the simulated hr400; prints the median B/A.",
+    ),
+    "store": _Bench(
+        store,
+        "compression filters: ratio and one-core write rate vs none and the camera's rate",
+        "Each compression filter writing the simulator's frames (the default scene, the bar "
+        "target) and TDI sums through camd's writers: the ratio, and MB/s of raw data per "
+        "CPU-second against no compression (A/B alternated) and hr400's full-window data rate.",
     ),
     "fuzz": _Bench(
         fuzz,

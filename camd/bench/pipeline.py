@@ -27,12 +27,17 @@ import numpy as np
 
 from camd.bench.common import (
     beyond_cache_bytes,
+    choice_list,
     int_list,
     last_level_cache_bytes,
     machine,
     thread_cpu_s,
     window_stages,
 )
+from camd.daemon.config_sections import StoreSection
+from camd.store.compression import FILTERS, Compression
+from camd.store.durability import FLUSH_PERIOD_S
+from camd.store.tdi_layout import chunk_lines_for
 
 DEFAULT_PROFILES = ("hr400", "ibis5", "ftf5066", "uvccd", "mt9m001")
 # 1: each profile's fastest line rate (its fewest window rows), where the host's cost per
@@ -67,6 +72,13 @@ def add_options(p: argparse.ArgumentParser) -> None:
         default=0.0,
         help="size of the replayed frame bank, MB (default 0: twice the last-level cache)",
     )
+    p.add_argument(
+        "--compression",
+        type=lambda text: choice_list(text, tuple(FILTERS), "compression")[0],
+        default=None,
+        help=f"the scan file's compression: {', '.join(FILTERS)} (default: a scan's by the "
+        "default config: off above store.scan_compression_max_mbyte_s, else bitshuffle-lz4)",
+    )
 
 
 def _threads() -> dict[str, int]:
@@ -88,7 +100,13 @@ def line_rate_hz(profile: str, stages: int) -> tuple[float, int]:
 
 
 def measure(
-    profile: str, stages: int, *, seconds: float, rounds: int, bank_mb: float
+    profile: str,
+    stages: int,
+    *,
+    seconds: float,
+    rounds: int,
+    bank_mb: float,
+    compression: str | None = None,
 ) -> dict[str, Any]:
     """One profile: the host path on an unpaced stream of M x columns frames."""
     from camd.bench.streamer import FrameStreamer
@@ -100,6 +118,12 @@ def measure(
     from firmware_models.fx3_backend import get_backend
 
     rate_hz, cols = line_rate_hz(profile, stages)
+    # As a scan at this rate is stored by the default config, unless told.
+    chosen = (
+        StoreSection().compression_for(None, None, mbyte_s=4 * cols * rate_hz / 1e6)
+        if compression is None
+        else Compression.of(compression)
+    )
     frame_bytes = HEADER_BYTES + 2 * stages * cols
     if bank_mb <= 0:
         bank_mb = beyond_cache_bytes(int(BANK_MB_MIN * 1e6)) / 1e6
@@ -110,7 +134,11 @@ def measure(
         sock = Path(tmp) / "fx3.sock"
         streamer = FrameStreamer(sock, stages, cols, bank=bank)
         backend = get_backend(sock)
-        recorder = TdiRecorder(Path(tmp) / "scan.h5", width=cols, mode="sum", metadata={})
+        recorder = TdiRecorder(
+            Path(tmp) / "scan.h5", width=cols, mode="sum", metadata={},
+            chunk_lines=chunk_lines_for(1.0 / rate_hz, FLUSH_PERIOD_S),
+            compression=chosen,
+        )  # fmt: skip
         engine = TdiEngine(stages, cols)
         # Load (or compile) the kernel first, as a scan does (camd.daemon.scan_planner).
         TdiEngine(stages, cols).push_many(np.zeros((2, stages, cols), dtype=np.uint16))
@@ -167,6 +195,7 @@ def measure(
         "overruns": stats.overruns,
         "dropped_by_batcher": progress.dropped_frames,
         "file_mb": file_mb,
+        "compression": chosen.filter,
     }
 
 
@@ -220,6 +249,7 @@ def run(args: argparse.Namespace) -> int:
                     seconds=args.seconds,
                     rounds=args.rounds,
                     bank_mb=args.bank_mb,
+                    compression=getattr(args, "compression", None),
                 )
             )
     if args.json:

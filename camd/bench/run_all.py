@@ -80,6 +80,18 @@ def _live(doc: Doc) -> tuple[Doc, Doc]:
     }
 
 
+def _store(doc: Doc) -> tuple[Doc, Doc]:
+    ratios: Doc = {}
+    for case in doc["inputs"]:
+        for name, figures in case["filters"].items():
+            if name == "off":
+                continue
+            key = f"store {case['input']} {name}"
+            ratios[f"{key} compression ratio"] = figures["ratio"]
+            ratios[f"{key} one-core MB/s / camera rate"] = figures["over_camera_rate"]
+    return ratios, {}
+
+
 def _fuzz(doc: Doc) -> tuple[Doc, Doc]:
     return {}, {
         "fuzz requests": doc["requests"],
@@ -111,6 +123,7 @@ BENCHES: tuple[Bench, ...] = (
     ),
     Bench("scan", (), ("--lines", "2000"), _scan),
     Bench("live", (), ("--rounds", "3", "--seconds", "1.5"), _live),
+    Bench("store", (), ("--rounds", "1", "--filters", "off,bitshuffle-lz4,blosc2-zstd"), _store),
     Bench("fuzz", (), ("--requests", "500"), _fuzz),
 )
 """Every benchmark, in the order run (``camd soak`` is not one: it is an hour long)."""

@@ -11,6 +11,8 @@ not depend on the pixels. ``--frame-bank 0`` renders every frame from the moving
 ``--drive-stage`` drives the scan stage at the synchronous speed, closed loop, as a scan does by
 default (the simulator then follows the stage's trims while it streams); a line period the stage
 cannot follow is refused, so ``--line-period-s`` sets a longer one than the fastest.
+``--compression`` names the scan file's compression (docs/stream.md, "Compression"; default:
+the daemon's, Bitshuffle + LZ4); the file's size is reported.
 """
 
 from __future__ import annotations
@@ -23,7 +25,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from camd.bench.common import proc_status_int
+from camd.bench.common import choice_list, proc_status_int
+from camd.store.compression import FILTERS
 
 DEFAULT_LINES = 5000
 DEFAULT_STAGES = 96
@@ -50,6 +53,12 @@ def add_options(p: argparse.ArgumentParser) -> None:
         type=float,
         default=None,
         help="TDI line period (default: the fastest the window allows, M x T_row)",
+    )
+    p.add_argument(
+        "--compression",
+        type=lambda text: choice_list(text, tuple(FILTERS), "compression")[0],
+        default=None,
+        help=f"the scan file's compression: {', '.join(FILTERS)} (default: the daemon's)",
     )
 
 
@@ -84,6 +93,7 @@ def bench_scan(
     frame_bank: int,
     drive_stage: bool = False,
     line_period_s: float | None = None,
+    compression: str | None = None,
 ) -> dict[str, Any]:
     """Run the scan and return the figures (see the module docstring)."""
     from camd.cli._daemon_proc import DaemonProcess, write_sim_config
@@ -103,7 +113,7 @@ def bench_scan(
             # it): the pipeline is measured.
             client.start_scan(
                 stages, lines, out=str(Path(tmp) / "scan.h5"), line_period_s=period_s,
-                quicklook=False, drive_stage=drive_stage,
+                quicklook=False, drive_stage=drive_stage, compression=compression,
             )  # fmt: skip
             # Poll (as wait_scan does) and note the daemon's memory on the way: at
             # RSS_MARK_LINES lines, and its largest over the scan.
@@ -127,6 +137,7 @@ def bench_scan(
             after = [_cpu_s(daemon.pid), *(_cpu_s(p) for p in sims)]
             sim_stats = client.sim_stream_stats()
             client.close()
+            file_bytes = (Path(tmp) / "scan.h5").stat().st_size
 
     def load(i: int) -> float | None:
         b, a = before[i], after[i]
@@ -161,6 +172,8 @@ def bench_scan(
         "drive_stage": drive_stage,
         "sim": dict(sim_stats),
         "state": doc["state"],
+        "compression": compression or "the daemon's",
+        "file_bytes": file_bytes,
         # The daemon's resident memory (KiB): at RSS_MARK_LINES lines (None if the scan was
         # shorter), the largest seen while polling, at the end, and the kernel's peak.
         "daemon_rss_kib": {
@@ -188,6 +201,7 @@ def run(args: argparse.Namespace) -> int:
         frame_bank=args.frame_bank,
         drive_stage=args.drive_stage,
         line_period_s=args.line_period_s,
+        compression=args.compression,
     )
     if args.json:
         print(json.dumps(result))
@@ -204,7 +218,8 @@ def run(args: argparse.Namespace) -> int:
     print(
         f"lost {result['lost_frames']}, overruns {result['overruns']}; CPU: daemon "
         f"{result['daemon_cpu_load']:.2f} core (TDI worker {result['tdi_cpu_load']:.3f}), "
-        f"simulator {'?' if sim is None else f'{sim:.2f}'} core"
+        f"simulator {'?' if sim is None else f'{sim:.2f}'} core; the file "
+        f"{result['file_bytes'] / 1e6:.1f} MB (compression: {result['compression']})"
     )
     rss = result["daemon_rss_kib"]
     mark = rss[f"at_{RSS_MARK_LINES}_lines"]

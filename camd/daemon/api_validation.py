@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import types
 from collections.abc import Callable
-from typing import Any, Literal, Union, get_args, get_origin
+from typing import Annotated, Any, Literal, Union, get_args, get_origin
 
 import annotated_types
 from fastapi.exceptions import RequestValidationError
@@ -45,6 +45,8 @@ def _number(value: Any) -> str:
 
 def _kind(annotation: Any) -> str:
     """What a value of this (non-null) type is, in words."""
+    if get_origin(annotation) is Annotated:  # a type with its checks: the type says it
+        return _kind(get_args(annotation)[0])
     if get_origin(annotation) is Literal:
         names = [str(v) for v in get_args(annotation)]
         return names[0] if len(names) == 1 else f"{', '.join(names[:-1])} or {names[-1]}"

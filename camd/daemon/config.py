@@ -44,6 +44,7 @@ from camd.daemon.config_sections import (
     DaemonSection,
     RealtimeSetting,
     Section,
+    StoreSection,
     expanded_path,
     is_loopback,
     normal_origin,
@@ -101,6 +102,7 @@ class Config(Section):
     stage: StageSection = Field(default_factory=StageSection)
     motion: MotionSection = Field(default_factory=MotionSection)
     campaigns: CampaignsSection = Field(default_factory=CampaignsSection)
+    store: StoreSection = Field(default_factory=StoreSection)
 
     @model_validator(mode="after")
     def _sim_matches_sensor(self) -> Config:

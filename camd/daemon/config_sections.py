@@ -1,5 +1,5 @@
-"""The config's section base, and the sections about the daemon itself: [daemon], [api] and
-[campaigns].
+"""The config's section base, and the sections about the daemon itself: [daemon], [api],
+[store] and [campaigns].
 
 ``Section`` is what every table of the config is: strict and closed, so that a typo is an error
 rather than a silently ignored setting. Of the helpers here (absolute directories, loopback
@@ -15,7 +15,25 @@ from pathlib import Path
 from typing import Annotated, Literal
 from urllib.parse import urlsplit
 
-from pydantic import BaseModel, ConfigDict, Field, Strict, field_validator, model_validator
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    ConfigDict,
+    Field,
+    Strict,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
+
+from camd.store.compression import (
+    DEFAULT,
+    FILTERS,
+    OFF,
+    Compression,
+    check_level,
+    check_name,
+)
 
 TOKEN_ENV = "CAMD_TOKEN"
 """Environment variable that supplies ``api.token`` (it wins over the file)."""
@@ -139,6 +157,54 @@ class DaemonSection(Section):
     @classmethod
     def _absolute_dirs(cls, value: list[Path]) -> list[Path]:
         return absolute_dirs(value)
+
+
+def _level_of_the_filter(level: int | None, info: ValidationInfo) -> int | None:
+    """A ``compression_level`` checked against the ``compression`` of the same table or
+    request (validated before it)."""
+    if "compression" not in info.data:
+        return level  # the filter was refused: its error says why
+    return check_level(info.data["compression"], level)
+
+
+# A compression filter's name and level, checked (camd.store.compression), wherever a config
+# table or a request takes them: the [store] table, a record's or a scan's request.
+CompressionName = Annotated[str, AfterValidator(check_name)]
+CompressionLevel = Annotated[int | None, AfterValidator(_level_of_the_filter)]
+
+
+class StoreSection(Section):
+    """[store]: how recordings and scans are stored (docs/stream.md, "Compression")."""
+
+    compression: CompressionName = Field(
+        default=DEFAULT.filter,
+        description="the lossless filter each chunk of frames (lines) is compressed with, or "
+        f"off: one of {', '.join(FILTERS)}",
+    )
+    compression_level: CompressionLevel = Field(
+        default=None,
+        description="the filter's level, for those that have levels; absent = its default",
+    )
+    scan_compression_max_mbyte_s: float = Field(
+        default=100.0,
+        ge=0.0,
+        le=1e6,
+        description="a scan whose lines come faster than this (MB/s of stored lines) is not "
+        "compressed unless its request names a compression: the filter's CPU would slow the "
+        "fastest scans' host path below the line rate",
+    )
+
+    def compression_for(
+        self, name: str | None, level: int | None, *, mbyte_s: float = 0.0
+    ) -> Compression:
+        """A request's compression (``name`` and ``level``, checked by its model), or, when
+        the request names none, this section's; off for a scan whose lines come at more than
+        ``scan_compression_max_mbyte_s`` (``mbyte_s``: their rate)."""
+        if name is not None:
+            return Compression.of(name, level)
+        if mbyte_s > self.scan_compression_max_mbyte_s:
+            return Compression.of(OFF)
+        return Compression.of(self.compression, self.compression_level)
 
 
 class ApiSection(Section):

@@ -20,6 +20,8 @@ from collections.abc import Callable
 from dataclasses import KW_ONLY, dataclass, field
 from typing import Any
 
+import numpy as np
+
 from camd.daemon.acquisition import Acquisition
 from camd.daemon.device import DeviceAccess
 from camd.daemon.errors import BadRequest, DeviceRejected, SessionError
@@ -36,8 +38,10 @@ from camd.daemon.transaction import Apply
 from camd.motion.closed_loop import LinePeriodSetting
 from camd.pipeline.background import Background, BackgroundCapture
 from camd.pipeline.live import LiveLines
+from camd.store.durability import FLUSH_PERIOD_S
 from camd.store.journal import RecordingJournal
 from camd.store.recording import RecordingError
+from camd.store.tdi_layout import MODES, chunk_lines_for
 from camd.store.tdi_recording import TdiRecorder
 
 
@@ -189,6 +193,7 @@ class ScanApply:
             raise SessionError(
                 f"cannot note the scan in {journal.folder}: {exc}; check the data directory"
             ) from None
+        lines_bytes = plan.columns * np.dtype(MODES[request.mode]).itemsize  # one line, stored
         try:
             recorder = TdiRecorder(
                 plan.path,
@@ -203,6 +208,12 @@ class ScanApply:
                 },
                 background_dn=None if background is None else background.pixels,
                 background_attrs=None if background is None else background.recording_attrs(),
+                chunk_lines=chunk_lines_for(plan.timing.tdi_line_period_s, FLUSH_PERIOD_S),
+                compression=self.device.config.store.compression_for(
+                    request.compression,
+                    request.compression_level,
+                    mbyte_s=lines_bytes / plan.timing.tdi_line_period_s / 1e6,
+                ),
             )
         except (RecordingError, ValueError) as exc:
             journal.closed(plan.path)  # no file was left (TdiRecorder removes what it began)

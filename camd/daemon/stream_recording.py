@@ -21,6 +21,7 @@ from camd.daemon.device import DeviceAccess
 from camd.daemon.errors import BadRequest, SessionError
 from camd.link.frame_stream import Consumer, FrameStream, ReceivedFrame
 from camd.pipeline.background import Background
+from camd.store.compression import Compression
 from camd.store.journal import close_recording
 from camd.store.recording import FrameRecorder, RecordingError
 
@@ -59,11 +60,13 @@ class StreamRecording:
         path: Path,
         frames_expected: int,
         metadata: Mapping[str, Mapping[str, Any]],
+        compression: Compression,
         background: Background | None = None,
     ) -> FrameRecorder:
         """A new recording with the camera's ``metadata`` (and the live view's ``background``,
-        if one is ready), made before the stream starts so that its first frame is recorded
-        too; the frames set its geometry. BadRequest if the file cannot be made."""
+        if one is ready), its frames compressed with ``compression``, made before the stream
+        starts so that its first frame is recorded too; the frames set its geometry.
+        BadRequest if the file cannot be made."""
         # On the journal before the file exists: a daemon killed at any point after leaves an
         # entry, and the next one repairs the file (or finds it was never made).
         journal = self.device.recordings
@@ -80,6 +83,7 @@ class StreamRecording:
                 metadata=metadata,
                 background_dn=None if background is None else background.pixels,
                 background_attrs=None if background is None else background.recording_attrs(),
+                compression=compression,
             )
         except RecordingError as exc:
             journal.closed(path)  # no file was left (FrameRecorder removes what it began)

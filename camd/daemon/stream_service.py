@@ -319,7 +319,12 @@ class StreamService:
         recorder = None
         if plan.record is not None:
             metadata = self._metadata(plan)
-            recorder = self._recording.create(plan.record, request.frames, metadata, background)
+            compression = self.device.config.store.compression_for(
+                request.compression, request.compression_level
+            )
+            recorder = self._recording.create(
+                plan.record, request.frames, metadata, compression, background
+            )
         try:
             run.begin(reader, recorder, consumer, plan.max_frame_bytes)
             if start is None:

@@ -37,6 +37,7 @@ from typing import Any
 
 import h5py
 
+import camd.store  # noqa: F401  (its compression filters registered before a file is opened)
 from camd.cli._daemon_proc import DaemonProcess
 from camd.client import CamdError
 from camd.soak.workload import SoakAborted, SoakRun, _CountingClient, write_hr400_config

@@ -1,5 +1,11 @@
-"""Recording: raw frames with their headers and metadata in HDF5 (``camd.store.recording``)."""
+"""Recording: raw frames with their headers and metadata in HDF5 (``camd.store.recording``).
 
+``camd.store.compression`` is imported first: it imports hdf5plugin, which registers the
+compression filters with HDF5, so that every reader and writer of camd (all import this
+package) opens compressed files.
+"""
+
+from camd.store import compression  # noqa: F401  (first: the filters registered)
 from camd.store.recording import (
     FORMAT,
     FORMAT_VERSION,

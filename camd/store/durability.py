@@ -53,6 +53,7 @@ import h5py
 import numpy as np
 
 from camd.store.nexus import finish_nexus
+from camd.store.compression import filtered_bound_bytes
 
 FLUSH_PERIOD_S = 1.0  # a recorder flushes at least this often while data arrives
 INTERRUPTED = "the daemon stopped without closing the file (killed, crashed or lost power)"
@@ -599,6 +600,22 @@ def _end_time(f: h5py.File, kind: str, count: int, last_write_s: float) -> str:
     return _utc(last_write_s)
 
 
+def _trim_bytes(f: h5py.File, datasets: list[str], count: int) -> int:
+    """The most that trimming ``datasets`` to ``count`` elements may write to new space: HDF5
+    fills the part of a chunk cut by the new end (its elements past it), and a compressed chunk
+    rewritten goes to new space (a raw one is rewritten in place)."""
+    need = 0
+    for name in datasets:
+        ds = f[name]
+        chunks = ds.chunks
+        if chunks is None or count % chunks[0] == 0 or count >= len(ds):
+            continue
+        if ds.id.get_create_plist().get_nfilters() == 0:
+            continue
+        need += filtered_bound_bytes(int(np.prod(chunks)) * ds.dtype.itemsize)
+    return need
+
+
 def recover_file(path: Path, reason: str = INTERRUPTED) -> Recovered | None:
     """Make a file whose writer died whole again: clear its write flags, trim every per-frame
     (per-line) dataset to the flushed count, mark it incomplete (``finished`` False,
@@ -615,6 +632,10 @@ def recover_file(path: Path, reason: str = INTERRUPTED) -> Recovered | None:
             return None
         kind, count, expected, datasets = _count_and_datasets(f)
         longest = max((len(f[name]) for name in datasets), default=0)
+        try:
+            Headroom(f, 0).ensure(_trim_bytes(f, datasets, count))
+        except OSError as exc:
+            raise RecoveryError(f"cannot repair {path}: {write_failure(path, exc)}") from None
         for name in datasets:
             f[name].resize(count, axis=0)
         attrs: dict[str, Any] = {

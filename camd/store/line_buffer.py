@@ -5,10 +5,15 @@ Each write to an HDF5 dataset costs tens of microseconds of library calls whatev
 Written at every append, that was about 0.65 ms per block of lines, 11-16 us per line at the
 fastest line rates. So ``TdiRecorder.append`` copies each block into a ``LineBuffer`` and
 every flush writes the buffer out: each dataset grown once and written once, through h5py's
-low-level calls (one hyperslab each), and a buffer that is exactly one aligned chunk of
-``/lines`` as one raw chunk (``H5Dwrite_chunk``: no chunk cache, no extra copy). The buffer
-is also what is written again after a failed write (``camd.store.durability``): HDF5 cannot be
-trusted to write its own copy a second time.
+low-level calls (one hyperslab each), and, when ``/lines`` is not compressed, a buffer that is
+exactly one aligned chunk of it as one raw chunk (``H5Dwrite_chunk``: no chunk cache, no extra
+copy).
+
+A compressed ``/lines`` (camd.store.compression) goes through its filter. A chunk written
+again (a flush before it filled, then the rest) changes size and goes to new space, and the SWMR
+writer never reuses the space it leaves: a scan's file grows by the chunk each time. So the
+recorder flushes at every chunk's end (a fast scan writes each chunk whole, once), and a slow
+scan takes chunks that fill within a flush period (``camd.store.tdi_layout.chunk_lines_for``).
 
 What a reader sees does not change: a reader (or the file after the writer's death) sees the
 lines up to ``/lines_flushed``, which a flush writes only after the lines themselves are on
@@ -27,7 +32,9 @@ from h5py import h5s
 
 class LineBuffer:
     """Up to ``capacity`` lines of ``width`` columns of ``dtype``, with one value per line of
-    each column in ``columns`` (name: dtype), held until ``write`` puts them in a file."""
+    each column in ``columns`` (name: dtype), held until ``write`` puts them in a file.
+    ``raw_chunks``: the lines' dataset stores its chunks as they are (no compression filter),
+    so that a whole chunk may be written directly."""
 
     def __init__(
         self,
@@ -35,8 +42,11 @@ class LineBuffer:
         dtype: np.dtype[np.generic],
         capacity: int,
         columns: Mapping[str, type[np.generic]],
+        *,
+        raw_chunks: bool = True,
     ) -> None:
         self.capacity = capacity
+        self._raw_chunks = raw_chunks
         self._width = width
         self._dtype = dtype
         self._column_types = dict(columns)
@@ -88,7 +98,7 @@ class LineBuffer:
             ds.id.set_extent((stop,))
         if n == 0 or self._lines is None:
             return
-        if n == self.capacity and start % n == 0:
+        if self._raw_chunks and n == self.capacity and start % n == 0:
             # Exactly one aligned chunk (the fast line rates' case): the chunk as it is on disk.
             lines_ds.id.write_direct_chunk((start, 0), self._lines)
         else:

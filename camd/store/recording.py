@@ -2,7 +2,9 @@
 
 One file per recording::
 
-    /frames            (N, rows, cols) uint16, one chunk per frame, gzip-free (bit-exact, fast)
+    /frames            (N, rows, cols) uint16, one chunk per frame, compressed losslessly as
+                       the recorder was told (``camd.store.compression``; by default Bitshuffle
+                       + LZ4), its attributes ``compression`` and ``compression_level`` say how
     /frame_counter     (N,) uint32   the device's frame counter
     /timestamp_ns      (N,) uint64   the device clock at the end of window row 0's exposure
     /received_unix_ns  (N,) uint64   host time the frame was complete (UTC, ns since 1970)
@@ -61,6 +63,7 @@ import numpy as np
 import numpy.typing as npt
 
 from camd.protocol.stream import FrameHeader, StreamMode, crc32
+from camd.store.compression import DEFAULT, Compression, chunk_bound_bytes
 from camd.store.durability import (
     FLUSH_PERIOD_S,
     FlushedWriter,
@@ -209,8 +212,11 @@ class FrameRecorder(FlushedWriter):
     saying so, the file keeps every frame written before it (their count flushed at once, with
     the space the recorder held back), and the recorder then refuses further frames (``failed``
     says why). The frame geometry (rows, columns, bits, mode, line period) is taken from the
-    first frame's header unless given; a later frame of another shape is refused. ``metadata`` maps group name (profile, registers, timing, stream,
-    and any other but the datasets' and the entry's names) to a dict. ``background_dn`` (with ``background_attrs``) is stored as ``/background``.
+    first frame's header unless given; a later frame of another shape is refused. ``metadata``
+    maps group name (profile, registers, timing, stream, and any other but the datasets' and
+    the entry's names) to a dict. ``background_dn`` (with ``background_attrs``) is stored as
+    ``/background``. ``compression`` is how each frame's chunk is compressed
+    (``camd.store.compression``).
     """
 
     def __init__(
@@ -227,8 +233,10 @@ class FrameRecorder(FlushedWriter):
         background_dn: npt.ArrayLike | None = None,
         background_attrs: Mapping[str, Any] | None = None,
         flush_period_s: float = FLUSH_PERIOD_S,
+        compression: Compression = DEFAULT,
     ) -> None:
         self.path = Path(path)
+        self.compression = compression
         for group in metadata or {}:
             if group in (ENTRY, BACKGROUND_GROUP, *ENTRY_NAMES, *_RESERVED_NAMES):
                 raise RecordingError(
@@ -338,7 +346,9 @@ class FrameRecorder(FlushedWriter):
             dtype=np.uint16,
             chunks=(1, rows, cols),
             dapl=no_cache,
+            **self.compression.dataset_options(),
         )
+        self._frames.attrs.update(self.compression.attrs())
         self._columns = {
             name: f.create_dataset(name, shape=(0,), maxshape=(None,), dtype=dtype, chunks=(4096,))
             for name, dtype in _PER_FRAME.items()
@@ -489,10 +499,16 @@ class FrameRecorder(FlushedWriter):
         i = self.count
         if i >= self._capacity:
             self._reserve(max(2 * self._capacity, 16))
-        self._headroom.ensure(pixels.nbytes + _MARGIN_BYTES)
-        # A frame is one chunk: written as it is on disk, at once (no chunk cache to go
-        # through, nothing held), without h5py's selection machinery.
-        self._frames.id.write_direct_chunk((i, 0, 0), np.ascontiguousarray(pixels, dtype="<u2"))
+        # Compressed, a frame of noise may take a little more than its pixels' bytes.
+        self._headroom.ensure(chunk_bound_bytes(pixels.nbytes, self.compression) + _MARGIN_BYTES)
+        frame = np.ascontiguousarray(pixels, dtype="<u2")
+        if self.compression.on:
+            # Through the filter, straight to disk: a whole chunk and no chunk cache.
+            write_rows(self._frames, i, frame[np.newaxis])
+        else:
+            # A frame is one chunk: written as it is on disk, at once (no chunk cache to go
+            # through, nothing held), without h5py's selection machinery.
+            self._frames.id.write_direct_chunk((i, 0, 0), frame)
         # In _PER_FRAME's order; written by the next flush (``_put_columns``).
         self._unflushed.append(
             (

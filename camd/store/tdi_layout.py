@@ -21,6 +21,7 @@ import h5py
 import numpy as np
 import numpy.typing as npt
 
+from camd.store.compression import Compression
 from camd.store.nexus import (
     ENTRY,
     ENTRY_NAMES,
@@ -72,6 +73,7 @@ RESERVED_ROOT = frozenset(
     }
 )
 _COLUMN_CHUNK = 4096  # lines per chunk of the 1-D columns
+CHUNK_LINES_MAX = 256  # lines per chunk of /lines at the fast line rates (TdiRecorder's default)
 _UINT32_MAX = 2**32 - 1
 _INT64 = np.iinfo(np.int64)
 
@@ -119,6 +121,18 @@ def as_int(value: object, name: str) -> int:
         raise ValueError(f"{name} must be an integer; got {value!r}") from None
 
 
+def chunk_lines_for(line_period_s: float, flush_period_s: float) -> int:
+    """Lines per chunk of ``/lines`` for a scan at ``line_period_s``: as many as arrive in
+    three quarters of a flush period, 1 to ``CHUNK_LINES_MAX``. A recorder flushes at least
+    every ``flush_period_s``, and at every chunk's end; a compressed chunk flushed before it
+    filled is written again when it fills, to new space (camd.store.line_buffer), so a slow
+    scan's chunks fill before the period is up, and each is written once, whole (a 10 s line
+    period: one line a chunk; 100 lines/s: 75; hr400 at M = 96, 507 lines/s: 256)."""
+    if not line_period_s > 0:
+        return CHUNK_LINES_MAX
+    return max(1, min(CHUNK_LINES_MAX, int(0.75 * flush_period_s / line_period_s)))
+
+
 def check_settings(
     width: object, mode: str, chunk_lines: object, metadata: Mapping[str, Mapping[str, Any]]
 ) -> tuple[int, int, np.dtype[Any]]:
@@ -154,7 +168,8 @@ def check_settings(
 
 class TdiDatasets:
     """A new scan file's layout, made in ``f`` (the root attributes, the metadata groups, the
-    datasets, the NeXus entry); the datasets a recorder writes, as attributes."""
+    datasets, the NeXus entry); the datasets a recorder writes, as attributes. ``/lines`` is
+    compressed with ``compression`` (its attributes say how: ``Compression.attrs``)."""
 
     def __init__(
         self,
@@ -165,6 +180,7 @@ class TdiDatasets:
         mode: str,
         chunk_lines: int,
         metadata: Mapping[str, Mapping[str, Any]],
+        compression: Compression,
     ) -> None:
         dtype = np.dtype(MODES[mode])
         created_utc = dt.datetime.now(dt.UTC).isoformat(timespec="milliseconds")
@@ -197,7 +213,9 @@ class TdiDatasets:
             maxshape=(None, width),
             dtype=dtype,
             chunks=(chunk_lines, width),
+            **compression.dataset_options(),
         )
+        self.lines.attrs.update(compression.attrs())
         self.columns = {
             name: f.create_dataset(
                 name, shape=(0,), maxshape=(None,), dtype=stored, chunks=(_COLUMN_CHUNK,)

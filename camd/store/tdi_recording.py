@@ -2,7 +2,10 @@
 
 One file per scan, appended to while the scan runs::
 
-    /lines          (L, N) uint32 (mode "sum") or float32 (mode "mean"), chunks of chunk_lines lines
+    /lines          (L, N) uint32 (mode "sum") or float32 (mode "mean"), chunks of chunk_lines lines,
+                    compressed losslessly as the recorder was told (``camd.store.compression``;
+                    by default Bitshuffle + LZ4), its attributes ``compression`` and
+                    ``compression_level`` say how
     /line_index     (L,) int64    the engine's line index (docs/tdi.md: line k belongs to frame k)
     /frame_counter  (L,) uint32   the device's counter of the frame the line belongs to
     /stages_used    (L,) uint16   how many of the M stages contributed to the line
@@ -59,6 +62,7 @@ import h5py
 import numpy as np
 import numpy.typing as npt
 
+from camd.store.compression import DEFAULT, Compression, chunk_bound_bytes
 from camd.store.durability import (
     FLUSH_PERIOD_S,
     FlushedWriter,
@@ -110,13 +114,16 @@ class TdiRecorder(FlushedWriter):
     The file is created at once with its metadata (so a bad path fails before the scan starts)
     and never overwrites an existing file. ``metadata`` maps group name (profile, registers,
     timing, scan, or any other) to a dict; the groups profile, registers, timing, scan and
-    counters always exist. The recorder flushes itself whenever ``chunk_lines`` lines have been
-    appended since the last flush or ``flush_period_s`` has passed since it, so a reader in
+    counters always exist. The recorder flushes itself whenever a chunk of ``chunk_lines``
+    lines is complete or ``flush_period_s`` has passed since the last flush, so a reader in
     another process (or the file after a crash) is never more than a chunk or a period behind;
     ``flush()`` makes everything so far visible (and durable against a kill) at once. A failed
     write (a full disk) raises RecordingError saying so; the lines flushed before stay readable. ``close(attributes)`` writes
     the final attributes; a ``with`` block closes the recorder whatever happens inside.
-    ``background_dn`` (with ``background_attrs``) is stored as ``/background``.
+    ``background_dn`` (with ``background_attrs``) is stored as ``/background``. ``compression``
+    is how each chunk of lines is compressed (``camd.store.compression``): a compressed chunk
+    flushed before it filled is written again to new space, so choose ``chunk_lines`` that
+    fill between flushes (``camd.store.tdi_layout.chunk_lines_for``, as the daemon does).
 
     The layout itself (what the file holds, what a block of lines may hold) is
     ``camd.store.tdi_layout``'s; the recorder decides when lines are written and flushed, what
@@ -134,8 +141,10 @@ class TdiRecorder(FlushedWriter):
         flush_period_s: float = FLUSH_PERIOD_S,
         background_dn: npt.ArrayLike | None = None,
         background_attrs: Mapping[str, Any] | None = None,
+        compression: Compression = DEFAULT,
     ) -> None:
         self.path = Path(path)
+        self.compression = compression
         width, chunk_lines, dtype = check_settings(width, mode, chunk_lines, metadata)
         if self.path.exists():
             raise RecordingError(
@@ -160,7 +169,9 @@ class TdiRecorder(FlushedWriter):
         # the next flush (camd.store.line_buffer); and written afresh after a failed write (a
         # flush that fails on a full disk cannot simply be tried again: HDF5 then writes a new
         # chunk without adding it to the dataset's index; ``_failed``).
-        self._pending = LineBuffer(width, dtype, chunk_lines, COLUMNS)
+        self._pending = LineBuffer(
+            width, dtype, chunk_lines, COLUMNS, raw_chunks=not compression.on
+        )
         self._in_file = 0  # lines in the datasets: the flushed ones, or all once written
         self._closed = False
         self.failed: str | None = None  # why writing stopped (a full disk), None while it works
@@ -178,7 +189,9 @@ class TdiRecorder(FlushedWriter):
         except OSError as exc:
             raise RecordingError(str(exc)) from None
         try:
-            self._headroom = Headroom(self._file, self.reserve_bytes(width, mode, chunk_lines))
+            self._headroom = Headroom(
+                self._file, self.reserve_bytes(width, mode, chunk_lines, compression)
+            )
             background = 0 if background_dn is None else 4 * np.size(background_dn)
             self._headroom.ensure(background + _MARGIN_BYTES)
             self._data = TdiDatasets(
@@ -188,6 +201,7 @@ class TdiRecorder(FlushedWriter):
                 mode=mode,
                 chunk_lines=chunk_lines,
                 metadata=metadata,
+                compression=compression,
             )
             if background_dn is not None:  # before SWMR: an SWMR writer cannot add datasets
                 write_background(self._file, background_dn, background_attrs or {})
@@ -204,11 +218,15 @@ class TdiRecorder(FlushedWriter):
             raise
 
     @staticmethod
-    def reserve_bytes(width: int, mode: str, chunk_lines: int = 256) -> int:
+    def reserve_bytes(
+        width: int, mode: str, chunk_lines: int = 256, compression: Compression = DEFAULT
+    ) -> int:
         """The space a recorder of these settings holds back to close its file if the disk
         fills (``camd.store.durability.Headroom``): what HDF5 may hold unwritten (two
-        chunks of lines: ``append`` flushes before more are pending) and the metadata."""
-        return _RESERVE_MIN_BYTES + 2 * chunk_lines * width * np.dtype(MODES[mode]).itemsize
+        chunks of lines, as compressed they may take at most: ``append`` flushes before more
+        are pending) and the metadata."""
+        chunk_bytes = chunk_lines * width * np.dtype(MODES[mode]).itemsize
+        return _RESERVE_MIN_BYTES + 2 * chunk_bound_bytes(chunk_bytes, compression)
 
     def _check_open(self) -> None:
         if self._closed:
@@ -251,9 +269,12 @@ class TdiRecorder(FlushedWriter):
         done_at = 0
         pending = self._pending
         while done_at < n:
-            # At most chunk_lines lines wait unflushed (in memory, written by the next flush),
-            # so a flush writes at most two chunks of lines, which the reserve covers.
-            piece = min(n - done_at, pending.room)
+            # The lines wait unflushed (in memory, written by the next flush) up to the end of
+            # their chunk at most: a flush writes at most one chunk of lines, which the reserve
+            # covers, and a chunk whose lines all come in one flush is written whole (the only
+            # kind that is compressed: camd.store.line_buffer), also after a flush on time.
+            to_chunk_end = self._chunk_lines - self.lines % self._chunk_lines
+            piece = min(n - done_at, pending.room, to_chunk_end)
             if piece <= 0:
                 self.flush()
                 continue
@@ -262,7 +283,8 @@ class TdiRecorder(FlushedWriter):
             self.lines += piece
             self.complete_lines += int(np.count_nonzero(columns["complete"][part]))
             done_at += piece
-            if pending.room == 0 or time.monotonic() - self._last_flush >= self._flush_period_s:
+            chunk_done = self.lines % self._chunk_lines == 0
+            if chunk_done or time.monotonic() - self._last_flush >= self._flush_period_s:
                 self.flush()
 
     def _put_pending(self) -> None:
@@ -345,14 +367,14 @@ class TdiRecorder(FlushedWriter):
         self._last_flush = time.monotonic()
 
     def _flush_bytes(self) -> int:
-        """The most a flush may write now: every chunk of lines since the last flush (at
-        most two, ``append``), and the margin."""
+        """The most a flush may write now: every chunk of lines since the last flush (one,
+        ``append``), as large as it may be compressed, and the margin."""
         if self.lines == self._flushed_lines:
             return _MARGIN_BYTES
         first = self._flushed_lines // self._chunk_lines
         last = (self.lines - 1) // self._chunk_lines
         chunk_bytes = self._chunk_lines * self.width * self._dtype.itemsize
-        return (last - first + 1) * chunk_bytes + _MARGIN_BYTES
+        return (last - first + 1) * chunk_bound_bytes(chunk_bytes, self.compression) + _MARGIN_BYTES
 
     @property
     def flushed_lines(self) -> int:

@@ -13,6 +13,9 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
+from camd.daemon.config_sections import CompressionLevel, CompressionName
+from camd.store.compression import FILTERS
+
 Mode = Literal["area", "tdi"]
 
 
@@ -51,6 +54,22 @@ class _Request(BaseModel):
                     f"{FLOAT_NORMAL_MIN:.3g}; give 0 where 0 is allowed, or a value in range"
                 )
         return value
+
+
+class _Compressed(_Request):
+    """A request that writes a file: how the file is compressed, if not as the config says."""
+
+    compression: CompressionName | None = Field(
+        default=None,
+        description="compress the file's frames (lines) with this lossless filter, or off: one "
+        f"of {', '.join(FILTERS)} (docs/stream.md, Compression); null = the config's "
+        "store.compression",
+    )
+    compression_level: CompressionLevel = Field(
+        default=None,
+        description="the filter's level, for filters that have levels (with compression); "
+        "null = the filter's default",
+    )
 
 
 class ErrorResponse(BaseModel):

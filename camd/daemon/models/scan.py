@@ -6,7 +6,7 @@ from typing import Literal
 
 from pydantic import BaseModel, Field
 
-from camd.daemon.models.common import _Request
+from camd.daemon.models.common import _Compressed, _Request
 from camd.daemon.models.stream import Binning, StreamStats
 
 SCAN_LINE_PERIOD_MAX_S = 10.0  # the longest TDI line period a scan takes, given or implied
@@ -18,7 +18,7 @@ TdiMode = Literal["sum", "mean"]
 ScanState = Literal["none", "starting", "running", "done", "stopped", "ended_early", "failed"]
 
 
-class ScanRequest(_Request):
+class ScanRequest(_Compressed):
     """POST /api/v1/scan/start: a push-broom scan with host TDI (docs/scan.md)."""
 
     stages: int = Field(ge=1, le=4096, description="TDI stages M (1..window rows)")

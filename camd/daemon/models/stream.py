@@ -6,12 +6,12 @@ from typing import Literal
 
 from pydantic import BaseModel, Field
 
-from camd.daemon.models.common import Mode, _Request
+from camd.daemon.models.common import Mode, _Compressed
 
 Binning = Literal["off", "2x2"]
 
 
-class StreamStartRequest(_Request):
+class StreamStartRequest(_Compressed):
     """POST /api/v1/stream/start (returns at once) and /stream/acquire (returns when done)."""
 
     frames: int = Field(
