@@ -134,7 +134,7 @@ def test_the_default_is_bitshuffle_lz4_and_nexusformat_and_silx_read_it(tmp_path
         with silx_open(str(path)) as f:
             nxdata = get_default(f)
             assert nxdata is not None and nxdata.is_valid
-            assert nxdata.signal_name == signal
+            assert nxdata.signal.name == f"/entry/data/{signal}"  # its label: 'frames (DN)'
             assert np.array_equal(nxdata.signal[...], data)
 
 

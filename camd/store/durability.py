@@ -52,8 +52,8 @@ from typing import Any
 import h5py
 import numpy as np
 
-from camd.store.nexus import finish_nexus
 from camd.store.compression import filtered_bound_bytes
+from camd.store.nexus import finish_nexus
 
 FLUSH_PERIOD_S = 1.0  # a recorder flushes at least this often while data arrives
 INTERRUPTED = "the daemon stopped without closing the file (killed, crashed or lost power)"
