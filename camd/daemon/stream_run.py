@@ -29,7 +29,7 @@ from camd.daemon.errors import (
     StorageFull,
     unreachable,
 )
-from camd.daemon.models import StreamResponse
+from camd.daemon.models import StreamResponse, StreamStats
 from camd.daemon.state import Trigger
 from camd.daemon.stream_reader import StreamReader
 from camd.daemon.stream_recording import StreamRecording
@@ -52,6 +52,25 @@ NO_STREAM_INFO: dict[str, Any] = {
     "first_counter": 0,
     "frames_sent": None,
 }
+
+
+def _ended_event(
+    stats: StreamStats, early: str | None, why: str, not_sent: int, late: int
+) -> tuple[str, str, str]:
+    """The event (level, source, message) that says how a stream ended: early (why, or None),
+    else ``why``; its counts; and ``late`` frames of the stream before that came during it."""
+    clean = early is None and stats.lost == stats.corrupt == stats.overruns == 0
+    short = f", {not_sent} not sent" if not_sent else ""
+    # Frames the camera sent after the host had ended the stream before (counted lost there),
+    # which came during this one: set aside, not this stream's.
+    before = f"; {late} frames of the stream before came after it had ended, set aside"
+    return (
+        "info" if clean else "warning",
+        "stream",
+        f"stream ended ({early or why}): {stats.frames} frames delivered, {stats.lost} lost, "
+        f"{stats.corrupt} corrupt, {stats.overruns} overruns{short}, "
+        f"{stats.mbyte_per_s:.1f} MB/s{before if late else ''}",
+    )
 
 
 class StreamRun:
@@ -371,24 +390,7 @@ class StreamRun:
             self.finished.set()
         if claimed is not None:
             self.device.acquisition.release(claimed)
-        stats = self.reader.stats()
-        short = f", {not_sent} not sent" if not_sent else ""
-        # Frames the camera sent after the host had ended the stream before (counted lost
-        # there), which came during this one: set aside, not this stream's.
-        before = (
-            f"; {late} frames of the stream before came after it had ended, set aside"
-            if late
-            else ""
-        )
-        self.device.log_event(
-            "info"
-            if early is None and stats.lost == stats.corrupt == stats.overruns == 0
-            else "warning",
-            "stream",
-            f"stream ended ({early or why}): {stats.frames} frames delivered, {stats.lost} lost, "
-            f"{stats.corrupt} corrupt, {stats.overruns} overruns{short}, "
-            f"{stats.mbyte_per_s:.1f} MB/s{before}",
-        )
+        self.device.log_event(*_ended_event(self.reader.stats(), early, why, not_sent, late))
         self.device.fire(Trigger.STREAM_STOPPED, None)
         self.announced.set()
 

@@ -202,6 +202,26 @@ def unflatten_attrs(attrs: Mapping[str, Any]) -> dict[str, Any]:
     return out
 
 
+def _check_groups(path: Path, metadata: Mapping[str, Any]) -> None:
+    """RecordingError unless every metadata group of the recording ``path`` has a name free
+    for it."""
+    for group in metadata:
+        if group in (ENTRY, BACKGROUND_GROUP, *ENTRY_NAMES, *_RESERVED_NAMES):
+            raise RecordingError(
+                f"{group!r} cannot be a metadata group of the recording {path}: it names one "
+                "of its datasets, its background or a part of its NeXus entry; use another name"
+            )
+
+
+def _trim_frames(f: h5py.File, count: int) -> None:
+    """A recording ``f`` cut to its first ``count`` frames."""
+    for name in ("frames", *_PER_FRAME):
+        if name in f:  # a file whose first frame failed may lack some
+            f[name].resize(count, axis=0)
+    if "frames_flushed" in f:
+        f["frames_flushed"][0] = count
+
+
 class FrameRecorder(FlushedWriter):
     """Appends streamed frames to a new HDF5 file; ``close(stats)`` finishes it.
 
@@ -237,13 +257,7 @@ class FrameRecorder(FlushedWriter):
     ) -> None:
         self.path = Path(path)
         self.compression = compression
-        for group in metadata or {}:
-            if group in (ENTRY, BACKGROUND_GROUP, *ENTRY_NAMES, *_RESERVED_NAMES):
-                raise RecordingError(
-                    f"{group!r} cannot be a metadata group of the recording {self.path}: it "
-                    "names one of its datasets, its background or a part of its NeXus entry; "
-                    "use another name"
-                )
+        _check_groups(self.path, metadata or {})
         retry_held()  # a file an earlier full disk held open, closed if the space is back
         if self.path.exists():
             raise RecordingError(
@@ -435,7 +449,7 @@ class FrameRecorder(FlushedWriter):
         return RecordingError(self.failed)
 
     def _trim_and_flush(self, count: int) -> None:
-        self._trim(self._file, count)
+        _trim_frames(self._file, count)
         self._headroom.flush(regrow=False)
 
     def _flush_count(self, *, regrow: bool = True) -> None:
@@ -465,7 +479,7 @@ class FrameRecorder(FlushedWriter):
             column.resize(count, axis=0)
         self._columns_written = flushed
         self._put_columns()
-        self._trim(f, count)
+        _trim_frames(f, count)
         self._headroom.flush(regrow=False)
         self._frames_flushed[0] = count
         self._headroom.flush(regrow=False)
@@ -571,14 +585,6 @@ class FrameRecorder(FlushedWriter):
             ) from None
         return self.path
 
-    @staticmethod
-    def _trim(f: h5py.File, count: int) -> None:
-        for name in ("frames", *_PER_FRAME):
-            if name in f:  # a file whose first frame failed may lack some
-                f[name].resize(count, axis=0)
-        if "frames_flushed" in f:
-            f["frames_flushed"][0] = count
-
     def _finish(
         self,
         f: h5py.File,
@@ -595,7 +601,7 @@ class FrameRecorder(FlushedWriter):
             f.create_dataset("frames_flushed", data=np.zeros(1, np.int64))
             self._write_nexus(f, 0, 0, 0, "none", 0.0)
         else:
-            self._trim(f, count)
+            _trim_frames(f, count)
         attrs: dict[str, Any] = {"frames": count, "finished": self.failed is None}
         if self.failed is not None:
             attrs["error"] = self.failed  # finished = False and the error say it ended early
