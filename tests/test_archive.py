@@ -45,6 +45,8 @@ from tests.crash_support import wait_for
 ROOT = Path(__file__).resolve().parents[1]
 ARCHIVE_MD = ROOT / "docs" / "archive.md"
 START_TIMEOUT_S = 120.0  # a busy 2-core host: Tiled's imports alone take seconds
+# What the campaign runner says before a step (the control activity), kept in the file.
+STEP_TEXT = "campaign tdi_snr_stages: step 1/2 acquire dark[0]"
 
 
 def profile(name: str) -> dict[str, Any]:
@@ -77,18 +79,23 @@ def header(counter: int, pixels: np.ndarray) -> FrameHeader:
                        FrameFlags(0), pixels.nbytes, crc32(pixels.tobytes()))  # fmt: skip
 
 
-def start_stare(path: Path, frames: int, *, seed: int) -> FrameRecorder:
+def start_stare(
+    path: Path, frames: int, *, seed: int, context: dict[str, dict[str, Any]] | None = None
+) -> FrameRecorder:
+    """``context``: the groups the daemon adds to a new file (its scene, the campaign step)."""
     rng = np.random.default_rng(seed)
-    rec = FrameRecorder(path, metadata={"profile": profile("hr400"), "stream": {"stages": 0}},
-                        frames_expected=frames + 2, mode="area")  # fmt: skip
+    metadata = {"profile": profile("hr400"), "stream": {"stages": 0}, **(context or {})}
+    rec = FrameRecorder(path, metadata=metadata, frames_expected=frames + 2, mode="area")
     for k in range(frames):
         px = rng.integers(0, 4096, (6, 10), dtype=np.uint16)
         rec.add(header(k, px), px, received_ns=k)
     return rec
 
 
-def write_stare(path: Path, frames: int, *, seed: int) -> None:
-    start_stare(path, frames, seed=seed).close()
+def write_stare(
+    path: Path, frames: int, *, seed: int, context: dict[str, dict[str, Any]] | None = None
+) -> None:
+    start_stare(path, frames, seed=seed, context=context).close()
 
 
 def compress_frames(path: Path) -> None:
@@ -131,7 +138,9 @@ def archive(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Archive]:
     write_stare(data / "recordings" / "compressed.h5", 4, seed=5)
     compress_frames(data / "recordings" / "compressed.h5")
     write_stare(data / "recordings" / "empty.h5", 0, seed=0)  # stopped before its first frame
-    write_stare(data / "campaigns" / "run1" / "raw" / "dark__0.h5", 3, seed=2)
+    write_stare(data / "campaigns" / "run1" / "raw" / "dark__0.h5", 3, seed=2, context={
+        "activity": {"text": STEP_TEXT, "done": 0, "total": 2},
+        "sample": {"scene": "dark"}})  # fmt: skip
     (data / "campaigns" / "run1" / "state.json").write_text(json.dumps(
         {"campaign": "tdi_snr_stages", "completed": {"dark[0]": {"file": "raw/dark__0.h5"}}}
     ))  # fmt: skip
@@ -193,6 +202,9 @@ def test_searches_by_metadata_find_exactly_the_right_nodes(archive: Archive) -> 
         "campaigns/run1/raw/dark__0"}  # fmt: skip
     meta = c["campaigns"]["run1"]["raw"]["dark__0"].metadata
     assert meta["campaign"] == {"name": "tdi_snr_stages", "step": "dark[0]", "run": "run1"}
+    # The file's own NXnote and NXsample, searchable too.
+    assert (meta["activity"], meta["sample"]) == (STEP_TEXT, "dark")
+    assert paths(c.search_deep(Key("sample") == "dark")) == {"campaigns/run1/raw/dark__0"}
     scan = c["scans"]["hr400_m32"].metadata
     assert {k: scan[k] for k in ("kind", "camera", "sensor", "tdi_mode", "lines", "finished")} == {
         "kind": "scan", "camera": "hr400", "sensor": "hr400", "tdi_mode": "sum", "lines": 40,

@@ -279,6 +279,14 @@ def test_a_full_disk_ends_a_recording_with_a_readable_file(tmp_path: Path) -> No
         assert np.array_equal(kept.frames, np.stack(frames[: rec.flushed]))
 
 
+def scrambled(index: np.ndarray) -> np.ndarray:
+    """Lines ``index`` of 2048 samples that no filter compresses (a multiplicative hash of
+    line and column), each known from its index: the disk fills after as many lines
+    compressed as raw (a smooth ramp compressed 20 times more appends into the same disk)."""
+    hashed = (index[:, None] * 2654435761 + np.arange(2048)[None, :] * 40503) * 97
+    return (hashed % (1 << 32)).astype(np.uint32)
+
+
 def test_a_full_disk_ends_a_scan_with_a_readable_file(tmp_path: Path) -> None:
     with small_disk(tmp_path / "small", 24) as disk:
         path = disk / "scan.h5"
@@ -287,7 +295,7 @@ def test_a_full_disk_ends_a_scan_with_a_readable_file(tmp_path: Path) -> None:
         with pytest.raises(RecordingError, match="is full"):
             while True:
                 index = np.arange(lines, lines + 50)
-                data = (index[:, None] + np.arange(2048)[None, :]).astype(np.uint32)
+                data = scrambled(index)
                 rec.append(
                     data, index=index, stages_used=np.full(50, 8), complete=np.ones(50, bool)
                 )
@@ -299,9 +307,7 @@ def test_a_full_disk_ends_a_scan_with_a_readable_file(tmp_path: Path) -> None:
         n = rec.flushed_lines
         assert scan.attrs["lines"] == n == len(scan.lines) and scan.attrs["state"] == "failed"
         assert "No space left on device" in scan.attrs["error"]
-        assert np.array_equal(
-            scan.lines, (np.arange(n)[:, None] + np.arange(2048)).astype(np.uint32)
-        )
+        assert np.array_equal(scan.lines, scrambled(np.arange(n)))
         with h5py.File(path, "r") as f:
             assert f["lines_flushed"][0] == n
 

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from camd.store.nexus import camera_name
+from camd.store.nexus import ACTIVITY_GROUP, SAMPLE_GROUP, camera_name
 from camd.store.recording import (
     FORMAT as RECORDING_FORMAT,
 )
@@ -119,6 +119,10 @@ def describe(path: Path, data_dir: Path) -> ArchivedFile:
         "date": str(attrs.get("created_utc", ""))[:10] or None,
         "finished": bool(attrs.get("finished", False)),
         **_present(
+            # What the client in control said it was doing when the file was made (a
+            # campaign's step: `campaign NAME: step I/N KIND KEY`), the file's NXnote.
+            activity=groups.get(ACTIVITY_GROUP, {}).get("text"),
+            sample=_sample(groups),
             error=attrs.get("error") or None,  # a scan that ended well says error=""
             interrupted=attrs.get("interrupted"),
             format=attrs.get("format"),
@@ -176,6 +180,17 @@ def _recording_metadata(
 def _present(**values: Any) -> dict[str, Any]:
     """The values that are there: a key a file lacks is left out, not stored as null."""
     return {key: value for key, value in values.items() if value is not None}
+
+
+def _sample(groups: Mapping[str, Mapping[str, Any]]) -> Any:
+    """The scene or target in front of the camera, as the file's NXsample names it
+    (``camd.store.nexus``): the daemon's ``sample`` group, else the scan's or the stream's
+    settings; None if none says."""
+    for group in (SAMPLE_GROUP, "scan", "stream"):
+        for key in ("target", "scene"):
+            if groups.get(group, {}).get(key) is not None:
+                return groups[group][key]
+    return None
 
 
 def _campaign(path: Path, data_dir: Path) -> dict[str, Any]:
