@@ -302,13 +302,39 @@ class TelemetryResponse(TypedDict):
     archive_error: str | None
 
 
-class HistoryResponse(TypedDict):
-    """GET /api/v1/telemetry/history."""
+class ChannelHistory(TypedDict):
+    """One channel's samples over the range, or its buckets when ``bucket_s`` is set."""
 
     channel: str
     unit: str
+    # each sample's Unix time, or each bucket's start, oldest first
     t_s: list[float]
+    # where each sample (or bucket) came from: tlm (the camera's unsolicited packet) or poll (the
+    # daemon's GET_HOUSEKEEPING)
+    source: list[Literal["tlm", "poll"]]
+    # each sample's value; empty with bucket_s
     value: list[float]
+    # each bucket's minimum; empty without bucket_s
+    min: list[float]
+    # each bucket's mean; empty without bucket_s
+    mean: list[float]
+    # each bucket's maximum; empty without bucket_s
+    max: list[float]
+    # each bucket's number of samples; empty without bucket_s
+    count: list[int]
+
+
+class HistoryResponse(TypedDict):
+    """GET /api/v1/telemetry/history."""
+
+    # the range's start, Unix time (inclusive)
+    start_s: float
+    # the range's end, Unix time (exclusive)
+    end_s: float
+    # the bucket width, null for every sample
+    bucket_s: float | None
+    # in the order asked
+    channels: list[ChannelHistory]
 
 
 class EventItem(TypedDict):

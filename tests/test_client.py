@@ -66,9 +66,9 @@ def test_ping_link_telemetry_events_metrics(client: CamdClient) -> None:
     tel = client.telemetry()
     assert tel["latest"] and tel["archive"]
     channel = next(iter(tel["latest"]))
-    hist = client.history(channel, limit=5)
+    (hist,) = client.history(channel, limit=5)["channels"]
     assert hist["channel"] == channel
-    assert len(hist["t_s"]) == len(hist["value"]) <= 5
+    assert len(hist["t_s"]) == len(hist["value"]) == len(hist["source"]) <= 5
 
     events = client.events(limit=3)
     assert isinstance(events["events"], list) and len(events["events"]) <= 3

@@ -198,7 +198,7 @@ def test_a_full_disk_stops_a_stare_and_the_daemon_keeps_serving(
         wait_for("idle", lambda: client.status()["state"] == "idle")
         other = client.acquire(4, mode="area", record=str(tmp_path / "other.h5"))
         assert other["stats"]["frames"] == 4
-        assert len(client.history("fpga_temp_degc")["value"]) > 0
+        assert len(client.history("fpga_temp_degc")["channels"][0]["value"]) > 0
         rec = read_recording(out)
         assert len(rec.frames) == kept >= 5
         assert rec.attrs["finished"] is False and "is full" in rec.attrs["error"]

@@ -10,8 +10,9 @@ from pathlib import Path
 import pytest
 
 from camd.daemon.config_camera import ChannelLimits
-from camd.daemon.errors import ArchiveUnreadable
+from camd.daemon.errors import ArchiveUnreadable, BadRequest
 from camd.daemon.telemetry import GuardedArchive, Level, LimitChecker, TelemetryArchive, classify
+from camd.daemon.time_range import parse_instant, parse_range
 from tests.crash_support import fill_disk, small_disk
 
 TEMP = ChannelLimits(yellow=(0.0, 70.0), red=(-20.0, 85.0))
@@ -286,3 +287,84 @@ def test_an_unreadable_archive_is_a_clear_error(tmp_path: Path) -> None:
         guard.events(10)
     guard.add_event("warning", "test", "kept", t_s=5.0)  # never raises
     assert [e.message for e in guard.events(10)] == ["kept"]
+
+
+# -- history over a range, downsampled, and the events filtered (issue 34 item 7) -------------
+
+
+def test_time_range_takes_iso_relative_unix_and_now_and_refuses_the_rest() -> None:
+    now_s = 1_800_000_000.0
+    assert parse_instant("now", now_s, "end") == now_s
+    assert parse_instant("-10m", now_s, "start") == now_s - 600.0
+    assert parse_instant("-2h", now_s, "start") == now_s - 7200.0
+    assert parse_instant("-1.5d", now_s, "start") == now_s - 1.5 * 86400.0
+    assert parse_instant("-30s", now_s, "start") == now_s - 30.0
+    assert parse_instant("-60", now_s, "start") == now_s - 60.0  # seconds before now
+    assert parse_instant("1700000000.5", now_s, "start") == 1_700_000_000.5
+    assert parse_instant("2026-11-27T22:00:00Z", now_s, "start") == 1_795_816_800.0
+    assert parse_instant("2026-11-27T23:00:00+01:00", now_s, "start") == 1_795_816_800.0
+    assert parse_instant("2026-11-27T22:00:00", now_s, "start") == 1_795_816_800.0  # UTC
+    with pytest.raises(BadRequest) as bad:
+        parse_instant("yesterday", now_s, "start")
+    assert str(bad.value) == (
+        "start: 'yesterday' is not a time; give an ISO 8601 time (2026-11-27T22:00:00Z), a Unix "
+        "time in seconds, now, or a time before now like -30s, -10m, -2h or -1d"
+    )
+    with pytest.raises(BadRequest) as bad:
+        parse_range("-1h", "-2h", now_s)
+    assert str(bad.value) == (
+        "start (-1h = 2027-01-15T07:00:00Z) is not before end (-2h = 2027-01-15T06:00:00Z): "
+        "give a start earlier than the end"
+    )
+
+
+def _written(archive: TelemetryArchive) -> None:
+    """x from two sources, 0.5 s apart, values known; y only from packets."""
+    for i in range(40):
+        archive.add_samples(1000.0 + i * 0.5, {"x": float(i * i % 7)}, "tlm" if i % 2 else "poll")
+        archive.add_samples(1000.0 + i * 0.5, {"y": float(i)}, "tlm")
+
+
+def test_samples_over_a_range_say_their_source(archive: TelemetryArchive) -> None:
+    _written(archive)
+    rows = archive.samples("x", 1002.0, 1004.0)  # [start, end)
+    assert [(t, v, s) for t, v, s in rows] == [
+        (1000.0 + i * 0.5, float(i * i % 7), "tlm" if i % 2 else "poll") for i in range(4, 8)
+    ]
+    assert archive.samples("x", 1002.0, 1004.0, source="poll") == [
+        (1002.0, 2.0, "poll"), (1003.0, 1.0, "poll")
+    ]  # fmt: skip
+    assert archive.count_range("x", 1002.0, 1004.0) == 4
+    assert archive.count_range("x", 1002.0, 1004.0, source="tlm") == 2
+
+
+def test_buckets_give_min_mean_max_count_per_source(archive: TelemetryArchive) -> None:
+    _written(archive)
+    got = archive.buckets("x", 1000.0, 1020.0, 3.0)
+    expected = []
+    for b in range(7):
+        for source in ("poll", "tlm"):
+            vals = [
+                float(i * i % 7)
+                for i in range(40)
+                if 1000.0 + 3.0 * b <= 1000.0 + i * 0.5 < 1000.0 + 3.0 * (b + 1)
+                and ("tlm" if i % 2 else "poll") == source
+            ]
+            if vals:
+                expected.append((1000.0 + 3.0 * b, source, min(vals), sum(vals) / len(vals),
+                                 max(vals), len(vals)))  # fmt: skip
+    assert [(t, s, lo, pytest.approx(m), hi, n) for t, s, lo, m, hi, n in got] == expected
+    assert sum(n for *_, n in got) == 40  # every sample counted once
+
+
+def test_events_filtered_by_range_level_and_source(archive: TelemetryArchive) -> None:
+    archive.add_event("info", "link", "open", 10.0)
+    archive.add_event("warning", "limits", "warm", 20.0)
+    archive.add_event("error", "limits", "hot", 30.0)
+    archive.add_event("info", "daemon", "started", 40.0)
+    assert [e.message for e in archive.events(100, start_s=15.0, end_s=40.0)] == ["warm", "hot"]
+    assert [e.message for e in archive.events(100, levels=["warning", "error"])] == ["warm", "hot"]
+    assert [e.message for e in archive.events(100, sources=["link", "daemon"])] == [
+        "open", "started"
+    ]  # fmt: skip
+    assert [e.message for e in archive.events(1, sources=["limits"])] == ["hot"]

@@ -10,6 +10,7 @@ their options are in ``camctl_args``.
 from __future__ import annotations
 
 import argparse
+import sys
 from collections.abc import Callable
 from typing import Any
 
@@ -21,7 +22,7 @@ from camd.cli.camctl_format import (
     control_text,
     estop_text,
     events_table,
-    history_table,
+    history_tables,
     link_table,
     ping_table,
     status_table,
@@ -55,29 +56,59 @@ def add_parsers(command: Callable[[str, str], argparse.ArgumentParser]) -> None:
 
     command("link", "show the command link's counters, host and device side by side")
 
-    p = command("telemetry", "show the latest housekeeping telemetry, or one channel's history")
+    p = command("telemetry", "show the latest housekeeping telemetry, or channels' history")
     p.add_argument(
         "--history",
-        metavar="CHANNEL",
-        help="show the archived samples of CHANNEL instead (e.g. fpga_temp_degc)",
+        metavar="CHANNELS",
+        help="show the archived samples of CHANNELS instead (comma-separated, e.g. "
+        "fpga_temp_degc,vcc_io_v)",
+    )
+    _range_arguments(p, "with --history: ", "the last hour")
+    p.add_argument(
+        "--bucket-s",
+        type=positive_float,
+        metavar="S",
+        help="with --history: min, mean, max and count per S-second bucket instead of samples",
+    )
+    p.add_argument(
+        "--source",
+        choices=("tlm", "poll", "all"),
+        help="with --history: only the camera's packets (tlm) or the daemon's polls (poll)",
+    )
+    p.add_argument(
+        "--csv",
+        action="store_true",
+        help="with --history: print CSV (channel, unit, source, t_s, time_utc, then value or "
+        "count, min, mean, max)",
     )
     p.add_argument(
         "--since-s",
         type=finite_number,
         metavar="T",
-        help="with --history: only samples from Unix time T on; a negative T means T seconds "
-        "before now (e.g. --since-s -60)",
+        help="with --history: the older form of --start: from Unix time T on; a negative T "
+        "means T seconds before now (e.g. --since-s -60)",
     )
     p.add_argument(
         "--limit",
         type=int_range(1, 1_000_000),
         metavar="N",
-        help="with --history: at most N samples",
+        help="with --history: the newest N samples per channel",
     )
 
     p = command("events", "show recent events, newest last")
     p.add_argument(
         "--limit", type=int_range(1, 100_000), metavar="N", help="at most N events (newest)"
+    )
+    _range_arguments(p, "", "all")
+    p.add_argument(
+        "--level",
+        metavar="LEVELS",
+        help="only these levels, comma-separated: info, warning, error",
+    )
+    p.add_argument(
+        "--source",
+        metavar="SOURCES",
+        help="only these sources, comma-separated (link, device, limits, daemon, api, ...)",
     )
 
     p = command("mode", "select the imaging mode: area (staring) or tdi (push-broom)")
@@ -143,14 +174,62 @@ def _cmd_link(client: CamdClient, args: argparse.Namespace) -> Any:
     return client.link()
 
 
+def _range_arguments(p: argparse.ArgumentParser, prefix: str, default: str) -> None:
+    """--start and --end, as the API takes them (docs/api.md)."""
+    p.add_argument(
+        "--start",
+        metavar="TIME",
+        help=f"{prefix}from TIME: ISO 8601 (UTC without a zone), Unix seconds, now, or before "
+        f"now like -10m, -2h, -1d (default {default})",
+    )
+    p.add_argument(
+        "--end", metavar="TIME", help=f"{prefix}up to TIME (exclusive), as --start (default now)"
+    )
+
+
 def _cmd_telemetry(client: CamdClient, args: argparse.Namespace) -> Any:
-    if args.history is not None:
-        return client.history(args.history, since_s=args.since_s, limit=args.limit)
-    return client.telemetry()
+    if args.history is None:
+        used = [
+            flag
+            for flag, value in (
+                ("--start", args.start),
+                ("--end", args.end),
+                ("--bucket-s", args.bucket_s),
+                ("--source", args.source),
+                ("--since-s", args.since_s),
+                ("--limit", args.limit),
+                ("--csv", args.csv or None),
+            )
+            if value is not None
+        ]
+        if used:
+            raise UsageError(f"{', '.join(used)} go(es) with --history CHANNELS")
+        return client.telemetry()
+    if args.csv and args.json:
+        raise UsageError("--csv and --json are two formats: give one")
+    channels = [c for c in args.history.split(",") if c.strip()]
+    asked = {
+        "start": args.start,
+        "end": args.end,
+        "bucket_s": args.bucket_s,
+        "source": args.source,
+        "limit": args.limit,
+    }
+    if args.csv:
+        if args.since_s is not None:
+            raise UsageError("with --csv give --start instead of --since-s")
+        return client.history_csv(channels, **asked)
+    return client.history(channels, since_s=args.since_s, **asked)
 
 
 def _cmd_events(client: CamdClient, args: argparse.Namespace) -> Any:
-    return client.events(limit=args.limit)
+    return client.events(
+        limit=args.limit,
+        start=args.start,
+        end=args.end,
+        levels=args.level.split(",") if args.level else None,
+        sources=args.source.split(",") if args.source else None,
+    )
 
 
 def _cmd_mode(client: CamdClient, args: argparse.Namespace) -> Any:
@@ -213,7 +292,13 @@ def _render_link(out: Console, doc: Any, args: argparse.Namespace) -> None:
 
 
 def _render_telemetry(out: Console, doc: Any, args: argparse.Namespace) -> None:
-    out.print(history_table(doc) if args.history is not None else telemetry_table(doc))
+    if isinstance(doc, str):  # --csv: the daemon's CSV as it is, no rich markup or wrapping
+        sys.stdout.write(doc)
+    elif args.history is not None:
+        for table in history_tables(doc):
+            out.print(table)
+    else:
+        out.print(telemetry_table(doc))
 
 
 def _render_events(out: Console, doc: Any, args: argparse.Namespace) -> None:

@@ -225,24 +225,44 @@ def telemetry_table(doc: dict[str, Any], title: str | None = "telemetry") -> Tab
     return table
 
 
-def history_table(doc: dict[str, Any]) -> Table:
-    """One channel's archived samples."""
-    unit = doc.get("unit") or ""
-    table = Table(
-        title=f"{doc.get('channel')} history",
-        box=box.SIMPLE_HEAVY,
-        show_edge=False,
-        title_justify="left",
-    )
-    table.add_column("time")
-    table.add_column(f"value ({unit})" if unit else "value", justify="right")
-    times = doc.get("t_s") or []
-    values = doc.get("value") or []
-    for t_s, value in zip(times, values, strict=False):
-        table.add_row(fmt_time(t_s), fmt_value(value))
-    table.caption = f"{len(values)} samples"
-    table.caption_justify = "left"
-    return table
+def history_tables(doc: dict[str, Any]) -> list[Table]:
+    """Each channel's archived samples (time, source, value) or buckets (time, source, count,
+    min, mean, max)."""
+    bucketed = doc.get("bucket_s") is not None
+    tables = []
+    for ch in doc.get("channels") or []:
+        unit = ch.get("unit") or ""
+        u = f" ({unit})" if unit else ""
+        title = f"{ch.get('channel')} history"
+        if bucketed:
+            title += f", {doc['bucket_s']:g} s buckets"
+        table = Table(title=title, box=box.SIMPLE_HEAVY, show_edge=False, title_justify="left")
+        table.add_column("time")
+        table.add_column("source")
+        times = ch.get("t_s") or []
+        sources = ch.get("source") or []
+        if bucketed:
+            table.add_column("count", justify="right")
+            for name in ("min", "mean", "max"):
+                table.add_column(f"{name}{u}", justify="right")
+            for i, t_s in enumerate(times):
+                table.add_row(
+                    fmt_time(t_s),
+                    sources[i],
+                    str(ch["count"][i]),
+                    fmt_value(ch["min"][i]),
+                    fmt_value(ch["mean"][i]),
+                    fmt_value(ch["max"][i]),
+                )
+            table.caption = f"{len(times)} buckets of {sum(ch.get('count') or [])} samples"
+        else:
+            table.add_column(f"value{u}", justify="right")
+            for t_s, source, value in zip(times, sources, ch.get("value") or [], strict=False):
+                table.add_row(fmt_time(t_s), source, fmt_value(value))
+            table.caption = f"{len(times)} samples"
+        table.caption_justify = "left"
+        tables.append(table)
+    return tables
 
 
 def events_table(doc: dict[str, Any], title: str | None = "events") -> Table:

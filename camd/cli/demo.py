@@ -384,11 +384,11 @@ class _Demo:
                 "the daemon reports no telemetry; housekeeping should arrive every second or so"
             )
         channel = "fpga_temp_degc" if "fpga_temp_degc" in latest else next(iter(latest))
-        history = self.client.history(channel)
+        (history,) = self.client.history(channel)["channels"]
         record["history"] = {
             "channel": channel,
-            "unit": history.get("unit"),
-            "samples": len(history.get("value") or []),
+            "unit": history["unit"],
+            "samples": len(history["value"]),
         }
         self.console.print(
             f"samples archived: {record['samples_before']} -> {record['samples_after']} in "

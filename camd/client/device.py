@@ -4,6 +4,7 @@ raw frames, counters), telemetry and events, emergency stop, metrics."""
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from typing import Any, Unpack, cast
 
 from camd.client.connection import (
@@ -79,20 +80,59 @@ class DeviceClient(HttpClient):
         return cast(TelemetryResponse, self._json("GET", f"{API}/telemetry"))
 
     def history(
-        self, channel: str, since_s: float | None = None, limit: int | None = None
+        self,
+        channels: str | Sequence[str],
+        since_s: float | None = None,
+        limit: int | None = None,
+        *,
+        start: str | None = None,
+        end: str | None = None,
+        bucket_s: float | None = None,
+        source: str | None = None,
     ) -> HistoryResponse:
-        """Archived samples of one telemetry channel. ``since_s`` is a Unix time, or a negative
-        number of seconds before now; ``limit`` caps the number of samples."""
-        params: dict[str, str | int | float] = {"channel": channel}
-        if since_s is not None:
-            params["since_s"] = since_s
-        if limit is not None:
-            params["limit"] = limit
+        """Archived samples of telemetry channels over a range (``start``, ``end``: ISO 8601,
+        Unix seconds, ``now`` or before now like ``-10m``; default the last hour), each with
+        its source, or min/mean/max/count per ``bucket_s``. ``since_s``: the older form of
+        ``start``; ``limit``: the newest N samples per channel."""
+        params = _history_params(channels, since_s, limit, start, end, bucket_s, source)
         return cast(HistoryResponse, self._json("GET", f"{API}/telemetry/history", params=params))
 
-    def events(self, limit: int | None = None) -> EventsResponse:
-        """Recent events, newest last."""
-        params: dict[str, int] = {} if limit is None else {"limit": limit}
+    def history_csv(
+        self,
+        channels: str | Sequence[str],
+        *,
+        start: str | None = None,
+        end: str | None = None,
+        bucket_s: float | None = None,
+        source: str | None = None,
+        limit: int | None = None,
+    ) -> str:
+        """The same history as CSV text (docs/api.md gives its columns)."""
+        params = _history_params(channels, None, limit, start, end, bucket_s, source)
+        params["format"] = "csv"
+        return self._request("GET", f"{API}/telemetry/history", params=params).text
+
+    def events(
+        self,
+        limit: int | None = None,
+        *,
+        start: str | None = None,
+        end: str | None = None,
+        levels: Sequence[str] | None = None,
+        sources: Sequence[str] | None = None,
+    ) -> EventsResponse:
+        """Recent events, newest last: the newest ``limit`` in [start, end) of the ``levels``
+        (info, warning, error) and ``sources`` given (none: all)."""
+        params: dict[str, Any] = {}
+        for key, value in (
+            ("limit", limit),
+            ("start", start),
+            ("end", end),
+            ("level", levels),
+            ("source", sources),
+        ):
+            if value is not None:
+                params[key] = list(value) if isinstance(value, list | tuple) else value
         return cast(EventsResponse, self._json("GET", f"{API}/events", params=params))
 
     def set_mode(self, mode: str) -> ModeResponse:
@@ -148,3 +188,29 @@ class DeviceClient(HttpClient):
             f" ({reason or 'no reason given'}); check the camera link or start it with --sim",
             code="timeout",
         )
+
+
+def _history_params(
+    channels: str | Sequence[str],
+    since_s: float | None,
+    limit: int | None,
+    start: str | None,
+    end: str | None,
+    bucket_s: float | None,
+    source: str | None,
+) -> dict[str, Any]:
+    """The query of GET /telemetry/history, leaving out what is not given."""
+    params: dict[str, Any] = {
+        "channel": [channels] if isinstance(channels, str) else list(channels)
+    }
+    for key, value in (
+        ("since_s", since_s),
+        ("limit", limit),
+        ("start", start),
+        ("end", end),
+        ("bucket_s", bucket_s),
+        ("source", source),
+    ):
+        if value is not None:
+            params[key] = value
+    return params

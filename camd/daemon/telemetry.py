@@ -27,9 +27,11 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from enum import StrEnum
 from pathlib import Path
+from typing import Any, TypeVar
 
 from camd.daemon.config import ChannelLimits
 from camd.daemon.errors import ArchiveUnreadable
+from camd.daemon.telemetry_query import EventFilter, range_where
 
 SCHEMA = """
 CREATE TABLE IF NOT EXISTS samples (
@@ -52,6 +54,9 @@ CREATE TABLE IF NOT EXISTS events (
 );
 CREATE INDEX IF NOT EXISTS events_by_time ON events (t_s);
 """
+
+
+_T = TypeVar("_T")
 
 
 class Level(StrEnum):
@@ -187,6 +192,53 @@ class TelemetryArchive:
         rows.reverse()
         return [r[0] for r in rows], [r[1] for r in rows]
 
+    def samples(
+        self, channel: str, start_s: float, end_s: float, source: str | None = None
+    ) -> list[tuple[float, float, str]]:
+        """(t_s, value, source) of ``channel`` with start_s <= t_s < end_s, oldest first; of
+        one source (``tlm`` or ``poll``) or of both."""
+        sql, args = range_where(channel, start_s, end_s, source)
+        with self._lock:
+            rows = self._db.execute(
+                f"SELECT t_s, value, source FROM samples {sql} ORDER BY t_s, source", args
+            ).fetchall()
+        return [(float(t), float(v), str(s)) for t, v, s in rows]
+
+    def count_range(
+        self, channel: str, start_s: float, end_s: float, source: str | None = None
+    ) -> int:
+        """How many samples ``samples`` would return (an index range count, no rows read)."""
+        sql, args = range_where(channel, start_s, end_s, source)
+        with self._lock:
+            (n,) = self._db.execute(f"SELECT count(*) FROM samples {sql}", args).fetchone()
+        return int(n)
+
+    def buckets(
+        self,
+        channel: str,
+        start_s: float,
+        end_s: float,
+        bucket_s: float,
+        source: str | None = None,
+    ) -> list[tuple[float, str, float, float, float, int]]:
+        """(bucket start, source, min, mean, max, count) of ``channel`` per ``bucket_s`` from
+        ``start_s``, oldest first, buckets without samples left out.
+
+        Per source: a packet and a poll are two samples of their own, so a bucket counts each
+        sample once and never merges the two streams' counts."""
+        sql, args = range_where(channel, start_s, end_s, source)
+        with self._lock:
+            rows = self._db.execute(
+                "SELECT CAST((t_s - ?) / ? AS INTEGER) AS bucket, source, min(value), "
+                f"avg(value), max(value), count(*) FROM samples {sql} "
+                "GROUP BY bucket, source ORDER BY bucket, source",
+                (start_s, bucket_s, *args),
+            ).fetchall()
+        return [
+            (start_s + int(b) * bucket_s, str(s), float(lo), float(mean), float(hi), int(n))
+            for b, s, lo, mean, hi, n in rows
+        ]
+
     def prune(self, before_t_s: float) -> int:
         """Delete samples older than ``before_t_s``; return how many rows went.
 
@@ -213,15 +265,18 @@ class TelemetryArchive:
             ).fetchone()
             return int(n)
 
-    def events(self, limit: int = 100) -> list[Event]:
-        """The newest ``limit`` events, newest last."""
+    def events(self, limit: int = 100, **where: Any) -> list[Event]:
+        """The newest ``limit`` events, newest last; ``where``: ``EventFilter``'s fields."""
+        match = EventFilter(**where)
+        sql, args = match.sql()
         with self._lock:
             rows = self._db.execute(
                 # By time, not by arrival: threads stamp their events before they take the
                 # lock to archive them, so on a busy machine arrival order can be a few ms off
                 # (seen: 3.7 ms), and device events carry the device's own time.
-                "SELECT t_s, level, source, message FROM events ORDER BY t_s DESC, id DESC LIMIT ?",
-                (limit,),
+                f"SELECT t_s, level, source, message FROM events {sql} "
+                "ORDER BY t_s DESC, id DESC LIMIT ?",
+                (*args, limit),
             ).fetchall()
         rows.reverse()
         return [Event(*row) for row in rows]
@@ -466,12 +521,14 @@ class GuardedArchive:
 
     # -- reading --------------------------------------------------------------------------------
 
-    def events(self, limit: int = 100) -> list[Event]:
-        """The newest ``limit`` events, archived or kept in memory, newest last."""
+    def events(self, limit: int = 100, **where: Any) -> list[Event]:
+        """The newest ``limit`` events, archived or kept in memory, newest last; ``where``:
+        ``EventFilter``'s fields."""
+        match = EventFilter(**where)
         with self._lock:
-            pending = list(self._pending)
+            pending = [e for e in self._pending if match.matches(e)]
         try:
-            archived = self.archive.events(limit)
+            archived = self.archive.events(limit, **where)
         except ARCHIVE_ERRORS as exc:
             if not pending:
                 raise _unreadable(self.path, exc) from None
@@ -490,6 +547,28 @@ class GuardedArchive:
     ) -> tuple[list[float], list[float]]:
         try:
             return self.archive.history(channel, since_s, limit)
+        except ARCHIVE_ERRORS as exc:
+            raise _unreadable(self.path, exc) from None
+
+    def samples(
+        self, channel: str, start_s: float, end_s: float, source: str | None = None
+    ) -> list[tuple[float, float, str]]:
+        return self._read(lambda: self.archive.samples(channel, start_s, end_s, source))
+
+    def count_range(
+        self, channel: str, start_s: float, end_s: float, source: str | None = None
+    ) -> int:
+        return self._read(lambda: self.archive.count_range(channel, start_s, end_s, source))
+
+    def buckets(
+        self, channel: str, start_s: float, end_s: float, bucket_s: float, source: str | None
+    ) -> list[tuple[float, str, float, float, float, int]]:
+        return self._read(lambda: self.archive.buckets(channel, start_s, end_s, bucket_s, source))
+
+    def _read(self, read: Callable[[], _T]) -> _T:
+        """``read()``, an archive that cannot be read said as ``ArchiveUnreadable``."""
+        try:
+            return read()
         except ARCHIVE_ERRORS as exc:
             raise _unreadable(self.path, exc) from None
 

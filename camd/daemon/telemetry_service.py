@@ -15,16 +15,21 @@ its archive.
 from __future__ import annotations
 
 import contextlib
+import csv
+import io
 import logging
+import math
 import threading
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any, cast
 
 from camd.daemon.config import Config, telemetry_channels
 from camd.daemon.device import EventSink
 from camd.daemon.errors import BadRequest, SessionError
 from camd.daemon.models import (
+    HISTORY_POINTS_MAX,
+    ChannelHistory,
     ChannelLatest,
     EventItem,
     EventsResponse,
@@ -32,6 +37,8 @@ from camd.daemon.models import (
     TelemetryResponse,
 )
 from camd.daemon.telemetry import GuardedArchive, LimitChecker, TelemetryArchive, classify
+from camd.daemon.telemetry_query import EventsQuery, HistoryQuery
+from camd.daemon.time_range import iso_utc, parse_instant, parse_range
 from camd.protocol.dictionary import FieldValue
 
 # The session's logger: these lines kept the name they had before telemetry was a service of
@@ -180,22 +187,196 @@ class TelemetryService:
             archive_error=archive.failing,
         )
 
-    def history(self, channel: str, since_s: float = 0.0, limit: int = 1000) -> HistoryResponse:
-        """Archived samples of ``channel``, oldest first; ``since_s`` < 0 means "seconds ago"."""
-        if channel not in self.channels:
+    def history(self, query: HistoryQuery) -> HistoryResponse:
+        """Archived samples of the channels asked over a time range, each saying its source, or
+        their min/mean/max/count per bucket; BadRequest for a bad range, an unknown channel or
+        a result larger than ``HISTORY_POINTS_MAX`` (the message says how to narrow it)."""
+        channels = self._channels_asked(query.channels)
+        source = _source_asked(query.source)
+        start_s, end_s = self._range(query)
+        archive = self._archive()
+        sources = 1 if source is not None else len(SAMPLE_SOURCES)
+        if query.bucket_s is not None:
+            bucket_s = query.bucket_s
+            if not (math.isfinite(bucket_s) and bucket_s > 0):
+                raise BadRequest(f"bucket_s: {bucket_s:g} is not a width; give seconds > 0")
+            most = math.ceil((end_s - start_s) / bucket_s) * len(channels) * sources
+            if most > HISTORY_POINTS_MAX:
+                raise BadRequest(self._too_large(most, "buckets", query, start_s, end_s, sources))
+            out = []
+            for channel in channels:
+                rows = archive.buckets(channel, start_s, end_s, bucket_s, source)
+                t_s, src, lo, mean, hi, n = (
+                    (list(c) for c in zip(*rows, strict=True)) if rows else ([],) * 6
+                )
+                out.append(
+                    ChannelHistory(
+                        channel=channel,
+                        unit=self.channels[channel],
+                        t_s=t_s,
+                        source=src,
+                        min=lo,
+                        mean=mean,
+                        max=hi,
+                        count=n,
+                    )
+                )
+            return HistoryResponse(start_s=start_s, end_s=end_s, bucket_s=bucket_s, channels=out)
+        counts = [archive.count_range(ch, start_s, end_s, source) for ch in channels]
+        if query.limit is not None:
+            counts = [min(n, query.limit) for n in counts]
+        if sum(counts) > HISTORY_POINTS_MAX:
             raise BadRequest(
-                f"channel: {channel!r} is not a telemetry channel; use one of "
+                self._too_large(sum(counts), "samples", query, start_s, end_s, sources)
+            )
+        out = []
+        for channel in channels:
+            samples = archive.samples(channel, start_s, end_s, source)
+            if query.limit is not None:
+                samples = samples[max(0, len(samples) - query.limit) :]  # the newest
+            out.append(
+                ChannelHistory(
+                    channel=channel,
+                    unit=self.channels[channel],
+                    t_s=[r[0] for r in samples],
+                    source=[cast(Any, r[2]) for r in samples],
+                    value=[r[1] for r in samples],
+                )
+            )
+        return HistoryResponse(start_s=start_s, end_s=end_s, bucket_s=None, channels=out)
+
+    def _channels_asked(self, asked: Sequence[str]) -> list[str]:
+        """The channels named (each once, in order; a name may be a comma-separated list)."""
+        names = list(dict.fromkeys(n.strip() for item in asked for n in item.split(",")))
+        names = [n for n in names if n]
+        if not names:
+            raise BadRequest(
+                "channel: name at least one telemetry channel, e.g. channel=fpga_temp_degc; "
+                "the channels: " + ", ".join(self.channels)
+            )
+        unknown = [n for n in names if n not in self.channels]
+        if unknown:
+            raise BadRequest(
+                "channel: "
+                + ", ".join(repr(n) for n in unknown)
+                + (
+                    " is not a telemetry channel"
+                    if len(unknown) == 1
+                    else " are not telemetry channels"
+                )
+                + "; use one of "
                 + ", ".join(self.channels)
             )
-        if since_s < 0:
-            since_s = time.time() + since_s
-        t_s, values = self._archive().history(channel, since_s, limit)
-        return HistoryResponse(channel=channel, unit=self.channels[channel], t_s=t_s, value=values)
+        return names
 
-    def events(self, limit: int = 100) -> EventsResponse:
-        """The newest ``limit`` events, newest last."""
+    @staticmethod
+    def _range(query: HistoryQuery) -> tuple[float, float]:
+        now_s = time.time()
+        if query.since_s is not None:
+            if query.start is not None:
+                raise BadRequest("since_s and start name the same thing: give only start")
+            start = str(query.since_s)
+        else:
+            start = query.start if query.start is not None else HISTORY_START_DEFAULT
+        return parse_range(start, query.end if query.end is not None else "now", now_s)
+
+    @staticmethod
+    def _too_large(
+        n: int, what: str, query: HistoryQuery, start_s: float, end_s: float, sources: int
+    ) -> str:
+        channels = len(_channels_named(query.channels))
+        # The bucket that keeps every channel's and source's buckets within the bound.
+        bucket_s = (end_s - start_s) * channels * sources / HISTORY_POINTS_MAX
+        return (
+            f"{n} {what} from {iso_utc(start_s)} to {iso_utc(end_s)}: more than the "
+            f"{HISTORY_POINTS_MAX} one answer holds; narrow start and end, ask fewer channels, "
+            f"or set bucket_s to at least {_round_up(bucket_s):g}"
+        )
+
+    def events(self, query: EventsQuery) -> EventsResponse:
+        """The newest ``limit`` events in the range and of the levels and sources asked,
+        newest last."""
+        levels = _listed(query.levels)
+        bad = [lvl for lvl in levels or [] if lvl not in EVENT_LEVELS]
+        if bad:
+            raise BadRequest(
+                f"level: {', '.join(repr(b) for b in bad)} is not an event level; use "
+                + ", ".join(EVENT_LEVELS)
+            )
+        now_s = time.time()
+        start_s = end_s = None
+        if query.start is not None and query.end is not None:
+            start_s, end_s = parse_range(query.start, query.end, now_s)
+        elif query.start is not None:
+            start_s = parse_instant(query.start, now_s, "start")
+        elif query.end is not None:
+            end_s = parse_instant(query.end, now_s, "end")
         items = [
             EventItem(t_s=e.t_s, level=cast(Any, e.level), source=e.source, message=e.message)
-            for e in self._archive().events(limit)
+            for e in self._archive().events(
+                query.limit,
+                start_s=start_s,
+                end_s=end_s,
+                levels=levels,
+                sources=_listed(query.sources),
+            )
         ]
         return EventsResponse(events=items)
+
+
+HISTORY_START_DEFAULT = "-1h"
+SAMPLE_SOURCES = ("tlm", "poll")
+EVENT_LEVELS = ("info", "warning", "error")
+
+
+def _listed(items: Sequence[str] | None) -> list[str] | None:
+    """Repeated and comma-separated values as one list (None when none given)."""
+    if not items:
+        return None
+    return [v.strip() for item in items for v in item.split(",") if v.strip()] or None
+
+
+def _channels_named(asked: Sequence[str]) -> list[str]:
+    return _listed(asked) or []
+
+
+def _source_asked(source: str | None) -> str | None:
+    if source is None or source in ("", "all"):
+        return None
+    if source not in SAMPLE_SOURCES:
+        raise BadRequest(
+            f"source: {source!r} is not a sample source; use tlm (the camera's packets), poll "
+            "(the daemon's polls) or all"
+        )
+    return source
+
+
+def _round_up(x: float) -> float:
+    """``x`` rounded up to a 1, 2 or 5 times a power of ten (a bucket an operator would type)."""
+    if x <= 0:
+        return 0.0
+    decade = 10.0 ** math.floor(math.log10(x))
+    for step in (1.0, 2.0, 5.0, 10.0):
+        if step * decade >= x:
+            return step * decade
+    return 10.0 * decade
+
+
+def history_csv(doc: HistoryResponse) -> str:
+    """The history as CSV, one row per sample or bucket: channel, unit, source, t_s, the time
+    in ISO 8601 UTC, then value, or count, min, mean and max."""
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n")
+    bucketed = doc.bucket_s is not None
+    tail = ["count", "min", "mean", "max"] if bucketed else ["value"]
+    writer.writerow(["channel", "unit", "source", "t_s", "time_utc", *tail])
+    for ch in doc.channels:
+        for i, t_s in enumerate(ch.t_s):
+            head = [ch.channel, ch.unit, ch.source[i], repr(t_s), iso_utc(t_s)]
+            if bucketed:
+                writer.writerow(
+                    [*head, ch.count[i], repr(ch.min[i]), repr(ch.mean[i]), repr(ch.max[i])]
+                )
+            else:
+                writer.writerow([*head, repr(ch.value[i])])
+    return buf.getvalue()

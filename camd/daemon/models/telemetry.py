@@ -37,13 +37,47 @@ class TelemetryResponse(BaseModel):
     )
 
 
-class HistoryResponse(BaseModel):
-    """GET /api/v1/telemetry/history."""
+HISTORY_POINTS_MAX = 100_000
+
+SampleSource = Literal["tlm", "poll"]
+
+
+class ChannelHistory(BaseModel):
+    """One channel's samples over the range, or its buckets when ``bucket_s`` is set."""
 
     channel: str
     unit: str
-    t_s: list[float]
-    value: list[float]
+    t_s: list[float] = Field(
+        description="each sample's Unix time, or each bucket's start, oldest first"
+    )
+    source: list[SampleSource] = Field(
+        description="where each sample (or bucket) came from: tlm (the camera's unsolicited "
+        "packet) or poll (the daemon's GET_HOUSEKEEPING)"
+    )
+    value: list[float] = Field(
+        default_factory=list, description="each sample's value; empty with bucket_s"
+    )
+    min: list[float] = Field(
+        default_factory=list, description="each bucket's minimum; empty without bucket_s"
+    )
+    mean: list[float] = Field(
+        default_factory=list, description="each bucket's mean; empty without bucket_s"
+    )
+    max: list[float] = Field(
+        default_factory=list, description="each bucket's maximum; empty without bucket_s"
+    )
+    count: list[int] = Field(
+        default_factory=list, description="each bucket's number of samples; empty without bucket_s"
+    )
+
+
+class HistoryResponse(BaseModel):
+    """GET /api/v1/telemetry/history."""
+
+    start_s: float = Field(description="the range's start, Unix time (inclusive)")
+    end_s: float = Field(description="the range's end, Unix time (exclusive)")
+    bucket_s: float | None = Field(description="the bucket width, null for every sample")
+    channels: list[ChannelHistory] = Field(description="in the order asked")
 
 
 class EventItem(BaseModel):
