@@ -9,10 +9,12 @@ and dropped frames and checks that 1000 pings all succeed through retries.
 from __future__ import annotations
 
 import contextlib
+import csv
 import io
 import json
 import os
 import socket
+import sqlite3
 import subprocess
 import sys
 import threading
@@ -213,9 +215,64 @@ def test_telemetry_values_change_over_time(url: str) -> None:
     assert any(second["latest"][n]["value"] != first["latest"][n]["value"] for n in newer)
 
     channel = newer[0]
-    hist = camctl_json(url, "telemetry", "--history", channel, "--limit", "3")
+    (hist,) = camctl_json(url, "telemetry", "--history", channel, "--limit", "3")["channels"]
     assert hist["channel"] == channel
-    assert 0 < len(hist["value"]) == len(hist["t_s"]) <= 3
+    assert 0 < len(hist["value"]) == len(hist["t_s"]) == len(hist["source"]) <= 3
+
+
+def test_telemetry_history_range_bucket_and_csv_are_the_archived_samples(url: str) -> None:
+    """--start/--end as Unix times and as ISO 8601 give the same closed range; --csv prints the
+    archive's rows of two channels; --bucket-s the per-bucket min/mean/max/count of them."""
+    archive = camctl_json(url, "telemetry")["archive"]
+    start_s = float(int(time.time()))  # a whole second: its ISO 8601 form is exact
+    end_s = start_s + 2.0
+    while time.time() < end_s + 0.5:  # the range closed: its rows no longer change
+        time.sleep(0.1)
+    channels = ["uptime_s", "fpga_temp_degc"]
+    db = sqlite3.connect(f"file:{archive}?mode=ro", uri=True)
+    try:
+        written = [
+            (ch, *row)
+            for ch in channels
+            for row in db.execute(
+                "SELECT source, t_s, value FROM samples WHERE channel = ? AND t_s >= ? AND t_s < ? "
+                "ORDER BY t_s, source",
+                (ch, start_s, end_s),
+            )
+        ]
+    finally:
+        db.close()
+    assert written
+    iso = [time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(t)) for t in (start_s, end_s)]
+    args = ["telemetry", "--history", ",".join(channels), "--start", iso[0], "--end", iso[1]]
+    proc = camctl(url, *args, "--csv")
+    assert proc.returncode == 0, proc.stderr
+    rows = list(csv.reader(io.StringIO(proc.stdout)))
+    assert rows[0] == ["channel", "unit", "source", "t_s", "time_utc", "value"]
+    assert [(c, s, float(t), float(v)) for c, _, s, t, _, v in rows[1:]] == written
+
+    doc = camctl_json(url, *args, "--bucket-s", "1")
+    for got in doc["channels"]:
+        mine = [w for w in written if w[0] == got["channel"]]
+        expected = []
+        for b in (0, 1):
+            for src in ("poll", "tlm"):
+                v = [w[3] for w in mine if w[1] == src and start_s + b <= w[2] < start_s + b + 1]
+                if v:
+                    expected.append((start_s + b, src, min(v), max(v), len(v)))
+        assert list(zip(got["t_s"], got["source"], got["min"], got["max"], got["count"],
+                        strict=True)) == expected  # fmt: skip
+    table = camctl(url, *args, "--bucket-s", "1")
+    assert table.returncode == 0 and "1 s buckets" in table.stdout and "mean" in table.stdout
+
+    bad = camctl(url, "telemetry", "--history", "uptime_s", "--start=-1h", "--end=-2h")
+    assert bad.returncode == 1 and "is not before end" in bad.stderr, bad.stderr
+    events = camctl_json(url, "events", "--level", "info,warning", "--source", "link,daemon",
+                         "--start", repr(start_s - 3600), "--end=now")["events"]  # fmt: skip
+    assert events and {(e["level"] in ("info", "warning"), e["source"] in ("link", "daemon"))
+                       for e in events} == {(True, True)}  # fmt: skip
+    misplaced = camctl(url, "telemetry", "--csv")
+    assert misplaced.returncode == 2 and "--csv go(es) with --history" in misplaced.stderr
 
 
 def test_mode_tdi_then_status_shows_it(url: str) -> None:

@@ -180,7 +180,8 @@ def _range_arguments(p: argparse.ArgumentParser, prefix: str, default: str) -> N
         "--start",
         metavar="TIME",
         help=f"{prefix}from TIME: ISO 8601 (UTC without a zone), Unix seconds, now, or before "
-        f"now like -10m, -2h, -1d (default {default})",
+        f"now like --start=-10m, -2h, -1d (with '=': a bare -10m reads as an option; default "
+        f"{default})",
     )
     p.add_argument(
         "--end", metavar="TIME", help=f"{prefix}up to TIME (exclusive), as --start (default now)"
