@@ -5,13 +5,18 @@ from __future__ import annotations
 import math
 import sqlite3
 import threading
+import time
 from pathlib import Path
 
 import pytest
 
+from camd.daemon.config import config_from_dict
 from camd.daemon.config_camera import ChannelLimits
 from camd.daemon.errors import ArchiveUnreadable, BadRequest
+from camd.daemon.models import HISTORY_POINTS_MAX
 from camd.daemon.telemetry import GuardedArchive, Level, LimitChecker, TelemetryArchive, classify
+from camd.daemon.telemetry_query import HistoryQuery
+from camd.daemon.telemetry_service import TelemetryService
 from camd.daemon.time_range import parse_instant, parse_range
 from tests.crash_support import fill_disk, small_disk
 
@@ -368,3 +373,41 @@ def test_events_filtered_by_range_level_and_source(archive: TelemetryArchive) ->
         "open", "started"
     ]  # fmt: skip
     assert [e.message for e in archive.events(1, sources=["limits"])] == ["hot"]
+
+
+def test_the_service_refuses_a_history_too_large_saying_how_to_narrow_it(tmp_path: Path) -> None:
+    """In process: a real archive with 100001 samples of one channel in the last hour (one
+    transaction), read through TelemetryService as the route does."""
+    config = config_from_dict({"daemon": {"data_dir": str(tmp_path)}})
+    service = TelemetryService(config, lambda *event: None, lambda reason: None)
+    service.open()
+    try:
+        assert service.archive is not None
+        now_s = time.time()
+        db = service.archive.archive
+        n = HISTORY_POINTS_MAX + 1
+        with db._lock, db._db:  # one transaction: 100001 rows in about 0.3 s
+            db._db.executemany(
+                "INSERT INTO samples VALUES (?, 'uptime_s', ?, 'tlm')",
+                ((now_s - 1800.0 + i * 0.01, float(i)) for i in range(n)),
+            )
+        with pytest.raises(BadRequest) as bad:
+            service.history(HistoryQuery(channels=["uptime_s"]))
+        message = str(bad.value)
+        assert message.startswith(f"{n} samples from ")
+        assert message.endswith(
+            "more than the 100000 one answer holds; narrow start and end, ask fewer channels, "
+            "or set bucket_s to at least 0.1"
+        )  # the last hour, one channel, both sources: 3600 s * 2 / 100000 = 0.072 s, rounded up
+        fits = service.history(HistoryQuery(channels=["uptime_s"], bucket_s=0.1))
+        assert sum(fits.channels[0].count) == n
+        newest = service.history(HistoryQuery(channels=["uptime_s"], limit=3))
+        assert newest.channels[0].value == [n - 3.0, n - 2.0, n - 1.0]
+        with pytest.raises(BadRequest) as bad:
+            service.history(HistoryQuery(channels=["uptime_s"], start="-1h", since_s=-60.0))
+        assert str(bad.value) == "since_s and start name the same thing: give only start"
+        with pytest.raises(BadRequest) as bad:
+            service.history(HistoryQuery(channels=[" , "]))
+        assert str(bad.value).startswith("channel: name at least one telemetry channel")
+    finally:
+        service.close()

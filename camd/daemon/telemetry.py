@@ -193,15 +193,23 @@ class TelemetryArchive:
         return [r[0] for r in rows], [r[1] for r in rows]
 
     def samples(
-        self, channel: str, start_s: float, end_s: float, source: str | None = None
+        self,
+        channel: str,
+        start_s: float,
+        end_s: float,
+        source: str | None = None,
+        limit: int = -1,
     ) -> list[tuple[float, float, str]]:
         """(t_s, value, source) of ``channel`` with start_s <= t_s < end_s, oldest first; of
-        one source (``tlm`` or ``poll``) or of both."""
+        one source (``tlm`` or ``poll``) or of both; the newest ``limit`` (< 0: all)."""
         sql, args = range_where(channel, start_s, end_s, source)
         with self._lock:
             rows = self._db.execute(
-                f"SELECT t_s, value, source FROM samples {sql} ORDER BY t_s, source", args
+                f"SELECT t_s, value, source FROM samples {sql} "
+                "ORDER BY t_s DESC, source DESC LIMIT ?",
+                (*args, limit),
             ).fetchall()
+        rows.reverse()
         return [(float(t), float(v), str(s)) for t, v, s in rows]
 
     def count_range(
@@ -551,9 +559,9 @@ class GuardedArchive:
             raise _unreadable(self.path, exc) from None
 
     def samples(
-        self, channel: str, start_s: float, end_s: float, source: str | None = None
+        self, channel: str, start_s: float, end_s: float, source: str | None, limit: int = -1
     ) -> list[tuple[float, float, str]]:
-        return self._read(lambda: self.archive.samples(channel, start_s, end_s, source))
+        return self._read(lambda: self.archive.samples(channel, start_s, end_s, source, limit))
 
     def count_range(
         self, channel: str, start_s: float, end_s: float, source: str | None = None

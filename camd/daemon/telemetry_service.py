@@ -231,9 +231,9 @@ class TelemetryService:
             )
         out = []
         for channel in channels:
-            samples = archive.samples(channel, start_s, end_s, source)
-            if query.limit is not None:
-                samples = samples[max(0, len(samples) - query.limit) :]  # the newest
+            samples = archive.samples(
+                channel, start_s, end_s, source, -1 if query.limit is None else query.limit
+            )
             out.append(
                 ChannelHistory(
                     channel=channel,
