@@ -411,3 +411,20 @@ def test_the_service_refuses_a_history_too_large_saying_how_to_narrow_it(tmp_pat
         assert str(bad.value).startswith("channel: name at least one telemetry channel")
     finally:
         service.close()
+
+
+def test_events_kept_in_memory_are_filtered_as_the_archived_ones(tmp_path: Path) -> None:
+    """An archive that cannot be written (here: closed) keeps the events in memory; the filter
+    applies to those as to the archived ones."""
+    said: list[tuple[str, str]] = []
+    guard = GuardedArchive(
+        TelemetryArchive(tmp_path / "t.sqlite"), lambda lvl, msg: said.append((lvl, msg))
+    )
+    guard.archive.close()  # every write now raises sqlite3.ProgrammingError
+    guard.add_event("info", "link", "open", 10.0)
+    guard.add_event("warning", "limits", "warm", 20.0)
+    guard.add_event("error", "limits", "hot", 30.0)
+    assert guard.failing is not None and said[0][0] == "warning"
+    assert [e.message for e in guard.events(10, levels=["warning", "error"])] == ["warm", "hot"]
+    assert [e.message for e in guard.events(10, sources=["limits"], end_s=30.0)] == ["warm"]
+    assert [e.message for e in guard.events(10, start_s=15.0)] == ["warm", "hot"]

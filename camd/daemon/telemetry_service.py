@@ -22,6 +22,7 @@ import math
 import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any, cast
 
 from camd.daemon.config import Config, telemetry_channels
@@ -191,56 +192,67 @@ class TelemetryService:
         """Archived samples of the channels asked over a time range, each saying its source, or
         their min/mean/max/count per bucket; BadRequest for a bad range, an unknown channel or
         a result larger than ``HISTORY_POINTS_MAX`` (the message says how to narrow it)."""
-        channels = self._channels_asked(query.channels)
-        source = _source_asked(query.source)
-        start_s, end_s = self._range(query)
-        archive = self._archive()
-        sources = 1 if source is not None else len(SAMPLE_SOURCES)
+        asked = _Asked(
+            channels=self._channels_asked(query.channels),
+            source=_source_asked(query.source),
+            range_s=self._range(query),
+        )
         if query.bucket_s is not None:
-            bucket_s = query.bucket_s
-            if not (math.isfinite(bucket_s) and bucket_s > 0):
-                raise BadRequest(f"bucket_s: {bucket_s:g} is not a width; give seconds > 0")
-            most = math.ceil((end_s - start_s) / bucket_s) * len(channels) * sources
-            if most > HISTORY_POINTS_MAX:
-                raise BadRequest(self._too_large(most, "buckets", query, start_s, end_s, sources))
-            out = []
-            for channel in channels:
-                rows = archive.buckets(channel, start_s, end_s, bucket_s, source)
-                t_s, src, lo, mean, hi, n = (
-                    (list(c) for c in zip(*rows, strict=True)) if rows else ([],) * 6
-                )
-                out.append(
-                    ChannelHistory(
-                        channel=channel,
-                        unit=self.channels[channel],
-                        t_s=t_s,
-                        source=src,
-                        min=lo,
-                        mean=mean,
-                        max=hi,
-                        count=n,
-                    )
-                )
-            return HistoryResponse(start_s=start_s, end_s=end_s, bucket_s=bucket_s, channels=out)
-        counts = [archive.count_range(ch, start_s, end_s, source) for ch in channels]
-        if query.limit is not None:
-            counts = [min(n, query.limit) for n in counts]
-        if sum(counts) > HISTORY_POINTS_MAX:
-            raise BadRequest(
-                self._too_large(sum(counts), "samples", query, start_s, end_s, sources)
-            )
+            return self._buckets(asked, query.bucket_s)
+        return self._samples(asked, query.limit)
+
+    def _buckets(self, asked: _Asked, bucket_s: float) -> HistoryResponse:
+        if not (math.isfinite(bucket_s) and bucket_s > 0):
+            raise BadRequest(f"bucket_s: {bucket_s:g} is not a width; give seconds > 0")
+        start_s, end_s = asked.range_s
+        # Bounded before reading: the most buckets the range can fill.
+        most = math.ceil((end_s - start_s) / bucket_s) * len(asked.channels) * asked.sources
+        if most > HISTORY_POINTS_MAX:
+            raise BadRequest(asked.too_large(most, "buckets"))
         out = []
-        for channel in channels:
-            samples = archive.samples(
-                channel, start_s, end_s, source, -1 if query.limit is None else query.limit
+        for channel in asked.channels:
+            rows = self._archive().buckets(channel, start_s, end_s, bucket_s, asked.source)
+            t_s, src, lo, mean, hi, n = (
+                (list(column) for column in zip(*rows, strict=True)) if rows else ([],) * 6
             )
             out.append(
                 ChannelHistory(
                     channel=channel,
                     unit=self.channels[channel],
-                    t_s=[r[0] for r in samples],
-                    source=[cast(Any, r[2]) for r in samples],
-                    value=[r[1] for r in samples],
+                    t_s=t_s,
+                    source=src,
+                    min=lo,
+                    mean=mean,
+                    max=hi,
+                    count=n,
+                )
+            )
+        return HistoryResponse(start_s=start_s, end_s=end_s, bucket_s=bucket_s, channels=out)
+
+    def _samples(self, asked: _Asked, limit: int | None) -> HistoryResponse:
+        start_s, end_s = asked.range_s
+        archive = self._archive()
+        # Bounded before reading: index range counts, no rows read.
+        total = sum(
+            min(n, limit) if limit is not None else n
+            for n in (
+                archive.count_range(ch, start_s, end_s, asked.source) for ch in asked.channels
+            )
+        )
+        if total > HISTORY_POINTS_MAX:
+            raise BadRequest(asked.too_large(total, "samples"))
+        out = []
+        for channel in asked.channels:
+            rows = archive.samples(
+                channel, start_s, end_s, asked.source, -1 if limit is None else limit
+            )
+            out.append(
+                ChannelHistory(
+                    channel=channel,
+                    unit=self.channels[channel],
+                    t_s=[r[0] for r in rows],
+                    source=[cast(Any, r[2]) for r in rows],
+                    value=[r[1] for r in rows],
                 )
             )
         return HistoryResponse(start_s=start_s, end_s=end_s, bucket_s=None, channels=out)
@@ -280,19 +292,6 @@ class TelemetryService:
             start = query.start if query.start is not None else HISTORY_START_DEFAULT
         return parse_range(start, query.end if query.end is not None else "now", now_s)
 
-    @staticmethod
-    def _too_large(
-        n: int, what: str, query: HistoryQuery, start_s: float, end_s: float, sources: int
-    ) -> str:
-        channels = len(_channels_named(query.channels))
-        # The bucket that keeps every channel's and source's buckets within the bound.
-        bucket_s = (end_s - start_s) * channels * sources / HISTORY_POINTS_MAX
-        return (
-            f"{n} {what} from {iso_utc(start_s)} to {iso_utc(end_s)}: more than the "
-            f"{HISTORY_POINTS_MAX} one answer holds; narrow start and end, ask fewer channels, "
-            f"or set bucket_s to at least {_round_up(bucket_s):g}"
-        )
-
     def events(self, query: EventsQuery) -> EventsResponse:
         """The newest ``limit`` events in the range and of the levels and sources asked,
         newest last."""
@@ -325,6 +324,32 @@ class TelemetryService:
 
 
 HISTORY_START_DEFAULT = "-1h"
+
+
+@dataclass(frozen=True, slots=True)
+class _Asked:
+    """A history query checked: channels known, source, range in Unix seconds."""
+
+    channels: list[str]
+    source: str | None  # None: both
+    range_s: tuple[float, float]
+
+    @property
+    def sources(self) -> int:
+        return 1 if self.source is not None else len(SAMPLE_SOURCES)
+
+    def too_large(self, n: int, what: str) -> str:
+        """Why ``n`` samples or buckets are refused, and the ``bucket_s`` that fits."""
+        start_s, end_s = self.range_s
+        # The bucket that keeps every channel's and source's buckets within the bound.
+        bucket_s = (end_s - start_s) * len(self.channels) * self.sources / HISTORY_POINTS_MAX
+        return (
+            f"{n} {what} from {iso_utc(start_s)} to {iso_utc(end_s)}: more than the "
+            f"{HISTORY_POINTS_MAX} one answer holds; narrow start and end, ask fewer channels, "
+            f"or set bucket_s to at least {_round_up(bucket_s):g}"
+        )
+
+
 SAMPLE_SOURCES = ("tlm", "poll")
 EVENT_LEVELS = ("info", "warning", "error")
 
@@ -334,10 +359,6 @@ def _listed(items: Sequence[str] | None) -> list[str] | None:
     if not items:
         return None
     return [v.strip() for item in items for v in item.split(",") if v.strip()] or None
-
-
-def _channels_named(asked: Sequence[str]) -> list[str]:
-    return _listed(asked) or []
 
 
 def _source_asked(source: str | None) -> str | None:
