@@ -316,6 +316,15 @@ def test_time_range_takes_iso_relative_unix_and_now_and_refuses_the_rest() -> No
         "time in seconds, now, or a time before now like -30s, -10m, -2h or -1d"
     )
     with pytest.raises(BadRequest) as bad:
+        parse_instant("-100000d", now_s, "start")  # would be a time no message could write
+    assert str(bad.value) == (
+        "start: '-100000d' is before 1970; give a time from 1970-01-01T00:00:00Z to "
+        "9999-12-31T23:59:59Z"
+    )
+    with pytest.raises(BadRequest) as bad:
+        parse_instant("1e300", now_s, "end")
+    assert str(bad.value).startswith("end: '1e300' is after 9999;")
+    with pytest.raises(BadRequest) as bad:
         parse_range("-1h", "-2h", now_s)
     assert str(bad.value) == (
         "start (-1h = 2027-01-15T07:00:00Z) is not before end (-2h = 2027-01-15T06:00:00Z): "

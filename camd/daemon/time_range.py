@@ -22,9 +22,26 @@ _HOW = (
 )
 
 
+# The times a query may name: from the Unix epoch (the archive has nothing older) to the last
+# second ISO 8601 can write (a time outside could not be said back in a message).
+EARLIEST_S = 0.0
+LATEST_S = 253_402_300_799.0  # 9999-12-31T23:59:59Z
+
+
 def parse_instant(text: str, now_s: float, name: str) -> float:
     """The Unix time ``text`` names (``now_s`` for ``now`` and relative times); BadRequest
-    naming the parameter ``name`` and the forms it takes otherwise."""
+    naming the parameter ``name`` and the forms it takes otherwise, or if it is before 1970
+    or after 9999."""
+    t_s = _instant(text, now_s, name)
+    if not EARLIEST_S <= t_s <= LATEST_S:
+        raise BadRequest(
+            f"{name}: {text!r} is {'before 1970' if t_s < EARLIEST_S else 'after 9999'}; give "
+            "a time from 1970-01-01T00:00:00Z to 9999-12-31T23:59:59Z"
+        )
+    return t_s
+
+
+def _instant(text: str, now_s: float, name: str) -> float:
     value = text.strip()
     if value.lower() == "now":
         return now_s
