@@ -226,8 +226,22 @@ def test_telemetry_history_range_bucket_and_csv_are_the_archived_samples(url: st
     archive = camctl_json(url, "telemetry")["archive"]
     start_s = float(int(time.time()))  # a whole second: its ISO 8601 form is exact
     end_s = start_s + 2.0
-    while time.time() < end_s + 0.5:  # the range closed: its rows no longer change
-        time.sleep(0.1)
+    # Closed: each source is archived in order by one thread (a sample's channels together),
+    # so once both have a sample at or after end_s the range's rows no longer change, however
+    # busy the machine.
+    after = [
+        "telemetry",
+        "--history",
+        "uptime_s",
+        "--start",
+        repr(end_s),
+        "--end",
+        repr(end_s + 3600),
+    ]
+    deadline = time.monotonic() + 60
+    while set(camctl_json(url, *after)["channels"][0]["source"]) != {"tlm", "poll"}:
+        assert time.monotonic() < deadline, "no packet or no poll after the range"
+        time.sleep(0.2)
     channels = ["uptime_s", "fpga_temp_degc"]
     db = sqlite3.connect(f"file:{archive}?mode=ro", uri=True)
     try:
