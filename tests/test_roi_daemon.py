@@ -3,7 +3,7 @@
 Over a 2,000-frame stare of 2 x 2048 frames (small: the test runs in seconds), the daemon's
 per-frame statistics of four ROIs are those computed from the recorded frames: every frame,
 matched by frame counter, none skipped (the monitor is not decimated like the live view).
-Bad ROIs are refused with what to change and change nothing; ``camctl roi`` adds, lists,
+The recording's ``/roi`` group holds the same statistics of the same frames. Bad ROIs are refused with what to change and change nothing; ``camctl roi`` adds, lists,
 removes and reads them.
 """
 
@@ -61,6 +61,10 @@ def test_every_frames_roi_statistics_equal_the_recorded_frames(url: str, tmp_pat
         counters = np.asarray(f["frame_counter"]).astype(np.int64)
         frames = np.asarray(f["frames"])
         bits = int(done["bits"])
+        stored = {name: {k: np.asarray(v) for k, v in f["roi"][name].items()} for name in ROIS}
+        stored_counters = np.asarray(f["roi/frame_counter"])
+        stored_attrs = dict(f["roi"].attrs)
+        rects = {name: dict(f["roi"][name].attrs) for name in ROIS}
     assert frames.shape == (FRAMES, ROWS, 2048)
     assert stats["measured"] == FRAMES and stats["unfit"] == 0
     assert set(stats["history"]) == set(ROIS)
@@ -76,6 +80,15 @@ def test_every_frames_roi_statistics_equal_the_recorded_frames(url: str, tmp_pat
         saturated = np.count_nonzero(sub >= (1 << bits) - 1, axis=(1, 2))
         assert series["saturated"] == saturated.astype(np.float64).tolist(), name
         np.testing.assert_allclose(series["std_dn"], sub.std(axis=(1, 2)), rtol=1e-9)
+    # The recording's /roi group: the same statistics of the same frames.
+    assert stored_counters.tolist() == counters.tolist()
+    assert (stored_attrs["frames"], stored_attrs["frames_dropped"]) == (FRAMES, 0)
+    assert stored_attrs["rois_changed_at"] == -1
+    for name, (x, y, w, h) in ROIS.items():
+        assert rects[name] == {"x": x, "y": y, "width": w, "height": h}
+        for field, values in stored[name].items():
+            as_json = [None if v != v else v for v in values.tolist()]  # NaN: JSON's null
+            assert as_json == stats["history"][name][field], (name, field)
     latest = stats["latest"]
     assert latest is not None and latest["counter"] == int(counters[-1])
     assert latest["rois"]["pixel"]["std_dn"] == 0.0 and latest["rois"]["pixel"]["snr"] is None

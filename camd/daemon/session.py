@@ -128,19 +128,22 @@ class DeviceSession:
         # The live view's background: captured from any stream, stored in every recording
         # (stream, stare, wheel, scan) started while it is ready.
         background = BackgroundCapture()
+        # The live view's ROIs: measured on every frame of every stream (not decimated), their
+        # statistics stored in every recording made while there are some.
+        roi_monitor = RoiMonitor(background.ready)
         self.stream = StreamService(
             device,
             self.sensor,
             lambda: backends.frame_stream_backend(config),
             background=background,
+            roi=roi_monitor,
         )
         # The live view's tap stays on every stream (stare, stream, scan, wheel).
         self.live = LiveTap()
         self.stream.add_consumer(self.live)
         self.stream.add_consumer(background)
         self.background = BackgroundService(device, background, self.stream)
-        # The live view's ROIs: measured on every frame of every stream (not decimated).
-        self.roi = RoiService(RoiMonitor(background.ready), self.stream)
+        self.roi = RoiService(roi_monitor, self.stream)
         self.stream.add_consumer(self.roi.monitor)
         self.motion = MotionService(device, self.sensor)
         # The live view's waterfall: the newest integrated lines of the running or last scan.

@@ -18,6 +18,7 @@ from __future__ import annotations
 import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -30,6 +31,63 @@ from camd.pipeline.background import Background
 
 HISTORY_MAX = 4096
 """Frames of ROI statistics kept by default: a few minutes at a bench's 20 frames/s."""
+LOG_VALUES_MAX = 1 << 23
+"""Statistics values a recording's ROI log keeps at most (64 MB of float64): with 4 ROIs the
+first 262,144 frames; the frames past it are counted (``frames_dropped``), not kept."""
+
+
+class RoiLog:
+    """The ROI statistics of every frame measured while a recording is written, for its
+    ``/roi`` group (``write_to``). Fed by the monitor while ``active``; it stops when the ROIs
+    change (``rois_changed_at``: the counter of the last frame measured with them)."""
+
+    def __init__(self, rois: tuple[Roi, ...]) -> None:
+        self.rois = rois
+        self.active = True
+        self.frames_max = max(1, LOG_VALUES_MAX // max(1, len(rois) * len(STAT_FIELDS)))
+        self._counters: list[npt.NDArray[np.int64]] = []
+        self._stats: list[npt.NDArray[np.float64]] = []
+        self.frames = 0
+        self.frames_dropped = 0
+        self.rois_changed_at: int | None = None
+
+    def add(self, counters: npt.NDArray[np.int64], stats: npt.NDArray[np.float64]) -> None:
+        room = self.frames_max - self.frames
+        k = int(counters.shape[0])
+        if room < k:
+            self.frames_dropped += k - max(0, room)
+            k = max(0, room)
+        if k:
+            self._counters.append(counters[:k].copy())
+            self._stats.append(stats[:k])
+            self.frames += k
+
+    def write_to(self, path: str | Path) -> None:
+        """Add the group ``/roi`` to the closed HDF5 file ``path``: ``frame_counter`` (n,) and,
+        per ROI, a group of its name with its rectangle as attributes and one (n,) float64
+        dataset per statistic (``STAT_FIELDS``); the group's attributes say what was left
+        out. OSError if the file cannot be written."""
+        import h5py  # only here: the monitor itself needs no HDF5
+
+        counters = np.concatenate(self._counters) if self._counters else np.zeros(0, np.int64)
+        shape = (0, len(self.rois), len(STAT_FIELDS))
+        stats = np.concatenate(self._stats) if self._stats else np.zeros(shape)
+        with h5py.File(path, "a") as f:
+            group = f.create_group("roi")
+            group.attrs.update(
+                {
+                    "fields": list(STAT_FIELDS),
+                    "frames": self.frames,
+                    "frames_dropped": self.frames_dropped,
+                    "rois_changed_at": -1 if self.rois_changed_at is None else self.rois_changed_at,
+                }
+            )
+            group.create_dataset("frame_counter", data=counters)
+            for i, roi in enumerate(self.rois):
+                sub = group.create_group(roi.name)
+                sub.attrs.update({k: v for k, v in roi.as_dict().items() if k != "name"})
+                for j, field in enumerate(STAT_FIELDS):
+                    sub.create_dataset(field, data=stats[:, i, j])
 
 
 @dataclass(frozen=True, slots=True)
@@ -90,6 +148,8 @@ class RoiMonitor:
         self._seq = 0
         self._bg_seq = -1  # the background whose ROI means are in _bg_means
         self._bg_means: npt.NDArray[np.float64] | None = None
+        self._logs: list[RoiLog] = []
+        self._last_counter: int | None = None
         self._reset_history()
 
     def _reset_history(self) -> None:
@@ -108,6 +168,10 @@ class RoiMonitor:
         if problem is not None:
             raise ValueError(problem)
         with self._lock:
+            for log in self._logs:
+                log.active = False
+                log.rois_changed_at = self._last_counter
+            self._logs = []
             self.rois = tuple(rois)
             self._seq += 1
             self._reset_history()
@@ -164,6 +228,26 @@ class RoiMonitor:
             self._counter[at] = counters[k - keep :]
             self._timestamp[at] = timestamps[k - keep :]
             self._total += k
+            self._last_counter = int(counters[-1])
+            for log in self._logs:
+                log.add(counters, stats)
+
+    def start_log(self) -> RoiLog | None:
+        """Log every frame's statistics from the next one on (a recording starts), until
+        ``stop_log`` or the ROIs change; None without ROIs."""
+        with self._lock:
+            if not self.rois:
+                return None
+            log = RoiLog(self.rois)
+            self._logs.append(log)
+            return log
+
+    def stop_log(self, log: RoiLog) -> None:
+        """No more frames for ``log`` (its recording has ended)."""
+        with self._lock:
+            log.active = False
+            if log in self._logs:
+                self._logs.remove(log)
 
     def history(self, max_frames: int | None = None) -> RoiHistory:
         """The newest ``max_frames`` (default: all kept) frames' statistics, oldest first."""
