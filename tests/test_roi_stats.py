@@ -4,7 +4,9 @@ refusals word for word, and the monitor (camd.pipeline.roi) on frames and packed
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
+import h5py
 import numpy as np
 import pytest
 
@@ -131,3 +133,38 @@ def test_monitor_measures_every_frame_and_keeps_a_bounded_history() -> None:
     small = frames[0, :4, :4]
     monitor(ReceivedFrame(_header(200)._replace(rows=4, cols=4), small, 0, 0, 30))
     assert monitor.history().unfit == 1 and monitor.history().measured == 30
+
+
+def test_a_recordings_log_keeps_its_frames_stops_at_a_change_and_writes_the_group(
+    tmp_path: Path,
+) -> None:
+    frames = _frames(12, seed=3)
+    monitor = RoiMonitor()
+    assert monitor.start_log() is None  # no ROIs: nothing to log
+    rois = [Roi("a", 0, 0, 5, 5), Roi("b", 6, 2, 3, 4)]
+    monitor.set_rois(rois, ROWS, COLS)
+    log = monitor.start_log()
+    assert log is not None
+    log.frames_max = 8  # its bound: the frames past it are counted, not kept
+    for k in range(10):
+        monitor(ReceivedFrame(_header(50 + k), frames[k], 0, 0, k))
+    assert (log.frames, log.frames_dropped) == (8, 2)
+    monitor.set_rois([Roi("c", 0, 0, 1, 1)], ROWS, COLS)  # the ROIs change: the log ends
+    monitor(ReceivedFrame(_header(60), frames[10], 0, 0, 10))
+    assert not log.active and log.rois_changed_at == 59 and log.frames == 8
+    path = tmp_path / "r.h5"
+    h5py.File(path, "w").close()
+    log.write_to(path)
+    expected = roi_stats(frames[:8], rois, 12)
+    with h5py.File(path, "r") as f:
+        group = f["roi"]
+        assert dict(group.attrs) | {"fields": list(group.attrs["fields"])} == {
+            "fields": list(STAT_FIELDS),
+            "frames": 8,
+            "frames_dropped": 2,
+            "rois_changed_at": 59,
+        }
+        assert group["frame_counter"][()].tolist() == list(range(50, 58))
+        assert dict(group["b"].attrs) == {"x": 6, "y": 2, "width": 3, "height": 4}
+        for j, field in enumerate(STAT_FIELDS):
+            np.testing.assert_array_equal(group["b"][field][()], expected[:, 1, j])
