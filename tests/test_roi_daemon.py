@@ -120,6 +120,15 @@ def test_bad_rois_are_refused_with_what_to_change_and_change_nothing(url: str) -
             assert answer.status_code == 400, (what, answer.text)
             assert answer.json() == {"error": message, "code": "bad_request"}, what
             assert client.rois() == before, what
+        for body in ({"name": "x", "x": "left", "y": 0, "width": 1, "height": 1}, {"name": "y"}):
+            answer = http.post(f"{API}/live/roi", json=body)
+            assert answer.status_code == 400 and answer.json()["code"] == "bad_request", body
+            assert client.rois() == before
+        answer = http.get(f"{API}/live/roi/stats", params={"history": 4097})
+        assert answer.status_code == 400, answer.text
+        assert answer.json()["error"].startswith(
+            "history: 4097 is out of range; use an integer in 0..4096"
+        )
         with pytest.raises(CamdError) as info:
             client.delete_roi("nothere")
         assert (info.value.http_status, info.value.code) == (404, "not_found")

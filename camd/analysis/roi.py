@@ -14,7 +14,8 @@ that check it against recorded frames:
 Per ROI and frame (``STAT_FIELDS``): mean, standard deviation (population, ddof=0), min, max
 and sum in DN; SNR = mean / std (NaN when std is 0: a flat region has no defined SNR); the
 count of saturated pixels (at or above full scale, ``2**bits - 1``); and the mean minus the
-background's mean over the same rectangle (NaN without a background). The sum is exact (int64).
+background's mean over the same rectangle (NaN without a background). The sum and the sum of
+squares are exact (int64); the standard deviation comes from them in float64.
 """
 
 from __future__ import annotations
@@ -136,16 +137,26 @@ def roi_stats(
         sub = stack[:, r.y : r.y + r.height, r.x : r.x + r.width]
         n = r.width * r.height
         total = sub.sum(axis=(1, 2), dtype=np.int64)
+        # The sum of squares exact in int64 (below 2^63 for any ROI under 2^31 pixels), the variance
+        # from the two exact sums: a quarter less time per frame than np.std (its float64
+        # copy and second pass) in camd bench's case; a flat region gives exactly 0.
+        squares = np.einsum("kij,kij->k", sub, sub, dtype=np.int64)
         mean = total / n
-        std = sub.std(axis=(1, 2), dtype=np.float64)
+        std = np.sqrt(np.maximum(squares / n - mean * mean, 0.0))
+        top = sub.max(axis=(1, 2))
         col = out[:, i]
         col[:, 0] = mean
         col[:, 1] = std
         col[:, 2] = sub.min(axis=(1, 2))
-        col[:, 3] = sub.max(axis=(1, 2))
+        col[:, 3] = top
         col[:, 4] = total
         with np.errstate(divide="ignore", invalid="ignore"):
-            col[:, 5] = np.where(std > 0, mean / np.where(std > 0, std, 1.0), np.nan)
-        col[:, 6] = np.count_nonzero(sub >= full_scale, axis=(1, 2))
+            col[:, 5] = mean / std
+        col[std == 0, 5] = np.nan
+        # Counted only in the frames that reach full scale (most frames do not).
+        col[:, 6] = 0
+        hit = np.flatnonzero(top >= full_scale)
+        if hit.size:
+            col[hit, 6] = np.count_nonzero(sub[hit] >= full_scale, axis=(1, 2))
         col[:, 7] = mean - (bg_means[i] if bg_means is not None else np.nan)
     return out
