@@ -160,6 +160,7 @@ class RoiMonitor:
         self._total = 0
         self._unfit = 0
         self._bg_seq = -1
+        self._fitted: tuple[int, int] | None = None  # the frame geometry the ROIs fit
 
     def set_rois(self, rois: Sequence[Roi], rows: int, cols: int) -> None:
         """Measure ``rois`` from the next frame on (a new history); ValueError with what to
@@ -209,9 +210,11 @@ class RoiMonitor:
         with self._lock:
             rois = self.rois
             rows, cols = pixels.shape[-2:]
-            if rois_problem(rois, rows, cols) is not None:
-                self._unfit += counters.shape[0]
-                return
+            if (rows, cols) != self._fitted:  # checked once per ROI set and frame geometry
+                if rois_problem(rois, rows, cols) is not None:
+                    self._unfit += counters.shape[0]
+                    return
+                self._fitted = (rows, cols)
             background = self._background()
             bg_seq = background.seq if background is not None else 0
             if bg_seq != self._bg_seq:
