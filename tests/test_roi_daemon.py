@@ -9,6 +9,7 @@ removes and reads them.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -155,3 +156,36 @@ def test_camctl_roi_add_list_stats_rm(url: str) -> None:
     assert refused.returncode == 1
     assert "outside the 2048 x 2 frame" in refused.stderr
     assert camctl_json(url, "roi", "rm", "spot")["rois"] == []
+
+
+def test_the_background_subtracted_mean_uses_the_daemons_background(url: str) -> None:
+    with CamdClient(url, timeout_s=60) as client:
+        _clear(client)
+        client.clear_background()
+        client.add_roi("bar", 100, 0, 200, ROWS)
+        client.start_stream(0, mode="area")
+        try:
+            client.capture_background(8)
+            deadline = time.monotonic() + 30
+            while client.background()["state"] == "capturing" and time.monotonic() < deadline:
+                time.sleep(0.02)
+            measured = client.roi_stats()["measured"]
+            while client.roi_stats()["measured"] < measured + 20 and time.monotonic() < deadline:
+                time.sleep(0.02)
+        finally:
+            client.stop_stream()
+        stats = client.roi_stats(history=4096)
+        _, background = client.background_frame()
+        client.clear_background()
+        client.delete_roi("bar")
+    series = stats["history"]["bar"]
+    bg_mean = float(background[0:ROWS, 100:300].mean())
+    with_bg = [
+        (m, b)
+        for m, b in zip(series["mean_dn"], series["bg_mean_dn"], strict=True)
+        if b is not None
+    ]
+    assert len(with_bg) >= 20  # every frame measured once the background was ready
+    assert series["bg_mean_dn"][-1] is not None
+    for mean, subtracted in with_bg:
+        assert subtracted == pytest.approx(mean - bg_mean, rel=1e-12, abs=1e-9)
