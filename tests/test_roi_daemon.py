@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from camd.client import CamdClient, CamdError
-from tests.test_camctl import camctl, camctl_json
+from tests.test_camctl import camctl, camctl_command, camctl_json
 from tests.test_trust import small_window_daemon
 
 # Not ``exclusive``: the checks are values per frame counter (whatever a busy machine delays,
@@ -141,8 +141,15 @@ def test_bad_rois_are_refused_with_what_to_change_and_change_nothing(url: str) -
 def test_camctl_roi_add_list_stats_rm(url: str) -> None:
     with CamdClient(url, timeout_s=60) as client:
         _clear(client)
+    camctl_json(url, "roi", "add", "spot", "0", "0", "1", "1")
+    camctl_json(url, "roi", "add", "other", "5", "1", "2", "1")
+    # The same name again replaces the ROI, in its place.
     added = camctl_json(url, "roi", "add", "spot", "10", "0", "4", "2")
-    assert added["rois"] == [{"name": "spot", "x": 10, "y": 0, "width": 4, "height": 2}]
+    assert added["rois"] == [
+        {"name": "spot", "x": 10, "y": 0, "width": 4, "height": 2},
+        {"name": "other", "x": 5, "y": 1, "width": 2, "height": 1},
+    ]
+    assert camctl_json(url, "roi", "rm", "other")["rois"] == added["rois"][:1]
     with CamdClient(url, timeout_s=60) as client:
         client.acquire(5, mode="area")
     stats = camctl_json(url, "roi", "stats", "--history", "3")
@@ -150,7 +157,9 @@ def test_camctl_roi_add_list_stats_rm(url: str) -> None:
     shown = camctl(url, "roi", "stats")
     assert shown.returncode == 0, shown.stderr
     assert "5 frames measured" in shown.stdout and "spot: mean" in shown.stdout
-    listed = camctl(url, "roi", "list")
+    listed = camctl_command(url, "roi", "list")  # the installed command, once
+    assert listed.returncode == 0, listed.stderr
+    assert "1 ROI (checked against: 2048 x 2 frame)" in listed.stdout
     assert "spot: x=10 y=0 4 x 2" in listed.stdout
     refused = camctl(url, "roi", "add", "big", "0", "0", "4096", "1")
     assert refused.returncode == 1

@@ -75,7 +75,8 @@ def _fmt(value: float | None) -> str:
 def render_roi(out: Console, doc: Any, args: argparse.Namespace) -> None:
     if args.roi_command != "stats":
         geometry = f"{doc['cols']} x {doc['rows']} frame" if doc["rows"] else "no stream yet"
-        out.print(f"{len(doc['rois'])} ROIs (checked against: {geometry})", markup=False)
+        n = len(doc["rois"])
+        out.print(f"{n} ROI{'' if n == 1 else 's'} (checked against: {geometry})", markup=False)
         for r in doc["rois"]:
             out.print(
                 f"  {r['name']}: x={r['x']} y={r['y']} {r['width']} x {r['height']}",
