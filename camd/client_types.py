@@ -599,6 +599,79 @@ class BackgroundStatus(TypedDict):
     error: str | None
 
 
+class RoiDefinition(TypedDict):
+    """One ROI as the daemon measures it."""
+
+    name: str
+    x: int
+    y: int
+    width: int
+    height: int
+
+
+class RoiList(TypedDict):
+    """GET /api/v1/live/roi, and the answer of POST and DELETE there."""
+
+    # the ROIs measured on every frame
+    rois: list[RoiDefinition]
+    # the frame height the ROIs were checked against
+    rows: int | None
+    # the frame width the ROIs were checked against
+    cols: int | None
+
+
+class RoiFrameStats(TypedDict):
+    """One ROI's statistics on one frame (DN; null where not defined)."""
+
+    mean_dn: float
+    std_dn: float
+    min_dn: float
+    max_dn: float
+    sum_dn: float
+    # mean / std; null when std is 0
+    snr: float | None
+    # pixels at or above full scale (2^bits - 1)
+    saturated: float
+    # mean minus the background's; null without one
+    bg_mean_dn: float | None
+
+
+class RoiLatest(TypedDict):
+    """The newest measured frame's statistics of every ROI."""
+
+    counter: int
+    timestamp_ns: int
+    rois: dict[str, RoiFrameStats]
+
+
+class RoiHistorySeries(TypedDict):
+    """One ROI's statistics over the newest frames, oldest first (one value per frame)."""
+
+    counter: list[int]
+    mean_dn: list[float]
+    std_dn: list[float]
+    min_dn: list[float]
+    max_dn: list[float]
+    sum_dn: list[float]
+    snr: list[float | None]
+    saturated: list[float]
+    bg_mean_dn: list[float | None]
+
+
+class RoiStatsResponse(TypedDict):
+    """GET /api/v1/live/roi/stats."""
+
+    # ROI sets so far: a change of the ROIs starts a new history
+    rois_seq: int
+    # frames measured since the ROIs were last changed
+    measured: int
+    # frames the ROIs did not fit (a smaller window): not measured
+    unfit: int
+    latest: RoiLatest | None
+    # per ROI, the newest `history` frames (none unless asked)
+    history: dict[str, RoiHistorySeries]
+
+
 class StageResponse(TypedDict):
     """The ``StageResponse`` document (its model has no docstring)."""
 

@@ -346,6 +346,9 @@ ANSWERS: list[tuple[str, str]] = [
     ("stream_headers", "StreamHeadersResponse"),
     ("link_command", "LinkCommandResponse"),
     ("background", "BackgroundStatus"),
+    ("add_roi", "RoiList"),
+    ("roi_stats", "RoiStatsResponse"),
+    ("delete_roi", "RoiList"),
     ("scan", "ScanResponse"),
     ("motion", "MotionStatus"),
     ("move_stage", "MotionStatus"),
@@ -394,6 +397,7 @@ def answers(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]
         docs["acquire"] = client.acquire(3, timeout_s=60)
         docs["stream_headers"] = client.stream_headers()
         docs["link_command"] = client.link_command("SET_MODE", fields={"mode": "area"}, repeat=True)
+        docs["add_roi"] = client.add_roi("dark", 0, 0, 4, 4)
         client.start_stream(0)
         client.capture_background(2)
         deadline = time.monotonic() + 30
@@ -401,6 +405,8 @@ def answers(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]
             time.sleep(0.05)
         client.stop_stream()
         docs["background"] = client.background()
+        docs["roi_stats"] = client.roi_stats(history=3)
+        docs["delete_roi"] = client.delete_roi("dark")
         client.start_scan(4, 20, out=str(tmp / "scan.h5"), quicklook=False)
         docs["scan"] = client.wait_scan(120)
         docs["motion"] = client.motion()

@@ -12,4 +12,6 @@
   periodic edge targets, bar-target modulation.
 - ``camd.analysis.sharpness``: the grey-gradient sharpness of §7.
 - ``camd.analysis.polarization``: the sinusoid fit of §4 for a polariser's azimuth.
+- ``camd.analysis.roi``: per-frame statistics of named rectangles (mean, std, min, max, sum, SNR,
+  saturated pixels, background-subtracted mean), shared by the daemon's ROI monitor and tests.
 """

@@ -18,6 +18,10 @@ Viewers:
   bench reads the counts and does not listen to the pages' WebSocket (which would have the
   browser copy every frame to Playwright).
 
+- ``roi``: no viewer; B defines N regions of interest in the daemon (each 1/N of the window's
+  columns and all its rows), which it measures on every frame (``camd.pipeline.roi``): the
+  cost of ROI statistics at the stream's full rate (issue 34: four ROIs, B / A >= 0.95).
+
 A frame's cost to the stream does not depend on its pixels, and a viewer's only through their
 number, so the frame bank's repeats change nothing measured.
 
@@ -83,10 +87,12 @@ def add_options(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--viewer-kind",
-        choices=("ws", "browser"),
+        choices=("ws", "browser", "roi"),
         default=None,
         help="ws: WebSocket clients consuming frames as a page does; browser: pages of /live in "
-        "chromium (Playwright). Default: browser when chromium and playwright are found, else ws",
+        "chromium (Playwright); roi: no viewer, but --viewers ROIs measured by the daemon on "
+        "every frame (each 1/N of the columns, all rows). Default: browser when chromium and "
+        "playwright are found, else ws",
     )
     p.add_argument(
         "--rows",
@@ -252,6 +258,44 @@ class WsViewers:
     def close(self) -> None:
         if self._viewers:
             self.detach()
+
+
+class RoiViewers:
+    """``roi``: B defines ``n`` ROIs in the daemon (each 1/n of the window's columns, all its
+    rows: the whole frame measured once) and deletes them after; a "viewer's" count is the
+    frames the daemon measured, which must be every frame it received."""
+
+    def __init__(self, client: Any, n: int, rows: int, cols: int = 2048) -> None:
+        self.client = client
+        self.n = n
+        self.rows = rows
+        self.width = max(1, cols // n)
+
+    def attach(self) -> None:
+        for i in range(self.n):
+            self.client.add_roi(f"bench{i}", i * self.width, 0, self.width, self.rows)
+        deadline = time.monotonic() + VIEWER_START_TIMEOUT_S
+        while self.client.roi_stats()["measured"] == 0:
+            if time.monotonic() > deadline:
+                self.detach()
+                raise BenchError(
+                    f"the daemon measured no frame with {self.n} ROIs within "
+                    f"{VIEWER_START_TIMEOUT_S:g} s"
+                )
+            time.sleep(0.05)
+
+    def counts(self) -> list[int]:
+        return [int(self.client.roi_stats()["measured"])]
+
+    def pause(self, seconds: float) -> None:
+        time.sleep(seconds)
+
+    def detach(self) -> None:
+        for roi in self.client.rois()["rois"]:
+            self.client.delete_roi(roi["name"])
+
+    def close(self) -> None:
+        self.detach()
 
 
 class BrowserViewers:
@@ -506,6 +550,8 @@ def bench_live(
                 ws_url = daemon.url.replace("http", "ws", 1) + LIVE_WS + query
                 if viewer_kind == "browser":
                     group = BrowserViewers(daemon.url + page + query, viewers)
+                elif viewer_kind == "roi":
+                    group = RoiViewers(client, viewers, rows)
                 else:
                     group = WsViewers(ws_url, viewers, deflate=deflate)
                 start = client.start_stream(0, mode="area")
@@ -612,6 +658,9 @@ def render(result: dict[str, Any]) -> str:
         + ("offered, as browsers do" if result["deflate_offered"] else "not offered")
         + ")"
         if kind == "ws"
+        else "ROIs measured by the daemon on every frame (no viewer; 'viewer fr/s': frames "
+        "measured)"
+        if kind == "roi"
         else "chromium pages of the live page (Playwright)"
     )
     lines = [

@@ -18,7 +18,7 @@ Failures raise ``CamdError`` built from the API's ``{"error", "code"}`` body, or
 
 The client is one class per resource, as the API has one router per resource: ``connection``
 (the connection, the errors, ``UNSET``), ``device`` (status, link, telemetry, emergency stop),
-``control``, ``sensor``, ``stream`` (and the live view's background and lines), ``scan``,
+``control``, ``sensor``, ``stream`` (and the live view's background, ROIs and lines), ``scan``,
 ``motion``, ``wheel``, ``sim`` and ``campaigns``; ``CamdClient`` has them all.
 """
 

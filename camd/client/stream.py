@@ -6,12 +6,19 @@ from __future__ import annotations
 
 import json
 from typing import TYPE_CHECKING, Any, Unpack, cast
+from urllib.parse import quote
 
 import httpx
 
 from camd.client.connection import API, UNSET, HttpClient, Unset, given
 from camd.client_requests import StreamAcquireOptions, StreamStartRequestOptions
-from camd.client_types import BackgroundStatus, StreamHeadersResponse, StreamResponse
+from camd.client_types import (
+    BackgroundStatus,
+    RoiList,
+    RoiStatsResponse,
+    StreamHeadersResponse,
+    StreamResponse,
+)
 
 if TYPE_CHECKING:
     import numpy as np
@@ -19,7 +26,7 @@ if TYPE_CHECKING:
 
 
 class StreamClient(HttpClient):
-    """The client of the stream routes and of the live view's background and lines."""
+    """The client of the stream routes and of the live view's background, ROIs and lines."""
 
     def stream(self) -> StreamResponse:
         """The current or last stream and the host's ingest counters."""
@@ -84,6 +91,30 @@ class StreamClient(HttpClient):
     def clear_background(self) -> BackgroundStatus:
         """Drop the background (and stop a capture)."""
         return cast(BackgroundStatus, self._json("DELETE", f"{API}/live/background"))
+
+    # -- the live view's ROIs ---------------------------------------------------------------------
+
+    def rois(self) -> RoiList:
+        """The ROIs measured on every frame, and the frame geometry they were checked against."""
+        return cast(RoiList, self._json("GET", f"{API}/live/roi"))
+
+    def add_roi(self, name: str, x: int, y: int, width: int, height: int) -> RoiList:
+        """Measure the rectangle ``name`` (pixels from the frame's top left; an ROI of that
+        name is replaced) on every frame from the next one on."""
+        body = {"name": name, "x": x, "y": y, "width": width, "height": height}
+        return cast(RoiList, self._json("POST", f"{API}/live/roi", json=body))
+
+    def delete_roi(self, name: str) -> RoiList:
+        """Stop measuring ROI ``name``."""
+        return cast(RoiList, self._json("DELETE", f"{API}/live/roi/{quote(name, safe='')}"))
+
+    def roi_stats(self, history: int = 0) -> RoiStatsResponse:
+        """Every ROI's statistics on the newest frame and, per ROI, the newest ``history``
+        frames' (0..4096)."""
+        return cast(
+            RoiStatsResponse,
+            self._json("GET", f"{API}/live/roi/stats", params={"history": history}),
+        )
 
     def live_lines(
         self, after: int = -1, *, max_lines: int = 512, timeout_s: float = 0.0

@@ -58,6 +58,7 @@ from camd.daemon.models import (
 from camd.daemon.motion_service import MotionService
 from camd.daemon.output_paths import RECORDINGS_FOLDER, SCANS_FOLDER
 from camd.daemon.realtime import REALTIME
+from camd.daemon.roi_service import RoiService
 from camd.daemon.scan_apply import ScanApply
 from camd.daemon.scan_service import ScanService
 from camd.daemon.sensor_service import SensorService
@@ -70,6 +71,7 @@ from camd.daemon.wheel_service import WheelService
 from camd.link import CommandLink, Response
 from camd.pipeline.background import BackgroundCapture
 from camd.pipeline.live import LiveLines, LiveTap
+from camd.pipeline.roi import RoiMonitor
 from camd.protocol import Dictionary, load_dictionary
 from camd.store.journal import recover_left_open
 from camd.tdi import warm_up
@@ -126,17 +128,23 @@ class DeviceSession:
         # The live view's background: captured from any stream, stored in every recording
         # (stream, stare, wheel, scan) started while it is ready.
         background = BackgroundCapture()
+        # The live view's ROIs: measured on every frame of every stream (not decimated), their
+        # statistics stored in every recording made while there are some.
+        roi_monitor = RoiMonitor(background.ready)
         self.stream = StreamService(
             device,
             self.sensor,
             lambda: backends.frame_stream_backend(config),
             background=background,
+            roi=roi_monitor,
         )
         # The live view's tap stays on every stream (stare, stream, scan, wheel).
         self.live = LiveTap()
         self.stream.add_consumer(self.live)
         self.stream.add_consumer(background)
         self.background = BackgroundService(device, background, self.stream)
+        self.roi = RoiService(roi_monitor, self.stream)
+        self.stream.add_consumer(self.roi.monitor)
         self.motion = MotionService(device, self.sensor)
         # The live view's waterfall: the newest integrated lines of the running or last scan.
         self.live_lines = LiveLines(LIVE_LINES_MAX)

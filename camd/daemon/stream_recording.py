@@ -21,6 +21,7 @@ from camd.daemon.device import DeviceAccess
 from camd.daemon.errors import BadRequest, SessionError
 from camd.link.frame_stream import Consumer, FrameStream, ReceivedFrame
 from camd.pipeline.background import Background
+from camd.pipeline.roi import RoiLog, RoiMonitor
 from camd.store.compression import Compression
 from camd.store.journal import close_recording
 from camd.store.recording import FrameRecorder, RecordingError
@@ -33,9 +34,17 @@ class StreamRecording:
     written; ``cause`` says which file stopped and why.
     """
 
-    def __init__(self, device: DeviceAccess, on_failed: Callable[[str], None]) -> None:
+    def __init__(
+        self,
+        device: DeviceAccess,
+        on_failed: Callable[[str], None],
+        roi: RoiMonitor | None = None,
+    ) -> None:
         self.device = device
         self._on_failed = on_failed
+        # The live view's ROIs: their statistics of the recorded frames go into the file.
+        self._roi = roi
+        self._roi_log: RoiLog | None = None
         self._to: tuple[FrameRecorder, Consumer] | None = None  # the recording being written
         self.path: str | None = None  # of the current or last stream's recording
         self._frames_flushed = 0  # of the last recording, once closed
@@ -106,6 +115,8 @@ class StreamRecording:
         self._to = (recorder, record)
         self.path = str(recorder.path)
         self._frames_flushed = 0
+        # Before the recorder: the log starts no later than the file's first frame.
+        self._roi_log = self._roi.start_log() if self._roi is not None else None
         reader.add_consumer(record)
 
     def _failed(self, recorder: FrameRecorder, why: str) -> None:
@@ -138,3 +149,22 @@ class StreamRecording:
             ended_early=ended_early,
         )
         self._frames_flushed = recorder.flushed
+        self._write_roi_log(recorder)
+
+    def _write_roi_log(self, recorder: FrameRecorder) -> None:
+        """Store the ROI statistics of the stream's frames as the closed file's ``/roi`` group
+        (docs/stream.md); a failure is said, the recording is kept as it is."""
+        log, self._roi_log = self._roi_log, None
+        if log is None or self._roi is None:
+            return
+        self._roi.stop_log(log)
+        if recorder.failed is not None or not recorder.path.exists():
+            return
+        try:
+            log.write_to(recorder.path)
+        except (OSError, ValueError) as exc:
+            self.device.log_event(
+                "warning",
+                "stream",
+                f"recording {recorder.path}: its ROI statistics could not be stored: {exc}",
+            )

@@ -58,6 +58,7 @@ from camd.daemon.stream_run import StreamRun
 from camd.daemon.transaction import Apply
 from camd.link.frame_stream import Consumer
 from camd.pipeline.background import Background, BackgroundCapture
+from camd.pipeline.roi import RoiMonitor
 
 ANNOUNCE_TIMEOUT_S = 5.0  # an ended stream's announcement (the daemon idle again) follows at once
 
@@ -72,6 +73,7 @@ class StreamService:
         usb_backend: Callable[[], Any],
         *,
         background: BackgroundCapture | None = None,
+        roi: RoiMonitor | None = None,
     ) -> None:
         self.device = device
         self.sensor = sensor
@@ -80,7 +82,7 @@ class StreamService:
         self.config = device.config.stream
         self._lock = threading.RLock()  # guards the stream's bookkeeping, not the device
         self._reader = StreamReader(self.config, usb_backend, self._lock)
-        self._recording = StreamRecording(device, self._recording_failed)
+        self._recording = StreamRecording(device, self._recording_failed, roi)
         self._run = StreamRun(device, self._reader, self._recording, self._lock)
         self._start_lock = threading.Lock()
 

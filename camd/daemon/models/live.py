@@ -58,3 +58,83 @@ class BackgroundStatus(BaseModel):
         "(newest last, the last 20)"
     )
     error: str | None = Field(description="why the capture failed, and what to do")
+
+
+ROI_HISTORY_MAX = 4096  # = camd.pipeline.roi.HISTORY_MAX: frames of ROI statistics kept
+
+
+class RoiRequest(_Request):
+    """POST /api/v1/live/roi: a named rectangle, in pixels from the frame's top left."""
+
+    name: str = Field(
+        description="1-32 letters, digits, '_', '.', '-'; an ROI of that name is replaced"
+    )
+    x: int = Field(description="first column")
+    y: int = Field(description="first row")
+    width: int = Field(description="columns")
+    height: int = Field(description="rows")
+
+
+class RoiDefinition(BaseModel):
+    """One ROI as the daemon measures it."""
+
+    name: str
+    x: int
+    y: int
+    width: int
+    height: int
+
+
+class RoiList(BaseModel):
+    """GET /api/v1/live/roi, and the answer of POST and DELETE there."""
+
+    rois: list[RoiDefinition] = Field(description="the ROIs measured on every frame")
+    rows: int | None = Field(description="the frame height the ROIs were checked against")
+    cols: int | None = Field(description="the frame width the ROIs were checked against")
+
+
+class RoiFrameStats(BaseModel):
+    """One ROI's statistics on one frame (DN; null where not defined)."""
+
+    mean_dn: float
+    std_dn: float
+    min_dn: float
+    max_dn: float
+    sum_dn: float
+    snr: float | None = Field(description="mean / std; null when std is 0")
+    saturated: float = Field(description="pixels at or above full scale (2^bits - 1)")
+    bg_mean_dn: float | None = Field(description="mean minus the background's; null without one")
+
+
+class RoiLatest(BaseModel):
+    """The newest measured frame's statistics of every ROI."""
+
+    counter: int
+    timestamp_ns: int
+    rois: dict[str, RoiFrameStats]
+
+
+class RoiHistorySeries(BaseModel):
+    """One ROI's statistics over the newest frames, oldest first (one value per frame)."""
+
+    counter: list[int]
+    mean_dn: list[float]
+    std_dn: list[float]
+    min_dn: list[float]
+    max_dn: list[float]
+    sum_dn: list[float]
+    snr: list[float | None]
+    saturated: list[float]
+    bg_mean_dn: list[float | None]
+
+
+class RoiStatsResponse(BaseModel):
+    """GET /api/v1/live/roi/stats."""
+
+    rois_seq: int = Field(description="ROI sets so far: a change of the ROIs starts a new history")
+    measured: int = Field(description="frames measured since the ROIs were last changed")
+    unfit: int = Field(description="frames the ROIs did not fit (a smaller window): not measured")
+    latest: RoiLatest | None
+    history: dict[str, RoiHistorySeries] = Field(
+        description="per ROI, the newest `history` frames (none unless asked)"
+    )

@@ -16,9 +16,13 @@ from camd.daemon.error_body import WS_POLICY_VIOLATION, error_response
 from camd.daemon.models import (
     LIVE_LINES_MAX,
     LIVE_WAIT_MAX_S,
+    ROI_HISTORY_MAX,
     BackgroundRequest,
     BackgroundStatus,
     ErrorResponse,
+    RoiList,
+    RoiRequest,
+    RoiStatsResponse,
 )
 from camd.daemon.request_guard import API
 from camd.daemon.routes.deps import Session, needs_control
@@ -141,6 +145,50 @@ def post_live_background(
 def delete_live_background(session: Session) -> BackgroundStatus:
     """Drop the background (and stop a capture); recordings no longer get one."""
     return session.background.clear()
+
+
+@router.get("/roi", response_model=RoiList)
+def get_live_roi(session: Session) -> RoiList:
+    """The ROIs measured on every frame of every stream, and the frame geometry (the current
+    or last stream's) they were checked against. Reading never needs control."""
+    return session.roi.listing()
+
+
+@router.post(
+    "/roi", response_model=RoiList, dependencies=[needs_control("define a region of interest")]
+)
+def post_live_roi(session: Session, body: RoiRequest) -> RoiList:
+    """Measure a named rectangle on every frame from the next one on (an ROI of that name is
+    replaced; the ROIs' history starts again). 400 bad_request, nothing changed, if it does
+    not fit the current or last stream's frame, its name is not valid or there would be more
+    than 16."""
+    return session.roi.add(body)
+
+
+@router.delete(
+    "/roi/{name}",
+    response_model=RoiList,
+    dependencies=[needs_control("delete a region of interest")],
+)
+def delete_live_roi(session: Session, name: str) -> RoiList:
+    """Stop measuring ROI ``name``. 404 not_found (listing the ROIs) if there is none."""
+    return session.roi.delete(name)
+
+
+@router.get("/roi/stats", response_model=RoiStatsResponse)
+def get_live_roi_stats(
+    session: Session,
+    history: int = Query(
+        default=0,
+        ge=0,
+        le=ROI_HISTORY_MAX,
+        description=f"frames of history per ROI, newest last (0..{ROI_HISTORY_MAX})",
+    ),
+) -> RoiStatsResponse:
+    """Every ROI's statistics on the newest measured frame (mean, std, min, max, sum, SNR,
+    saturated pixels, background-subtracted mean) and, per ROI, the newest ``history``
+    frames' (every frame of the stream: none is skipped)."""
+    return session.roi.stats(history)
 
 
 @router.get("/background/frame", response_class=Response, responses=FRAME_RESPONSES)
