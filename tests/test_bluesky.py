@@ -38,7 +38,7 @@ from camd.bluesky import (
 )
 from camd.cli._daemon_proc import DaemonProcess
 from camd.client import CamdClient, CamdError, default_client_name
-from camd.store.recording import read_recording
+from camd.store.recording_reading import read_recording
 from camd.store.tdi_reading import read_tdi_scan
 from tests.test_sensor_stack import serve
 
