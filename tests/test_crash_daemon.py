@@ -26,7 +26,7 @@ import pytest
 
 from camd.cli._daemon_proc import DaemonProcess
 from camd.client import CamdClient, CamdError
-from camd.store.recording import read_recording
+from camd.store.recording_reading import read_recording
 from camd.store.tdi_recording import read_tdi_scan
 from tests.crash_support import NO_HEADROOM, blocks_past_end, fill_disk, small_disk, wait_for
 from tests.daemon_reset import Found, put_back

@@ -27,13 +27,8 @@ import pytest
 from camd.protocol.stream import FrameFlags, FrameHeader, StreamMode, crc32
 from camd.store.durability import INTERRUPTED, recover_file, release_tail
 from camd.store.journal import RecordingJournal, recover_left_open
-from camd.store.recording import (
-    RESERVE_BYTES,
-    FrameRecorder,
-    RecordingError,
-    check_new_file,
-    read_recording,
-)
+from camd.store.recording import RESERVE_BYTES, FrameRecorder, RecordingError, check_new_file
+from camd.store.recording_reading import read_recording
 from camd.store.tdi_recording import TdiRecorder, read_tdi_scan
 from tests.crash_support import NO_HEADROOM, blocks_past_end, fill_disk, small_disk
 

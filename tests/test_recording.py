@@ -11,7 +11,7 @@ import pytest
 
 from camd.protocol.stream import FrameFlags, StreamMode, frame_header
 from camd.store import FrameRecorder, RecordingError, read_recording
-from camd.store.recording import file_format, read_recording_info
+from camd.store.recording_reading import file_format, read_recording_info
 
 ROWS, COLS = 6, 10
 

@@ -24,7 +24,7 @@ from typing import Any
 import pytest
 
 from camd.client import CamdClient
-from camd.store.recording import read_recording
+from camd.store.recording_reading import read_recording
 from camd.store.tdi_recording import read_tdi_scan
 
 REPO_ROOT = str(Path(__file__).resolve().parent.parent)

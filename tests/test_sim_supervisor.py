@@ -28,7 +28,7 @@ import pytest
 from camd.daemon.config import config_from_dict
 from camd.daemon.errors import SimulatorError
 from camd.daemon.sim_supervisor import RestartPolicy, SimSupervisor
-from camd.store.recording import read_recording
+from camd.store.recording_reading import read_recording
 from tests.test_daemon import API, REPO, Daemon, child_env, read_line, wait_for
 
 # -- the policy: pure arithmetic ------------------------------------------------------------------

@@ -23,7 +23,7 @@ from pathlib import Path
 import pytest
 
 from camd.client import CamdClient, CamdError
-from camd.store.recording import read_recording
+from camd.store.recording_reading import read_recording
 from tests.test_camctl import camctl, camctl_command, camctl_json
 from tests.test_sensor_stack import serve
 

@@ -22,11 +22,8 @@ from camd.store.nexus import ACTIVITY_GROUP, SAMPLE_GROUP, camera_name
 from camd.store.recording import (
     FORMAT as RECORDING_FORMAT,
 )
-from camd.store.recording import (
-    PER_FRAME_COLUMNS,
-    file_format,
-    read_recording_info,
-)
+from camd.store.recording import PER_FRAME_COLUMNS
+from camd.store.recording_reading import file_format, read_recording_info
 from camd.store.tdi_layout import FORMAT as SCAN_FORMAT
 from camd.store.tdi_reading import read_tdi_scan_info
 

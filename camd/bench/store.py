@@ -211,7 +211,7 @@ def stored_bytes(
 ) -> int:
     """The bytes ``data``'s chunks take in a file ``write`` makes, read back through camd's
     reader and checked bit-exact (RuntimeError if not)."""
-    from camd.store.recording import read_recording
+    from camd.store.recording_reading import read_recording
     from camd.store.tdi_reading import read_tdi_scan
 
     path = folder / f"stored-{compression.filter}.h5"

@@ -164,7 +164,7 @@ def read_stream_datum(resource: Mapping[str, Any], datum: Mapping[str, Any]) -> 
     also while it is being written."""
     import hdf5plugin  # noqa: F401  # registers the compression filters camd's files may use
 
-    from camd.store.recording import open_for_reading
+    from camd.store.recording_reading import open_for_reading
 
     if datum["stream_resource"] != resource["uid"]:
         raise ValueError(

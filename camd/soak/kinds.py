@@ -113,7 +113,7 @@ class WorkloadKinds:
         self.frames.count(frames, dict(doc["stats"]))
 
     def stare(self, item: int) -> None:
-        from camd.store.recording import read_recording
+        from camd.store.recording_reading import read_recording
 
         frames = self.rng.randint(5, 30)
         path = self._new_file(f"stare-{item}.h5")
@@ -151,7 +151,7 @@ class WorkloadKinds:
         from camd.campaign.runner import CampaignRunner
         from camd.campaign.spec import CampaignError
         from camd.cli.camctl_campaign import campaigns_dir
-        from camd.store.recording import read_recording
+        from camd.store.recording_reading import read_recording
 
         out = self.work_dir / f"campaign-{item}"
         spec = load_campaign(campaigns_dir() / f"{CAMPAIGN}.yaml")

@@ -6,14 +6,8 @@ package) opens compressed files.
 """
 
 from camd.store import compression  # noqa: F401  (first: the filters registered)
-from camd.store.recording import (
-    FORMAT,
-    FORMAT_VERSION,
-    FrameRecorder,
-    Recording,
-    RecordingError,
-    read_recording,
-)
+from camd.store.recording import FORMAT, FORMAT_VERSION, FrameRecorder, RecordingError
+from camd.store.recording_reading import Recording, read_recording
 
 __all__ = [
     "FORMAT",

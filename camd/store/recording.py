@@ -39,7 +39,7 @@ starts next repairs it and adds ``interrupted`` and ``recovered_utc``
 The file is written in HDF5's SWMR mode (file format 1.10, readable by HDF5 1.10 and later):
 the frames' geometry comes with the first frame, the mode is switched on then, and the recorder
 flushes at least every ``flush_period_s`` while frames arrive, so that a reader in another
-process (``read_recording``, or ``h5py.File(path, "r", swmr=True)``) sees the frames up to the
+process (``camd.store.recording_reading.read_recording``, or ``h5py.File(path, "r", swmr=True)``) sees the frames up to the
 last flush and a killed writer loses only the frames since.
 Nested metadata is flattened to dotted attribute names (``adc.adc_bits``) so that any HDF5
 viewer shows it; ``read_recording`` puts it back together. ``None`` values are not stored.
@@ -51,9 +51,7 @@ import datetime as dt
 import os
 import shutil
 import time
-from collections.abc import Iterator, Mapping
-from contextlib import contextmanager
-from dataclasses import dataclass
+from collections.abc import Mapping
 from importlib import metadata as importlib_metadata
 from pathlib import Path
 from typing import Any
@@ -62,7 +60,7 @@ import h5py
 import numpy as np
 import numpy.typing as npt
 
-from camd.protocol.stream import FrameHeader, StreamMode, crc32
+from camd.protocol.stream import FrameHeader, StreamMode
 from camd.store.compression import DEFAULT, Compression, chunk_bound_bytes
 from camd.store.durability import (
     FLUSH_PERIOD_S,
@@ -115,6 +113,8 @@ _PER_FRAME: dict[str, npt.DTypeLike] = {
 
 
 # The root's datasets: no metadata group may take their names.
+PER_FRAME_COLUMNS = tuple(_PER_FRAME)
+"""The per-frame datasets (frame_counter, timestamp_ns, ...), each as long as /frames."""
 _RESERVED_NAMES = frozenset({"frames", "frames_flushed", *_PER_FRAME})
 
 
@@ -617,116 +617,3 @@ class FrameRecorder(FlushedWriter):
 
     def __exit__(self, *exc: object) -> None:
         self.close()
-
-
-@dataclass(frozen=True, slots=True)
-class Recording:
-    """A recording read back: the frames, each frame's header values, the metadata."""
-
-    path: Path
-    frames: npt.NDArray[np.uint16]
-    columns: dict[str, npt.NDArray[Any]]  # frame_counter, timestamp_ns, ... (see the module)
-    attrs: dict[str, Any]  # root attributes
-    metadata: dict[str, dict[str, Any]]  # profile, registers, timing, stream, and any other
-
-    def crc_mismatches(self) -> list[int]:
-        """Indices of frames whose pixels no longer match the device's payload CRC."""
-        crcs = self.columns["payload_crc32"]
-        return [
-            i
-            for i in range(len(self.frames))
-            if crc32(np.ascontiguousarray(self.frames[i]).astype("<u2").tobytes()) != int(crcs[i])
-        ]
-
-
-def open_for_reading(path: Path, *, held_for_writing: str | None = None) -> h5py.File:
-    """``path`` opened for reading, SWMR: also a file still being written, or one whose writer
-    died. RecordingError for a missing file or one HDF5 cannot open; ``held_for_writing`` is
-    what to say instead when another program holds the file open for writing without SWMR, with
-    ``{exc}`` for HDF5's words (None: the same as for any file HDF5 cannot open)."""
-    if not path.is_file():
-        raise RecordingError(f"{path} does not exist (or is not a file); check the path")
-    try:
-        return h5py.File(path, "r", swmr=True)
-    except BlockingIOError as exc:
-        if held_for_writing is None:
-            raise RecordingError(f"cannot open {path} as HDF5: {exc}") from None
-        raise RecordingError(f"cannot open {path}: " + held_for_writing.format(exc=exc)) from None
-    except OSError as exc:
-        raise RecordingError(f"cannot open {path} as HDF5: {exc}") from None
-
-
-@dataclass(frozen=True, slots=True)
-class RecordingInfo:
-    """A recording described without its pixels: what an index of many files needs (``camd
-    archive``), read in milliseconds whatever the file's size."""
-
-    path: Path
-    frames: int  # frames on disk: up to /frames_flushed while the file is unfinished
-    attrs: dict[str, Any]  # root attributes
-    metadata: dict[str, dict[str, Any]]  # profile, registers, timing, stream
-
-
-PER_FRAME_COLUMNS = tuple(_PER_FRAME)
-"""The per-frame datasets (frame_counter, timestamp_ns, ...), each as long as /frames."""
-
-
-def file_format(path: Path | str) -> str:
-    """The ``format`` a camd HDF5 file says it has at its root (``FORMAT``, or a TDI scan's
-    ``camd.store.tdi_layout.FORMAT``), "" for an HDF5 file that says none: how a reader of
-    many files chooses the reader of each. RecordingError for a file HDF5 cannot open."""
-    with open_for_reading(Path(path)) as f:
-        fmt = f.attrs.get("format", "")
-    return fmt.decode(errors="replace") if isinstance(fmt, bytes) else str(fmt)
-
-
-@contextmanager
-def _open_recording(path: Path) -> Iterator[h5py.File]:
-    """``path`` open for reading once it is known to be a recording this camd reads."""
-    with open_for_reading(path) as f:
-        if f.attrs.get("format") != FORMAT:
-            raise RecordingError(f"{path} is not a camd recording (no format={FORMAT!r})")
-        version = int(f.attrs.get("format_version", 0))
-        if version > FORMAT_VERSION:
-            raise RecordingError(
-                f"{path} is recording format {version}; this camd reads up to {FORMAT_VERSION}: "
-                "upgrade camd"
-            )
-        yield f
-
-
-def _frames_on_disk(f: h5py.File) -> int:
-    n = len(f["frames"])
-    if "frames_flushed" in f and not bool(f.attrs.get("finished", True)):
-        n = min(n, int(f["frames_flushed"][0]))  # beyond it: not on disk yet
-    return n
-
-
-def _recording_metadata(f: h5py.File) -> tuple[dict[str, Any], dict[str, dict[str, Any]]]:
-    """The root attributes and the metadata groups, as nested dicts of plain values."""
-    attrs = unflatten_attrs(dict(f.attrs))
-    meta = {
-        name: unflatten_attrs(dict(node.attrs))
-        for name, node in f.items()
-        if isinstance(node, h5py.Group) and name not in (ENTRY, BACKGROUND_GROUP)
-    }
-    return attrs, meta
-
-
-def read_recording_info(path: Path | str) -> RecordingInfo:
-    """A recording's metadata and how many frames it holds, without reading the frames;
-    RecordingError as ``read_recording``."""
-    path = Path(path)
-    with _open_recording(path) as f:
-        return RecordingInfo(path, _frames_on_disk(f), *_recording_metadata(f))
-
-
-def read_recording(path: Path | str) -> Recording:
-    """Read a whole recording into memory; RecordingError if it is not one."""
-    path = Path(path)
-    with _open_recording(path) as f:
-        n = _frames_on_disk(f)
-        frames = np.asarray(f["frames"][:n], dtype=np.uint16)
-        columns = {name: np.asarray(f[name][:n]) for name in _PER_FRAME}
-        attrs, meta = _recording_metadata(f)
-    return Recording(path, frames, columns, attrs, meta)

@@ -20,7 +20,8 @@ import numpy.typing as npt
 
 from camd.store.nexus import ENTRY
 from camd.store.recording import FORMAT as RECORDING_FORMAT
-from camd.store.recording import RecordingError, open_for_reading, unflatten_attrs
+from camd.store.recording import RecordingError, unflatten_attrs
+from camd.store.recording_reading import open_for_reading
 from camd.store.tdi_layout import ADDED_IN_2, COLUMNS, FORMAT, FORMAT_VERSION
 
 

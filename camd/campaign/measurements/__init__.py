@@ -34,7 +34,7 @@ from camd.analysis.emva import Region
 from camd.campaign.registry import register_in
 
 if TYPE_CHECKING:
-    from camd.store.recording import Recording
+    from camd.store.recording_reading import Recording
     from camd.store.tdi_recording import TdiScan
 
 __all__ = [
@@ -87,7 +87,7 @@ class Acquired:
 
     def _recording(self) -> Recording:
         if "recording" not in self._cache:
-            from camd.store.recording import read_recording
+            from camd.store.recording_reading import read_recording
 
             self._cache["recording"] = read_recording(self.path)
         recording: Recording = self._cache["recording"]
