@@ -672,6 +672,56 @@ class RoiStatsResponse(TypedDict):
     history: dict[str, RoiHistorySeries]
 
 
+class FocusLatest(TypedDict):
+    """The newest frame's focus figures."""
+
+    # the live frame's seq (GET /api/v1/live/frame)
+    seq: int
+    # the device's frame counter
+    counter: int
+    # when it was measured, s since the epoch
+    t_s: float
+    # grey-gradient sharpness G per target: 'frame' and each ROI's name; null where there is none
+    # (an ROI the frame does not hold, a frame of zeros)
+    values: dict[str, float | None]
+
+
+class FocusBestModel(TypedDict):
+    """A target's best focus figure since the last reset, and its frame."""
+
+    value: float
+    counter: int
+    seq: int
+    t_s: float
+
+
+class FocusHistory(TypedDict):
+    """The newest focus figures, oldest first (one entry per measured frame)."""
+
+    seq: list[int]
+    counter: list[int]
+    t_s: list[float]
+    # per target, its figure at each entry (null where it had none)
+    values: dict[str, list[float | None]]
+
+
+class FocusResponse(TypedDict):
+    """GET /api/v1/live/focus, and the answer of DELETE /api/v1/live/focus/best."""
+
+    # figures a second at most (of the live view's frames)
+    rate_hz: float
+    # figures are being measured: someone asked within the last watch_s
+    watching: bool
+    # measuring goes on this long after the last GET
+    watch_s: float
+    # figures measured since the daemon started
+    measured: int
+    latest: FocusLatest | None
+    # per target, the best since the reset
+    best: dict[str, FocusBestModel]
+    history: FocusHistory
+
+
 class StageResponse(TypedDict):
     """The ``StageResponse`` document (its model has no docstring)."""
 

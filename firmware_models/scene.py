@@ -51,6 +51,10 @@ Built-in scenes (``SceneSpec.parse("kind:key=value,...")``):
 - ``image``: a greyscale image file (``cv2.imread``, any depth; colour is converted to grey),
   one image pixel per sensor pixel, tiled in both directions.
 
+Every kind takes ``blur_px``: the optics out of focus, a Gaussian point spread function of that
+standard deviation in pixels applied to the radiance (``blur_cells``), so that every acquisition
+integrates the blurred scene.
+
 Bars and edges are exact cell averages along the axis they vary on; the star is averaged over
 2 x 2 points per cell. Levels are given in ``photons`` (per pixel per second at the focal
 plane) or ``lux`` (focal-plane illuminance, converted at the 555 nm equivalent by
@@ -425,8 +429,63 @@ def build_scene(
     """The Scene a spec describes, for a sensor ``columns`` wide with pixel pitch ``pitch_m``.
 
     The level is ``photons``, ``lux`` converted with ``lux_to_photons_per_pixel_s``, or
-    ``default_photons``.
+    ``default_photons``. A ``blur_px`` above 0 blurs the radiance (``blur_cells``): the optics
+    out of focus, seen alike by every acquisition (area, TDI) since all integrate this scene.
     """
+    scene = _sharp_scene(spec, columns=columns, pitch_m=pitch_m, default_photons=default_photons)
+    if spec.blur_px <= 0.0:
+        return scene
+    return Scene(
+        blur_cells(
+            scene.radiance,
+            spec.blur_px,
+            oversample=scene.oversample,
+            x_oversample=scene.x_oversample,
+        ),
+        oversample=scene.oversample,
+        x_oversample=scene.x_oversample,
+        drift_deg=scene.drift_deg,
+        spec=spec,
+    )
+
+
+def blur_cells(
+    cells: FloatArray, blur_px: float, *, oversample: int, x_oversample: int
+) -> FloatArray:
+    """The radiance ``cells`` convolved with a Gaussian point spread function of standard
+    deviation ``blur_px`` pixels (``blur_px * oversample`` cells along track, ``blur_px *
+    x_oversample`` across), periodically as the scene tiles.
+
+    Done in the Fourier domain of the scene's own period (the Gaussian's transfer function
+    ``exp(-2 pi^2 sigma^2 f^2)`` per axis), so the light is kept exactly and the tiling stays
+    seamless. The cells are treated as samples, which is exact for the light and its spread;
+    a scene of one cell across (flat, ramp) is unchanged across. Tiny negative values of the
+    transform's rounding are clipped to 0.
+    """
+    result = np.asarray(cells, dtype=np.float64)
+    for axis, per_px in ((0, oversample), (1, x_oversample)):
+        n = result.shape[axis]
+        if n < 2:
+            continue
+        sigma_cells = blur_px * per_px
+        f = np.fft.rfftfreq(n)
+        transfer = np.exp(-2.0 * math.pi**2 * sigma_cells**2 * f**2)
+        shape = [1, 1]
+        shape[axis] = transfer.size
+        spectrum = np.fft.rfft(result, axis=axis) * transfer.reshape(shape)
+        result = np.fft.irfft(spectrum, n=n, axis=axis)
+    clipped: FloatArray = np.maximum(result, 0.0)
+    return clipped
+
+
+def _sharp_scene(
+    spec: SceneSpec,
+    *,
+    columns: int,
+    pitch_m: float,
+    default_photons: float,
+) -> Scene:
+    """``build_scene`` before the blur: the target at best focus."""
     if spec.photons is not None:
         level = spec.photons
     elif spec.lux is not None:

@@ -55,7 +55,7 @@ class SceneSpecError(ValueError):
 SceneKind = Literal["flat", "bars", "edge", "star", "ramp", "natural", "image"]
 SCENE_KINDS: tuple[str, ...] = ("flat", "bars", "edge", "star", "ramp", "natural", "image")
 
-_COMMON = ("photons", "lux", "drift_deg")
+_COMMON = ("photons", "lux", "drift_deg", "blur_px")
 _KIND_KEYS: dict[str, tuple[str, ...]] = {
     "flat": _COMMON,
     "bars": (*_COMMON, "contrast", "oversample", "orientation", "period"),
@@ -95,6 +95,13 @@ class SceneSpec(BaseModel):
         ge=-45,
         le=45,
         description="drift angle: the image moves tan(drift) columns per row along track",
+    )
+    blur_px: float = Field(
+        default=0.0,
+        ge=0,
+        le=64,
+        description="Gaussian sigma of the optics' blur in pixels (0: best focus), applied to "
+        "the scene's radiance so that every acquisition sees it",
     )
     oversample: int = Field(
         default=4, ge=1, le=16, description="cells per pixel along and across track"

@@ -348,6 +348,7 @@ ANSWERS: list[tuple[str, str]] = [
     ("background", "BackgroundStatus"),
     ("add_roi", "RoiList"),
     ("roi_stats", "RoiStatsResponse"),
+    ("focus", "FocusResponse"),
     ("delete_roi", "RoiList"),
     ("scan", "ScanResponse"),
     ("motion", "MotionStatus"),
@@ -403,9 +404,13 @@ def answers(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]
         deadline = time.monotonic() + 30
         while client.background()["state"] == "capturing" and time.monotonic() < deadline:
             time.sleep(0.05)
+        # The focus aid measures once asked (a figure of the frame and of the ROI, and a best).
+        while client.focus()["latest"] is None and time.monotonic() < deadline:
+            time.sleep(0.05)
         client.stop_stream()
         docs["background"] = client.background()
         docs["roi_stats"] = client.roi_stats(history=3)
+        docs["focus"] = client.focus(history=3)
         docs["delete_roi"] = client.delete_roi("dark")
         client.start_scan(4, 20, out=str(tmp / "scan.h5"), quicklook=False)
         docs["scan"] = client.wait_scan(120)

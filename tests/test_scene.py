@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
-from firmware_models.scene import Scene, build_scene, motion_weights
+from firmware_models.scene import Scene, blur_cells, build_scene, motion_weights
 from firmware_models.scene_spec import (
     BAR_FREQUENCIES_CY_PER_PX,
     SceneSpec,
@@ -43,7 +43,7 @@ def test_parse_and_describe_round_trip() -> None:
         (
             "bars:angle_deg=3",
             "unknown scene key 'angle_deg' for bars; keys for bars: photons, lux, drift_deg, "
-            "contrast, oversample, orientation, period",
+            "blur_px, contrast, oversample, orientation, period",
         ),
         ("flat:contrast=0.5", "unknown scene key 'contrast' for flat; keys for flat: photons"),
         ("bars:lux=-1", "scene lux=-1 is invalid: lux (bright level as focal-plane illuminance"),
@@ -242,3 +242,59 @@ def test_lateral_shift_and_drift() -> None:
     drifting = Scene.from_pattern(pattern, 100.0, drift_deg=beta)
     moved = drifting.integrate(0, 8, 16, 8.0, 8.0, None, 1.0, 1.0, dtype=np.float64)
     assert np.allclose(moved, np.roll(base, -2, axis=1), rtol=1e-12)  # 8 rows -> 2 columns
+
+
+# -- the optics' blur (blur_px) ----------------------------------------------------------------
+
+
+def test_blur_px_is_a_key_of_every_kind_and_is_checked() -> None:
+    spec = SceneSpec.parse("bars:blur_px=1.5,lux=3")
+    assert spec.blur_px == 1.5 and SceneSpec.parse(spec.describe()) == spec
+    assert SceneSpec.parse("flat:blur_px=2").blur_px == 2.0  # no effect on a flat field
+    assert SceneSpec().blur_px == 0.0  # best focus by default
+    with pytest.raises(SceneSpecError, match=r"scene blur_px=-1 is invalid: blur_px \(Gaussian"):
+        SceneSpec.parse("bars:blur_px=-1")
+
+
+def test_blur_is_a_gaussian_of_sigma_blur_px_pixels_on_the_cells() -> None:
+    # One bright cell in a dark periodic scene, 4 cells per pixel both ways: the blurred scene is
+    # a Gaussian of standard deviation 2 px = 8 cells along and across, with the light kept.
+    sharp = np.zeros((256, 256))
+    sharp[128, 128] = 1.0
+    spot = blur_cells(sharp, 2.0, oversample=4, x_oversample=4)
+    assert spot.sum() == pytest.approx(1.0, rel=1e-12)
+    offsets = np.arange(256) - 128.0
+    along = spot.sum(axis=1)
+    across = spot.sum(axis=0)
+    assert math.sqrt(float(np.sum(along * offsets**2))) == pytest.approx(8.0, rel=1e-6)
+    assert math.sqrt(float(np.sum(across * offsets**2))) == pytest.approx(8.0, rel=1e-6)
+    assert spot.min() >= 0.0
+
+
+def test_blurred_bars_lose_modulation_as_the_gaussian_mtf_says() -> None:
+    # Bars varying along track: the fundamental of the 0.1 cycles/pixel group (a 10-row period)
+    # keeps exp(-2 pi^2 sigma^2 f^2) of its amplitude; blur 0 is the sharp scene itself.
+    spec = SceneSpec(kind="bars", photons=1000.0)
+    sharp = build_scene(spec, columns=700, pitch_m=11e-6, default_photons=1.0)
+    same = build_scene(
+        SceneSpec(kind="bars", photons=1000.0, blur_px=0.0),
+        columns=700,
+        pitch_m=11e-6,
+        default_photons=1.0,
+    )
+    assert np.array_equal(sharp.radiance, same.radiance)
+    sigma = 1.2
+    blurry = build_scene(
+        SceneSpec(kind="bars", photons=1000.0, blur_px=sigma),
+        columns=700,
+        pitch_m=11e-6,
+        default_photons=1.0,
+    )
+    assert blurry.radiance.shape == sharp.radiance.shape
+    assert blurry.radiance.mean() == pytest.approx(sharp.radiance.mean(), rel=1e-9)
+    column = 150 * sharp.x_oversample  # inside the second group (0.1 cy/px) of seven
+    period_cells = sharp.radiance.shape[0]  # 40 rows x 4 cells
+    k = period_cells // (10 * sharp.oversample)  # the 0.1 cy/px fundamental's index: 4
+    a_sharp = abs(np.fft.rfft(sharp.radiance[:, column])[k])
+    a_blur = abs(np.fft.rfft(blurry.radiance[:, column])[k])
+    assert a_blur / a_sharp == pytest.approx(math.exp(-2 * math.pi**2 * sigma**2 * 0.1**2), 1e-9)

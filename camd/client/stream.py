@@ -14,6 +14,7 @@ from camd.client.connection import API, UNSET, HttpClient, Unset, given
 from camd.client_requests import StreamAcquireOptions, StreamStartRequestOptions
 from camd.client_types import (
     BackgroundStatus,
+    FocusResponse,
     RoiList,
     RoiStatsResponse,
     StreamHeadersResponse,
@@ -115,6 +116,20 @@ class StreamClient(HttpClient):
             RoiStatsResponse,
             self._json("GET", f"{API}/live/roi/stats", params={"history": history}),
         )
+
+    # -- the live view's focus aid -----------------------------------------------------------------
+
+    def focus(self, history: int = 0) -> FocusResponse:
+        """The focus aid's sharpness figures (the frame's and each ROI's), the best since the
+        last reset, and the newest ``history`` figures (0..1200). Asking keeps the daemon
+        measuring for ``watch_s`` more seconds."""
+        return cast(
+            FocusResponse, self._json("GET", f"{API}/live/focus", params={"history": history})
+        )
+
+    def reset_focus_best(self) -> FocusResponse:
+        """Forget the best focus figures (a new focusing starts)."""
+        return cast(FocusResponse, self._json("DELETE", f"{API}/live/focus/best"))
 
     def live_lines(
         self, after: int = -1, *, max_lines: int = 512, timeout_s: float = 0.0

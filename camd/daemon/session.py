@@ -70,6 +70,7 @@ from camd.daemon.transaction import apply_one
 from camd.daemon.wheel_service import WheelService
 from camd.link import CommandLink, Response
 from camd.pipeline.background import BackgroundCapture
+from camd.pipeline.focus import FocusMonitor
 from camd.pipeline.live import LiveLines, LiveTap
 from camd.pipeline.roi import RoiMonitor
 from camd.protocol import Dictionary, load_dictionary
@@ -145,6 +146,8 @@ class DeviceSession:
         self.background = BackgroundService(device, background, self.stream)
         self.roi = RoiService(roi_monitor, self.stream)
         self.stream.add_consumer(self.roi.monitor)
+        # The focus aid: sharpness of the live tap's frames, on its own thread while watched.
+        self.focus = FocusMonitor(self.live.wait_newer, lambda: roi_monitor.rois)
         self.motion = MotionService(device, self.sensor)
         # The live view's waterfall: the newest integrated lines of the running or last scan.
         self.live_lines = LiveLines(LIVE_LINES_MAX)
@@ -255,6 +258,7 @@ class DeviceSession:
         if ending is not None:
             ending.join(SHUTDOWN_ENDING_S)
         self.campaigns.jobs.close()
+        self.focus.close(THREAD_JOIN_S)
         self.connection.stop_loop(THREAD_JOIN_S)
         self.scan.stopping()
         self.stream.shut_down()

@@ -43,6 +43,7 @@ class LiveFrame:
     timestamp_ns: int  # the device's time stamp of the frame
     mode: str  # the stream's mode as the frame header gives it ("area", "tdi", ...)
     stages: int  # TDI stages the device summed (1 in area mode)
+    bits: int  # significant bits per pixel: full scale is 2**bits - 1 (the clipping overlay's)
     rows: int
     cols: int
     skipped: int  # frames passed over since the previous kept one
@@ -58,6 +59,7 @@ class LiveFrame:
             "timestamp_ns": self.timestamp_ns,
             "mode": self.mode,
             "stages": self.stages,
+            "bits": self.bits,
             "rows": self.rows,
             "cols": self.cols,
             "skipped": self.skipped,
@@ -102,6 +104,7 @@ class LiveTap:
                 timestamp_ns=header.timestamp_ns,
                 mode=header.mode.name.lower(),
                 stages=header.stages,
+                bits=header.bits,
                 rows=int(pixels.shape[0]),
                 cols=int(pixels.shape[1]),
                 skipped=self._skipped,

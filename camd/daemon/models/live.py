@@ -138,3 +138,52 @@ class RoiStatsResponse(BaseModel):
     history: dict[str, RoiHistorySeries] = Field(
         description="per ROI, the newest `history` frames (none unless asked)"
     )
+
+
+FOCUS_HISTORY_MAX = 1200  # = camd.pipeline.focus.FOCUS_HISTORY_MAX: focus figures kept
+
+
+class FocusLatest(BaseModel):
+    """The newest frame's focus figures."""
+
+    seq: int = Field(description="the live frame's seq (GET /api/v1/live/frame)")
+    counter: int = Field(description="the device's frame counter")
+    t_s: float = Field(description="when it was measured, s since the epoch")
+    values: dict[str, float | None] = Field(
+        description="grey-gradient sharpness G per target: 'frame' and each ROI's name; null "
+        "where there is none (an ROI the frame does not hold, a frame of zeros)"
+    )
+
+
+class FocusBestModel(BaseModel):
+    """A target's best focus figure since the last reset, and its frame."""
+
+    value: float
+    counter: int
+    seq: int
+    t_s: float
+
+
+class FocusHistory(BaseModel):
+    """The newest focus figures, oldest first (one entry per measured frame)."""
+
+    seq: list[int]
+    counter: list[int]
+    t_s: list[float]
+    values: dict[str, list[float | None]] = Field(
+        description="per target, its figure at each entry (null where it had none)"
+    )
+
+
+class FocusResponse(BaseModel):
+    """GET /api/v1/live/focus, and the answer of DELETE /api/v1/live/focus/best."""
+
+    rate_hz: float = Field(description="figures a second at most (of the live view's frames)")
+    watching: bool = Field(
+        description="figures are being measured: someone asked within the last watch_s"
+    )
+    watch_s: float = Field(description="measuring goes on this long after the last GET")
+    measured: int = Field(description="figures measured since the daemon started")
+    latest: FocusLatest | None
+    best: dict[str, FocusBestModel] = Field(description="per target, the best since the reset")
+    history: FocusHistory

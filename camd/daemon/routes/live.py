@@ -14,18 +14,24 @@ from fastapi import APIRouter, Query, Response, WebSocket, WebSocketDisconnect
 from camd.daemon.api_token import TOKEN_COOKIE, token_ok
 from camd.daemon.error_body import WS_POLICY_VIOLATION, error_response
 from camd.daemon.models import (
+    FOCUS_HISTORY_MAX,
     LIVE_LINES_MAX,
     LIVE_WAIT_MAX_S,
     ROI_HISTORY_MAX,
     BackgroundRequest,
     BackgroundStatus,
     ErrorResponse,
+    FocusBestModel,
+    FocusHistory,
+    FocusLatest,
+    FocusResponse,
     RoiList,
     RoiRequest,
     RoiStatsResponse,
 )
 from camd.daemon.request_guard import API
 from camd.daemon.routes.deps import Session, needs_control
+from camd.pipeline.focus import FocusMonitor
 
 # LIVE_WAIT_MAX_S (models): longest a live-view request waits for something newer.
 LIVE_POLL_S = 1.0  # a WebSocket viewer's wait for the next frame, between checks
@@ -52,7 +58,7 @@ def get_live_frame(
 ) -> Response:
     """The live view's newest frame (at most 20 a second are kept, whatever streams):
     raw pixels, little-endian uint16, row by row; the header ``X-Camd-Frame`` holds its
-    JSON description (seq, counter, timestamp_ns, mode, stages, rows, cols, skipped,
+    JSON description (seq, counter, timestamp_ns, mode, stages, bits, rows, cols, skipped,
     gap_before, dtype). Reading never needs control. 404 if no frame newer than ``after``
     came within ``timeout_s``."""
     frame = session.live.latest() if after == 0 else session.live.wait_newer(after, timeout_s)
@@ -189,6 +195,64 @@ def get_live_roi_stats(
     saturated pixels, background-subtracted mean) and, per ROI, the newest ``history``
     frames' (every frame of the stream: none is skipped)."""
     return session.roi.stats(history)
+
+
+@router.get("/focus", response_model=FocusResponse)
+def get_live_focus(
+    session: Session,
+    history: int = Query(
+        default=0,
+        ge=0,
+        le=FOCUS_HISTORY_MAX,
+        description=f"figures of history, newest last (0..{FOCUS_HISTORY_MAX})",
+    ),
+) -> FocusResponse:
+    """The focus aid: the grey-gradient sharpness of the live view's frames (the whole frame
+    and each ROI), the best since the last reset, and the newest ``history`` figures. Asking
+    keeps the figures measured (at most ``rate_hz`` a second, on the live view's frames, off
+    the acquisition's path) for ``watch_s`` more seconds; the first ask starts them. Reading
+    never needs control."""
+    session.focus.watch()
+    return _focus_response(session.focus, history)
+
+
+@router.delete(
+    "/focus/best",
+    response_model=FocusResponse,
+    dependencies=[needs_control("reset the best focus figure")],
+)
+def delete_live_focus_best(session: Session) -> FocusResponse:
+    """Forget the best focus figures (a new focusing starts); the history stays."""
+    session.focus.reset_best()
+    return _focus_response(session.focus, 0)
+
+
+def _focus_response(focus: FocusMonitor, history: int) -> FocusResponse:
+    snap = focus.snapshot(history)
+    points = snap.history if history > 0 else []
+    targets = list(dict.fromkeys(t for p in points for t in p.values))
+    newest = snap.history[-1] if snap.history else None
+    return FocusResponse(
+        rate_hz=snap.rate_hz,
+        watching=snap.watching,
+        watch_s=focus.watch_s,
+        measured=snap.measured,
+        latest=None
+        if newest is None
+        else FocusLatest(
+            seq=newest.seq, counter=newest.counter, t_s=newest.t_s, values=newest.values
+        ),
+        best={
+            k: FocusBestModel(value=b.value, counter=b.counter, seq=b.seq, t_s=b.t_s)
+            for k, b in snap.best.items()
+        },
+        history=FocusHistory(
+            seq=[p.seq for p in points],
+            counter=[p.counter for p in points],
+            t_s=[p.t_s for p in points],
+            values={t: [p.values.get(t) for p in points] for t in targets},
+        ),
+    )
 
 
 @router.get("/background/frame", response_class=Response, responses=FRAME_RESPONSES)
