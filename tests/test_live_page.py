@@ -11,6 +11,7 @@ state go to test-artifacts/ (tests/browser.py).
 
 from __future__ import annotations
 
+import contextlib
 import math
 import time
 from collections.abc import Callable, Iterator
@@ -56,9 +57,11 @@ class Bench:
         return CamdClient(self.url, token=TOKEN, client=name)
 
 
-@pytest.fixture(scope="module")
-def bench(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Bench]:
-    tmp = tmp_path_factory.mktemp("camd-live-page")
+@contextlib.contextmanager
+def hr400_bench(tmp_path_factory: pytest.TempPathFactory, name: str) -> Iterator[Bench]:
+    """A daemon on the simulated hr400 (CONFIG) with the token, a ROWS-row window and an
+    exposure of 4 lines; it must end cleanly."""
+    tmp = tmp_path_factory.mktemp(name)
     config = tmp / "camd.toml"
     config.write_text(CONFIG)
     with DaemonProcess(
@@ -70,6 +73,12 @@ def bench(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Bench]:
             client.write_registers({"WIN_ROWS": ROWS, "EXPOSURE": 4})
         yield bench
     assert daemon.exit_code in (0, -15), daemon.log_path.read_text()
+
+
+@pytest.fixture(scope="module")
+def bench(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Bench]:
+    with hr400_bench(tmp_path_factory, "camd-live-page") as bench:
+        yield bench
 
 
 @pytest.fixture(autouse=True)

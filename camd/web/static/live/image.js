@@ -1,9 +1,23 @@
 // The live image: the newest frame's real values (uint16), an optional background (float32
 // mean of N frames) subtracted, contrast and colour map, and a nearest-neighbour zoom and pan
-// so that pixels stay pixels. Everything the readout and the plots show comes from the real
-// values, never from the 8-bit display image.
+// so that pixels stay pixels. Below 1x (1/k) the display is the k x k block mean of the values
+// (every pixel counts, none is dropped), while the full frame is kept for the readout, the
+// statistics and the clipping counts. Everything the readout and the plots show comes from the
+// real values, never from the 8-bit display image.
 
-export const ZOOMS = [1, 2, 3, 4, 6, 8, 12, 16];
+export const ZOOMS = [1 / 8, 1 / 4, 1 / 2, 1, 2, 3, 4, 6, 8, 12, 16];
+
+// The clipping overlay's colours (raw full scale, raw 0), as [r, g, b].
+export const CLIP_RGB = { full: [255, 32, 32], zero: [0, 96, 255] };
+
+const LITTLE_ENDIAN = new Uint8Array(new Uint32Array([1]).buffer)[0] === 1;
+
+// An opaque colour as one Uint32 of ImageData's RGBA bytes, in this machine's byte order.
+function packRgb([r, g, b]) {
+  return LITTLE_ENDIAN ? ((0xff << 24) | (b << 16) | (g << 8) | r) >>> 0 : ((r << 24) | (g << 16) | (b << 8) | 0xff) >>> 0;
+}
+const CLIP_FULL = packRgb(CLIP_RGB.full);
+const CLIP_ZERO = packRgb(CLIP_RGB.zero);
 
 function clamp(v, lo, hi) {
   return v < lo ? lo : v > hi ? hi : v;
@@ -104,16 +118,29 @@ export class ImageView {
     this.subStats = null;
     this.profileLine = null; // [[row, col], [row, col]] of a drawn line, image pixels
     this.profileMark = null; // {kind: "row"|"column", index}
+    this.clipOverlay = false; // full-scale and zero pixels drawn in colour
+    this.clip = null; // {fullScale, saturated, zero}: counted on the full frame
+  }
+
+  // Frame pixels per displayed pixel along each axis: k below 1x (zoom 1/k), else 1.
+  get block() {
+    return this.zoom < 1 ? Math.round(1 / this.zoom) : 1;
+  }
+
+  // The zoom that shows the frame's whole width in the canvas: 1/k for the smallest whole k
+  // that fits a wider frame, else the largest zoom of ZOOMS (1x and up) that still fits.
+  fitZoom() {
+    const f = this.frame;
+    if (f === null) return 1;
+    const { width } = this.size();
+    if (f.cols > width) return 1 / Math.ceil(f.cols / Math.max(width, 1));
+    return ZOOMS.filter((z) => z >= 1 && f.cols * z <= width).at(-1) ?? 1;
   }
 
   setColormap(name) {
     const table = this.colormaps[name];
     const lut = new Uint32Array(256);
-    const little = new Uint8Array(new Uint32Array([1]).buffer)[0] === 1;
-    for (let i = 0; i < 256; i++) {
-      const [r, g, b] = table[i];
-      lut[i] = little ? (0xff << 24) | (b << 16) | (g << 8) | r : (r << 24) | (g << 16) | (b << 8) | 0xff;
-    }
+    for (let i = 0; i < 256; i++) lut[i] = packRgb(table[i]);
     this.lut = lut;
     this.colormapName = name;
   }
@@ -149,6 +176,11 @@ export class ImageView {
     const f = this.frame;
     if (f === null) return;
     this.rawStats = countValues(f.data, this.rawCounts);
+    // Clipping: the stream's full scale (2^bits - 1, from the frame's description) and 0.
+    const fullScale = 2 ** (f.meta.bits ?? 16) - 1;
+    let saturated = 0;
+    for (let v = fullScale; v < this.rawCounts.length; v++) saturated += this.rawCounts[v];
+    this.clip = { fullScale, saturated, zero: this.rawCounts[0] };
     this.subtracted = null;
     this.subStats = null;
     if (this.backgroundMatches()) {
@@ -188,24 +220,84 @@ export class ImageView {
 
   renderOffscreen() {
     const f = this.frame;
+    const k = this.block;
+    const outCols = Math.ceil(f.cols / k), outRows = Math.ceil(f.rows / k);
+    if (this.offscreen.width !== outCols || this.offscreen.height !== outRows) {
+      this.offscreen.width = outCols;
+      this.offscreen.height = outRows;
+    }
+    if (this.imageData === null || this.imageData.width !== outCols || this.imageData.height !== outRows) {
+      this.imageData = this.offCtx.createImageData(outCols, outRows);
+    }
+    const pixels = new Uint32Array(this.imageData.data.buffer);
+    if (k === 1) this.renderFull(pixels);
+    else this.renderBlocks(pixels, k, outCols, outRows);
+    this.offCtx.putImageData(this.imageData, 0, 0);
+  }
+
+  // One display pixel per frame pixel; clipped raw values in the overlay's colours.
+  renderFull(pixels) {
     const values = this.displayValues();
-    if (this.offscreen.width !== f.cols || this.offscreen.height !== f.rows) {
-      this.offscreen.width = f.cols;
-      this.offscreen.height = f.rows;
-    }
-    if (this.imageData === null || this.imageData.width !== f.cols || this.imageData.height !== f.rows) {
-      this.imageData = this.offCtx.createImageData(f.cols, f.rows);
-    }
-    const image = this.imageData;
-    const pixels = new Uint32Array(image.data.buffer);
+    const raw = this.frame.data;
     const [lo, hi] = this.range;
     const scale = 255 / (hi - lo);
     const lut = this.lut;
+    const overlay = this.clipOverlay;
+    const fullScale = this.clip.fullScale;
     for (let i = 0; i < values.length; i++) {
       const level = (values[i] - lo) * scale;
       pixels[i] = lut[level <= 0 ? 0 : level >= 255 ? 255 : level | 0];
+      if (overlay) {
+        const v = raw[i];
+        if (v >= fullScale) pixels[i] = CLIP_FULL;
+        else if (v === 0) pixels[i] = CLIP_ZERO;
+      }
     }
-    this.offCtx.putImageData(image, 0, 0);
+  }
+
+  // Each display pixel the mean of a k x k block (fewer at the right and bottom edges); with the
+  // overlay, a block holding a full-scale pixel is red, else one holding a zero blue, so that
+  // no clipped pixel hides in a mean.
+  renderBlocks(pixels, k, outCols, outRows) {
+    const f = this.frame;
+    const values = this.displayValues();
+    const raw = f.data;
+    const cols = f.cols;
+    const [lo, hi] = this.range;
+    const scale = 255 / (hi - lo);
+    const lut = this.lut;
+    const overlay = this.clipOverlay;
+    const fullScale = this.clip.fullScale;
+    if (this.blockOf?.length !== cols || this.blockK !== k) {
+      this.blockOf = Int32Array.from({ length: cols }, (_, c) => Math.floor(c / k));
+      this.blockK = k;
+    }
+    const blockOf = this.blockOf;
+    const sums = new Float64Array(outCols);
+    const flags = new Uint8Array(outCols);
+    for (let br = 0; br < outRows; br++) {
+      sums.fill(0);
+      flags.fill(0);
+      const r0 = br * k, r1 = Math.min(f.rows, r0 + k);
+      for (let r = r0; r < r1; r++) {
+        const base = r * cols;
+        for (let c = 0; c < cols; c++) sums[blockOf[c]] += values[base + c];
+        if (overlay) {
+          for (let c = 0; c < cols; c++) {
+            const v = raw[base + c];
+            if (v >= fullScale) flags[blockOf[c]] |= 1;
+            else if (v === 0) flags[blockOf[c]] |= 2;
+          }
+        }
+      }
+      for (let bc = 0; bc < outCols; bc++) {
+        const n = (r1 - r0) * (Math.min(cols, (bc + 1) * k) - bc * k);
+        const level = (sums[bc] / n - lo) * scale;
+        const flag = flags[bc];
+        pixels[br * outCols + bc] =
+          flag & 1 ? CLIP_FULL : flag & 2 ? CLIP_ZERO : lut[level <= 0 ? 0 : level >= 255 ? 255 : level | 0];
+      }
+    }
   }
 
   // Canvas size in CSS pixels (the readout's unit) and the device pixel ratio.
@@ -215,7 +307,10 @@ export class ImageView {
   }
 
   // Zoom and the image pixel at the view's top left, kept so that the view stays on the image.
+  // Below 1x the origin is a block's corner (a multiple of k), so that the blocks on screen are
+  // those the display averaged.
   setView(zoom, originRow, originCol) {
+    const blockBefore = this.block;
     this.zoom = zoom;
     const f = this.frame;
     if (f !== null) {
@@ -223,8 +318,12 @@ export class ImageView {
       originRow = clamp(originRow, 0, Math.max(f.rows - Math.floor(height / zoom), 0));
       originCol = clamp(originCol, 0, Math.max(f.cols - Math.floor(width / zoom), 0));
     }
+    const k = this.block;
     this.originRow = Math.max(0, Math.round(originRow));
     this.originCol = Math.max(0, Math.round(originCol));
+    this.originRow -= this.originRow % k;
+    this.originCol -= this.originCol % k;
+    if (f !== null && k !== blockBefore) this.renderOffscreen();
     this.draw();
   }
 
@@ -241,9 +340,10 @@ export class ImageView {
     ctx.fillRect(0, 0, w, h);
     if (this.frame === null) return;
     const s = this.zoom * dpr;
+    const k = this.block; // the offscreen image has one pixel per k x k block
     ctx.imageSmoothingEnabled = false;
     ctx.setTransform(s, 0, 0, s, -this.originCol * s, -this.originRow * s);
-    ctx.drawImage(this.offscreen, 0, 0);
+    ctx.drawImage(this.offscreen, 0, 0, this.offscreen.width * k, this.offscreen.height * k);
     ctx.setTransform(1, 0, 0, 1, 0, 0);
     this.drawOverlay(ctx, s);
   }
@@ -276,8 +376,10 @@ export class ImageView {
   pixelAt(x, y) {
     const f = this.frame;
     if (f === null) return null;
-    const col = this.originCol + Math.floor(x / this.zoom);
-    const row = this.originRow + Math.floor(y / this.zoom);
+    // Below 1x, x * k, not x / zoom: 1/3 is not exact in floating point.
+    const k = this.block;
+    const col = this.originCol + Math.floor(k > 1 ? x * k : x / this.zoom);
+    const row = this.originRow + Math.floor(k > 1 ? y * k : y / this.zoom);
     if (row < 0 || col < 0 || row >= f.rows || col >= f.cols) return null;
     const i = row * f.cols + col;
     const raw = f.data[i];

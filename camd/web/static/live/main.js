@@ -2,6 +2,7 @@
 // daemon's status, and the controls (enabled only while this page holds control).
 
 import { API, ApiError, CLIENT, binary, del, get, post } from "./api.js";
+import { FocusPanel } from "./focus.js";
 import { ImageView, ZOOMS } from "./image.js";
 import { Plots } from "./plots.js";
 import { Waterfall } from "./waterfall.js";
@@ -52,6 +53,7 @@ const colormaps = await (await fetch("/static/live/colormaps.json")).json();
 const view = new ImageView($("image"), colormaps);
 const plots = new Plots($("hist"), $("profile"));
 page.view = view;
+page.plots = plots;
 
 for (const name of Object.keys(colormaps)) {
   $("colormap").append(new Option(name, name));
@@ -68,6 +70,10 @@ function updateReadout() {
 }
 
 function updateStats() {
+  const clip = view.clip;
+  $("sat-count").textContent = clip ? clip.saturated : "-";
+  $("zero-count").textContent = clip ? clip.zero : "-";
+  $("full-scale").textContent = clip ? clip.fullScale : "-";
   const cells = [["raw", view.rawStats], ["sub", view.subStats]];
   for (const [prefix, stats] of cells) {
     for (const key of ["mean", "std", "min", "max"]) {
@@ -145,7 +151,9 @@ function connectFrames() {
 // -- zoom, pan, readout, profile --------------------------------------------------------------
 
 function applyView() {
-  view.setView(Number($("zoom").value), Number($("origin-row").value), Number($("origin-col").value));
+  const chosen = $("zoom").value;
+  const zoom = chosen === "fit" ? view.fitZoom() : Number(chosen);
+  view.setView(zoom, Number($("origin-row").value), Number($("origin-col").value));
   $("origin-row").value = view.originRow;
   $("origin-col").value = view.originCol;
   updateReadout();
@@ -211,9 +219,10 @@ canvas.addEventListener(
     event.preventDefault();
     const [x, y] = local(event);
     const hit = view.pixelAt(x, y);
-    const k = ZOOMS.indexOf(view.zoom);
-    const zoom = ZOOMS[Math.min(Math.max(k + (event.deltaY < 0 ? 1 : -1), 0), ZOOMS.length - 1)];
-    $("zoom").value = zoom;
+    // the next zoom of ZOOMS in the wheel's direction (from "fit"'s 1/k too), across 1x
+    const zoom =
+      (event.deltaY < 0 ? ZOOMS.find((z) => z > view.zoom) : ZOOMS.findLast((z) => z < view.zoom)) ?? view.zoom;
+    $("zoom").value = String(zoom);
     if (hit !== null) {
       // keep the pixel under the cursor where it is
       $("origin-row").value = Math.round(hit.row - y / zoom);
@@ -251,6 +260,14 @@ function applyDisplay() {
   updatePlots();
 }
 for (const id of ["contrast", "colormap"]) $(id).addEventListener("change", applyDisplay);
+$("clip-overlay").addEventListener("change", () => {
+  view.clipOverlay = $("clip-overlay").checked;
+  view.refresh();
+});
+$("hist-log").addEventListener("change", () => {
+  plots.setHistogramLog($("hist-log").checked);
+  updatePlots();
+});
 for (const id of ["lo", "hi"]) {
   $(id).addEventListener("change", () => {
     $("contrast").value = "manual";
@@ -527,9 +544,15 @@ $("ctl-scan-stop").addEventListener("click", () => act("stop the scan", () => po
 
 $("you").textContent = `you: ${CLIENT}`;
 for (const button of document.querySelectorAll(".needs-control")) button.disabled = true;
+page.focus = new FocusPanel({
+  on: $("focus-on"), target: $("focus-target"), value: $("focus-value"), best: $("focus-best"),
+  reset: $("focus-reset"), plot: $("focus-plot"), note: $("focus-note"),
+});
 window.addEventListener("resize", () => {
+  if ($("zoom").value === "fit") applyView();
   view.draw();
   plots.resize();
+  page.focus.resize();
 });
 const waterfall = new Waterfall($("waterfall"), (meta, wf, error) => {
   page.waterfall = wf;
