@@ -3,14 +3,16 @@ chromium driven by Playwright, against one daemon on the simulated hr400 (a 64-r
 
 - Fit to window and zoom below 1x: "fit" shows all 2048 columns; at 1/2x and 1/4x (the display
   a block mean) the readout gives the sensor's ramp test pattern's exact raw DN ((row + col) mod
-  4096) of the full-resolution pixel under the cursor, not a block's mean; the wheel zooms
-  across 1x.
+  4096) of the full-resolution pixel under the cursor, not a block's mean; the display is the
+  block mean (the ramp's block means, on the canvas, the short last block's too); the wheel
+  zooms across 1x.
 - The clipping overlay's counts: on the ramp, known before: no pixel at full scale (4095), one at
   0 (row 0, column 0); on bright bars at analogue gain x2 (the ADC clips before the full well)
   with no offset, the full-scale and zero pixels of the very frame fetched through
   /api/v1/live/frame, counted on the full frame whatever the zoom; the log histogram.
 - The focus aid: the scene's blur swept 3, 2, 1, 0, 1, 2, 3 px (the simulator's ``blur_px``):
-  the page's figure is highest at 0 and its best-so-far mark is a blur-0 frame's figure.
+  the page's figure is highest at 0 and its best-so-far mark is a blur-0 frame's figure;
+  ``camctl focus`` says the same and ``--reset`` forgets the best.
 
 ``CAMD_DOCS_SCREENSHOTS=1`` makes the fit test rewrite docs/img/live-fit.png (docs/live-view.md).
 
@@ -32,6 +34,7 @@ import numpy as np
 import pytest
 
 from tests.browser import PageLog
+from tests.test_camctl import camctl_command, camctl_json
 from tests.test_live_page import (
     ROWS,
     TOKEN,
@@ -148,6 +151,25 @@ def test_fit_shows_every_column_and_the_readout_below_1x_gives_raw_dn(
             expected = (row + col) % 4096
             assert readout == {"row": str(row), "col": str(col), "raw": str(expected), "sub": "-"}
     shot(browser_page, "zoom-quarter")
+    # The display below 1x is the block mean: with the gray map over 0..255 DN (one grey level
+    # a DN), block (i, j) of the ramp shows the mean of row + col over its k x k pixels,
+    # k (i + j) + (k - 1); one pixel of each block (dropping the rest) would show k (i + j).
+    set_contrast(browser_page, 0, 255)
+    for zoom in ("0.5", "0.25"):
+        browser_page.select_option("#zoom", zoom)
+        k = round(1 / float(zoom))
+        for i, j in [(0, 0), (3, 10), (5, 20), (1, 50)]:
+            mean = k * (i + j) + (k - 1)
+            assert canvas_rgb(browser_page, j, i) == [mean] * 3, (zoom, i, j)
+    # The last block of a fitted 2048-column frame holds fewer columns: the mean of those.
+    browser_page.select_option("#zoom", "fit")
+    k = round(1 / view_state(browser_page)["zoom"])
+    last = math.ceil(2048 / k) - 1
+    cols_in_last = 2048 - k * last
+    set_contrast(browser_page, 2000, 2255)
+    mean = k * last + (cols_in_last - 1) / 2 + (k - 1) / 2  # of row + col over block (0, last)
+    assert canvas_rgb(browser_page, last, 0) == [math.floor(mean - 2000)] * 3
+    set_contrast(browser_page, 0, 4095)
     # The wheel (on the image: 10 px from the top) zooms across 1x and keeps the column under the
     # cursor where it is (but at 1/4x, where the whole width fits and the view cannot pan: there
     # it is 4 x 100).
@@ -166,6 +188,13 @@ def test_fit_shows_every_column_and_the_readout_below_1x_gives_raw_dn(
         assert browser_page.input_value("#zoom") == str(zooms[-1]).removesuffix(".0")
     assert zooms == [1, 0.5, 0.25, 0.5, 1, 2]
     clean(log)
+
+
+def set_contrast(page: Any, low: float, high: float) -> None:
+    """Manual contrast (typing a bound switches to manual)."""
+    for element, value in (("#lo", low), ("#hi", high)):
+        page.fill(element, str(value))
+        page.dispatch_event(element, "change")
 
 
 def counts_shown(page: Any) -> tuple[int, int]:
@@ -297,4 +326,11 @@ def test_the_focus_figure_peaks_at_best_focus_when_the_blur_is_swept(
     )
     assert marked == [best["value"]]
     shot(browser_page, "focus")
+    # The same through camctl: the figure and the best, the history; --reset forgets the best.
+    shown = camctl_command(bench.url, "--token", TOKEN, "focus")
+    assert shown.returncode == 0, shown.stderr
+    assert f"at frame {best['counter']})" in shown.stdout and "  frame: " in shown.stdout
+    doc = camctl_json(bench.url, "--token", TOKEN, "focus", "--history", "5")
+    assert doc["best"]["frame"] == best and len(doc["history"]["counter"]) == 5
+    assert camctl_json(bench.url, "--token", TOKEN, "focus", "--reset")["best"] == {}
     clean(log)
