@@ -281,13 +281,16 @@ export class ImageView {
       const r0 = br * k, r1 = Math.min(f.rows, r0 + k);
       for (let r = r0; r < r1; r++) {
         const base = r * cols;
-        for (let c = 0; c < cols; c++) sums[blockOf[c]] += values[base + c];
-        if (overlay) {
-          for (let c = 0; c < cols; c++) {
-            const v = raw[base + c];
-            if (v >= fullScale) flags[blockOf[c]] |= 1;
-            else if (v === 0) flags[blockOf[c]] |= 2;
-          }
+        if (!overlay) {
+          for (let c = 0; c < cols; c++) sums[blockOf[c]] += values[base + c];
+          continue;
+        }
+        for (let c = 0; c < cols; c++) {
+          const b = blockOf[c];
+          sums[b] += values[base + c];
+          const v = raw[base + c];
+          if (v >= fullScale) flags[b] |= 1;
+          else if (v === 0) flags[b] |= 2;
         }
       }
       for (let bc = 0; bc < outCols; bc++) {

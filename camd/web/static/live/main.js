@@ -112,7 +112,8 @@ function showFrame(meta, buffer) {
   page.skippedTotal += missed;
   page.lastMeta = meta;
   if (page.paused) return;
-  const first = view.frame === null;
+  // the first frame, or (fitting) one of another width: the view follows
+  const first = view.frame === null || ($("zoom").value === "fit" && view.frame.cols !== meta.cols);
   view.setFrame(meta, buffer);
   page.framesShown++;
   if (first) applyView();
