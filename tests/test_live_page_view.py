@@ -12,7 +12,8 @@ chromium driven by Playwright, against one daemon on the simulated hr400 (a 64-r
   /api/v1/live/frame, counted on the full frame whatever the zoom; the log histogram.
 - The focus aid: the scene's blur swept 3, 2, 1, 0, 1, 2, 3 px (the simulator's ``blur_px``):
   the page's figure is highest at 0 and its best-so-far mark is a blur-0 frame's figure;
-  ``camctl focus`` says the same and ``--reset`` forgets the best.
+  ``camctl focus`` says the same and ``--reset`` forgets the best; resetting needs control (a
+  refusal keeps the best), a history beyond 1200 is refused naming the range.
 
 ``CAMD_DOCS_SCREENSHOTS=1`` makes the fit test rewrite docs/img/live-fit.png (docs/live-view.md).
 
@@ -33,6 +34,7 @@ import httpx
 import numpy as np
 import pytest
 
+from camd.client import CamdError
 from tests.browser import PageLog
 from tests.test_camctl import camctl_command, camctl_json
 from tests.test_live_page import (
@@ -334,3 +336,25 @@ def test_the_focus_figure_peaks_at_best_focus_when_the_blur_is_swept(
     assert doc["best"]["frame"] == best and len(doc["history"]["counter"]) == 5
     assert camctl_json(bench.url, "--token", TOKEN, "focus", "--reset")["best"] == {}
     clean(log)
+
+
+def test_resetting_the_best_needs_control_and_a_refusal_keeps_it(bench: Bench) -> None:
+    with bench.client() as client, bench.client("other@bench") as other:
+        client.write_registers({"TEST_PATTERN.mode": "ramp"})
+        client.focus()  # asked: the daemon measures
+        client.start_stream(frames=0)
+        wait_for("a best figure", lambda: client.focus()["best"].get("frame"))
+        client.stop_stream()
+        before = client.focus()["best"]
+        other.take_control()
+        with pytest.raises(CamdError) as info:
+            client.reset_focus_best()
+        assert (info.value.http_status, info.value.code) == (423, "not_in_control")
+        assert info.value.message.startswith("cannot reset the best focus figure: other@bench")
+        assert client.focus()["best"] == before  # refused: nothing changed
+        with httpx.Client(base_url=bench.url, headers={"Authorization": f"Bearer {TOKEN}"}) as http:
+            answer = http.get("/api/v1/live/focus", params={"history": 1201})
+        assert answer.status_code == 400 and "history" in answer.json()["error"]
+        assert "1200" in answer.json()["error"]
+        assert other.reset_focus_best()["best"] == {}
+        other.release_control()
