@@ -185,3 +185,18 @@ def test_a_warm_up_changes_no_frame() -> None:
     for cam in (warm, cold):
         write(cam.sensor, "WIN_ROWS", 534)
     assert np.array_equal(warm.render(0.3), cold.render(0.3))
+
+
+def test_the_optics_blur_is_in_what_the_camera_renders() -> None:
+    # blur_px is applied to the scene the camera integrates (area frames, stares, wheel and TDI
+    # scans all render from it): a bar group at 0.25 cycles/pixel keeps exp(-2 pi^2 2^2 0.25^2)
+    # = 0.7 % of its modulation under a 2-pixel blur, and the light is kept.
+    cam = camera("hr400", 40)
+    cam.set_scene("bars:photons=1e8")
+    sharp = cam.expected_dn(0.01)
+    cam.set_scene("bars:photons=1e8,blur_px=2")
+    blurred = cam.expected_dn(0.01)
+    column = 1000  # in the fourth of seven groups across 2048 columns: 0.25 cycles/pixel
+    assert np.ptp(sharp[:, column]) > 50  # DN between bright and dark bars
+    assert np.ptp(blurred[:, column]) < 0.05 * np.ptp(sharp[:, column])
+    assert blurred.mean() == pytest.approx(sharp.mean(), rel=0.01)
