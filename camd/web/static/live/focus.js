@@ -25,7 +25,9 @@ export class FocusPanel {
     elements.target.addEventListener("change", () => this.show());
     elements.reset.addEventListener("click", async () => {
       try {
-        this.doc = { ...(await del("/live/focus/best")), history: this.doc?.history ?? { seq: [], counter: [], t_s: [], values: {} } };
+        const answer = await del("/live/focus/best");
+        // the answer holds no history (none asked): the plotted one stays until the next poll
+        this.doc = { ...answer, history: this.doc?.history ?? answer.history };
         this.show();
       } catch (error) {
         elements.note.textContent = `reset: ${error.message}`;

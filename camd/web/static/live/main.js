@@ -113,10 +113,10 @@ function showFrame(meta, buffer) {
   page.lastMeta = meta;
   if (page.paused) return;
   // the first frame, or (fitting) one of another width: the view follows
-  const first = view.frame === null || ($("zoom").value === "fit" && view.frame.cols !== meta.cols);
+  const newView = view.frame === null || ($("zoom").value === "fit" && view.frame.cols !== meta.cols);
   view.setFrame(meta, buffer);
   page.framesShown++;
-  if (first) applyView();
+  if (newView) applyView();
   updateFrameInfo(meta, missed);
   updateReadout();
   updateStats();
