@@ -69,6 +69,8 @@ def idle(bench: Bench) -> Iterator[None]:
         client.stop_stream()
         client.write_registers({"TEST_PATTERN.mode": "off", "GAIN.analog": "x1", "OFFSET": 100})
         client.set_scene("flat")
+        for roi in client.rois()["rois"]:
+            client.delete_roi(roi["name"])
         client.release_control()
 
 
@@ -199,6 +201,15 @@ def set_contrast(page: Any, low: float, high: float) -> None:
         page.dispatch_event(element, "change")
 
 
+def live_frame(bench: Bench) -> tuple[dict[str, Any], np.ndarray]:
+    """The daemon's newest live frame (GET /api/v1/live/frame): its description and pixels."""
+    with httpx.Client(base_url=bench.url, headers={"Authorization": f"Bearer {TOKEN}"}) as http:
+        answer = http.get("/api/v1/live/frame")
+    meta: dict[str, Any] = json.loads(answer.headers["X-Camd-Frame"])
+    pixels = np.frombuffer(answer.content, dtype="<u2").reshape(meta["rows"], meta["cols"])
+    return meta, pixels
+
+
 def counts_shown(page: Any) -> tuple[int, int]:
     return int(page.inner_text("#sat-count")), int(page.inner_text("#zero-count"))
 
@@ -231,11 +242,8 @@ def test_the_clipping_overlay_counts_the_full_scale_and_zero_pixels_of_the_frame
         wait_for("bars on the page", lambda: counts_shown(browser_page)[0] > 1000)
         client.stop_stream()
     browser_page.select_option("#zoom", "fit")
-    with httpx.Client(base_url=bench.url, headers={"Authorization": f"Bearer {TOKEN}"}) as http:
-        answer = http.get("/api/v1/live/frame")
-    meta = json.loads(answer.headers["X-Camd-Frame"])
+    meta, pixels = live_frame(bench)
     assert meta["bits"] == WORD_BITS
-    pixels = np.frombuffer(answer.content, dtype="<u2").reshape(meta["rows"], meta["cols"])
     wait_for(
         "the page to show the last frame",
         lambda: browser_page.evaluate("window.camdLive.lastMeta.seq") == meta["seq"],
@@ -287,6 +295,7 @@ def test_the_focus_figure_peaks_at_best_focus_when_the_blur_is_swept(
     sweep = [3, 2, 1, 0, 1, 2, 3]
     with bench.client() as client:
         client.set_scene(f"bars:blur_px={sweep[0]}")
+        client.add_roi("fine", 880, 0, 290, ROWS)  # the 0.25 cycles/pixel bar group
         client.start_stream(frames=0)
         open_live(browser_page, log, bench, "viewer")
         browser_page.check("#focus-on")
@@ -310,7 +319,15 @@ def test_the_focus_figure_peaks_at_best_focus_when_the_blur_is_swept(
             figures.append(value)
             spans.append((changed_at, counter))
         client.stop_stream()
-        best = client.focus()["best"]["frame"]
+        # The stream's last kept frame measured too: the figures are final.
+        last_seq = live_frame(bench)[0]["seq"]
+        focus = wait_for(
+            "the last frame's figure",
+            lambda: (
+                (f := client.focus())["latest"] is not None and f["latest"]["seq"] == last_seq and f
+            ),
+        )
+        best = focus["best"]["frame"]
     assert figures.index(max(figures)) == sweep.index(0), figures
     assert figures[0] < figures[1] < figures[2] < figures[3] > figures[4] > figures[5] > figures[6]
     # The best mark says blur 0's value: a figure of a frame of the blur-0 step, at least the
@@ -327,6 +344,18 @@ def test_the_focus_figure_peaks_at_best_focus_when_the_blur_is_swept(
         " return p.data[2].filter(v => v !== null && v !== undefined); })()"
     )
     assert marked == [best["value"]]
+    # An ROI's figure: the one the daemon measured on its rectangle.
+    wait_for(
+        "the page's last figure", lambda: focus_shown(browser_page)[2] == focus["latest"]["counter"]
+    )
+    browser_page.select_option("#focus-target", "fine")
+    fine = focus["latest"]["values"]["fine"]
+    assert fine is not None and fine != focus["latest"]["values"]["frame"]
+    assert float(browser_page.inner_text("#focus-value")) == pytest.approx(fine, rel=1e-3)
+    assert browser_page.inner_text("#focus-best").endswith(
+        f" at frame {focus['best']['fine']['counter']}"
+    )
+    browser_page.select_option("#focus-target", "frame")
     shot(browser_page, "focus")
     # The same through camctl: the figure and the best, the history; --reset forgets the best.
     shown = camctl_command(bench.url, "--token", TOKEN, "focus")
