@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -56,9 +57,10 @@ class Bench:
         return CamdClient(self.url, token=TOKEN, client=name)
 
 
-@pytest.fixture(scope="module")
-def bench(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Bench]:
-    tmp = tmp_path_factory.mktemp("camd-live-page")
+@contextmanager
+def live_bench(tmp: Path) -> Iterator[Bench]:
+    """A daemon in ``tmp`` on CONFIG with the token, its window ROWS rows (also for
+    tests/test_live_page_roi.py)."""
     config = tmp / "camd.toml"
     config.write_text(CONFIG)
     with DaemonProcess(
@@ -72,16 +74,29 @@ def bench(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Bench]:
     assert daemon.exit_code in (0, -15), daemon.log_path.read_text()
 
 
-@pytest.fixture(autouse=True)
-def idle(bench: Bench) -> Iterator[None]:
-    """Each test starts and ends with nothing streaming and nobody in control."""
-    yield
+@pytest.fixture(scope="module")
+def bench(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Bench]:
+    with live_bench(tmp_path_factory.mktemp("camd-live-page")) as bench:
+        yield bench
+
+
+def back_to_idle(bench: Bench) -> None:
+    """Nothing streaming or scanning, no ROI, the test pattern off and nobody in control."""
     with bench.client() as client:
         client.take_control(force=True)
         client.stop_stream()
         client.stop_scan()
+        for roi in client.rois()["rois"]:
+            client.delete_roi(roi["name"])
         client.write_registers({"TEST_PATTERN.mode": "off"})
         client.release_control()
+
+
+@pytest.fixture(autouse=True)
+def idle(bench: Bench) -> Iterator[None]:
+    """Each test starts and ends with nothing streaming and nobody in control."""
+    yield
+    back_to_idle(bench)
 
 
 def wait_for(what: str, predicate: Callable[[], Any], timeout_s: float = 60.0) -> Any:

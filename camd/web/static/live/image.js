@@ -104,6 +104,7 @@ export class ImageView {
     this.subStats = null;
     this.profileLine = null; // [[row, col], [row, col]] of a drawn line, image pixels
     this.profileMark = null; // {kind: "row"|"column", index}
+    this.overlays = []; // paint(ctx, dpr) after each draw, in device pixels (roi.js)
   }
 
   setColormap(name) {
@@ -246,6 +247,7 @@ export class ImageView {
     ctx.drawImage(this.offscreen, 0, 0);
     ctx.setTransform(1, 0, 0, 1, 0, 0);
     this.drawOverlay(ctx, s);
+    for (const paint of this.overlays) paint(ctx, dpr);
   }
 
   // The profile's line (or row/column) over the image, in screen space.
@@ -270,6 +272,16 @@ export class ImageView {
       }
     }
     ctx.stroke();
+  }
+
+  // The view's mapping between CSS pixels from the canvas's top left and image coordinates
+  // (continuous: pixel (r, c) covers rows r..r+1 and columns c..c+1), both ways.
+  canvasToImage(x, y) {
+    return { row: this.originRow + y / this.zoom, col: this.originCol + x / this.zoom };
+  }
+
+  imageToCanvas(row, col) {
+    return { x: (col - this.originCol) * this.zoom, y: (row - this.originRow) * this.zoom };
   }
 
   // Image pixel under a point given in CSS pixels from the canvas's top left (null off image).

@@ -4,6 +4,8 @@
 import { API, ApiError, CLIENT, binary, del, get, post } from "./api.js";
 import { ImageView, ZOOMS } from "./image.js";
 import { Plots } from "./plots.js";
+import { RoiPanel } from "./roi.js";
+import { TelemetryPlots } from "./telemetry_plots.js";
 import { Waterfall } from "./waterfall.js";
 
 const $ = (id) => document.getElementById(id);
@@ -33,6 +35,8 @@ function showMessage(text, kind = "error") {
   clearTimeout(showMessage.timer);
   if (kind === "info") showMessage.timer = setTimeout(() => (box.hidden = true), 8000);
 }
+
+$("message").addEventListener("click", () => ($("message").hidden = true)); // read: click it away
 
 // Runs a control action; the daemon's error message is shown as it is (it says what to change).
 async function act(what, action) {
@@ -527,9 +531,14 @@ $("ctl-scan-stop").addEventListener("click", () => act("stop the scan", () => po
 
 $("you").textContent = `you: ${CLIENT}`;
 for (const button of document.querySelectorAll(".needs-control")) button.disabled = true;
+const roiPanel = new RoiPanel(view, $("rois"), showMessage);
+const telemetryPlots = new TelemetryPlots($("telemetry-plots"));
+Object.assign(page, { roi: roiPanel, telemetryPlots });
 window.addEventListener("resize", () => {
   view.draw();
   plots.resize();
+  roiPanel.resize();
+  telemetryPlots.resize();
 });
 const waterfall = new Waterfall($("waterfall"), (meta, wf, error) => {
   page.waterfall = wf;
@@ -547,3 +556,5 @@ page.waterfall = waterfall;
 connectFrames();
 pollStatus();
 waterfall.run();
+roiPanel.run();
+telemetryPlots.run();
