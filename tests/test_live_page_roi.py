@@ -7,8 +7,8 @@ the page lists for an ROI drawn with the mouse against the pattern's own numbers
 rectangle (computed here, not by camd), the ROI the daemon has against the rectangle drawn, the
 outline's colour painted on the image, the plot's history against the same numbers, and the
 colour painted on the telemetry plot's canvas at a data point beyond the yellow limit. The
-screenshots (test-artifacts/live-roi.png, live-telemetry.png) are those of docs/live-view.md
-(docs/img/).
+screenshots (test-artifacts/live-roi.png, live-telemetry-plots.png) are those of
+docs/live-view.md (docs/img/live-roi.png, live-telemetry.png).
 """
 
 from __future__ import annotations
@@ -238,7 +238,29 @@ def test_a_telemetry_plot_paints_a_channel_beyond_its_yellow_limit_yellow(
         f"[{plot}.scales.x.min, {plot}.scales.x.max, ...window.camdLive.telemetryPlots.range]"
     )
     assert reset[:2] == reset[2:] and reset[3] - reset[2] == pytest.approx(600), reset
-    browser_page.locator("#telemetry-plots").screenshot(
-        path=str(artifacts_dir() / "live-telemetry.png")
+    # A custom range as the API takes it: the last 5 minutes; a time it cannot read, its message.
+    browser_page.select_option("#tmp-range", "custom")
+    browser_page.fill("#tmp-start", "-5m")
+    browser_page.click("#tmp-plot")
+    wait_for(
+        "the 5-minute range",
+        lambda: (
+            browser_page.evaluate("(r => r[1] - r[0])(window.camdLive.telemetryPlots.range)")
+            == pytest.approx(300)
+        ),
     )
-    clean(log)
+    browser_page.fill("#tmp-start", "yesterday")
+    browser_page.click("#tmp-plot")
+    note = wait_for(
+        "the refusal",
+        lambda: (
+            (text := browser_page.inner_text("#tmp-note")).startswith("telemetry history:") and text
+        ),
+    )
+    assert "yesterday" in note, note
+    browser_page.select_option("#tmp-range", "600")
+    wait_for("the plots again", lambda: painted(browser_page, "fpga_temp_degc"))
+    browser_page.locator("#telemetry-plots").screenshot(
+        path=str(artifacts_dir() / "live-telemetry-plots.png")
+    )
+    clean(log, expected="status of 400")
