@@ -111,6 +111,15 @@ def wait_for(what: str, predicate: Callable[[], Any], timeout_s: float = 60.0) -
         time.sleep(0.1)
 
 
+def wait_for_text(page: Any, what: str, selector: str, prefix: str) -> str:
+    """The text of ``selector`` once it starts with ``prefix``."""
+    text: str = wait_for(
+        what,
+        lambda: (shown := page.inner_text(selector)).startswith(prefix) and shown,
+    )
+    return text
+
+
 def open_live(page: Any, log: PageLog, bench: Bench, client: str) -> Any:
     """Open /live as a browser would the first time: with ?token=, which becomes a cookie."""
     page.goto(f"{bench.url}/live?token={TOKEN}&client={client}")
@@ -407,12 +416,7 @@ def test_with_control_the_page_sets_mode_and_exposure(
         # the register's range.
         browser_page.fill("#ctl-exposure", "0")
         browser_page.click("#ctl-exposure-set")
-        refusal = wait_for(
-            "the refusal",
-            lambda: (
-                (text := browser_page.inner_text("#message")).startswith("set exposure 0") and text
-            ),
-        )
+        refusal = wait_for_text(browser_page, "the refusal", "#message", "set exposure 0")
         assert "out of range" in refusal or "1..1048575" in refusal, refusal
         assert client.read_register("EXPOSURE")["value"] == 9
         client.take_control(force=True)

@@ -34,6 +34,7 @@ from tests.test_live_page import (
     open_live,
     take_control_on_page,
     wait_for,
+    wait_for_text,
 )
 
 YELLOW = [249, 168, 37, 255]  # live.css --yellow, #f9a825
@@ -105,11 +106,8 @@ def test_an_roi_drawn_on_the_ramp_lists_the_patterns_statistics_and_can_be_edite
         browser_page.fill("#roi-name", "dark")
         # Without control the daemon refuses, the page shows its message, nothing is defined.
         drag(browser_page, (10, 100), (40, 299))
-        refusal = wait_for(
-            "the refusal",
-            lambda: browser_page.is_visible("#message") and browser_page.inner_text("#message"),
-        )
-        assert refusal.startswith("define ROI dark: ") and f"{TESTER} holds control" in refusal
+        refusal = wait_for_text(browser_page, "the refusal", "#message", "define ROI dark: ")
+        assert f"{TESTER} holds control" in refusal
         assert rois(bench) == []
         browser_page.click("#message")
         client.stop_stream()
@@ -251,12 +249,7 @@ def test_a_telemetry_plot_paints_a_channel_beyond_its_yellow_limit_yellow(
     )
     browser_page.fill("#tmp-start", "yesterday")
     browser_page.click("#tmp-plot")
-    note = wait_for(
-        "the refusal",
-        lambda: (
-            (text := browser_page.inner_text("#tmp-note")).startswith("telemetry history:") and text
-        ),
-    )
+    note = wait_for_text(browser_page, "the refusal", "#tmp-note", "telemetry history:")
     assert "yesterday" in note, note
     browser_page.select_option("#tmp-range", "600")
     wait_for("the plots again", lambda: painted(browser_page, "fpga_temp_degc"))
