@@ -62,6 +62,11 @@ export class RoiPanel {
     view.canvas.parentElement.addEventListener("mousedown", (event) => this.press(event), true);
     window.addEventListener("mousemove", (event) => this.follow(event));
     window.addEventListener("mouseup", (event) => this.release(event));
+    window.addEventListener("keydown", (event) => {
+      if (event.key !== "Escape" || this.drag === null) return;
+      this.drag = this.preview = null; // the drag is dropped: nothing sent
+      view.draw();
+    });
   }
 
   colourOf(name) {

@@ -231,6 +231,7 @@ export class TelemetryPlots {
           y: {
             range: (u, lo, hi) => {
               const values = [lo, hi, ...(limits ? limits.yellow : [])].filter(Number.isFinite);
+              if (values.length === 0) return [0, 1]; // no data, no limits: an empty plot
               const [a, b] = [Math.min(...values), Math.max(...values)];
               const pad = (b - a) * 0.08 || Math.abs(a) * 0.05 || 1;
               return [a - pad, b + pad];
