@@ -11,7 +11,9 @@
 import { ApiError, get } from "./api.js";
 
 const BUCKETS = 300;
-const REFRESH_MS = 5000; // a range ending now moves on, unless the user zoomed in
+// A range ending now moves on every 5 s or every bucket, whichever is longer (a day's 288 s
+// buckets change little in 5 s), unless the user zoomed in.
+const REFRESH_MS = 5000;
 const RANGES = [["600", "last 10 min"], ["3600", "last 1 h"], ["86400", "last 24 h"], ["custom", "start .. end"]];
 const LEVEL = { ok: [79, 195, 247], yellow: [249, 168, 37], red: [211, 47, 47] }; // live.css
 const UNIT_S = { s: 1, m: 60, h: 3600, d: 86400 };
@@ -101,6 +103,7 @@ export class TelemetryPlots {
     this.zoomed = false;
     this.asked = 0; // requests made: only the newest answer is drawn
     this.syncing = false; // while one plot's zoom is applied to the others
+    this.shownAt = -Infinity; // performance.now() of the last request
     element.innerHTML = `
       <h2>Telemetry over time</h2>
       <div id="tmp-channels" class="tmp-channels"></div>
@@ -167,6 +170,7 @@ export class TelemetryPlots {
       return;
     }
     const [start, end, bucketS] = this.rangeAsked();
+    this.shownAt = performance.now();
     const query = new URLSearchParams({ channel: channels.join(","), start, end, bucket_s: String(bucketS) });
     try {
       const answer = await get(`/telemetry/history?${query}`);
@@ -282,7 +286,8 @@ export class TelemetryPlots {
       try {
         await this.loadChannels();
         const moving = this.$("tmp-range").value !== "custom" || /now|^-/.test(this.$("tmp-end").value.trim() || "now");
-        if (moving && !this.zoomed && this.chosen().length) await this.show();
+        const due = performance.now() - this.shownAt >= Math.max(REFRESH_MS, this.rangeAsked()[2] * 1000);
+        if (moving && due && !this.zoomed && this.chosen().length) await this.show();
       } catch (error) {
         this.$("tmp-note").textContent = `telemetry: ${error.message}`;
       }
