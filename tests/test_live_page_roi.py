@@ -32,6 +32,7 @@ from tests.test_live_page import (
     live_bench,
     move_to_pixel,
     open_live,
+    set_view,
     take_control_on_page,
     wait_for,
     wait_for_text,
@@ -92,6 +93,17 @@ def shows(page: Any, name: str, pixels: np.ndarray) -> dict[str, str] | None:
     return row if (round(mean, 2), lo, hi) == (round(wanted[0], 2), wanted[1], wanted[2]) else None
 
 
+def outline_pixel(page: Any, x: int, y: int) -> list[int]:
+    """The image canvas's RGBA at CSS pixel (x, y)."""
+    return list(
+        page.evaluate(
+            """([x, y]) => { const d = devicePixelRatio || 1, c = document.getElementById('image');
+                return Array.from(c.getContext('2d').getImageData(x * d, y * d, 1, 1).data); }""",
+            [x, y],
+        )
+    )
+
+
 def test_an_roi_drawn_on_the_ramp_lists_the_patterns_statistics_and_can_be_edited_and_deleted(
     bench: Bench, page: tuple[Any, PageLog]
 ) -> None:
@@ -127,14 +139,15 @@ def test_an_roi_drawn_on_the_ramp_lists_the_patterns_statistics_and_can_be_edite
     assert float(row["std_dn"]) == pytest.approx(float(pixels.std()), abs=0.01)
     assert float(row["sum_dn"]) == float(pixels.sum())
     assert row["saturated"] == "0" and row["bg_mean_dn"] == "-"  # no background captured
-    # The outline is painted on the image in the ROI's colour: its left edge at column 100
-    # (1x, view origin 0, 0: CSS pixel 100 of the canvas, two device pixels wide).
+    # The outline is painted on the image in the ROI's colour: its left edge at column 100 is
+    # CSS pixel 100 of the canvas at 1x from the view's origin, pixel (100 - 90) x 4 = 40 at 4x
+    # from column 90 (two device pixels wide, across the border).
     colour = browser_page.evaluate("window.camdLive.roi.colourOf('dark')")
-    edge = browser_page.evaluate(
-        """() => { const c = document.getElementById('image'), d = devicePixelRatio || 1;
-            return Array.from(c.getContext('2d').getImageData(100 * d, 25 * d, 1, 1).data); }"""
-    )
-    assert edge == colour, (edge, colour)
+    assert outline_pixel(browser_page, 100, 25) == colour
+    set_view(browser_page, 4, 0, 90)
+    assert outline_pixel(browser_page, 40, 25 * 4) == colour
+    assert outline_pixel(browser_page, 44, 25 * 4) != colour  # inside: the image
+    set_view(browser_page, 1, 0, 0)
     # The plot: the daemon's history of the chosen statistic, every frame the pattern's mean.
     history = wait_for(
         "the plotted history",
