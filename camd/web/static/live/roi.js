@@ -85,8 +85,6 @@ export class RoiPanel {
   press(event) {
     const frame = this.view.frame;
     if (this.tool.getAttribute("aria-pressed") !== "true" || event.button !== 0 || frame === null) return;
-    event.stopPropagation();
-    event.preventDefault();
     const from = this.imagePoint(event);
     const near = (roi) => {
       const corner = this.view.imageToCanvas(roi.y + roi.height, roi.x + roi.width);
@@ -97,7 +95,11 @@ export class RoiPanel {
       from.col >= roi.x && from.col < roi.x + roi.width && from.row >= roi.y && from.row < roi.y + roi.height;
     const hit = [...this.rois].reverse(); // the last drawn is on top
     const corner = hit.find(near);
-    const body = corner ?? hit.find(inside);
+    const body = hit.find(inside);
+    const onFrame = from.row >= 0 && from.col >= 0 && from.row < frame.rows && from.col < frame.cols;
+    if (corner === undefined && body === undefined && !onFrame) return; // off the image: it pans
+    event.stopPropagation();
+    event.preventDefault();
     if (corner !== undefined) this.drag = { kind: "resize", roi: corner, from };
     else if (body !== undefined) this.drag = { kind: "move", roi: body, from };
     else this.drag = { kind: "new", roi: { name: this.nextName() }, from };
