@@ -104,6 +104,7 @@ export class TelemetryPlots {
     this.asked = 0; // requests made: only the newest answer is drawn
     this.syncing = false; // while one plot's zoom is applied to the others
     this.shownAt = -Infinity; // performance.now() of the last request
+    this.channelsKnown = false;
     element.innerHTML = `
       <h2>Telemetry over time</h2>
       <div id="tmp-channels" class="tmp-channels"></div>
@@ -133,18 +134,19 @@ export class TelemetryPlots {
     return [...this.element.querySelectorAll("#tmp-channels input:checked")].map((box) => box.value);
   }
 
-  // The channels to choose from, from GET /api/v1/telemetry (with their units and limits).
+  // The channels to choose from and their limits, from GET /api/v1/telemetry.
   async loadChannels() {
     const telemetry = await get("/telemetry");
     this.limits = telemetry.limits ?? {};
-    this.units = Object.fromEntries(Object.entries(telemetry.latest).map(([k, v]) => [k, v.unit]));
     const names = [...new Set([...Object.keys(telemetry.latest), ...Object.keys(this.limits)])];
+    this.channelsKnown = Object.keys(telemetry.latest).length > 0; // before a first sample, not all
     const box = this.$("tmp-channels");
     if (box.childElementCount === names.length) return;
+    const chosen = new Set(this.chosen()); // kept when channels are added
     box.replaceChildren();
     for (const name of names) {
       const label = document.createElement("label");
-      const input = Object.assign(document.createElement("input"), { type: "checkbox", value: name });
+      const input = Object.assign(document.createElement("input"), { type: "checkbox", value: name, checked: chosen.has(name) });
       input.addEventListener("change", () => this.show());
       label.append(input, ` ${name}`);
       box.append(label);
@@ -196,7 +198,7 @@ export class TelemetryPlots {
       for (const plot of Object.values(this.plots)) plot.destroy();
       this.plots = {};
       box.replaceChildren();
-      for (const name of names) this.plots[name] = this.makePlot(box, name);
+      for (const channel of channels) this.plots[channel.channel] = this.makePlot(box, channel.channel, channel.unit);
     }
     if (answer === null) return;
     this.range = [answer.start_s, answer.end_s];
@@ -208,9 +210,8 @@ export class TelemetryPlots {
     }
   }
 
-  makePlot(box, name) {
+  makePlot(box, name, unit) {
     const limits = this.limits?.[name];
-    const unit = this.units?.[name] ?? "";
     const holder = document.createElement("div");
     holder.dataset.channel = name;
     const title = document.createElement("div");
@@ -284,7 +285,8 @@ export class TelemetryPlots {
   async run() {
     for (;;) {
       try {
-        await this.loadChannels();
+        // the channels and their limits do not change while the daemon runs: asked until known
+        if (!this.channelsKnown) await this.loadChannels();
         const moving = this.$("tmp-range").value !== "custom" || /now|^-/.test(this.$("tmp-end").value.trim() || "now");
         const due = performance.now() - this.shownAt >= Math.max(REFRESH_MS, this.rangeAsked()[2] * 1000);
         if (moving && due && !this.zoomed && this.chosen().length) await this.show();
