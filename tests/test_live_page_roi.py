@@ -8,7 +8,7 @@ rectangle (computed here, not by camd), the ROI the daemon has against the recta
 outline's colour painted on the image, the plot's history against the same numbers, and the
 colour painted on the telemetry plot's canvas at a data point beyond the yellow limit. The
 screenshots (test-artifacts/live-roi.png, live-telemetry-plots.png) are those of
-docs/live-view.md (docs/img/live-roi.png, live-telemetry.png).
+docs/live-view.md (docs/img/live-roi.png; live-telemetry.png after 4 minutes of streaming).
 """
 
 from __future__ import annotations
