@@ -58,11 +58,11 @@ class Bench:
 
 
 @contextmanager
-def live_bench(tmp: Path) -> Iterator[Bench]:
-    """A daemon in ``tmp`` on CONFIG with the token, its window ROWS rows (also for
+def live_bench(tmp: Path, config_text: str = CONFIG) -> Iterator[Bench]:
+    """A daemon in ``tmp`` on ``config_text`` with the token, its window ROWS rows (also for
     tests/test_live_page_roi.py)."""
     config = tmp / "camd.toml"
-    config.write_text(CONFIG)
+    config.write_text(config_text)
     with DaemonProcess(
         tmp, extra_args=["--config", str(config)], env={"CAMD_TOKEN": TOKEN}
     ) as daemon:

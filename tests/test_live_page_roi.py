@@ -2,11 +2,12 @@
 
 One daemon on the simulated hr400 (a 64-row window, the ramp test pattern: DN = (row + col)
 mod 4096 at every pixel) with fpga_temp_degc's yellow range made to exclude the simulator's
-temperature, as tests/test_live_page.py has it. What is checked could be wrong: the statistics
+temperature, as tests/test_live_page.py has it, and sensor_temp_degc's red range. What is checked could be wrong: the statistics
 the page lists for an ROI drawn with the mouse against the pattern's own numbers over that
 rectangle (computed here, not by camd), the ROI the daemon has against the rectangle drawn, the
 outline's colour painted on the image, the plot's history against the same numbers, and the
-colour painted on the telemetry plot's canvas at a data point beyond the yellow limit. The
+colour painted on the telemetry plot's canvas at a data point beyond the yellow limit (and
+beyond the red one, and inside both). The
 screenshots (test-artifacts/live-roi.png, live-telemetry-plots.png) are those of
 docs/live-view.md (docs/img/live-roi.png; live-telemetry.png after 4 minutes of streaming).
 """
@@ -22,6 +23,7 @@ import pytest
 
 from tests.browser import PageLog, artifacts_dir
 from tests.test_live_page import (
+    CONFIG,
     ROWS,
     TESTER,
     WORD_BITS,
@@ -38,13 +40,27 @@ from tests.test_live_page import (
     wait_for_text,
 )
 
+# As tests/test_live_page.py's, and sensor_temp_degc's red range made to exclude the simulator's
+# temperature too, without a fault (which would stop the stream).
+CONFIG_RED = (
+    CONFIG
+    + """
+[telemetry]
+red_is_fault = false
+
+[telemetry.limits.sensor_temp_degc]
+yellow = [0.0, 1.0]
+red = [0.0, 2.0]
+"""
+)
 YELLOW = [249, 168, 37, 255]  # live.css --yellow, #f9a825
+RED = [211, 47, 47, 255]  # live.css --red, #d32f2f
 OK = [79, 195, 247, 255]  # live.css --accent, #4fc3f7: inside the yellow range
 
 
 @pytest.fixture(scope="module")
 def bench(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Bench]:
-    with live_bench(tmp_path_factory.mktemp("camd-live-roi")) as bench:
+    with live_bench(tmp_path_factory.mktemp("camd-live-roi"), CONFIG_RED) as bench:
         yield bench
 
 
@@ -212,12 +228,12 @@ def painted(page: Any, channel: str) -> dict[str, Any] | None:
     )
 
 
-def test_a_telemetry_plot_paints_a_channel_beyond_its_yellow_limit_yellow(
+def test_a_telemetry_plot_paints_a_channel_beyond_its_yellow_limit_yellow_and_red_beyond_red(
     bench: Bench, page: tuple[Any, PageLog]
 ) -> None:
     browser_page, log = page
     open_live(browser_page, log, bench, "viewer")
-    for channel in ("fpga_temp_degc", "vcc_core_v"):
+    for channel in ("fpga_temp_degc", "vcc_core_v", "sensor_temp_degc"):
         browser_page.check(f'#tmp-channels input[value="{channel}"]')
     browser_page.select_option("#tmp-range", "600")
     browser_page.click("#tmp-plot")
@@ -226,6 +242,10 @@ def test_a_telemetry_plot_paints_a_channel_beyond_its_yellow_limit_yellow(
     assert hot["colour"] == YELLOW, hot
     fine = wait_for("a plotted core voltage", lambda: painted(browser_page, "vcc_core_v"))
     assert fine["colour"] == OK, fine
+    alarm = wait_for(
+        "a plotted sensor temperature", lambda: painted(browser_page, "sensor_temp_degc")
+    )
+    assert alarm["value"] > 2.0 and alarm["colour"] == RED, alarm  # outside red [0, 2] degC
     # The limits drawn: the plot says which, in the unit of the channel.
     legend = browser_page.inner_text('#tmp-plots [data-channel="fpga_temp_degc"] .tmp-title')
     assert re.search(r"yellow 0 \.\. 1 degC, red -20 \.\. 200", legend), legend
