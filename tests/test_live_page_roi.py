@@ -202,11 +202,35 @@ def test_an_roi_drawn_on_the_ramp_lists_the_patterns_statistics_and_can_be_edite
     )
     assert rois(bench)[0]["width"] == 70
     browser_page.click("#message")  # read: clicked away
+    # A background of the same pattern: the daemon's mean minus the background's over the ROI.
+    browser_page.click("#bg-capture")
+    wait_for("the background", lambda: "mean of 16 frames" in browser_page.inner_text("#bg-state"))
+    wait_for(
+        "the background-subtracted mean",
+        lambda: listed(browser_page, "dark").get("bg_mean_dn", "-") != "-",
+    )
+    assert abs(float(listed(browser_page, "dark")["bg_mean_dn"])) < 0.005
+    browser_page.click("#bg-clear")
     # Deleted.
     browser_page.click('#roi-list tr[data-roi="dark"] button[data-action="delete"]')
     wait_for("no ROI in the daemon", lambda: rois(bench) == [])
     wait_for("no ROI listed", lambda: browser_page.locator("#roi-list tr[data-roi]").count() == 0)
     browser_page.click("#ctl-stream-stop")
+    wait_for("the stream to stop", lambda: browser_page.inner_text("#state") != "state: streaming")
+    browser_page.click("#release-control")
+    # An ROI defined elsewhere (a script) is listed with its rectangle.
+    with bench.client() as client:
+        client.take_control()
+        client.add_roi("bar", 500, 20, 300, 30)
+        client.release_control()
+    fields = '#roi-list tr[data-roi="bar"] input[data-field]'
+    wait_for("the script's ROI", lambda: browser_page.locator(fields).count() == 4)
+    assert [i.input_value() for i in browser_page.locator(fields).all()] == [
+        "500",
+        "20",
+        "300",
+        "30",
+    ]
     clean(log, expected="status of 4")
 
 
