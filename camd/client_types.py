@@ -289,10 +289,21 @@ class ChannelLatest(TypedDict):
     limit: Literal["ok", "yellow", "red"]
 
 
+class ChannelLimitRanges(TypedDict):
+    """One channel's limits (``telemetry.limits``), in its unit, bounds inclusive: ``ok`` inside
+    ``yellow``, ``yellow`` outside it but inside ``red``, ``red`` outside ``red``."""
+
+    yellow: list[float]
+    red: list[float]
+
+
 class TelemetryResponse(TypedDict):
     """GET /api/v1/telemetry."""
 
     latest: dict[str, ChannelLatest]
+    # every channel's configured limits (the defaults and the config's), so that a client draws them
+    # as the daemon applies them
+    limits: dict[str, ChannelLimitRanges]
     # samples in the archive
     samples: int
     # path of the SQLite archive

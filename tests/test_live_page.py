@@ -58,12 +58,11 @@ class Bench:
 
 
 @contextlib.contextmanager
-def hr400_bench(tmp_path_factory: pytest.TempPathFactory, name: str) -> Iterator[Bench]:
-    """A daemon on the simulated hr400 (CONFIG) with the token, a ROWS-row window and an
-    exposure of 4 lines; it must end cleanly."""
-    tmp = tmp_path_factory.mktemp(name)
+def live_bench(tmp: Path, config_text: str = CONFIG) -> Iterator[Bench]:
+    """A daemon in ``tmp`` on ``config_text`` with the token, its window ROWS rows (also for
+    tests/test_live_page_roi.py)."""
     config = tmp / "camd.toml"
-    config.write_text(CONFIG)
+    config.write_text(config_text)
     with DaemonProcess(
         tmp, extra_args=["--config", str(config)], env={"CAMD_TOKEN": TOKEN}
     ) as daemon:
@@ -77,20 +76,27 @@ def hr400_bench(tmp_path_factory: pytest.TempPathFactory, name: str) -> Iterator
 
 @pytest.fixture(scope="module")
 def bench(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Bench]:
-    with hr400_bench(tmp_path_factory, "camd-live-page") as bench:
+    with live_bench(tmp_path_factory.mktemp("camd-live-page")) as bench:
         yield bench
+
+
+def back_to_idle(bench: Bench) -> None:
+    """Nothing streaming or scanning, no ROI, the test pattern off and nobody in control."""
+    with bench.client() as client:
+        client.take_control(force=True)
+        client.stop_stream()
+        client.stop_scan()
+        for roi in client.rois()["rois"]:
+            client.delete_roi(roi["name"])
+        client.write_registers({"TEST_PATTERN.mode": "off"})
+        client.release_control()
 
 
 @pytest.fixture(autouse=True)
 def idle(bench: Bench) -> Iterator[None]:
     """Each test starts and ends with nothing streaming and nobody in control."""
     yield
-    with bench.client() as client:
-        client.take_control(force=True)
-        client.stop_stream()
-        client.stop_scan()
-        client.write_registers({"TEST_PATTERN.mode": "off"})
-        client.release_control()
+    back_to_idle(bench)
 
 
 def wait_for(what: str, predicate: Callable[[], Any], timeout_s: float = 60.0) -> Any:
@@ -103,6 +109,15 @@ def wait_for(what: str, predicate: Callable[[], Any], timeout_s: float = 60.0) -
         if time.monotonic() > deadline:
             pytest.fail(f"timed out after {timeout_s} s waiting for {what}")
         time.sleep(0.1)
+
+
+def wait_for_text(page: Any, what: str, selector: str, prefix: str) -> str:
+    """The text of ``selector`` once it starts with ``prefix``."""
+    text: str = wait_for(
+        what,
+        lambda: (shown := page.inner_text(selector)).startswith(prefix) and shown,
+    )
+    return text
 
 
 def open_live(page: Any, log: PageLog, bench: Bench, client: str) -> Any:
@@ -401,12 +416,7 @@ def test_with_control_the_page_sets_mode_and_exposure(
         # the register's range.
         browser_page.fill("#ctl-exposure", "0")
         browser_page.click("#ctl-exposure-set")
-        refusal = wait_for(
-            "the refusal",
-            lambda: (
-                (text := browser_page.inner_text("#message")).startswith("set exposure 0") and text
-            ),
-        )
+        refusal = wait_for_text(browser_page, "the refusal", "#message", "set exposure 0")
         assert "out of range" in refusal or "1..1048575" in refusal, refusal
         assert client.read_register("EXPOSURE")["value"] == 9
         client.take_control(force=True)

@@ -44,7 +44,7 @@ from tests.test_live_page import (
     Bench,
     clean,
     frames_shown,
-    hr400_bench,
+    live_bench,
     open_live,
     shot,
     wait_for,
@@ -56,7 +56,7 @@ FULL_SCALE = (1 << WORD_BITS) - 1
 
 @pytest.fixture(scope="module")
 def bench(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Bench]:
-    with hr400_bench(tmp_path_factory, "camd-live-page-view") as bench:
+    with live_bench(tmp_path_factory.mktemp("camd-live-page-view")) as bench:
         yield bench
 
 

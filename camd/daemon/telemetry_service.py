@@ -32,6 +32,7 @@ from camd.daemon.models import (
     HISTORY_POINTS_MAX,
     ChannelHistory,
     ChannelLatest,
+    ChannelLimitRanges,
     EventItem,
     EventsResponse,
     HistoryResponse,
@@ -183,6 +184,10 @@ class TelemetryService:
             )
         return TelemetryResponse(
             latest=latest,
+            limits={
+                channel: ChannelLimitRanges(yellow=limits.yellow, red=limits.red)
+                for channel, limits in self.config.telemetry.limits.items()
+            },
             samples=archive.count(),
             archive=str(archive.path),
             archive_error=archive.failing,

@@ -24,10 +24,23 @@ class ChannelLatest(BaseModel):
     limit: LimitLevel
 
 
+class ChannelLimitRanges(BaseModel):
+    """One channel's limits (``telemetry.limits``), in its unit, bounds inclusive: ``ok`` inside
+    ``yellow``, ``yellow`` outside it but inside ``red``, ``red`` outside ``red``."""
+
+    yellow: tuple[float, float]
+    red: tuple[float, float]
+
+
 class TelemetryResponse(BaseModel):
     """GET /api/v1/telemetry."""
 
     latest: dict[str, ChannelLatest]
+    limits: dict[str, ChannelLimitRanges] = Field(
+        default_factory=dict,
+        description="every channel's configured limits (the defaults and the config's), so that "
+        "a client draws them as the daemon applies them",
+    )
     samples: int = Field(description="samples in the archive")
     archive: str = Field(description="path of the SQLite archive")
     archive_error: str | None = Field(

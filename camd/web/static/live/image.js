@@ -118,6 +118,7 @@ export class ImageView {
     this.subStats = null;
     this.profileLine = null; // [[row, col], [row, col]] of a drawn line, image pixels
     this.profileMark = null; // {kind: "row"|"column", index}
+    this.overlays = []; // paint(ctx, dpr) after each draw, in device pixels (roi.js)
     this.clipOverlay = false; // full-scale and zero pixels drawn in colour
     this.clip = null; // {fullScale, saturated, zero}: counted on the full frame
   }
@@ -349,6 +350,7 @@ export class ImageView {
     ctx.drawImage(this.offscreen, 0, 0, this.offscreen.width * k, this.offscreen.height * k);
     ctx.setTransform(1, 0, 0, 1, 0, 0);
     this.drawOverlay(ctx, s);
+    for (const paint of this.overlays) paint(ctx, dpr);
   }
 
   // The profile's line (or row/column) over the image, in screen space.
@@ -375,14 +377,29 @@ export class ImageView {
     ctx.stroke();
   }
 
+  // The view's mapping between CSS pixels from the canvas's top left and image coordinates
+  // (continuous: pixel (r, c) covers rows r..r+1 and columns c..c+1), both ways.
+  // Below 1x, times k and over k, not over and times the zoom: 1/3 is not exact in floating
+  // point, and the readout, the ROI tool and the outlines must agree on the pixel.
+  canvasToImage(x, y) {
+    const k = this.block;
+    const along = (v) => (k > 1 ? v * k : v / this.zoom);
+    return { row: this.originRow + along(y), col: this.originCol + along(x) };
+  }
+
+  imageToCanvas(row, col) {
+    const k = this.block;
+    const across = (v) => (k > 1 ? v / k : v * this.zoom);
+    return { x: across(col - this.originCol), y: across(row - this.originRow) };
+  }
+
   // Image pixel under a point given in CSS pixels from the canvas's top left (null off image).
   pixelAt(x, y) {
     const f = this.frame;
     if (f === null) return null;
-    // Below 1x, x * k, not x / zoom: 1/3 is not exact in floating point.
-    const k = this.block;
-    const col = this.originCol + Math.floor(k > 1 ? x * k : x / this.zoom);
-    const row = this.originRow + Math.floor(k > 1 ? y * k : y / this.zoom);
+    const at = this.canvasToImage(x, y);
+    const col = Math.floor(at.col);
+    const row = Math.floor(at.row);
     if (row < 0 || col < 0 || row >= f.rows || col >= f.cols) return null;
     const i = row * f.cols + col;
     const raw = f.data[i];

@@ -5,6 +5,8 @@ import { API, ApiError, CLIENT, binary, del, get, post } from "./api.js";
 import { FocusPanel } from "./focus.js";
 import { ImageView, ZOOMS } from "./image.js";
 import { Plots } from "./plots.js";
+import { RoiPanel } from "./roi.js";
+import { TelemetryPlots } from "./telemetry_plots.js";
 import { Waterfall } from "./waterfall.js";
 
 const $ = (id) => document.getElementById(id);
@@ -34,6 +36,8 @@ function showMessage(text, kind = "error") {
   clearTimeout(showMessage.timer);
   if (kind === "info") showMessage.timer = setTimeout(() => (box.hidden = true), 8000);
 }
+
+$("message").addEventListener("click", () => ($("message").hidden = true)); // read: click it away
 
 // Runs a control action; the daemon's error message is shown as it is (it says what to change).
 async function act(what, action) {
@@ -549,11 +553,16 @@ page.focus = new FocusPanel({
   on: $("focus-on"), target: $("focus-target"), value: $("focus-value"), best: $("focus-best"),
   reset: $("focus-reset"), plot: $("focus-plot"), note: $("focus-note"),
 });
+const roiPanel = new RoiPanel(view, $("rois"), showMessage);
+const telemetryPlots = new TelemetryPlots($("telemetry-plots"));
+Object.assign(page, { roi: roiPanel, telemetryPlots });
 window.addEventListener("resize", () => {
   if ($("zoom").value === "fit") applyView();
   view.draw();
   plots.resize();
   page.focus.resize();
+  roiPanel.resize();
+  telemetryPlots.resize();
 });
 const waterfall = new Waterfall($("waterfall"), (meta, wf, error) => {
   page.waterfall = wf;
@@ -571,3 +580,5 @@ page.waterfall = waterfall;
 connectFrames();
 pollStatus();
 waterfall.run();
+roiPanel.run();
+telemetryPlots.run();
