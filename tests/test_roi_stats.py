@@ -82,6 +82,10 @@ def test_background_subtracted_mean() -> None:
             "ROI name 'a b' is not valid: use 1-32 letters, digits, '_', '.' or '-'",
         ),
         (
+            [Roi("frame", 0, 0, 1, 1)],
+            "ROI name 'frame' names the whole frame (the focus aid's target): choose another",
+        ),
+        (
             [Roi("a", 0, 0, 0, 3)],
             "ROI 'a' is 0 x 3 pixels: width and height must be at least 1",
         ),

@@ -31,6 +31,8 @@ ROIS_MAX = 16
 """ROIs measured at once at most: each costs a pass over its pixels on every frame."""
 NAME_PATTERN = re.compile(r"[A-Za-z0-9_.-]{1,32}")
 """An ROI's name: 1-32 letters, digits, '_', '.', '-' (it names an HDF5 group and a CLI arg)."""
+RESERVED_NAMES = frozenset({"frame"})
+"""Names no ROI may take: the focus aid lists the whole frame's figure beside the ROIs' by name."""
 
 STAT_FIELDS = (
     "mean_dn",
@@ -70,6 +72,10 @@ def roi_problem(roi: Roi, rows: int, cols: int) -> str | None:
     """Why ``roi`` does not fit a frame of ``rows`` x ``cols`` (None if it does)."""
     if not NAME_PATTERN.fullmatch(roi.name):
         return f"ROI name {roi.name!r} is not valid: use 1-32 letters, digits, '_', '.' or '-'"
+    if roi.name in RESERVED_NAMES:
+        return (
+            f"ROI name {roi.name!r} names the whole frame (the focus aid's target): choose another"
+        )
     if roi.width < 1 or roi.height < 1:
         return (
             f"ROI {roi.name!r} is {roi.width} x {roi.height} pixels: width and height must be "

@@ -67,7 +67,8 @@ class RoiRequest(_Request):
     """POST /api/v1/live/roi: a named rectangle, in pixels from the frame's top left."""
 
     name: str = Field(
-        description="1-32 letters, digits, '_', '.', '-'; an ROI of that name is replaced"
+        description="1-32 letters, digits, '_', '.', '-' (not 'frame'); an ROI of that name is "
+        "replaced"
     )
     x: int = Field(description="first column")
     y: int = Field(description="first row")
