@@ -116,6 +116,15 @@ class StreamClient(HttpClient):
             self._json("GET", f"{API}/live/roi/stats", params={"history": history}),
         )
 
+    def snapshot_tiff(self, seq: int | None = None) -> tuple[dict[str, Any], bytes]:
+        """A snapshot of the live view's frame (``seq``; None: the newest): its description
+        (as ``X-Camd-Frame``) and the TIFF file's bytes (raw DN; its ImageDescription the
+        JSON of the frame, the camera's settings and the ROIs' statistics on it). CamdError
+        ``no_frame`` before any, ``frame_gone`` if ``seq`` is no longer the live view's."""
+        params = {} if seq is None else {"seq": seq}
+        response = self._request("GET", f"{API}/live/snapshot/frame.tiff", params=params)
+        return json.loads(response.headers["X-Camd-Frame"]), response.content
+
     def live_lines(
         self, after: int = -1, *, max_lines: int = 512, timeout_s: float = 0.0
     ) -> tuple[dict[str, Any], npt.NDArray[np.float32]]:

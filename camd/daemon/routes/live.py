@@ -11,6 +11,7 @@ import anyio
 import numpy.typing as npt
 from fastapi import APIRouter, Query, Response, WebSocket, WebSocketDisconnect
 
+from camd.analysis.roi_table import roi_csv
 from camd.daemon.api_token import TOKEN_COOKIE, token_ok
 from camd.daemon.error_body import WS_POLICY_VIOLATION, error_response
 from camd.daemon.models import (
@@ -26,6 +27,15 @@ from camd.daemon.models import (
 )
 from camd.daemon.request_guard import API
 from camd.daemon.routes.deps import Session, needs_control
+from camd.daemon.session import DeviceSession
+from camd.daemon.snapshot import (
+    frame_roi_stats,
+    read_or_why,
+    snapshot_metadata,
+    snapshot_name,
+    snapshot_tiff,
+)
+from camd.pipeline.live import LiveFrame
 
 # LIVE_WAIT_MAX_S (models): longest a live-view request waits for something newer.
 LIVE_POLL_S = 1.0  # a WebSocket viewer's wait for the next frame, between checks
@@ -57,17 +67,123 @@ def get_live_frame(
     came within ``timeout_s``."""
     frame = session.live.latest() if after == 0 else session.live.wait_newer(after, timeout_s)
     if frame is None:
-        newer = f" newer than seq {after} within {timeout_s:g} s" if after else " yet"
-        return error_response(
-            404,
-            "no_frame",
-            f"no live frame{newer}: the live view shows frames while something streams; "
-            "start a stream (`camctl stream --frames 100`), a stare or a scan",
-        )
+        return _no_frame(after, timeout_s)
     return Response(
         content=frame.pixels.astype("<u2", copy=False).tobytes(),
         media_type="application/octet-stream",
         headers={"X-Camd-Frame": json.dumps(frame.meta()), "Cache-Control": "no-store"},
+    )
+
+
+def _no_frame(after: int = 0, timeout_s: float = 0.0) -> Response:
+    """404 no_frame: nothing streamed yet (or nothing newer than ``after`` came in time)."""
+    newer = f" newer than seq {after} within {timeout_s:g} s" if after else " yet"
+    return error_response(
+        404,
+        "no_frame",
+        f"no live frame{newer}: the live view shows frames while something streams; "
+        "start a stream (`camctl stream --frames 100`), a stare or a scan",
+    )
+
+
+# A snapshot's files: the TIFF of raw DN and the ROI statistics' CSV.
+SNAPSHOT_RESPONSES: dict[int | str, dict[str, Any]] = {
+    200: {"content": {"image/tiff": {}, "text/csv": {}}},
+    404: {"model": ErrorResponse, "description": "no frame (or no ROI statistics) yet"},
+    409: {"model": ErrorResponse, "description": "the live view no longer holds that seq"},
+}
+
+
+def _attachment(name: str) -> str:
+    return f'attachment; filename="{name}"'
+
+
+SEQ_QUERY = Query(
+    default=None,
+    ge=1,
+    description="the live frame's seq to save (as X-Camd-Frame gave it; omitted: the newest)",
+)
+
+
+def _snapshot_frame(session: DeviceSession, seq: int | None) -> LiveFrame | Response:
+    """The live view's frame to snapshot, or the 404 / 409 to answer instead."""
+    frame = session.live.latest()
+    if frame is None:
+        return _no_frame()
+    if seq is not None and seq != frame.seq:
+        return error_response(
+            409,
+            "frame_gone",
+            f"the live view holds seq {frame.seq}, not {seq}: it keeps only its newest frame; "
+            "omit seq to save the newest (its X-Camd-Frame says which it is)",
+        )
+    return frame
+
+
+def _snapshot_headers(frame: LiveFrame, suffix: str) -> dict[str, str]:
+    return {
+        "X-Camd-Frame": json.dumps(frame.meta()),
+        "Content-Disposition": f'attachment; filename="{snapshot_name(frame, suffix)}"',
+        "Cache-Control": "no-store",
+    }
+
+
+@router.get("/snapshot/frame.tiff", response_class=Response, responses=SNAPSHOT_RESPONSES)
+def get_live_snapshot_tiff(session: Session, seq: int | None = SEQ_QUERY) -> Response:
+    """The live view's newest frame as a TIFF of raw DN (uint16, one page) whose
+    ImageDescription is JSON: the frame's description, the daemon's version and status, the
+    camera's profile, registers and timing, the ROIs and their statistics on this frame
+    (docs/live-view.md, "Snapshots"). The header ``X-Camd-Frame`` says which frame it is.
+    404 no_frame before any; 409 frame_gone if ``seq`` is not the frame the live view holds
+    now. Reading never needs control; the daemon writes no file."""
+    frame = _snapshot_frame(session, seq)
+    if isinstance(frame, Response):
+        return frame
+    content = snapshot_tiff(frame.pixels, snapshot_metadata(frame, _settings(session, frame)))
+    return Response(
+        content=content, media_type="image/tiff", headers=_snapshot_headers(frame, "tiff")
+    )
+
+
+def _settings(session: DeviceSession, frame: LiveFrame) -> dict[str, Any]:
+    """What a snapshot's metadata says of the camera, read now (each part that cannot be read,
+    e.g. without a camera, says why instead), and the ROIs' statistics on ``frame``."""
+    sensor = session.sensor
+    return {
+        "status": session.status().model_dump(mode="json"),
+        "stream": session.stream.status_info(),
+        "profile": read_or_why(sensor.profile_metadata),
+        "registers": read_or_why(sensor.register_values),
+        "timing": read_or_why(lambda: sensor.timing().model_dump(mode="json")),
+        "rois": session.roi.listing().model_dump(mode="json")["rois"],
+        "roi_stats": frame_roi_stats(session.roi.monitor.history(), frame),
+    }
+
+
+@router.get("/snapshot/roi.csv", response_class=Response, responses=SNAPSHOT_RESPONSES)
+def get_live_snapshot_roi_csv(session: Session, seq: int | None = SEQ_QUERY) -> Response:
+    """Every ROI's statistics on the live view's frame (the frame the TIFF snapshot is of) as
+    CSV, one ROI a row: roi, x, y, width, height, counter, timestamp_ns, mean_dn, std_dn,
+    min_dn, max_dn, sum_dn, snr, saturated, bg_mean_dn (an empty cell: not defined). 404
+    no_frame before any frame, no_roi_stats when that frame was not measured (no ROI, or the
+    ROIs changed since); 409 frame_gone as for the TIFF."""
+    frame = _snapshot_frame(session, seq)
+    if isinstance(frame, Response):
+        return frame
+    stats = frame_roi_stats(session.roi.monitor.history(), frame)
+    if stats is None:
+        return error_response(
+            404,
+            "no_roi_stats",
+            f"no ROI statistics of the live frame (seq {frame.seq}): define an ROI "
+            "(POST /api/v1/live/roi, `camctl roi add`) and stream; every frame is measured "
+            "from the next one on",
+        )
+    rois = session.roi.listing().model_dump(mode="json")["rois"]
+    return Response(
+        content=roi_csv(frame.counter, frame.timestamp_ns, stats, rois),
+        media_type="text/csv",
+        headers=_snapshot_headers(frame, "csv"),
     )
 
 

@@ -4,6 +4,7 @@
 import { API, ApiError, CLIENT, binary, del, get, post } from "./api.js";
 import { ImageView, ZOOMS } from "./image.js";
 import { Plots } from "./plots.js";
+import { initSnapshots } from "./snapshot.js";
 import { Waterfall } from "./waterfall.js";
 
 const $ = (id) => document.getElementById(id);
@@ -52,6 +53,8 @@ const colormaps = await (await fetch("/static/live/colormaps.json")).json();
 const view = new ImageView($("image"), colormaps);
 const plots = new Plots($("hist"), $("profile"));
 page.view = view;
+
+initSnapshots(() => view.frame?.meta ?? null, $("image"), showMessage);
 
 for (const name of Object.keys(colormaps)) {
   $("colormap").append(new Option(name, name));

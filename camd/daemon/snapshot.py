@@ -1,0 +1,96 @@
+"""Snapshots of the live view (docs/live-view.md, "Snapshots"): what the operator sees, saved.
+
+``snapshot_tiff`` makes a TIFF of the live view's frame in raw DN (uint16, one page) whose
+ImageDescription is a JSON document of everything needed to know what the frame is: its
+description (seq, counter, time stamp, mode, stages, geometry), the daemon's status (state,
+mode, link, device, acquisition), the camera's profile, registers and timing as a recording
+stores them, the ROIs and their statistics. The settings are read when the snapshot is taken,
+not when the frame was: the frame's own description says which frame it is, and a change of
+settings between the two is in the status's events, not here.
+
+``frame_roi_stats`` finds the ROI statistics of the snapshot's own frame in the ROI monitor's
+history (every frame is measured; the history holds the newest 4096, the live view's frame is at
+most a twentieth of a second old while streaming); ``camd.analysis.roi_table`` makes them a CSV
+table, one ROI a row. The TIFF's metadata holds the same statistics, so that a client makes the
+same table from the TIFF alone (``camctl snapshot``). Both are built in memory and answered:
+the daemon writes no file for a snapshot.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import time
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+import tifffile
+
+import camd
+from camd.analysis.roi import STAT_FIELDS
+from camd.daemon.errors import SessionError
+from camd.pipeline.live import LiveFrame
+from camd.pipeline.roi import RoiHistory
+
+SNAPSHOT_FORMAT = "camd live snapshot 1"
+"""The ``format`` key of a snapshot's metadata: a reader checks it before relying on the rest."""
+
+
+def snapshot_name(frame: LiveFrame, suffix: str) -> str:
+    """The file name a snapshot of ``frame`` is offered under (the page and camctl use it)."""
+    return f"camd-snapshot-{frame.seq}.{suffix}"
+
+
+def read_or_why(read: Callable[[], Any]) -> Any:
+    """``read()``, or ``{"error": why}`` when the daemon cannot read it now (no camera, a
+    fault): a snapshot of the frame is still worth having without the registers."""
+    try:
+        return read()
+    except SessionError as exc:
+        return {"error": str(exc)}
+
+
+def snapshot_metadata(frame: LiveFrame, settings: dict[str, Any]) -> dict[str, Any]:
+    """The TIFF's ImageDescription: ``frame``'s description and the ``settings`` read now."""
+    return {
+        "format": SNAPSHOT_FORMAT,
+        "taken_t_s": time.time(),
+        "frame": frame.meta(),
+        "daemon": {"version": camd.__version__},
+        **settings,
+    }
+
+
+def snapshot_tiff(pixels: npt.NDArray[np.uint16], metadata: dict[str, Any]) -> bytes:
+    """One uint16 page of ``pixels`` with ``metadata`` as its ImageDescription (JSON)."""
+    buffer = io.BytesIO()
+    # metadata=None: the description is written as given (tifffile's own JSON would wrap it).
+    tifffile.imwrite(
+        buffer,
+        pixels,
+        photometric="minisblack",
+        description=json.dumps(metadata),
+        metadata=None,
+        software=f"camd {camd.__version__}",
+    )
+    return buffer.getvalue()
+
+
+def frame_roi_stats(history: RoiHistory, frame: LiveFrame) -> dict[str, dict[str, Any]] | None:
+    """Every ROI's statistics (``STAT_FIELDS``, NaN as None) on ``frame``, found in ``history``
+    by its counter and time stamp; None if the history does not hold it (the ROIs were changed
+    after it, or none is defined)."""
+    found = np.flatnonzero(
+        (history.counter == frame.counter) & (history.timestamp_ns == frame.timestamp_ns)
+    )
+    if found.size == 0 or not history.rois:
+        return None
+    row = history.stats[found[-1]]
+    return {
+        roi.name: {
+            f: None if v != v else v for f, v in zip(STAT_FIELDS, row[i].tolist(), strict=True)
+        }
+        for i, roi in enumerate(history.rois)
+    }
