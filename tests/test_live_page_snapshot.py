@@ -1,12 +1,15 @@
-"""Snapshots of the live view (docs/live-view.md, "Snapshots"): the API, `camctl snapshot` and
-the page's buttons, over one daemon on the simulated hr400 (token, 64-row window).
+"""Snapshots of the live view and each viewer's transport (docs/live-view.md, "Snapshots" and
+"Transport"): the API, `camctl snapshot`, the WebSocket's binning, rate and compression, and the
+page's buttons, over one daemon on the simulated hr400 (token, 64-row window).
 
 What could be wrong is checked against what the daemon serves elsewhere: the snapshot TIFF read
 back with tifffile is, pixel for pixel, the frame ``GET /api/v1/live/frame`` gives (the same seq,
 which the snapshot says); its metadata holds that frame's description, the registers the test
 wrote, the daemon's version and the ROIs defined; the CSV parses to the statistics of
 ``GET /api/v1/live/roi/stats``. Before any frame the endpoints answer 404 saying what to do; a
-snapshot of a seq the live view no longer holds is a 409.
+snapshot of a seq the live view no longer holds is a 409. A binned frame is the block mean of
+the raw frame of the same seq, computed here; a deflated one inflates to the same bytes; a
+viewer's rate limit holds over seconds; bad settings are refused saying what to use.
 """
 
 from __future__ import annotations
@@ -14,6 +17,8 @@ from __future__ import annotations
 import csv
 import io
 import json
+import time
+import zlib
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -22,6 +27,7 @@ import httpx
 import numpy as np
 import pytest
 import tifffile
+from websockets.sync.client import ClientConnection, connect
 
 import camd
 from camd.cli.camctl import main as camctl_main
@@ -117,10 +123,14 @@ def test_the_snapshot_tiff_is_the_served_frame_with_its_settings_and_the_csv_its
 def test_a_snapshot_of_a_seq_no_longer_held_is_refused(http: httpx.Client) -> None:
     meta, _ = newest_frame(http)
     for path in ("/api/v1/live/snapshot/frame.tiff", "/api/v1/live/snapshot/roi.csv"):
-        for seq in {max(1, meta["seq"] - 1), meta["seq"] + 1} - {meta["seq"]}:
+        for seq in (meta["seq"] + 1, meta["seq"] + 1000):
             answer = http.get(path, params={"seq": seq})
             assert answer.status_code == 409 and answer.json()["code"] == "frame_gone"
-            assert f"the live view holds seq {meta['seq']}, not {seq}" in answer.json()["error"]
+            assert "the live view holds seq " in answer.json()["error"]
+            assert (
+                f"..{meta['seq']}, not {seq}: it keeps its newest 5 frames only"
+                in (answer.json()["error"])
+            )
         bad = http.get(path, params={"seq": 0})
         assert bad.status_code == 400 and "seq" in bad.json()["error"]
 
@@ -145,6 +155,138 @@ def test_camctl_snapshot_writes_the_tiff_and_csv_in_the_directory_named(
     assert camctl_main(argv) == 2
     assert f"{tiff}, {table} already exists: name another directory" in capsys.readouterr().err
     assert tiff.stat().st_mtime_ns == before
+
+
+# -- each viewer's transport: binning, rate, compression --------------------------------------
+
+
+def ws(bench: Bench, query: str = "") -> ClientConnection:
+    url = bench.url.replace("http://", "ws://") + f"/api/v1/live/ws?token={TOKEN}"
+    return connect(url + (f"&{query}" if query else ""), open_timeout=30, max_size=2**24)
+
+
+def next_frame(socket: ClientConnection) -> tuple[dict[str, Any], bytes]:
+    """The next frame's description and payload (settings answers skipped)."""
+    while True:
+        text = socket.recv(timeout=30)
+        assert isinstance(text, str)
+        meta = json.loads(text)
+        if "seq" in meta:
+            payload = socket.recv(timeout=30)
+            assert isinstance(payload, bytes)
+            return meta, payload
+
+
+def block_means(pixels: np.ndarray, b: int) -> np.ndarray:
+    """Each b x b block's mean rounded to the nearest DN (half to even), partial blocks
+    dropped: computed here pixel block by pixel block, not with the daemon's code."""
+    rows, cols = pixels.shape[0] // b, pixels.shape[1] // b
+    out = np.empty((rows, cols), dtype=np.uint16)
+    for r in range(rows):
+        strip = pixels[r * b : (r + 1) * b].astype(np.int64)
+        sums = np.add.reduceat(strip.sum(axis=0)[: cols * b], np.arange(0, cols * b, b))
+        out[r] = np.rint(sums / (b * b))
+    return out
+
+
+def test_binned_and_deflated_frames_are_the_block_means_of_the_raw_frame(
+    bench: Bench, http: httpx.Client
+) -> None:
+    # A real scene (noise: block means that could be wrong), the stream over: every viewer
+    # gets the newest frame first, the frame /live/frame gives.
+    with bench.client() as client:
+        client.take_control(force=True)
+        client.write_registers({"TEST_PATTERN.mode": "off"})
+        client.acquire(30, mode="area")
+        client.release_control()
+    meta, pixels = newest_frame(http)
+    assert pixels.std() > 1.0
+    sizes = {}
+    for b in (1, 2, 4, 8):
+        expected = block_means(pixels, b)
+        for compression in ("none", "deflate"):
+            with ws(bench, f"bin={b}&compression={compression}") as socket:
+                got, payload = next_frame(socket)
+            assert got["seq"] == meta["seq"] and got["counter"] == meta["counter"]
+            assert (got["bin"], got["compression"], got["max_fps"]) == (b, compression, 20.0)
+            assert (got["frame_rows"], got["frame_cols"]) == (64, meta["cols"])
+            assert (got["rows"], got["cols"]) == expected.shape == (64 // b, meta["cols"] // b)
+            assert got["bytes"] == len(payload)
+            raw = zlib.decompress(payload) if compression == "deflate" else payload
+            sent = np.frombuffer(raw, "<u2").reshape(got["rows"], got["cols"])
+            assert np.array_equal(sent, expected), (b, compression)
+            sizes[b, compression] = len(payload)
+    assert sizes[1, "none"] == 64 * meta["cols"] * 2
+    assert sizes[1, "deflate"] < sizes[1, "none"] and sizes[8, "none"] == sizes[1, "none"] // 64
+
+    # A binned viewer's readout: the raw DN of any pixel of that frame.
+    for row, col in ((0, 0), (63, meta["cols"] - 1), (17, 1001)):
+        answer = http.get("/api/v1/live/pixel", params={"seq": meta["seq"], "row": row, "col": col})
+        assert answer.json() == {
+            "seq": meta["seq"], "counter": meta["counter"], "row": row, "col": col,
+            "raw_dn": int(pixels[row, col]),
+        }  # fmt: skip
+    outside = http.get("/api/v1/live/pixel", params={"row": 64, "col": 0})
+    assert outside.status_code == 400 and outside.json()["error"] == (
+        f"pixel (row 64, col 0) is outside the 64 x {meta['cols']} frame of seq {meta['seq']}: "
+        f"rows 0..63, columns 0..{meta['cols'] - 1}"
+    )
+
+
+def test_bad_transport_settings_are_refused_saying_what_to_use(bench: Bench) -> None:
+    cases = {
+        "bin=3": "bin='3' is not a binning: use 1, 2, 4, 8 (each bin x bin block sent as its mean)",
+        "max_fps=0": "max_fps='0' is not a rate: use a number of frames a second above 0 and at "
+        "most 20 (what the live view keeps)",
+        "compression=gzip": "compression='gzip' is not offered: use none or deflate",
+        "binning=2": "unknown transport setting 'binning': the settings are bin, max_fps, "
+        "compression",
+    }
+    for query, message in cases.items():
+        with ws(bench, query) as socket:
+            assert json.loads(socket.recv(timeout=30)) == {"error": message, "code": "bad_request"}
+            with pytest.raises(Exception, match="1008"):
+                socket.recv(timeout=30)
+    # In a message: refused, the settings kept; a good one answered with the new settings.
+    with ws(bench, "bin=2") as socket:
+        next_frame(socket)
+        socket.send(json.dumps({"bin": 5}))
+        socket.send(json.dumps({"compression": "deflate", "max_fps": 4}))
+        answers = []
+        while len(answers) < 2:
+            doc = json.loads(socket.recv(timeout=30))
+            if "seq" in doc:
+                socket.recv(timeout=30)
+            else:
+                answers.append(doc)
+    assert answers == [
+        {"error": "settings unchanged: bin='5' is not a binning: use 1, 2, 4, 8 (each bin x bin "
+         "block sent as its mean)", "code": "bad_request"},
+        {"transport": {"bin": 2, "max_fps": 4.0, "compression": "deflate"}},
+    ]  # fmt: skip
+
+
+def test_a_viewers_rate_limit_holds(bench: Bench) -> None:
+    # 2 frames a second at most, counted over about 6 s of a stream the live view keeps 20 of.
+    with bench.client() as client:
+        client.take_control(force=True)
+        client.start_stream(0, mode="area")
+        try:
+            with ws(bench, "max_fps=2") as limited:
+                first, _ = next_frame(limited)
+                start = time.monotonic()
+                seqs = [first["seq"]]
+                while time.monotonic() - start < 6.0:
+                    seqs.append(next_frame(limited)[0]["seq"])
+                elapsed_s = time.monotonic() - start
+        finally:
+            client.stop_stream()
+            client.release_control()
+    # n frames after the first need (n - 1) / 2 s at least: the bound, with one frame to spare.
+    assert len(seqs) - 1 <= 2 * elapsed_s + 1, (len(seqs), elapsed_s)
+    assert len(seqs) >= 3 and seqs == sorted(set(seqs))
+    # Meanwhile the tap kept more frames than the viewer got: it was sent the newest each time.
+    assert seqs[-1] - seqs[0] > len(seqs)
 
 
 def test_the_page_downloads_the_tiff_the_png_and_the_csv(

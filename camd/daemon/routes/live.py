@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import time
 from typing import Any
 
 import anyio
@@ -35,7 +36,8 @@ from camd.daemon.snapshot import (
     snapshot_name,
     snapshot_tiff,
 )
-from camd.pipeline.live import LiveFrame
+from camd.pipeline.live import RECENT_FRAMES, LiveFrame
+from camd.pipeline.live_transport import Transport, parse_transport
 
 # LIVE_WAIT_MAX_S (models): longest a live-view request waits for something newer.
 LIVE_POLL_S = 1.0  # a WebSocket viewer's wait for the next frame, between checks
@@ -101,23 +103,26 @@ def _attachment(name: str) -> str:
 SEQ_QUERY = Query(
     default=None,
     ge=1,
-    description="the live frame's seq to save (as X-Camd-Frame gave it; omitted: the newest)",
+    description="the live frame's seq (as X-Camd-Frame gave it; omitted: the newest); the "
+    f"live view holds its newest {RECENT_FRAMES}",
 )
 
 
 def _snapshot_frame(session: DeviceSession, seq: int | None) -> LiveFrame | Response:
-    """The live view's frame to snapshot, or the 404 / 409 to answer instead."""
-    frame = session.live.latest()
-    if frame is None:
+    """The live view's frame ``seq`` (None: the newest), or the 404 / 409 to answer instead."""
+    frame = session.live.latest() if seq is None else session.live.frame(seq)
+    if frame is not None:
+        return frame
+    held = session.live.held()
+    if held is None:
         return _no_frame()
-    if seq is not None and seq != frame.seq:
-        return error_response(
-            409,
-            "frame_gone",
-            f"the live view holds seq {frame.seq}, not {seq}: it keeps only its newest frame; "
-            "omit seq to save the newest (its X-Camd-Frame says which it is)",
-        )
-    return frame
+    oldest, newest = held
+    return error_response(
+        409,
+        "frame_gone",
+        f"the live view holds seq {oldest}..{newest}, not {seq}: it keeps its newest "
+        f"{RECENT_FRAMES} frames only; omit seq for the newest (its X-Camd-Frame says which)",
+    )
 
 
 def _snapshot_headers(frame: LiveFrame, suffix: str) -> dict[str, str]:
@@ -134,8 +139,8 @@ def get_live_snapshot_tiff(session: Session, seq: int | None = SEQ_QUERY) -> Res
     ImageDescription is JSON: the frame's description, the daemon's version and status, the
     camera's profile, registers and timing, the ROIs and their statistics on this frame
     (docs/live-view.md, "Snapshots"). The header ``X-Camd-Frame`` says which frame it is.
-    404 no_frame before any; 409 frame_gone if ``seq`` is not the frame the live view holds
-    now. Reading never needs control; the daemon writes no file."""
+    404 no_frame before any; 409 frame_gone if the live view no longer holds ``seq`` (it
+    keeps its newest few). Reading never needs control; the daemon writes no file."""
     frame = _snapshot_frame(session, seq)
     if isinstance(frame, Response):
         return frame
@@ -187,12 +192,50 @@ def get_live_snapshot_roi_csv(session: Session, seq: int | None = SEQ_QUERY) -> 
     )
 
 
+@router.get("/pixel", responses=SNAPSHOT_RESPONSES)
+def get_live_pixel(
+    session: Session,
+    row: int = Query(ge=0, description="the pixel's row in the camera's frame"),
+    col: int = Query(ge=0, description="the pixel's column in the camera's frame"),
+    seq: int | None = SEQ_QUERY,
+) -> Any:
+    """One pixel's raw DN in the live frame ``seq`` (omitted: the newest): what a viewer of a
+    binned live view (``/live/ws?bin=4``) reads under its cursor. ``{"seq", "counter", "row",
+    "col", "raw_dn"}``. 404 no_frame, 409 frame_gone as for a snapshot; 400 outside the
+    frame."""
+    frame = _snapshot_frame(session, seq)
+    if isinstance(frame, Response):
+        return frame
+    if row >= frame.rows or col >= frame.cols:
+        return error_response(
+            400,
+            "bad_request",
+            f"pixel (row {row}, col {col}) is outside the {frame.rows} x {frame.cols} frame of "
+            f"seq {frame.seq}: rows 0..{frame.rows - 1}, columns 0..{frame.cols - 1}",
+        )
+    return {
+        "seq": frame.seq,
+        "counter": frame.counter,
+        "row": row,
+        "col": col,
+        "raw_dn": int(frame.pixels[row, col]),
+    }
+
+
 @router.websocket("/ws")
 async def live_ws(websocket: WebSocket) -> None:
     """The live view pushed: for each frame the tap keeps (at most 20 a second), a text
     message with its JSON description (as ``X-Camd-Frame``) then a binary one with its
     pixels. A slow viewer gets fewer frames (always the newest), never a backlog, and
-    never slows the acquisition. With a token: ``?token=`` or the Authorization header."""
+    never slows the acquisition. With a token: ``?token=`` or the Authorization header.
+
+    Each viewer sets its transport (docs/live-view.md, "Transport") with the query
+    parameters ``bin`` (1, 2, 4, 8: block means), ``max_fps`` (at most that many frames a
+    second) and ``compression`` (none, deflate), and changes it with a text message
+    ``{"bin": 4, ...}`` (answered ``{"transport": {...}}``). Each frame's description says
+    what was applied (rows and cols as sent, frame_rows, frame_cols, bin, compression,
+    max_fps, bytes). Bad settings: a text message ``{"error", "code": "bad_request"}``; in
+    the query, the socket is then closed (1008), in a message the settings are unchanged."""
     token: str = websocket.app.state.token
     if token and not token_ok(
         token,
@@ -203,30 +246,76 @@ async def live_ws(websocket: WebSocket) -> None:
         await websocket.close(code=WS_POLICY_VIOLATION, reason="no or wrong token")
         return
     await websocket.accept()
-    live = websocket.app.state.session.live
-
-    async def watch_for_close(scope: anyio.CancelScope) -> None:
-        # A viewer that goes away is noticed at once, not at the next frame.
-        with contextlib.suppress(WebSocketDisconnect):
-            while (await websocket.receive())["type"] != "websocket.disconnect":
-                pass
-        scope.cancel()
-
+    try:
+        transport = parse_transport(dict(websocket.query_params))
+    except ValueError as exc:
+        await websocket.send_text(json.dumps({"error": str(exc), "code": "bad_request"}))
+        await websocket.close(code=WS_POLICY_VIOLATION, reason="bad transport settings")
+        return
+    viewer = _Viewer(websocket, transport)
     async with anyio.create_task_group() as group:
-        group.start_soon(watch_for_close, group.cancel_scope)
-        seq = 0
+        group.start_soon(viewer.listen, group.cancel_scope)
         try:
-            while True:
-                frame = await anyio.to_thread.run_sync(
-                    live.wait_newer, seq, LIVE_POLL_S, abandon_on_cancel=True
-                )
-                if frame is None:
-                    continue
-                seq = frame.seq
-                await websocket.send_text(json.dumps(frame.meta()))
-                await websocket.send_bytes(frame.pixels.astype("<u2", copy=False).tobytes())
+            await viewer.push()
         except (WebSocketDisconnect, RuntimeError):  # gone between two frames
             group.cancel_scope.cancel()
+
+
+class _Viewer:
+    """One WebSocket viewer: its transport settings, its messages and its frames."""
+
+    def __init__(self, websocket: WebSocket, transport: Transport) -> None:
+        self.websocket = websocket
+        self.transport = transport
+        session = websocket.app.state.session
+        self.live = session.live
+        self.encoder = session.live_transport
+        # A frame's two messages go out together: a settings answer never comes between.
+        self.sending = anyio.Lock()
+
+    async def listen(self, scope: anyio.CancelScope) -> None:
+        """The viewer's messages (settings); a viewer that goes away is noticed at once."""
+        with contextlib.suppress(WebSocketDisconnect):
+            while True:
+                message = await self.websocket.receive()
+                if message["type"] == "websocket.disconnect":
+                    break
+                if message.get("text") is not None:
+                    await self._settings(message["text"])
+        scope.cancel()
+
+    async def _settings(self, text: str) -> None:
+        answer: dict[str, Any]
+        try:
+            values = json.loads(text)
+            if not isinstance(values, dict):
+                raise ValueError(f"expected a JSON object of settings, got {text[:80]!r}")
+            self.transport = parse_transport(values, self.transport)
+            answer = {"transport": self.transport.as_dict()}
+        except ValueError as exc:  # json.JSONDecodeError is one
+            answer = {"error": f"settings unchanged: {exc}", "code": "bad_request"}
+        async with self.sending:
+            await self.websocket.send_text(json.dumps(answer))
+
+    async def push(self) -> None:
+        """Each newest frame, encoded for this viewer, no sooner than its rate allows."""
+        seq = 0
+        sent_at = -float("inf")
+        while True:
+            wait_s = sent_at + self.transport.min_interval_s - time.monotonic()
+            if wait_s > 0:
+                await anyio.sleep(wait_s)
+            frame = await anyio.to_thread.run_sync(
+                self.live.wait_newer, seq, LIVE_POLL_S, abandon_on_cancel=True
+            )
+            if frame is None:
+                continue
+            seq = frame.seq
+            encoded = await anyio.to_thread.run_sync(self.encoder.encode, frame, self.transport)
+            sent_at = time.monotonic()
+            async with self.sending:
+                await self.websocket.send_text(json.dumps(encoded.meta))
+                await self.websocket.send_bytes(encoded.payload)
 
 
 @router.get("/background", response_model=BackgroundStatus)
