@@ -17,6 +17,7 @@ from __future__ import annotations
 import csv
 import io
 import json
+import math
 import time
 import zlib
 from collections.abc import Iterator
@@ -310,6 +311,65 @@ def test_the_page_downloads_the_tiff_the_png_and_the_csv(
     assert png.name == f"camd-snapshot-{meta['seq']}.png"
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert [r["roi"] for r in csv.DictReader(saved["snapshot-csv"].open())] == ["dark"]
+    assert log.errors == [] and log.off_loopback() == []
+
+
+def test_the_page_binned_and_deflated_reads_raw_dn_under_the_cursor(
+    bench: Bench, page: tuple[Any, PageLog]
+) -> None:
+    live, log = page
+    with bench.client() as client:
+        client.take_control(force=True)
+        client.write_registers({"TEST_PATTERN.mode": "ramp"})
+        client.start_stream(0, mode="area")
+        try:
+            open_live(live, log, bench, "binned-viewer")
+            wait_for("a frame", lambda: live.evaluate("window.camdLive.framesShown") >= 1)
+            live.select_option("#tx-bin", "4")
+            live.select_option("#tx-compression", "deflate")
+            wait_for(
+                "a binned, deflated frame on show",
+                lambda: (
+                    live.evaluate(
+                        "[window.camdLive.view.frame?.meta.bin, window.camdLive.view.frame?.meta"
+                        ".compression]"
+                    )
+                    == [4, "deflate"]
+                ),
+            )
+            shown = live.evaluate("window.camdLive.framesShown")
+            wait_for(
+                "more inflated frames",
+                lambda: live.evaluate("window.camdLive.framesShown") > shown + 3,
+            )
+            note = live.inner_text("#transport-note")
+            assert (
+                "display binned 4x4 (block means of the 64x2048 frame; the readout is raw)" in note
+            )
+            assert "deflate" in note
+            assert live.evaluate("window.camdLive.view.frame.rows") == 16
+            live.select_option("#zoom", "4")  # one screen pixel: one raw pixel
+            live.dispatch_event("#zoom", "change")
+            box = live.locator("#image").bounding_box()
+            left = int(live.input_value("#origin-col"))  # in the binned frame's columns
+            for row, col in ((0, 4 * left), (5, 4 * left + 7), (62, 4 * left + 130)):
+                x = math.ceil(box["x"] + col - 4 * left)
+                y = math.ceil(box["y"] + row)
+                live.mouse.move(x, y)
+                expected = str((row + col) % 4096)
+                wait_for(
+                    f"the raw DN of ({row}, {col})",
+                    lambda expected=expected: live.inner_text("#px-raw") == expected,
+                )
+                assert (live.inner_text("#px-row"), live.inner_text("#px-col")) == (
+                    str(row),
+                    str(col),
+                )
+            shot(live, "transport-binned")
+        finally:
+            client.stop_stream()
+            client.write_registers({"TEST_PATTERN.mode": "off"})
+            client.release_control()
     assert log.errors == [] and log.off_loopback() == []
 
 
