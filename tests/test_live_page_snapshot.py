@@ -33,7 +33,7 @@ from websockets.sync.client import ClientConnection, connect
 import camd
 from camd.cli.camctl import main as camctl_main
 from tests.browser import PageLog
-from tests.test_live_page import TOKEN, Bench, open_live, shot, wait_for
+from tests.test_live_page import TESTER, TOKEN, Bench, open_live, shot, wait_for
 from tests.test_live_page import bench as bench  # the module's daemon (module-scoped fixture)
 
 # Not ``exclusive``: every check compares bytes and values, whenever they come.
@@ -158,6 +158,39 @@ def test_camctl_snapshot_writes_the_tiff_and_csv_in_the_directory_named(
     assert tiff.stat().st_mtime_ns == before
 
 
+def test_a_snapshot_saved_on_the_daemon_goes_into_its_data_dirs_snapshots(
+    bench: Bench, http: httpx.Client
+) -> None:
+    meta, pixels = newest_frame(http)
+    folder = bench.data_dir / "snapshots"
+
+    def post(body: dict[str, Any], client: str = TESTER) -> httpx.Response:
+        return http.post("/api/v1/live/snapshot", json=body, headers={"X-Camd-Client": client})
+
+    with bench.client() as client:
+        client.take_control(force=True)
+        try:
+            # Saving writes the daemon's disk: another client's is refused; refused, bad or of
+            # a frame gone, nothing is written.
+            other = post({}, client="someone-else")
+            assert other.status_code == 423 and other.json()["code"] == "not_in_control"
+            bad = post({"seq": "1"})
+            assert bad.status_code == 400 and "seq" in bad.json()["error"]
+            gone = post({"seq": meta["seq"] + 1000})
+            assert gone.status_code == 409 and gone.json()["code"] == "frame_gone"
+            assert not folder.exists() or list(folder.iterdir()) == []
+            saved = client.save_snapshot(meta["seq"])
+        finally:
+            client.release_control()
+    assert saved["seq"] == meta["seq"] and saved["counter"] == meta["counter"]
+    tiff, table = (Path(f) for f in saved["files"])
+    assert tiff.parent == table.parent == folder
+    assert tiff.name.endswith(f"-seq{meta['seq']}.tiff") and table.suffix == ".csv"
+    assert np.array_equal(tifffile.imread(tiff), pixels)
+    assert [r["roi"] for r in csv.DictReader(table.open())] == ["dark"]
+    assert sorted(folder.iterdir()) == sorted([tiff, table])
+
+
 # -- each viewer's transport: binning, rate, compression --------------------------------------
 
 
@@ -222,8 +255,9 @@ def test_binned_and_deflated_frames_are_the_block_means_of_the_raw_frame(
 
     # A binned viewer's readout: the raw DN of any pixel of that frame.
     for row, col in ((0, 0), (63, meta["cols"] - 1), (17, 1001)):
-        answer = http.get("/api/v1/live/pixel", params={"seq": meta["seq"], "row": row, "col": col})
-        assert answer.json() == {
+        with bench.client() as client:
+            answer = client.live_pixel(row, col, meta["seq"])
+        assert answer == {
             "seq": meta["seq"], "counter": meta["counter"], "row": row, "col": col,
             "raw_dn": int(pixels[row, col]),
         }  # fmt: skip

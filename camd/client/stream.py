@@ -14,8 +14,10 @@ from camd.client.connection import API, UNSET, HttpClient, Unset, given
 from camd.client_requests import StreamAcquireOptions, StreamStartRequestOptions
 from camd.client_types import (
     BackgroundStatus,
+    LivePixel,
     RoiList,
     RoiStatsResponse,
+    SnapshotSaved,
     StreamHeadersResponse,
     StreamResponse,
 )
@@ -124,6 +126,20 @@ class StreamClient(HttpClient):
         params = {} if seq is None else {"seq": seq}
         response = self._request("GET", f"{API}/live/snapshot/frame.tiff", params=params)
         return json.loads(response.headers["X-Camd-Frame"]), response.content
+
+    def live_pixel(self, row: int, col: int, seq: int | None = None) -> LivePixel:
+        """One pixel's raw DN in the live frame ``seq`` (None: the newest; the live view holds
+        its newest 5): what a binned viewer reads under its cursor."""
+        params: dict[str, int] = {"row": row, "col": col}
+        if seq is not None:
+            params["seq"] = seq
+        return cast(LivePixel, self._json("GET", f"{API}/live/pixel", params=params))
+
+    def save_snapshot(self, seq: int | None = None) -> SnapshotSaved:
+        """Have the daemon save the snapshot of the live frame ``seq`` (None: the newest) in
+        its data directory's ``snapshots`` folder (the TIFF, and the ROI statistics' CSV);
+        the paths written, on the daemon's computer. Needs control."""
+        return cast(SnapshotSaved, self._json("POST", f"{API}/live/snapshot", json={"seq": seq}))
 
     def live_lines(
         self, after: int = -1, *, max_lines: int = 512, timeout_s: float = 0.0

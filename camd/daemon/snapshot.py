@@ -12,16 +12,19 @@ settings between the two is in the status's events, not here.
 history (every frame is measured; the history holds the newest 4096, the live view's frame is at
 most a twentieth of a second old while streaming); ``camd.analysis.roi_table`` makes them a CSV
 table, one ROI a row. The TIFF's metadata holds the same statistics, so that a client makes the
-same table from the TIFF alone (``camctl snapshot``). Both are built in memory and answered:
-the daemon writes no file for a snapshot.
+same table from the TIFF alone (``camctl snapshot``). Both are built in memory and answered;
+``save_snapshot`` writes them, when a client asks (``POST /api/v1/live/snapshot``), into the
+data directory's ``snapshots`` folder only: a client names no path on the daemon's computer.
 """
 
 from __future__ import annotations
 
+import errno
 import io
 import json
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -30,9 +33,12 @@ import tifffile
 
 import camd
 from camd.analysis.roi import STAT_FIELDS
-from camd.daemon.errors import SessionError
+from camd.daemon.errors import SessionError, StorageFull
 from camd.pipeline.live import LiveFrame
 from camd.pipeline.roi import RoiHistory
+
+SNAPSHOTS_FOLDER = "snapshots"
+"""The data directory's folder where ``POST /api/v1/live/snapshot`` saves."""
 
 SNAPSHOT_FORMAT = "camd live snapshot 1"
 """The ``format`` key of a snapshot's metadata: a reader checks it before relying on the rest."""
@@ -94,3 +100,25 @@ def frame_roi_stats(history: RoiHistory, frame: LiveFrame) -> dict[str, dict[str
         }
         for i, roi in enumerate(history.rois)
     }
+
+
+def save_snapshot(folder: Path, frame: LiveFrame, files: dict[str, bytes]) -> list[Path]:
+    """Write ``files`` (suffix -> content) as ``camd-snapshot-<UTC time>-seq<seq>.<suffix>`` in
+    ``folder`` (made if needed), never over a file; all or none: StorageFull (and nothing left)
+    if the disk is full."""
+    folder.mkdir(exist_ok=True)
+    stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
+    written: list[Path] = []
+    try:
+        for suffix, content in files.items():
+            path = folder / f"camd-snapshot-{stamp}-seq{frame.seq}.{suffix}"
+            with path.open("xb") as out:  # x: a name taken is an error, never an overwrite
+                written.append(path)
+                out.write(content)
+    except OSError as exc:
+        for path in written:
+            path.unlink(missing_ok=True)
+        if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+            raise StorageFull(f"the snapshot did not fit in {folder}: {exc.strerror}") from None
+        raise
+    return written

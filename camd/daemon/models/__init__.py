@@ -59,6 +59,7 @@ from camd.daemon.models.live import (
     ROI_HISTORY_MAX,
     BackgroundRequest,
     BackgroundStatus,
+    LivePixel,
     RoiDefinition,
     RoiFrameStats,
     RoiHistorySeries,
@@ -66,6 +67,8 @@ from camd.daemon.models.live import (
     RoiList,
     RoiRequest,
     RoiStatsResponse,
+    SnapshotRequest,
+    SnapshotSaved,
 )
 from camd.daemon.models.motion import (
     MotionEnableRequest,
@@ -221,6 +224,9 @@ __all__ = [  # noqa: RUF022
     "RoiLatest",
     "RoiHistorySeries",
     "RoiStatsResponse",
+    "SnapshotRequest",
+    "LivePixel",
+    "SnapshotSaved",
     "ROI_HISTORY_MAX",
     "SceneRequest",
     "SeedRequest",

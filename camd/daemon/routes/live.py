@@ -22,16 +22,21 @@ from camd.daemon.models import (
     BackgroundRequest,
     BackgroundStatus,
     ErrorResponse,
+    LivePixel,
     RoiList,
     RoiRequest,
     RoiStatsResponse,
+    SnapshotRequest,
+    SnapshotSaved,
 )
 from camd.daemon.request_guard import API
 from camd.daemon.routes.deps import Session, needs_control
 from camd.daemon.session import DeviceSession
 from camd.daemon.snapshot import (
+    SNAPSHOTS_FOLDER,
     frame_roi_stats,
     read_or_why,
+    save_snapshot,
     snapshot_metadata,
     snapshot_name,
     snapshot_tiff,
@@ -192,7 +197,34 @@ def get_live_snapshot_roi_csv(session: Session, seq: int | None = SEQ_QUERY) -> 
     )
 
 
-@router.get("/pixel", responses=SNAPSHOT_RESPONSES)
+@router.post(
+    "/snapshot",
+    response_model=SnapshotSaved,
+    responses=SNAPSHOT_RESPONSES,
+    dependencies=[needs_control("save a snapshot on the daemon's disk")],
+)
+def post_live_snapshot(session: Session, body: SnapshotRequest | None = None) -> Any:
+    """Save the snapshot of the live frame ``seq`` (null: the newest) in the data directory's
+    ``snapshots`` folder: the TIFF of ``GET /snapshot/frame.tiff`` and, when an ROI measured
+    the frame, the CSV of ``GET /snapshot/roi.csv``, named ``camd-snapshot-<UTC
+    time>-seq<seq>``; never over a file. 404 no_frame, 409 frame_gone as for the GET, 507
+    when the disk is full (nothing left). Writes the daemon's disk: needs control."""
+    frame = _snapshot_frame(session, (body or SnapshotRequest()).seq)
+    if isinstance(frame, Response):
+        return frame
+    files = {
+        "tiff": snapshot_tiff(frame.pixels, snapshot_metadata(frame, _settings(session, frame)))
+    }
+    stats = frame_roi_stats(session.roi.monitor.history(), frame)
+    if stats is not None:
+        rois = session.roi.listing().model_dump(mode="json")["rois"]
+        files["csv"] = roi_csv(frame.counter, frame.timestamp_ns, stats, rois).encode()
+    folder = session.config.daemon.data_dir / SNAPSHOTS_FOLDER
+    paths = save_snapshot(folder, frame, files)
+    return SnapshotSaved(seq=frame.seq, counter=frame.counter, files=[str(p) for p in paths])
+
+
+@router.get("/pixel", response_model=LivePixel, responses=SNAPSHOT_RESPONSES)
 def get_live_pixel(
     session: Session,
     row: int = Query(ge=0, description="the pixel's row in the camera's frame"),
@@ -213,13 +245,9 @@ def get_live_pixel(
             f"pixel (row {row}, col {col}) is outside the {frame.rows} x {frame.cols} frame of "
             f"seq {frame.seq}: rows 0..{frame.rows - 1}, columns 0..{frame.cols - 1}",
         )
-    return {
-        "seq": frame.seq,
-        "counter": frame.counter,
-        "row": row,
-        "col": col,
-        "raw_dn": int(frame.pixels[row, col]),
-    }
+    return LivePixel(
+        seq=frame.seq, counter=frame.counter, row=row, col=col, raw_dn=int(frame.pixels[row, col])
+    )
 
 
 @router.websocket("/ws")
