@@ -32,6 +32,7 @@ from websockets.sync.client import ClientConnection, connect
 
 import camd
 from camd.cli.camctl import main as camctl_main
+from camd.web import STATIC_DIR
 from tests.browser import PageLog
 from tests.test_live_page import TESTER, TOKEN, Bench, open_live, shot, wait_for
 from tests.test_live_page import bench as bench  # the module's daemon (module-scoped fixture)
@@ -121,6 +122,37 @@ def test_the_snapshot_tiff_is_the_served_frame_with_its_settings_and_the_csv_its
     assert float(row["mean_dn"]) == 23.0 and float(row["min_dn"]) == 12.0
 
 
+def test_the_display_png_is_the_frame_through_the_contrast_and_colour_map(
+    http: httpx.Client,
+) -> None:
+    import cv2
+
+    meta, pixels = newest_frame(http)
+    lut = np.array(json.loads((STATIC_DIR / "live" / "colormaps.json").read_text())["viridis"])
+    params = {"seq": meta["seq"], "lo": 100, "hi": 3000, "colormap": "viridis"}
+    answer = http.get("/api/v1/live/snapshot/display.png", params=params)
+    assert answer.status_code == 200 and answer.headers["content-type"] == "image/png"
+    assert f'filename="camd-snapshot-{meta["seq"]}.png"' in answer.headers["content-disposition"]
+    image = cv2.imdecode(np.frombuffer(answer.content, np.uint8), cv2.IMREAD_COLOR)[:, :, ::-1]
+    # The page's mapping: DN lo..hi onto the map's 256 entries, clipped at both ends.
+    index = np.clip(np.rint((pixels - 100.0) * 255 / 2900), 0, 255).astype(int)
+    assert image.shape == (*pixels.shape, 3) and np.array_equal(image, lut[index])
+    # Default: grey, percentiles 0.1 .. 99.9 % (the page's default); the dark end is black.
+    grey = http.get("/api/v1/live/snapshot/display.png", params={"seq": meta["seq"]})
+    decoded = cv2.imdecode(np.frombuffer(grey.content, np.uint8), cv2.IMREAD_COLOR)
+    assert decoded[pixels == pixels.min()].max() == 0 and decoded.max() == 255
+    for bad, message in (
+        (
+            {"colormap": "jet"},
+            "colormap 'jet' is not offered: use gray, viridis, inferno, cividis, turbo",
+        ),
+        ({"lo": 10, "hi": 10}, "lo (10) must be below hi (10): the DN shown black and white"),
+        ({"lo": 10}, "give lo and hi together (the DN shown black and white), or neither"),
+    ):
+        refused = http.get("/api/v1/live/snapshot/display.png", params={"seq": meta["seq"], **bad})
+        assert refused.status_code == 400 and refused.json()["error"] == message
+
+
 def test_a_snapshot_of_a_seq_no_longer_held_is_refused(http: httpx.Client) -> None:
     meta, _ = newest_frame(http)
     for path in ("/api/v1/live/snapshot/frame.tiff", "/api/v1/live/snapshot/roi.csv"):
@@ -156,6 +188,18 @@ def test_camctl_snapshot_writes_the_tiff_and_csv_in_the_directory_named(
     assert camctl_main(argv) == 2
     assert f"{tiff}, {table} already exists: name another directory" in capsys.readouterr().err
     assert tiff.stat().st_mtime_ns == before
+    # With --png: the frame as displayed too, the daemon's rendering of the same frame.
+    again = tmp_path / "again"
+    argv = ["--url", bench.url, "--token", TOKEN, "--json", "snapshot", str(again), "--png",
+            "--colormap", "inferno"]  # fmt: skip
+    assert camctl_main(argv) == 0
+    files = [Path(f) for f in json.loads(capsys.readouterr().out)["files"]]
+    assert [f.suffix for f in files] == [".tiff", ".png", ".csv"]
+    params = {"seq": meta["seq"], "colormap": "inferno"}
+    assert (
+        files[1].read_bytes()
+        == http.get("/api/v1/live/snapshot/display.png", params=params).content
+    )
 
 
 def test_a_snapshot_saved_on_the_daemon_goes_into_its_data_dirs_snapshots(

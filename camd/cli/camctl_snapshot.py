@@ -1,7 +1,9 @@
 """camctl's snapshot: the live view's frame saved on the client's side (docs/cli.md).
 
-    camctl snapshot DIR    write camd-snapshot-<seq>.tiff (raw DN, the settings as metadata)
-                           and camd-snapshot-<seq>.csv (the ROIs' statistics on that frame)
+    camctl snapshot DIR [--png [--colormap NAME]]
+        write camd-snapshot-<seq>.tiff (raw DN, the settings as metadata) and
+        camd-snapshot-<seq>.csv (the ROIs' statistics on that frame); with --png also
+        camd-snapshot-<seq>.png, the frame as the page displays it (the page's default contrast)
 
 The CSV is made from the TIFF's own metadata, with the daemon's writer of the same table
 (``camd.analysis.roi_table``): both files are of the same frame however fast the stream moves
@@ -35,6 +37,17 @@ def add_parsers(command: Callable[[str, str], argparse.ArgumentParser]) -> None:
     p.add_argument(
         "directory", type=Path, help="where to write the files (on this computer; made if needed)"
     )
+    p.add_argument(
+        "--png",
+        action="store_true",
+        help="also the frame as the page displays it (percentiles 0.1-99.9 %% shown black-white)",
+    )
+    p.add_argument(
+        "--colormap",
+        default="gray",
+        metavar="NAME",
+        help="the PNG's colours: gray (default), viridis, inferno, cividis, turbo",
+    )
 
 
 def cmd_snapshot(client: CamdClient, args: argparse.Namespace) -> Any:
@@ -44,6 +57,9 @@ def cmd_snapshot(client: CamdClient, args: argparse.Namespace) -> Any:
     directory: Path = args.directory
     base = f"camd-snapshot-{meta['seq']}"
     files: list[tuple[Path, bytes]] = [(directory / f"{base}.tiff", tiff)]
+    if args.png:
+        png = client.snapshot_png(meta["seq"], colormap=args.colormap)
+        files.append((directory / f"{base}.png", png))
     stats = description.get("roi_stats")
     if stats:
         table = roi_csv(meta["counter"], meta["timestamp_ns"], stats, description["rois"])
@@ -64,7 +80,7 @@ def render_snapshot(out: Console, doc: Any, args: argparse.Namespace) -> None:
     out.print(f"frame seq {doc['seq']} (counter {doc['counter']}):", markup=False)
     for path in doc["files"]:
         out.print(f"  {path}", markup=False)
-    if len(doc["files"]) == 1:
+    if not any(path.endswith(".csv") for path in doc["files"]):
         out.print("  no CSV: no ROI measured this frame (`camctl roi add`)", markup=False)
 
 

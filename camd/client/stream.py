@@ -127,6 +127,21 @@ class StreamClient(HttpClient):
         response = self._request("GET", f"{API}/live/snapshot/frame.tiff", params=params)
         return json.loads(response.headers["X-Camd-Frame"]), response.content
 
+    def snapshot_png(
+        self,
+        seq: int,
+        *,
+        lo: float | None = None,
+        hi: float | None = None,
+        colormap: str = "gray",
+    ) -> bytes:
+        """The live frame ``seq`` as the page displays it, PNG bytes: DN ``lo``..``hi`` (None:
+        the page's default contrast, percentiles 0.1 .. 99.9 %) onto ``colormap``."""
+        params: dict[str, Any] = {"seq": seq, "colormap": colormap}
+        if lo is not None and hi is not None:
+            params.update(lo=lo, hi=hi)
+        return self._request("GET", f"{API}/live/snapshot/display.png", params=params).content
+
     def live_pixel(self, row: int, col: int, seq: int | None = None) -> LivePixel:
         """One pixel's raw DN in the live frame ``seq`` (None: the newest; the live view holds
         its newest 5): what a binned viewer reads under its cursor."""

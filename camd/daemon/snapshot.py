@@ -36,6 +36,7 @@ from camd.analysis.roi import STAT_FIELDS
 from camd.daemon.errors import SessionError, StorageFull
 from camd.pipeline.live import LiveFrame
 from camd.pipeline.roi import RoiHistory
+from camd.web import STATIC_DIR
 
 SNAPSHOTS_FOLDER = "snapshots"
 """The data directory's folder where ``POST /api/v1/live/snapshot`` saves."""
@@ -67,6 +68,41 @@ def snapshot_metadata(frame: LiveFrame, settings: dict[str, Any]) -> dict[str, A
         "daemon": {"version": camd.__version__},
         **settings,
     }
+
+
+COLORMAPS_JSON = STATIC_DIR / "live" / "colormaps.json"
+"""The page's colour maps (camd.web.colormaps writes them): the PNG uses the same tables."""
+
+DEFAULT_PERCENTILES = (0.1, 99.9)
+"""The page's default contrast: the DN at these percentiles shown black and white."""
+
+
+def colormaps() -> dict[str, npt.NDArray[np.uint8]]:
+    """The page's colour maps, name -> 256 x 3 RGB table, in the order the page offers them."""
+    tables = json.loads(COLORMAPS_JSON.read_text())
+    return {name: np.array(table, dtype=np.uint8) for name, table in tables.items()}
+
+
+def display_png(
+    pixels: npt.NDArray[np.uint16], lo: float, hi: float, lut: npt.NDArray[np.uint8]
+) -> bytes:
+    """``pixels`` as the page shows them: DN ``lo``..``hi`` onto the 256 entries of ``lut``
+    (rounded, clipped at both ends), as an RGB PNG."""
+    import cv2  # only here: most of the daemon never draws
+
+    index = np.clip(np.rint((pixels - lo) * (255.0 / (hi - lo))), 0, 255).astype(np.uint8)
+    rgb = lut[index]
+    ok, png = cv2.imencode(".png", np.ascontiguousarray(rgb[:, :, ::-1]))  # OpenCV is BGR
+    if not ok:
+        raise RuntimeError("OpenCV could not encode the PNG")
+    return bytes(png.tobytes())
+
+
+def default_contrast(pixels: npt.NDArray[np.uint16]) -> tuple[float, float]:
+    """The page's default contrast of ``pixels`` (``DEFAULT_PERCENTILES``); a flat frame
+    gets one DN of range."""
+    lo, hi = (float(v) for v in np.percentile(pixels, DEFAULT_PERCENTILES))
+    return lo, max(hi, lo + 1.0)
 
 
 def snapshot_tiff(pixels: npt.NDArray[np.uint16], metadata: dict[str, Any]) -> bytes:

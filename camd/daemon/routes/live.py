@@ -34,6 +34,9 @@ from camd.daemon.routes.deps import Session, needs_control
 from camd.daemon.session import DeviceSession
 from camd.daemon.snapshot import (
     SNAPSHOTS_FOLDER,
+    colormaps,
+    default_contrast,
+    display_png,
     frame_roi_stats,
     read_or_why,
     save_snapshot,
@@ -93,11 +96,15 @@ def _no_frame(after: int = 0, timeout_s: float = 0.0) -> Response:
     )
 
 
-# A snapshot's files: the TIFF of raw DN and the ROI statistics' CSV.
-SNAPSHOT_RESPONSES: dict[int | str, dict[str, Any]] = {
-    200: {"content": {"image/tiff": {}, "text/csv": {}}},
+# What asks for a live frame by seq may answer: none yet, or no longer held.
+FRAME_SEQ_RESPONSES: dict[int | str, dict[str, Any]] = {
     404: {"model": ErrorResponse, "description": "no frame (or no ROI statistics) yet"},
     409: {"model": ErrorResponse, "description": "the live view no longer holds that seq"},
+}
+# A snapshot's files: the TIFF of raw DN, the display's PNG and the ROI statistics' CSV.
+SNAPSHOT_RESPONSES: dict[int | str, dict[str, Any]] = {
+    200: {"content": {"image/tiff": {}, "image/png": {}, "text/csv": {}}},
+    **FRAME_SEQ_RESPONSES,
 }
 
 
@@ -197,10 +204,52 @@ def get_live_snapshot_roi_csv(session: Session, seq: int | None = SEQ_QUERY) -> 
     )
 
 
+@router.get("/snapshot/display.png", response_class=Response, responses=SNAPSHOT_RESPONSES)
+def get_live_snapshot_png(
+    session: Session,
+    seq: int | None = SEQ_QUERY,
+    lo: float | None = Query(default=None, description="DN shown black (with hi)"),
+    hi: float | None = Query(default=None, description="DN shown white (with lo)"),
+    colormap: str = Query(default="gray", description="gray, viridis, inferno, cividis, turbo"),
+) -> Response:
+    """The live frame ``seq`` as the page displays it, an RGB PNG: DN ``lo``..``hi`` (both
+    omitted: the page's default, the 0.1 and 99.9 % percentiles) onto ``colormap``'s 256
+    colours, clipped at both ends; one image pixel a frame pixel. 404 no_frame, 409
+    frame_gone as for the TIFF; 400 for a colour map not offered or lo not below hi."""
+    maps = colormaps()
+    if colormap not in maps:
+        return error_response(
+            400,
+            "bad_request",
+            f"colormap {colormap!r} is not offered: use {', '.join(maps)}",
+        )
+    if (lo is None) != (hi is None):
+        return error_response(
+            400,
+            "bad_request",
+            "give lo and hi together (the DN shown black and white), or neither",
+        )
+    if lo is not None and hi is not None and not lo < hi:
+        return error_response(
+            400,
+            "bad_request",
+            f"lo ({lo:g}) must be below hi ({hi:g}): the DN shown black and white",
+        )
+    frame = _snapshot_frame(session, seq)
+    if isinstance(frame, Response):
+        return frame
+    if lo is None or hi is None:
+        lo, hi = default_contrast(frame.pixels)
+    content = display_png(frame.pixels, lo, hi, maps[colormap])
+    return Response(
+        content=content, media_type="image/png", headers=_snapshot_headers(frame, "png")
+    )
+
+
 @router.post(
     "/snapshot",
     response_model=SnapshotSaved,
-    responses=SNAPSHOT_RESPONSES,
+    responses=FRAME_SEQ_RESPONSES,
     dependencies=[needs_control("save a snapshot on the daemon's disk")],
 )
 def post_live_snapshot(session: Session, body: SnapshotRequest | None = None) -> Any:
@@ -224,7 +273,7 @@ def post_live_snapshot(session: Session, body: SnapshotRequest | None = None) ->
     return SnapshotSaved(seq=frame.seq, counter=frame.counter, files=[str(p) for p in paths])
 
 
-@router.get("/pixel", response_model=LivePixel, responses=SNAPSHOT_RESPONSES)
+@router.get("/pixel", response_model=LivePixel, responses=FRAME_SEQ_RESPONSES)
 def get_live_pixel(
     session: Session,
     row: int = Query(ge=0, description="the pixel's row in the camera's frame"),
