@@ -32,14 +32,32 @@ from websockets.sync.client import ClientConnection, connect
 
 import camd
 from camd.cli.camctl import main as camctl_main
+from camd.pipeline.live import RECENT_BYTES_MAX, RECENT_FRAMES, LiveTap
 from camd.web import STATIC_DIR
 from tests.browser import PageLog
 from tests.test_live_page import TESTER, TOKEN, Bench, open_live, shot, wait_for
 from tests.test_live_page import bench as bench  # the module's daemon (module-scoped fixture)
+from tests.test_live_view import received
 
 # Not ``exclusive``: every check compares bytes and values, whenever they come.
 
 ROI = {"name": "dark", "x": 8, "y": 4, "width": 16, "height": 8}
+
+
+def test_the_tap_holds_its_newest_frames_by_seq_within_a_memory_bound() -> None:
+    # In process, a stepped clock: small frames, five held; 4096 x 4096 frames (32 MiB), two.
+    now = [0.0]
+    tap = LiveTap(clock=lambda: now[0])
+    for rows, cols, held in ((4, 6, RECENT_FRAMES), (4096, 4096, 2)):
+        for i in range(8):
+            now[0] += 1.0
+            tap(received(i, np.full((rows, cols), i, dtype=np.uint16)))
+        newest = tap.kept
+        assert tap.held() == (newest - held + 1, newest)
+        assert tap.frame(newest - held) is None
+        frame = tap.frame(newest - held + 1)
+        assert frame is not None and int(frame.pixels[0, 0]) == 8 - held
+    assert sum(f.pixels.nbytes for f in tap._recent) <= RECENT_BYTES_MAX
 
 
 @pytest.fixture

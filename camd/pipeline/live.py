@@ -33,10 +33,13 @@ MAX_RATE_HZ = 20.0
 """Frames a second the live view is given at most: more than a screen needs to look live."""
 
 RECENT_FRAMES = 5
-"""Kept frames the tap holds besides the newest's place, by seq: a quarter of a second at 20
-a second, so that a viewer asking for the frame it shows (a snapshot, a binned viewer's pixel
-readout) finds it, though the tap has moved on. At most five frames' memory (11 MB at 534 x
-2048)."""
+"""Kept frames the tap holds by seq, the newest included: a quarter of a second at 20 a
+second, so that a viewer asking for the frame it shows (a snapshot, a binned viewer's pixel
+readout) finds it, though the tap has moved on (11 MB at 534 x 2048)."""
+
+RECENT_BYTES_MAX = 64 * 2**20
+"""... but no more pixel bytes than this, the newest frame always: a 4096 x 4096 window keeps
+two."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -117,6 +120,9 @@ class LiveTap:
                 pixels=pixels,
             )
             self._recent.append(self._latest)
+            held = sum(f.pixels.nbytes for f in self._recent)
+            while len(self._recent) > 1 and held > RECENT_BYTES_MAX:
+                held -= self._recent.popleft().pixels.nbytes
             self._skipped = 0
             self._cond.notify_all()
 
