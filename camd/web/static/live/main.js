@@ -56,7 +56,10 @@ const plots = new Plots($("hist"), $("profile"));
 page.view = view;
 
 initSnapshots(() => view.frame?.meta ?? null, $("image"), showMessage);
-initTransport((settings) => page.socket?.send(JSON.stringify(settings)));
+// A change while connected goes to the daemon; while (re)connecting, the next URL carries it.
+initTransport((settings) => {
+  if (page.socket?.readyState === WebSocket.OPEN) page.socket.send(JSON.stringify(settings));
+});
 
 for (const name of Object.keys(colormaps)) {
   $("colormap").append(new Option(name, name));
