@@ -33,6 +33,7 @@ from websockets.sync.client import ClientConnection, connect
 import camd
 from camd.cli.camctl import main as camctl_main
 from camd.pipeline.live import RECENT_BYTES_MAX, RECENT_FRAMES, LiveTap
+from camd.pipeline.live_transport import block_mean
 from camd.web import STATIC_DIR
 from tests.browser import PageLog
 from tests.test_live_page import TESTER, TOKEN, Bench, open_live, shot, wait_for
@@ -283,6 +284,18 @@ def block_means(pixels: np.ndarray, b: int) -> np.ndarray:
         sums = np.add.reduceat(strip.sum(axis=0)[: cols * b], np.arange(0, cols * b, b))
         out[r] = np.rint(sums / (b * b))
     return out
+
+
+def test_block_means_drop_the_rows_and_columns_past_the_last_whole_block() -> None:
+    # In process: hr400's 534 rows and an odd width, full-scale pixels (the sums' range).
+    rng = np.random.default_rng(34)
+    pixels = rng.integers(0, 65536, size=(534, 2051), dtype=np.uint16)
+    pixels[:8, :8] = 65535
+    for b in (1, 2, 4, 8):
+        sent = block_mean(pixels, b)
+        assert sent.shape == (534 // b, 2051 // b) and sent.dtype == np.uint16
+        assert np.array_equal(sent, block_means(pixels, b)), b
+    assert block_mean(pixels, 8)[0, 0] == 65535
 
 
 def test_binned_and_deflated_frames_are_the_block_means_of_the_raw_frame(
