@@ -432,9 +432,10 @@ def test_the_page_binned_and_deflated_reads_raw_dn_under_the_cursor(
         client.write_registers({"TEST_PATTERN.mode": "ramp"})
         client.start_stream(0, mode="area")
         try:
-            open_live(live, log, bench, "binned-viewer")
+            # The address names the binning (a bookmark); the bar then changes the compression.
+            open_live(live, log, bench, "binned-viewer&bin=4")
             wait_for("a frame", lambda: live.evaluate("window.camdLive.framesShown") >= 1)
-            live.select_option("#tx-bin", "4")
+            assert live.input_value("#tx-bin") == "4"
             live.select_option("#tx-compression", "deflate")
             wait_for(
                 "a binned, deflated frame on show",

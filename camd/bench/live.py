@@ -624,7 +624,9 @@ def bench_live(
         group: Viewers | None = None
         try:
             if viewer_kind == "browser":
-                group = BrowserViewers(daemon.url + page + query, viewers)
+                # The page's own query (e.g. /live?bin=4: its transport) keeps the token's.
+                joined = page + ("&" + query[1:] if query and "?" in page else query)
+                group = BrowserViewers(daemon.url + joined, viewers)
             elif viewer_kind == "roi":
                 group = RoiViewers(client, viewers, rows)
             else:

@@ -23,9 +23,17 @@ export function transportQuery() {
 }
 
 // Wires the bar: the default compression is deflate but on this computer (loopback: bytes are
-// free, the CPU is not); a change is sent to the daemon through `send(settings)`.
+// free, the CPU is not), unless the page's address names the settings; a change is sent to the
+// daemon through `send(settings)`.
 export function initTransport(send) {
   if (!LOOPBACK.includes(location.hostname)) $("tx-compression").value = "deflate";
+  // The address may name them (a bookmark for a viewer on a slow network):
+  // /live?bin=4&max_fps=5&compression=deflate; a value the bar does not offer is ignored.
+  const query = new URLSearchParams(location.search);
+  for (const [key, id] of [["bin", "tx-bin"], ["max_fps", "tx-fps"], ["compression", "tx-compression"]]) {
+    const value = query.get(key);
+    if (value !== null && [...$(id).options].some((option) => option.value === value)) $(id).value = value;
+  }
   for (const id of ["tx-bin", "tx-fps", "tx-compression"]) {
     $(id).addEventListener("change", () => send(transportSettings()));
   }
