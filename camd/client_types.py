@@ -683,6 +683,30 @@ class RoiStatsResponse(TypedDict):
     history: dict[str, RoiHistorySeries]
 
 
+class LivePixel(TypedDict):
+    """GET /api/v1/live/pixel: one pixel of a live frame, raw (a binned viewer's readout)."""
+
+    # the live frame
+    seq: int
+    # its device frame counter
+    counter: int
+    row: int
+    col: int
+    # the pixel as the camera sent it, DN
+    raw_dn: int
+
+
+class SnapshotSaved(TypedDict):
+    """The answer of POST /api/v1/live/snapshot: what was written, on the daemon's computer."""
+
+    # the live frame saved
+    seq: int
+    # its device frame counter
+    counter: int
+    # the TIFF, and the ROI statistics' CSV when an ROI measured the frame
+    files: list[str]
+
+
 class FocusLatest(TypedDict):
     """The newest frame's focus figures."""
 

@@ -74,3 +74,24 @@ def test_without_a_browser_it_says_what_to_install(monkeypatch: pytest.MonkeyPat
     assert "apt-get install chromium" in why and "pip install -e '.[test]'" in why
     with pytest.raises(bench_live.BenchError, match="apt-get install chromium"):
         bench_live.BrowserViewers("http://127.0.0.1:1/live", 1)
+
+
+def test_per_setting_counts_the_bytes_each_transport_sends() -> None:
+    # Two settings, half a second each, in this process: the figures must add up, whatever
+    # the rate a busy machine gives.
+    result = bench_live.bench_per_setting(
+        seconds=0.5, rows=16, pin=False,
+        settings=["bin=1&compression=none", "bin=4&compression=deflate"],
+    )  # fmt: skip
+    full, small = result["per_setting"]
+    assert (full["transport"], small["transport"]) == (
+        "bin=1&compression=none", "bin=4&compression=deflate",
+    )  # fmt: skip
+    for row in (full, small):
+        assert row["viewer_frames_per_s"] > 0 and row["ingest_frames_per_s"] > 0
+    # Full frames: 16 x 2048 pixels of 2 bytes and a description of a few hundred bytes each.
+    per_frame = full["viewer_bytes_per_s"] / full["viewer_frames_per_s"]
+    assert 16 * 2048 * 2 < per_frame < 16 * 2048 * 2 + 1000
+    # 4 x 4 block means deflated: at most a sixteenth of that (plus the description).
+    assert small["viewer_bytes_per_s"] / small["viewer_frames_per_s"] < 16 * 2048 * 2 / 16 + 1000
+    assert "MB/s at 20/s" in bench_live.render_per_setting(result)

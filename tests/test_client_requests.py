@@ -42,7 +42,13 @@ from camd.daemon.client_requests_gen import (
     render_client_requests,
 )
 from camd.daemon.client_types_gen import render_type
-from camd.daemon.models import MotionHomeRequest, RegisterDiffRequest, ScanRequest, WheelRegion
+from camd.daemon.models import (
+    MotionHomeRequest,
+    RegisterDiffRequest,
+    ScanRequest,
+    SnapshotRequest,
+    WheelRegion,
+)
 from camd.daemon.models.common import _Request
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -53,6 +59,7 @@ NOT_CONVERTED: dict[type[BaseModel], str] = {
     RegisterDiffRequest: "diff_registers(values) says 'values' when given values, else 'reset'",
     MotionHomeRequest: "its one key, wait: the client always asks for an answer at once (false)",
     WheelRegion: "held by WheelAcquireRequest.region, which wheel_acquire passes whole",
+    SnapshotRequest: "its one key, seq: save_snapshot(seq) takes it as its argument",
 }
 
 # Parameters with a default of the converted methods that are no key of their request (or, for

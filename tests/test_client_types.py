@@ -350,6 +350,8 @@ ANSWERS: list[tuple[str, str]] = [
     ("roi_stats", "RoiStatsResponse"),
     ("focus", "FocusResponse"),
     ("delete_roi", "RoiList"),
+    ("live_pixel", "LivePixel"),
+    ("save_snapshot", "SnapshotSaved"),
     ("scan", "ScanResponse"),
     ("motion", "MotionStatus"),
     ("move_stage", "MotionStatus"),
@@ -411,6 +413,8 @@ def answers(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]
         docs["background"] = client.background()
         docs["roi_stats"] = client.roi_stats(history=3)
         docs["focus"] = client.focus(history=3)
+        docs["live_pixel"] = client.live_pixel(0, 0)
+        docs["save_snapshot"] = client.save_snapshot()  # of the stream's last live frame
         docs["delete_roi"] = client.delete_roi("dark")
         client.start_scan(4, 20, out=str(tmp / "scan.h5"), quicklook=False)
         docs["scan"] = client.wait_scan(120)

@@ -18,9 +18,17 @@ Viewers:
   bench reads the counts and does not listen to the pages' WebSocket (which would have the
   browser copy every frame to Playwright).
 
+  With ``--transport QUERY`` (e.g. ``bin=4&compression=deflate``) they ask the daemon for
+  that transport (docs/live-view.md, "Transport") and inflate what comes deflated.
 - ``roi``: no viewer; B defines N regions of interest in the daemon (each 1/N of the window's
   columns and all its rows), which it measures on every frame (``camd.pipeline.roi``): the
   cost of ROI statistics at the stream's full rate (issue 34: four ROIs, B / A >= 0.95).
+
+``--per-setting``: instead of A/B, the bytes a viewer is sent: one ``ws`` viewer at each
+transport setting in turn (bin 1, 2, 4, 8 x compression none, deflate), on one stream, each for
+``--seconds``: its frames and bytes (descriptions and pixels, as they leave the daemon) per
+second, and the daemon's CPU. The issue's figure is at 534 x 2048 (``--rows 534``, hr400's full
+window), where the live view keeps 20 frames a second.
 
 A frame's cost to the stream does not depend on its pixels, and a viewer's only through their
 number, so the frame bank's repeats change nothing measured.
@@ -43,6 +51,8 @@ import sys
 import tempfile
 import threading
 import time
+import zlib
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any, Protocol
 from urllib.parse import quote
@@ -59,6 +69,9 @@ EXPOSURE_LINES = 1  # below the window's rows: frames follow each other every `r
 SETTLE_S = 0.5  # before each measurement, after the viewers are up
 VIEWER_START_TIMEOUT_S = 60.0
 GOAL = 0.95
+PER_SETTING = [
+    f"bin={b}&compression={c}" for b in (1, 2, 4, 8) for c in ("none", "deflate")
+]  # --per-setting's transports, in the order of the table
 LIVE_WS = "/api/v1/live/ws"
 LIVE_PAGE = "/live"
 INSTALL_BROWSER = (
@@ -112,6 +125,19 @@ def add_options(p: argparse.ArgumentParser) -> None:
         "--no-deflate",
         action="store_true",
         help="ws viewers do not offer permessage-deflate (browsers do)",
+    )
+    p.add_argument(
+        "--transport",
+        default="",
+        metavar="QUERY",
+        help="ws viewers ask for this transport, e.g. 'bin=4&compression=deflate&max_fps=10' "
+        "(default: none asked: full frames, uncompressed)",
+    )
+    p.add_argument(
+        "--per-setting",
+        action="store_true",
+        help="instead of A/B: one ws viewer at each transport setting (bin 1/2/4/8 x "
+        "none/deflate) in turn, its frames and bytes per second (use --rows 534)",
     )
     p.add_argument(
         "--pin",
@@ -173,7 +199,7 @@ class _WsViewer:
         self.url = url
         self.deflate = deflate
         self.frames = 0
-        self.bytes = 0
+        self.bytes = 0  # descriptions and payloads, as the daemon sent them
         self.error: str | None = None
         self.contrast = (0, 0)  # the last frame's min and max
         self.first = threading.Event()
@@ -198,11 +224,19 @@ class _WsViewer:
                     except TimeoutError:
                         continue
                     if isinstance(message, str):
+                        self.bytes += len(message)
                         meta = json.loads(message)
+                        if "error" in meta:
+                            raise BenchError(f"the daemon refused the transport: {meta['error']}")
                         continue
                     if meta is None:
                         raise BenchError("the live WebSocket sent pixels before their description")
-                    pixels = np.frombuffer(message, dtype="<u2").reshape(meta["rows"], meta["cols"])
+                    raw = (
+                        zlib.decompress(message)
+                        if meta.get("compression") == "deflate"
+                        else message
+                    )
+                    pixels = np.frombuffer(raw, dtype="<u2").reshape(meta["rows"], meta["cols"])
                     self.contrast = (int(pixels.min()), int(pixels.max()))
                     self.frames += 1
                     self.bytes += len(message)
@@ -241,6 +275,10 @@ class WsViewers:
 
     def counts(self) -> list[int]:
         return [v.frames for v in self._viewers]
+
+    def bytes(self) -> list[int]:
+        """Bytes each viewer has been sent since it was attached."""
+        return [v.bytes for v in self._viewers]
 
     def pause(self, seconds: float) -> None:
         time.sleep(seconds)
@@ -476,11 +514,13 @@ def _phase(client: Any, cpu: _Cpu, viewers: Viewers | None, seconds: float) -> d
         s0 = client.stream()
         c0 = cpu.sample()
         v0 = viewers.counts() if viewers is not None else []
+        b0 = viewers.bytes() if isinstance(viewers, WsViewers) else []
         t0 = time.monotonic()
         (viewers.pause if viewers is not None else time.sleep)(seconds)
         s1 = client.stream()
         c1 = cpu.sample()
         v1 = viewers.counts() if viewers is not None else []
+        b1 = viewers.bytes() if isinstance(viewers, WsViewers) else []
         wall_s = time.monotonic() - t0
     finally:
         if viewers is not None:
@@ -505,7 +545,54 @@ def _phase(client: Any, cpu: _Cpu, viewers: Viewers | None, seconds: float) -> d
         "viewer_frames_per_s": [
             round((n1 - n0) / wall_s, 2) for n0, n1 in zip(v0, v1, strict=True)
         ],
+        # What each ws viewer was sent (descriptions and pixels, as they left the daemon).
+        "viewer_bytes_per_s": [round((n1 - n0) / wall_s) for n0, n1 in zip(b0, b1, strict=True)],
     }
+
+
+@contextlib.contextmanager
+def _streaming(
+    rows: int, frame_bank: int, pin: bool
+) -> Iterator[tuple[Any, Any, dict[str, Any], dict[str, Any], dict[str, list[int]] | None]]:
+    """A daemon on the simulated hr400 streaming ``rows`` x 2048 at the shortest frame period
+    (module docstring), past the frame bank's rendering: (daemon, client, the stream's start
+    document, the timing, the CPUs pinned or None). The stream is stopped on the way out."""
+    from camd.cli._daemon_proc import DaemonProcess, write_sim_config
+    from camd.client import CamdClient
+
+    with tempfile.TemporaryDirectory(prefix="camd-bench-live-") as tmp:
+        config = write_sim_config(Path(tmp), PROFILE, frame_bank=frame_bank, scene="bars")
+        with DaemonProcess(tmp, extra_args=["--config", str(config)]) as daemon:
+            client = CamdClient(daemon.url, timeout_s=60, client="camd bench live")
+            try:
+                client.wait_ready(60)
+                pinned = pin_cpus(daemon.pid) if pin else None
+                client.write_registers(
+                    {"WIN_START": 0, "WIN_ROWS": rows, "EXPOSURE": EXPOSURE_LINES}
+                )
+                timing = client.timing()
+                start = client.start_stream(0, mode="area")
+                deadline = time.monotonic() + 60
+                while client.stream()["stats"]["frames"] == 0:
+                    if time.monotonic() > deadline:
+                        raise BenchError("the stream delivered no frame within 60 s")
+                    time.sleep(0.1)
+                time.sleep(1.0)  # past the frame bank's rendering
+                yield daemon, client, dict(start), dict(timing), pinned
+                client.stop_stream()
+            finally:
+                client.close()
+
+
+def _ws_url(daemon_url: str, transport: str) -> str:
+    """The live WebSocket's URL with the token ($CAMD_TOKEN, which the daemon takes too) and
+    ``transport`` (a query, e.g. ``bin=4&compression=deflate``)."""
+    token = os.environ.get("CAMD_TOKEN", "")
+    params = [f"token={quote(token, safe='')}"] if token else []
+    params += [transport] if transport else []
+    return (
+        daemon_url.replace("http", "ws", 1) + LIVE_WS + ("?" + "&".join(params) if params else "")
+    )
 
 
 def bench_live(
@@ -518,14 +605,12 @@ def bench_live(
     frame_bank: int = DEFAULT_BANK,
     page: str = LIVE_PAGE,
     deflate: bool = True,
+    transport: str = "",
     pin: bool | None = None,
     progress: Any = None,
 ) -> dict[str, Any]:
     """Run the bench and return its figures (module docstring). ``progress(text)``, if given,
     is called with a line per phase."""
-    from camd.cli._daemon_proc import DaemonProcess, write_sim_config
-    from camd.client import CamdClient
-
     if pin is None:
         pin = len(os.sched_getaffinity(0)) >= 2
     why = "--viewer-kind " + viewer_kind if viewer_kind else ""
@@ -535,55 +620,110 @@ def bench_live(
     query = f"?token={quote(token, safe='')}" if token else ""
     say = progress or (lambda text: None)
     load_before = os.getloadavg()[0]
-    with tempfile.TemporaryDirectory(prefix="camd-bench-live-") as tmp:
-        config = write_sim_config(Path(tmp), PROFILE, frame_bank=frame_bank, scene="bars")
-        with DaemonProcess(tmp, extra_args=["--config", str(config)]) as daemon:
-            client = CamdClient(daemon.url, timeout_s=60, client="camd bench live")
-            group: Viewers | None = None
-            try:
-                client.wait_ready(60)
-                pinned = pin_cpus(daemon.pid) if pin else None
-                client.write_registers(
-                    {"WIN_START": 0, "WIN_ROWS": rows, "EXPOSURE": EXPOSURE_LINES}
-                )
-                timing = client.timing()
-                ws_url = daemon.url.replace("http", "ws", 1) + LIVE_WS + query
-                if viewer_kind == "browser":
-                    group = BrowserViewers(daemon.url + page + query, viewers)
-                elif viewer_kind == "roi":
-                    group = RoiViewers(client, viewers, rows)
-                else:
-                    group = WsViewers(ws_url, viewers, deflate=deflate)
-                start = client.start_stream(0, mode="area")
-                deadline = time.monotonic() + 60
-                while client.stream()["stats"]["frames"] == 0:
-                    if time.monotonic() > deadline:
-                        raise BenchError("the stream delivered no frame within 60 s")
-                    time.sleep(0.1)
-                time.sleep(1.0)  # past the frame bank's rendering
-                results = []
-                for r in range(rounds):
-                    order = "AB" if r % 2 == 0 else "BA"
-                    phases: dict[str, dict[str, Any]] = {}
-                    for name in order:
-                        say(f"round {r + 1}/{rounds}: {name}")
-                        viewing = group if name == "B" else None
-                        phases[name] = _phase(client, _Cpu(daemon.pid), viewing, seconds)
-                    results.append({
-                        "round": r + 1, "order": order, "A": phases["A"], "B": phases["B"],
-                        "ratio": phases["B"]["frames_per_s"] / phases["A"]["frames_per_s"],
-                        "ratio_mbyte_s": phases["B"]["mbyte_per_s"] / phases["A"]["mbyte_per_s"],
-                    })  # fmt: skip
-                client.stop_stream()
-            finally:
-                if group is not None:
-                    group.close()
-                client.close()
-    return _summary(
-        results, start=dict(start), timing=dict(timing), kind=viewer_kind, why=why,
+    with _streaming(rows, frame_bank, pin) as (daemon, client, start, timing, pinned):
+        group: Viewers | None = None
+        try:
+            if viewer_kind == "browser":
+                # The page's own query (e.g. /live?bin=4: its transport) keeps the token's.
+                joined = page + ("&" + query[1:] if query and "?" in page else query)
+                group = BrowserViewers(daemon.url + joined, viewers)
+            elif viewer_kind == "roi":
+                group = RoiViewers(client, viewers, rows)
+            else:
+                group = WsViewers(_ws_url(daemon.url, transport), viewers, deflate=deflate)
+            results = []
+            for r in range(rounds):
+                order = "AB" if r % 2 == 0 else "BA"
+                phases: dict[str, dict[str, Any]] = {}
+                for name in order:
+                    say(f"round {r + 1}/{rounds}: {name}")
+                    viewing = group if name == "B" else None
+                    phases[name] = _phase(client, _Cpu(daemon.pid), viewing, seconds)
+                results.append({
+                    "round": r + 1, "order": order, "A": phases["A"], "B": phases["B"],
+                    "ratio": phases["B"]["frames_per_s"] / phases["A"]["frames_per_s"],
+                    "ratio_mbyte_s": phases["B"]["mbyte_per_s"] / phases["A"]["mbyte_per_s"],
+                })  # fmt: skip
+        finally:
+            if group is not None:
+                group.close()
+    summary = _summary(
+        results, start=start, timing=timing, kind=viewer_kind, why=why,
         viewers=viewers, seconds=seconds, frame_bank=frame_bank, deflate=deflate,
         loadavg=[load_before, os.getloadavg()[0]], pinned=pinned,
     )  # fmt: skip
+    summary["transport"] = transport if viewer_kind == "ws" else None
+    return summary
+
+
+def bench_per_setting(
+    *,
+    seconds: float = DEFAULT_SECONDS,
+    rows: int = DEFAULT_ROWS,
+    frame_bank: int = DEFAULT_BANK,
+    pin: bool | None = None,
+    settings: list[str] | None = None,
+    progress: Any = None,
+) -> dict[str, Any]:
+    """``--per-setting`` (module docstring): one ws viewer at each transport in turn."""
+    if pin is None:
+        pin = len(os.sched_getaffinity(0)) >= 2
+    say = progress or (lambda text: None)
+    rows_out = []
+    with _streaming(rows, frame_bank, pin) as (daemon, client, start, timing, pinned):
+        for transport in settings or PER_SETTING:
+            say(f"transport {transport}")
+            viewer = WsViewers(_ws_url(daemon.url, transport), 1, deflate=False)
+            try:
+                phase = _phase(client, _Cpu(daemon.pid), viewer, seconds)
+            finally:
+                viewer.close()
+            rows_out.append(
+                {
+                    "transport": transport,
+                    "viewer_frames_per_s": phase["viewer_frames_per_s"][0],
+                    "viewer_bytes_per_s": phase["viewer_bytes_per_s"][0],
+                    "ingest_frames_per_s": phase["frames_per_s"],
+                    "lost": phase["lost"],
+                    "daemon_cpu_cores": phase["cpu_cores"]["daemon"],
+                }
+            )
+    rows_n, cols = int(start["rows"]), int(start["cols"])
+    return {
+        "per_setting": rows_out,
+        "seconds": seconds,
+        "stream": {
+            "profile": PROFILE,
+            "rows": rows_n,
+            "cols": cols,
+            "frame_period_s": float(start["frame_period_s"]),
+            "line_period_s": float(timing["line_period_s"]),
+        },
+        "pinned": pinned,
+        "cpus": os.cpu_count(),
+    }
+
+
+def render_per_setting(result: dict[str, Any]) -> str:
+    """The table ``camd bench live --per-setting`` prints."""
+    s = result["stream"]
+    lines = [
+        f"bytes a live viewer is sent: one ws viewer at each transport for {result['seconds']:g} "
+        f"s; stream {s['profile']} {s['rows']} x {s['cols']}, "
+        f"{1 / s['frame_period_s']:.0f} frames/s from the camera, the live view keeping 20",
+        "",
+        f"{'transport':<28} {'viewer fr/s':>11} {'MB/s':>8} {'kB/frame':>9} "
+        f"{'MB/s at 20/s':>12} {'ingest fr/s':>12} {'daemon CPU':>10}",
+    ]
+    for r in result["per_setting"]:
+        fps = r["viewer_frames_per_s"]
+        per_frame = r["viewer_bytes_per_s"] / fps / 1e3 if fps else 0.0
+        lines.append(
+            f"{r['transport']:<28} {fps:>11.1f} {r['viewer_bytes_per_s'] / 1e6:>8.3f} "
+            f"{per_frame:>9.1f} {per_frame * 20 / 1e3:>12.3f} {r['ingest_frames_per_s']:>12.1f} "
+            f"{r['daemon_cpu_cores']:>10.2f}"
+        )
+    return "\n".join(lines)
 
 
 def _summary(results: list[dict[str, Any]], *, start: dict[str, Any], timing: dict[str, Any],
@@ -727,6 +867,9 @@ def run(args: argparse.Namespace) -> int:
     if not 1 <= args.rows <= 2048 or args.frame_bank < 0:
         print("camd bench live: --rows must be 1..2048, --frame-bank >= 0", file=sys.stderr)
         return 2
+    if getattr(args, "transport", "") and (args.viewer_kind or "ws") != "ws":
+        print("camd bench live: --transport goes with --viewer-kind ws", file=sys.stderr)
+        return 2
     if not args.page.startswith("/"):
         print(f"camd bench live: --page must be a path such as {LIVE_PAGE}", file=sys.stderr)
         return 2
@@ -738,14 +881,26 @@ def run(args: argparse.Namespace) -> int:
         if not args.json:
             print(f"  {text}", file=sys.stderr, flush=True)
 
+    per_setting = getattr(args, "per_setting", False)
+    transport = getattr(args, "transport", "")
     try:
-        result = bench_live(
-            rounds=args.rounds, seconds=args.seconds, viewers=args.viewers,
-            viewer_kind=args.viewer_kind, rows=args.rows, frame_bank=args.frame_bank,
-            page=args.page, deflate=not args.no_deflate, pin=args.pin, progress=progress,
-        )  # fmt: skip
+        if per_setting:
+            result = bench_per_setting(
+                seconds=args.seconds, rows=args.rows, frame_bank=args.frame_bank, pin=args.pin,
+                progress=progress,
+            )  # fmt: skip
+        else:
+            result = bench_live(
+                rounds=args.rounds, seconds=args.seconds, viewers=args.viewers,
+                viewer_kind=args.viewer_kind, rows=args.rows, frame_bank=args.frame_bank,
+                page=args.page, deflate=not args.no_deflate, transport=transport,
+                pin=args.pin, progress=progress,
+            )  # fmt: skip
     except (BenchError, DaemonStartError, CamdError) as exc:
         print(f"camd bench live: {exc}", file=sys.stderr)
         return 1
-    print(json.dumps(result) if args.json else render(result))
+    if args.json:
+        print(json.dumps(result))
+    else:
+        print(render_per_setting(result) if per_setting else render(result))
     return 0

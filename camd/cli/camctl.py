@@ -11,8 +11,9 @@ This module holds the options every command takes, the parser that gathers the c
 and ``main``: one call, its document printed as JSON or as tables, errors to exit statuses. The
 commands live in their groups, each with ``add_parsers``, ``COMMANDS`` and ``RENDER``:
 ``camctl_device`` (status, ping, link, telemetry, events, mode, reset, control, estop),
-``camctl_sensor``, ``camctl_stream``, ``camctl_roi``, ``camctl_focus``, ``camctl_scan``, ``camctl_motion``, ``camctl_wheel``,
-``camctl_campaign``, ``camctl_conform``; the tables and value formats in ``camctl_format``.
+``camctl_sensor``, ``camctl_stream``, ``camctl_roi``, ``camctl_focus``, ``camctl_snapshot``,
+``camctl_scan``, ``camctl_motion``, ``camctl_wheel``, ``camctl_campaign``, ``camctl_conform``; the
+tables and value formats in ``camctl_format``.
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ from camd.cli import (
     camctl_roi,
     camctl_scan,
     camctl_sensor,
+    camctl_snapshot,
     camctl_stream,
     camctl_wheel,
 )
@@ -116,6 +118,7 @@ def build_parser() -> argparse.ArgumentParser:
     camctl_stream.add_parsers(command)
     camctl_roi.add_parsers(command)
     camctl_focus.add_parsers(command)
+    camctl_snapshot.add_parsers(command)
     camctl_scan.add_parsers(command)
     camctl_motion.add_parsers(command)
     camctl_wheel.add_parsers(command)
@@ -199,6 +202,7 @@ _COMMANDS: dict[str, Callable[[CamdClient, argparse.Namespace], Any]] = {
     **camctl_stream.COMMANDS,
     **camctl_roi.COMMANDS,
     **camctl_focus.COMMANDS,
+    **camctl_snapshot.COMMANDS,
     **camctl_scan.COMMANDS,
     **camctl_motion.COMMANDS,
     **camctl_wheel.COMMANDS,
@@ -212,6 +216,7 @@ _RENDER: dict[str, Callable[[Console, Any, argparse.Namespace], None]] = {
     **camctl_stream.RENDER,
     **camctl_roi.RENDER,
     **camctl_focus.RENDER,
+    **camctl_snapshot.RENDER,
     **camctl_scan.RENDER,
     **camctl_motion.RENDER,
     **camctl_wheel.RENDER,

@@ -15,8 +15,10 @@ from camd.client_requests import StreamAcquireOptions, StreamStartRequestOptions
 from camd.client_types import (
     BackgroundStatus,
     FocusResponse,
+    LivePixel,
     RoiList,
     RoiStatsResponse,
+    SnapshotSaved,
     StreamHeadersResponse,
     StreamResponse,
 )
@@ -130,6 +132,44 @@ class StreamClient(HttpClient):
     def reset_focus_best(self) -> FocusResponse:
         """Forget the best focus figures (a new focusing starts)."""
         return cast(FocusResponse, self._json("DELETE", f"{API}/live/focus/best"))
+
+    def snapshot_tiff(self, seq: int | None = None) -> tuple[dict[str, Any], bytes]:
+        """A snapshot of the live view's frame (``seq``; None: the newest): its description
+        (as ``X-Camd-Frame``) and the TIFF file's bytes (raw DN; its ImageDescription the
+        JSON of the frame, the camera's settings and the ROIs' statistics on it). CamdError
+        ``no_frame`` before any, ``frame_gone`` if ``seq`` is no longer the live view's."""
+        params = {} if seq is None else {"seq": seq}
+        response = self._request("GET", f"{API}/live/snapshot/frame.tiff", params=params)
+        return json.loads(response.headers["X-Camd-Frame"]), response.content
+
+    def snapshot_png(
+        self,
+        seq: int,
+        *,
+        lo: float | None = None,
+        hi: float | None = None,
+        colormap: str = "gray",
+    ) -> bytes:
+        """The live frame ``seq`` as the page displays it, PNG bytes: DN ``lo``..``hi`` (None:
+        the page's default contrast, percentiles 0.1 .. 99.9 %) onto ``colormap``."""
+        params: dict[str, Any] = {"seq": seq, "colormap": colormap}
+        if lo is not None and hi is not None:
+            params.update(lo=lo, hi=hi)
+        return self._request("GET", f"{API}/live/snapshot/display.png", params=params).content
+
+    def live_pixel(self, row: int, col: int, seq: int | None = None) -> LivePixel:
+        """One pixel's raw DN in the live frame ``seq`` (None: the newest; the live view holds
+        its newest 5): what a binned viewer reads under its cursor."""
+        params: dict[str, int] = {"row": row, "col": col}
+        if seq is not None:
+            params["seq"] = seq
+        return cast(LivePixel, self._json("GET", f"{API}/live/pixel", params=params))
+
+    def save_snapshot(self, seq: int | None = None) -> SnapshotSaved:
+        """Have the daemon save the snapshot of the live frame ``seq`` (None: the newest) in
+        its data directory's ``snapshots`` folder (the TIFF, and the ROI statistics' CSV);
+        the paths written, on the daemon's computer. Needs control."""
+        return cast(SnapshotSaved, self._json("POST", f"{API}/live/snapshot", json={"seq": seq}))
 
     def live_lines(
         self, after: int = -1, *, max_lines: int = 512, timeout_s: float = 0.0

@@ -72,6 +72,7 @@ from camd.link import CommandLink, Response
 from camd.pipeline.background import BackgroundCapture
 from camd.pipeline.focus import FocusMonitor
 from camd.pipeline.live import LiveLines, LiveTap
+from camd.pipeline.live_transport import TransportEncoder
 from camd.pipeline.roi import RoiMonitor
 from camd.protocol import Dictionary, load_dictionary
 from camd.store.journal import recover_left_open
@@ -141,6 +142,7 @@ class DeviceSession:
         )
         # The live view's tap stays on every stream (stare, stream, scan, wheel).
         self.live = LiveTap()
+        self.live_transport = TransportEncoder()  # the WebSocket viewers' binning, compression
         self.stream.add_consumer(self.live)
         self.stream.add_consumer(background)
         self.background = BackgroundService(device, background, self.stream)

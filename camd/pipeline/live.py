@@ -18,6 +18,7 @@ from __future__ import annotations
 import bisect
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -30,6 +31,15 @@ from camd.link.packed import FrameBatch
 
 MAX_RATE_HZ = 20.0
 """Frames a second the live view is given at most: more than a screen needs to look live."""
+
+RECENT_FRAMES = 5
+"""Kept frames the tap holds by seq, the newest included: a quarter of a second at 20 a
+second, so that a viewer asking for the frame it shows (a snapshot, a binned viewer's pixel
+readout) finds it, though the tap has moved on (11 MB at 534 x 2048)."""
+
+RECENT_BYTES_MAX = 64 * 2**20
+"""... but no more pixel bytes than this, the newest frame always: a 4096 x 4096 window keeps
+two."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -80,6 +90,7 @@ class LiveTap:
         self._clock = clock
         self._cond = threading.Condition()
         self._latest: LiveFrame | None = None
+        self._recent: deque[LiveFrame] = deque(maxlen=RECENT_FRAMES)
         self._last_kept_s = -float("inf")
         self._skipped = 0
         self.kept = 0  # frames kept so far
@@ -111,6 +122,10 @@ class LiveTap:
                 gap_before=frame.gap_before,
                 pixels=pixels,
             )
+            self._recent.append(self._latest)
+            held = sum(f.pixels.nbytes for f in self._recent)
+            while len(self._recent) > 1 and held > RECENT_BYTES_MAX:
+                held -= self._recent.popleft().pixels.nbytes
             self._skipped = 0
             self._cond.notify_all()
 
@@ -138,6 +153,16 @@ class LiveTap:
         """The newest kept frame (None before the first)."""
         with self._cond:
             return self._latest
+
+    def frame(self, seq: int) -> LiveFrame | None:
+        """The kept frame ``seq`` if the tap still holds it (the newest ``RECENT_FRAMES``)."""
+        with self._cond:
+            return next((f for f in self._recent if f.seq == seq), None)
+
+    def held(self) -> tuple[int, int] | None:
+        """The oldest and newest seq the tap holds (None before the first frame)."""
+        with self._cond:
+            return (self._recent[0].seq, self._recent[-1].seq) if self._recent else None
 
     def wait_newer(self, seq: int, timeout_s: float) -> LiveFrame | None:
         """The newest frame once it is newer than ``seq`` (None if none came in time)."""

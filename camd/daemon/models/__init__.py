@@ -64,6 +64,7 @@ from camd.daemon.models.live import (
     FocusHistory,
     FocusLatest,
     FocusResponse,
+    LivePixel,
     RoiDefinition,
     RoiFrameStats,
     RoiHistorySeries,
@@ -71,6 +72,8 @@ from camd.daemon.models.live import (
     RoiList,
     RoiRequest,
     RoiStatsResponse,
+    SnapshotRequest,
+    SnapshotSaved,
 )
 from camd.daemon.models.motion import (
     MotionEnableRequest,
@@ -228,6 +231,9 @@ __all__ = [  # noqa: RUF022
     "RoiLatest",
     "RoiHistorySeries",
     "RoiStatsResponse",
+    "SnapshotRequest",
+    "LivePixel",
+    "SnapshotSaved",
     "ROI_HISTORY_MAX",
     "FocusLatest",
     "FocusBestModel",

@@ -188,3 +188,33 @@ class FocusResponse(BaseModel):
     latest: FocusLatest | None
     best: dict[str, FocusBestModel] = Field(description="per target, the best since the reset")
     history: FocusHistory
+
+
+class SnapshotRequest(_Request):
+    """POST /api/v1/live/snapshot: save a snapshot in the data directory's snapshots folder."""
+
+    seq: int | None = Field(
+        default=None,
+        ge=1,
+        description="the live frame's seq (as X-Camd-Frame gave it); null: the newest",
+    )
+
+
+class SnapshotSaved(BaseModel):
+    """The answer of POST /api/v1/live/snapshot: what was written, on the daemon's computer."""
+
+    seq: int = Field(description="the live frame saved")
+    counter: int = Field(description="its device frame counter")
+    files: list[str] = Field(
+        description="the TIFF, and the ROI statistics' CSV when an ROI measured the frame"
+    )
+
+
+class LivePixel(BaseModel):
+    """GET /api/v1/live/pixel: one pixel of a live frame, raw (a binned viewer's readout)."""
+
+    seq: int = Field(description="the live frame")
+    counter: int = Field(description="its device frame counter")
+    row: int
+    col: int
+    raw_dn: int = Field(description="the pixel as the camera sent it, DN")

@@ -14,11 +14,12 @@ from collections.abc import AsyncIterator
 from typing import Annotated, Any
 
 import anyio
-from fastapi import Depends, Header
+from fastapi import Depends, Header, Response
 from starlette.requests import HTTPConnection
 
 from camd.daemon.acquisition import acting_as
 from camd.daemon.control import ANONYMOUS
+from camd.daemon.error_body import error_response
 from camd.daemon.session import DeviceSession
 
 CLIENT_NAME_MAX = 100
@@ -76,3 +77,14 @@ def needs_control(wanted: str) -> Any:
     control, or it does), else 423 not_in_control "cannot <wanted>: <holder> holds control
     ..."; the route then runs as that client."""
     return Depends(ControlCheck(wanted), scope="function")
+
+
+def no_frame(after: int = 0, timeout_s: float = 0.0) -> Response:
+    """404 no_frame: nothing streamed yet (or nothing newer than ``after`` came in time)."""
+    newer = f" newer than seq {after} within {timeout_s:g} s" if after else " yet"
+    return error_response(
+        404,
+        "no_frame",
+        f"no live frame{newer}: the live view shows frames while something streams; "
+        "start a stream (`camctl stream --frames 100`), a stare or a scan",
+    )

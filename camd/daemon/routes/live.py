@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import time
 from typing import Any
 
 import anyio
@@ -30,8 +31,9 @@ from camd.daemon.models import (
     RoiStatsResponse,
 )
 from camd.daemon.request_guard import API
-from camd.daemon.routes.deps import Session, needs_control
+from camd.daemon.routes.deps import Session, needs_control, no_frame
 from camd.pipeline.focus import FocusMonitor
+from camd.pipeline.live_transport import Transport, parse_transport
 
 # LIVE_WAIT_MAX_S (models): longest a live-view request waits for something newer.
 LIVE_POLL_S = 1.0  # a WebSocket viewer's wait for the next frame, between checks
@@ -63,13 +65,7 @@ def get_live_frame(
     came within ``timeout_s``."""
     frame = session.live.latest() if after == 0 else session.live.wait_newer(after, timeout_s)
     if frame is None:
-        newer = f" newer than seq {after} within {timeout_s:g} s" if after else " yet"
-        return error_response(
-            404,
-            "no_frame",
-            f"no live frame{newer}: the live view shows frames while something streams; "
-            "start a stream (`camctl stream --frames 100`), a stare or a scan",
-        )
+        return no_frame(after, timeout_s)
     return Response(
         content=frame.pixels.astype("<u2", copy=False).tobytes(),
         media_type="application/octet-stream",
@@ -82,7 +78,15 @@ async def live_ws(websocket: WebSocket) -> None:
     """The live view pushed: for each frame the tap keeps (at most 20 a second), a text
     message with its JSON description (as ``X-Camd-Frame``) then a binary one with its
     pixels. A slow viewer gets fewer frames (always the newest), never a backlog, and
-    never slows the acquisition. With a token: ``?token=`` or the Authorization header."""
+    never slows the acquisition. With a token: ``?token=`` or the Authorization header.
+
+    Each viewer sets its transport (docs/live-view.md, "Transport") with the query
+    parameters ``bin`` (1, 2, 4, 8: block means), ``max_fps`` (at most that many frames a
+    second) and ``compression`` (none, deflate), and changes it with a text message
+    ``{"bin": 4, ...}`` (answered ``{"transport": {...}}``). Each frame's description says
+    what was applied (rows and cols as sent, frame_rows, frame_cols, bin, compression,
+    max_fps, bytes). Bad settings: a text message ``{"error", "code": "bad_request"}``; in
+    the query, the socket is then closed (1008), in a message the settings are unchanged."""
     token: str = websocket.app.state.token
     if token and not token_ok(
         token,
@@ -93,30 +97,76 @@ async def live_ws(websocket: WebSocket) -> None:
         await websocket.close(code=WS_POLICY_VIOLATION, reason="no or wrong token")
         return
     await websocket.accept()
-    live = websocket.app.state.session.live
-
-    async def watch_for_close(scope: anyio.CancelScope) -> None:
-        # A viewer that goes away is noticed at once, not at the next frame.
-        with contextlib.suppress(WebSocketDisconnect):
-            while (await websocket.receive())["type"] != "websocket.disconnect":
-                pass
-        scope.cancel()
-
+    try:
+        transport = parse_transport(dict(websocket.query_params))
+    except ValueError as exc:
+        await websocket.send_text(json.dumps({"error": str(exc), "code": "bad_request"}))
+        await websocket.close(code=WS_POLICY_VIOLATION, reason="bad transport settings")
+        return
+    viewer = _Viewer(websocket, transport)
     async with anyio.create_task_group() as group:
-        group.start_soon(watch_for_close, group.cancel_scope)
-        seq = 0
+        group.start_soon(viewer.listen, group.cancel_scope)
         try:
-            while True:
-                frame = await anyio.to_thread.run_sync(
-                    live.wait_newer, seq, LIVE_POLL_S, abandon_on_cancel=True
-                )
-                if frame is None:
-                    continue
-                seq = frame.seq
-                await websocket.send_text(json.dumps(frame.meta()))
-                await websocket.send_bytes(frame.pixels.astype("<u2", copy=False).tobytes())
+            await viewer.push()
         except (WebSocketDisconnect, RuntimeError):  # gone between two frames
             group.cancel_scope.cancel()
+
+
+class _Viewer:
+    """One WebSocket viewer: its transport settings, its messages and its frames."""
+
+    def __init__(self, websocket: WebSocket, transport: Transport) -> None:
+        self.websocket = websocket
+        self.transport = transport
+        session = websocket.app.state.session
+        self.live = session.live
+        self.encoder = session.live_transport
+        # A frame's two messages go out together: a settings answer never comes between.
+        self.sending = anyio.Lock()
+
+    async def listen(self, scope: anyio.CancelScope) -> None:
+        """The viewer's messages (settings); a viewer that goes away is noticed at once."""
+        with contextlib.suppress(WebSocketDisconnect):
+            while True:
+                message = await self.websocket.receive()
+                if message["type"] == "websocket.disconnect":
+                    break
+                if message.get("text") is not None:
+                    await self._settings(message["text"])
+        scope.cancel()
+
+    async def _settings(self, text: str) -> None:
+        answer: dict[str, Any]
+        try:
+            values = json.loads(text)
+            if not isinstance(values, dict):
+                raise ValueError(f"expected a JSON object of settings, got {text[:80]!r}")
+            self.transport = parse_transport(values, self.transport)
+            answer = {"transport": self.transport.as_dict()}
+        except ValueError as exc:  # json.JSONDecodeError is one
+            answer = {"error": f"settings unchanged: {exc}", "code": "bad_request"}
+        async with self.sending:
+            await self.websocket.send_text(json.dumps(answer))
+
+    async def push(self) -> None:
+        """Each newest frame, encoded for this viewer, no sooner than its rate allows."""
+        seq = 0
+        sent_at = -float("inf")
+        while True:
+            wait_s = sent_at + self.transport.min_interval_s - time.monotonic()
+            if wait_s > 0:
+                await anyio.sleep(wait_s)
+            frame = await anyio.to_thread.run_sync(
+                self.live.wait_newer, seq, LIVE_POLL_S, abandon_on_cancel=True
+            )
+            if frame is None:
+                continue
+            seq = frame.seq
+            encoded = await anyio.to_thread.run_sync(self.encoder.encode, frame, self.transport)
+            sent_at = time.monotonic()
+            async with self.sending:
+                await self.websocket.send_text(json.dumps(encoded.meta))
+                await self.websocket.send_bytes(encoded.payload)
 
 
 @router.get("/background", response_model=BackgroundStatus)

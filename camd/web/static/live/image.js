@@ -181,7 +181,11 @@ export class ImageView {
     const fullScale = 2 ** (f.meta.bits ?? 16) - 1;
     let saturated = 0;
     for (let v = fullScale; v < this.rawCounts.length; v++) saturated += this.rawCounts[v];
-    this.clip = { fullScale, saturated, zero: this.rawCounts[0] };
+    // A binned frame's block means hide clipped pixels: the daemon counted them on the frame.
+    const binned = (f.meta.bin ?? 1) > 1 && f.meta.saturated !== undefined;
+    this.clip = binned
+      ? { fullScale, saturated: f.meta.saturated, zero: f.meta.zero }
+      : { fullScale, saturated, zero: this.rawCounts[0] };
     this.subtracted = null;
     this.subStats = null;
     if (this.backgroundMatches()) {
@@ -379,25 +383,39 @@ export class ImageView {
 
   // The view's mapping between CSS pixels from the canvas's top left and image coordinates
   // (continuous: pixel (r, c) covers rows r..r+1 and columns c..c+1), both ways.
-  // Below 1x, times k and over k, not over and times the zoom: 1/3 is not exact in floating
-  // point, and the readout, the ROI tool and the outlines must agree on the pixel.
-  canvasToImage(x, y) {
+  // Frame pixels per pixel sent: the viewer's binning (transport.js), 1 for full resolution.
+  get bin() {
+    return this.frame?.meta.bin ?? 1;
+  }
+
+  // The pixel of the data on show (block means when binned) under a canvas point, fractional.
+  // Below 1x, times k, not over the zoom: 1/3 is not exact in floating point, and the readout,
+  // the ROI tool and the outlines must agree on the pixel.
+  canvasToData(x, y) {
     const k = this.block;
     const along = (v) => (k > 1 ? v * k : v / this.zoom);
     return { row: this.originRow + along(y), col: this.originCol + along(x) };
   }
 
+  // The camera frame's pixel under a canvas point, fractional: the data's times the binning, so
+  // that ROIs and the readout are in the frame's pixels whatever the viewer is sent.
+  canvasToImage(x, y) {
+    const at = this.canvasToData(x, y);
+    return { row: at.row * this.bin, col: at.col * this.bin };
+  }
+
   imageToCanvas(row, col) {
     const k = this.block;
+    const b = this.bin;
     const across = (v) => (k > 1 ? v / k : v * this.zoom);
-    return { x: across(col - this.originCol), y: across(row - this.originRow) };
+    return { x: across(col / b - this.originCol), y: across(row / b - this.originRow) };
   }
 
   // Image pixel under a point given in CSS pixels from the canvas's top left (null off image).
   pixelAt(x, y) {
     const f = this.frame;
     if (f === null) return null;
-    const at = this.canvasToImage(x, y);
+    const at = this.canvasToData(x, y);
     const col = Math.floor(at.col);
     const row = Math.floor(at.row);
     if (row < 0 || col < 0 || row >= f.rows || col >= f.cols) return null;

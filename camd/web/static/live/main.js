@@ -7,6 +7,8 @@ import { ImageView, ZOOMS } from "./image.js";
 import { Plots } from "./plots.js";
 import { RoiPanel } from "./roi.js";
 import { TelemetryPlots } from "./telemetry_plots.js";
+import { initSnapshots } from "./snapshot.js";
+import { binnedHit, framePixels, initTransport, rawText, showTransport, transportQuery } from "./transport.js";
 import { Waterfall } from "./waterfall.js";
 
 const $ = (id) => document.getElementById(id);
@@ -59,11 +61,28 @@ const plots = new Plots($("hist"), $("profile"));
 page.view = view;
 page.plots = plots;
 
+initSnapshots(() => view.frame?.meta ?? null, $("image"), showMessage);
+// A change while connected goes to the daemon; while (re)connecting, the next URL carries it.
+initTransport((settings) => {
+  if (page.socket?.readyState === WebSocket.OPEN) page.socket.send(JSON.stringify(settings));
+});
+
 for (const name of Object.keys(colormaps)) {
   $("colormap").append(new Option(name, name));
 }
 
 function updateReadout() {
+  const binned = page.pointer === null ? null : binnedHit(view, ...page.pointer);
+  if (binned !== null) {
+    // A binned display: the raw pixel under the cursor, its DN from the daemon.
+    $("px-row").textContent = binned.row;
+    $("px-col").textContent = binned.col;
+    $("px-raw").textContent = rawText(binned, (text) => ($("px-raw").textContent = text));
+    $("px-sub").textContent = "-";
+    const start = page.timing?.window_start_row;
+    $("px-sensor").textContent = start === undefined ? "" : `sensor row ${start + binned.row}`;
+    return;
+  }
   const hit = page.pointer === null ? null : view.pixelAt(...page.pointer);
   $("px-row").textContent = hit ? hit.row : "-";
   $("px-col").textContent = hit ? hit.col : "-";
@@ -116,11 +135,12 @@ function showFrame(meta, buffer) {
   page.skippedTotal += missed;
   page.lastMeta = meta;
   if (page.paused) return;
-  // the first frame, or (fitting) one of another width: the view follows
-  const newView = view.frame === null || ($("zoom").value === "fit" && view.frame.cols !== meta.cols);
+  // the first frame, or one of another geometry (a binning chosen, a fitted view): the view follows
+  const newView = view.frame === null || view.frame.rows !== meta.rows || view.frame.cols !== meta.cols;
   view.setFrame(meta, buffer);
   page.framesShown++;
   if (newView) applyView();
+  showTransport(meta);
   updateFrameInfo(meta, missed);
   updateReadout();
   updateStats();
@@ -135,16 +155,23 @@ function showFrame(meta, buffer) {
 
 function connectFrames() {
   const scheme = location.protocol === "https:" ? "wss" : "ws";
-  const socket = new WebSocket(`${scheme}://${location.host}${API}/live/ws`);
+  const socket = new WebSocket(`${scheme}://${location.host}${API}/live/ws?${transportQuery()}`);
   socket.binaryType = "arraybuffer";
+  page.socket = socket;
   let meta = null;
+  let decoding = Promise.resolve(); // frames inflated in turn, shown in order
   socket.onopen = () => setBadge("conn", "live", "good");
   socket.onmessage = (event) => {
     if (typeof event.data === "string") {
-      meta = JSON.parse(event.data);
+      const doc = JSON.parse(event.data);
+      if (doc.error !== undefined) showMessage(`transport: ${doc.error}`);
+      else if (doc.transport !== undefined) page.transport = doc.transport;
+      else meta = doc;
     } else if (meta !== null) {
-      showFrame(meta, event.data);
+      const frameMeta = meta;
+      const payload = event.data;
       meta = null;
+      decoding = decoding.then(async () => showFrame(frameMeta, await framePixels(frameMeta, payload)));
     }
   };
   socket.onclose = () => {
