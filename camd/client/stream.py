@@ -159,7 +159,7 @@ class StreamClient(HttpClient):
 
     def live_pixel(self, row: int, col: int, seq: int | None = None) -> LivePixel:
         """One pixel's raw DN in the live frame ``seq`` (None: the newest; the live view holds
-        its newest 5): what a binned viewer reads under its cursor."""
+        its newest 40, at most 64 MiB): what a binned viewer reads under its cursor."""
         params: dict[str, int] = {"row": row, "col": col}
         if seq is not None:
             params["seq"] = seq

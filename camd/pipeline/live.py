@@ -32,14 +32,15 @@ from camd.link.packed import FrameBatch
 MAX_RATE_HZ = 20.0
 """Frames a second the live view is given at most: more than a screen needs to look live."""
 
-RECENT_FRAMES = 5
-"""Kept frames the tap holds by seq, the newest included: a quarter of a second at 20 a
-second, so that a viewer asking for the frame it shows (a snapshot, a binned viewer's pixel
-readout) finds it, though the tap has moved on (11 MB at 534 x 2048)."""
+RECENT_FRAMES = 40
+"""Kept frames the tap holds by seq, the newest included: two seconds at 20 a second, so that a
+viewer asking for the frame it shows (a snapshot, a binned viewer's pixel readout) finds it,
+though the tap has moved on, even when a loaded machine delays the question (5 frames, a
+quarter of a second, was seen to be too few for a readout). RECENT_BYTES_MAX bounds them."""
 
 RECENT_BYTES_MAX = 64 * 2**20
-"""... but no more pixel bytes than this, the newest frame always: a 4096 x 4096 window keeps
-two."""
+"""... but no more pixel bytes than this, the newest frame always: a 534 x 2048 window keeps 30,
+a 4096 x 4096 window two."""
 
 
 @dataclass(frozen=True, slots=True)
