@@ -323,6 +323,11 @@ def test_binned_and_deflated_frames_are_the_block_means_of_the_raw_frame(
             assert (got["frame_rows"], got["frame_cols"]) == (64, meta["cols"])
             assert (got["rows"], got["cols"]) == expected.shape == (64 // b, meta["cols"] // b)
             assert got["bytes"] == len(payload)
+            # Block means hide clipped pixels: a binned frame's description counts them.
+            clipped = {"saturated": int((pixels >= 4095).sum()), "zero": int((pixels == 0).sum())}
+            assert {k: got.get(k) for k in clipped} == (
+                clipped if b > 1 else dict.fromkeys(clipped)
+            )
             raw = zlib.decompress(payload) if compression == "deflate" else payload
             sent = np.frombuffer(raw, "<u2").reshape(got["rows"], got["cols"])
             assert np.array_equal(sent, expected), (b, compression)
@@ -376,6 +381,13 @@ def test_bad_transport_settings_are_refused_saying_what_to_use(bench: Bench) -> 
          "block sent as its mean)", "code": "bad_request"},
         {"transport": {"bin": 2, "max_fps": 4.0, "compression": "deflate"}},
     ]  # fmt: skip
+    # A message longer than api.max_body_bytes (65536) closes the viewer's socket unread (1009).
+    with ws(bench) as socket:
+        next_frame(socket)
+        socket.send(json.dumps({"bin": 2, "padding": "x" * 70_000}))
+        with pytest.raises(Exception, match="1009"):
+            while True:
+                socket.recv(timeout=30)
 
 
 def test_a_viewers_rate_limit_holds(bench: Bench) -> None:

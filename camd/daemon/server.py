@@ -213,6 +213,9 @@ def serve_api(
             # shrinks, and compressing each frame once per viewer cost the stream's ingest ~10 %
             # with three viewers (`camd bench live`): send them as they are.
             ws_per_message_deflate=False,
+            # A viewer's messages are its transport settings (tens of bytes): a message longer
+            # than a request body may be closes its socket (1009), unread.
+            ws_max_size=config.api.max_body_bytes,
         ),
         session,
         url,
