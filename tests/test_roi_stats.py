@@ -172,3 +172,42 @@ def test_a_recordings_log_keeps_its_frames_stops_at_a_change_and_writes_the_grou
         assert dict(group["b"].attrs) == {"x": 6, "y": 2, "width": 3, "height": 4}
         for j, field in enumerate(STAT_FIELDS):
             np.testing.assert_array_equal(group["b"][field][()], expected[:, 1, j])
+
+
+def test_a_recording_keeps_its_roi_group_written_as_it_finishes_and_survives_its_failure(
+    tmp_path: Path,
+) -> None:
+    # The /roi group goes in while the recording finishes (before the journal calls it
+    # closed); a group that cannot be written (HDF5 refuses a second /roi) loses itself, not
+    # the frames: the recording is finished and readable, and finish_error says why.
+    from camd.store import read_recording
+    from camd.store.recording import FrameRecorder
+
+    frames = _frames(4)
+    rois = [Roi("a", 0, 0, 5, 5)]
+    monitor = RoiMonitor()
+    monitor.set_rois(rois, ROWS, COLS)
+    log = monitor.start_log()
+    assert log is not None
+    for k in range(4):
+        monitor(ReceivedFrame(_header(k), frames[k], 0, 0, k))
+    monitor.stop_log(log)
+
+    def twice(f: h5py.File) -> None:
+        log.write_into(f)
+        log.write_into(f)
+
+    errors = []
+    for name, add in (("kept.h5", log.write_into), ("twice.h5", twice)):
+        recorder = FrameRecorder(tmp_path / name, flush_period_s=0.0)
+        for k in range(4):
+            recorder.add(_header(k), frames[k], received_ns=k)
+        recorder.close({}, finish_with=add)
+        errors.append(recorder.finish_error)
+        recording = read_recording(tmp_path / name)
+        assert recording.frames.shape[0] == 4 and recording.attrs["finished"]
+        with h5py.File(tmp_path / name, "r") as f:  # the first write of the two is whole
+            means = f["roi/a/mean_dn"][()].tolist()
+        assert means == roi_stats(frames, rois, 12)[:, 0, 0].tolist()
+    assert errors[0] is None
+    assert errors[1] is not None and "name already exists" in errors[1]

@@ -141,30 +141,19 @@ class StreamRecording:
         recorder, record = self._to
         self._to = None
         reader.remove_consumer(record)
+        # The ROI statistics of the stream's frames go into the file as its /roi group
+        # (docs/stream.md) while it is finished, before the journal counts it as closed: a crash
+        # then is repaired as any recording left open. A file whose writing failed gets none.
+        log, self._roi_log = self._roi_log, None
+        if log is not None and self._roi is not None:
+            self._roi.stop_log(log)
+        add_rois = log.write_into if log is not None and recorder.failed is None else None
         close_recording(
             recorder,
             stats,
             self.device.recordings,
             self.device.log_event,
             ended_early=ended_early,
+            finish_with=add_rois,
         )
         self._frames_flushed = recorder.flushed
-        self._write_roi_log(recorder)
-
-    def _write_roi_log(self, recorder: FrameRecorder) -> None:
-        """Store the ROI statistics of the stream's frames as the closed file's ``/roi`` group
-        (docs/stream.md); a failure is said, the recording is kept as it is."""
-        log, self._roi_log = self._roi_log, None
-        if log is None or self._roi is None:
-            return
-        self._roi.stop_log(log)
-        if recorder.failed is not None or not recorder.path.exists():
-            return
-        try:
-            log.write_to(recorder.path)
-        except (OSError, ValueError) as exc:
-            self.device.log_event(
-                "warning",
-                "stream",
-                f"recording {recorder.path}: its ROI statistics could not be stored: {exc}",
-            )

@@ -38,7 +38,7 @@ first 262,144 frames; the frames past it are counted (``frames_dropped``), not k
 
 class RoiLog:
     """The ROI statistics of every frame measured while a recording is written, for its
-    ``/roi`` group (``write_to``). Fed by the monitor while ``active``; it stops when the ROIs
+    ``/roi`` group (``write_into``). Fed by the monitor while ``active``; it stops when the ROIs
     change (``rois_changed_at``: the counter of the last frame measured with them)."""
 
     def __init__(self, rois: tuple[Roi, ...]) -> None:
@@ -63,31 +63,37 @@ class RoiLog:
             self.frames += k
 
     def write_to(self, path: str | Path) -> None:
-        """Add the group ``/roi`` to the closed HDF5 file ``path``: ``frame_counter`` (n,) and,
-        per ROI, a group of its name with its rectangle as attributes and one (n,) float64
-        dataset per statistic (``STAT_FIELDS``); the group's attributes say what was left
-        out. OSError if the file cannot be written."""
+        """``write_into`` the HDF5 file ``path`` (opened to append). OSError if it cannot be
+        written."""
         import h5py  # only here: the monitor itself needs no HDF5
 
+        with h5py.File(path, "a") as f:
+            self.write_into(f)
+
+    def write_into(self, f: Any) -> None:
+        """Add the group ``/roi`` to the open HDF5 file ``f`` (an ``h5py.File``; a recording
+        passes it while it finishes the file, so the group is written before the file counts
+        as closed): ``frame_counter`` (n,) and, per ROI, a group of its name with its rectangle
+        as attributes and one (n,) float64 dataset per statistic (``STAT_FIELDS``); the
+        group's attributes say what was left out."""
         counters = np.concatenate(self._counters) if self._counters else np.zeros(0, np.int64)
         shape = (0, len(self.rois), len(STAT_FIELDS))
         stats = np.concatenate(self._stats) if self._stats else np.zeros(shape)
-        with h5py.File(path, "a") as f:
-            group = f.create_group("roi")
-            group.attrs.update(
-                {
-                    "fields": list(STAT_FIELDS),
-                    "frames": self.frames,
-                    "frames_dropped": self.frames_dropped,
-                    "rois_changed_at": -1 if self.rois_changed_at is None else self.rois_changed_at,
-                }
-            )
-            group.create_dataset("frame_counter", data=counters)
-            for i, roi in enumerate(self.rois):
-                sub = group.create_group(roi.name)
-                sub.attrs.update({k: v for k, v in roi.as_dict().items() if k != "name"})
-                for j, field in enumerate(STAT_FIELDS):
-                    sub.create_dataset(field, data=stats[:, i, j])
+        group = f.create_group("roi")
+        group.attrs.update(
+            {
+                "fields": list(STAT_FIELDS),
+                "frames": self.frames,
+                "frames_dropped": self.frames_dropped,
+                "rois_changed_at": -1 if self.rois_changed_at is None else self.rois_changed_at,
+            }
+        )
+        group.create_dataset("frame_counter", data=counters)
+        for i, roi in enumerate(self.rois):
+            sub = group.create_group(roi.name)
+            sub.attrs.update({k: v for k, v in roi.as_dict().items() if k != "name"})
+            for j, field in enumerate(STAT_FIELDS):
+                sub.create_dataset(field, data=stats[:, i, j])
 
 
 @dataclass(frozen=True, slots=True)

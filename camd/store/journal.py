@@ -18,7 +18,7 @@ import os
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from camd.store.durability import (
     Recovered,
@@ -28,6 +28,9 @@ from camd.store.durability import (
     recover_file,
 )
 from camd.store.recording import FrameRecorder, RecordingError
+
+if TYPE_CHECKING:
+    import h5py
 
 log = logging.getLogger(__name__)
 
@@ -131,13 +134,15 @@ def close_recording(
     log_event: Callable[[str, str, str], None],
     *,
     ended_early: str | None = None,
+    finish_with: Callable[[h5py.File], None] | None = None,
 ) -> None:
-    """Close a frame recording (``ended_early``: why it holds fewer frames than asked for) and
-    take it off the journal once the file is whole (``settle_failed_close`` if the close
-    failed); the event log says how it ended."""
+    """Close a frame recording (``ended_early``: why it holds fewer frames than asked for;
+    ``finish_with``: what else it keeps, as ``FrameRecorder.close``) and take it off the
+    journal once the file is whole (``settle_failed_close`` if the close failed); the event
+    log says how it ended."""
     path = recorder.path
     try:
-        recorder.close(stats, ended_early=ended_early)
+        recorder.close(stats, ended_early=ended_early, finish_with=finish_with)
     except RecordingError as exc:
         settle_failed_close(path, exc, "recording", journal, log_event, "stream")
         return
@@ -150,6 +155,12 @@ def close_recording(
         )
     else:
         log_event("info", "stream", f"recording {path} closed: {recorder.flushed} frames")
+    if recorder.finish_error is not None:
+        log_event(
+            "warning",
+            "stream",
+            f"recording {path}: its ROI statistics could not be stored: {recorder.finish_error}",
+        )
     journal.closed(path)
 
 

@@ -51,7 +51,7 @@ import datetime as dt
 import os
 import shutil
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from importlib import metadata as importlib_metadata
 from pathlib import Path
 from typing import Any
@@ -213,6 +213,16 @@ def _check_groups(path: Path, metadata: Mapping[str, Any]) -> None:
             )
 
 
+def _finish_with(add: Callable[[h5py.File], None], f: h5py.File) -> str | None:
+    """Run ``add(f)``; why it failed, or None. Its failure (a full disk, a name HDF5 refuses)
+    loses what it adds, not the recording."""
+    try:
+        add(f)
+    except (OSError, ValueError, RuntimeError) as exc:
+        return str(exc) or type(exc).__name__
+    return None
+
+
 def _trim_frames(f: h5py.File, count: int) -> None:
     """A recording ``f`` cut to its first ``count`` frames."""
     for name in ("frames", *_PER_FRAME):
@@ -272,6 +282,7 @@ class FrameRecorder(FlushedWriter):
         self.count = 0  # frames added whose writes went through
         self.flushed = 0  # frames on disk: what the file keeps if the writer dies now
         self.failed: str | None = None  # why writing stopped (a full disk), None while it works
+        self.finish_error: str | None = None  # why close's finish_with failed (file kept)
         self._closed = False
         self._flush_period_s = flush_period_s
         self._last_flush = time.monotonic()
@@ -549,11 +560,18 @@ class FrameRecorder(FlushedWriter):
         self._columns_written = self.count
 
     def close(
-        self, stream_stats: Mapping[str, Any] | None = None, *, ended_early: str | None = None
+        self,
+        stream_stats: Mapping[str, Any] | None = None,
+        *,
+        ended_early: str | None = None,
+        finish_with: Callable[[h5py.File], None] | None = None,
     ) -> Path:
         """Trim to the frames received, store the stream's counters, mark the file finished,
         close; return the path. ``ended_early``: why the stream ended before its frames were
         all sent (the camera ended it, or died), kept as the root attribute ``ended_early``.
+        ``finish_with(f)`` adds what else the file keeps (the live view's ROI statistics) while
+        it is finished, before it counts as closed; if it fails, ``finish_error`` says why and
+        the recording is kept without it.
         After a failed write (``failed``), the file keeps the frames written before it,
         ``finished`` stays False and ``error`` says why. RecordingError if the file cannot
         even be closed that way: if the disk is still full it stays open, held by this process
@@ -576,6 +594,8 @@ class FrameRecorder(FlushedWriter):
         try:
             with reopen_to_finish(self.path) as f:
                 self._finish(f, count, stream_stats, ended_early)
+                if finish_with is not None:
+                    self.finish_error = _finish_with(finish_with, f)
             self.flushed = count
         except (OSError, RuntimeError) as exc:
             raise RecordingError(
