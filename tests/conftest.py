@@ -13,13 +13,15 @@ from camd.daemon.config import RECORD_DIRS_ENV
 # ``daemon`` mark of the tests that start a process, and its check (the fast tier: -m "not daemon");
 # the order the modules go to the workers (tests/schedule.py); the run's bytecode cache, warmed
 # before the workers collect (tests/bytecode.py); how the workers share the CPU with the tests
-# that must run alone (tests/cpu_share.py).
+# that must run alone (tests/cpu_share.py); the logs of the running daemons in a failed test's
+# report (tests/daemon_logs.py).
 pytest_plugins = [
     "tests.browser",
     "tests.tiers",
     "tests.schedule",
     "tests.bytecode",
     "tests.cpu_share",
+    "tests.daemon_logs",
 ]
 
 # The suite's daemons do not load the TDI kernels at start (daemon.tdi_warm_up, docs/config.md):

@@ -20,6 +20,7 @@ import subprocess
 import sys
 import threading
 import time
+import weakref
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import IO, TypedDict, Unpack
@@ -30,11 +31,17 @@ __all__ = ["DaemonProcess", "DaemonStartError"]
 
 READY_RE = re.compile(r"camd serving (https?://\S+)")
 _TAIL_LINES = 40
+_RUNNING: weakref.WeakSet[DaemonProcess] = weakref.WeakSet()  # started and not yet stopped
 
 
 class DaemonStartError(RuntimeError):
     """The daemon exited or stayed silent before announcing its URL; the message carries the
     tail of its stderr and where the full log is."""
+
+
+def running_daemons() -> list[DaemonProcess]:
+    """The daemons started here and not yet stopped (a test run's report shows their logs)."""
+    return list(_RUNNING)
 
 
 class DaemonProcess:
@@ -116,6 +123,16 @@ class DaemonProcess:
         """True while the daemon process is alive."""
         return self._proc is not None and self._proc.poll() is None
 
+    def log_tail(self, max_bytes: int = 16384) -> str:
+        """The end of the daemon's log file (at most ``max_bytes``, from a line's start)."""
+        try:
+            with open(self.log_path, "rb") as log:
+                log.seek(max(0, self.log_path.stat().st_size - max_bytes))
+                tail = log.read().decode("utf-8", "replace")
+        except OSError as exc:
+            return f"(cannot read {self.log_path}: {exc})"
+        return tail if len(tail) < max_bytes else tail.partition("\n")[2]
+
     def stderr_tail(self, lines: int = 20) -> str:
         """The last ``lines`` lines the daemon wrote to stderr."""
         with self._log_lock:
@@ -139,6 +156,7 @@ class DaemonProcess:
         )
         try:
             self._proc = self._spawn()
+            _RUNNING.add(self)
         except OSError as exc:
             self.stop()
             raise DaemonStartError(f"cannot run {' '.join(self.command)}: {exc}") from None
@@ -176,6 +194,7 @@ class DaemonProcess:
     def stop(self) -> int | None:
         """Stop the daemon with SIGTERM (SIGKILL after ``stop_timeout_s``) and return its exit
         code (negative: killed by that signal). Safe to call more than once."""
+        _RUNNING.discard(self)
         proc = self._proc
         if proc is None:
             self._close_log()
