@@ -213,14 +213,53 @@ def _check_groups(path: Path, metadata: Mapping[str, Any]) -> None:
             )
 
 
-def _finish_with(add: Callable[[h5py.File], None], f: h5py.File) -> str | None:
-    """Run ``add(f)``; why it failed, or None. Its failure (a full disk, a name HDF5 refuses)
-    loses what it adds, not the recording."""
+def _finish_with(add: Callable[[h5py.File], None] | None, f: h5py.File) -> str | None:
+    """Run ``add(f)`` (if given); why it failed, or None. Its failure (a full disk, a name HDF5
+    refuses) loses what it adds, not the recording."""
+    if add is None:
+        return None
     try:
         add(f)
     except (OSError, ValueError, RuntimeError) as exc:
         return str(exc) or type(exc).__name__
     return None
+
+
+def _write_nexus(
+    f: h5py.File,
+    metadata: Mapping[str, Mapping[str, Any]],
+    created_utc: str,
+    geometry: tuple[int, int, int, str, float],
+) -> None:
+    """A frame recording's NeXus entry (camd.store.nexus): the frames against frame counter,
+    row, column; ``geometry`` is (rows, cols, bits, mode, line_period_s)."""
+    rows, cols, bits, mode, line_period_s = geometry
+    profile = metadata.get("profile", {})
+    timing = metadata.get("timing", {})
+    stream = metadata.get("stream", {})
+    camera = camera_name(profile)
+    write_nexus(
+        f,
+        title=f"frames, {camera}, {rows} x {cols}, {mode} mode",
+        start_time=created_utc,
+        program=f"camd {camd_version()}",
+        instrument=camera,
+        detector={
+            **sensor_fields(profile),
+            "bit_depth_readout": (bits or None, ""),
+            "frame_time": (line_period_s or None, "s"),
+            "count_time": (timing.get("exposure_s"), "s"),
+        },
+        tdi={"stages": stream.get("stages")} if mode == "tdi" else None,
+        signal="frames",
+        axes=(
+            Axis("frame_counter", link="frame_counter", long_name="device frame counter"),
+            Axis("row", values=np.arange(rows), long_name="window row (pixel)"),
+            Axis("column", values=np.arange(cols), long_name="column (pixel)"),
+        ),
+        per_element=("per_frame", (*_PER_FRAME, "frames_flushed")),
+        stage="stage_position",
+    )
 
 
 def _trim_frames(f: h5py.File, count: int) -> None:
@@ -379,42 +418,13 @@ class FrameRecorder(FlushedWriter):
             for name, dtype in _PER_FRAME.items()
         }
         self._frames_flushed = f.create_dataset("frames_flushed", data=np.zeros(1, np.int64))
-        self._write_nexus(f, rows, cols, bits, mode_name, line_period_s)
+        _write_nexus(
+            f, self._metadata, self._created_utc, (rows, cols, bits, mode_name, line_period_s)
+        )
         self._reserve(max(self._frames_expected, 1))
         # Every object exists now: from here on the file is only appended to, in SWMR mode.
         f.swmr_mode = True
         self._headroom.flush()
-
-    def _write_nexus(
-        self, f: h5py.File, rows: int, cols: int, bits: int, mode: str, line_period_s: float
-    ) -> None:
-        """The NeXus entry (camd.store.nexus): the frames against frame counter, row, column."""
-        profile = self._metadata.get("profile", {})
-        timing = self._metadata.get("timing", {})
-        stream = self._metadata.get("stream", {})
-        camera = camera_name(profile)
-        write_nexus(
-            f,
-            title=f"frames, {camera}, {rows} x {cols}, {mode} mode",
-            start_time=self._created_utc,
-            program=f"camd {camd_version()}",
-            instrument=camera,
-            detector={
-                **sensor_fields(profile),
-                "bit_depth_readout": (bits or None, ""),
-                "frame_time": (line_period_s or None, "s"),
-                "count_time": (timing.get("exposure_s"), "s"),
-            },
-            tdi={"stages": stream.get("stages")} if mode == "tdi" else None,
-            signal="frames",
-            axes=(
-                Axis("frame_counter", link="frame_counter", long_name="device frame counter"),
-                Axis("row", values=np.arange(rows), long_name="window row (pixel)"),
-                Axis("column", values=np.arange(cols), long_name="column (pixel)"),
-            ),
-            per_element=("per_frame", (*_PER_FRAME, "frames_flushed")),
-            stage="stage_position",
-        )
 
     def _reserve(self, frames: int) -> None:
         if frames <= self._capacity:
@@ -569,13 +579,12 @@ class FrameRecorder(FlushedWriter):
         """Trim to the frames received, store the stream's counters, mark the file finished,
         close; return the path. ``ended_early``: why the stream ended before its frames were
         all sent (the camera ended it, or died), kept as the root attribute ``ended_early``.
-        ``finish_with(f)`` adds what else the file keeps (the live view's ROI statistics) while
-        it is finished, before it counts as closed; if it fails, ``finish_error`` says why and
-        the recording is kept without it.
-        After a failed write (``failed``), the file keeps the frames written before it,
-        ``finished`` stays False and ``error`` says why. RecordingError if the file cannot
-        even be closed that way: if the disk is still full it stays open, held by this process
-        (``camd.store.durability``), for the next start to repair."""
+        ``finish_with(f)`` adds the rest (the ROI statistics) before the file counts as closed;
+        its failure is said in ``finish_error``, the recording kept. After a failed write
+        (``failed``), the file keeps the frames written before it, ``finished`` stays False and
+        ``error`` says why. RecordingError if the file cannot even be closed that way: if the
+        disk is still full it stays open, held by this process (``camd.store.durability``), for
+        the next start to repair."""
         if self._closed:
             return self.path
         self._closed = True
@@ -594,8 +603,7 @@ class FrameRecorder(FlushedWriter):
         try:
             with reopen_to_finish(self.path) as f:
                 self._finish(f, count, stream_stats, ended_early)
-                if finish_with is not None:
-                    self.finish_error = _finish_with(finish_with, f)
+                self.finish_error = _finish_with(finish_with, f)
             self.flushed = count
         except (OSError, RuntimeError) as exc:
             raise RecordingError(
@@ -619,7 +627,7 @@ class FrameRecorder(FlushedWriter):
             for name, dtype in _PER_FRAME.items():
                 f.create_dataset(name, shape=(0,), dtype=dtype)
             f.create_dataset("frames_flushed", data=np.zeros(1, np.int64))
-            self._write_nexus(f, 0, 0, 0, "none", 0.0)
+            _write_nexus(f, self._metadata, self._created_utc, (0, 0, 0, "none", 0.0))
         else:
             _trim_frames(f, count)
         attrs: dict[str, Any] = {"frames": count, "finished": self.failed is None}
