@@ -11,6 +11,7 @@ import sys
 import pytest
 
 from camd.bench import live as bench_live
+from camd.bench import live_viewers
 
 # Not ``exclusive``: no figure is held to a rate (the benchmark's job, not a test's); the
 # checks are that the figures add up, which a busy machine changes nothing of. Checked beside
@@ -68,7 +69,7 @@ def test_bad_options_exit_2(capsys: pytest.CaptureFixture[str]) -> None:
 
 
 def test_without_a_browser_it_says_what_to_install(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(bench_live, "chromium_path", lambda: None)
+    monkeypatch.setattr(live_viewers, "chromium_path", lambda: None)
     kind, why = bench_live.default_kind()
     assert kind == "ws"
     assert "apt-get install chromium" in why and "pip install -e '.[test]'" in why
