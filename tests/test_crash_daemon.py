@@ -289,7 +289,11 @@ def test_a_stare_that_fills_the_disk_is_a_507_and_keeps_every_frame_written(
         )
         assert delivered >= kept + 1  # also those that came before the stop took effect
         assert (doc["ended_early"] or "").startswith(f"the recording {out} stopped")
-        assert doc["frames_not_sent"] == 150 - (doc["frames_sent"] or 0) > 0
+        # The stop reaches the camera while it sends, or after it has sent all 150 when the host
+        # is behind (a fresh-clone run: the camera ended the stream 37 ms before the write of
+        # frame 73 failed, the host still writing the frames it had buffered): then none is
+        # "not sent"; either way the count is what the camera did not send.
+        assert doc["frames_not_sent"] == 150 - (doc["frames_sent"] or 0) >= 0
         # The daemon lives: it answers, and records elsewhere.
         assert client.ping(3)["ok"] == 3
         assert (
