@@ -489,6 +489,17 @@ def test_the_page_binned_and_deflated_reads_raw_dn_under_the_cursor(
                     str(row),
                     str(col),
                 )
+            # ROIs (the tool, the outlines) are in the camera frame's pixels too: at 4x a binned
+            # pixel is 4 screen pixels and 4 frame pixels, so frame pixel (8, 4 left + 16) is at
+            # screen (16, 8 - 4 top) and back; the ROI tool's bounds are the frame's 64 x 2048.
+            top = int(live.input_value("#origin-row"))
+            mapped = live.evaluate(
+                "(([row, col]) => { const v = window.camdLive.view; const a = v.imageToCanvas(row,"
+                " col); const b = v.canvasToImage(a.x, a.y); const s = v.imageSize;"
+                " return [a.x, a.y, b.row, b.col, s.rows, s.cols]; })",
+                [8, 4 * left + 16],
+            )
+            assert mapped == [16, 8 - 4 * top, 8, 4 * left + 16, 64, 2048]
             # Below 1x too: at 1/2x one screen pixel is 2 x 2 binned pixels, 8 x 8 of the frame;
             # the readout still names the frame's pixel and its raw DN.
             live.select_option("#zoom", "0.5")

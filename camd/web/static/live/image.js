@@ -388,6 +388,14 @@ export class ImageView {
     return this.frame?.meta.bin ?? 1;
   }
 
+  // The camera frame's size, whatever the viewer is sent ({rows, cols}; null before a frame):
+  // what ROIs and the readout are in (canvasToImage).
+  get imageSize() {
+    const f = this.frame;
+    if (f === null) return null;
+    return { rows: f.meta.frame_rows ?? f.rows, cols: f.meta.frame_cols ?? f.cols };
+  }
+
   // The pixel of the data on show (block means when binned) under a canvas point, fractional.
   // Below 1x, times k, not over the zoom: 1/3 is not exact in floating point, and the readout,
   // the ROI tool and the outlines must agree on the pixel.

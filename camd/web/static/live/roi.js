@@ -96,7 +96,8 @@ export class RoiPanel {
     const hit = [...this.rois].reverse(); // the last drawn is on top
     const corner = hit.find(near);
     const body = hit.find(inside);
-    const onFrame = from.row >= 0 && from.col >= 0 && from.row < frame.rows && from.col < frame.cols;
+    const size = this.view.imageSize; // the camera frame's, also when the display is binned
+    const onFrame = from.row >= 0 && from.col >= 0 && from.row < size.rows && from.col < size.cols;
     if (corner === undefined && body === undefined && !onFrame) return; // off the image: it pans
     event.stopPropagation();
     event.preventDefault();
@@ -108,7 +109,7 @@ export class RoiPanel {
 
   // The rectangle the drag gives now, kept on the frame.
   dragged(to) {
-    const { rows, cols } = this.view.frame;
+    const { rows, cols } = this.view.imageSize;
     const { kind, roi, from } = this.drag;
     if (kind === "move") {
       const x = clamp(roi.x + Math.round(to.col - from.col), 0, cols - roi.width);
