@@ -209,15 +209,29 @@ class CameraModel:
         return LinearStage(speed, -speed * self._ideal_origin_s)
 
     def image_rows(self, t_s: npt.ArrayLike, timing: SensorTiming | None = None) -> Array:
-        """Image displacement in rows at times ``t_s``: ``m x_stage(t) / p`` (docs/physics.md §2)."""
+        """Image displacement in rows at times ``t_s``: ``m x_stage(t) / p`` (docs/physics.md §2),
+        with the scene's image motion errors (``image_motion``)."""
+        return self.image_motion(t_s, timing)[0]
+
+    def image_motion(
+        self, t_s: npt.ArrayLike, timing: SensorTiming | None = None
+    ) -> tuple[Array, Array]:
+        """Image displacement at times ``t_s``: rows along track (``m x_stage(t) / p`` for an
+        exact optics and mount) and columns across track from the scene's image motion errors
+        (``firmware_models.image_errors``: magnification error, camera rotation, stage yaw;
+        zero without a rotation or yaw). The encoder counts ``x_stage`` and sees none of them.
+        A drift angle (``drift_deg``) is the scene's own and added where it is rendered."""
         times = np.asarray(t_s, dtype=np.float64)
-        position = self.current_stage(timing).position_m(times)
+        position = np.asarray(self.current_stage(timing).position_m(times), dtype=np.float64)
         image_scale = self.stage_image_scale
         if image_scale is None or self.stage is None:
             image_scale = self.profile.magnification.value
-        scale = image_scale / self.profile.pitch_m.value
-        result: Array = np.asarray(position, dtype=np.float64) * scale
-        return result
+        rows_per_m = image_scale / self.profile.pitch_m.value
+        errors = self.scene.motion_errors
+        if not errors.any:
+            along: Array = position * rows_per_m
+            return along, np.zeros_like(along)
+        return errors.displacement(position, rows_per_m)
 
     # -- settings the registers make --------------------------------------------------------------
 

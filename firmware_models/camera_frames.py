@@ -48,8 +48,10 @@ class CameraState(Protocol):
     @property
     def transmission(self) -> Callable[[Array, Array], Array] | None: ...
 
-    def image_rows(self, t_s: npt.ArrayLike, timing: SensorTiming | None = None) -> Array:
-        """Image displacement in rows at times ``t_s``."""
+    def image_motion(
+        self, t_s: npt.ArrayLike, timing: SensorTiming | None = None
+    ) -> tuple[Array, Array]:
+        """Image displacement at times ``t_s``: rows along track, columns across."""
         ...
 
     def dark_factor(self) -> float:
@@ -151,7 +153,7 @@ class FrameMaker:
                 compensated_photons(
                     camera.scene,
                     camera.profile.aperture,
-                    camera.image_rows,
+                    camera.image_motion,
                     float(first),
                     (mode, interval_s, phases),
                     settings,
@@ -162,20 +164,36 @@ class FrameMaker:
             return photons, start, end
         n = start.size
         # Both ends of every row in one stage call: a stepper's position may be costly.
-        moved = camera.image_rows(np.concatenate([start.reshape(-1), end.reshape(-1)]), timing)
+        moved, across = camera.image_motion(
+            np.concatenate([start.reshape(-1), end.reshape(-1)]), timing
+        )
         sensor_rows = np.tile(row0 + np.arange(rows, dtype=np.float64), times.size)
         photons = camera.scene.integrate_rows(
             sensor_rows,
             cols,
             moved[:n],
             moved[n:],
-            None,
+            lateral_at_mid_exposure(camera.scene, moved, across),
             timing.exposure_s,
             camera.profile.aperture,
             first_col=col0,
             dtype=dtype,
         )
         return photons, start, end
+
+
+def lateral_at_mid_exposure(scene: Scene, moved: Array, across: Array) -> Array | None:
+    """Each row's across-track shift at mid-exposure (columns) from the image's displacement
+    at the exposures' starts then ends (``moved`` along, ``across`` across, both halves one
+    after the other): the image motion errors' own across-track motion plus the scene's drift
+    (``d tan(beta)``). None when the image does not turn (``Scene.integrate_rows`` then takes
+    the drift alone, on its fast path)."""
+    if not scene.motion_errors.turns:
+        return None
+    n = moved.size // 2
+    mid_along = 0.5 * (moved[:n] + moved[n:])
+    lateral: Array = 0.5 * (across[:n] + across[n:]) + scene.lateral_cols(mid_along)
+    return lateral
 
 
 def exposures(times: Array, timing: SensorTiming, rows: int, shutter: str) -> tuple[Array, Array]:

@@ -33,7 +33,7 @@ _SAME_PIECE_ROWS = 1e-9  # pieces whose ends agree to this (rows) are integrated
 def compensated_photons(
     scene: Scene,
     aperture: float,
-    image_rows: Callable[[Array, SensorTiming], Array],
+    image_motion: Callable[[Array, SensorTiming], tuple[Array, Array]],
     start_s: float,
     imc: tuple[ImcMode, float, int],
     settings: RegisterSettings,
@@ -42,15 +42,18 @@ def compensated_photons(
     """Photons per pixel of a full-frame exposure starting at ``start_s`` with the packets
     clocked along (module docstring): the sum over the schedule's pieces of the scene's exact
     integral of an aperture moving linearly from (image displacement - packet shift) at the
-    piece's start to that at its end, each for the piece's duration. ``image_rows(t_s,
-    timing)``: the image displacement in rows at times ``t_s``."""
+    piece's start to that at its end, each for the piece's duration. ``image_motion(t_s,
+    timing)``: the image displacement at times ``t_s``, rows along and columns across track
+    (``CameraModel.image_motion``)."""
     row0, rows, col0, cols = settings.window
     mode, interval_s, phases = imc
     schedule = charge_shift_schedule(settings.timing.exposure_s, interval_s, mode, phases)
     # All rows expose together.
-    moved = image_rows(start_s + schedule.bounds_s, settings.timing)
-    # Drift moves the image sideways by its own displacement; the packets only move along.
-    lateral = scene.lateral_cols(np.full(rows, 0.5 * (moved[0] + moved[-1])))
+    moved, across = image_motion(start_s + schedule.bounds_s, settings.timing)
+    # Drift (and a rotated camera or a yawing stage) moves the image sideways by its own
+    # displacement; the packets only move along.
+    mid_along = 0.5 * (moved[0] + moved[-1])
+    lateral = scene.lateral_cols(np.full(rows, mid_along)) + 0.5 * (across[0] + across[-1])
     pieces = merge_pieces(
         moved[:-1] - schedule.shift_px, moved[1:] - schedule.shift_px, schedule.durations_s
     )

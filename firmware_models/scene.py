@@ -71,6 +71,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from firmware_models.image_errors import ImageMotionErrors
 from firmware_models.render_kernels import weighted_rows
 from firmware_models.scene_spec import (
     BAR_FREQUENCIES_CY_PER_PX,
@@ -173,6 +174,14 @@ class Scene:
             return self.spec.describe()
         rows, cols = self.radiance.shape
         return f"array {rows} x {cols} cells, oversample {self.oversample}"
+
+    @property
+    def motion_errors(self) -> ImageMotionErrors:
+        """The image motion errors the spec sets (none for a scene made from an array)."""
+        spec = self.spec
+        if spec is None:
+            return ImageMotionErrors()
+        return ImageMotionErrors(spec.magnification_error, spec.rotation_deg, spec.yaw_deg_per_m)
 
     def lateral_cols(self, d_rows: FloatArray) -> FloatArray:
         """Across-track image shift for an along-track displacement: ``d tan(beta)``."""

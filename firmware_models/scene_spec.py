@@ -55,7 +55,15 @@ class SceneSpecError(ValueError):
 SceneKind = Literal["flat", "bars", "edge", "star", "ramp", "natural", "image"]
 SCENE_KINDS: tuple[str, ...] = ("flat", "bars", "edge", "star", "ramp", "natural", "image")
 
-_COMMON = ("photons", "lux", "drift_deg", "blur_px")
+_COMMON = (
+    "photons",
+    "lux",
+    "drift_deg",
+    "blur_px",
+    "magnification_error",
+    "rotation_deg",
+    "yaw_deg_per_m",
+)
 _KIND_KEYS: dict[str, tuple[str, ...]] = {
     "flat": _COMMON,
     "bars": (*_COMMON, "contrast", "oversample", "orientation", "period"),
@@ -102,6 +110,29 @@ class SceneSpec(BaseModel):
         le=64,
         description="Gaussian sigma of the optics' blur in pixels (0: best focus), applied to "
         "the scene's radiance so that every acquisition sees it",
+    )
+    # The image motion errors the encoder cannot see (firmware_models.image_errors; the
+    # limits are that module's): keys of the scene, like drift_deg, so that one spec says
+    # where the image goes.
+    magnification_error: float = Field(
+        default=0.0,
+        ge=-0.1,
+        le=0.1,
+        description="the optics' magnification error e: the image moves (1 + e) times as far "
+        "as the encoder's travel at the nominal magnification",
+    )
+    rotation_deg: float = Field(
+        default=0.0,
+        ge=-10,
+        le=10,
+        description="camera rotation about the optical axis: tan(rotation) columns across "
+        "track per row of along-track motion",
+    )
+    yaw_deg_per_m: float = Field(
+        default=0.0,
+        ge=-100,
+        le=100,
+        description="stage yaw: the direction of travel turns this much per metre of travel",
     )
     oversample: int = Field(
         default=4, ge=1, le=16, description="cells per pixel along and across track"

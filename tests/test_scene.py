@@ -43,7 +43,8 @@ def test_parse_and_describe_round_trip() -> None:
         (
             "bars:angle_deg=3",
             "unknown scene key 'angle_deg' for bars; keys for bars: photons, lux, drift_deg, "
-            "blur_px, contrast, oversample, orientation, period",
+            "blur_px, magnification_error, rotation_deg, yaw_deg_per_m, contrast, oversample, "
+            "orientation, period",
         ),
         ("flat:contrast=0.5", "unknown scene key 'contrast' for flat; keys for flat: photons"),
         ("bars:lux=-1", "scene lux=-1 is invalid: lux (bright level as focal-plane illuminance"),
