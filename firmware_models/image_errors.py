@@ -79,3 +79,44 @@ class ImageMotionErrors:
         along: Array = length * np.cos(heading_rad)
         across: Array = length * np.sin(heading_rad)
         return along, across
+
+
+def rotate_cells(
+    cells: Array, rotation_deg: float, *, oversample: int, x_oversample: int, columns: int
+) -> Array:
+    """A scene's radiance cells turned by ``rotation_deg`` in the focal plane (a camera turned
+    on its mount sees the target turned the other way round its columns' frame).
+
+    Sensor position ``(y, x)`` (rows, columns) sees the unturned scene at ``(y cos r + x sin r,
+    -y sin r + x cos r)``: the direction of travel, along the scene's rows, then runs at ``r``
+    to the columns, as ``ImageMotionErrors.displacement`` moves the image. Each new cell takes
+    the bilinear interpolation of the old cells' centres at that point, wrapping round the
+    scene's period both ways (exact for a scene linear over the cells). A scene narrower than
+    ``columns`` is first tiled to that width, since a turned scene varies across track. The
+    result keeps the old period, so a turned periodic scene has a seam where one tile meets
+    the next (along track every period, across track at the sensor's edge): a shift of
+    ``period sin r`` rows or columns there.
+    """
+    width_px = cells.shape[1] // x_oversample
+    if width_px < columns:
+        cells = np.tile(cells, (1, -(-columns // width_px)))
+    n_rows, n_cols = cells.shape
+    rotation_rad = math.radians(rotation_deg)
+    cos_r, sin_r = math.cos(rotation_rad), math.sin(rotation_rad)
+    y = ((np.arange(n_rows, dtype=np.float64) + 0.5) / oversample)[:, np.newaxis]
+    x = ((np.arange(n_cols, dtype=np.float64) + 0.5) / x_oversample)[np.newaxis, :]
+    # The source point in cell-centre coordinates of the old cells.
+    source_row = (y * cos_r + x * sin_r) * oversample - 0.5
+    source_col = (x * cos_r - y * sin_r) * x_oversample - 0.5
+    row0 = np.floor(source_row)
+    col0 = np.floor(source_col)
+    frac_row = source_row - row0
+    frac_col = source_col - col0
+    r0 = row0.astype(np.int64) % n_rows
+    c0 = col0.astype(np.int64) % n_cols
+    r1 = (r0 + 1) % n_rows
+    c1 = (c0 + 1) % n_cols
+    top = cells[r0, c0] * (1.0 - frac_col) + cells[r0, c1] * frac_col
+    bottom = cells[r1, c0] * (1.0 - frac_col) + cells[r1, c1] * frac_col
+    turned: Array = top * (1.0 - frac_row) + bottom * frac_row
+    return turned

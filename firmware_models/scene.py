@@ -71,7 +71,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from firmware_models.image_errors import ImageMotionErrors
+from firmware_models.image_errors import ImageMotionErrors, rotate_cells
 from firmware_models.render_kernels import weighted_rows
 from firmware_models.scene_spec import (
     BAR_FREQUENCIES_CY_PER_PX,
@@ -438,19 +438,29 @@ def build_scene(
     """The Scene a spec describes, for a sensor ``columns`` wide with pixel pitch ``pitch_m``.
 
     The level is ``photons``, ``lux`` converted with ``lux_to_photons_per_pixel_s``, or
-    ``default_photons``. A ``blur_px`` above 0 blurs the radiance (``blur_cells``): the optics
+    ``default_photons``. A ``rotation_deg`` turns the cells in the focal plane
+    (``rotate_cells``). A ``blur_px`` above 0 blurs the radiance (``blur_cells``): the optics
     out of focus, seen alike by every acquisition (area, TDI) since all integrate this scene.
     """
     scene = _sharp_scene(spec, columns=columns, pitch_m=pitch_m, default_photons=default_photons)
-    if spec.blur_px <= 0.0:
-        return scene
-    return Scene(
-        blur_cells(
-            scene.radiance,
-            spec.blur_px,
+    cells: Array = scene.radiance
+    if spec.rotation_deg and cells.size > 1:
+        # The camera turned on its mount sees the scene turned (a flat field looks the same).
+        cells = rotate_cells(
+            cells,
+            spec.rotation_deg,
             oversample=scene.oversample,
             x_oversample=scene.x_oversample,
-        ),
+            columns=columns,
+        )
+    if spec.blur_px > 0.0:
+        cells = blur_cells(
+            cells, spec.blur_px, oversample=scene.oversample, x_oversample=scene.x_oversample
+        )
+    if cells is scene.radiance:
+        return scene
+    return Scene(
+        cells,
         oversample=scene.oversample,
         x_oversample=scene.x_oversample,
         drift_deg=scene.drift_deg,

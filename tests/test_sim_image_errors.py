@@ -33,7 +33,8 @@ EXPOSURE_LINES = 5
 T0_S = 0.05  # row 0 of the first frame ends its exposure here
 PHOTONS = 1e9
 RAMP_PERIOD_ROWS = 8192  # no wrap of the along-track ramp inside the window
-EDGE_COLS = 16  # columns at either side left out: the across-track ramp wraps there
+EDGE_COLS = 32  # columns at either side left out: the across-track ramps wrap there
+TILT_SCALE = 4200.0  # a tilted ramp's value per pixel of its rise (``tilted_ramp``)
 
 
 def write(sensor: SensorModel, name: str, value: int) -> None:
@@ -72,10 +73,15 @@ def positions(camera: CameraModel, t_s: float, axis: int) -> np.ndarray:
     charge = camera.expected_electrons(t_s, dtype=np.float64)
     if axis == 1:
         return charge / float(np.median(np.diff(charge, axis=1)))
+    return charge / ramp_step(camera, RAMP_PERIOD_ROWS)
+
+
+def ramp_step(camera: CameraModel, period_rows: float) -> float:
+    """The charge one row of a ``ramp`` scene of that period adds (or one pixel of a
+    ``tilted_ramp``'s rise, ``period_rows`` = TILT_SCALE)."""
     # The response map (QE x (1 + PRNU)) is kept in float32: QE = 0.6 is 0.6 + 2.4e-8 there.
     qe = float(np.float32(camera.profile.quantum_efficiency.value))
-    exposure_s = camera.sensor.timing().exposure_s
-    return charge / (qe * exposure_s * PHOTONS / RAMP_PERIOD_ROWS)
+    return qe * camera.sensor.timing().exposure_s * PHOTONS / period_rows
 
 
 def motion_per_line(camera: CameraModel, axis: int, lines: int = 1) -> np.ndarray:
@@ -100,24 +106,66 @@ def test_magnification_error_moves_the_image_1_plus_e_rows_per_line(error: float
     assert np.max(np.abs(motion_per_line(camera, axis=0) - (1.0 + error))) < 1e-6
 
 
+def tilted_ramp(folder: Path, rotation_deg: float, axis: int) -> Path:
+    """An image (float64 TIFF, 1024 x 2048, one pixel per cell) of a ramp that a camera turned
+    by ``rotation_deg`` sees along its rows (``axis`` 0) or columns (1): ``(g . (Y, X) + 64) /
+    TILT_SCALE`` at the pixel centres, ``g`` the sensor's axis in the scene's frame."""
+    r = math.radians(rotation_deg)
+    g_y, g_x = (math.cos(r), -math.sin(r)) if axis == 0 else (math.sin(r), math.cos(r))
+    y = np.arange(1024, dtype=np.float64)[:, np.newaxis] + 0.5
+    x = np.arange(2048, dtype=np.float64)[np.newaxis, :] + 0.5
+    ramp = (g_y * y + g_x * x + 64.0) / TILT_SCALE
+    path = folder / f"tilted_{rotation_deg:g}_{axis}.tiff"
+    assert cv2.imwrite(str(path), ramp)
+    return path
+
+
+@pytest.mark.parametrize("rotation_deg", [-1.0, 0.3, 1.0])
+def test_rotation_turns_the_scene_in_the_focal_plane(rotation_deg: float) -> None:
+    """A ramp along the direction of travel, seen by a turned camera: it rises ``sin r`` per
+    column across the sensor (the sensor's edge columns left out: the turned scene's seam,
+    where its tile wraps across track), and still one step per line along the travel."""
+    camera = ideal_camera()
+    # One cell per pixel and a 1024-row period keep the turned scene small (1024 x 2048 cells;
+    # the window sees rows 720 .. 900 of it).
+    camera.set_scene(f"ramp:photons={PHOTONS},period=1024,oversample=1,rotation_deg={rotation_deg}")
+    seen = camera.expected_electrons(T0_S, dtype=np.float64) / ramp_step(camera, 1024)
+    inner = seen[:, EDGE_COLS:-EDGE_COLS]
+    across = inner - inner[:, :1]
+    want = np.arange(across.shape[1]) * math.sin(math.radians(rotation_deg))
+    assert np.max(np.abs(across - want)) < 1e-6
+    later_s = T0_S + camera.sensor.timing().tdi_line_period_s
+    later = camera.expected_electrons(later_s, dtype=np.float64) / ramp_step(camera, 1024)
+    assert np.max(np.abs((later - seen)[:, EDGE_COLS:-EDGE_COLS] - 1.0)) < 1e-6
+
+
 @pytest.mark.parametrize("rotation_deg", [-1.0, 0.3, 1.0])
 def test_rotation_moves_the_image_tan_r_columns_per_row(
-    rotation_deg: float, across_ramp: Path
+    rotation_deg: float, tmp_path: Path
 ) -> None:
+    """Scenes that ramp along the turned sensor's columns and rows (``tilted_ramp``): the
+    image moves ``sin r`` columns and ``cos r`` rows per line, ``tan r`` columns per row."""
     camera = ideal_camera()
-    camera.set_scene(f"image:path={across_ramp},photons={PHOTONS}")
-    assert np.max(np.abs(motion_per_line(camera, axis=1))) < 1e-6  # no sideways motion
-    camera.set_scene(f"image:path={across_ramp},photons={PHOTONS},rotation_deg={rotation_deg}")
+    camera.set_scene(
+        f"image:path={tilted_ramp(tmp_path, rotation_deg, 1)},photons={PHOTONS},"
+        f"rotation_deg={rotation_deg}"
+    )
     across = motion_per_line(camera, axis=1, lines=4)
     camera.set_scene(
-        f"ramp:photons={PHOTONS},period={RAMP_PERIOD_ROWS},rotation_deg={rotation_deg}"
+        f"image:path={tilted_ramp(tmp_path, rotation_deg, 0)},photons={PHOTONS},"
+        f"rotation_deg={rotation_deg}"
     )
-    along = motion_per_line(camera, axis=0, lines=4)
-    tan_r = math.tan(math.radians(rotation_deg))
-    # The render interpolates the sideways shift linearly between columns: exact on a ramp.
-    assert np.max(np.abs(across / float(np.mean(along)) - tan_r)) < 1e-6
-    # One row of stage travel along the rotated direction: cos r rows along, sin r across.
-    assert np.max(np.abs(along - math.cos(math.radians(rotation_deg)))) < 1e-6
+    period_s = camera.sensor.timing().tdi_line_period_s
+    # The ramp's step per row is known (the image's own scale): no rolling-shutter question.
+    step = ramp_step(camera, TILT_SCALE)
+    first = camera.expected_electrons(T0_S, dtype=np.float64) / step
+    later = camera.expected_electrons(T0_S + 4 * period_s, dtype=np.float64) / step
+    along = ((later - first) / 4)[:, EDGE_COLS:-EDGE_COLS]
+    r = math.radians(rotation_deg)
+    # Bilinear cells and the render's linear column interpolation are exact on a ramp.
+    assert np.max(np.abs(across - math.sin(r))) < 1e-6
+    assert np.max(np.abs(along - math.cos(r))) < 1e-6
+    assert np.max(np.abs(across / along - math.tan(r))) < 1e-6
 
 
 def test_stage_yaw_turns_the_motion_with_the_travel(across_ramp: Path) -> None:
