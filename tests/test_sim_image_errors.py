@@ -278,3 +278,28 @@ def test_the_errors_read_back_from_the_spec_text() -> None:
     spec = SceneSpec.parse(text)
     assert (spec.magnification_error, spec.rotation_deg, spec.yaw_deg_per_m) == (0.005, 0.3, -2)
     assert spec.describe() == text and SceneSpec.parse(spec.describe()) == spec
+
+
+def test_image_motion_compensation_sees_the_magnification_error() -> None:
+    """The full-frame ftf5066 with its charge packets clocked along with the image (IMC, the
+    clock matched to the nominal speed): with ``magnification_error`` e the frame is the one
+    a stage ``1 + e`` times faster gives without it, not the matched one."""
+    update = {"prnu_fraction": 0.0, "dsnu_e_per_s": 0.0, "dark_current_e_per_s": 0.0}
+    fields = {k: Sourced[Any](value=v, assumed="test variant") for k, v in update.items()}
+    sensor = SensorModel(load_register_map("ftf5066"))
+    camera = CameraModel(load_profile("ftf5066").model_copy(update=fields), sensor)
+    write(sensor, "WIN_ROWS", 64)
+    write(sensor, "IMC_CTRL", 2)  # electrode steps
+    write(sensor, "IMC_STEP_LO", 62500)  # 0.9 mm/s on the focal plane (REN15's 9 um pixel)
+    assert camera.settings().imc[:2] == ("electrode", 62500 / 25e6)  # IMC_STEP in 25 MHz clocks
+    nominal_m_s = 0.9e-3 / camera.profile.magnification.value
+    edge = "edge:photons=1.4e7,period=16,angle_deg=1,oversample=16,x_oversample=1"
+
+    def frame(scene: str, speed_m_s: float) -> np.ndarray:
+        camera.set_scene(scene)
+        camera.stage_speed_m_s = speed_m_s
+        return camera.expected_electrons(0.5, dtype=np.float64)
+
+    with_error = frame(f"{edge},magnification_error=0.02", nominal_m_s)
+    assert np.allclose(with_error, frame(edge, 1.02 * nominal_m_s), rtol=1e-9, atol=1e-6)
+    assert not np.allclose(with_error, frame(edge, nominal_m_s), rtol=1e-3)
