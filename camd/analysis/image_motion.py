@@ -1,15 +1,19 @@
 """Image motion measured from the frames: velocity mismatch and drift angle by registration.
 
-docs/physics.md, section "Image motion from the frames", gives the relations and the precision
+docs/physics.md §10, "Image motion from the frames", gives the relations and the precision
 expected; this module implements them. Pure: numpy and OpenCV, no I/O, no daemon types.
 
 Convention (the simulator's, ``firmware_models.scene``): between two frames the scene's image
 has moved by ``(s, t)`` pixels when the later frame ``B`` shows at ``(r, c)`` what the earlier
 frame ``A`` showed at ``(r + s, c + t)``: ``B(r, c) = A(r + s, c + t)``. In TDI mode the camera
 sends a window every line period and, with the image in step with the line transfer, ``s`` is
-exactly 1 row per line; a velocity mismatch makes it ``1 + dV/V`` (``dV/V > 0``: the image runs
-ahead of the line transfer) and a drift angle ``theta`` adds ``tan(theta)`` columns per line
-(positive towards higher column indices seen from the sensor, the simulator's ``drift_deg``).
+exactly 1 row per line. The image's speed over the synchronous speed is ``V_m / V = s``, so the
+velocity mismatch of docs/physics.md §6, ``dV/V = (V - V_m) / V``, is ``1 - s`` (positive when the
+image moves slower than one row per line, the sign camd's encoder figures use, so the two can be
+compared and subtracted as they are). A drift angle ``theta`` moves the image ``tan(theta)``
+columns per row of its motion, ``t = s tan(theta)`` columns per line, so ``theta = atan2(t, s)``:
+the direction of the image's motion (positive towards higher column indices, the simulator's
+``drift_deg``, whose lateral shift is the displacement times ``tan(drift_deg)``).
 
 The registration of a pair (why this method): a Gauss-Newton least-squares fit of the
 translation (Lucas-Kanade; the criterion ECC maximises, without ECC's normalisation), started at
@@ -84,23 +88,25 @@ class ImageMotion:
 
     @property
     def dv_over_v(self) -> float:
-        """Velocity mismatch ``dV/V = shift_along - 1`` (positive: image faster than the lines)."""
-        return self.shift_along_px_per_line - 1.0
+        """Velocity mismatch ``dV/V = 1 - shift_along`` (docs/physics.md §6's sign: positive
+        when the image moves slower than one row per line)."""
+        return 1.0 - self.shift_along_px_per_line
 
     @property
     def dv_over_v_stderr(self) -> float:
         return self.shift_along_stderr_px
 
     def m_dv_over_v(self, stages: int) -> float:
-        """``M dV/V``: the along-track smear in rows over ``stages`` TDI stages."""
+        """``M dV/V``: the along-track smear in rows over ``stages`` TDI stages (signed)."""
         if stages < 1:
             raise ValueError(f"stages must be >= 1, got {stages}")
         return stages * self.dv_over_v
 
     @property
     def theta_deg(self) -> float:
-        """Drift angle ``atan(shift_across)`` in degrees (the shift is per row of motion)."""
-        return math.degrees(math.atan(self.shift_across_px_per_line))
+        """Drift angle ``atan2(shift_across, shift_along)`` in degrees: the direction of the
+        image's motion (``atan(shift_across)`` to within ``dV/V`` of it)."""
+        return math.degrees(math.atan2(self.shift_across_px_per_line, self.shift_along_px_per_line))
 
 
 @dataclass(frozen=True)
@@ -153,8 +159,8 @@ def measure_area_motion(
 
     ``step_rows[i]``: the stage's motion between ``frames[i]`` and ``frames[i + 1]`` in rows of
     the image (the encoder's displacement over the pixel's footprint); the result's
-    ``shift_along_px_per_line`` is the image's motion per row of stage motion (1 + dV/V: a
-    magnification error shows as dV/V) and ``shift_across_px_per_line`` the columns per row
+    ``shift_along_px_per_line`` is the image's motion per row of stage motion (``1 - dV/V``: a
+    magnification error ``m'/m - 1`` shows as ``dV/V = -(m'/m - 1)``) and ``shift_across_px_per_line`` the columns per row
     (tan(theta)).
     """
     steps = [float(s) for s in step_rows]
