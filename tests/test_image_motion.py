@@ -119,6 +119,11 @@ def test_dv_over_v_and_theta_within_the_precision_formula(
     assert abs(result.dv_over_v - dv_over_v) < tol_along
     assert abs(result.shift_across_px_per_line - across) < tol_across
     assert abs(result.m_dv_over_v(stages) - stages * dv_over_v) < stages * tol_along
+    if kind == "natural":
+        # the reported standard errors (the pairs' scatter) agree with the formula: 0.40-1.11
+        # of it over 5 seeds x 9 cases (below 1: consecutive pairs share a frame, physics §10)
+        assert 0.25 < result.shift_along_stderr_px / sigma_along < 2.0
+        assert 0.25 < result.shift_across_stderr_px / sigma_across < 2.0
     # theta = atan2(across, along): d theta = (along d across - across d along) / along^2, the
     # along term below 0.02 of the across one here
     assert abs(result.theta_deg - theta_deg) < math.degrees(1.1 * tol_across / along)
