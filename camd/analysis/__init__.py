@@ -14,4 +14,6 @@
 - ``camd.analysis.polarization``: the sinusoid fit of §4 for a polariser's azimuth.
 - ``camd.analysis.roi``: per-frame statistics of named rectangles (mean, std, min, max, sum, SNR,
   saturated pixels, background-subtracted mean), shared by the daemon's ROI monitor and tests.
+- ``camd.analysis.image_motion``: the image's motion per line (dV/V, drift angle) measured by
+  registering successive TDI windows or area frames (docs/physics.md §10).
 """
