@@ -20,7 +20,6 @@ finest bars are at Nyquist; BIAS_FRACTION, stated in the physics section).
 from __future__ import annotations
 
 import math
-import time
 
 import numpy as np
 import numpy.typing as npt
@@ -207,15 +206,3 @@ def test_bad_inputs_say_what_to_change() -> None:
         measure_area_motion(frames, [1.0])
     with pytest.raises(ValueError, match="need at least 2 frames"):
         measure_tdi_motion(frames[:1], [0])
-
-
-def test_cost_per_frame_is_printed(capsys: pytest.CaptureFixture[str]) -> None:
-    """The cost per frame on one core at hr400-like M = 96 windows (printed, not asserted)."""
-    counters = list(range(FRAMES))
-    frames, _ = tdi_windows("natural", 96, 1.01, 0.01, counters, seed=1)
-    start = time.process_time()
-    measure_tdi_motion(frames, counters)
-    per_frame_ms = (time.process_time() - start) / FRAMES * 1e3
-    with capsys.disabled():
-        print(f"\nimage motion: {per_frame_ms:.2f} ms CPU per 96 x {COLS} window")
-    assert per_frame_ms > 0.0

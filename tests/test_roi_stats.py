@@ -157,8 +157,8 @@ def test_a_recordings_log_keeps_its_frames_stops_at_a_change_and_writes_the_grou
     monitor(ReceivedFrame(_header(60), frames[10], 0, 0, 10))
     assert not log.active and log.rois_changed_at == 59 and log.frames == 8
     path = tmp_path / "r.h5"
-    h5py.File(path, "w").close()
-    log.write_to(path)
+    with h5py.File(path, "w") as f:
+        log.write_into(f)
     expected = roi_stats(frames[:8], rois, 12)
     with h5py.File(path, "r") as f:
         group = f["roi"]

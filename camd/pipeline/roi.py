@@ -18,7 +18,6 @@ from __future__ import annotations
 import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -61,14 +60,6 @@ class RoiLog:
             self._counters.append(counters[:k].copy())
             self._stats.append(stats[:k])
             self.frames += k
-
-    def write_to(self, path: str | Path) -> None:
-        """``write_into`` the HDF5 file ``path`` (opened to append). OSError if it cannot be
-        written."""
-        import h5py  # only here: the monitor itself needs no HDF5
-
-        with h5py.File(path, "a") as f:
-            self.write_into(f)
 
     def write_into(self, f: Any) -> None:
         """Add the group ``/roi`` to the open HDF5 file ``f`` (an ``h5py.File``; a recording
