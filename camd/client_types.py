@@ -757,6 +757,65 @@ class FocusResponse(TypedDict):
     history: FocusHistory
 
 
+class ImageMotionBlock(TypedDict):
+    """One block of consecutive TDI window frames and the image's motion measured from it
+    (docs/physics.md §10; docs/motion.md, "The image's motion from the frames"). The figures are
+    null when the block was not measurable (``why`` says what was missing)."""
+
+    # the block's first frame counter
+    counter_first: int
+    # ... and its last (a gap inside is a lost frame)
+    counter_last: int
+    frames: int
+    # pairs of frames registered
+    pairs: int
+    # M, as the frames' headers give it
+    stages: int
+    # the columns [first, last) measured
+    columns: list[int]
+    # Unix time the measurement ended
+    measured_t_s: float
+    # CPU time the measurement took
+    cpu_s: float
+    measurable: bool
+    # pairs registered, or why the block could not be measured
+    why: str
+    # rows the image moved per line
+    shift_along_px_per_line: float | None
+    # columns per line
+    shift_across_px_per_line: float | None
+    shift_along_stderr_px: float | None
+    shift_across_stderr_px: float | None
+    # 1 - shift along: > 0 when the image is slow
+    dv_over_v: float | None
+    # M dV/V: the along-track smear, pixels
+    m_dv_over_v: float | None
+    # the image's drift angle from the columns
+    theta_deg: float | None
+
+
+class ImageMotionResponse(TypedDict):
+    """GET /api/v1/live/motion: the image's motion measured from the streams' TDI windows."""
+
+    # motion.image_measure: measuring at all
+    enabled: bool
+    frames_per_block: int
+    columns_max: int
+    # the most of one core the measurement takes
+    cpu_fraction: float
+    # blocks measured since the daemon started
+    blocks_measured: int
+    # TDI frames the streams delivered meanwhile
+    tdi_frames_seen: int
+    # ... of which in a measured block
+    frames_measured: int
+    # CPU time of all the measurements
+    cpu_s: float
+    latest: ImageMotionBlock | None
+    # the newest blocks, oldest first
+    history: list[ImageMotionBlock]
+
+
 class StageResponse(TypedDict):
     """The ``StageResponse`` document (its model has no docstring)."""
 
@@ -797,6 +856,26 @@ class ScanTiming(TypedDict):
     stage_speed_m_s: float | None
     # (V - V_m) / V, docs/physics.md §6; null if unknown
     dv_over_v: float | None
+
+
+class ScanImageMotion(TypedDict):
+    """The image's motion measured from blocks of a scan's frames (docs/motion.md, "The image's
+    motion from the frames"): the newest block and the means over the measurable ones (null
+    before the first)."""
+
+    # blocks of the scan's frames measured
+    blocks: int
+    # ... of which measurable
+    measurable_blocks: int
+    # mean dV/V (> 0: the image is slow)
+    dv_over_v_mean: float | None
+    # mean M dV/V, pixels of smear
+    m_dv_over_v_mean: float | None
+    # mean drift angle, degrees
+    theta_deg_mean: float | None
+    # standard error of the mean dV/V from the blocks' scatter (2 blocks or more)
+    dv_over_v_sem: float | None
+    latest: ImageMotionBlock | None
 
 
 class ScanMotionInfo(TypedDict):
@@ -867,6 +946,9 @@ class ScanResponse(TypedDict):
     mismatch_level: str
     # the stage's part of the scan, if driven
     motion: ScanMotionInfo | None
+    # the image's motion measured from the scan's frames (null: not measured, motion.image_measure =
+    # false)
+    image_motion: ScanImageMotion | None
 
 
 class StageReadingModel(TypedDict):

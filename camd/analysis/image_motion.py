@@ -50,6 +50,7 @@ with the reason, not as a number.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -88,15 +89,29 @@ class ImageMotion:
     measurable: bool
     why: str
 
+    row_lag_lines: float = 0.0
+    """A rolling shutter's lag between consecutive rows, in line periods (``T_row / T_line``;
+    0 for a global or frame-transfer shutter), signed as ``measure_tdi_motion`` says."""
+
+    @property
+    def image_speed_px_per_line(self) -> float:
+        """Rows the image moves per line period, ``v = s / (1 - s lambda)`` (docs/physics.md
+        §10, "A rolling shutter"): the shift between frames ``s`` is the image's speed only
+        when every row is exposed at once (``lambda = 0``)."""
+        s = self.shift_along_px_per_line
+        return s / (1.0 - s * self.row_lag_lines)
+
     @property
     def dv_over_v(self) -> float:
-        """Velocity mismatch ``dV/V = 1 - shift_along`` (docs/physics.md §6's sign: positive
-        when the image moves slower than one row per line)."""
-        return 1.0 - self.shift_along_px_per_line
+        """Velocity mismatch ``dV/V = 1 - v`` (docs/physics.md §6's sign: positive when the
+        image moves slower than one row per line; §10 for ``v``)."""
+        return 1.0 - self.image_speed_px_per_line
 
     @property
     def dv_over_v_stderr(self) -> float:
-        return self.shift_along_stderr_px
+        """``dv/ds = 1 / (1 - s lambda)^2`` times the standard error of ``s``."""
+        s = self.shift_along_px_per_line
+        return self.shift_along_stderr_px / (1.0 - s * self.row_lag_lines) ** 2
 
     def m_dv_over_v(self, stages: int) -> float:
         """``M dV/V``: the along-track smear in rows over ``stages`` TDI stages (signed)."""
@@ -121,6 +136,7 @@ class PairShift:
     texture_snr_across: float
     noise_sigma_dn: float
     converged: bool
+    overlap_px: int = 0  # pixels the shift was fitted over
 
 
 def measure_tdi_motion(
@@ -128,6 +144,8 @@ def measure_tdi_motion(
     frame_counters: Sequence[int],
     *,
     background: npt.ArrayLike | None = None,
+    flat: npt.ArrayLike | None = None,
+    row_lag_lines: float = 0.0,
 ) -> ImageMotion:
     """The image motion per line from TDI window frames in the order received.
 
@@ -135,7 +153,10 @@ def measure_tdi_motion(
     period; ``frame_counters``: the camera's frame counter of each, strictly increasing (a gap
     of ``g`` means ``g - 1`` frames were dropped). Pairs whose gap leaves fewer than 3 rows of
     overlap are skipped. ``background``: a dark or background frame subtracted from every
-    window (else the per-column mean over the sequence is, module doc).
+    window (else the per-column mean over the sequence is, module doc). ``row_lag_lines``: a
+    rolling shutter's ``T_row / T_line``, positive when the image moves towards the rows read
+    first (a forward scan on a sensor read from row 0), negative the other way, 0 for a global
+    shutter; it converts the shift between frames into the image's speed (``ImageMotion``).
     """
     counters = [int(c) for c in frame_counters]
     if len(counters) != len(frames):
@@ -148,7 +169,13 @@ def measure_tdi_motion(
             "frame counters must increase strictly in the order of the frames; sort the frames "
             "by counter and drop repeated ones"
         )
-    return _measure(frames, [float(g) for g in gaps], background)
+    if not (math.isfinite(row_lag_lines) and abs(row_lag_lines) < 0.5):
+        raise ValueError(
+            f"row_lag_lines = {row_lag_lines}: a rolling shutter's T_row / T_line is below 0.5 "
+            "(a window of 2 rows or more); give 0 for a global shutter"
+        )
+    result = _measure(frames, [float(g) for g in gaps], background, flat)
+    return dataclasses.replace(result, row_lag_lines=float(row_lag_lines))
 
 
 def measure_area_motion(
@@ -156,6 +183,7 @@ def measure_area_motion(
     step_rows: Sequence[float],
     *,
     background: npt.ArrayLike | None = None,
+    flat: npt.ArrayLike | None = None,
 ) -> ImageMotion:
     """The image motion per row of stage motion from successive area frames.
 
@@ -172,7 +200,7 @@ def measure_area_motion(
         )
     if not all(math.isfinite(s) and s > 0.0 for s in steps):
         raise ValueError("every stage step must be a finite number of rows above 0")
-    return _measure(frames, steps, background)
+    return _measure(frames, steps, background, flat)
 
 
 def register_pair(
@@ -238,6 +266,7 @@ def register_pair(
         texture_snr_across=(float(np.mean(gx * gx)) - noise_gradient) / noise_gradient,
         noise_sigma_dn=math.sqrt(sigma2),
         converged=converged,
+        overlap_px=(r1 - r0) * (c1 - c0),
     )
 
 
@@ -280,43 +309,49 @@ def _measure(
     frames: Sequence[npt.ArrayLike],
     steps: Sequence[float],
     background: npt.ArrayLike | None,
+    flat: npt.ArrayLike | None = None,
 ) -> ImageMotion:
-    """The per-step shifts of consecutive frames, fitted as ``shift = rate * step``."""
+    """Each frame registered on the first, the shifts fitted as ``shift = c + rate * position``
+    (module docstring, "Which pairs")."""
     if len(frames) < 2:
         raise ValueError(f"need at least 2 frames to measure motion, got {len(frames)}")
-    stack = np.stack([np.asarray(f, dtype=np.float32) for f in frames])
-    if stack.ndim != 3:
-        raise ValueError(f"frames must be 2-D images of one shape, got a stack {stack.shape}")
-    if not np.all(np.isfinite(stack)):
-        raise ValueError("the frames hold NaN or infinite pixels")
-    if background is not None:
-        back = np.asarray(background, dtype=np.float32)
-        if back.shape != stack.shape[1:]:
-            raise ValueError(
-                f"background is {back.shape}, the frames {stack.shape[1:]}: give a background "
-                "of the windows' shape"
-            )
-        stack -= back
-    else:
-        stack -= stack.mean(axis=(0, 1), dtype=np.float64).astype(np.float32)
-    pairs: list[tuple[float, PairShift]] = []
+    stack = _prepared(frames, background, flat)
+    positions = np.concatenate([[0.0], np.cumsum(np.asarray(steps, dtype=np.float64))])
+    groups: list[list[tuple[float, PairShift]]] = [[]]  # pairs on one reference frame each
     skipped = 0
-    rate: tuple[float, float] | None = None  # the last converged pair's motion per step
-    for k, step in enumerate(steps):
-        start = None if rate is None else (rate[0] * step, rate[1] * step)
-        shift = register_pair(stack[k], stack[k + 1], step, start=start)
+    # Where the next pair's search starts: the nominal (one row per step) until the pairs
+    # fitted so far say better; a pair's prediction is then off by the rate's error times its
+    # baseline, well inside SEARCH_PX while the baselines grow a step at a time.
+    rate, offset = (1.0, 0.0), (0.0, 0.0)
+    ref, k = 0, 1
+    while k < stack.shape[0]:
+        g = float(positions[k] - positions[ref])
+        shift = register_pair(
+            stack[ref], stack[k], offset[0] + rate[0] * g, offset[1] + rate[1] * g
+        )
         if shift is None:
-            skipped += 1
+            # The overlap with the reference ran out: the previous frame is the next one's
+            # reference; a frame that overlaps not even its predecessor is left out.
+            if k - ref == 1:
+                skipped += 1
+                ref, k = k, k + 1
+            else:
+                ref = k - 1
+            groups.append([])
+            offset = (0.0, 0.0)
             continue
-        pairs.append((step, shift))
-        if shift.converged:
-            rate = (shift.along_px / step, shift.across_px / step)
+        groups[-1].append((g, shift))
+        fit = _fit(groups)
+        if fit is not None:
+            rate, offset = (fit.rate_along, fit.rate_across), fit.last_intercepts
+        k += 1
+    pairs = [pair for group in groups for pair in group]
     frames_used = len(frames)
     if not pairs:
         return _not_measurable(
             frames_used,
             0,
-            f"no pair of frames overlaps by 3 rows or more ({skipped} pairs skipped): take "
+            f"no frame overlaps the first by 3 rows or more ({skipped} skipped): take "
             "consecutive frames or a smaller step",
         )
     snr_along = float(np.median([p.texture_snr_along for _, p in pairs]))
@@ -329,25 +364,20 @@ def _measure(
             f"and {snr_across:.3g} across track (needs {TEXTURE_SNR_MIN:g} on both): point "
             "the camera at a textured scene or raise the light level",
         )
-    good = [(g, p) for g, p in pairs if p.converged]
-    if not good:
-        return _not_measurable(frames_used, len(pairs), "no pair's registration converged")
-    g = np.array([step for step, _ in good])
-    along = np.array([p.along_px for _, p in good])
-    across = np.array([p.across_px for _, p in good])
-    sum_g2 = float(g @ g)
-    rate_along = float(g @ along) / sum_g2
-    rate_across = float(g @ across) / sum_g2
-    n = len(good)
-    if n >= 3:
-        # least-squares slope through the origin: var = residual variance / sum(g^2)
-        se_along = math.sqrt(float(np.sum((along - rate_along * g) ** 2)) / (n - 1) / sum_g2)
-        se_across = math.sqrt(float(np.sum((across - rate_across * g) ** 2)) / (n - 1) / sum_g2)
-    else:
-        se_along = se_across = float("nan")
-    why = f"{n} pairs registered"
+    fit = _fit(groups)
+    n = sum(1 for _, p in pairs if p.converged)
+    if fit is None:
+        return _not_measurable(
+            frames_used,
+            len(pairs),
+            f"{n} frame(s) registered on a reference: a rate needs 2 on one reference (give "
+            "more frames that overlap)",
+        )
+    rate_along, rate_across = fit.rate_along, fit.rate_across
+    se_along, se_across = fit.stderr_along, fit.stderr_across
+    why = f"{n} frames registered on {fit.references} reference frame(s)"
     if skipped or n < len(pairs):
-        why += f"; {skipped + len(pairs) - n} pairs left out (no overlap or not converged)"
+        why += f"; {skipped + len(pairs) - n} left out (no overlap or not converged)"
     return ImageMotion(
         shift_along_px_per_line=rate_along,
         shift_across_px_per_line=rate_across,
@@ -358,3 +388,125 @@ def _measure(
         measurable=True,
         why=why,
     )
+
+
+def _prepared(
+    frames: Sequence[npt.ArrayLike],
+    background: npt.ArrayLike | None,
+    flat: npt.ArrayLike | None,
+) -> npt.NDArray[np.float32]:
+    """The frames as one float32 stack, the fixed pattern taken out (module docstring)."""
+    stack = np.stack([np.asarray(f, dtype=np.float32) for f in frames])
+    if stack.ndim != 3:
+        raise ValueError(f"frames must be 2-D images of one shape, got a stack {stack.shape}")
+    if not np.all(np.isfinite(stack)):
+        raise ValueError("the frames hold NaN or infinite pixels")
+    for name, image in (("background", background), ("flat", flat)):
+        if image is not None and np.shape(image) != stack.shape[1:]:
+            raise ValueError(
+                f"{name} is {np.shape(image)}, the frames {stack.shape[1:]}: give a {name} "
+                "of the windows' shape"
+            )
+    if background is not None:
+        stack -= np.asarray(background, dtype=np.float32)
+    else:
+        stack -= stack.mean(axis=(0, 1), dtype=np.float64).astype(np.float32)
+    if flat is not None:
+        gain = np.asarray(flat, dtype=np.float32)
+        if not (np.all(np.isfinite(gain)) and np.all(gain > 0)):
+            raise ValueError("the flat holds pixels that are not finite and above 0")
+        stack /= gain
+    return stack
+
+
+@dataclass(frozen=True)
+class _Fit:
+    rate_along: float
+    rate_across: float
+    stderr_along: float
+    stderr_across: float
+    references: int  # reference frames with 2 or more pairs
+    last_intercepts: tuple[float, float]  # the last reference's (0 if it has no line yet)
+
+
+def _fit(groups: Sequence[Sequence[tuple[float, PairShift]]]) -> _Fit | None:
+    """Weighted least squares ``shift = c_j + rate * baseline`` along and across, one
+    intercept ``c_j`` per reference frame (it takes that frame's own error, which its pairs
+    share) and one rate; None until some reference has two converged pairs. Each pair weighs
+    its overlap's pixels (a shift's variance goes as 1 / the pixels it is fitted over,
+    docs/physics.md §10). The standard errors come from the scatter about the lines (NaN with
+    fewer residual degrees of freedom than 1)."""
+    used = [[(g, p) for g, p in group if p.converged] for group in groups]
+    used = [group for group in used if len(group) >= 2]
+    if not used:
+        return None
+    g_all: list[float] = []
+    w_all: list[float] = []
+    along: list[float] = []
+    across: list[float] = []
+    for group in used:
+        g = np.array([gg for gg, _ in group])
+        w = np.array([p.overlap_px for _, p in group], dtype=np.float64)
+        # centred within the group: the intercept is out of the slope's fit
+        g_all += list(g - (w @ g) / w.sum())
+        w_all += list(w)
+        for values, out in ((along, "a"), (across, "c")):
+            y = np.array([p.along_px if out == "a" else p.across_px for _, p in group])
+            values += list(y - (w @ y) / w.sum())
+    dg, w = np.array(g_all), np.array(w_all)
+    w = w / w.sum()
+    sxx = float(w @ (dg * dg))
+    if sxx <= 0:
+        return None
+    dof = len(dg) - len(used) - 1
+    rates: list[float] = []
+    errors: list[float] = []
+    for values in (along, across):
+        y = np.array(values)
+        slope = float(w @ (dg * y)) / sxx
+        residual = y - slope * dg
+        rates.append(slope)
+        # The weights sum to 1: each pair's variance is sigma_1^2 / (n w_k) with
+        # sigma_1^2 = n sum(w r^2) / dof, and the slope's is sigma_1^2 / (n sxx).
+        errors.append(
+            math.sqrt(float(w @ (residual * residual)) / dof / sxx) if dof >= 1 else math.nan
+        )
+    intercepts = (0.0, 0.0)
+    last = [(g, p) for g, p in groups[-1] if p.converged]
+    if last:
+        lw = np.array([p.overlap_px for _, p in last], dtype=np.float64)
+        lg = np.array([g for g, _ in last])
+        la = np.array([p.along_px for _, p in last])
+        lc = np.array([p.across_px for _, p in last])
+        g_mean = float(lw @ lg) / lw.sum()
+        intercepts = (
+            float(lw @ la) / lw.sum() - rates[0] * g_mean,
+            float(lw @ lc) / lw.sum() - rates[1] * g_mean,
+        )
+    return _Fit(rates[0], rates[1], errors[0], errors[1], len(used), intercepts)
+
+
+FLAT_BOX_ROWS = 9
+"""Rows of the running mean that ``flat_from_mean`` divides by (odd)."""
+
+
+def flat_from_mean(mean_frame: npt.ArrayLike) -> npt.NDArray[np.float32]:
+    """A gain pattern fixed to the sensor (PRNU) from the mean of many moving windows
+    (docs/physics.md §10, "Fixed pattern"): in a push-broom scan every row of a column sees the
+    same ground passing, so the mean frame is the column's mean ground times each pixel's gain;
+    over a running mean of ``FLAT_BOX_ROWS`` rows along each column (fewer in a shorter window)
+    the smooth part (the ground, and what is left of it from a finite number of frames) divides
+    out and the pixel-to-pixel pattern stays. ``mean_frame`` must have the offset (background
+    or dark) removed; the result is positive, of mean 1, for ``measure_tdi_motion``'s ``flat``.
+    """
+    mean = np.asarray(mean_frame, dtype=np.float32)
+    if mean.ndim != 2 or mean.shape[0] < 3:
+        raise ValueError(f"the mean frame must be 2-D with 3 rows or more, got {mean.shape}")
+    box = min(FLAT_BOX_ROWS, mean.shape[0] - (1 - mean.shape[0] % 2))
+    smooth = cv2.blur(mean, (1, box), borderType=cv2.BORDER_REFLECT)
+    floor = max(float(np.median(np.abs(smooth))) * 1e-3, 1e-6)
+    flat = mean / np.where(np.abs(smooth) > floor, smooth, np.nan)
+    flat[~np.isfinite(flat) | (flat <= 0)] = 1.0
+    flat /= float(flat.mean())
+    out: npt.NDArray[np.float32] = flat.astype(np.float32)
+    return out

@@ -9,8 +9,9 @@
 
 ``scan`` waits for the scan to end, with a progress bar on stderr, and prints one document whose
 first keys are the contract {"file", "lines", "complete_lines", "lost_frames", "stages"}, then
-"mismatch_max" and "mismatch_rms" (M |dV/V| over the scan, docs/motion.md); the rest is the
-daemon's scan document. It exits 1, saying why, when the scan did not end ``done``: failed,
+"mismatch_max" and "mismatch_rms" (M |dV/V| over the scan from the encoder, docs/motion.md); the
+rest is the daemon's scan document, whose "image_motion" is the image's own dV/V, M dV/V and drift
+angle measured from blocks of the scan's frames. It exits 1, saying why, when the scan did not end ``done``: failed,
 ended early (the camera ended its stream before the scan's frames were all sent), or stopped
 before its lines by someone else (a scan until stopped ends ``stopped`` as asked). The scan drives the stage at the synchronous speed (closed loop unless
 --open-loop, or config motion.closed_loop = "off"); --no-stage leaves it alone. Ctrl-C stops the scan (the file keeps what was taken).
@@ -246,6 +247,9 @@ def render_scan(out: Console, doc: Any, args: argparse.Namespace) -> None:
         )
         if motion["loop_error"]:
             out.print(f"[yellow]{escape(motion['loop_error'])}[/]")
+    image = doc.get("image_motion")
+    if image:
+        out.print(image_motion_line(image), markup=False)
     if len(doc["stage_changes"]) > 1:
         changes = ", ".join(f"line {i}: M = {m}" for i, m in doc["stage_changes"])
         out.print(f"stage changes: {changes}", markup=False)
@@ -256,6 +260,21 @@ def render_scan(out: Console, doc: Any, args: argparse.Namespace) -> None:
         )
     if doc.get("error"):
         out.print(f"[red]error: {escape(doc['error'])}[/]")
+
+
+def image_motion_line(image: dict[str, Any]) -> str:
+    """The scan's image motion from its frames (docs/motion.md), in one line."""
+    head = f"image motion ({image['measurable_blocks']} of {image['blocks']} blocks measurable)"
+    if image["dv_over_v_mean"] is None:
+        latest = image["latest"]
+        why = "no block measured yet" if latest is None else latest["why"]
+        return f"{head}: {why}"
+    sem = image["dv_over_v_sem"]
+    spread = "" if sem is None else f" +- {sem:.2g}"
+    return (
+        f"{head}: dV/V {image['dv_over_v_mean']:+.4g}{spread}, "
+        f"M dV/V {image['m_dv_over_v_mean']:+.3g} pixels, theta {image['theta_deg_mean']:+.3g} deg"
+    )
 
 
 RENDER: dict[str, Callable[[Console, Any, argparse.Namespace], None]] = {

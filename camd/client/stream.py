@@ -15,6 +15,7 @@ from camd.client_requests import StreamAcquireOptions, StreamStartRequestOptions
 from camd.client_types import (
     BackgroundStatus,
     FocusResponse,
+    ImageMotionResponse,
     LivePixel,
     RoiList,
     RoiStatsResponse,
@@ -117,6 +118,16 @@ class StreamClient(HttpClient):
         return cast(
             RoiStatsResponse,
             self._json("GET", f"{API}/live/roi/stats", params={"history": history}),
+        )
+
+    # -- the image's motion from the frames ---------------------------------------------------
+
+    def image_motion(self, history: int = 0) -> ImageMotionResponse:
+        """The image's motion measured from blocks of the streams' TDI windows (dV/V, M dV/V,
+        drift angle; docs/motion.md): the newest block and the newest ``history`` (0..1024)."""
+        return cast(
+            ImageMotionResponse,
+            self._json("GET", f"{API}/live/motion", params={"history": history}),
         )
 
     # -- the live view's focus aid -----------------------------------------------------------------

@@ -296,6 +296,19 @@ class MotionSection(Section):
     yellow: float = Field(default=1.0, gt=0, description="M |dV/V| yellow limit (pixels of smear)")
     red: float = Field(default=2.0, gt=0, description="M |dV/V| red limit (docs/physics.md §6: 2)")
     stop_on_red: bool = Field(default=False, description="stop a scan whose mismatch goes red")
+    image_measure: bool = Field(
+        default=True,
+        description="measure the image's motion from blocks of every stream's TDI windows",
+    )
+    image_frames_per_block: int = Field(
+        default=16, ge=3, le=256, description="consecutive TDI windows per measured block"
+    )
+    image_columns_max: int = Field(
+        default=512, ge=16, le=65535, description="central columns of each window measured"
+    )
+    image_cpu_fraction: float = Field(
+        default=0.25, gt=0, le=1, description="the most of one core the measurement may use"
+    )
 
     @model_validator(mode="after")
     def _levels_ordered(self) -> MotionSection:

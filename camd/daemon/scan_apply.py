@@ -37,6 +37,7 @@ from camd.daemon.stream_service import StreamService
 from camd.daemon.transaction import Apply
 from camd.motion.closed_loop import LinePeriodSetting
 from camd.pipeline.background import Background, BackgroundCapture
+from camd.pipeline.image_motion import ImageMotionMonitor
 from camd.pipeline.live import LiveLines
 from camd.store.durability import FLUSH_PERIOD_S
 from camd.store.journal import RecordingJournal
@@ -57,6 +58,8 @@ class ScanApply:
     _: KW_ONLY
     background: BackgroundCapture | None  # the live view's, stored in the scan's file when ready
     live_lines: LiveLines | None  # the live view's waterfall (None: no live lines)
+    # The image's motion from blocks of the scan's frames, for its file and status.
+    image_motion: ImageMotionMonitor | None = None
     # The scan service's lock too, handed to each scan's run.
     lock: threading.Lock = field(default_factory=threading.Lock, init=False)
 
@@ -127,6 +130,7 @@ class ScanApply:
                 stream=self.stream,
                 live_lines=self.live_lines,
                 lock=self.lock,
+                image_motion=self.image_motion,
             )
             if self.live_lines is not None:
                 self.live_lines.reset(plan.columns, scan=str(plan.path), lines_planned=plan.frames)

@@ -38,6 +38,13 @@ from camd.daemon.scan_motion import ScanMotion
 from camd.daemon.scan_plan import ScanPlan, engine_for
 from camd.daemon.stream_service import StreamService
 from camd.pipeline import TdiPipeline
+from camd.pipeline.image_motion import (
+    COUNTER_WRAP,
+    ImageMotionMonitor,
+    MotionLog,
+    MotionSummary,
+    summarize,
+)
 from camd.pipeline.live import LiveLines
 from camd.store.journal import settle_failed_close
 from camd.store.quicklook import write_quicklook_png
@@ -47,6 +54,11 @@ log = logging.getLogger("camd.daemon.scan_service")
 
 FINISH_TIMEOUT_S = 60.0
 QUICKLOOK_MAX_LINES = 8192
+IMAGE_MOTION_WAIT_S = 2.0  # a closing scan waits this long at most for its last block
+
+
+def _or_nan(value: float | None) -> float:
+    return float("nan") if value is None else value
 
 
 class ScanRun:
@@ -63,8 +75,12 @@ class ScanRun:
         stream: StreamService,
         live_lines: LiveLines | None,
         lock: threading.Lock,
+        image_motion: ImageMotionMonitor | None = None,
     ) -> None:
         self.device = device
+        # The image's motion from blocks of the scan's frames (None: not measured).
+        self._image_motion = image_motion if image_motion and image_motion.enabled else None
+        self.image_motion_log: MotionLog | None = None
         self._stream = stream
         self._live_lines = live_lines  # the live view's waterfall (None: no live lines)
         # The scan service's: the scan's end (state and ``done``) is set under it.
@@ -117,6 +133,9 @@ class ScanRun:
         failure the scan is "failed", the pipeline aborted, and the error raised."""
         stream, pipeline = self._stream, self.pipeline
         pipeline.start()
+        if self._image_motion is not None:
+            self._image_motion.set_reverse(self.request.reverse)
+            self.image_motion_log = self._image_motion.start_log()
         stream.add_consumer(pipeline.consumer)
         try:
             # The line-period loop (started before the stream) changes the window's rows, up
@@ -141,6 +160,7 @@ class ScanRun:
                 )
         except BaseException:
             stream.remove_consumer(pipeline.consumer)
+            self._stop_image_motion(0.0)
             self.state = "failed"
             pipeline.abort(FINISH_TIMEOUT_S)
             self.live_end("failed")
@@ -243,11 +263,54 @@ class ScanRun:
         if self._live_lines is not None:
             self._live_lines.end(state)
 
+    def _stop_image_motion(self, wait_s: float) -> None:
+        """No more blocks for the scan's log; wait ``wait_s`` at most for one being measured."""
+        if self._image_motion is not None and self.image_motion_log is not None:
+            self._image_motion.stop_log(self.image_motion_log, wait_s=wait_s)
+            self._image_motion.set_reverse(False)
+
+    def image_motion_summary(self) -> MotionSummary | None:
+        """The image's motion over the scan's blocks so far (None: not measured)."""
+        log = self.image_motion_log
+        return None if log is None else summarize(list(log.blocks))
+
+    def _image_motion_record(self) -> tuple[dict[str, Any], dict[str, Any]] | None:
+        """The file's ``/image_motion`` group: its attributes and per-block datasets, with each
+        block's first and last line (-1 for a block before the first line's frame)."""
+        log, monitor = self.image_motion_log, self._image_motion
+        if log is None or monitor is None:
+            return None
+        summary = summarize(log.blocks)
+        arrays: dict[str, Any] = log.arrays()
+        first = self.pipeline.first_frame
+        for end in ("first", "last"):
+            counters = arrays[f"counter_{end}"]
+            if first is None:
+                arrays[f"line_{end}"] = np.full(counters.shape, -1, np.int64)
+            else:
+                counter0, index0 = first
+                arrays[f"line_{end}"] = index0 + (counters - counter0) % COUNTER_WRAP
+        attributes = {
+            "frames_per_block": monitor.frames_per_block,
+            "columns_max": monitor.columns_max,
+            "cpu_fraction": monitor.cpu_fraction,
+            "blocks": summary.blocks,
+            "blocks_dropped": log.blocks_dropped,
+            "measurable_blocks": summary.measurable_blocks,
+            "dv_over_v_mean": _or_nan(summary.dv_over_v_mean),
+            "m_dv_over_v_mean": _or_nan(summary.m_dv_over_v_mean),
+            "theta_deg_mean": _or_nan(summary.theta_deg_mean),
+            "dv_over_v_sem": _or_nan(summary.dv_over_v_sem),
+        }
+        return attributes, arrays
+
     def _close_file(self, state: str) -> None:
         stats = self._stream.stats().model_dump()
         progress = self.pipeline.progress()
         motion = self.motion_info()
         datasets = {}
+        self._stop_image_motion(IMAGE_MOTION_WAIT_S)
+        image_motion = self._image_motion_record()
         attributes: dict[str, Any] = {
             "counters": {
                 **stats,
@@ -276,6 +339,8 @@ class ScanRun:
             }
             if motion.loop_samples:
                 datasets["motion_loop"] = self.motion.record.arrays()
+        if image_motion is not None:
+            attributes["image_motion"], datasets["image_motion"] = image_motion
         try:
             self.pipeline.recorder.close(attributes, datasets)
         except Exception as exc:

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import time
 
-from camd.daemon.models import ScanResponse
+from camd.daemon.models import ImageMotionBlock, ScanImageMotion, ScanResponse
 from camd.daemon.scan_run import ScanRun
 from camd.daemon.stream_service import StreamService
 
@@ -58,6 +58,24 @@ def scan_response(scan: ScanRun | None, stream: StreamService) -> ScanResponse:
         mismatch_rms=progress.mismatch_rms,
         mismatch_level=progress.mismatch_level,
         motion=scan.motion_info(),
+        image_motion=_image_motion(scan),
+    )
+
+
+def _image_motion(scan: ScanRun) -> ScanImageMotion | None:
+    """The image's motion over the scan's measured blocks (None: not measured)."""
+    summary = scan.image_motion_summary()
+    if summary is None:
+        return None
+    latest = summary.latest
+    return ScanImageMotion(
+        blocks=summary.blocks,
+        measurable_blocks=summary.measurable_blocks,
+        dv_over_v_mean=summary.dv_over_v_mean,
+        m_dv_over_v_mean=summary.m_dv_over_v_mean,
+        theta_deg_mean=summary.theta_deg_mean,
+        dv_over_v_sem=summary.dv_over_v_sem,
+        latest=None if latest is None else ImageMotionBlock(**latest.as_dict()),
     )
 
 

@@ -71,10 +71,12 @@ from camd.daemon.wheel_service import WheelService
 from camd.link import CommandLink, Response
 from camd.pipeline.background import BackgroundCapture
 from camd.pipeline.focus import FocusMonitor
+from camd.pipeline.image_motion import ImageMotionMonitor
 from camd.pipeline.live import LiveLines, LiveTap
 from camd.pipeline.live_transport import TransportEncoder
 from camd.pipeline.roi import RoiMonitor
 from camd.protocol import Dictionary, load_dictionary
+from camd.sensor.profile import list_profiles, load_profile
 from camd.store.journal import recover_left_open
 from camd.tdi import warm_up
 
@@ -82,6 +84,13 @@ log = logging.getLogger(__name__)
 
 THREAD_JOIN_S = 5.0  # at shutdown, the longest wait for one of camd's threads to end
 SHUTDOWN_ENDING_S = 15.0  # ... for the acquisition to end and a job's worker to stop (abort)
+
+
+def _rolling_shutter(sensor: str) -> bool:
+    """Whether the camera profile of ``sensor`` says its shutter rolls (False without one)."""
+    if sensor not in list_profiles():
+        return False
+    return load_profile(sensor).shutter.value == "rolling"
 
 
 def _join_camd_threads(timeout_s: float) -> None:
@@ -133,12 +142,27 @@ class DeviceSession:
         # The live view's ROIs: measured on every frame of every stream (not decimated), their
         # statistics stored in every recording made while there are some.
         roi_monitor = RoiMonitor(background.ready)
+        # The image's motion: blocks of every stream's TDI windows, on its own thread, within
+        # a CPU budget (docs/motion.md, "The image's motion from the frames"); told the row
+        # time of a rolling shutter at every stream's start.
+        sync = config.motion
+        self.image_motion = ImageMotionMonitor(
+            background.ready,
+            enabled=sync.image_measure,
+            frames_per_block=sync.image_frames_per_block,
+            columns_max=sync.image_columns_max,
+            cpu_fraction=sync.image_cpu_fraction,
+        )
+        rolling = _rolling_shutter(config.sensor.name)
         self.stream = StreamService(
             device,
             self.sensor,
             lambda: backends.frame_stream_backend(config),
             background=background,
             roi=roi_monitor,
+            on_timing=lambda timing: self.image_motion.stream_started(
+                timing.line_period_s if rolling else None
+            ),
         )
         # The live view's tap stays on every stream (stare, stream, scan, wheel).
         self.live = LiveTap()
@@ -148,6 +172,7 @@ class DeviceSession:
         self.background = BackgroundService(device, background, self.stream)
         self.roi = RoiService(roi_monitor, self.stream)
         self.stream.add_consumer(self.roi.monitor)
+        self.stream.add_consumer(self.image_motion)
         # The focus aid: sharpness of the live tap's frames, on its own thread while watched.
         self.focus = FocusMonitor(self.live.wait_newer, lambda: roi_monitor.rois)
         self.motion = MotionService(device, self.sensor)
@@ -162,6 +187,7 @@ class DeviceSession:
                 self.sim,
                 background=background,
                 live_lines=self.live_lines,
+                image_motion=self.image_motion,
             )
         )
         self.wheel = WheelService(device, self.sensor, self.stream)
@@ -265,6 +291,7 @@ class DeviceSession:
         self.scan.stopping()
         self.stream.shut_down()
         self.scan.close()
+        self.image_motion.close(THREAD_JOIN_S)
         self.stream.close()
         if self.telemetry.archive is not None:
             with contextlib.suppress(Exception):

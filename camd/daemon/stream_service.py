@@ -40,6 +40,7 @@ from camd.daemon.models import (
     StreamResponse,
     StreamStartRequest,
     StreamStats,
+    TimingResponse,
 )
 from camd.daemon.sensor_service import SensorService
 from camd.daemon.state import Request, Trigger
@@ -74,8 +75,11 @@ class StreamService:
         *,
         background: BackgroundCapture | None = None,
         roi: RoiMonitor | None = None,
+        on_timing: Callable[[TimingResponse], None] | None = None,
     ) -> None:
         self.device = device
+        # Told the sensor's timing at every stream's start (the image motion monitor's row time)
+        self._on_timing = on_timing
         self.sensor = sensor
         # The live view's background: stored in every recording started while it is ready.
         self.background = background
@@ -277,6 +281,8 @@ class StreamService:
     def _context(self, background: Background | None) -> StreamContext:
         """What the plan is made against: the camera's mode and window now."""
         timing = self.sensor.timing()
+        if self._on_timing is not None:
+            self._on_timing(timing)
         return StreamContext(
             mode=self.device.mode,
             window_rows=timing.window_rows,

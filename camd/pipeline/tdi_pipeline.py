@@ -124,6 +124,9 @@ class TdiPipeline:
         self._tdi_cpu_s = 0.0
         self._engine_cpu_s = self._record_cpu_s = 0.0
         self._stage_changes: list[tuple[int, int]] = []
+        # (frame counter, line index) of the first frame through the engine: a frame's line is
+        # its counter's distance from it (lost frames skip their lines)
+        self.first_frame: tuple[int, int] | None = None
 
     # -- what the caller uses -------------------------------------------------------------------
 
@@ -286,6 +289,8 @@ class TdiPipeline:
             self._batcher.recycle(batch.pixels)
         t_record = time.thread_time()
         self._engine_cpu_s += t_record - t_engine
+        if self.first_frame is None and batch.n:
+            self.first_frame = (int(batch.counters[0]), int(block.index[0]))
         mismatch = None
         if self._mismatch is not None:
             result = self._mismatch.add(

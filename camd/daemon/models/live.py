@@ -218,3 +218,45 @@ class LivePixel(BaseModel):
     row: int
     col: int
     raw_dn: int = Field(description="the pixel as the camera sent it, DN")
+
+
+IMAGE_MOTION_HISTORY_MAX = 1024  # = camd.pipeline.image_motion.HISTORY_MAX
+
+
+class ImageMotionBlock(BaseModel):
+    """One block of consecutive TDI window frames and the image's motion measured from it
+    (docs/physics.md §10; docs/motion.md, "The image's motion from the frames"). The figures
+    are null when the block was not measurable (``why`` says what was missing)."""
+
+    counter_first: int = Field(description="the block's first frame counter")
+    counter_last: int = Field(description="... and its last (a gap inside is a lost frame)")
+    frames: int
+    pairs: int = Field(description="pairs of frames registered")
+    stages: int = Field(description="M, as the frames' headers give it")
+    columns: list[int] = Field(description="the columns [first, last) measured")
+    measured_t_s: float = Field(description="Unix time the measurement ended")
+    cpu_s: float = Field(description="CPU time the measurement took")
+    measurable: bool
+    why: str = Field(description="pairs registered, or why the block could not be measured")
+    shift_along_px_per_line: float | None = Field(description="rows the image moved per line")
+    shift_across_px_per_line: float | None = Field(description="columns per line")
+    shift_along_stderr_px: float | None
+    shift_across_stderr_px: float | None
+    dv_over_v: float | None = Field(description="1 - shift along: > 0 when the image is slow")
+    m_dv_over_v: float | None = Field(description="M dV/V: the along-track smear, pixels")
+    theta_deg: float | None = Field(description="the image's drift angle from the columns")
+
+
+class ImageMotionResponse(BaseModel):
+    """GET /api/v1/live/motion: the image's motion measured from the streams' TDI windows."""
+
+    enabled: bool = Field(description="motion.image_measure: measuring at all")
+    frames_per_block: int
+    columns_max: int
+    cpu_fraction: float = Field(description="the most of one core the measurement takes")
+    blocks_measured: int = Field(description="blocks measured since the daemon started")
+    tdi_frames_seen: int = Field(description="TDI frames the streams delivered meanwhile")
+    frames_measured: int = Field(description="... of which in a measured block")
+    cpu_s: float = Field(description="CPU time of all the measurements")
+    latest: ImageMotionBlock | None
+    history: list[ImageMotionBlock] = Field(description="the newest blocks, oldest first")

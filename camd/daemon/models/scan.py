@@ -7,6 +7,7 @@ from typing import Literal
 from pydantic import BaseModel, Field
 
 from camd.daemon.models.common import _Compressed, _Request
+from camd.daemon.models.live import ImageMotionBlock
 from camd.daemon.models.stream import Binning, StreamStats
 
 SCAN_LINE_PERIOD_MAX_S = 10.0  # the longest TDI line period a scan takes, given or implied
@@ -121,6 +122,22 @@ class ScanMotionInfo(BaseModel):
     )
 
 
+class ScanImageMotion(BaseModel):
+    """The image's motion measured from blocks of a scan's frames (docs/motion.md, "The
+    image's motion from the frames"): the newest block and the means over the measurable ones
+    (null before the first)."""
+
+    blocks: int = Field(description="blocks of the scan's frames measured")
+    measurable_blocks: int = Field(description="... of which measurable")
+    dv_over_v_mean: float | None = Field(description="mean dV/V (> 0: the image is slow)")
+    m_dv_over_v_mean: float | None = Field(description="mean M dV/V, pixels of smear")
+    theta_deg_mean: float | None = Field(description="mean drift angle, degrees")
+    dv_over_v_sem: float | None = Field(
+        description="standard error of the mean dV/V from the blocks' scatter (2 blocks or more)"
+    )
+    latest: ImageMotionBlock | None
+
+
 class ScanResponse(BaseModel):
     """GET /api/v1/scan, and the answer of /scan/start, /stop and /stages."""
 
@@ -166,3 +183,8 @@ class ScanResponse(BaseModel):
     mismatch_rms: float | None = Field(description="RMS of M dV/V over the scan's lines")
     mismatch_level: str = Field(description="ok, yellow or red: the worst level reached")
     motion: ScanMotionInfo | None = Field(description="the stage's part of the scan, if driven")
+    image_motion: ScanImageMotion | None = Field(
+        default=None,
+        description="the image's motion measured from the scan's frames (null: not measured, "
+        "motion.image_measure = false)",
+    )

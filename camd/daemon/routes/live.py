@@ -16,6 +16,7 @@ from camd.daemon.api_token import TOKEN_COOKIE, token_ok
 from camd.daemon.error_body import WS_POLICY_VIOLATION, error_response
 from camd.daemon.models import (
     FOCUS_HISTORY_MAX,
+    IMAGE_MOTION_HISTORY_MAX,
     LIVE_LINES_MAX,
     LIVE_WAIT_MAX_S,
     ROI_HISTORY_MAX,
@@ -26,6 +27,8 @@ from camd.daemon.models import (
     FocusHistory,
     FocusLatest,
     FocusResponse,
+    ImageMotionBlock,
+    ImageMotionResponse,
     RoiList,
     RoiRequest,
     RoiStatsResponse,
@@ -275,6 +278,36 @@ def delete_live_focus_best(session: Session) -> FocusResponse:
     """Forget the best focus figures (a new focusing starts); the history stays."""
     session.focus.reset_best()
     return _focus_response(session.focus, 0)
+
+
+@router.get("/motion", response_model=ImageMotionResponse)
+def get_live_motion(
+    session: Session,
+    history: int = Query(
+        default=0,
+        ge=0,
+        le=IMAGE_MOTION_HISTORY_MAX,
+        description=f"blocks of history, newest last (0..{IMAGE_MOTION_HISTORY_MAX})",
+    ),
+) -> ImageMotionResponse:
+    """The image's motion measured from blocks of consecutive TDI window frames of every
+    stream and scan (dV/V, M dV/V, drift angle; docs/motion.md), off the acquisition's path:
+    the newest block and the newest ``history`` blocks. Area-mode frames are not measured."""
+    status = session.image_motion.status(history)
+    blocks = [ImageMotionBlock(**b.as_dict()) for b in status.blocks]
+    latest = session.image_motion.status(1).blocks
+    return ImageMotionResponse(
+        enabled=status.enabled,
+        frames_per_block=status.frames_per_block,
+        columns_max=status.columns_max,
+        cpu_fraction=status.cpu_fraction,
+        blocks_measured=status.blocks_measured,
+        tdi_frames_seen=status.tdi_frames_seen,
+        frames_measured=status.frames_measured,
+        cpu_s=status.cpu_s,
+        latest=ImageMotionBlock(**latest[0].as_dict()) if latest else None,
+        history=blocks,
+    )
 
 
 def _focus_response(focus: FocusMonitor, history: int) -> FocusResponse:
