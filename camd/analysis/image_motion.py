@@ -31,6 +31,20 @@ physics section. Its cost on one core (one thread): 0.3 ms per 8 x 256 window, 1
 96 x 256, 7 ms per 96 x 2048 (one bicubic warp per iteration, about 3 iterations per pair when
 started at the previous pair's motion).
 
+Interpolation bias (docs/physics.md §10, "Interpolation bias"): OpenCV's bicubic kernel
+(Keys' cubic convolution, ``a = -0.75``) moves each spatial frequency of the warped frame by a
+slightly wrong amount, so the fit is biased by a fraction of the shift's distance from a whole
+pixel that depends on the scene's spectrum (3-4 % on the simulator's natural texture, 14-16 % on
+its bar target). ``interpolation_bias_px`` predicts it from a scene's power spectrum and the
+kernel's frequency response; the measured shifts are not corrected by it (a window's own
+spectrum, 8 rows tall, is too poor an estimate of the scene's). Removing it at the source was
+tried and left: OpenCV's Lanczos kernel reads 3-4 pixels either side, which an 8-row window's
+4-row overlap does not have; warping both frames symmetrically about the fraction where the
+kernel's phase error is stationary (about 0.21 px), with gradients smoothed against the
+frequencies near Nyquist, cut the bias to about 1 % (natural) and 2-3 % (bars) on 32- and 96-row
+windows at 1.1-1.2 times the cost, but not on 8-row ones (3 % and 4-11 %), and left 2-5 sigma
+on the bar target at 96 rows.
+
 Dropped frames: the frame counters give the number of line periods ``g`` between two windows
 (a gap of ``g`` frames is a shift of about ``g`` rows); the per-line shift is the least-squares
 slope of the pair shifts against ``g``, so a dropped frame is a longer step, not motion.
@@ -68,6 +82,9 @@ FIT_TOLERANCE_PX = 1e-4
 SEARCH_PX = 0.25
 """How far (pixels) a pair's shift may lie from the nominal (the counter gap, the stage's step):
 the fit starts there and a shift further off is not this pair's (the pair is left out)."""
+CUBIC_A = -0.75
+"""The parameter ``a`` of OpenCV's bicubic kernel (``cv2.INTER_CUBIC``, Keys' cubic convolution)."""
+INTERPOLATION_BIAS_ITERATIONS = 20
 
 
 @dataclass(frozen=True)
@@ -268,6 +285,92 @@ def register_pair(
         converged=converged,
         overlap_px=(r1 - r0) * (c1 - c0),
     )
+
+
+def cubic_response(fraction: float, omega: npt.ArrayLike) -> npt.NDArray[np.complex128]:
+    """The frequency response ``H_f(omega) = sum_k h(f - k) exp(i omega k)`` (k = -1..2) of
+    OpenCV's bicubic interpolation read at ``fraction`` ``f`` in [0, 1) of a pixel past a sample:
+    a sampled ``exp(i omega n)`` comes out as ``H_f(omega) exp(i omega n)`` where an exact shift
+    gives ``exp(i omega (n + f))`` (docs/physics.md §10, "Interpolation bias")."""
+    w = np.asarray(omega, dtype=np.float64)
+    response = np.zeros(w.shape, dtype=np.complex128)
+    for k in (-1, 0, 1, 2):
+        response += _cubic_weight(fraction - k) * np.exp(1j * w * k)
+    return response
+
+
+def interpolation_bias_px(
+    scene: npt.ArrayLike, shift_along_px: float, shift_across_px: float
+) -> tuple[float, float]:
+    """The bias ``(along, across)`` in pixels of ``register_pair``'s shift for a pair whose later
+    frame is the earlier moved by exactly ``(shift_along_px, shift_across_px)``, in a scene with
+    the power spectrum of ``scene`` (one period of a periodic scene, rows x columns).
+
+    docs/physics.md §10, "Interpolation bias": the fit stops where the residual is orthogonal to
+    the later frame's central-difference gradients; per spatial frequency the warped frame holds
+    ``G_s(omega_y) G_t(omega_x)`` (the bicubic kernel's response at the shift, ``cubic_response``)
+    where the later frame holds ``exp(i omega . (s, t))``, so the estimate ``(s', t')`` solves
+
+        sum_omega P(omega) sin(omega_a) Im(exp(-i omega . (s, t)) G_s'(omega_y) G_t'(omega_x)) = 0
+
+    for ``a`` = along and across, with ``P`` the scene's power spectrum (Newton's method, started
+    at the true shift). The bias is ``(s' - s, t' - t)``; noise adds no bias to first order.
+    """
+    image = np.asarray(scene, dtype=np.float64)
+    if image.ndim != 2 or min(image.shape) < 2:
+        raise ValueError(f"scene must be a 2-D image of at least 2 x 2 pixels, got {image.shape}")
+    power = np.abs(np.fft.fft2(image - image.mean())) ** 2
+    omega_y = (2 * np.pi * np.fft.fftfreq(image.shape[0])[:, None]).astype(np.float64)
+    omega_x = (2 * np.pi * np.fft.fftfreq(image.shape[1])[None, :]).astype(np.float64)
+    weight_y = power * np.sin(omega_y)
+    weight_x = power * np.sin(omega_x)
+    truth_y = np.exp(-1j * omega_y * shift_along_px)
+    truth_x = np.exp(-1j * omega_x * shift_across_px)
+
+    def balance(estimate: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+        moved = (truth_y * _warp_response(float(estimate[0]), omega_y)) * (
+            truth_x * _warp_response(float(estimate[1]), omega_x)
+        )
+        return np.array([np.sum(weight_y * moved.imag), np.sum(weight_x * moved.imag)])
+
+    truth = np.array([shift_along_px, shift_across_px], dtype=np.float64)
+    estimate = truth.copy()
+    step_px = 1e-6  # the kernel is C1, so a forward difference gives the Jacobian closely
+    for _ in range(INTERPOLATION_BIAS_ITERATIONS):
+        value = balance(estimate)
+        jacobian = np.column_stack(
+            [(balance(estimate + step_px * unit) - value) / step_px for unit in np.eye(2)]
+        )
+        if np.linalg.cond(jacobian) > 1e12:
+            raise ValueError(
+                "the scene has no texture along one axis: no shift, so no bias, can be found"
+            )
+        change = np.linalg.solve(jacobian, value)
+        estimate -= change
+        if float(np.max(np.abs(change))) < 1e-12:
+            break
+    return float(estimate[0] - truth[0]), float(estimate[1] - truth[1])
+
+
+def _cubic_weight(x: float) -> float:
+    """Keys' cubic convolution kernel with OpenCV's ``a`` (``CUBIC_A``)."""
+    a = CUBIC_A
+    u = abs(x)
+    if u <= 1.0:
+        return (a + 2) * u**3 - (a + 3) * u**2 + 1
+    if u < 2.0:
+        return a * u**3 - 5 * a * u**2 + 8 * a * u - 4 * a
+    return 0.0
+
+
+def _warp_response(shift_px: float, omega: npt.NDArray[np.float64]) -> npt.NDArray[np.complex128]:
+    """What ``cv2.remap`` bicubic makes of ``exp(i omega n)`` read at ``n + shift_px``: the
+    whole pixels exactly, the fraction through ``cubic_response``."""
+    whole = math.floor(shift_px)
+    response: npt.NDArray[np.complex128] = np.exp(1j * omega * whole) * cubic_response(
+        shift_px - whole, omega
+    )
+    return response
 
 
 def _central_gradients(
