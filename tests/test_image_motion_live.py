@@ -28,9 +28,7 @@ ROTATION_DEG = 0.5
 STAGES = 32
 LINES = 1500
 LINE_PERIOD_S = 2e-3
-SCENE = (
-    f"natural:photons=1e9,magnification_error={MAGNIFICATION_ERROR},rotation_deg={ROTATION_DEG}"
-)
+SCENE = f"natural:photons=1e9,magnification_error={MAGNIFICATION_ERROR},rotation_deg={ROTATION_DEG}"
 
 
 @pytest.fixture(scope="module")

@@ -79,12 +79,28 @@ measured (a flat scene gives 0 +- sqrt(2 / pixels); a textured one tens to thous
 
 FIT_ITERATIONS_MAX = 12
 FIT_TOLERANCE_PX = 1e-4
+MAX_BASELINE_FRACTION = 0.5
+"""The longest shift (rows) a frame may have from its reference, over the window's rows: a
+pair over a smaller overlap adds little precision and its interpolation error depends more on
+what the few rows it sees hold (docs/physics.md §10, "Which pairs")."""
 SEARCH_PX = 0.25
 """How far (pixels) a pair's shift may lie from the nominal (the counter gap, the stage's step):
 the fit starts there and a shift further off is not this pair's (the pair is left out)."""
 CUBIC_A = -0.75
 """The parameter ``a`` of OpenCV's bicubic kernel (``cv2.INTER_CUBIC``, Keys' cubic convolution)."""
 INTERPOLATION_BIAS_ITERATIONS = 20
+
+
+@dataclass(frozen=True)
+class RegisteredPair:
+    """A frame registered on a reference frame: their indices in the sequence, the steps
+    between them (lines, or rows of stage motion: the baseline) and the overlap's pixels the
+    shift was fitted over (its weight in the rate's fit)."""
+
+    reference: int
+    frame: int
+    baseline: float
+    overlap_px: int
 
 
 @dataclass(frozen=True)
@@ -106,6 +122,8 @@ class ImageMotion:
     measurable: bool
     why: str
 
+    registered: tuple[RegisteredPair, ...] = ()
+    """The pairs the rates were fitted from (converged ones), in the order registered."""
     row_lag_lines: float = 0.0
     """A rolling shutter's lag between consecutive rows, in line periods (``T_row / T_line``;
     0 for a global or frame-transfer shutter), signed as ``measure_tdi_motion`` says."""
@@ -420,7 +438,7 @@ def _measure(
         raise ValueError(f"need at least 2 frames to measure motion, got {len(frames)}")
     stack = _prepared(frames, background, flat)
     positions = np.concatenate([[0.0], np.cumsum(np.asarray(steps, dtype=np.float64))])
-    groups: list[list[tuple[float, PairShift]]] = [[]]  # pairs on one reference frame each
+    groups: list[list[tuple[RegisteredPair, PairShift]]] = [[]]  # one reference frame each
     skipped = 0
     # Where the next pair's search starts: the nominal (one row per step) until the pairs
     # fitted so far say better; a pair's prediction is then off by the rate's error times its
@@ -429,9 +447,10 @@ def _measure(
     ref, k = 0, 1
     while k < stack.shape[0]:
         g = float(positions[k] - positions[ref])
-        shift = register_pair(
-            stack[ref], stack[k], offset[0] + rate[0] * g, offset[1] + rate[1] * g
-        )
+        predicted = offset[0] + rate[0] * g
+        shift = None
+        if abs(predicted) <= MAX_BASELINE_FRACTION * stack.shape[1] or k - ref == 1:
+            shift = register_pair(stack[ref], stack[k], predicted, offset[1] + rate[1] * g)
         if shift is None:
             # The overlap with the reference ran out: the previous frame is the next one's
             # reference; a frame that overlaps not even its predecessor is left out.
@@ -443,10 +462,12 @@ def _measure(
             groups.append([])
             offset = (0.0, 0.0)
             continue
-        groups[-1].append((g, shift))
+        groups[-1].append((RegisteredPair(ref, k, g, shift.overlap_px), shift))
         fit = _fit(groups)
         if fit is not None:
             rate, offset = (fit.rate_along, fit.rate_across), fit.last_intercepts
+        elif shift.converged and g > 0:
+            rate = (shift.along_px / g, shift.across_px / g)  # one pair so far: its own rate
         k += 1
     pairs = [pair for group in groups for pair in group]
     frames_used = len(frames)
@@ -468,14 +489,15 @@ def _measure(
             "the camera at a textured scene or raise the light level",
         )
     fit = _fit(groups)
-    n = sum(1 for _, p in pairs if p.converged)
     if fit is None:
+        n = sum(1 for _, p in pairs if p.converged)
         return _not_measurable(
             frames_used,
             len(pairs),
             f"{n} frame(s) registered on a reference: a rate needs 2 on one reference (give "
             "more frames that overlap)",
         )
+    n = len(fit.registered)
     rate_along, rate_across = fit.rate_along, fit.rate_across
     se_along, se_across = fit.stderr_along, fit.stderr_across
     why = f"{n} frames registered on {fit.references} reference frame(s)"
@@ -490,6 +512,7 @@ def _measure(
         pairs_used=n,
         measurable=True,
         why=why,
+        registered=fit.registered,
     )
 
 
@@ -522,6 +545,40 @@ def _prepared(
     return stack
 
 
+def _centred(pairs: Sequence[RegisteredPair]) -> tuple[npt.NDArray[np.float64], ...]:
+    """(weights summing to 1, baselines centred on their reference's weighted mean)."""
+    w = np.array([p.overlap_px for p in pairs], dtype=np.float64)
+    g = np.array([p.baseline for p in pairs], dtype=np.float64)
+    dg = np.empty_like(g)
+    refs = np.array([p.reference for p in pairs])
+    for ref in np.unique(refs):
+        on = refs == ref
+        dg[on] = g[on] - float(w[on] @ g[on]) / float(w[on].sum())
+    return w / w.sum(), dg
+
+
+def rate_coefficients(pairs: Sequence[RegisteredPair]) -> npt.NDArray[np.float64]:
+    """The coefficients ``c_k`` of the rate the measurement fits, ``rate = sum c_k y_k`` for
+    per-pair shifts ``y_k`` (docs/physics.md §10, "Which pairs"): the weighted least-squares
+    slope against the baselines, one intercept per reference frame, each pair weighing its
+    overlap's pixels. The rate's error from per-pair errors ``e_k`` is ``sum c_k e_k``."""
+    w, dg = _centred(pairs)
+    coefficients: npt.NDArray[np.float64] = w * dg / float(w @ (dg * dg))
+    return coefficients
+
+
+def rate_from_pairs(pairs: Sequence[RegisteredPair], values: npt.ArrayLike) -> float:
+    """The rate fitted to per-pair ``values`` (``rate_coefficients``)."""
+    return float(rate_coefficients(pairs) @ np.asarray(values, dtype=np.float64))
+
+
+def rate_sigma(pairs: Sequence[RegisteredPair], sigmas: npt.ArrayLike) -> float:
+    """The rate's standard deviation for independent per-pair errors of standard deviations
+    ``sigmas`` (docs/physics.md §10, "Precision"): ``sqrt(sum c_k^2 sigma_k^2)``."""
+    c = rate_coefficients(pairs)
+    return math.sqrt(float(np.sum((c * np.asarray(sigmas, dtype=np.float64)) ** 2)))
+
+
 @dataclass(frozen=True)
 class _Fit:
     rate_along: float
@@ -530,63 +587,53 @@ class _Fit:
     stderr_across: float
     references: int  # reference frames with 2 or more pairs
     last_intercepts: tuple[float, float]  # the last reference's (0 if it has no line yet)
+    registered: tuple[RegisteredPair, ...]
 
 
-def _fit(groups: Sequence[Sequence[tuple[float, PairShift]]]) -> _Fit | None:
-    """Weighted least squares ``shift = c_j + rate * baseline`` along and across, one
-    intercept ``c_j`` per reference frame (it takes that frame's own error, which its pairs
-    share) and one rate; None until some reference has two converged pairs. Each pair weighs
-    its overlap's pixels (a shift's variance goes as 1 / the pixels it is fitted over,
-    docs/physics.md §10). The standard errors come from the scatter about the lines (NaN with
-    fewer residual degrees of freedom than 1)."""
-    used = [[(g, p) for g, p in group if p.converged] for group in groups]
+def _fit(groups: Sequence[Sequence[tuple[RegisteredPair, PairShift]]]) -> _Fit | None:
+    """``rate_from_pairs`` along and across over the converged pairs of the references that
+    have two or more (None until one has), with standard errors from the scatter about the
+    lines (the weights taken as the inverse variances up to a common factor; NaN without a
+    residual degree of freedom), and the last reference's intercepts (where the next pair's
+    search starts)."""
+    used = [[(r, p) for r, p in group if p.converged] for group in groups]
     used = [group for group in used if len(group) >= 2]
     if not used:
         return None
-    g_all: list[float] = []
-    w_all: list[float] = []
-    along: list[float] = []
-    across: list[float] = []
-    for group in used:
-        g = np.array([gg for gg, _ in group])
-        w = np.array([p.overlap_px for _, p in group], dtype=np.float64)
-        # centred within the group: the intercept is out of the slope's fit
-        g_all += list(g - (w @ g) / w.sum())
-        w_all += list(w)
-        for values, out in ((along, "a"), (across, "c")):
-            y = np.array([p.along_px if out == "a" else p.across_px for _, p in group])
-            values += list(y - (w @ y) / w.sum())
-    dg, w = np.array(g_all), np.array(w_all)
-    w = w / w.sum()
+    pairs = [r for group in used for r, _ in group]
+    shifts = [p for group in used for _, p in group]
+    w, dg = _centred(pairs)
     sxx = float(w @ (dg * dg))
-    if sxx <= 0:
+    if sxx <= 0.0:
         return None
-    dof = len(dg) - len(used) - 1
+    dof = len(pairs) - len(used) - 1
+    refs = np.array([r.reference for r in pairs])
     rates: list[float] = []
     errors: list[float] = []
-    for values in (along, across):
+    for values in ([p.along_px for p in shifts], [p.across_px for p in shifts]):
         y = np.array(values)
-        slope = float(w @ (dg * y)) / sxx
-        residual = y - slope * dg
-        rates.append(slope)
-        # The weights sum to 1: each pair's variance is sigma_1^2 / (n w_k) with
-        # sigma_1^2 = n sum(w r^2) / dof, and the slope's is sigma_1^2 / (n sxx).
+        rate = rate_from_pairs(pairs, y)
+        residual = np.empty_like(y)
+        for ref in np.unique(refs):
+            on = refs == ref
+            residual[on] = y[on] - float(w[on] @ y[on]) / float(w[on].sum()) - rate * dg[on]
+        rates.append(rate)
+        # The weights sum to 1 and stand for the inverse variances up to a factor k:
+        # k = dof / sum(w r^2), and the rate's variance is 1 / (k sum(w dg^2)).
         errors.append(
             math.sqrt(float(w @ (residual * residual)) / dof / sxx) if dof >= 1 else math.nan
         )
     intercepts = (0.0, 0.0)
-    last = [(g, p) for g, p in groups[-1] if p.converged]
+    last = [(r, p) for r, p in groups[-1] if p.converged]
     if last:
-        lw = np.array([p.overlap_px for _, p in last], dtype=np.float64)
-        lg = np.array([g for g, _ in last])
-        la = np.array([p.along_px for _, p in last])
-        lc = np.array([p.across_px for _, p in last])
+        lw = np.array([r.overlap_px for r, _ in last], dtype=np.float64)
+        lg = np.array([r.baseline for r, _ in last])
         g_mean = float(lw @ lg) / lw.sum()
         intercepts = (
-            float(lw @ la) / lw.sum() - rates[0] * g_mean,
-            float(lw @ lc) / lw.sum() - rates[1] * g_mean,
+            float(lw @ np.array([p.along_px for _, p in last])) / lw.sum() - rates[0] * g_mean,
+            float(lw @ np.array([p.across_px for _, p in last])) / lw.sum() - rates[1] * g_mean,
         )
-    return _Fit(rates[0], rates[1], errors[0], errors[1], len(used), intercepts)
+    return _Fit(rates[0], rates[1], errors[0], errors[1], len(used), intercepts, tuple(pairs))
 
 
 FLAT_BOX_ROWS = 9

@@ -171,10 +171,10 @@ class _Block:
 
 def _offsets(rows: int, frames: int) -> tuple[int, ...]:
     """The frames a block takes, in line periods after its first (module docstring, "Which
-    frames"): four consecutive ones, then the rest spread up to the longest baseline whose
-    shift still leaves the first frame a few rows of overlap (85 % of ``rows - 6`` lines,
-    which allows a 15 % faster image); consecutive frames when the window is too short."""
-    longest = int(0.85 * (rows - 6))
+    frames"): four consecutive ones, then the rest spread up to 45 % of the window's rows, so
+    that all are registered on the first (``MAX_BASELINE_FRACTION``, half the window, with room
+    for an image 10 % fast); consecutive frames when the window is too short for that."""
+    longest = int(0.45 * rows)
     if longest < frames:
         return tuple(range(frames))
     spread = np.rint(np.linspace(4, longest, frames - 4)).astype(int).tolist()
