@@ -13,12 +13,13 @@ not a translation for any registration to find.
 Tolerances (docs/physics.md §10, "Image motion from the frames"): one pair's shift has the standard
 deviation ``sigma_pair = sqrt(2 sigma_n^2 / sum g^2)`` (``sigma_n^2`` the noise variance per pixel,
 here the mean signal plus the read noise squared; ``g`` the noise-free gradient along the axis
-over the overlap); the slope over ``n`` pairs one line apart has ``sigma_pair / sqrt(n)``. A check
-passes within 5 of those (a chance of 6e-7 per check of failing on noise alone) plus the bicubic
-interpolation's bias, predicted from the scene's own power spectrum and the kernel's frequency
-response (``interpolation_bias_px``, §10 "Interpolation bias"). That prediction is itself checked
-against the shifts measured on the noise-free windows: it may be off by at most one sigma, so at
-least four of the five are left to the noise.
+over the overlap); the rate fitted from the pairs the measurement registered has
+``sqrt(sum c_k^2 sigma_k^2)`` (``rate_sigma``, the fit's coefficients ``c_k``). The noise moves
+the rate within 5 of those from the noise-free windows' (a chance of 6e-7 per check). The
+noise-free rate is off the truth by the bicubic interpolation's bias alone, at most
+``sum |c_k|`` times the worst pair bias ``interpolation_bias_px`` predicts from the scene's own
+power spectrum over the fractions of a pixel (§10 "Interpolation bias"); a check passes within
+5 sigma plus that bound.
 """
 
 from __future__ import annotations

@@ -7,10 +7,12 @@ Convention (the simulator's, ``firmware_models.scene``): between two frames the 
 has moved by ``(s, t)`` pixels when the later frame ``B`` shows at ``(r, c)`` what the earlier
 frame ``A`` showed at ``(r + s, c + t)``: ``B(r, c) = A(r + s, c + t)``. In TDI mode the camera
 sends a window every line period and, with the image in step with the line transfer, ``s`` is
-exactly 1 row per line. The image's speed over the synchronous speed is ``V_m / V = s``, so the
-velocity mismatch of docs/physics.md §6, ``dV/V = (V - V_m) / V``, is ``1 - s`` (positive when the
-image moves slower than one row per line, the sign camd's encoder figures use, so the two can be
-compared and subtracted as they are). A drift angle ``theta`` moves the image ``tan(theta)``
+exactly 1 row per line with a global shutter. The image's speed over the synchronous speed is
+``v = V_m / V = s / (1 - s lambda)`` (``lambda`` a rolling shutter's ``T_row / T_line``, 0 for a
+global one: §10 "A rolling shutter"), so the velocity mismatch of docs/physics.md §6,
+``dV/V = (V - V_m) / V``, is ``1 - v`` (positive when the image moves slower than one row per
+line, the sign camd's encoder figures use, so the two can be compared and subtracted as they
+are). A drift angle ``theta`` moves the image ``tan(theta)``
 columns per row of its motion, ``t = s tan(theta)`` columns per line, so ``theta = atan2(t, s)``:
 the direction of the image's motion (positive towards higher column indices, the simulator's
 ``drift_deg``, whose lateral shift is the displacement times ``tan(drift_deg)``).
@@ -45,15 +47,22 @@ frequencies near Nyquist, cut the bias to about 1 % (natural) and 2-3 % (bars) o
 windows at 1.1-1.2 times the cost, but not on 8-row ones (3 % and 4-11 %), and left 2-5 sigma
 on the bar target at 96 rows.
 
-Dropped frames: the frame counters give the number of line periods ``g`` between two windows
-(a gap of ``g`` frames is a shift of about ``g`` rows); the per-line shift is the least-squares
-slope of the pair shifts against ``g``, so a dropped frame is a longer step, not motion.
+Which pairs (docs/physics.md §10, "Which pairs"): every frame is registered on the first, its
+search started where the fit so far predicts, until its predicted shift would pass half the
+window (``MAX_BASELINE_FRACTION``); the previous frame is then the next reference. The rate is
+the weighted least-squares slope of the shifts against the baselines (the frame counters'
+distances: a dropped frame is a longer baseline, not motion), one intercept per reference
+(its own error, which its pairs share), each pair weighing its overlap's pixels
+(``rate_coefficients``). Long baselines give the precision, keep the pairs far from the zero
+shift a fixed pattern pulls towards, and spread the pairs' fractions of a pixel, over which the
+interpolation's bias averages out.
 
-Fixed-pattern noise (a pattern fixed to the sensor correlates at zero shift and pulls every
-estimate towards 0): ``background`` (a dark or flat-field background frame, same shape as the
-windows) is subtracted first when given; otherwise the per-column mean over the whole sequence
-(every row of every window) is subtracted, which removes column offsets (the dominant
-fixed pattern of a TDI window) while the moving scene averages out over the sequence.
+Fixed-pattern noise (a pattern fixed to the sensor correlates at zero shift and pulls an
+estimate towards 0): ``background`` (a dark or background frame, same shape as the windows) is
+subtracted first when given; otherwise the per-column mean over the whole sequence (every row
+of every window) is subtracted, which removes column offsets (the dominant fixed pattern of a
+TDI window) while the moving scene averages out over the sequence. ``flat`` (a gain pattern of
+mean 1, ``flat_from_mean`` of many moving windows) then divides the pixel gains out.
 
 Low texture: a pair's gradient energy is compared with the noise's own. The noise variance
 comes from the fit's residual; the gradients of white noise of variance ``sigma^2`` (central
