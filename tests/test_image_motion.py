@@ -311,3 +311,61 @@ def test_bad_inputs_say_what_to_change() -> None:
         measure_area_motion(frames, [1.0])
     with pytest.raises(ValueError, match="need at least 2 frames"):
         measure_tdi_motion(frames[:1], [0])
+
+
+def rolling_windows(
+    kind: str, rows: int, v: float, drift: float, lag: float, counters: list[int], seed: int
+) -> tuple[list[npt.NDArray[np.uint16]], list[Image]]:
+    """Windows of a rolling shutter, exactly: row ``i`` of frame ``k`` is read ``i lag`` line
+    periods after its row 0, so it shows the scene moved ``v (k + i lag)`` rows along and
+    ``drift`` times that across (physics §10, "A rolling shutter")."""
+    rng = np.random.default_rng(seed)
+    image = base(kind)
+    period, cols = image.shape
+    spectrum = np.fft.fft2(image)
+    fy = np.fft.fftfreq(period)
+    fx = np.fft.fftfreq(cols)
+    clean: list[Image] = []
+    for k in counters:
+        frame = np.empty((rows, cols))
+        for i in range(rows):
+            moved = v * (k + i * lag)
+            # the row at y = i + moved, its columns moved drift * moved: one row of the
+            # Fourier-shifted image
+            row_spectrum = np.exp(2j * np.pi * fy * (i + moved)) @ spectrum / period
+            frame[i] = np.fft.ifft(row_spectrum * np.exp(2j * np.pi * fx * drift * moved)).real
+        clean.append(frame)
+    return [noisy(c, rng) for c in clean], clean
+
+
+@pytest.mark.parametrize("rows", [32, 96])
+@pytest.mark.parametrize("magnification_error", [-0.02, 0.01])
+def test_a_rolling_shutters_shift_is_turned_into_the_image_speed(
+    rows: int, magnification_error: float
+) -> None:
+    # hr400-like: the row time 1/rows of the line period; the image 1 + e rows per line, drifting
+    # tan(0.5 deg) columns per row of its motion
+    lag, v = 1.0 / rows, 1.0 + magnification_error
+    drift = math.tan(math.radians(0.5))
+    counters = list(range(FRAMES))
+    frames, clean = rolling_windows("natural", rows, v, drift, lag, counters, seed=rows)
+    background = np.full(frames[0].shape, OFFSET_DN)
+    result = measure_tdi_motion(frames, counters, background=background, row_lag_lines=lag)
+    assert result.measurable, result.why
+    # the frames move s = v / (1 + v lag) rows (physics §10), which the fit finds ...
+    s = v / (1 + v * lag)
+    sigma_along, sigma_across = predicted_sigma(result, clean, s)
+    bound_along, bound_across = bias_bound(result, "natural")
+    assert abs(result.shift_along_px_per_line - s) < SIGMAS * sigma_along + bound_along
+    # ... and dV/V = 1 - v = -e comes back through v = s / (1 - s lag)
+    stretch = (1 - s * lag) ** 2
+    assert (
+        abs(result.dv_over_v + magnification_error) < (SIGMAS * sigma_along + bound_along) / stretch
+    )
+    # the drift angle needs no conversion: t = s tan(theta)
+    assert abs(result.shift_across_px_per_line - s * drift) < SIGMAS * sigma_across + bound_across
+    # read as a global shutter, the same frames would say the image is slow by about lag
+    plain = measure_tdi_motion(frames, counters, background=background)
+    assert plain.dv_over_v - result.dv_over_v == pytest.approx(
+        lag * s * s / (1 - s * lag), rel=0.01
+    )
