@@ -142,7 +142,7 @@ def test_the_panel_shows_the_image_and_the_encoder_figures_the_api_gives(
     assert 0 <= int(age.group(1)) <= round(time.time() - latest["measured_t_s"]) + 1
 
     # The scan's means over its measurable blocks.
-    assert browser_page.is_visible("#mo-scan")
+    assert browser_page.is_visible("#mo-scan-table")
     assert text(browser_page, "mo-scan-blocks") == (
         f"mean over {image['measurable_blocks']} blocks (of {image['blocks']} measured)"
     )
@@ -195,6 +195,7 @@ def test_a_flat_field_shows_why_it_is_not_measurable(
     assert text(browser_page, "mo-scan-blocks") == (
         f"none of its {image['blocks']} blocks measurable"
     )
+    assert browser_page.is_hidden("#mo-scan-table")
     for element in ("mo-scan-dv", "mo-scan-dv-sem", "mo-scan-mdv", "mo-scan-theta"):
         assert text(browser_page, element) == "-"
     shot(browser_page, "motion-flat")

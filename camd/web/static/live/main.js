@@ -469,6 +469,7 @@ function showImageMotion(motion, scan) {
   $("mo-scan").hidden = summary === null || summary.blocks === 0;
   if (summary === null) return;
   const any = summary.measurable_blocks > 0;
+  $("mo-scan-table").hidden = !any; // no row of dashes under "none of its blocks measurable"
   $("mo-scan-blocks").textContent = any
     ? `mean over ${summary.measurable_blocks} blocks (of ${summary.blocks} measured)`
     : `none of its ${summary.blocks} blocks measurable`;
