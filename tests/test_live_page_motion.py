@@ -222,10 +222,12 @@ def test_a_driven_stage_shows_the_encoders_figure_beside_the_images(
     shown_at_the_end(browser_page, frames)
     # The stage runs (1 - dV/V) x the synchronous speed: the encoder sees M dV/V = 1.28 px of
     # smear per line (docs/physics.md §6), the image the same slip from the frames (§10); past
-    # the yellow limit 1 (motion.yellow), so the level is yellow (measured: encoder 1.28 last,
-    # 1.41 max during the stage's start, image 1.31).
+    # the yellow limit 1 (motion.yellow), so the level is yellow. Measured over two runs:
+    # encoder RMS 1.276, 1.279; last (the largest line of the last batch) 1.282, 1.318; max
+    # 1.41, 1.46; image 1.31, 1.30.
     smear = STAGES * DRIVEN_DV_OVER_V
-    assert doc["mismatch_last"] == pytest.approx(smear, abs=0.05)
+    assert doc["mismatch_rms"] == pytest.approx(smear, abs=0.05)
+    assert doc["mismatch_last"] == pytest.approx(smear, abs=0.15)
     assert doc["mismatch_level"] == "yellow"
     assert latest["measurable"]
     assert latest["m_dv_over_v"] == pytest.approx(smear, abs=0.1)
