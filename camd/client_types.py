@@ -788,6 +788,9 @@ class ImageMotionBlock(TypedDict):
     shift_across_stderr_px: float | None
     # 1 - shift along: > 0 when the image is slow
     dv_over_v: float | None
+    # its standard error (the shift's, through the rolling shutter's lag; null with fewer than 3
+    # pairs)
+    dv_over_v_stderr: float | None
     # M dV/V: the along-track smear, pixels
     m_dv_over_v: float | None
     # the image's drift angle from the columns
@@ -942,6 +945,9 @@ class ScanResponse(TypedDict):
     mismatch_max: float | None
     # RMS of M dV/V over the scan's lines
     mismatch_rms: float | None
+    # the last graded batch's largest M |dV/V| (pixels): the figure now, beside the scan's max and
+    # RMS; null without encoder data
+    mismatch_last: float | None
     # ok, yellow or red: the worst level reached
     mismatch_level: str
     # the stage's part of the scan, if driven

@@ -56,6 +56,7 @@ def scan_response(scan: ScanRun | None, stream: StreamService) -> ScanResponse:
         stream=stats,
         mismatch_max=progress.mismatch_max,
         mismatch_rms=progress.mismatch_rms,
+        mismatch_last=progress.mismatch_last,
         mismatch_level=progress.mismatch_level,
         motion=scan.motion_info(),
         image_motion=_image_motion(scan),

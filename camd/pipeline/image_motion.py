@@ -94,6 +94,7 @@ class MotionBlock:
             "shift_along_stderr_px": m.shift_along_stderr_px,
             "shift_across_stderr_px": m.shift_across_stderr_px,
             "dv_over_v": m.dv_over_v,
+            "dv_over_v_stderr": m.dv_over_v_stderr,
             "m_dv_over_v": m.m_dv_over_v(self.stages),
             "theta_deg": m.theta_deg,
         }

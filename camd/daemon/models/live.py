@@ -243,6 +243,11 @@ class ImageMotionBlock(BaseModel):
     shift_along_stderr_px: float | None
     shift_across_stderr_px: float | None
     dv_over_v: float | None = Field(description="1 - shift along: > 0 when the image is slow")
+    dv_over_v_stderr: float | None = Field(
+        default=None,
+        description="its standard error (the shift's, through the rolling shutter's lag; null "
+        "with fewer than 3 pairs)",
+    )
     m_dv_over_v: float | None = Field(description="M dV/V: the along-track smear, pixels")
     theta_deg: float | None = Field(description="the image's drift angle from the columns")
 

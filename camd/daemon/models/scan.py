@@ -181,6 +181,11 @@ class ScanResponse(BaseModel):
         "encoder counts in the frame headers; null without encoder data"
     )
     mismatch_rms: float | None = Field(description="RMS of M dV/V over the scan's lines")
+    mismatch_last: float | None = Field(
+        default=None,
+        description="the last graded batch's largest M |dV/V| (pixels): the figure now, beside "
+        "the scan's max and RMS; null without encoder data",
+    )
     mismatch_level: str = Field(description="ok, yellow or red: the worst level reached")
     motion: ScanMotionInfo | None = Field(description="the stage's part of the scan, if driven")
     image_motion: ScanImageMotion | None = Field(

@@ -406,6 +406,7 @@ function showEstop(status) {
 async function showAcquisition(status) {
   const acq = status.acquisition;
   const progress = $("scan-progress");
+  page.scan = null; // the scan's document while the last acquisition is a scan (the motion panel's)
   if (acq === null) {
     $("acq").textContent = "none yet";
     progress.hidden = true;
@@ -416,6 +417,7 @@ async function showAcquisition(status) {
   let text = `${acq.kind} ${acq.running ? "running" : "ended"}: ${acq.description} (started${by} at ${since})`;
   if (acq.kind === "scan") {
     const scan = await get("/scan");
+    page.scan = scan;
     text += ` · ${scan.state}: ${scan.lines} lines, ${scan.complete_lines} complete, ${scan.lost_frames} frames lost`;
     progress.hidden = scan.lines_wanted === 0;
     progress.max = Math.max(scan.lines_wanted, 1);
@@ -424,6 +426,65 @@ async function showAcquisition(status) {
     progress.hidden = true;
   }
   $("acq").textContent = text;
+}
+
+// The motion panel: the encoder's M |dV/V| of the scan beside the image's motion measured from
+// blocks of TDI frames (GET /live/motion, the newest block only: cheap at the status cadence)
+// and, while the last acquisition is a scan, the scan's means over its measurable blocks.
+// Fixed digits, so a figure reads the same from one second to the next.
+const percent = (v) => (v === null || v === undefined ? "-" : (100 * v).toFixed(3));
+
+function showEncoderMotion(scan) {
+  const level = scan?.mismatch_level ?? null;
+  const encoder = scan !== null && scan.mismatch_max !== null;
+  $("mo-enc-state").textContent = scan === null ? "no scan" : encoder ? `scan ${scan.state}` : "no encoder";
+  $("mo-enc-last").textContent = encoder ? fmt(scan.mismatch_last, 3) : "-";
+  $("mo-enc-max").textContent = encoder ? fmt(scan.mismatch_max, 3) : "-";
+  $("mo-enc-rms").textContent = encoder ? fmt(scan.mismatch_rms, 3) : "-";
+  $("mo-enc-level").textContent = encoder ? level : "-";
+  // coloured as the telemetry's levels: the worst level reached is the max's
+  for (const id of ["mo-enc-max-row", "mo-enc-level-row"]) $(id).className = encoder ? `level-${level}` : "";
+}
+
+function showImageMotion(motion, scan) {
+  const block = motion.latest;
+  const measured = block !== null && block.measurable;
+  $("mo-table").hidden = !measured;
+  if (block === null) {
+    $("mo-note").textContent = motion.enabled
+      ? "no TDI frames measured yet: the image's motion is measured from TDI streams and scans"
+      : "not measured: motion.image_measure is off";
+    $("mo-age").textContent = "";
+  } else {
+    const age = Math.max(0, Math.round(Date.now() / 1000 - block.measured_t_s));
+    $("mo-age").textContent = `measured ${age} s ago (frames ${block.counter_first}-${block.counter_last})`;
+    $("mo-note").textContent = measured ? block.why : `not measurable: ${block.why}`;
+  }
+  $("mo-dv").textContent = measured ? percent(block.dv_over_v) : "-";
+  $("mo-dv-err").textContent = measured ? percent(block.dv_over_v_stderr) : "-";
+  $("mo-mdv").textContent = measured ? fmt(block.m_dv_over_v, 3) : "-";
+  $("mo-stages").textContent = block === null ? "-" : block.stages;
+  $("mo-theta").textContent = measured ? fmt(block.theta_deg, 3) : "-";
+  const summary = scan?.image_motion ?? null;
+  $("mo-scan").hidden = summary === null || summary.blocks === 0;
+  if (summary === null) return;
+  const any = summary.measurable_blocks > 0;
+  $("mo-scan-table").hidden = !any; // no row of dashes under "none of its blocks measurable"
+  $("mo-scan-blocks").textContent = any
+    ? `mean over ${summary.measurable_blocks} blocks (of ${summary.blocks} measured)`
+    : `none of its ${summary.blocks} blocks measurable`;
+  $("mo-scan-dv").textContent = any ? percent(summary.dv_over_v_mean) : "-";
+  $("mo-scan-dv-sem").textContent = any ? percent(summary.dv_over_v_sem) : "-";
+  $("mo-scan-mdv").textContent = any ? fmt(summary.m_dv_over_v_mean, 3) : "-";
+  $("mo-scan-theta").textContent = any ? fmt(summary.theta_deg_mean, 3) : "-";
+}
+
+async function showMotion() {
+  const motion = await get("/live/motion");
+  page.motion = motion;
+  showEncoderMotion(page.scan);
+  showImageMotion(motion, page.scan);
+  page.motionScan = page.scan; // the scan document the panel shows (for the tests)
 }
 
 function showTelemetry(telemetry) {
@@ -497,6 +558,7 @@ async function pollStatus() {
       showControl(status);
       showEstop(status);
       await showAcquisition(status);
+      await showMotion();
       showTelemetry(await get("/telemetry"));
       showEvents(await get("/events?limit=40"));
       if (tick % 2 === 0) showLink(await get("/link"));
