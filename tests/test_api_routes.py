@@ -66,7 +66,7 @@ def test_create_app_only_assembles() -> None:
 
 
 def test_the_app_has_its_routes(routes: dict[str, APIRoute]) -> None:
-    assert len(routes) == 83  # 79 under /api/v1, /metrics, /live, /docs and /
+    assert len(routes) == 84  # 80 under /api/v1, /metrics, /live, /docs and /
     assert set(NO_CONTROL) <= set(routes)
 
 
