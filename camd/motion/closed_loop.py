@@ -198,11 +198,24 @@ class LinePeriodTrim:
         elif speed > 0.0 and math.isfinite(speed):
             self.speed_m_s += self.gain * (speed - self.speed_m_s)
         period = self.pitch_m * (1.0 - self.offset) / self.speed_m_s
-        shortest = self.min_lines * self.row_time_s
-        self.limited = period < shortest
-        period = max(period, shortest)
-        window = tdi_window(period, self.row_time_s)
-        if self.max_lines is not None and window.n_lines > self.max_lines:
-            back = period - self.max_lines * self.row_time_s
-            return LinePeriodSetting(period, self.max_lines, back)
-        return LinePeriodSetting(period, window.n_lines, window.back_path_s)
+        setting, self.limited = period_setting(
+            period, self.row_time_s, min_lines=self.min_lines, max_lines=self.max_lines
+        )
+        return setting
+
+
+def period_setting(
+    period_s: float, row_time_s: float, *, min_lines: int, max_lines: int | None
+) -> tuple[LinePeriodSetting, bool]:
+    """The window that realises a line period (docs/physics.md §2 eqs 8-9), with n_lines
+    clamped to ``min_lines`` (the stage count: the period cannot shorten further, and the
+    second value, ``limited``, is then True) and to ``max_lines`` (the rows of the frames the
+    stream started with), beyond which the back path takes the rest."""
+    shortest = min_lines * row_time_s
+    limited = period_s < shortest
+    period = max(period_s, shortest)
+    window = tdi_window(period, row_time_s)
+    if max_lines is not None and window.n_lines > max_lines:
+        back = period - max_lines * row_time_s
+        return LinePeriodSetting(period, max_lines, back), limited
+    return LinePeriodSetting(period, window.n_lines, window.back_path_s), limited

@@ -19,7 +19,7 @@ import numpy.typing as npt
 
 from camd.link.frame_stream import ReceivedFrame
 from camd.link.packed import FrameBatch
-from camd.pipeline.messages import Batch, Gap, Message, StageChange
+from camd.pipeline.messages import Batch, DriftChange, Gap, Message, StageChange
 from camd.protocol.stream import SMALL_PAYLOAD_BYTES
 
 BATCH_BYTES = 16 << 20  # frames per batch: about this many bytes, so one push_many amortises
@@ -63,6 +63,7 @@ class Batcher:
         self._n = 0
         self._since = 0.0
         self._pending_stages: int | None = None
+        self._pending_drift: float | None = None
         self.frames = 0
         self.dropped = 0
 
@@ -75,6 +76,11 @@ class Batcher:
         """Change M at the next frame this consumer sees (the latest request wins)."""
         with self._lock:
             self._pending_stages = stages
+
+    def request_drift(self, cols_per_line: float) -> None:
+        """Change the drift the engine follows at the next frame (the latest request wins)."""
+        with self._lock:
+            self._pending_drift = cols_per_line
 
     def recycle(self, buf: npt.NDArray[np.uint16]) -> None:
         """Hand back a batch's buffer once the engine has read it."""
@@ -169,6 +175,10 @@ class Batcher:
             self._flush()
             self._work.put(StageChange(self._pending_stages))
             self._pending_stages = None
+        if self._pending_drift is not None:
+            self._flush()
+            self._work.put(DriftChange(self._pending_drift))
+            self._pending_drift = None
 
     def release(self) -> None:
         """The scan has ended: give the batch buffers back to the allocator now. (The scan's

@@ -1,5 +1,5 @@
 """What the batcher tells the TDI worker, in stream order: a batch of frames, lost frames, a
-change of M, the end.
+change of M or of the drift, the end.
 
 The batcher (``camd.pipeline.batcher``) runs on the stream's dispatcher thread and the worker
 (``camd.pipeline.tdi_pipeline``) on its own; a queue of these messages is all they share
@@ -47,8 +47,16 @@ class StageChange:
 
 
 @dataclass(frozen=True, slots=True)
+class DriftChange:
+    """From the next frame on the engine's stages follow ``cols_per_line`` columns of drift per
+    line (the image loop's trim; the lines already open keep what they summed)."""
+
+    cols_per_line: float
+
+
+@dataclass(frozen=True, slots=True)
 class End:
     """No more messages: the worker stops."""
 
 
-Message = Batch | Gap | StageChange | End
+Message = Batch | Gap | StageChange | DriftChange | End

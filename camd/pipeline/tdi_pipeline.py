@@ -34,7 +34,7 @@ import numpy as np
 import numpy.typing as npt
 
 from camd.pipeline.batcher import Batcher
-from camd.pipeline.messages import Batch, End, Gap, Message, StageChange
+from camd.pipeline.messages import Batch, DriftChange, End, Gap, Message, StageChange
 from camd.pipeline.mismatch import Level, MismatchTracker
 from camd.store.tdi_recording import TdiRecorder
 from camd.tdi import TdiEngine
@@ -124,6 +124,7 @@ class TdiPipeline:
         self._tdi_cpu_s = 0.0
         self._engine_cpu_s = self._record_cpu_s = 0.0
         self._stage_changes: list[tuple[int, int]] = []
+        self._drift_changes: list[tuple[int, float]] = []
         # (frame counter, line index) of the first frame through the engine: a frame's line is
         # its counter's distance from it (lost frames skip their lines)
         self.first_frame: tuple[int, int] | None = None
@@ -207,6 +208,16 @@ class TdiPipeline:
         """Change M from the next frame the consumer sees (checked by the caller)."""
         self._batcher.request_stages(stages)
 
+    def request_drift(self, cols_per_line: float) -> None:
+        """Follow ``cols_per_line`` columns of drift per line from the next frame the consumer
+        sees (the image loop's trim)."""
+        self._batcher.request_drift(cols_per_line)
+
+    @property
+    def drift_changes(self) -> tuple[tuple[int, float], ...]:
+        """(line index, columns per line) of each drift trim so far."""
+        return tuple(self._drift_changes)
+
     def finish(self, *, flush: bool = True, timeout_s: float = FINISH_TIMEOUT_S) -> bool:
         """The stream has ended: queue the partial batch (unless ``flush`` is False), then the
         end, and wait for the worker to write what is queued. True if the worker ended."""
@@ -275,6 +286,9 @@ class TdiPipeline:
             case StageChange(stages=stages):
                 engine.stages = stages
                 self._note_stages(engine.next_index, stages)
+            case DriftChange(cols_per_line=cols):
+                engine.set_drift(cols)
+                self._drift_changes.append((engine.next_index, cols))
             case Batch():
                 self._push(message)
             case End():  # handled by the loop

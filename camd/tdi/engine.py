@@ -13,6 +13,7 @@ at the daemon's batch sizes (``camd bench tdi``), so the engine no longer splits
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any, Literal, TypedDict, Unpack
 
@@ -158,6 +159,18 @@ class TdiEngine:
         self._acc = self._new_ring()
         self._run_start = self._next
         self._lost = []
+
+    def set_drift(self, cols_per_line: float) -> None:
+        """Follow ``cols_per_line`` columns of drift per line from the next frame (a trim while
+        scanning): the open lines keep the partial sums they have, each later stage adds at the
+        new drift, so nothing is lost (unlike a change of M). ValueError if not finite."""
+        if not math.isfinite(cols_per_line):
+            raise ValueError(f"cols_per_line = {cols_per_line}: give a finite number of columns")
+        if float(cols_per_line) == self.cols_per_line:
+            return
+        self.cols_per_line = float(cols_per_line)
+        self._taps = self._make_taps(self._taps.stages, self._taps.width)
+        self._prepare()
 
     @property
     def width(self) -> int:
