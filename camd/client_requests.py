@@ -44,6 +44,9 @@ class ScanRequestOptions(TypedDict, total=False):
     drive_stage: bool
     # correct from the encoder while scanning; null = config; default None
     closed_loop: bool | None
+    # trim the line period and the drift taps from the image's motion measured in the frames
+    # (docs/motion.md); null = config motion.image_loop; default None
+    image_loop: bool | None
     # deliberate velocity mismatch (V - V_m)/V: the stage runs at (1 - dv_over_v) x the synchronous
     # speed (MTF against mismatch, docs/physics.md §6); a driven stage takes -0.5 .. 0.5, the
     # simulator's ideal stage (drive_stage false, forwards only) -2 .. below 1; default 0.0

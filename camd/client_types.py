@@ -861,6 +861,21 @@ class ScanTiming(TypedDict):
     dv_over_v: float | None
 
 
+class ScanImageLoopInfo(TypedDict):
+    """A scan's image loop (docs/motion.md, "Closing the loop on the image")."""
+
+    # blocks it has acted on
+    updates: int
+    # the line period it set last
+    line_period_s: float
+    # the drift taps' columns per line it set last
+    cols_per_line: float
+    # a limit (motion.max_trim, the drift's) held it back
+    limited: bool
+    # why it stopped, if it did (the scan goes on)
+    error: str | None
+
+
 class ScanImageMotion(TypedDict):
     """The image's motion measured from blocks of a scan's frames (docs/motion.md, "The image's
     motion from the frames"): the newest block and the means over the measurable ones (null
@@ -879,6 +894,8 @@ class ScanImageMotion(TypedDict):
     # standard error of the mean dV/V from the blocks' scatter (2 blocks or more)
     dv_over_v_sem: float | None
     latest: ImageMotionBlock | None
+    # the image loop's state (null: the scan does not run one)
+    loop: ScanImageLoopInfo | None
 
 
 class ScanMotionInfo(TypedDict):

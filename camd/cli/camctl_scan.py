@@ -3,7 +3,8 @@
     camctl scan --stages M --lines L [--scene SPEC] [--out FILE] [--speed-m-s V | --line-period-s T]
                 [--mode sum|mean] [--out-bits n] [--rows-per-line r] [--cols-per-line c]
                 [--reverse] [--binning] [--no-quicklook] [--detach]
-                [--open-loop | --closed-loop] [--dv-over-v X] [--no-stage]
+                [--open-loop | --closed-loop] [--image-loop | --no-image-loop] [--dv-over-v X]
+                [--no-stage]
     camctl scan --status | --stop
     camctl stages M                      change M of the running scan from its next frame
 
@@ -14,7 +15,8 @@ rest is the daemon's scan document, whose "image_motion" is the image's own dV/V
 angle measured from blocks of the scan's frames. It exits 1, saying why, when the scan did not end ``done``: failed,
 ended early (the camera ended its stream before the scan's frames were all sent), or stopped
 before its lines by someone else (a scan until stopped ends ``stopped`` as asked). The scan drives the stage at the synchronous speed (closed loop unless
---open-loop, or config motion.closed_loop = "off"); --no-stage leaves it alone. Ctrl-C stops the scan (the file keeps what was taken).
+--open-loop, or config motion.closed_loop = "off"); --no-stage leaves it alone. --image-loop trims
+the line period and the drift taps from the image's own motion (docs/motion.md). Ctrl-C stops the scan (the file keeps what was taken).
 FILE is written by the daemon, on its host: a relative FILE goes into its data directory's
 ``scans`` folder, an absolute one must be inside a directory it may write (docs/api.md, "Files");
 ``file`` is the absolute path the daemon answers.
@@ -88,6 +90,15 @@ def add_parsers(command: Callable[[str, str], argparse.ArgumentParser]) -> None:
     loop.add_argument(
         "--closed-loop", action="store_true", help="closed loop even if off in config"
     )
+    image = p.add_mutually_exclusive_group()
+    image.add_argument(
+        "--image-loop",
+        action="store_true",
+        help="trim the line period and the drift taps from the image's motion in the frames",
+    )
+    image.add_argument(
+        "--no-image-loop", action="store_true", help="no image loop even if on in config"
+    )
     p.add_argument(
         "--dv-over-v", type=finite_number, default=0.0, metavar="X",
         help="deliberate mismatch: the stage runs at (1 - X) x synchronous (e.g. 0.01)",
@@ -135,6 +146,7 @@ def cmd_scan(client: CamdClient, args: argparse.Namespace) -> Any:
         quicklook=not args.no_quicklook,
         drive_stage=not args.no_stage,
         closed_loop=False if args.open_loop else True if args.closed_loop else None,
+        image_loop=True if args.image_loop else False if args.no_image_loop else None,
         dv_over_v=args.dv_over_v,
     )
     if not args.detach:
@@ -250,6 +262,8 @@ def render_scan(out: Console, doc: Any, args: argparse.Namespace) -> None:
     image = doc.get("image_motion")
     if image:
         out.print(image_motion_line(image), markup=False)
+        if image.get("loop"):
+            out.print(image_loop_line(image["loop"]), markup=False)
     if len(doc["stage_changes"]) > 1:
         changes = ", ".join(f"line {i}: M = {m}" for i, m in doc["stage_changes"])
         out.print(f"stage changes: {changes}", markup=False)
@@ -260,6 +274,19 @@ def render_scan(out: Console, doc: Any, args: argparse.Namespace) -> None:
         )
     if doc.get("error"):
         out.print(f"[red]error: {escape(doc['error'])}[/]")
+
+
+def image_loop_line(loop: dict[str, Any]) -> str:
+    """The scan's image loop, in one line."""
+    text = (
+        f"image loop: {loop['updates']} updates, line period {loop['line_period_s'] * 1e3:.6g} ms, "
+        f"drift {loop['cols_per_line']:+.4g} columns/line"
+    )
+    if loop["limited"]:
+        text += " (at its limit)"
+    if loop["error"]:
+        text += f"; {loop['error']}"
+    return text
 
 
 def image_motion_line(image: dict[str, Any]) -> str:

@@ -309,6 +309,16 @@ class MotionSection(Section):
     image_cpu_fraction: float = Field(
         default=0.25, gt=0, le=1, description="the most of one core the measurement may use"
     )
+    image_loop: bool = Field(
+        default=False,
+        description="scans trim the line period and the drift taps from the image's motion",
+    )
+    image_loop_gain: float = Field(
+        default=0.6, gt=0, le=1, description="the image loop's gain per block (1 = dead-beat)"
+    )
+    image_max_cols_per_line: float = Field(
+        default=0.2, gt=0, le=2, description="the most drift the image loop may set, columns/line"
+    )
 
     @model_validator(mode="after")
     def _levels_ordered(self) -> MotionSection:

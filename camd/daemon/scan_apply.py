@@ -131,6 +131,9 @@ class ScanApply:
                 live_lines=self.live_lines,
                 lock=self.lock,
                 image_motion=self.image_motion,
+                line_period_writer=self._line_period_writer(plan.timing)
+                if plan.image_loop
+                else None,
             )
             if self.live_lines is not None:
                 self.live_lines.reset(plan.columns, scan=str(plan.path), lines_planned=plan.frames)

@@ -73,6 +73,8 @@ class ScanContext:
     stage: StageContext | None  # None: the scan does not drive a stage
     ideal_stage: bool  # the simulator's ideal stage follows the scan (not driven)
     path: Path  # the file to write (``scan_path``)
+    image_measure: bool = True  # config motion.image_measure: the frames' motion is measured
+    image_loop: bool = False  # config motion.image_loop: the default of the request's
 
 
 @dataclass(frozen=True, slots=True)
@@ -111,6 +113,8 @@ class ScanPlan:
     stage: StagePlan | None
     planned_bytes: int
     notes: list[str] = field(default_factory=list)  # events to log when the scan starts
+    image_loop: bool = False  # the line period and the drift follow the image (docs/motion.md)
+    max_lines: int = 0  # the window rows the stream starts with (the trims' ceiling)
 
     @property
     def binned(self) -> bool:
@@ -322,9 +326,10 @@ def plan_scan(request: ScanRequest, context: ScanContext) -> ScanPlan:
     if stage is not None:
         assert speed is not None
         stage_plan = _plan_stage(request, stage, speed, pitch, after, duration_s)
-    # Frames may have more rows than the engine reads when the line-period loop trims the
-    # window: then the engine's own need is what the batcher keeps.
-    if stage_plan is not None and stage_plan.loop_mode == "line_period":
+    image_loop = _image_loop(request, context, stage_plan)
+    # Frames may have more rows than the engine reads when a loop trims the line period (the
+    # window's rows with it): then the engine's own need is what the batcher keeps.
+    if image_loop or (stage_plan is not None and stage_plan.loop_mode == "line_period"):
         rows = rows_needed
 
     timing = ScanTiming(
@@ -356,7 +361,29 @@ def plan_scan(request: ScanRequest, context: ScanContext) -> ScanPlan:
         stage=stage_plan,
         planned_bytes=planned,
         notes=notes,
+        image_loop=image_loop,
+        max_lines=after.window_rows,
     )
+
+
+def _image_loop(request: ScanRequest, context: ScanContext, stage: StagePlan | None) -> bool:
+    """Whether the scan's line period and drift follow the image (the request's, or config's
+    when it says nothing); BadRequest when it cannot, saying what to change."""
+    wanted = context.image_loop if request.image_loop is None else request.image_loop
+    if not wanted:
+        return False
+    if not context.image_measure:
+        raise BadRequest(
+            "image_loop needs the image's motion measured from the frames: set "
+            "motion.image_measure = true in the daemon's config, or drop image_loop"
+        )
+    if stage is not None and stage.loop_mode == "line_period":
+        raise BadRequest(
+            "image_loop trims the line period, which the encoder's loop does too with "
+            'motion.correct = "line_period": set motion.correct = "step_rate" (the encoder '
+            "holds the stage's speed, the image the line period), or closed_loop false"
+        )
+    return True
 
 
 def _frames_the_travel_holds(

@@ -86,6 +86,8 @@ class ScanPlanner:
             stage=stage,
             ideal_stage=self.sim.available and not request.drive_stage,
             path=path,
+            image_measure=self.motion.config.image_measure,
+            image_loop=self.motion.config.image_loop,
         )
         plan = plan_scan(request, context)
         if request.out is None:

@@ -24,6 +24,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -34,9 +35,11 @@ from camd.daemon.acquisition import Acquisition
 from camd.daemon.device import DeviceAccess
 from camd.daemon.errors import DeviceRejected
 from camd.daemon.models import ScanMotionInfo, StreamStartRequest
+from camd.daemon.scan_image_loop import ScanImageLoop
 from camd.daemon.scan_motion import ScanMotion
 from camd.daemon.scan_plan import ScanPlan, engine_for
 from camd.daemon.stream_service import StreamService
+from camd.motion.closed_loop import LinePeriodSetting
 from camd.pipeline import TdiPipeline
 from camd.pipeline.image_motion import (
     COUNTER_WRAP,
@@ -76,6 +79,7 @@ class ScanRun:
         live_lines: LiveLines | None,
         lock: threading.Lock,
         image_motion: ImageMotionMonitor | None = None,
+        line_period_writer: Callable[[LinePeriodSetting], None] | None = None,
     ) -> None:
         self.device = device
         # The image's motion from blocks of the scan's frames (None: not measured).
@@ -89,8 +93,10 @@ class ScanRun:
         self.path = plan.path
         self.timing = plan.timing
         self.frames_requested = plan.frames
-        # The most window rows the line-period loop may set (None: no loop).
-        self.max_rows = None if plan.stage is None else plan.stage.max_lines
+        # The most window rows a loop that trims the line period may set (None: no such loop):
+        # the encoder's line-period loop or the image loop.
+        trims = plan.image_loop or (motion is not None and motion.mode == "line_period")
+        self.max_rows = plan.max_lines if trims else None
         self.motion = motion
         self.acquisition = acquisition  # released once the file is closed
         self.state = "starting"
@@ -122,6 +128,24 @@ class ScanRun:
             on_red=self._mismatch_red,
             on_lines=None if live_lines is None else live_lines.append,
         )
+        self.image_loop: ScanImageLoop | None = None
+        if plan.image_loop and self._image_motion is not None and line_period_writer is not None:
+            request, timing = plan.request, plan.timing
+            self.image_loop = ScanImageLoop(
+                self._image_motion,
+                self.pipeline,
+                line_period_writer,
+                line_period_s=timing.tdi_line_period_s,
+                row_time_s=timing.row_period_s,
+                stages=request.stages * (2 if plan.binned else 1),
+                max_lines=plan.max_lines,
+                rows_per_line=request.rows_per_line,
+                cols_per_line=request.cols_per_line,
+                gain=limits.image_loop_gain,
+                max_trim=limits.max_trim,
+                max_cols_per_line=limits.image_max_cols_per_line,
+                events=lambda level, message: self.device.log_event(level, "motion", message),
+            )
 
     def _events(self, level: str, source: str, message: str) -> None:
         self.device.log_event(level, source, message)
@@ -138,9 +162,9 @@ class ScanRun:
             self.image_motion_log = self._image_motion.start_log()
         stream.add_consumer(pipeline.consumer)
         try:
-            # The line-period loop (started before the stream) changes the window's rows, up
-            # to the plan's: the stream's frames may be as large as that from any frame on.
-            trimmed = self.motion is not None and self.motion.mode == "line_period"
+            # A loop that trims the line period changes the window's rows, up to the plan's:
+            # the stream's frames may be as large as that from any frame on.
+            trimmed = self.max_rows is not None
             info = stream.start(
                 StreamStartRequest(
                     frames=self.frames_requested,
@@ -166,6 +190,8 @@ class ScanRun:
             self.live_end("failed")
             raise
         self.state = "running"
+        if self.image_loop is not None:
+            self.image_loop.start()
         self.started_mono, self.started_cpu = time.monotonic(), time.process_time()
         what = "until stopped" if self.request.lines == 0 else f"{self.request.lines} lines"
         self.device.log_event(
@@ -200,6 +226,8 @@ class ScanRun:
         if self.done.is_set():
             return  # the daemon is shutting down and ``close`` has ended the scan
         stream.remove_consumer(self.pipeline.consumer)
+        if self.image_loop is not None:
+            self.image_loop.stop()
         self.pipeline.finish(timeout_s=FINISH_TIMEOUT_S)
         self.ended_mono, self.ended_cpu = time.monotonic(), time.process_time()
         self.not_sent_frames = stream.frames_not_sent  # this scan's stream has ended
@@ -248,6 +276,8 @@ class ScanRun:
             )
             if self.motion is not None:
                 self.motion.finish()  # a stage must not run on without its daemon
+            if self.image_loop is not None:
+                self.image_loop.stop()
             self.pipeline.finish(flush=False)
             self.not_sent_frames = self._stream.frames_not_sent
             if self.failing:
@@ -341,6 +371,10 @@ class ScanRun:
                 datasets["motion_loop"] = self.motion.record.arrays()
         if image_motion is not None:
             attributes["image_motion"], datasets["image_motion"] = image_motion
+        if self.image_loop is not None:
+            attributes["image_loop"] = self.image_loop.info().attributes()
+            if self.image_loop.record.time_s:
+                datasets["image_loop"] = self.image_loop.record.arrays()
         try:
             self.pipeline.recorder.close(attributes, datasets)
         except Exception as exc:

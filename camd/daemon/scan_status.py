@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import time
 
-from camd.daemon.models import ImageMotionBlock, ScanImageMotion, ScanResponse
+from camd.daemon.models import ImageMotionBlock, ScanImageLoopInfo, ScanImageMotion, ScanResponse
 from camd.daemon.scan_run import ScanRun
 from camd.daemon.stream_service import StreamService
 
@@ -77,6 +77,19 @@ def _image_motion(scan: ScanRun) -> ScanImageMotion | None:
         theta_deg_mean=summary.theta_deg_mean,
         dv_over_v_sem=summary.dv_over_v_sem,
         latest=None if latest is None else ImageMotionBlock(**latest.as_dict()),
+        loop=None if scan.image_loop is None else _loop_info(scan),
+    )
+
+
+def _loop_info(scan: ScanRun) -> ScanImageLoopInfo:
+    assert scan.image_loop is not None
+    state = scan.image_loop.info()
+    return ScanImageLoopInfo(
+        updates=state.updates,
+        line_period_s=state.line_period_s,
+        cols_per_line=state.cols_per_line,
+        limited=state.limited,
+        error=state.error,
     )
 
 

@@ -30,6 +30,7 @@ TDI worker never wait for it:
 
 from __future__ import annotations
 
+import logging
 import math
 import threading
 import time
@@ -47,6 +48,8 @@ from camd.link.frame_stream import ReceivedFrame
 from camd.link.packed import FrameBatch
 from camd.pipeline.background import Background
 from camd.protocol.stream import StreamMode
+
+logger = logging.getLogger(__name__)
 
 FRAMES_PER_BLOCK = 16
 COLUMNS_MAX = 512
@@ -69,6 +72,7 @@ class MotionBlock:
     counter_last: int
     frames: int
     stages: int
+    line_period_s: float  # the frames' line period, as their headers give it
     columns: tuple[int, int]  # the columns [first, last) measured
     measured_t_s: float  # Unix time the measurement ended
     cpu_s: float  # the measurement's CPU time
@@ -165,6 +169,7 @@ class _Block:
     col0: int
     row_lag_lines: float  # signed for the frames as measured (flipped when reverse)
     reverse: bool
+    line_period_ns: int
     offsets: tuple[int, ...]  # the frames wanted, in line periods after the first
     next: int = 0  # the offset wanted next
     first: int = 0  # the first frame's counter
@@ -232,6 +237,8 @@ class ImageMotionMonitor:
         self._not_before = 0.0  # monotonic: no block starts before this (the CPU budget)
         self._blocks: deque[MotionBlock] = deque(maxlen=history_max)
         self._logs: list[MotionLog] = []
+        self._listeners: list[Callable[[MotionBlock], None]] = []
+        self.last_counter: int | None = None  # the newest TDI frame's counter seen
         self._worker: threading.Thread | None = None
         # The sum of the (offset-free) frames measured in this stream, for the gain pattern
         # (worker thread only, but for the reset at a stream's start).
@@ -272,6 +279,7 @@ class ImageMotionMonitor:
         line_period_ns: int,
     ) -> None:
         self._seen += len(counters)
+        self.last_counter = counters[-1]
         block = self._collecting
         if block is None:
             if self._pending is not None or time.monotonic() < self._not_before:
@@ -336,6 +344,7 @@ class ImageMotionMonitor:
             col0,
             lag,
             reverse,
+            line_period_ns,
             _offsets(rows, self.frames_per_block),
         )
 
@@ -368,6 +377,7 @@ class ImageMotionMonitor:
                 counter_last=block.counters[-1],
                 frames=len(block.counters),
                 stages=block.stages,
+                line_period_s=block.line_period_ns * 1e-9,
                 columns=(block.col0, block.col0 + block.pixels.shape[2]),
                 measured_t_s=time.time(),
                 cpu_s=cpu_s,
@@ -377,12 +387,18 @@ class ImageMotionMonitor:
                 self._blocks.append(result)
                 for log in self._logs:
                     log.add(result)
+                listeners = list(self._listeners)
                 self._measured += 1
                 self._frames_measured += result.frames
                 self._cpu_s += cpu_s
                 self._not_before = time.monotonic() + cpu_s * (1.0 / self.cpu_fraction - 1.0)
                 self._pending = None
                 self._lock.notify_all()  # a recording that waits for its last block
+            for listener in listeners:  # outside the lock: a listener may take its time
+                try:
+                    listener(result)
+                except Exception:  # a listener's failure is its own; the monitor goes on
+                    logger.exception("an image motion listener failed")
 
     def _measure(self, block: _Block) -> ImageMotion:
         background = self._background()
@@ -467,6 +483,17 @@ class ImageMotionMonitor:
             self._collecting = None
             self._logs.append(log)
         return log
+
+    def add_listener(self, listener: Callable[[MotionBlock], None]) -> None:
+        """Call ``listener(block)`` with every block measured from now on, on the monitor's
+        thread (the image loop; it must not wait on the stream)."""
+        with self._lock:
+            self._listeners.append(listener)
+
+    def remove_listener(self, listener: Callable[[MotionBlock], None]) -> None:
+        with self._lock:
+            if listener in self._listeners:
+                self._listeners.remove(listener)
 
     def stop_log(self, log: MotionLog, *, wait_s: float = 0.0) -> None:
         """No more blocks for ``log``; with ``wait_s``, first wait that long at most for a block

@@ -91,6 +91,7 @@ from camd.daemon.models.motion import (
 )
 from camd.daemon.models.scan import (
     SCAN_LINE_PERIOD_MAX_S,
+    ScanImageLoopInfo,
     ScanImageMotion,
     ScanMotionInfo,
     ScanRequest,
@@ -257,6 +258,7 @@ __all__ = [  # noqa: RUF022
     "ScanRequest",
     "StagesRequest",
     "ScanTiming",
+    "ScanImageLoopInfo",
     "ScanImageMotion",
     "ScanMotionInfo",
     "ScanResponse",

@@ -59,6 +59,11 @@ class ScanRequest(_Compressed):
     closed_loop: bool | None = Field(
         default=None, description="correct from the encoder while scanning; null = config"
     )
+    image_loop: bool | None = Field(
+        default=None,
+        description="trim the line period and the drift taps from the image's motion measured "
+        "in the frames (docs/motion.md); null = config motion.image_loop",
+    )
     dv_over_v: float = Field(
         default=0.0,
         ge=-2.0,
@@ -122,6 +127,16 @@ class ScanMotionInfo(BaseModel):
     )
 
 
+class ScanImageLoopInfo(BaseModel):
+    """A scan's image loop (docs/motion.md, "Closing the loop on the image")."""
+
+    updates: int = Field(description="blocks it has acted on")
+    line_period_s: float = Field(description="the line period it set last")
+    cols_per_line: float = Field(description="the drift taps' columns per line it set last")
+    limited: bool = Field(description="a limit (motion.max_trim, the drift's) held it back")
+    error: str | None = Field(description="why it stopped, if it did (the scan goes on)")
+
+
 class ScanImageMotion(BaseModel):
     """The image's motion measured from blocks of a scan's frames (docs/motion.md, "The
     image's motion from the frames"): the newest block and the means over the measurable ones
@@ -136,6 +151,9 @@ class ScanImageMotion(BaseModel):
         description="standard error of the mean dV/V from the blocks' scatter (2 blocks or more)"
     )
     latest: ImageMotionBlock | None
+    loop: ScanImageLoopInfo | None = Field(
+        default=None, description="the image loop's state (null: the scan does not run one)"
+    )
 
 
 class ScanResponse(BaseModel):
