@@ -7,6 +7,7 @@ needed), with the registers at their reset values.
 
 from __future__ import annotations
 
+import dataclasses
 import datetime as dt
 import math
 from pathlib import Path
@@ -259,3 +260,25 @@ def test_a_scan_until_stopped_with_travel_for_no_line_is_refused(tmp_path: Path)
         "for one complete line of 4 stages; scan slower (a longer line period), or widen "
         "stage.low_limit_m / high_limit_m"
     )
+
+
+def test_the_image_loop_is_planned_or_refused_with_what_to_change(tmp_path: Path) -> None:
+    period = 100 * ROW_S
+    request = ScanRequest(stages=4, lines=50, line_period_s=period, image_loop=True)
+    plan = plan_scan(request, _context(tmp_path, stage=_stage()))
+    # the loop trims the line period: the frames may have from M to the planned rows, the
+    # engine keeps its own
+    assert plan.image_loop and plan.max_lines == 100 and plan.rows == 4
+    # config motion.image_loop is the default; the request overrides it
+    default = dataclasses.replace(_context(tmp_path, stage=_stage()), image_loop=True)
+    assert plan_scan(request.model_copy(update={"image_loop": None}), default).image_loop
+    assert not plan_scan(request.model_copy(update={"image_loop": False}), default).image_loop
+    assert not plan_scan(
+        request.model_copy(update={"image_loop": None}), _context(tmp_path)
+    ).image_loop
+    line_period = dataclasses.replace(_stage(), loop_mode="line_period")
+    with pytest.raises(BadRequest, match=r'set motion\.correct = "step_rate"'):
+        plan_scan(request, _context(tmp_path, stage=line_period))
+    unmeasured = dataclasses.replace(_context(tmp_path, stage=_stage()), image_measure=False)
+    with pytest.raises(BadRequest, match=r"set motion\.image_measure = true"):
+        plan_scan(request, unmeasured)

@@ -1122,3 +1122,21 @@ def test_fractional_path_over_256_stages_does_not_overflow(kernel: str) -> None:
     assert got.stages_used.tolist() == used.tolist()
     mean = TdiEngine(stages=m, width=2, rows_per_line=speed, kernel=kernel, mode="mean")
     assert np.all(as_block(mean.push_many(frames)).data == 65535.0)
+
+
+@pytest.mark.parametrize("impl", [i for i in IMPLS if i != "reference"])
+def test_a_drift_trim_keeps_the_open_lines_by_hand(impl: str) -> None:
+    """set_drift(1) before frame 2 of M = 2 (the image loop's trim): stage 1 of line 2 was
+    added from frame 1 without drift and stays; from frame 2 on each stage reads column
+    j + i. S(3)[0] = f3[0,0] + f2[1,1]; S(3)[1] = f3[0,1] (column 2 is past the edge). No run
+    restarts: every line from 1 on has both stages, unlike a change of M."""
+    engine = TdiEngine(kernel=impl, stages=2, width=2)  # type: ignore[arg-type]
+    lines = [engine.push(f) for f in HAND[:2]]
+    engine.set_drift(1.0)
+    lines += [engine.push(f) for f in HAND[2:]]
+    got = stack_lines(lines)
+    assert got.data.tolist() == [[1, 2], [13, 24], [130, 240], [1400, 2000], [4007, 9]]
+    assert got.complete.tolist() == [False, True, True, True, True]
+    assert engine.cols_per_line == 1.0
+    with pytest.raises(ValueError, match="give a finite number of columns"):
+        engine.set_drift(float("nan"))
