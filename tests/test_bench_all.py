@@ -14,7 +14,9 @@ TINY_TDI = ("--shapes", "6x64", "--frames-mb", "1", "--seconds", "0.02", "--roun
 
 
 def test_every_benchmark_is_in_the_set() -> None:
-    assert NAMES == ("ping", "stream", "tdi", "sim", "pipeline", "scan", "live", "store", "fuzz")
+    assert NAMES == (
+        "ping", "stream", "tdi", "sim", "pipeline", "scan", "live", "motion", "store", "fuzz"
+    )  # fmt: skip
     # Each has a parser: `camd bench NAME --help` exits 0.
     for name in NAMES:
         with pytest.raises(SystemExit) as exc:

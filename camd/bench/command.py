@@ -15,6 +15,8 @@ it is the fair one). One module of ``camd.bench`` per benchmark, named as its su
   sensor's fastest line rate;
 - ``scan``: a scan through the daemon at the sensor's line rate;
 - ``live``: the daemon's ingest with live viewers against none;
+- ``motion``: the live image motion measurement's CPU per block on one core against the time
+  the block spans, and a scan's ingest with it on against off;
 - ``store``: each compression filter's ratio and one-core write rate through camd's writers
   against no compression and the camera's full-window data rate;
 - ``fuzz``: the API fuzzed from its own /openapi.json (counts, no baseline);
@@ -32,6 +34,7 @@ from typing import Any
 from camd.bench import (
     fuzz,
     live,
+    motion,
     ping,
     pipeline,
     run_all,
@@ -101,6 +104,14 @@ _BENCHES = {
         "Stream ingest of the daemon (frames and MB received per second) with N live "
         "viewers attached (B) against none (A), in alternating rounds on one continuous stream "
         "of the simulated hr400; prints the median B/A.",
+    ),
+    "motion": _Bench(
+        motion,
+        "image motion measurement: CPU per block on one core; scan ingest on vs off",
+        "The live image motion measurement (ImageMotionMonitor): measure_tdi_motion's CPU per "
+        "block of simulated hr400 TDI windows on one core, against the time the block spans "
+        "at the fastest line period; and a scan through the daemon with the measurement off "
+        "(A) and on (B), alternated in rounds; prints the median B/A against the goal 0.95.",
     ),
     "store": _Bench(
         store,

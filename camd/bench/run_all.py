@@ -80,6 +80,22 @@ def _live(doc: Doc) -> tuple[Doc, Doc]:
     }
 
 
+def _motion(doc: Doc) -> tuple[Doc, Doc]:
+    cost, scan = doc["cost"], doc["scan"]
+    key = f"motion {scan['profile']} M={scan['stages']}"
+    # The CPU per block over the time the block spans: the core measuring every block takes.
+    ratios: Doc = {}
+    for c in cost["widths"]:
+        name = f"{key} {c['columns']} columns CPU/block span (lower is better)"
+        ratios[name] = c["core_fraction_every_block"]
+    ratios[f"{key} scan lines/s on/off"] = scan["ratio"]
+    checks = {
+        f"{key} scan lost frames": sum(r["lost_frames"] for r in scan["off"] + scan["on"]),
+        f"{key} scan overruns": sum(r["overruns"] for r in scan["off"] + scan["on"]),
+    }
+    return ratios, checks
+
+
 def _store(doc: Doc) -> tuple[Doc, Doc]:
     ratios: Doc = {}
     for case in doc["inputs"]:
@@ -123,6 +139,12 @@ BENCHES: tuple[Bench, ...] = (
     ),
     Bench("scan", (), ("--lines", "2000"), _scan),
     Bench("live", (), ("--rounds", "3", "--seconds", "1.5"), _live),
+    Bench(
+        "motion",
+        (),
+        ("--rounds", "1", "--lines", "2000", "--repeat", "1", "--frame-bank", "256"),
+        _motion,
+    ),
     Bench("store", (), ("--rounds", "1", "--filters", "off,bitshuffle-lz4,blosc2-zstd"), _store),
     Bench("fuzz", (), ("--requests", "500"), _fuzz),
 )

@@ -31,6 +31,7 @@ from camd.store.compression import FILTERS
 DEFAULT_LINES = 5000
 DEFAULT_STAGES = 96
 DEFAULT_BANK = 64
+DEFAULT_SCENE = "bars:lux=3"
 
 
 def add_options(p: argparse.ArgumentParser) -> None:
@@ -59,6 +60,11 @@ def add_options(p: argparse.ArgumentParser) -> None:
         type=lambda text: choice_list(text, tuple(FILTERS), "compression")[0],
         default=None,
         help=f"the scan file's compression: {', '.join(FILTERS)} (default: the daemon's)",
+    )
+    p.add_argument(
+        "--scene",
+        default=DEFAULT_SCENE,
+        help=f"the simulator's scene, as [sim] scene takes it (default {DEFAULT_SCENE})",
     )
 
 
@@ -94,13 +100,20 @@ def bench_scan(
     drive_stage: bool = False,
     line_period_s: float | None = None,
     compression: str | None = None,
+    scene: str = DEFAULT_SCENE,
+    extra_config: str = "",
 ) -> dict[str, Any]:
-    """Run the scan and return the figures (see the module docstring)."""
+    """Run the scan and return the figures (see the module docstring). ``scene``: the
+    simulator's (``[sim] scene``); ``extra_config``: TOML appended to the daemon's config (other
+    sections than ``[sim]`` and ``[sensor]``: ``camd bench motion`` sets ``[motion]``)."""
     from camd.cli._daemon_proc import DaemonProcess, write_sim_config
     from camd.client import CamdClient
 
     with tempfile.TemporaryDirectory(prefix="camd-bench-scan-") as tmp:
-        config = write_sim_config(Path(tmp), profile, frame_bank=frame_bank, scene="bars:lux=3")
+        config = write_sim_config(Path(tmp), profile, frame_bank=frame_bank, scene=scene)
+        if extra_config:
+            with config.open("a", encoding="utf-8") as f:
+                f.write("\n" + extra_config.rstrip("\n") + "\n")
         with DaemonProcess(tmp, extra_args=["--config", str(config)]) as daemon:
             client = CamdClient(daemon.url)
             client.wait_ready(60)
@@ -136,6 +149,9 @@ def bench_scan(
             rss_peak = proc_status_int(daemon.pid, "VmHWM")
             after = [_cpu_s(daemon.pid), *(_cpu_s(p) for p in sims)]
             sim_stats = client.sim_stream_stats()
+            # The image motion monitor's counters (the daemon is this scan's alone, so they are
+            # the scan's; 0 blocks with [motion] image_measure = false).
+            motion = client.image_motion()
             client.close()
             file_bytes = (Path(tmp) / "scan.h5").stat().st_size
 
@@ -172,6 +188,16 @@ def bench_scan(
         "drive_stage": drive_stage,
         "sim": dict(sim_stats),
         "state": doc["state"],
+        # The image motion monitor's counters (GET /api/v1/live/motion).
+        "image_motion": {
+            "enabled": motion["enabled"],
+            "blocks_measured": motion["blocks_measured"],
+            "tdi_frames_seen": motion["tdi_frames_seen"],
+            "frames_measured": motion["frames_measured"],
+            "cpu_s": motion["cpu_s"],
+        },
+        "image_motion_latest": motion["latest"],  # the newest block measured, or None
+        "scene": scene,
         "compression": compression or "the daemon's",
         "file_bytes": file_bytes,
         # The daemon's resident memory (KiB): at RSS_MARK_LINES lines (None if the scan was
@@ -202,6 +228,7 @@ def run(args: argparse.Namespace) -> int:
         drive_stage=args.drive_stage,
         line_period_s=args.line_period_s,
         compression=args.compression,
+        scene=args.scene,
     )
     if args.json:
         print(json.dumps(result))
