@@ -42,6 +42,7 @@ from typing import Any
 import cv2
 import numpy as np
 import numpy.typing as npt
+from threadpoolctl import threadpool_limits
 
 from camd.analysis.image_motion import ImageMotion, flat_from_mean, measure_tdi_motion
 from camd.link.frame_stream import ReceivedFrame
@@ -358,9 +359,13 @@ class ImageMotionMonitor:
             self._worker.start()
 
     def _work(self) -> None:
-        # One core: OpenCV's remap would otherwise take every core from the stream and the
-        # TDI worker (the setting is the process's; camd's other OpenCV use is the quicklook).
+        # One core: OpenCV's remap and BLAS's dot products would otherwise take every core
+        # from the stream and the TDI worker, and the CPU budget, which counts this thread's
+        # time, would not see their helpers' (camd bench motion: 0.3-0.5 of a core measured
+        # against a 0.25 budget with two BLAS threads). Both settings are the process's;
+        # camd's other OpenCV use is the quicklook, and the TDI engine uses no BLAS.
         cv2.setNumThreads(1)
+        threadpool_limits(limits=1)
         while True:
             with self._lock:
                 while self._pending is None and not self._closed:
