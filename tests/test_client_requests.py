@@ -91,7 +91,7 @@ def test_scan_options_are_the_scan_requests_optional_fields() -> None:
     options = client_requests.ScanRequestOptions
     optional = [name for name, f in ScanRequest.model_fields.items() if not f.is_required()]
     assert list(typing.get_type_hints(options)) == optional
-    assert len(optional) == 16  # compression and compression_level since issue 33
+    assert len(optional) == 17  # compression and compression_level since issue 33, image_loop 35
     assert not options.__required_keys__
 
 

@@ -354,6 +354,7 @@ ANSWERS: list[tuple[str, str]] = [
     ("save_snapshot", "SnapshotSaved"),
     ("scan", "ScanResponse"),
     ("image_motion", "ImageMotionResponse"),
+    ("image_loop_scan", "ScanResponse"),
     ("motion", "MotionStatus"),
     ("move_stage", "MotionStatus"),
     ("sync", "SyncResponse"),
@@ -436,10 +437,14 @@ def answers(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]
         docs["release_estop"] = client.release_estop()
         docs["release_control"] = client.release_control()
         # The image motion monitor's first block: 16 consecutive frames of a 20-row window
-        # (0.41 ms is 20 row times of hr400; the simulator's ideal stage keeps up with it).
-        client.start_scan(4, 40, quicklook=False, line_period_s=4.1e-4, drive_stage=False)
+        # (0.41 ms is 20 row times of hr400; the simulator's ideal stage keeps up with it),
+        # with the image loop (its state in the scan's document).
+        client.start_scan(
+            4, 40, quicklook=False, line_period_s=4.1e-4, drive_stage=False, image_loop=True
+        )
         client.wait_scan(120)
         docs["image_motion"] = client.image_motion(history=2)
+        docs["image_loop_scan"] = client.scan()
         # A campaign job (a short plan), followed to its end: its document then has them all.
         job = client.start_campaign("example_stare", quick=True)
         deadline = time.monotonic() + 120

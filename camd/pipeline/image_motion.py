@@ -37,18 +37,20 @@ import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import cv2
 import numpy as np
 import numpy.typing as npt
-from threadpoolctl import threadpool_limits
 
-from camd.analysis.image_motion import ImageMotion, flat_from_mean, measure_tdi_motion
 from camd.link.frame_stream import ReceivedFrame
 from camd.link.packed import FrameBatch
 from camd.pipeline.background import Background
 from camd.protocol.stream import StreamMode
+
+if TYPE_CHECKING:
+    # OpenCV (the measurement's) is loaded when the first block is measured, not with the
+    # daemon: a daemon that never streams TDI frames never loads it.
+    from camd.analysis.image_motion import ImageMotion
 
 logger = logging.getLogger(__name__)
 
@@ -364,6 +366,9 @@ class ImageMotionMonitor:
         # time, would not see their helpers' (camd bench motion: 0.3-0.5 of a core measured
         # against a 0.25 budget with two BLAS threads). Both settings are the process's;
         # camd's other OpenCV use is the quicklook, and the TDI engine uses no BLAS.
+        import cv2
+        from threadpoolctl import threadpool_limits
+
         cv2.setNumThreads(1)
         threadpool_limits(limits=1)
         while True:
@@ -406,6 +411,8 @@ class ImageMotionMonitor:
                     logger.exception("an image motion listener failed")
 
     def _measure(self, block: _Block) -> ImageMotion:
+        from camd.analysis.image_motion import ImageMotion, measure_tdi_motion
+
         background = self._background()
         width = block.pixels.shape[2]
         back = None
@@ -446,6 +453,8 @@ class ImageMotionMonitor:
             return None
         if self._flat_frames < FLAT_FRAMES_MIN:
             return None
+        from camd.analysis.image_motion import flat_from_mean
+
         return flat_from_mean(self._flat_sum / self._flat_frames)
 
     # -- what the daemon sets and asks ------------------------------------------------------
