@@ -118,8 +118,9 @@ class DaemonSection(Section):
 
     tdi_warm_up: bool = Field(
         default=True,
-        description="load the TDI kernels when the daemon starts, so that the first scan does "
-        "not wait for them (about a second of one core); false: at the first scan",
+        description="load the TDI kernels and the image motion measurement (OpenCV) when the "
+        "daemon starts, so that the first scan does not wait for them (about a second of one "
+        "core) and its closed loop is not held up by their loading; false: at the first scan",
     )
 
     record_dirs: list[Annotated[Path, Strict(False)]] = Field(

@@ -72,6 +72,7 @@ from camd.link import CommandLink, Response
 from camd.pipeline.background import BackgroundCapture
 from camd.pipeline.focus import FocusMonitor
 from camd.pipeline.image_motion import ImageMotionMonitor
+from camd.pipeline.image_motion import warm_up as warm_image_motion
 from camd.pipeline.live import LiveLines, LiveTap
 from camd.pipeline.live_transport import TransportEncoder
 from camd.pipeline.roi import RoiMonitor
@@ -499,10 +500,18 @@ class DeviceSession:
 
 
 def _warm_tdi() -> None:
-    """The TDI kernels loaded ahead of the first scan (``camd.tdi.warm_up``)."""
+    """The TDI kernels loaded ahead of the first scan (``camd.tdi.warm_up``), and the image
+    motion measurement (``camd.pipeline.image_motion.warm_up``: its imports, on the first
+    block, would hold up the scan's closed loop)."""
     try:
         seconds = warm_up()
     except Exception:  # a scan would then compile them itself, and say why it cannot
         log.exception("could not load the TDI kernels ahead of the first scan")
     else:
         log.info("TDI kernels ready in %.2f s", seconds)
+    try:
+        seconds = warm_image_motion()
+    except Exception:  # the first block would then load it, and say why it cannot
+        log.exception("could not load the image motion measurement ahead of the first stream")
+    else:
+        log.info("image motion measurement ready in %.2f s", seconds)

@@ -565,3 +565,21 @@ def summarize(blocks: list[MotionBlock]) -> MotionSummary:
         dv_over_v_sem=sem,
         latest=latest,
     )
+
+
+def warm_up() -> float:
+    """Load the measurement (OpenCV, threadpoolctl) and run it once on a small made-up block,
+    ahead of the first stream (``daemon.tdi_warm_up``): an import holds Python's lock for a
+    tenth of a second or more, which on the monitor's thread during a scan would hold up the
+    closed loop's thread too. Seconds it took."""
+    start = time.perf_counter()
+    import cv2  # noqa: F401  (loaded here, once)
+    import threadpoolctl  # noqa: F401
+
+    from camd.analysis.image_motion import measure_tdi_motion
+
+    rng = np.random.default_rng(0)
+    scene = rng.normal(1000.0, 100.0, (40, 64))
+    frames = [scene[k : k + 16] for k in range(4)]
+    measure_tdi_motion(frames, list(range(4)))
+    return time.perf_counter() - start
