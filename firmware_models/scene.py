@@ -41,7 +41,8 @@ Built-in scenes (``SceneSpec.parse("kind:key=value,...")``):
   64 rows): edges across track whose ESF varies along track, slanted for super-resolved ESFs.
   ``x_oversample=1`` gives each column one cell across (the edge at the column's centre), so
   fine cells along track (``oversample=16``: a cell smears the edge over 1/16 row) stay cheap
-  on a wide sensor (the motion-compensation campaign's target, docs/imc.md).
+  on a wide sensor (the motion-compensation campaign's target, docs/imc.md). ``texture_cols``
+  puts the natural texture (``seed``) in that many central columns instead (``_with_texture``).
 - ``star``: a Siemens star of ``spokes`` pairs in a ``size`` x ``size`` tile (tiled).
 - ``ramp``: ``level * (y mod period) / period`` along track (a sawtooth; a test scene: the
   box integral of a linear function is its centre value).
@@ -537,6 +538,8 @@ def _sharp_scene(
     width = spec.size if spec.kind == "star" else columns
     x_over = over if spec.x_oversample is None else spec.x_oversample
     pattern = _target(spec, period, width, over, x_over)
+    if spec.kind == "edge" and spec.texture_cols:
+        pattern = _with_texture(pattern, spec, period, width, over, x_over)
     return Scene(
         scale_pattern(pattern, level, spec.contrast),
         oversample=over,
@@ -586,6 +589,23 @@ def _target(
         period * over, _SUPERSAMPLE, width * over, _SUPERSAMPLE
     )
     result = blocks.mean(axis=(1, 3))
+    return result
+
+
+def _with_texture(
+    pattern: FloatArray, spec: SceneSpec, period: int, width: int, over: int, x_over: int
+) -> FloatArray:
+    """``pattern`` (an edge target's cells) with its central ``spec.texture_cols`` columns
+    replaced by the natural texture of one period (``natural_texture``, one value per pixel,
+    each spread over its cells): the image motion monitor measures the central columns, and a
+    straight edge only shows the motion across it (the aperture problem), so a scan can keep
+    edges for the MTF either side and a texture for the motion in the middle."""
+    cols = min(spec.texture_cols, width)
+    first = (width - cols) // 2
+    texture = natural_texture(period, cols, seed=spec.seed)
+    cells = np.repeat(np.repeat(texture, over, axis=0), x_over, axis=1)
+    result = pattern.copy()
+    result[:, first * x_over : (first + cols) * x_over] = cells
     return result
 
 

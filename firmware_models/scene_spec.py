@@ -67,7 +67,16 @@ _COMMON = (
 _KIND_KEYS: dict[str, tuple[str, ...]] = {
     "flat": _COMMON,
     "bars": (*_COMMON, "contrast", "oversample", "orientation", "period"),
-    "edge": (*_COMMON, "contrast", "oversample", "angle_deg", "period", "x_oversample"),
+    "edge": (
+        *_COMMON,
+        "contrast",
+        "oversample",
+        "angle_deg",
+        "period",
+        "x_oversample",
+        "seed",
+        "texture_cols",
+    ),
     "star": (*_COMMON, "contrast", "oversample", "spokes", "size"),
     "ramp": (*_COMMON, "contrast", "oversample", "period"),
     "natural": (*_COMMON, "contrast", "period", "seed"),
@@ -144,6 +153,14 @@ class SceneSpec(BaseModel):
         description="edge: cells per pixel across track (default: oversample); 1 makes each "
         "column a 1-D edge at its centre and keeps fine cells along track cheap",
     )
+    texture_cols: int = Field(
+        default=0,
+        ge=0,
+        le=65536,
+        description="edge: the central columns that show the natural texture (seed `seed`) "
+        "instead of edges, for the image motion monitor: a straight edge shows only the motion "
+        "across it (0: none)",
+    )
     period: int | None = Field(
         default=None,
         ge=2,
@@ -162,7 +179,10 @@ class SceneSpec(BaseModel):
     size: int = Field(default=256, ge=16, le=4096, description="star: tile size in pixels")
     path: str | None = Field(default=None, description="image: greyscale image file (cv2)")
     seed: int = Field(
-        default=1, ge=0, le=2**32 - 1, description="natural: the texture's random seed"
+        default=1,
+        ge=0,
+        le=2**32 - 1,
+        description="natural, edge texture_cols: the texture's random seed",
     )
 
     @model_validator(mode="after")

@@ -229,6 +229,29 @@ def test_rolling_tdi_model_tends_to_eq_8() -> None:
         )
 
 
+def test_rolling_tdi_model_sees_an_across_slip_along_a_slanted_edges_normal() -> None:
+    # M = 96 at the synchronous speed of a 97-row window: the rolling shutter's 96/97 pixel of
+    # slip; the image drifting tan(0.3 deg) columns a stage seen by edges at 4.7 deg to the
+    # rows adds 96 tan(0.3 deg) tan(4.7 deg) = 0.0412 pixel inside the Dirichlet kernel.
+    c, t = math.tan(math.radians(0.3)), math.tan(math.radians(4.7))
+    slip = 1 / 97 + c * t
+    kernel = abs(math.sin(math.pi * 0.5 * 96 * slip) / (96 * math.sin(math.pi * 0.5 * slip)))
+    model = mtf_rolling_tdi_model(
+        0.5, stages=96, dv_over_v=0, fill_width=1.0, integration_ratio=0.0, row_skew=1 / 97,
+        across_slip_px=c, edge_tan=t,
+    )  # fmt: skip
+    assert model == pytest.approx(sinc(0.5) * kernel, rel=1e-12)
+    along = mtf_rolling_tdi_model(
+        0.5, stages=96, dv_over_v=0, fill_width=1.0, integration_ratio=0.0, row_skew=1 / 97
+    )
+    assert model / along == pytest.approx(0.959, abs=0.001)  # 4 % at 0.99 pixel of slip
+    # An edge along the rows (tan 0) sees none of it.
+    assert mtf_rolling_tdi_model(
+        0.5, stages=96, dv_over_v=0, fill_width=1.0, integration_ratio=0.0, row_skew=1 / 97,
+        across_slip_px=c,
+    ) == along  # fmt: skip
+
+
 # -- several edges at once -----------------------------------------------------------------------
 
 

@@ -125,6 +125,22 @@ def test_slanted_edge_moves_tan_angle_rows_per_column() -> None:
     assert edge_rows[0] == pytest.approx(12.0 + 0.5 * math.tan(math.radians(5)), abs=1e-9)
 
 
+def test_edge_texture_cols_put_the_natural_texture_in_the_central_columns() -> None:
+    edges = build("edge:photons=1,period=64,oversample=4,x_oversample=1", columns=200)
+    mixed = build(
+        "edge:photons=1,period=64,oversample=4,x_oversample=1,texture_cols=60", columns=200
+    )
+    texture = build("natural:photons=1,period=64,seed=1", columns=60)
+    # Columns 70..129 (the central 60 of 200) hold the texture, one value per pixel spread over
+    # its 4 cells along; the edges stay either side.
+    assert np.array_equal(mixed.radiance[:, :70], edges.radiance[:, :70])
+    assert np.array_equal(mixed.radiance[:, 130:], edges.radiance[:, 130:])
+    assert np.array_equal(mixed.radiance[::4, 70:130], texture.radiance)
+    assert np.array_equal(mixed.radiance[3::4, 70:130], texture.radiance)
+    with pytest.raises(SceneSpecError, match="unknown scene key 'texture_cols' for bars"):
+        SceneSpec.parse("bars:texture_cols=8")
+
+
 def test_star_and_ramp() -> None:
     star = build("star:photons=1,size=64,oversample=2")
     assert star.period_rows == 64 and star.width_cols == 64

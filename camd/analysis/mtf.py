@@ -928,6 +928,8 @@ def mtf_rolling_tdi_model(
     integration_ratio: float,
     row_skew: float = 0.0,
     cell_px: float = 0.0,
+    across_slip_px: float = 0.0,
+    edge_tan: float = 0.0,
 ) -> FloatOrArray:
     """Along-track MTF of M-stage digital TDI on a rolling-shutter sensor under velocity
     mismatch: the terms of docs/physics.md §6 eq 3 and eq 8 [YUAN13] as this rig makes them, with
@@ -952,6 +954,13 @@ def mtf_rolling_tdi_model(
     With ``row_skew = 0``, ``cell_px = 0`` and small ``f M dV/V`` it is ``mtf_tdi_model``
     to first order in ``dV/V`` times the exposure term's change. ``dv_over_v`` may exceed 1
     (the image moves backwards); ``integration_ratio`` is ``T_int / T_L`` of the registers.
+
+    Measured on slanted edges (``edge_tan = tan`` of their angle to the rows, signed as the
+    scene's ``y = x tan(angle)``) while the image also slips ``across_slip_px`` columns per
+    stage against the drift taps (a turned camera: ``tan(theta)`` minus the taps' columns a
+    line), the M exposures lie along a line that is not along track, and what the edges see is
+    their spread along the edges' normal: the slip becomes ``s + across_slip_px * edge_tan``
+    (docs/mtf.md). Both 0: along track alone.
     """
     m = _stages(stages)
     dv = float(_as_float_array("dv_over_v", dv_over_v))
@@ -963,7 +972,7 @@ def mtf_rolling_tdi_model(
         raise ValueError(f"cell_px must be in [0, 1] pixel, got {cell_px!r}")
     f = _as_float_array("f_cy_per_px", f_cy_per_px)
     speed = 1.0 - dv  # image rows per line period
-    slip = 1.0 - speed * (1.0 - skew)
+    slip = 1.0 - speed * (1.0 - skew) + float(across_slip_px) * float(edge_tan)
     result: FloatOrArray = _out(
         np.abs(np.sinc(f * q) * np.sinc(f * speed * ratio))
         * _dirichlet(f * slip, m)

@@ -165,6 +165,11 @@ class ScanAcquire(_Model):
     binning: Literal["off", "2x2"] | Ref = "off"
     dv_over_v: float | Ref = 0.0
     closed_loop: bool | Ref | None = None
+    image_loop: bool | Ref | None = Field(
+        default=None,
+        description="close the loop on the image (line period and drift taps from the frames, "
+        "docs/motion.md); null: the daemon's motion.image_loop",
+    )
     drive_stage: bool | Ref = True
     timeout_s: float | Ref = 120.0
 

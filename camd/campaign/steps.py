@@ -201,6 +201,7 @@ class StepExecutor:
                 binning=cast(Literal["off", "2x2"], sc.binning), quicklook=False,
                 drive_stage=bool(sc.drive_stage),
                 closed_loop=None if sc.closed_loop is None else bool(sc.closed_loop),
+                image_loop=None if sc.image_loop is None else bool(sc.image_loop),
                 dv_over_v=float(sc.dv_over_v),
             )  # fmt: skip
             doc = dict(self.client.wait_scan(float(sc.timeout_s)))
