@@ -14,7 +14,11 @@ live view's waterfall and the scan service's lock. It keeps what the current or 
   file with its counters and writes a PNG quicklook beside it;
 - the pipeline's callbacks (a failed worker, a red mismatch), which stop the stream without
   waiting, as they run on the worker thread;
-- at the daemon's shutdown (``close``), the end of a scan its finisher did not end in time.
+- at the daemon's shutdown (``close``), the end of a scan its finisher did not end in time;
+- the image's motion measured from blocks of its frames (``camd.pipeline.image_motion``: a log
+  for the file's ``/image_motion`` group and the status) and, with ``image_loop``, the loop
+  that trims its line period and drift from them (``camd.daemon.scan_image_loop``: the file's
+  ``/image_loop`` group).
 
 The scan's log lines keep the logger name they had before the scan service was split by job.
 """

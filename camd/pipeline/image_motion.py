@@ -5,15 +5,17 @@ but it measures a subset of the frames, on its own thread, so the stream's dispa
 TDI worker never wait for it:
 
 - **Which frames.** TDI-mode frames only (in area mode nothing says how far the image moved
-  between two frames). A *block* is ``frames_per_block`` consecutive window frames of one
-  geometry and one M (a lost frame inside a block is a longer step, docs/physics.md §10; a gap
-  that leaves less than 3 rows of overlap starts the block again), cut to their central
-  ``columns_max`` columns. A block is started only while the worker is idle and the CPU
-  budget allows: after a block that took ``c`` CPU-seconds to measure, the next starts no
-  sooner than ``c (1 / cpu_fraction - 1)`` seconds later, so the measurement uses at most
-  ``cpu_fraction`` of one core, whatever the line rate. Frames that arrive meanwhile are not
-  measured. On the dispatcher thread the monitor copies a block's frames and otherwise costs a
-  comparison per frame (or per packed transfer).
+  between two frames). A *block* is ``frames_per_block`` window frames of one geometry and one
+  M (``_offsets``: four consecutive ones, then the rest spread over 45 % of the window's rows,
+  each taken at its offset from the block's first, or the next that came after a loss;
+  consecutive ones in a window too short for that; far past the block's span, a new block
+  starts), cut to their central ``columns_max`` columns. A block is started only while the
+  worker is idle and the CPU budget allows: after a block that took ``c`` CPU-seconds to
+  measure, the next starts no sooner than ``c (1 / cpu_fraction - 1)`` seconds later, so the
+  measurement uses at most ``cpu_fraction`` of one core (one OpenCV thread, one BLAS thread),
+  whatever the line rate. Frames that arrive meanwhile are not measured. On the dispatcher
+  thread the monitor copies a block's frames and otherwise costs a comparison per frame (or
+  per packed transfer).
 - **What it gives.** Per block, ``camd.analysis.image_motion.measure_tdi_motion``'s result
   (dV/V, M dV/V with the frames' M, theta, or "not measurable" with the reason) with the block's
   first and last frame counters, in a ring of the newest ``history_max`` blocks, and in every
@@ -25,7 +27,11 @@ TDI worker never wait for it:
   reverse scan's) turns the frames upside down first (docs/physics.md §10).
 - **Fixed pattern.** The live view's background (``BackgroundCapture.ready``) is subtracted
   when it has the frames' geometry; otherwise the measurement removes each column's mean over
-  the block (docs/physics.md §10).
+  the block (docs/physics.md §10). The pixels' gain pattern is learnt from the (offset-free)
+  frames of the blocks measured so far in the stream whose image moved, and divided out once
+  ``FLAT_FRAMES_MIN`` of them are in (``flat_from_mean``).
+- **Listeners** (a scan's image loop, ``camd.daemon.scan_image_loop``) get every block on the
+  monitor's thread once it is recorded.
 """
 
 from __future__ import annotations

@@ -8,6 +8,8 @@ stream) and the worker thread, which takes the batcher's messages in stream orde
   counts (``camd.pipeline.mismatch``), the lines appended to the file;
 - ``Gap``: lost frames, skipped by the engine (the next M - 1 lines are incomplete);
 - ``StageChange``: the engine's M changed and the change recorded with its line index;
+- ``DriftChange``: the engine's drift trimmed (``TdiEngine.set_drift``: the image loop's),
+  the open lines kept, the change listed with its line index (``drift_changes``);
 - ``End``: the worker stops.
 
 It knows nothing of the daemon: what it has to say goes through callbacks, all called on the
