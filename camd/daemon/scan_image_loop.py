@@ -96,11 +96,11 @@ class ScanImageLoop:
         self._row_time_s = row_time_s
         self._min_lines, self._max_lines = stages, max_lines
         # The rolling shutter's row time turns the frames' step into the image's speed; none
-        # for a global shutter (the monitor knows which the sensor has).
-        rolling = monitor.row_time_s is not None
+        # for a global shutter. The monitor learns which the sensor has when the scan's stream
+        # starts (after this), so each block sets it (``_on_block``).
         self.loop = ImageLoop(
             line_period_s=line_period_s,
-            row_time_s=row_time_s if rolling else 0.0,
+            row_time_s=row_time_s,
             rows_per_line=rows_per_line,
             cols_per_line=cols_per_line,
             gain=gain,
@@ -133,6 +133,8 @@ class ScanImageLoop:
             ):
                 return  # measured before the last change reached the frames
             motion = block.motion
+            rolling = self._monitor.row_time_s is not None
+            self.loop.row_time_s = self._row_time_s if rolling else 0.0
             setting = self.loop.update(
                 motion.shift_along_px_per_line, motion.shift_across_px_per_line, block.line_period_s
             )
