@@ -16,11 +16,11 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from camd.analysis.image_motion import flat_from_mean, measure_tdi_motion
+from camd.analysis.image_motion import ImageMotion, flat_from_mean, measure_tdi_motion
 from camd.link.frame_types import ReceivedFrame
 from camd.link.packed import HEADER_DTYPE, FrameBatch
 from camd.pipeline.background import Background
-from camd.pipeline.image_motion import ImageMotionMonitor, MotionBlock, summarize
+from camd.pipeline.image_motion import ImageMotionMonitor, MotionBlock, MotionLog, summarize
 from camd.protocol.stream import StreamMode, frame_header
 from tests.test_image_motion import OFFSET_DN, base, noisy, shifted
 
@@ -180,15 +180,41 @@ def test_a_log_keeps_the_blocks_of_its_recording_and_sums_them_up() -> None:
         arrays = log.arrays()
     finally:
         monitor.close()
-    assert 1 <= len(log.blocks) <= 2
+    # The log holds what the monitor measured while it was open, as the history has it.
+    blocks = [b for b in monitor.status().blocks if b.counter_first < 10]
+    assert 1 <= log.count == len(blocks) <= 2 and log.latest == blocks[-1]
+    assert arrays["counter_first"].tolist() == [b.counter_first for b in blocks]
     assert arrays["counter_first"][0] == 0 and arrays["counter_last"][0] == 4
-    assert arrays["stages"].tolist() == [STAGES] * len(log.blocks)
-    assert arrays["dv_over_v"][0] == pytest.approx(1 - log.blocks[0].motion.shift_along_px_per_line)
-    summary = summarize(log.blocks)
-    dv = [b.motion.dv_over_v for b in log.blocks]
+    assert arrays["stages"].tolist() == [STAGES] * log.count
+    assert arrays["measurable"].dtype == bool and arrays["measurable"].all()
+    dv = [b.motion.dv_over_v for b in blocks]
+    assert arrays["dv_over_v"].tolist() == pytest.approx(dv, rel=1e-12)
+    assert arrays["theta_deg"].tolist() == pytest.approx([b.motion.theta_deg for b in blocks])
+    # the log's summary is summarize's, over the same blocks
+    assert log.summary() == summarize(blocks)
+    summary = log.summary()
     assert summary.blocks == summary.measurable_blocks == len(dv)
     assert summary.dv_over_v_mean == pytest.approx(float(np.mean(dv)))
     assert summary.m_dv_over_v_mean == pytest.approx(STAGES * float(np.mean(dv)))
+
+
+def test_a_full_log_keeps_counting_the_blocks_it_drops() -> None:
+    log = MotionLog(blocks_max=100)
+    nan = math.nan
+    for k in range(150):
+        motion = ImageMotion(1.01, 0.0, 1e-4, 1e-4, 16, 15, True, "15 pairs registered")
+        if k % 3 == 0:
+            motion = ImageMotion(nan, nan, nan, nan, 16, 0, False, "scene texture too low")
+        log.add(MotionBlock(k, k + 15, 16, 8, 2e-3, (0, 64), float(k), 0.01, motion))
+    arrays = log.arrays()
+    assert (log.count, log.blocks_dropped) == (100, 50)
+    assert arrays["counter_first"].tolist() == list(range(100))
+    assert np.isnan(arrays["dv_over_v"][::3]).all() and not arrays["measurable"][::3].any()
+    summary = log.summary()
+    assert (summary.blocks, summary.measurable_blocks) == (100, 66)
+    assert summary.dv_over_v_mean == pytest.approx(-0.01)
+    assert summary.m_dv_over_v_mean == pytest.approx(-0.08)
+    assert summary.latest is not None and summary.latest.counter_first == 149
 
 
 def test_bad_settings_are_refused_with_the_range() -> None:

@@ -50,7 +50,6 @@ from camd.pipeline.image_motion import (
     ImageMotionMonitor,
     MotionLog,
     MotionSummary,
-    summarize,
 )
 from camd.pipeline.live import LiveLines
 from camd.store.journal import settle_failed_close
@@ -306,7 +305,7 @@ class ScanRun:
     def image_motion_summary(self) -> MotionSummary | None:
         """The image's motion over the scan's blocks so far (None: not measured)."""
         log = self.image_motion_log
-        return None if log is None else summarize(list(log.blocks))
+        return None if log is None else log.summary()
 
     def _image_motion_record(self) -> tuple[dict[str, Any], dict[str, Any]] | None:
         """The file's ``/image_motion`` group: its attributes and per-block datasets, with each
@@ -314,7 +313,7 @@ class ScanRun:
         log, monitor = self.image_motion_log, self._image_motion
         if log is None or monitor is None:
             return None
-        summary = summarize(log.blocks)
+        summary = log.summary()
         arrays: dict[str, Any] = log.arrays()
         first = self.pipeline.first_frame
         for end in ("first", "last"):

@@ -138,32 +138,65 @@ BLOCK_FIELDS = (
 
 
 class MotionLog:
-    """The blocks measured while a recording is written (``write_into`` adds them to it)."""
+    """The blocks measured while a recording is written: each block's ``BLOCK_FIELDS`` values
+    in a float64 table (14 numbers a block, grown by doubling: a long scan's blocks cost 112
+    bytes each, not a Python object each), and the newest block whole."""
 
     def __init__(self, blocks_max: int = LOG_BLOCKS_MAX) -> None:
-        self.blocks: list[MotionBlock] = []
         self.blocks_max = blocks_max
         self.blocks_dropped = 0
+        self.count = 0
+        self.latest: MotionBlock | None = None
+        self._values = np.empty((64, len(BLOCK_FIELDS)), dtype=np.float64)
 
     def add(self, block: MotionBlock) -> None:
-        if len(self.blocks) < self.blocks_max:
-            self.blocks.append(block)
-        else:
+        self.latest = block
+        if self.count >= self.blocks_max:
             self.blocks_dropped += 1
+            return
+        if self.count == self._values.shape[0]:
+            grown = np.empty((2 * self.count, len(BLOCK_FIELDS)), dtype=np.float64)
+            grown[: self.count] = self._values
+            self._values = grown
+        values = block.as_dict()
+        self._values[self.count] = [
+            math.nan if values[name] is None else float(values[name]) for name in BLOCK_FIELDS
+        ]
+        self.count += 1
 
     def arrays(self) -> dict[str, npt.NDArray[Any]]:
         """One array per ``BLOCK_FIELDS`` name, a value per block (NaN where not measurable)."""
-        rows = [b.as_dict() for b in self.blocks]
+        table = self._values[: self.count]
         out: dict[str, npt.NDArray[Any]] = {}
-        for name in BLOCK_FIELDS:
-            values = [r[name] for r in rows]
+        for k, name in enumerate(BLOCK_FIELDS):
+            column = table[:, k]
             if name in ("counter_first", "counter_last", "frames", "pairs", "stages"):
-                out[name] = np.array(values, dtype=np.int64)
+                out[name] = column.astype(np.int64)
             elif name == "measurable":
-                out[name] = np.array(values, dtype=bool)
+                out[name] = column.astype(bool)
             else:
-                out[name] = np.array([np.nan if v is None else v for v in values], np.float64)
+                out[name] = column.copy()
         return out
+
+    def summary(self) -> MotionSummary:
+        """The kept blocks summed up (``summarize``'s figures) and the newest block."""
+        table = self._values[: self.count]
+        column = {name: table[:, k] for k, name in enumerate(BLOCK_FIELDS)}
+        good = column["measurable"] > 0
+        n = int(good.sum())
+        if not n:
+            return MotionSummary(self.count, 0, None, None, None, None, self.latest)
+        dv = column["dv_over_v"][good]
+        sem = float(dv.std(ddof=1) / math.sqrt(n)) if n >= 2 else None
+        return MotionSummary(
+            blocks=self.count,
+            measurable_blocks=n,
+            dv_over_v_mean=float(dv.mean()),
+            m_dv_over_v_mean=float(column["m_dv_over_v"][good].mean()),
+            theta_deg_mean=float(column["theta_deg"][good].mean()),
+            dv_over_v_sem=sem,
+            latest=self.latest,
+        )
 
 
 @dataclass(slots=True)
@@ -553,24 +586,11 @@ class MotionSummary:
 
 
 def summarize(blocks: list[MotionBlock]) -> MotionSummary:
-    """``MotionSummary`` of ``blocks`` (oldest first)."""
-    good = [b for b in blocks if b.motion.measurable]
-    latest = blocks[-1] if blocks else None
-    if not good:
-        return MotionSummary(len(blocks), 0, None, None, None, None, latest)
-    dv = np.array([b.motion.dv_over_v for b in good])
-    m_dv = np.array([b.motion.m_dv_over_v(b.stages) for b in good])
-    theta = np.array([b.motion.theta_deg for b in good])
-    sem = float(dv.std(ddof=1) / math.sqrt(dv.size)) if dv.size >= 2 else None
-    return MotionSummary(
-        blocks=len(blocks),
-        measurable_blocks=len(good),
-        dv_over_v_mean=float(dv.mean()),
-        m_dv_over_v_mean=float(m_dv.mean()),
-        theta_deg_mean=float(theta.mean()),
-        dv_over_v_sem=sem,
-        latest=latest,
-    )
+    """``MotionSummary`` of ``blocks`` (oldest first), as a recording's log sums them up."""
+    log = MotionLog(max(1, len(blocks)))
+    for block in blocks:
+        log.add(block)
+    return log.summary()
 
 
 def warm_up() -> float:
