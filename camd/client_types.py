@@ -795,6 +795,10 @@ class ImageMotionBlock(TypedDict):
     m_dv_over_v: float | None
     # the image's drift angle from the columns
     theta_deg: float | None
+    # a rolling shutter's lag between two rows of the frames, in line periods (T_row / T; twice that
+    # for 2x2-binned frames; negative for a reverse scan; 0 for a global shutter): what turned the
+    # frames' step into the image's speed
+    row_lag_lines: float
 
 
 class ImageMotionResponse(TypedDict):

@@ -71,6 +71,9 @@ def test_a_scan_measures_the_magnification_error_and_the_rotation(
     assert dv == pytest.approx(-MAGNIFICATION_ERROR, abs=0.5 * MAGNIFICATION_ERROR)
     assert image["m_dv_over_v_mean"] == pytest.approx(STAGES * dv, rel=1e-9)
     assert theta == pytest.approx(ROTATION_DEG, abs=0.15)
+    # The rolling shutter's lag the frames' step was turned with: hr400's row time over the
+    # line period (docs/physics.md §10)
+    assert image["latest"]["row_lag_lines"] == pytest.approx(T_ROW_S / LINE_PERIOD_S, rel=1e-3)
     # What the monitor saw: every TDI frame of the scan, the blocks it measured among them.
     assert live["tdi_frames_seen"] >= doc["lines"]
     assert live["blocks_measured"] >= image["blocks"]
@@ -142,3 +145,24 @@ def test_the_image_loop_steps_the_frames_one_row_a_line_and_follows_the_drift(
     )
     status = camctl(daemon.url, "scan", "--status")
     assert f"image loop: {loop['updates']} updates" in status.stdout
+
+
+def test_binned_frames_rows_are_read_two_row_times_apart(daemon: DaemonProcess) -> None:
+    # 2x2 binning on the FPGA: each row of the frames sums two of the sensor's, read one row
+    # time apart, so consecutive rows of the frames are two row times apart (§10's lag doubles).
+    # Binning needs an even window: 96 rows and a short back path.
+    with CamdClient(daemon.url, timeout_s=60) as client:
+        client.start_scan(
+            16, 200, line_period_s=96 * T_ROW_S + 2e-5, drive_stage=False, binning="2x2",
+            scene="natural:photons=1e9", quicklook=False,
+        )  # fmt: skip
+        doc = client.wait_scan(timeout_s=300)
+    assert doc["state"] == "done", doc["error"]
+    latest = doc["image_motion"]["latest"]
+    assert latest is not None
+    period = doc["timing"]["tdi_line_period_s"]
+    assert latest["row_lag_lines"] == pytest.approx(2 * T_ROW_S / period, rel=1e-3)
+    # the image in step (the ideal stage at the binned pitch's synchronous speed): dV/V near 0;
+    # with the sensor's row time instead it would read 0.010, with none 0.021
+    mean = doc["image_motion"]["dv_over_v_mean"]
+    assert mean is not None and abs(mean) < 0.003, mean

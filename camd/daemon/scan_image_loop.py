@@ -133,8 +133,9 @@ class ScanImageLoop:
             ):
                 return  # measured before the last change reached the frames
             motion = block.motion
-            rolling = self._monitor.row_time_s is not None
-            self.loop.row_time_s = self._row_time_s if rolling else 0.0
+            # the time between two rows of the frames as read (a binned row's is twice the
+            # sensor's), as the monitor has it for the stream; 0 for a global shutter
+            self.loop.row_time_s = self._monitor.row_time_s or 0.0
             setting = self.loop.update(
                 motion.shift_along_px_per_line, motion.shift_across_px_per_line, block.line_period_s
             )

@@ -161,8 +161,9 @@ class DeviceSession:
             lambda: backends.frame_stream_backend(config),
             background=background,
             roi=roi_monitor,
-            on_timing=lambda timing: self.image_motion.stream_started(
-                timing.line_period_s if rolling else None
+            # a 2x2-binned frame's rows are two of the sensor's each: read twice as far apart
+            on_timing=lambda timing, binned: self.image_motion.stream_started(
+                timing.line_period_s * (2 if binned else 1) if rolling else None
             ),
         )
         # The live view's tap stays on every stream (stare, stream, scan, wheel).

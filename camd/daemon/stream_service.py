@@ -75,10 +75,11 @@ class StreamService:
         *,
         background: BackgroundCapture | None = None,
         roi: RoiMonitor | None = None,
-        on_timing: Callable[[TimingResponse], None] | None = None,
+        on_timing: Callable[[TimingResponse, bool], None] | None = None,
     ) -> None:
         self.device = device
-        # Told the sensor's timing at every stream's start (the image motion monitor's row time)
+        # Told the sensor's timing and whether the frames are 2x2-binned at every stream's start
+        # (the image motion monitor's row time: a binned row spans two of the sensor's)
         self._on_timing = on_timing
         self.sensor = sensor
         # The live view's background: stored in every recording started while it is ready.
@@ -268,7 +269,10 @@ class StreamService:
                     self.preflight("start a stream")
                     background = self.background.ready() if self.background is not None else None
                     plan = plan_stream(
-                        request, self._context(background), start=start, max_rows=max_rows
+                        request,
+                        self._context(background, binned=request.binning == "2x2"),
+                        start=start,
+                        max_rows=max_rows,
                     )
                     self._apply(plan, consumer, background)
             except BaseException:
@@ -278,11 +282,11 @@ class StreamService:
                     slot.abandon(claimed)
                 raise
 
-    def _context(self, background: Background | None) -> StreamContext:
+    def _context(self, background: Background | None, *, binned: bool = False) -> StreamContext:
         """What the plan is made against: the camera's mode and window now."""
         timing = self.sensor.timing()
         if self._on_timing is not None:
-            self._on_timing(timing)
+            self._on_timing(timing, binned)
         return StreamContext(
             mode=self.device.mode,
             window_rows=timing.window_rows,

@@ -110,6 +110,7 @@ class MotionBlock:
             "dv_over_v_stderr": m.dv_over_v_stderr,
             "m_dv_over_v": m.m_dv_over_v(self.stages),
             "theta_deg": m.theta_deg,
+            "row_lag_lines": m.row_lag_lines,
         }
         return {k: _plain(v) for k, v in values.items()}
 
@@ -499,8 +500,9 @@ class ImageMotionMonitor:
     # -- what the daemon sets and asks ------------------------------------------------------
 
     def stream_started(self, row_time_s: float | None) -> None:
-        """A stream starts: the sensor's row time for its blocks (None: a global shutter); the
-        gain pattern is learnt afresh from its frames (the scene, the window may differ)."""
+        """A stream starts: the time between two rows of its frames as read (the sensor's row
+        time, twice it for 2x2-binned frames; None: a global shutter) for its blocks; the gain
+        pattern is learnt afresh from its frames (the scene, the window may differ)."""
         self.row_time_s = row_time_s
         with self._lock:
             self._flat_sum, self._flat_key, self._flat_frames = None, None, 0

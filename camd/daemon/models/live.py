@@ -250,6 +250,11 @@ class ImageMotionBlock(BaseModel):
     )
     m_dv_over_v: float | None = Field(description="M dV/V: the along-track smear, pixels")
     theta_deg: float | None = Field(description="the image's drift angle from the columns")
+    row_lag_lines: float = Field(
+        description="a rolling shutter's lag between two rows of the frames, in line periods "
+        "(T_row / T; twice that for 2x2-binned frames; negative for a reverse scan; 0 for a "
+        "global shutter): what turned the frames' step into the image's speed"
+    )
 
 
 class ImageMotionResponse(BaseModel):
